@@ -1,0 +1,270 @@
+"""Recorded runs: the in-memory `Run` type and its HDF5 file format (DESIGN §5).
+
+One HDF5 file per run. Datasets (N samples, S deflection samples per whisk cycle,
+W whiskers, M contacts in total):
+
+    images           (N, H, W_img, 3) uint8   camera frame at maximum protraction
+    theta            (N, W)   float32         protraction angle per whisker [rad]
+    xy               (N, W, 2) float32        two-axis base deflection per whisker [rad]
+    deflection       (N, S, W, 2) float32     xy deflection series over the whisk cycle
+    contact_points   (M, 3) float32           world-frame contact points of all cycles
+    contact_normals  (M, 3) float32           world-frame unit normals
+    contact_offsets  (N + 1,) int64           sample i owns contacts [off[i], off[i+1])
+    poses            (N, 3) float64           ground-truth x [m], y [m], yaw [rad]
+    times            (N,) float64             simulation time of the sample [s]
+
+Root attributes: ``schema_version``, ``scenario_hash``, ``seed``, ``name``,
+``vitaplace_version`` and ``params`` (a JSON object: robot, camera, environment, ...).
+Files are written under a temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from vitaplace.engine import __version__
+from vitaplace.engine.atomic import atomic_path
+
+SCHEMA_VERSION = 1
+
+#: field name -> (dtype, trailing shape description used in error messages)
+FIELDS: dict[str, np.dtype] = {
+    "images": np.dtype(np.uint8),
+    "theta": np.dtype(np.float32),
+    "xy": np.dtype(np.float32),
+    "deflection": np.dtype(np.float32),
+    "contact_points": np.dtype(np.float32),
+    "contact_normals": np.dtype(np.float32),
+    "contact_offsets": np.dtype(np.int64),
+    "poses": np.dtype(np.float64),
+    "times": np.dtype(np.float64),
+}
+
+
+class DatasetError(ValueError):
+    """A dataset file or array set that cannot be used; the message names the file and the problem."""
+
+
+@dataclass
+class Run:
+    """One recorded run. Fields are numpy arrays, loaded lazily when the run comes from a file.
+
+    Build one in memory with ``Run.from_arrays(...)``; open a file with ``open_run(path)``.
+    """
+
+    name: str
+    attrs: dict[str, Any]
+    _source: Mapping[str, Any] = field(repr=False)
+    _cache: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    path: Path | None = None
+
+    @classmethod
+    def from_arrays(
+        cls,
+        *,
+        images: np.ndarray,
+        theta: np.ndarray,
+        xy: np.ndarray,
+        poses: np.ndarray,
+        times: np.ndarray | None = None,
+        deflection: np.ndarray | None = None,
+        contact_points: np.ndarray | None = None,
+        contact_normals: np.ndarray | None = None,
+        contact_offsets: np.ndarray | None = None,
+        name: str = "run",
+        attrs: Mapping[str, Any] | None = None,
+    ) -> Run:
+        """Validate shapes and dtypes and build an in-memory run.
+
+        Missing optional fields get neutral values: times = sample index, deflection = the
+        single sample ``xy`` (S = 1), no contacts.
+        """
+        n = len(poses)
+        arrays: dict[str, np.ndarray] = {
+            "images": np.asarray(images),
+            "theta": np.asarray(theta),
+            "xy": np.asarray(xy),
+            "poses": np.asarray(poses),
+            "times": np.arange(n, dtype=np.float64) if times is None else np.asarray(times),
+            "deflection": np.asarray(xy)[:, None] if deflection is None else np.asarray(deflection),
+            "contact_points": np.zeros((0, 3)) if contact_points is None else np.asarray(contact_points),
+            "contact_normals": np.zeros((0, 3)) if contact_normals is None else np.asarray(contact_normals),
+            "contact_offsets": (
+                np.zeros(n + 1, dtype=np.int64) if contact_offsets is None else np.asarray(contact_offsets)
+            ),
+        }
+        arrays = {key: arrays[key].astype(FIELDS[key], copy=False) for key in FIELDS}
+        _check_shapes(arrays, where=name)
+        return cls(name=name, attrs=dict(attrs or {}), _source=arrays)
+
+    def __len__(self) -> int:
+        return int(self._source["poses"].shape[0])
+
+    def _get(self, key: str) -> np.ndarray:
+        if key not in self._cache:
+            self._cache[key] = np.asarray(self._source[key][...])
+        return self._cache[key]
+
+    @property
+    def images(self) -> np.ndarray:
+        return self._get("images")
+
+    @property
+    def theta(self) -> np.ndarray:
+        return self._get("theta")
+
+    @property
+    def xy(self) -> np.ndarray:
+        return self._get("xy")
+
+    @property
+    def deflection(self) -> np.ndarray:
+        return self._get("deflection")
+
+    @property
+    def poses(self) -> np.ndarray:
+        return self._get("poses")
+
+    @property
+    def times(self) -> np.ndarray:
+        return self._get("times")
+
+    @property
+    def contact_offsets(self) -> np.ndarray:
+        return self._get("contact_offsets")
+
+    @property
+    def n_whiskers(self) -> int:
+        return int(self._source["theta"].shape[1])
+
+    @property
+    def image_shape(self) -> tuple[int, int, int]:
+        return tuple(self._source["images"].shape[1:])  # type: ignore[return-value]
+
+    def image_batch(self, start: int, stop: int) -> np.ndarray:
+        """Images ``start:stop`` without loading the whole image stack."""
+        if "images" in self._cache:
+            return self._cache["images"][start:stop]
+        return np.asarray(self._source["images"][start:stop])
+
+    def contacts(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Contact points and normals (each (k, 3)) of sample ``i``'s whisk cycle."""
+        off = self.contact_offsets
+        lo, hi = int(off[i]), int(off[i + 1])
+        return self._get("contact_points")[lo:hi], self._get("contact_normals")[lo:hi]
+
+    def subset(self, index: np.ndarray | slice) -> Run:
+        """A new in-memory run holding the samples selected by ``index`` (contacts re-packed)."""
+        idx = np.arange(len(self))[index]
+        points, normals, counts = [], [], [0]
+        for i in idx:
+            p, nrm = self.contacts(int(i))
+            points.append(p)
+            normals.append(nrm)
+            counts.append(len(p))
+        return Run.from_arrays(
+            images=self.images[idx],
+            theta=self.theta[idx],
+            xy=self.xy[idx],
+            poses=self.poses[idx],
+            times=self.times[idx],
+            deflection=self.deflection[idx],
+            contact_points=np.concatenate(points) if points else np.zeros((0, 3)),
+            contact_normals=np.concatenate(normals) if normals else np.zeros((0, 3)),
+            contact_offsets=np.cumsum(counts),
+            name=self.name,
+            attrs=self.attrs,
+        )
+
+
+def _check_shapes(arrays: Mapping[str, Any], where: str) -> None:
+    """Raise DatasetError unless the arrays have the shapes of the schema."""
+    n = arrays["poses"].shape[0]
+    expected = {
+        "images": (n, None, None, 3),
+        "theta": (n, None),
+        "poses": (n, 3),
+        "times": (n,),
+        "contact_points": (None, 3),
+        "contact_normals": (arrays["contact_points"].shape[0], 3),
+        "contact_offsets": (n + 1,),
+    }
+    n_whiskers = arrays["theta"].shape[1] if arrays["theta"].ndim == 2 else None
+    expected["xy"] = (n, n_whiskers, 2)
+    expected["deflection"] = (n, None, n_whiskers, 2)
+    for key, shape in expected.items():
+        actual = arrays[key].shape
+        if len(actual) != len(shape) or any(e is not None and e != a for e, a in zip(shape, actual)):
+            wanted = "x".join("?" if e is None else str(e) for e in shape)
+            raise DatasetError(f"{where}: field '{key}' has shape {actual}, expected {wanted}")
+    offsets = np.asarray(arrays["contact_offsets"][...])
+    if offsets[0] != 0 or offsets[-1] != arrays["contact_points"].shape[0] or np.any(np.diff(offsets) < 0):
+        raise DatasetError(f"{where}: field 'contact_offsets' is not a non-decreasing 0..M index")
+
+
+def write_run(path: str | os.PathLike, run: Run) -> Path:
+    """Write ``run`` to ``path`` atomically (temporary file in the same folder, then rename)."""
+    path = Path(path)
+    with atomic_path(path) as tmp, h5py.File(tmp, "w") as f:
+        for key in FIELDS:
+            data = run._get(key)
+            chunks = (1, *data.shape[1:]) if key == "images" and len(data) else None
+            f.create_dataset(key, data=data, chunks=chunks)
+        f.attrs["schema_version"] = SCHEMA_VERSION
+        f.attrs["name"] = run.name
+        f.attrs["vitaplace_version"] = __version__
+        f.attrs["scenario_hash"] = str(run.attrs.get("scenario_hash", ""))
+        f.attrs["seed"] = int(run.attrs.get("seed", -1))
+        params = {k: v for k, v in run.attrs.items() if k not in ("scenario_hash", "seed")}
+        f.attrs["params"] = json.dumps(params, sort_keys=True, default=_json_default)
+    return path
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def open_run(path: str | os.PathLike) -> Run:
+    """Open a run file lazily; check it is a vitaplace dataset of this schema version."""
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: no such dataset file")
+    try:
+        f = h5py.File(path, "r")
+    except OSError as exc:
+        raise DatasetError(f"{path}: not a readable HDF5 file (truncated or foreign?): {exc}") from None
+    version = f.attrs.get("schema_version")
+    if version is None:
+        f.close()
+        raise DatasetError(f"{path}: not a vitaplace dataset (no 'schema_version' attribute)")
+    if int(version) != SCHEMA_VERSION:
+        f.close()
+        raise DatasetError(
+            f"{path}: dataset schema version {int(version)}, this vitaplace reads version {SCHEMA_VERSION}; "
+            "re-generate it with `vitaplace simulate`"
+        )
+    missing = [key for key in FIELDS if key not in f]
+    if missing:
+        f.close()
+        raise DatasetError(f"{path}: dataset lacks field(s) {', '.join(missing)}")
+    try:
+        _check_shapes(f, where=str(path))
+    except DatasetError:
+        f.close()
+        raise
+    attrs = json.loads(f.attrs.get("params", "{}"))
+    attrs["scenario_hash"] = str(f.attrs.get("scenario_hash", ""))
+    attrs["seed"] = int(f.attrs.get("seed", -1))
+    return Run(name=str(f.attrs.get("name", path.stem)), attrs=attrs, _source=f, path=path)

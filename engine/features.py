@@ -1,0 +1,105 @@
+"""The feature-extractor interface every place-recognition front end implements (DESIGN §9).
+
+An extractor turns a recorded `Run` into per-sample features and compares two feature
+sets with a template-match error (TME, lower = more similar). Evaluation only ever talks
+to this interface, so learned, hand-crafted and third-party methods are interchangeable.
+"""
+
+from __future__ import annotations
+
+import json
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import pydantic
+
+from vitaplace.engine.dataset import Run
+
+#: Features of one run: named arrays whose first axis is the sample index.
+Features = dict[str, np.ndarray]
+
+
+class ExtractorParamsError(ValueError):
+    """Invalid extractor parameters; the message names the extractor and the key."""
+
+
+class ExtractorParams(pydantic.BaseModel):
+    """Base of every extractor's parameter schema: unknown keys are errors."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+
+
+class FeatureExtractor(ABC):
+    """A place-recognition front end: ``fit`` on a training run, ``transform`` runs, ``distance``.
+
+    Subclasses set ``name`` and ``Params`` (a subclass of `ExtractorParams`).
+    """
+
+    name: ClassVar[str]
+    Params: ClassVar[type[ExtractorParams]] = ExtractorParams
+
+    def __init__(self, params: Mapping[str, Any] | None = None) -> None:
+        self.params = self.validate_params(params or {})
+
+    @classmethod
+    def validate_params(cls, params: Mapping[str, Any]) -> ExtractorParams:
+        """Parse ``params`` with the extractor's schema; raise one clear error per bad key."""
+        try:
+            return cls.Params.model_validate(dict(params))
+        except pydantic.ValidationError as exc:
+            problems = "; ".join(
+                f"{'.'.join(str(p) for p in err['loc']) or '(params)'}: {err['msg']}" for err in exc.errors()
+            )
+            raise ExtractorParamsError(f"extractor '{cls.name}': {problems}") from None
+
+    @abstractmethod
+    def fit(self, train: Run) -> None:
+        """Learn whatever the method needs (weights, scalers, distance scales) from a training run."""
+
+    @abstractmethod
+    def transform(self, run: Run) -> Features:
+        """Per-sample features of ``run``."""
+
+    @abstractmethod
+    def distance(self, query: Features, reference: Features) -> np.ndarray:
+        """Template-match error matrix, shape (n_query, n_reference), lower = more similar."""
+
+    def save(self, directory: str | Path) -> None:
+        """Write parameters and fitted state to ``directory`` (created if needed)."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        (directory / "params.json").write_text(json.dumps(self.params.model_dump(mode="json"), indent=2))
+        self.save_state(directory)
+
+    @classmethod
+    def load(cls, directory: str | Path) -> FeatureExtractor:
+        """Rebuild a fitted extractor saved by `save`."""
+        directory = Path(directory)
+        extractor = cls(json.loads((directory / "params.json").read_text()))
+        extractor.load_state(directory)
+        return extractor
+
+    @abstractmethod
+    def save_state(self, directory: Path) -> None:
+        """Write the fitted state (everything `fit` learned) into ``directory``."""
+
+    @abstractmethod
+    def load_state(self, directory: Path) -> None:
+        """Read the fitted state written by `save_state`."""
+
+
+def save_features(path: str | Path, features: Features) -> None:
+    """Write features to an ``.npz`` file atomically."""
+    from vitaplace.engine.atomic import atomic_path
+
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **features)
+
+
+def load_features(path: str | Path) -> Features:
+    with np.load(path) as data:
+        return {key: data[key] for key in data.files}

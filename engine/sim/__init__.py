@@ -1,0 +1,1 @@
+"""MuJoCo simulation of the WhiskEye-like robot (DESIGN §3-4)."""

@@ -1,0 +1,1 @@
+"""Scenario YAML files shipped with vitaplace (quickstart, paper studies, environments)."""
