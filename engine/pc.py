@@ -1,0 +1,486 @@
+"""The multi-modal predictive-coding network (MuPNet, DESIGN §6).
+
+The network is a tree of latent nodes: each modality ``m`` has a stack ``m.1 .. m.L`` above
+its input ``m.0``, and one ``joint`` node predicts the top node of every modality. Each
+*edge* (upper node u -> lower node d) holds weights ``W`` (n_u x n_d) and predicts the
+lower node:
+
+    A = Y_u W,  P = phi(A),  E = Y_d - P,  G = phi'(A) * E            (eq. 1)
+    F = sum over edges of ||E||^2                                       (eq. 2)
+    dF/dY_u = -2 sum_{edges below u} G W^T + 2 E_{edge above u}         (eq. 3)
+    dF/dW   = -2 Y_u^T G                                                (eq. 4)
+
+Inference moves every latent one step down its gradient from the same state; learning
+moves each edge's weights down eq. 4 after T inference steps. (The paper prints the update
+without phi' and with the top-down sign flipped; this follows the gradient.)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pydantic
+from tqdm.auto import tqdm
+
+from vitaplace.engine.atomic import atomic_path, write_text_atomic
+from vitaplace.engine.backends import Backend, get_backend
+from vitaplace.kernels.reference import ACTIVATIONS
+
+FORMAT_VERSION = 1
+LATENT_INIT = 0.1
+
+
+class NetworkError(RuntimeError):
+    """Training or inference cannot go on (divergence, incompatible file, bad input)."""
+
+
+def _per_layer(value: float | list[float], n_layers: int, what: str) -> list[float]:
+    if isinstance(value, (int, float)):
+        return [float(value)] * n_layers
+    if len(value) != n_layers:
+        raise ValueError(f"{what}: {len(value)} values given for {n_layers} layers")
+    return [float(v) for v in value]
+
+
+class ModalityConfig(pydantic.BaseModel):
+    """One sensory modality: its input size and the latent layer sizes above it (bottom first)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid")
+
+    input_size: int = pydantic.Field(gt=0)
+    layers: list[pydantic.PositiveInt] = pydantic.Field(min_length=1)
+    eta_y: float | list[float] = pydantic.Field(4e-4, description="latent step size, per modality or per layer")
+    eta_w: float | list[float] = pydantic.Field(1e-4, description="weight step size, per modality or per layer")
+    threshold: float | list[float] = pydantic.Field(
+        1e-3, description="test-time stop: mean squared error of each layer's prediction"
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _lengths(self) -> ModalityConfig:
+        for key in ("eta_y", "eta_w", "threshold"):
+            _per_layer(getattr(self, key), len(self.layers), key)
+        return self
+
+
+class JointConfig(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid")
+
+    size: int = pydantic.Field(200, gt=0)
+    eta_y: float = 4e-4
+    eta_w: float = 1e-4
+    threshold: float = 1e-3
+
+
+class NetworkConfig(pydantic.BaseModel):
+    """Architecture and step sizes; defaults follow the MuPNet paper and code."""
+
+    model_config = pydantic.ConfigDict(extra="forbid")
+
+    modalities: dict[str, ModalityConfig]
+    joint: JointConfig = JointConfig()
+    activation: str = "leaky_relu"
+    slope: float = pydantic.Field(0.2, ge=0.0)
+
+    @pydantic.field_validator("activation")
+    @classmethod
+    def _known_activation(cls, value: str) -> str:
+        if value not in ACTIVATIONS:
+            raise ValueError(f"unknown activation '{value}', expected one of {', '.join(ACTIVATIONS)}")
+        return value
+
+    @pydantic.field_validator("modalities")
+    @classmethod
+    def _some_modality(cls, value: dict[str, ModalityConfig]) -> dict[str, ModalityConfig]:
+        if not value:
+            raise ValueError("at least one modality is needed")
+        return value
+
+
+class TrainingConfig(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid")
+
+    epochs: int = pydantic.Field(10, gt=0)
+    batch_size: int = pydantic.Field(150, gt=0)
+    inference_steps: int = pydantic.Field(20, gt=0, description="T latent steps per minibatch")
+    shuffle: bool = True
+    seed: int = 0
+
+
+@dataclass
+class Edge:
+    """A prediction from node ``upper`` to node ``lower``; named by the error it produces."""
+
+    name: str
+    upper: str
+    lower: str
+    modality: str
+    eta_w: float
+    threshold: float
+
+
+@dataclass
+class TrainingHistory:
+    """Per-epoch mean energy per edge (sum of squared errors / samples) after inference."""
+
+    energy: dict[str, list[float]] = field(default_factory=dict)
+
+
+@dataclass
+class InferenceResult:
+    """Latents of every node (host arrays), the steps taken and per-edge mean squared errors."""
+
+    latents: dict[str, np.ndarray]
+    steps: int
+    mse: dict[str, float]
+    converged: bool
+
+
+def glorot_uniform(rng: np.random.Generator, fan_in: int, fan_out: int) -> np.ndarray:
+    """Glorot/Xavier uniform init: U(-l, l), l = sqrt(6 / (fan_in + fan_out))."""
+    limit = math.sqrt(6.0 / (fan_in + fan_out))
+    return rng.uniform(-limit, limit, size=(fan_in, fan_out)).astype(np.float32)
+
+
+class Network:
+    """MuPNet: named modalities under one joint layer, trained by local predictive-coding updates."""
+
+    def __init__(self, config: NetworkConfig | Mapping, seed: int = 0, backend: str | Backend = "auto") -> None:
+        self.config = config if isinstance(config, NetworkConfig) else NetworkConfig.model_validate(config)
+        self.backend = get_backend(backend) if isinstance(backend, str) else backend
+        self.seed = seed
+        self.sizes: dict[str, int] = {}
+        self.eta_y: dict[str, float] = {}
+        self.edges: list[Edge] = []
+        self.thresholds: dict[str, float] = {}
+        for m, mc in self.config.modalities.items():
+            n = len(mc.layers)
+            etas_y = _per_layer(mc.eta_y, n, f"{m}.eta_y")
+            etas_w = _per_layer(mc.eta_w, n, f"{m}.eta_w")
+            thresholds = _per_layer(mc.threshold, n, f"{m}.threshold")
+            self.sizes[f"{m}.0"] = mc.input_size
+            for layer, size in enumerate(mc.layers, start=1):
+                self.sizes[f"{m}.{layer}"] = size
+                self.eta_y[f"{m}.{layer}"] = etas_y[layer - 1]
+                self.edges.append(
+                    Edge(f"{m}.{layer}", f"{m}.{layer}", f"{m}.{layer - 1}", m, etas_w[layer - 1], thresholds[layer - 1])
+                )
+        jc = self.config.joint
+        self.sizes["joint"] = jc.size
+        self.eta_y["joint"] = jc.eta_y
+        for m, mc in self.config.modalities.items():
+            self.edges.append(Edge(f"joint.{m}", "joint", f"{m}.{len(mc.layers)}", m, jc.eta_w, jc.threshold))
+        rng = np.random.default_rng(seed)
+        self.weights: dict[str, np.ndarray] = {
+            e.name: glorot_uniform(rng, self.sizes[e.upper], self.sizes[e.lower]) for e in self.edges
+        }
+        self.scalers: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self._device_weights: dict[str, object] | None = None
+
+    # ------------------------------------------------------------------ structure helpers
+    @property
+    def modalities(self) -> list[str]:
+        return list(self.config.modalities)
+
+    def input_node(self, modality: str) -> str:
+        return f"{modality}.0"
+
+    def latent_nodes(self, modalities: Sequence[str]) -> list[str]:
+        nodes = [f"{m}.{layer}" for m in modalities for layer in range(1, len(self.config.modalities[m].layers) + 1)]
+        return nodes + ["joint"]
+
+    def active_edges(self, modalities: Sequence[str]) -> list[Edge]:
+        return [e for e in self.edges if e.modality in modalities]
+
+    # ------------------------------------------------------------------ input scaling
+    def set_scaler(self, modality: str, offset: np.ndarray, scale: np.ndarray) -> None:
+        """Inputs of ``modality`` are fed as (x - offset) * scale (e.g. min-max to [0, 1])."""
+        self.scalers[modality] = (np.asarray(offset, np.float32), np.asarray(scale, np.float32))
+
+    def scale_input(self, modality: str, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float32)
+        if modality not in self.scalers:
+            return x
+        offset, scale = self.scalers[modality]
+        return (x - offset) * scale
+
+    def unscale_input(self, modality: str, x: np.ndarray) -> np.ndarray:
+        if modality not in self.scalers:
+            return x
+        offset, scale = self.scalers[modality]
+        return x / np.where(scale == 0, 1, scale) + offset
+
+    # ------------------------------------------------------------------ the PC step
+    def _check_inputs(self, inputs: Mapping[str, np.ndarray]) -> tuple[list[str], int]:
+        unknown = set(inputs) - set(self.modalities)
+        if unknown:
+            raise NetworkError(f"unknown modality {sorted(unknown)}; the network has {self.modalities}")
+        present = [m for m in self.modalities if m in inputs]
+        if not present:
+            raise NetworkError("no modality given")
+        sizes = {m: np.shape(inputs[m]) for m in present}
+        n = sizes[present[0]][0]
+        for m, shape in sizes.items():
+            if len(shape) != 2 or shape[0] != n or shape[1] != self.sizes[f"{m}.0"]:
+                raise NetworkError(f"input '{m}' has shape {shape}, expected ({n}, {self.sizes[f'{m}.0']})")
+        return present, n
+
+    def set_weights(self, weights: Mapping[str, np.ndarray]) -> None:
+        """Replace weights (by edge name, shapes checked); the backend copies are refreshed."""
+        for name, w in weights.items():
+            if name not in self.weights or np.shape(w) != self.weights[name].shape:
+                raise NetworkError(f"weights '{name}' unknown or misshaped: {np.shape(w)}")
+        self._sync_weights_to_host()
+        self.weights.update({name: np.array(w, np.float32) for name, w in weights.items()})
+        self._device_weights = None
+
+    def _device_weight_handles(self) -> dict[str, object]:
+        if self._device_weights is None:
+            handles = {}
+            for name, w in self.weights.items():
+                handles[name] = self.backend.empty(w.shape)
+                self.backend.upload(w, handles[name])
+            self._device_weights = handles
+        return self._device_weights
+
+    def _sync_weights_to_host(self) -> None:
+        if self._device_weights is not None:
+            for name, handle in self._device_weights.items():
+                self.weights[name] = self.backend.download(handle)
+
+    def batch_state(self, batch: int, modalities: Sequence[str] | None = None) -> BatchState:
+        """Buffers for a minibatch of ``batch`` samples of the given (default: all) modalities."""
+        return BatchState(self, batch, self.modalities if modalities is None else modalities)
+
+    def energy(self, inputs: Mapping[str, np.ndarray], latents: Mapping[str, np.ndarray]) -> dict[str, float]:
+        """F per edge (eq. 2) for given scaled inputs and latents, computed with the backend."""
+        present, n = self._check_inputs(inputs)
+        state = self.batch_state(n, present)
+        state.load(inputs, latents)
+        return state.predict_all()
+
+    # ------------------------------------------------------------------ training
+    def train(
+        self,
+        inputs: Mapping[str, np.ndarray],
+        training: TrainingConfig | Mapping | None = None,
+        progress: bool = True,
+        latents: dict[str, np.ndarray] | None = None,
+    ) -> TrainingHistory:
+        """Learn the weights from (already scaled) inputs of N samples.
+
+        Each sample's latents persist across epochs (initialised to 0.1, or ``latents`` to
+        continue). Per minibatch: T inference steps, then one weight step (eq. 4).
+        Raises NetworkError naming the edge and the step when an error becomes NaN/Inf.
+        """
+        cfg = training if isinstance(training, TrainingConfig) else TrainingConfig.model_validate(training or {})
+        present, n = self._check_inputs(inputs)
+        nodes = self.latent_nodes(present)
+        store = latents if latents is not None else {}
+        for node in nodes:
+            store.setdefault(node, np.full((n, self.sizes[node]), LATENT_INIT, dtype=np.float32))
+        edges = self.active_edges(present)
+        history = TrainingHistory({e.name: [] for e in edges})
+        rng = np.random.default_rng(cfg.seed)
+        states: dict[int, BatchState] = {}
+        batches_per_epoch = math.ceil(n / cfg.batch_size)
+        bar = tqdm(total=cfg.epochs * batches_per_epoch, desc="train", unit="batch", disable=not progress)
+        for epoch in range(cfg.epochs):
+            order = rng.permutation(n) if cfg.shuffle else np.arange(n)
+            totals = dict.fromkeys(history.energy, 0.0)
+            for b in range(batches_per_epoch):
+                index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
+                state = states.get(len(index)) or states.setdefault(len(index), self.batch_state(len(index), present))
+                state.load({m: inputs[m][index] for m in present}, {k: v[index] for k, v in store.items()})
+                energy = state.predict_all()
+                for step in range(1, cfg.inference_steps + 1):
+                    state.latent_step()
+                    energy = state.predict_all()
+                    state.check_finite(energy, f"epoch {epoch + 1}, batch {b + 1}, inference step {step}")
+                for name, value in energy.items():
+                    totals[name] += value
+                state.weight_step()
+                for node, values in state.download_latents().items():
+                    store[node][index] = values
+                bar.update()
+                bar.set_postfix(epoch=epoch + 1, F=f"{sum(energy.values()) / len(index):.4g}")
+            for name, total in totals.items():
+                history.energy[name].append(total / n)
+        bar.close()
+        self._sync_weights_to_host()
+        self.train_latents = store
+        return history
+
+    # ------------------------------------------------------------------ inference
+    def infer(
+        self,
+        inputs: Mapping[str, np.ndarray],
+        max_steps: int = 3000,
+        thresholds: Mapping[str, float] | None = None,
+        batch_size: int = 500,
+    ) -> InferenceResult:
+        """Latents for (scaled) inputs with frozen weights, from 0.1, batch by batch.
+
+        A batch stops when every active edge's mean squared error is below its threshold, or
+        after ``max_steps``. Missing modalities are left out (their errors do not reach the
+        joint layer). ``steps`` is the largest step count over the batches.
+        """
+        present, n = self._check_inputs(inputs)
+        limits = {e.name: e.threshold for e in self.active_edges(present)}
+        limits.update(thresholds or {})
+        out = {node: np.empty((n, self.sizes[node]), np.float32) for node in self.latent_nodes(present)}
+        steps_taken, converged, mse_sum = 0, True, dict.fromkeys(limits, 0.0)
+        states: dict[int, BatchState] = {}
+        for start in range(0, n, batch_size):
+            index = np.arange(start, min(start + batch_size, n))
+            state = states.get(len(index)) or states.setdefault(len(index), self.batch_state(len(index), present))
+            state.load({m: inputs[m][index] for m in present}, None)
+            energy = state.predict_all()
+            steps = 0
+            while True:
+                mse = {name: value / state.error_size[name] for name, value in energy.items()}
+                if all(mse[name] < limits[name] for name in mse) or steps >= max_steps:
+                    break
+                state.latent_step()
+                energy = state.predict_all()
+                steps += 1
+                state.check_finite(energy, f"inference step {steps}")
+            converged &= all(mse[name] < limits[name] for name in mse)
+            steps_taken = max(steps_taken, steps)
+            for name, value in mse.items():
+                mse_sum[name] += value * len(index)
+            for node, values in state.download_latents().items():
+                out[node][index] = values
+        return InferenceResult(out, steps_taken, {k: v / n for k, v in mse_sum.items()}, converged)
+
+    def reconstruct(self, joint: np.ndarray, modality: str) -> np.ndarray:
+        """Top-down prediction of a modality's scaled input from joint latents (host numpy)."""
+        from vitaplace.kernels.reference import activation
+
+        act, slope = self.config.activation, self.config.slope
+        y = np.asarray(joint, np.float32)
+        top = len(self.config.modalities[modality].layers)
+        y = activation(y @ self.weights[f"joint.{modality}"], act, slope)
+        for layer in range(top, 0, -1):
+            y = activation(y @ self.weights[f"{modality}.{layer}"], act, slope)
+        return y
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, directory: str | Path) -> Path:
+        """Write config.json, weights.npz and scalers.npz to ``directory`` (each atomically)."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        self._sync_weights_to_host()
+        meta = {"format_version": FORMAT_VERSION, "seed": self.seed, "config": self.config.model_dump(mode="json")}
+        with atomic_path(directory / "weights.npz") as tmp, open(tmp, "wb") as f:
+            np.savez(f, **self.weights)
+        scalers = {f"{m}/{part}": arr for m, pair in self.scalers.items() for part, arr in zip(("offset", "scale"), pair)}
+        with atomic_path(directory / "scalers.npz") as tmp, open(tmp, "wb") as f:
+            np.savez(f, **scalers)
+        write_text_atomic(directory / "config.json", json.dumps(meta, indent=2))
+        return directory
+
+    @classmethod
+    def load(cls, directory: str | Path, backend: str | Backend = "auto") -> Network:
+        """Read a network written by `save`; refuses other format versions."""
+        directory = Path(directory)
+        meta_path = directory / "config.json"
+        try:
+            meta = json.loads(meta_path.read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise NetworkError(f"{meta_path}: cannot read a saved network ({exc})") from None
+        version = meta.get("format_version")
+        if version != FORMAT_VERSION:
+            raise NetworkError(
+                f"{meta_path}: network format version {version}, this vitaplace reads version {FORMAT_VERSION}; retrain it"
+            )
+        net = cls(meta["config"], seed=meta.get("seed", 0), backend=backend)
+        with np.load(directory / "weights.npz") as weights:
+            missing = [e.name for e in net.edges if e.name not in weights]
+            if missing:
+                raise NetworkError(f"{directory / 'weights.npz'}: weights {missing} missing")
+            try:
+                net.set_weights({e.name: weights[e.name] for e in net.edges})
+            except NetworkError as exc:
+                raise NetworkError(f"{directory / 'weights.npz'}: {exc}") from None
+        with np.load(directory / "scalers.npz") as scalers:
+            for key in scalers.files:
+                m, part = key.split("/")
+                offset, scale = net.scalers.get(m, (None, None))
+                net.scalers[m] = (scalers[key], scale) if part == "offset" else (offset, scalers[key])
+        return net
+
+
+class BatchState:
+    """Backend buffers of one minibatch: latents Y per node, inputs X, and A, P, E, G per edge.
+
+    `load` fills inputs and latents, `predict_all` computes eq. 1-2, `latent_step` and
+    `weight_step` apply eq. 3 and eq. 4; the training and inference loops are built from these.
+    """
+
+    def __init__(self, net: Network, batch: int, modalities: Sequence[str]) -> None:
+        be = net.backend
+        self.net, self.be, self.batch = net, be, batch
+        self.nodes = net.latent_nodes(modalities)
+        self.edges = net.active_edges(modalities)
+        self.weights = net._device_weight_handles()
+        self.Y = {node: be.empty((batch, net.sizes[node])) for node in self.nodes}
+        self.X = {net.input_node(m): be.empty((batch, net.sizes[net.input_node(m)])) for m in modalities}
+        shape = {e.name: (batch, net.sizes[e.lower]) for e in self.edges}
+        self.A = {name: be.empty(s) for name, s in shape.items()}
+        self.P = {name: be.empty(s) for name, s in shape.items()}
+        self.E = {name: be.empty(s) for name, s in shape.items()}
+        self.G = {name: be.empty(s) for name, s in shape.items()}
+        self.error_size = {name: s[0] * s[1] for name, s in shape.items()}
+        self.edge_above = {e.lower: e.name for e in self.edges}
+        # The top-down term (+2 E_above) of a node is applied once, with its first edge below.
+        self.first_below = {e.upper: e.name for e in reversed(self.edges)}
+
+    def load(self, inputs: Mapping[str, np.ndarray], latents: Mapping[str, np.ndarray] | None) -> None:
+        for m, x in inputs.items():
+            self.be.upload(np.asarray(x), self.X[self.net.input_node(m)])
+        for node, y in self.Y.items():
+            host = latents[node] if latents is not None else np.full((self.batch, self.net.sizes[node]), LATENT_INIT)
+            self.be.upload(np.asarray(host), y)
+
+    def _node(self, name: str):
+        return self.Y[name] if name in self.Y else self.X[name]
+
+    def predict_all(self) -> dict[str, float]:
+        """Eq. 1 on every edge from the current latents; returns F per edge (eq. 2)."""
+        act, slope = self.net.config.activation, self.net.config.slope
+        for e in self.edges:
+            n = e.name
+            self.be.predict(
+                self.Y[e.upper], self.weights[n], self._node(e.lower), self.A[n], self.P[n], self.E[n], self.G[n], act, slope
+            )
+        return {e.name: self.be.squared_norm(self.E[e.name]) for e in self.edges}
+
+    def latent_step(self) -> None:
+        """Y <- Y - eta_y dF/dY for every node (eq. 3), all from the errors of one predict_all."""
+        for e in self.edges:
+            eta = self.net.eta_y[e.upper]
+            above = self.edge_above.get(e.upper) if self.first_below[e.upper] == e.name else None
+            self.be.latent_update(
+                self.Y[e.upper], self.G[e.name], self.weights[e.name], eta, self.E[above] if above else None
+            )
+
+    def weight_step(self) -> None:
+        """W <- W - eta_w dF/dW on every edge (eq. 4)."""
+        for e in self.edges:
+            self.be.weight_update(self.weights[e.name], self.Y[e.upper], self.G[e.name], e.eta_w)
+
+    def check_finite(self, energy: Mapping[str, float], where: str) -> None:
+        for name, value in energy.items():
+            if not math.isfinite(value):
+                raise NetworkError(
+                    f"error of layer '{name}' became {value} at {where}; lower the learning rates (eta_y, eta_w)"
+                )
+
+    def download_latents(self) -> dict[str, np.ndarray]:
+        return {node: self.be.download(y) for node, y in self.Y.items()}
+

@@ -1,0 +1,241 @@
+"""The predictive-coding network (DESIGN §6): gradients, inference, learning, persistence.
+
+Expectations come from the energy's definition (finite differences in float64), from
+monotonicity of gradient descent with a small step, and from the generative structure of
+a synthetic dataset (known causes), never from outputs of the code under test.
+"""
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.distance import cdist
+
+from vitaplace.engine.backends import NumpyBackend
+from vitaplace.engine.pc import Network, NetworkError
+
+SMALL = {
+    "modalities": {
+        "visual": {"input_size": 7, "layers": [5, 4], "eta_y": 1.0, "eta_w": 1.0},
+        "tactile": {"input_size": 6, "layers": [3], "eta_y": 1.0, "eta_w": 1.0},
+    },
+    "joint": {"size": 3, "eta_y": 1.0, "eta_w": 1.0},
+}
+
+
+def random_state(net: Network, n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    inputs = {m: rng.random((n, net.sizes[f"{m}.0"])) for m in net.modalities}
+    latents = {node: rng.normal(0.3, 0.5, (n, net.sizes[node])) for node in net.latent_nodes(net.modalities)}
+    return inputs, latents
+
+
+def total_energy(net: Network, inputs, latents) -> float:
+    return sum(net.energy(inputs, latents).values())
+
+
+@pytest.mark.parametrize("activation", ["leaky_relu", "tanh", "sigmoid", "linear"])
+def test_latent_and_weight_gradients_match_finite_differences(activation):
+    def network() -> Network:
+        return Network({**SMALL, "activation": activation}, seed=3, backend=NumpyBackend(np.float64))
+
+    net = network()
+    inputs, latents = random_state(net, n=4, seed=1)
+    state = net.batch_state(4)
+    state.load(inputs, latents)
+    state.predict_all()
+    state.latent_step()  # eta_y = 1: Y' = Y - dF/dY
+    analytic_dy = {node: latents[node] - net.backend.download(state.Y[node]) for node in state.Y}
+    learner = network()  # the weight step changes weights in place: use a second, identical network
+    state = learner.batch_state(4)
+    state.load(inputs, latents)
+    state.predict_all()
+    before = {name: learner.backend.download(w) for name, w in state.weights.items()}
+    state.weight_step()  # eta_w = 1: W' = W - dF/dW
+    analytic_dw = {name: before[name] - learner.backend.download(w) for name, w in state.weights.items()}
+
+    h = 1e-6
+    for node, y in latents.items():
+        for index in [(0, 0), (3, y.shape[1] - 1), (1, y.shape[1] // 2)]:
+            plus = {k: v.copy() for k, v in latents.items()}
+            minus = {k: v.copy() for k, v in latents.items()}
+            plus[node][index] += h
+            minus[node][index] -= h
+            numeric = (total_energy(net, inputs, plus) - total_energy(net, inputs, minus)) / (2 * h)
+            assert analytic_dy[node][index] == pytest.approx(numeric, rel=1e-5, abs=1e-7), (node, index)
+
+    weights = {name: w.astype(np.float64) for name, w in before.items()}
+    for name, w in weights.items():
+        for index in [(0, 0), (w.shape[0] - 1, w.shape[1] - 1)]:
+            values = []
+            for sign in (+1, -1):
+                probe = network()
+                changed = {k: v.copy() for k, v in weights.items()}
+                changed[name][index] += sign * h
+                probe.set_weights(changed)
+                # set_weights stores float32; write the float64 perturbation into the backend copy.
+                probe._device_weight_handles()[name][...] = changed[name]
+                values.append(total_energy(probe, inputs, latents))
+            numeric = (values[0] - values[1]) / (2 * h)
+            assert analytic_dw[name][index] == pytest.approx(numeric, rel=1e-5, abs=1e-7), (name, index)
+
+
+def test_inference_with_small_step_never_increases_energy():
+    config = {
+        "modalities": {
+            "visual": {"input_size": 20, "layers": [10, 6], "eta_y": 0.01},
+            "tactile": {"input_size": 8, "layers": [5], "eta_y": 0.01},
+        },
+        "joint": {"size": 4, "eta_y": 0.01},
+    }
+    net = Network(config, seed=0, backend="numpy")
+    inputs, latents = random_state(net, n=16, seed=2)
+    state = net.batch_state(16)
+    state.load(inputs, latents)
+    energies = [sum(state.predict_all().values())]
+    for _ in range(200):
+        state.latent_step()
+        energies.append(sum(state.predict_all().values()))
+    steps = np.diff(energies)
+    assert np.all(steps <= 1e-5 * energies[0]), f"energy rose at step {int(np.argmax(steps))}"
+    assert energies[-1] < 0.9 * energies[0]
+
+
+def synthetic(n: int = 400, causes: int = 5, seed: int = 0):
+    """Two modalities generated from shared causes: x_m = f_m(z_k + noise) for cause k."""
+    rng = np.random.default_rng(seed)
+    centres = rng.random((causes, 4))
+    labels = np.arange(n) % causes
+    z = centres[labels] + 0.03 * rng.normal(size=(n, 4))
+    visual = 1 / (1 + np.exp(-(z @ rng.normal(size=(4, 40)))))
+    tactile = np.tanh(z @ rng.normal(size=(4, 10))) * 0.5 + 0.5
+    return {"visual": visual.astype(np.float32), "tactile": tactile.astype(np.float32)}, labels
+
+
+SYNTH = {
+    "modalities": {
+        "visual": {"input_size": 40, "layers": [20], "eta_y": 0.05, "eta_w": 0.005},
+        "tactile": {"input_size": 10, "layers": [8], "eta_y": 0.05, "eta_w": 0.005},
+    },
+    "joint": {"size": 6, "eta_y": 0.05, "eta_w": 0.005},
+}
+TRAIN = {"epochs": 30, "batch_size": 50, "inference_steps": 20}
+NO_STOP = {"visual.1": 0.0, "tactile.1": 0.0, "joint.visual": 0.0, "joint.tactile": 0.0}
+
+
+def reconstruction_mse(net: Network, inputs) -> dict[str, float]:
+    joint = net.infer(inputs, max_steps=300, thresholds=NO_STOP).latents["joint"]
+    return {m: float(np.mean((net.reconstruct(joint, m) - inputs[m]) ** 2)) for m in inputs}
+
+
+@pytest.fixture(scope="module")
+def trained():
+    inputs, labels = synthetic()
+    net = Network(SYNTH, seed=0, backend="numpy")
+    before = reconstruction_mse(net, inputs)
+    history = net.train(inputs, TRAIN, progress=False)
+    return net, inputs, labels, before, history
+
+
+def test_training_lowers_reconstruction_error_of_both_modalities(trained):
+    net, inputs, _, before, history = trained
+    after = reconstruction_mse(net, inputs)
+    for m in inputs:
+        assert after[m] < before[m] / 20, (m, before[m], after[m])
+    for name, energy in history.energy.items():
+        assert len(energy) == TRAIN["epochs"]
+        assert energy[-1] < energy[0], name
+
+
+def test_joint_latents_group_samples_by_cause(trained):
+    net, inputs, labels, _, _ = trained
+    joint = net.infer(inputs, max_steps=300, thresholds=NO_STOP).latents["joint"]
+    d = cdist(joint, joint)
+    same = labels[:, None] == labels[None, :]
+    np.fill_diagonal(same, False)
+    different = labels[:, None] != labels[None, :]
+    assert d[same].mean() < 0.25 * d[different].mean()
+    np.fill_diagonal(d, np.inf)
+    nearest = labels[np.argmin(d, axis=1)]
+    assert np.mean(nearest == labels) > 0.95
+
+
+def test_missing_modality_is_reconstructed_better_than_the_mean(trained):
+    net, inputs, _, _, _ = trained
+    result = net.infer({"visual": inputs["visual"]}, max_steps=300)
+    assert set(result.latents) == {"visual.1", "joint"}
+    guess = net.reconstruct(result.latents["joint"], "tactile")
+    mean_predictor = np.mean((inputs["tactile"] - inputs["tactile"].mean(axis=0)) ** 2)
+    assert np.mean((guess - inputs["tactile"]) ** 2) < 0.75 * mean_predictor
+
+
+def test_inference_stops_at_threshold_or_step_cap(trained):
+    net, inputs, _, _, _ = trained
+    capped = net.infer(inputs, max_steps=7, thresholds=NO_STOP)
+    assert capped.steps == 7 and not capped.converged
+    loose = net.infer(inputs, max_steps=500, thresholds=dict.fromkeys(NO_STOP, 1e9))
+    assert loose.steps == 0 and loose.converged
+    moderate = net.infer(inputs, max_steps=3000, thresholds=dict.fromkeys(NO_STOP, 5e-3))
+    assert moderate.converged and all(v < 5e-3 for v in moderate.mse.values())
+
+
+def test_save_load_gives_identical_inference(trained, tmp_path):
+    net, inputs, _, _, _ = trained
+    net.set_scaler("tactile", np.zeros(10), np.full(10, 2.0))
+    net.save(tmp_path / "net")
+    loaded = Network.load(tmp_path / "net", backend="numpy")
+    a = net.infer(inputs, max_steps=50).latents
+    b = loaded.infer(inputs, max_steps=50).latents
+    for node in a:
+        np.testing.assert_array_equal(a[node], b[node])
+    np.testing.assert_array_equal(loaded.scalers["tactile"][1], np.full(10, 2.0))
+
+
+def test_load_refuses_other_format_version(trained, tmp_path):
+    net = trained[0]
+    net.save(tmp_path / "net")
+    meta = json.loads((tmp_path / "net" / "config.json").read_text())
+    meta["format_version"] = 999
+    (tmp_path / "net" / "config.json").write_text(json.dumps(meta))
+    with pytest.raises(NetworkError, match="format version 999"):
+        Network.load(tmp_path / "net")
+
+
+def test_same_seed_gives_identical_training():
+    inputs, _ = synthetic(n=100)
+    runs = []
+    for _ in range(2):
+        net = Network(SYNTH, seed=5, backend="numpy")
+        net.train(inputs, {**TRAIN, "epochs": 3, "seed": 9}, progress=False)
+        runs.append(net.weights)
+    for name in runs[0]:
+        np.testing.assert_array_equal(runs[0][name], runs[1][name])
+
+
+def test_divergence_names_the_layer_and_suggests_lower_rates():
+    inputs, _ = synthetic(n=50)
+    config = {**SYNTH, "modalities": {**SYNTH["modalities"], "visual": {**SYNTH["modalities"]["visual"], "eta_y": 1e3}}}
+    net = Network(config, seed=0, backend="numpy")
+    with pytest.raises(NetworkError, match=r"layer '.*' became (nan|inf).*lower the learning rates"):
+        with np.errstate(all="ignore"):
+            net.train(inputs, {**TRAIN, "epochs": 2}, progress=False)
+
+
+def test_bad_input_shape_is_reported():
+    net = Network(SYNTH, seed=0, backend="numpy")
+    with pytest.raises(NetworkError, match=r"input 'visual' has shape \(3, 39\), expected \(3, 40\)"):
+        net.infer({"visual": np.zeros((3, 39))})
+    with pytest.raises(NetworkError, match="unknown modality"):
+        net.infer({"audio": np.zeros((3, 4))})
+
+
+def test_numpy_and_warp_backends_train_to_the_same_weights():
+    pytest.importorskip("warp")
+    inputs, _ = synthetic(n=60)
+    weights = {}
+    for backend in ("numpy", "warp"):
+        net = Network(SYNTH, seed=1, backend=backend)
+        net.train(inputs, {**TRAIN, "epochs": 2, "batch_size": 25, "inference_steps": 5}, progress=False)
+        weights[backend] = net.weights
+    for name, w in weights["numpy"].items():
+        np.testing.assert_allclose(weights["warp"][name], w, rtol=1e-4, atol=1e-5, err_msg=name)
