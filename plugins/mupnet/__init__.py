@@ -1,0 +1,9 @@
+"""Built-in plugin: learned MuPNet features (``mupnet``)."""
+
+from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.plugins.mupnet.extractor import MupnetExtractor
+
+
+@hookimpl
+def vitaplace_register_features(register) -> None:
+    register(MupnetExtractor)

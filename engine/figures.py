@@ -1,0 +1,209 @@
+"""Figures for the evaluation (DESIGN §10): matrices with decisions (paper Fig. 4), PR curves
+(paper Fig. 5), trajectories over the arena map, training energy.
+
+Every function draws on its own ``matplotlib.figure.Figure`` with an Agg canvas (no pyplot,
+no global backend switch), saves ``<out_stem>.png`` and ``<out_stem>.pdf`` atomically and
+returns the two paths.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.collections import LineCollection
+from matplotlib.patches import Circle, Ellipse, Polygon, Rectangle
+
+from vitaplace.engine.atomic import atomic_path
+from vitaplace.engine.evaluate import Decisions, PRCurve
+
+__all__ = ["plot_energy", "plot_matrices", "plot_pr_curves", "plot_trajectories", "OUTCOME_COLOURS"]
+
+OUTCOME_COLOURS = {"TP": "tab:green", "FP": "tab:red", "FN": "tab:orange", "TN": "tab:grey"}
+
+
+def _new_figure(figsize) -> Figure:
+    fig = Figure(figsize=figsize, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, out_stem: str | os.PathLike) -> list[Path]:
+    stem = Path(out_stem)
+    paths = []
+    for fmt, meta in (("png", {"Software": None}), ("pdf", {"CreationDate": None, "Creator": None, "Producer": None})):
+        path = stem.with_name(stem.name + "." + fmt)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format=fmt, dpi=150, metadata=meta)
+        paths.append(path)
+    return paths
+
+
+def _primary_outcome(decisions: Decisions) -> np.ndarray:
+    """One colour class per query: TP, FP (accepted and wrong, whether or not also FN), FN, TN."""
+    out = np.full(decisions.n_queries, "TN", dtype=object)
+    out[decisions.fn] = "FN"
+    out[decisions.fp] = "FP"
+    out[decisions.tp] = "TP"
+    return out
+
+
+def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> list[Path]:
+    """GTM and TME heat maps side by side (rows = queries, columns = references) with the
+    decision of each query drawn as a dot at (query, best match): green TP, red FP
+    (accepted and wrong), orange FN (rejected although a revisit existed), grey TN."""
+    tme = np.asarray(tme, dtype=float)
+    gtm = np.asarray(gtm, dtype=float)
+    n_q, n_r = tme.shape
+    fig = _new_figure((11, 5))
+    axes = fig.subplots(1, 2)
+    outcome = _primary_outcome(decisions)
+    rows = np.arange(n_q)
+    size = float(np.clip(2000.0 / max(n_q, 1), 2.0, 30.0))
+    for ax, mat, name, cmap in ((axes[0], gtm, "GTM (ground-truth distance)", "viridis"),
+                                (axes[1], tme, "TME (feature distance)", "magma")):
+        shown = np.where(np.isfinite(mat), mat, np.nan)
+        im = ax.imshow(shown, cmap=cmap, aspect="auto", interpolation="nearest", origin="upper")
+        fig.colorbar(im, ax=ax, shrink=0.85)
+        for label, colour in OUTCOME_COLOURS.items():
+            sel = outcome == label
+            if sel.any():
+                ax.scatter(decisions.best_match[sel], rows[sel], s=size, c=colour,
+                           edgecolors="white", linewidths=0.3, label=f"{label} ({int(sel.sum())})", zorder=3)
+        ax.set_xlim(-0.5, n_r - 0.5)
+        ax.set_ylim(n_q - 0.5, -0.5)
+        ax.set_xlabel("reference index")
+        ax.set_ylabel("query index")
+        ax.set_title(name)
+    handles = [Line2D([], [], marker="o", linestyle="", color=c, label=f"{k} ({int((outcome == k).sum())})")
+               for k, c in OUTCOME_COLOURS.items()]
+    axes[1].legend(handles=handles, loc="upper right", fontsize="small", framealpha=0.8)
+    sup = f"tau={decisions.tau:g}, delta={decisions.delta:g}"
+    fig.suptitle(f"{title} ({sup})" if title else sup)
+    return _save(fig, out_stem)
+
+
+def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> list[Path]:
+    """Precision-recall curve per method with the max-F1 point marked; the legend gives max F1
+    and AUC.  Drawn step-wise in threshold order so that the area under the drawn curve is the
+    AUC (step-wise average precision)."""
+    fig = _new_figure((6, 5))
+    ax = fig.subplots()
+    for i, (name, curve) in enumerate(curves.items()):
+        colour = f"C{i % 10}"
+        order = np.argsort(curve.deltas, kind="stable")
+        ax.plot(curve.recall[order], curve.precision[order], drawstyle="steps-pre", color=colour,
+                label=f"{name} (max F1={curve.max_f1:.3f}, AUC={curve.auc:.3f})")
+        k = curve.index_at_max_f1
+        ax.plot([curve.recall[k]], [curve.precision[k]], marker="*", markersize=12, color=colour,
+                markeredgecolor="black", linestyle="")
+    ax.set_xlim(-0.02, 1.02)
+    ax.set_ylim(-0.02, 1.05)
+    ax.set_xlabel("recall")
+    ax.set_ylabel("precision")
+    ax.grid(True, alpha=0.3)
+    if curves:
+        ax.legend(loc="lower left", fontsize="small")
+    ax.set_title(title or "Precision-recall (★ = max F1)")
+    return _save(fig, out_stem)
+
+
+def _arena_bounds(arena: Mapping) -> tuple[float, float, float, float] | None:
+    """(xmin, xmax, ymin, ymax) of the arena: ``half_extent`` (scalar or [hx, hy]) or ``size``
+    (full width, scalar or [w, h]), centred on ``center`` (default origin)."""
+    cx, cy = (float(v) for v in arena.get("center", (0.0, 0.0)))
+    if "half_extent" in arena:
+        h = np.broadcast_to(np.asarray(arena["half_extent"], dtype=float), (2,))
+    elif "size" in arena:
+        h = np.broadcast_to(np.asarray(arena["size"], dtype=float), (2,)) / 2.0
+    else:
+        return None
+    return cx - h[0], cx + h[0], cy - h[1], cy + h[1]
+
+
+def _landmark_patch(lm: Mapping):
+    """Patch for a landmark dict: type 'box' (size [sx, sy] full lengths, optional yaw in rad),
+    'cylinder' (radius, or size scalar / [r]), 'rock' (vertices [[x, y], ...], else an ellipse
+    of size [sx, sy] or radius)."""
+    kind = str(lm.get("type", "box")).lower()
+    x, y = (float(v) for v in lm.get("pos", (0.0, 0.0))[:2])
+    size = np.atleast_1d(np.asarray(lm.get("size", lm.get("radius", 0.5)), dtype=float))
+    style = dict(facecolor=lm.get("colour", lm.get("color", "0.55")), edgecolor="black", alpha=0.6, zorder=1)
+    if isinstance(style["facecolor"], (list, tuple)):
+        style["facecolor"] = tuple(float(c) for c in style["facecolor"])
+    if kind == "cylinder":
+        r = float(lm.get("radius", size[0]))
+        return Circle((x, y), r, **style)
+    if kind == "rock":
+        if "vertices" in lm:
+            return Polygon(np.asarray(lm["vertices"], dtype=float)[:, :2], closed=True, **style)
+        if "radius" in lm or size.size == 1:
+            r = float(lm.get("radius", size[0]))
+            return Circle((x, y), r, **style)
+        return Ellipse((x, y), size[0], size[1], angle=np.degrees(float(lm.get("yaw", 0.0))), **style)
+    sx, sy = (size[0], size[0]) if size.size == 1 else (size[0], size[1])
+    return Rectangle((x - sx / 2, y - sy / 2), sx, sy, angle=np.degrees(float(lm.get("yaw", 0.0))),
+                     rotation_point="center", **style)
+
+
+def plot_trajectories(out_stem, query_poses, reference_poses, decisions: Decisions,
+                      arena: Mapping | None = None, title: str = "") -> list[Path]:
+    """Top view of the query and reference runs over the arena, with accepted matches drawn
+    as segments from query pose to matched reference pose (green TP, red FP)."""
+    q = np.asarray(query_poses, dtype=float)[:, :2]
+    r = np.asarray(reference_poses, dtype=float)[:, :2]
+    fig = _new_figure((6.5, 6.5))
+    ax = fig.subplots()
+    if arena:
+        bounds = _arena_bounds(arena)
+        if bounds is not None:
+            x0, x1, y0, y1 = bounds
+            ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, fill=False, edgecolor="black", linewidth=2, zorder=1))
+        for lm in arena.get("landmarks", []) or []:
+            ax.add_patch(_landmark_patch(lm))
+    ax.plot(r[:, 0], r[:, 1], "-", color="tab:blue", lw=1.2, label="reference run", zorder=2)
+    ax.plot(q[:, 0], q[:, 1], "-", color="tab:purple", lw=1.2, label="query run", zorder=2)
+    bm = decisions.best_match
+    for mask, colour, label in ((decisions.tp, "tab:green", "TP match"), (decisions.fp, "tab:red", "FP match")):
+        idx = np.flatnonzero(mask)
+        if idx.size:
+            segs = np.stack([q[idx], r[bm[idx]]], axis=1)
+            ax.add_collection(LineCollection(segs, colors=colour, linewidths=0.8, alpha=0.8, zorder=3,
+                                             label=f"{label} ({idx.size})"))
+    ax.set_aspect("equal")
+    ax.autoscale_view()
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.legend(loc="upper right", fontsize="small", framealpha=0.8)
+    ax.set_title(title or "Trajectories and accepted matches")
+    return _save(fig, out_stem)
+
+
+def plot_energy(out_stem, energy: Mapping[str, Sequence[float]], title: str = "") -> list[Path]:
+    """Training energy per layer (one line per key) against epoch, log y axis
+    (non-positive values are masked)."""
+    fig = _new_figure((6.5, 4.5))
+    ax = fig.subplots()
+    plotted = False
+    for name, values in energy.items():
+        v = np.asarray(values, dtype=float)
+        if v.size == 0:
+            continue
+        v = np.where(v > 0, v, np.nan)
+        ax.plot(np.arange(1, v.size + 1), v, marker="o" if v.size < 30 else None, markersize=3, label=str(name))
+        plotted = True
+    if plotted and np.any([np.any(np.asarray(v, dtype=float) > 0) for v in energy.values() if len(v)]):
+        ax.set_yscale("log")
+        ax.legend(fontsize="small")
+    else:
+        ax.text(0.5, 0.5, "no positive energy values", transform=ax.transAxes, ha="center", va="center")
+    ax.set_xlabel("epoch")
+    ax.set_ylabel("energy")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.set_title(title or "Training energy per layer")
+    return _save(fig, out_stem)

@@ -1,0 +1,112 @@
+"""Discovery of feature-extractor plugins through pluggy and the ``vitaplace.features`` entry points.
+
+Every package (the built-in ``handcrafted`` and ``mupnet`` included) exposes a module with a
+`vitaplace_register_features` hook implementation under the entry-point group
+``vitaplace.features``. A plugin that fails to import or to register is reported by name
+and skipped; two extractors with the same name are an error naming both packages. The
+environment variable ``VITAPLACE_PLUGINS`` (comma-separated entry-point names) restricts
+which plugins load.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from importlib.metadata import EntryPoint, entry_points
+from typing import Any
+
+import pluggy
+
+from vitaplace.engine import hookspecs
+from vitaplace.engine.features import FeatureExtractor
+
+ONLY_ENV = "VITAPLACE_PLUGINS"
+
+
+class PluginError(ValueError):
+    """A plugin problem the user must fix (duplicate name, unknown extractor, bad class)."""
+
+
+@dataclass
+class Registry:
+    """Feature extractors by name, with the package that contributed each and the plugins skipped."""
+
+    manager: pluggy.PluginManager
+    extractors: dict[str, type[FeatureExtractor]] = field(default_factory=dict)
+    sources: dict[str, str] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)
+
+    def names(self) -> list[str]:
+        return sorted(self.extractors)
+
+    def get(self, name: str) -> type[FeatureExtractor]:
+        try:
+            return self.extractors[name]
+        except KeyError:
+            valid = ", ".join(self.names()) or "none installed"
+            raise PluginError(f"unknown feature extractor '{name}'; available: {valid}") from None
+
+    def create(self, name: str, params: Mapping[str, Any] | None = None) -> FeatureExtractor:
+        return self.get(name)(params)
+
+    def add_plugin(self, plugin: object, source: str) -> None:
+        """Register one plugin object (module or instance) and collect the extractors it contributes."""
+        self.manager.register(plugin, name=source)
+        hook_impls = [i for i in self.manager.hook.vitaplace_register_features.get_hookimpls() if i.plugin is plugin]
+        for impl in hook_impls:
+            try:
+                impl.function(register=lambda cls, _source=source: self._register(cls, _source))
+            except PluginError:
+                raise
+            except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop the others
+                self._skip(source, f"its registration hook raised {type(exc).__name__}: {exc}")
+
+    def _register(self, cls: type[FeatureExtractor], source: str) -> None:
+        if not (isinstance(cls, type) and issubclass(cls, FeatureExtractor)):
+            raise PluginError(f"plugin '{source}' registered {cls!r}, which is not a FeatureExtractor subclass")
+        name = getattr(cls, "name", None)
+        if not isinstance(name, str) or not name:
+            raise PluginError(f"plugin '{source}' registered {cls.__name__} without a 'name'")
+        if name in self.extractors:
+            raise PluginError(
+                f"feature extractor name '{name}' is provided by two plugins: '{self.sources[name]}' and '{source}'; "
+                f"uninstall one or restrict plugins with {ONLY_ENV}"
+            )
+        self.extractors[name] = cls
+        self.sources[name] = source
+
+    def _skip(self, source: str, why: str) -> None:
+        self.failed[source] = why
+        print(f"vitaplace: skipping plugin '{source}': {why}", file=sys.stderr)
+
+
+def _source_label(ep: EntryPoint) -> str:
+    dist = getattr(ep, "dist", None)
+    package = dist.name if dist is not None else ep.value.split(":")[0]
+    return f"{ep.name} ({package})"
+
+
+def discover(eps: Iterable[EntryPoint] | None = None, only: str | None = None) -> Registry:
+    """Load every plugin of the ``vitaplace.features`` entry-point group into a new `Registry`.
+
+    ``only`` (default: the ``VITAPLACE_PLUGINS`` environment variable) is a comma-separated
+    list of entry-point names to load; the rest are ignored.
+    """
+    manager = pluggy.PluginManager(hookspecs.PROJECT)
+    manager.add_hookspecs(hookspecs)
+    registry = Registry(manager)
+    only = os.environ.get(ONLY_ENV) if only is None else only
+    wanted = {name.strip() for name in only.split(",") if name.strip()} if only else None
+    for ep in entry_points(group=hookspecs.ENTRY_POINT_GROUP) if eps is None else eps:
+        if wanted is not None and ep.name not in wanted:
+            continue
+        source = _source_label(ep)
+        try:
+            plugin = ep.load()
+        except Exception as exc:  # noqa: BLE001 - a plugin that fails to import is skipped
+            registry._skip(source, f"import failed with {type(exc).__name__}: {exc}")
+            continue
+        registry.add_plugin(plugin, source)
+    return registry

@@ -1,0 +1,159 @@
+"""MuPNet features: the joint latent of the multi-modal predictive-coding network (DESIGN §6).
+
+``fit`` scales the inputs (images to [0, 1] after resampling to the network's image size,
+theta + xy min-max fitted on the training run), trains the network, and ``transform``
+infers the joint latent of every sample with frozen weights. Distance: L2.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pydantic
+from scipy.ndimage import zoom
+from scipy.spatial.distance import cdist
+
+from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.dataset import Run
+from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
+from vitaplace.engine.pc import Network, NetworkConfig, TrainingConfig
+
+Modality = Literal["visual", "tactile"]
+
+
+class MupnetParams(ExtractorParams):
+    """Network, training and test-time inference settings (defaults: the MuPNet paper/code)."""
+
+    modalities: list[Modality] = pydantic.Field(default_factory=lambda: ["visual", "tactile"], min_length=1)
+    image_size: tuple[pydantic.PositiveInt, pydantic.PositiveInt] = (45, 80)
+    visual_layers: list[pydantic.PositiveInt] = pydantic.Field(default_factory=lambda: [1000, 300], min_length=1)
+    tactile_layers: list[pydantic.PositiveInt] = pydantic.Field(default_factory=lambda: [100], min_length=1)
+    joint_size: pydantic.PositiveInt = 200
+    eta_y_visual: pydantic.PositiveFloat = 4e-4
+    eta_y_tactile: pydantic.PositiveFloat = 4e-3
+    eta_y_joint: pydantic.PositiveFloat = 4e-4
+    eta_w_visual: pydantic.PositiveFloat = 1e-4
+    eta_w_tactile: pydantic.PositiveFloat = 1e-3
+    eta_w_joint: pydantic.PositiveFloat = 1e-4
+    threshold_visual: pydantic.NonNegativeFloat = 1e-3
+    threshold_tactile: pydantic.NonNegativeFloat = 1e-3
+    threshold_joint: pydantic.NonNegativeFloat = 1e-3
+    activation: str = "leaky_relu"
+    slope: pydantic.NonNegativeFloat = 0.2
+    epochs: pydantic.PositiveInt = 10
+    batch_size: pydantic.PositiveInt = 150
+    inference_steps: pydantic.PositiveInt = 20
+    max_steps: pydantic.PositiveInt = pydantic.Field(3000, description="test-time inference step cap")
+    backend: Literal["auto", "numpy", "warp"] = "auto"
+    seed: int = 0
+
+    @pydantic.field_validator("modalities")
+    @classmethod
+    def _distinct(cls, value: list[str]) -> list[str]:
+        if len(set(value)) != len(value):
+            raise ValueError("modalities must not repeat")
+        return value
+
+
+def resample_images(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Bilinear resampling of a (N, H, W, 3) uint8 stack to (N, h, w, 3) float32 in [0, 255]."""
+    n, h, w, _ = images.shape
+    if (h, w) == tuple(size):
+        return images.astype(np.float32)
+    factors = (1.0, size[0] / h, size[1] / w, 1.0)
+    return zoom(images.astype(np.float32), factors, order=1, grid_mode=True, mode="nearest")
+
+
+class MupnetExtractor(FeatureExtractor):
+    """Learned visuo-tactile place features: the joint latent of MuPNet."""
+
+    name = "mupnet"
+    Params = MupnetParams
+    params: MupnetParams
+
+    def __init__(self, params=None) -> None:
+        super().__init__(params)
+        self.network: Network | None = None
+        self.energy: dict[str, list[float]] = {}
+
+    def network_config(self, tactile_size: int) -> NetworkConfig:
+        p = self.params
+        h, w = p.image_size
+        modalities = {
+            "visual": {
+                "input_size": h * w * 3,
+                "layers": p.visual_layers,
+                "eta_y": p.eta_y_visual,
+                "eta_w": p.eta_w_visual,
+                "threshold": p.threshold_visual,
+            },
+            "tactile": {
+                "input_size": tactile_size,
+                "layers": p.tactile_layers,
+                "eta_y": p.eta_y_tactile,
+                "eta_w": p.eta_w_tactile,
+                "threshold": p.threshold_tactile,
+            },
+        }
+        return NetworkConfig(
+            modalities={m: modalities[m] for m in p.modalities},
+            joint={"size": p.joint_size, "eta_y": p.eta_y_joint, "eta_w": p.eta_w_joint, "threshold": p.threshold_joint},
+            activation=p.activation,
+            slope=p.slope,
+        )
+
+    def raw_inputs(self, run: Run) -> dict[str, np.ndarray]:
+        """Unscaled network inputs: flattened resampled RGB and theta + xy per sample."""
+        inputs = {}
+        if "visual" in self.params.modalities:
+            batches = [
+                resample_images(run.image_batch(i, i + 512), self.params.image_size).reshape(-1)
+                for i in range(0, len(run), 512)
+            ]
+            inputs["visual"] = np.concatenate(batches).reshape(len(run), -1)
+        if "tactile" in self.params.modalities:
+            inputs["tactile"] = np.concatenate([run.theta, run.xy.reshape(len(run), -1)], axis=1).astype(np.float32)
+        return inputs
+
+    def scaled_inputs(self, run: Run) -> dict[str, np.ndarray]:
+        assert self.network is not None
+        return {m: self.network.scale_input(m, x) for m, x in self.raw_inputs(run).items()}
+
+    def fit(self, train: Run, progress: bool = True) -> None:
+        p = self.params
+        raw = self.raw_inputs(train)
+        self.network = Network(self.network_config(train.n_whiskers * 3), seed=p.seed, backend=p.backend)
+        if "visual" in raw:
+            self.network.set_scaler("visual", np.zeros(1, np.float32), np.full(1, 1 / 255, np.float32))
+        if "tactile" in raw:
+            low, high = raw["tactile"].min(axis=0), raw["tactile"].max(axis=0)
+            span = high - low
+            self.network.set_scaler("tactile", low, np.where(span > 0, 1 / np.where(span > 0, span, 1), 0))
+        training = TrainingConfig(
+            epochs=p.epochs, batch_size=p.batch_size, inference_steps=p.inference_steps, seed=p.seed
+        )
+        inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
+        self.energy = self.network.train(inputs, training, progress=progress).energy
+
+    def transform(self, run: Run) -> Features:
+        if self.network is None:
+            raise RuntimeError("mupnet: fit() or load() before transform()")
+        result = self.network.infer(self.scaled_inputs(run), max_steps=self.params.max_steps)
+        return {"latent": result.latents["joint"]}
+
+    def distance(self, query: Features, reference: Features) -> np.ndarray:
+        return cdist(query["latent"], reference["latent"])
+
+    def save_state(self, directory: Path) -> None:
+        if self.network is None:
+            raise RuntimeError("mupnet: nothing to save before fit()")
+        self.network.save(directory / "network")
+        write_text_atomic(directory / "energy.json", json.dumps(self.energy))
+
+    def load_state(self, directory: Path) -> None:
+        self.network = Network.load(directory / "network", backend=self.params.backend)
+        energy = directory / "energy.json"
+        self.energy = json.loads(energy.read_text()) if energy.exists() else {}

@@ -1,0 +1,472 @@
+"""Tests of vitaplace.engine.evaluate (DESIGN §10) and vitaplace.engine.figures.
+
+Expected values come from hand derivations (comments), scikit-learn, an independent
+per-query loop of the DESIGN definition, and an independent re-implementation of
+VPR_Tutorial's createPR(..., matching='single') — never from the code under test.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from sklearn.metrics import average_precision_score, precision_recall_curve
+
+from vitaplace.engine import evaluate as ev
+
+# --------------------------------------------------------------------------- hand case
+# 5 queries x 4 references, tau = 1.0.
+#
+# GTM (ground truth):             min   revisit?
+#   q0: 0.2  2.0  3.0  4.0        0.2   yes
+#   q1: 2.0  0.5  3.0  4.0        0.5   yes
+#   q2: 3.0  3.0  3.0  3.0        3.0   no
+#   q3: 0.9  5.0  5.0  5.0        0.9   yes
+#   q4: 5.0  5.0  5.0  5.0        5.0   no
+# TME (feature distance):         j*  best_tme  gtm[i,j*]  correct?
+#   q0: 0.1  0.9  0.8  0.7        0   0.1       0.2        yes
+#   q1: 0.3  0.6  0.9  0.9        0   0.3       2.0        no
+#   q2: 0.9  0.4  0.8  0.8        1   0.4       3.0        no
+#   q3: 0.7  0.8  0.9  0.7        0   0.7 (tie j=0/j=3 -> j=0)  0.9  yes (j=3 would be wrong)
+#   q4: 0.6  0.6  0.9  0.9        0   0.6 (tie -> j=0)          5.0  no
+# At delta = 0.5: accepted q0, q1, q2.
+#   q0 TP; q1 FP and FN (accepted, wrong, a revisit existed); q2 FP (no revisit);
+#   q3 FN (rejected, revisit); q4 TN.  => TP 1, FP 2, FN 2, TN 1; TP + FN = 3 = #revisit.
+#   precision 1/3, recall 1/3, F1 1/3.
+HAND_GTM = np.array(
+    [
+        [0.2, 2.0, 3.0, 4.0],
+        [2.0, 0.5, 3.0, 4.0],
+        [3.0, 3.0, 3.0, 3.0],
+        [0.9, 5.0, 5.0, 5.0],
+        [5.0, 5.0, 5.0, 5.0],
+    ]
+)
+HAND_TME = np.array(
+    [
+        [0.1, 0.9, 0.8, 0.7],
+        [0.3, 0.6, 0.9, 0.9],
+        [0.9, 0.4, 0.8, 0.8],
+        [0.7, 0.8, 0.9, 0.7],
+        [0.6, 0.6, 0.9, 0.9],
+    ]
+)
+HAND_TAU = 1.0
+
+# PR sweep, deltas = -inf + distinct best_tme values (0.1 c, 0.3 w, 0.4 w, 0.6 w, 0.7 c):
+#   delta  TP FP FN  P     R     F1
+#   -inf   0  0  3   1     0     0
+#   0.1    1  0  2   1     1/3   2(1/3)/(4/3) = 1/2
+#   0.3    1  1  2   1/2   1/3   2(1/6)/(5/6) = 2/5
+#   0.4    1  2  2   1/3   1/3   1/3
+#   0.6    1  3  2   1/4   1/3   2(1/12)/(7/12) = 2/7
+#   0.7    2  3  1   2/5   2/3   2(4/15)/(16/15) = 1/2
+# max F1 = 1/2, reached at 0.1 and 0.7 -> smallest delta 0.1.
+# AUC (step-wise AP) = (1/3 - 0)*1 + (2/3 - 1/3)*(2/5) = 1/3 + 2/15 = 7/15.
+HAND_DELTAS = [-np.inf, 0.1, 0.3, 0.4, 0.6, 0.7]
+HAND_TP = [0, 1, 1, 1, 1, 2]
+HAND_FP = [0, 0, 1, 2, 3, 3]
+HAND_FN = [3, 2, 2, 2, 2, 1]
+HAND_P = [1.0, 1.0, 1 / 2, 1 / 3, 1 / 4, 2 / 5]
+HAND_R = [0.0, 1 / 3, 1 / 3, 1 / 3, 1 / 3, 2 / 3]
+HAND_F1 = [0.0, 1 / 2, 2 / 5, 1 / 3, 2 / 7, 1 / 2]
+
+
+def test_decide_hand_case():
+    d = ev.decide(HAND_TME, HAND_GTM, HAND_TAU, 0.5)
+    np.testing.assert_array_equal(d.best_match, [0, 0, 1, 0, 0])
+    np.testing.assert_allclose(d.best_tme, [0.1, 0.3, 0.4, 0.7, 0.6])
+    np.testing.assert_allclose(d.best_gtm, [0.2, 2.0, 3.0, 0.9, 5.0])
+    np.testing.assert_array_equal(d.has_revisit, [True, True, False, True, False])
+    np.testing.assert_array_equal(d.tp, [True, False, False, False, False])
+    np.testing.assert_array_equal(d.fp, [False, True, True, False, False])
+    np.testing.assert_array_equal(d.fn, [False, True, False, True, False])
+    np.testing.assert_array_equal(d.tn, [False, False, False, False, True])
+    c = d.counts
+    assert (c["tp"], c["fp"], c["fn"], c["tn"]) == (1, 2, 2, 1)
+    assert c["n_revisit"] == 3 and c["n_queries"] == 5
+    assert list(d.outcome) == ["TP", "FP+FN", "FP", "FN", "TN"]
+
+
+def test_decide_tie_breaks_to_lowest_reference():
+    # q3 ties j=0 (correct, gtm 0.9) with j=3 (wrong, gtm 5.0); at delta 0.7 it is accepted.
+    d = ev.decide(HAND_TME, HAND_GTM, HAND_TAU, 0.7)
+    assert d.best_match[3] == 0 and d.tp[3] and not d.fp[3]
+
+
+def test_pr_curve_hand_case():
+    c = ev.pr_curve(HAND_TME, HAND_GTM, HAND_TAU)
+    np.testing.assert_allclose(c.deltas, HAND_DELTAS)
+    np.testing.assert_array_equal(c.tp, HAND_TP)
+    np.testing.assert_array_equal(c.fp, HAND_FP)
+    np.testing.assert_array_equal(c.fn, HAND_FN)
+    np.testing.assert_allclose(c.precision, HAND_P)
+    np.testing.assert_allclose(c.recall, HAND_R)
+    np.testing.assert_allclose(c.f1, HAND_F1)
+    assert c.max_f1 == pytest.approx(0.5)
+    assert c.delta_at_max_f1 == pytest.approx(0.1)
+    assert c.auc == pytest.approx(7 / 15)
+
+
+def test_pr_curve_given_deltas_hand_case():
+    # delta 0.5 -> same as the decide() hand case; delta 0.05 -> nothing accepted (P = 1, R = 0);
+    # delta 10 -> all accepted: TP 2, FP 3.
+    c = ev.pr_curve(HAND_TME, HAND_GTM, HAND_TAU, deltas=[0.5, 0.05, 10.0])
+    np.testing.assert_array_equal(c.tp, [1, 0, 2])
+    np.testing.assert_array_equal(c.fp, [2, 0, 3])
+    np.testing.assert_allclose(c.precision, [1 / 3, 1.0, 2 / 5])
+    np.testing.assert_allclose(c.recall, [1 / 3, 0.0, 2 / 3])
+
+
+def test_recall_at_k_hand_case():
+    # Revisit queries q0, q1, q3.  Candidates by ascending TME (stable ties):
+    #   q0: j0 (gtm 0.2 hit)                      -> hit at K=1
+    #   q1: j0 (2.0), j1 (0.5 hit)                -> hit at K=2
+    #   q3: j0 (0.9 hit; tie with j3 -> j0 first) -> hit at K=1
+    # R@1 = 2/3, R@2 = 1, R@10 (clamped to 4 references) = 1.
+    r = ev.recall_at_k(HAND_TME, HAND_GTM, HAND_TAU, ks=(1, 2, 10))
+    assert r == {1: pytest.approx(2 / 3), 2: pytest.approx(1.0), 10: pytest.approx(1.0)}
+
+
+def test_recall_at_k_no_revisit_is_zero():
+    r = ev.recall_at_k(HAND_TME, HAND_GTM, tau=0.1, ks=(1, 5))
+    assert r == {1: 0.0, 5: 0.0}
+
+
+def test_ground_truth_matrix_heading_hand_case():
+    q = np.array([[0.0, 0.0, 0.1], [1.0, 1.0, 3.1]])
+    r = np.array([[3.0, 4.0, -0.1], [1.0, 1.0, -3.1]])
+    # xy distances: q0-r0 = 5, q0-r1 = sqrt 2, q1-r0 = sqrt(4 + 9) = sqrt 13, q1-r1 = 0.
+    xy = np.array([[5.0, math.sqrt(2)], [math.sqrt(13), 0.0]])
+    np.testing.assert_allclose(ev.ground_truth_matrix(q, r), xy)
+    np.testing.assert_allclose(ev.ground_truth_matrix(q[:, :2], r[:, :2]), xy)  # (N, 2) accepted
+    # yaw differences: q0-r0 0.2, q0-r1 3.2 -> wrapped 2*pi - 3.2, q1-r0 3.2 -> 2*pi - 3.2,
+    # q1-r1 6.2 -> wrapped 2*pi - 6.2 (about 0.083)
+    dyaw = np.array([[0.2, 2 * math.pi - 3.2], [2 * math.pi - 3.2, 2 * math.pi - 6.2]])
+    np.testing.assert_allclose(ev.ground_truth_matrix(q, r, heading_weight=2.0), xy + 2.0 * dyaw)
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: ev.decide(np.zeros((3, 4)), np.zeros((4, 3)), 1.0, 0.5), "same shape"),
+        (lambda: ev.pr_curve(np.zeros((3, 4)), np.zeros((3, 5)), 1.0), "same shape"),
+        (lambda: ev.decide(np.array([[0.1, np.nan]]), np.zeros((1, 2)), 1.0, 0.5), "NaN"),
+        (lambda: ev.pr_curve(np.array([[0.1, np.nan]]), np.zeros((1, 2)), 1.0), "NaN"),
+        (lambda: ev.recall_at_k(np.array([[np.nan]]), np.zeros((1, 1)), 1.0), "NaN"),
+        (lambda: ev.decide(np.zeros((2, 2)), np.zeros((2, 2)), -0.5, 0.5), "tau"),
+        (lambda: ev.pr_curve(np.zeros((2, 2)), np.zeros((2, 2)), -1.0), "tau"),
+        (lambda: ev.evaluate(np.zeros((2, 2)), np.zeros((2, 2)), -1.0), "tau"),
+        (lambda: ev.decide(np.zeros(4), np.zeros(4), 1.0, 0.5), "2-D"),
+        (lambda: ev.recall_at_k(np.zeros((2, 2)), np.zeros((2, 2)), 1.0, ks=(0,)), "K"),
+        (lambda: ev.ground_truth_matrix(np.zeros((2, 2)), np.zeros((2, 2)), heading_weight=1.0), "yaw"),
+        (lambda: ev.ground_truth_matrix(np.zeros((2, 3)), np.zeros((2, 3)), heading_weight=-1.0), "heading_weight"),
+    ],
+)
+def test_bad_inputs(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()
+
+
+# --------------------------------------------------------------------------- edge cases
+
+
+def test_all_rejected_and_no_revisit_no_warnings():
+    tme = np.array([[0.5, 0.5], [0.2, 0.9]])
+    gtm = np.array([[3.0, 4.0], [5.0, 6.0]])  # nobody has a revisit at tau = 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        c = ev.pr_curve(tme, gtm, 1.0)
+        s = ev.evaluate(tme, gtm, 1.0, delta=-1.0)
+        ev.recall_at_k(tme, gtm, 1.0)
+    # -inf: nothing accepted -> P 1 by convention, R 0; afterwards only FPs -> P 0; R always 0.
+    np.testing.assert_allclose(c.precision, [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(c.recall, [0.0, 0.0, 0.0])
+    np.testing.assert_allclose(c.f1, [0.0, 0.0, 0.0])
+    assert c.auc == 0.0 and c.max_f1 == 0.0
+    # delta = -1 rejects everything, no revisit anywhere: 2 TN.
+    assert (s["precision"], s["recall"], s["f1"]) == (1.0, 0.0, 0.0)
+    assert (s["tp"], s["fp"], s["fn"], s["tn"]) == (0, 0, 0, 2)
+    assert s["delta_at_max_f1"] is None  # max F1 = 0 first reached at -inf -> None in JSON
+    json.dumps(s, allow_nan=False)
+
+
+def test_evaluate_summary_hand_case_is_json():
+    s = ev.evaluate(HAND_TME, HAND_GTM, HAND_TAU, delta=0.5, ks=(1, 2))
+    back = json.loads(json.dumps(s, allow_nan=False))
+    assert back == s
+    assert s["max_f1"] == pytest.approx(0.5)
+    assert s["delta_at_max_f1"] == pytest.approx(0.1)
+    assert s["auc"] == pytest.approx(7 / 15)
+    assert s["n_revisit"] == 3 and s["n_queries"] == 5 and s["n_references"] == 4
+    assert (s["tp"], s["fp"], s["fn"], s["tn"]) == (1, 2, 2, 1)
+    assert s["precision"] == pytest.approx(1 / 3) and s["recall"] == pytest.approx(1 / 3)
+    assert s["recall_at_k"] == {"1": pytest.approx(2 / 3), "2": pytest.approx(1.0)}
+    for v in s.values():
+        assert type(v) in (int, float, str, dict, type(None))
+
+
+# --------------------------------------------------------------------------- exports
+
+
+def test_export_decisions_csv(tmp_path):
+    d = ev.decide(HAND_TME, HAND_GTM, HAND_TAU, 0.5)
+    path = tmp_path / "sub" / "decisions.csv"
+    ev.export_decisions_csv(path, d, extra_columns={"label": list("abcde")})
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["outcome"] for r in rows] == ["TP", "FP+FN", "FP", "FN", "TN"]
+    assert [int(r["best_match"]) for r in rows] == [0, 0, 1, 0, 0]
+    assert [float(r["best_tme"]) for r in rows] == [0.1, 0.3, 0.4, 0.7, 0.6]
+    assert [float(r["best_gtm"]) for r in rows] == [0.2, 2.0, 3.0, 0.9, 5.0]
+    assert [r["has_revisit"] for r in rows] == ["1", "1", "0", "1", "0"]
+    assert [r["query"] for r in rows] == ["0", "1", "2", "3", "4"]
+    assert [r["label"] for r in rows] == list("abcde")
+    assert sorted(p.name for p in path.parent.iterdir()) == ["decisions.csv"]  # no temp left
+
+
+def test_export_matrices_npz(tmp_path):
+    path = tmp_path / "m.npz"
+    ev.export_matrices_npz(path, HAND_TME, HAND_GTM)
+    with np.load(path) as z:
+        np.testing.assert_array_equal(z["tme"], HAND_TME)
+        np.testing.assert_array_equal(z["gtm"], HAND_GTM)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.npz"]
+
+
+# --------------------------------------------------------------------------- independent references
+
+
+def loop_decisions(tme, gtm, tau, delta):
+    """Per-query loop straight from DESIGN §10 (independent of the vectorised code)."""
+    out = []
+    for i in range(len(tme)):
+        best = 0
+        for j in range(1, len(tme[i])):
+            if tme[i][j] < tme[i][best]:  # strict: ties keep the lowest j
+                best = j
+        revisit = any(g <= tau for g in gtm[i])
+        accepted = tme[i][best] <= delta
+        tp = accepted and gtm[i][best] <= tau
+        fp = accepted and gtm[i][best] > tau
+        fn = revisit and not tp
+        tn = (not revisit) and (not accepted)
+        out.append((best, revisit, tp, fp, fn, tn))
+    return out
+
+
+def loop_prf(tme, gtm, tau, delta):
+    rows = loop_decisions(tme, gtm, tau, delta)
+    tp = sum(r[2] for r in rows)
+    fp = sum(r[3] for r in rows)
+    fn = sum(r[4] for r in rows)
+    p = 1.0 if tp + fp == 0 else tp / (tp + fp)
+    r = 0.0 if tp + fn == 0 else tp / (tp + fn)
+    f = 0.0 if p + r == 0 else 2 * p * r / (p + r)
+    return tp, fp, fn, p, r, f
+
+
+def vpr_tutorial_create_pr_single(similarity, gt_hard, n_thresh):
+    """VPR_Tutorial's createPR(S, GThard, matching='single'), re-written from its definition:
+    S is (references x queries) similarity, GThard boolean; best match = first argmax per
+    column; GTP = #columns with any true; n_thresh thresholds evenly from max to min of the
+    best similarities; accepted = best similarity >= threshold; curves start with (R 0, P 1)."""
+    n_ref, n_q = len(similarity), len(similarity[0])
+    gtp = sum(1 for q in range(n_q) if any(gt_hard[r][q] for r in range(n_ref)))
+    best_s, best_ok = [], []
+    for q in range(n_q):
+        b = 0
+        for r in range(1, n_ref):
+            if similarity[r][q] > similarity[b][q]:
+                b = r
+        best_s.append(similarity[b][q])
+        best_ok.append(bool(gt_hard[b][q]))
+    thresholds = np.linspace(max(best_s), min(best_s), n_thresh)
+    precision, recall = [1.0], [0.0]
+    for t in thresholds:
+        tp = sum(1 for s, ok in zip(best_s, best_ok) if s >= t and ok)
+        fp = sum(1 for s, ok in zip(best_s, best_ok) if s >= t and not ok)
+        precision.append(tp / (tp + fp))
+        recall.append(tp / gtp)
+    return np.array(precision), np.array(recall), thresholds
+
+
+@st.composite
+def matrices(draw, allow_float=False):
+    n_q = draw(st.integers(1, 9))
+    n_r = draw(st.integers(1, 7))
+    if allow_float and draw(st.booleans()):
+        elem = st.floats(0.0, 10.0, allow_nan=False, allow_infinity=False)
+    else:
+        elem = st.integers(0, 4).map(float)  # few levels -> plenty of ties in TME
+    tme = np.array(draw(st.lists(st.lists(elem, min_size=n_r, max_size=n_r), min_size=n_q, max_size=n_q)))
+    gtm = np.array(
+        draw(st.lists(st.lists(st.integers(0, 5).map(float), min_size=n_r, max_size=n_r), min_size=n_q, max_size=n_q))
+    )
+    tau = float(draw(st.integers(0, 5))) + draw(st.sampled_from([0.0, 0.5]))
+    return tme, gtm, tau
+
+
+SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+
+@SETTINGS
+@given(matrices(allow_float=True), st.sampled_from([-1.0, 0.0, 1.0, 2.0, 2.5, 4.0, 20.0]))
+def test_decide_matches_loop(m, delta):
+    tme, gtm, tau = m
+    d = ev.decide(tme, gtm, tau, delta)
+    ref = loop_decisions(tme.tolist(), gtm.tolist(), tau, delta)
+    np.testing.assert_array_equal(d.best_match, [r[0] for r in ref])
+    np.testing.assert_array_equal(d.has_revisit, [r[1] for r in ref])
+    np.testing.assert_array_equal(d.tp, [r[2] for r in ref])
+    np.testing.assert_array_equal(d.fp, [r[3] for r in ref])
+    np.testing.assert_array_equal(d.fn, [r[4] for r in ref])
+    np.testing.assert_array_equal(d.tn, [r[5] for r in ref])
+    assert d.counts["tp"] + d.counts["fn"] == d.counts["n_revisit"]
+
+
+@SETTINGS
+@given(matrices(allow_float=True))
+def test_pr_curve_matches_loop(m):
+    tme, gtm, tau = m
+    c = ev.pr_curve(tme, gtm, tau)
+    # the default sweep: -inf and every distinct best-match TME (from the loop), ascending
+    best = [tme[i][r[0]] for i, r in enumerate(loop_decisions(tme.tolist(), gtm.tolist(), tau, 0.0))]
+    np.testing.assert_array_equal(c.deltas, [-np.inf, *sorted(set(best))])
+    for k, delta in enumerate(c.deltas):
+        tp, fp, fn, p, r, f = loop_prf(tme.tolist(), gtm.tolist(), tau, delta)
+        assert (c.tp[k], c.fp[k], c.fn[k]) == (tp, fp, fn)
+        assert c.precision[k] == pytest.approx(p)
+        assert c.recall[k] == pytest.approx(r)
+        assert c.f1[k] == pytest.approx(f)
+    assert c.max_f1 == pytest.approx(max(loop_prf(tme.tolist(), gtm.tolist(), tau, d)[5] for d in c.deltas))
+
+
+@SETTINGS
+@given(matrices(allow_float=True))
+def test_pr_curve_matches_sklearn(m):
+    tme, gtm, tau = m
+    # labels/scores per query, computed independently: score = -best TME, label = correct match
+    rows = loop_decisions(tme.tolist(), gtm.tolist(), tau, 0.0)
+    best_tme = np.array([tme[i, r[0]] for i, r in enumerate(rows)])
+    correct = np.array([gtm[i, r[0]] <= tau for i, r in enumerate(rows)])
+    n_revisit = sum(r[1] for r in rows)
+    n_correct = int(correct.sum())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no division-by-zero or other warnings from our code
+        c = ev.pr_curve(tme, gtm, tau)
+    if n_correct == 0:
+        # no correct best match anywhere: recall stays 0, AUC 0; P 1 at -inf then 0.
+        assert np.all(c.recall == 0.0) and c.auc == 0.0 and c.max_f1 == 0.0
+        np.testing.assert_allclose(c.precision, [1.0] + [0.0] * (len(c.deltas) - 1))
+        return
+    scale = n_correct / n_revisit  # sklearn's recall denominator is #correct, ours #revisit
+    p_sk, r_sk, thr_sk = precision_recall_curve(correct, -best_tme)
+    # sklearn's thresholds t accept score >= t  <=>  best_tme <= -t
+    c_at = ev.pr_curve(tme, gtm, tau, deltas=-thr_sk)
+    np.testing.assert_allclose(c_at.precision, p_sk[:-1])
+    np.testing.assert_allclose(c_at.recall, r_sk[:-1] * scale)
+    # sklearn's final point (P 1, R 0) is our -inf point
+    assert (c.precision[0], c.recall[0]) == (p_sk[-1], r_sk[-1]) == (1.0, 0.0)
+    # AUC = step-wise average precision, scaled to our recall denominator
+    assert c.auc == pytest.approx(average_precision_score(correct, -best_tme) * scale, abs=1e-12)
+
+
+@SETTINGS
+@given(matrices(allow_float=True), st.integers(2, 40))
+def test_pr_curve_matches_vpr_tutorial_single(m, n_thresh):
+    tme, gtm, tau = m
+    gt_hard = (gtm <= tau).T  # VPR_Tutorial: references x queries, boolean
+    assume(gt_hard.any())  # createPR divides by GTP
+    similarity = -tme.T  # higher = better
+    p_ref, r_ref, thresholds = vpr_tutorial_create_pr_single(similarity.tolist(), gt_hard.tolist(), n_thresh)
+    c = ev.pr_curve(tme, gtm, tau, deltas=np.concatenate(([-np.inf], -thresholds)))
+    np.testing.assert_allclose(c.precision, p_ref)
+    np.testing.assert_allclose(c.recall, r_ref)
+
+
+@SETTINGS
+@given(matrices(allow_float=True), st.lists(st.integers(1, 9), min_size=1, max_size=4))
+def test_recall_at_k_matches_loop(m, ks):
+    tme, gtm, tau = m
+    r = ev.recall_at_k(tme, gtm, tau, ks=ks)
+    revisit = [i for i in range(len(tme)) if gtm[i].min() <= tau]
+    for k in ks:
+        if not revisit:
+            assert r[k] == 0.0
+            continue
+        hits = 0
+        for i in revisit:
+            ranked = sorted(range(tme.shape[1]), key=lambda j: (tme[i, j], j))[:k]
+            hits += any(gtm[i, j] <= tau for j in ranked)
+        assert r[k] == pytest.approx(hits / len(revisit))
+
+
+# --------------------------------------------------------------------------- figures
+
+
+@pytest.fixture(scope="module")
+def small_case():
+    rng = np.random.default_rng(3)
+    t = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    ref = np.c_[2 * np.cos(t), 2 * np.sin(t), t]
+    qry = ref + rng.normal(0, 0.15, ref.shape)
+    gtm = ev.ground_truth_matrix(qry, ref)
+    tme = gtm + rng.random(gtm.shape)
+    return qry, ref, tme, gtm
+
+
+def _assert_written(paths, tmp_path, stem):
+    from pathlib import Path
+
+    assert [Path(p) for p in paths] == [tmp_path / f"{stem}.png", tmp_path / f"{stem}.pdf"]
+    png, pdf = (Path(p).read_bytes() for p in paths)
+    assert png.startswith(b"\x89PNG") and len(png) > 1000
+    assert pdf.startswith(b"%PDF") and len(pdf) > 1000
+
+
+def test_plot_matrices(tmp_path, small_case):
+    from vitaplace.engine import figures
+
+    qry, ref, tme, gtm = small_case
+    d = ev.decide(tme, gtm, 0.3, 0.5)
+    _assert_written(figures.plot_matrices(tmp_path / "mat", tme, gtm, d, "E1"), tmp_path, "mat")
+
+
+def test_plot_pr_curves(tmp_path, small_case):
+    from vitaplace.engine import figures
+
+    _, _, tme, gtm = small_case
+    curves = {"mupnet": ev.pr_curve(tme, gtm, 0.3), "oracle": ev.pr_curve(gtm, gtm, 0.3)}
+    _assert_written(figures.plot_pr_curves(tmp_path / "pr", curves, "E1"), tmp_path, "pr")
+
+
+def test_plot_trajectories(tmp_path, small_case):
+    from vitaplace.engine import figures
+
+    qry, ref, tme, gtm = small_case
+    d = ev.decide(tme, gtm, 0.3, 0.8)
+    arena = {
+        "size": 6.0,
+        "landmarks": [
+            {"type": "box", "pos": [1.0, 1.0], "size": [1.0, 1.0], "yaw": 0.4},
+            {"type": "cylinder", "pos": [-1.0, 1.0], "radius": 0.5},
+            {"type": "rock", "pos": [0.0, 0.0], "size": [0.8, 0.5]},
+        ],
+    }
+    _assert_written(figures.plot_trajectories(tmp_path / "traj", qry, ref, d, arena, "E2"), tmp_path, "traj")
+    _assert_written(figures.plot_trajectories(tmp_path / "traj2", qry, ref, d), tmp_path, "traj2")
+
+
+def test_plot_energy(tmp_path):
+    from vitaplace.engine import figures
+
+    energy = {"visual/1": [100.0, 40.0, 20.0, 15.0], "tactile/1": [50.0, 30.0, 0.0, 9.0], "joint": []}
+    _assert_written(figures.plot_energy(tmp_path / "energy", energy), tmp_path, "energy")
+    _assert_written(figures.plot_energy(tmp_path / "empty", {}), tmp_path, "empty")
