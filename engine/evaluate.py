@@ -346,7 +346,8 @@ def _json_float(x) -> float | None:
 def evaluate(tme, gtm, tau: float, delta: float | None = None, ks: Sequence[int] = (1, 5, 10)) -> dict:
     """JSON-serialisable summary (plain floats/ints; non-finite thresholds reported as None).
 
-    Keys: n_queries, n_references, n_revisit, tau, max_f1, delta_at_max_f1, auc,
+    Keys: n_queries, n_references, n_revisit, tau, max_f1, precision_at_max_f1,
+    recall_at_max_f1, delta_at_max_f1, auc,
     auc_method, recall_at_k ({"1": ..., ...}, string keys so JSON round-trips), and when
     ``delta`` is given: delta, precision, recall, f1, tp, fp, fn, tn, n_accepted.
     """
@@ -360,6 +361,8 @@ def evaluate(tme, gtm, tau: float, delta: float | None = None, ks: Sequence[int]
         "n_revisit": int(curve.n_revisit),
         "tau": float(tau),
         "max_f1": float(curve.max_f1),
+        "precision_at_max_f1": float(curve.precision[curve.index_at_max_f1]),
+        "recall_at_max_f1": float(curve.recall[curve.index_at_max_f1]),
         "delta_at_max_f1": _json_float(curve.delta_at_max_f1),
         "auc": float(curve.auc),
         "auc_method": "average_precision_stepwise",

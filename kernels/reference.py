@@ -1,0 +1,130 @@
+"""Plain numpy reference for one predictive-coding layer step (DESIGN §6).
+
+This module is the *specification* that the Warp kernels (``warp_kernels.py``) and the
+numpy backend are tested against. Every function is dtype-preserving: float32 inputs give
+float32 outputs, float64 inputs give float64 outputs.
+
+For a layer with latent ``Y`` (B x n_l), weights ``W`` (n_l x n_below) and the layer
+below (or the sensory input) ``X`` (B x n_below)::
+
+    A = Y @ W                   prediction pre-activation
+    P = phi(A)                  prediction of the layer below
+    E = X - P                   prediction error
+    G = phi'(A) * E             gain-weighted error
+    dF/dY = -2 G @ W.T + 2 E_above      (E_above absent for the top / joint layer)
+    dF/dW = -2 Y.T @ G
+
+with the energy ``F = sum_l ||E_l||^2`` (no 1/2).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "ACTIVATIONS",
+    "activation",
+    "activation_derivative",
+    "predict",
+    "latent_step",
+    "weight_step",
+]
+
+#: Names accepted by :func:`activation` and :func:`activation_derivative`.
+ACTIVATIONS: tuple[str, ...] = ("leaky_relu", "tanh", "sigmoid", "linear")
+
+
+def _check_name(name: str) -> None:
+    if name not in ACTIVATIONS:
+        raise ValueError(f"unknown activation {name!r}; valid activations: {', '.join(ACTIVATIONS)}")
+
+
+def _sigmoid(a: np.ndarray) -> np.ndarray:
+    # Numerically stable logistic function, no overflow warnings for large |a|.
+    a = np.asarray(a)
+    e = np.exp(-np.abs(a))
+    return np.where(a >= 0, 1 / (1 + e), e / (1 + e)).astype(a.dtype, copy=False)
+
+
+def activation(a: np.ndarray, name: str, slope: float = 0.2) -> np.ndarray:
+    """phi(a), element-wise (P = phi(A), DESIGN §6).
+
+    ``leaky_relu``: a if a > 0 else slope * a; ``tanh``; ``sigmoid``: 1 / (1 + exp(-a));
+    ``linear``: a.
+    """
+    _check_name(name)
+    a = np.asarray(a)
+    if name == "leaky_relu":
+        return np.where(a > 0, a, a * a.dtype.type(slope))
+    if name == "tanh":
+        return np.tanh(a)
+    if name == "sigmoid":
+        return _sigmoid(a)
+    return a.copy()  # linear
+
+
+def activation_derivative(a: np.ndarray, name: str, slope: float = 0.2) -> np.ndarray:
+    """phi'(a), element-wise (the gain in G = phi'(A) * E, DESIGN §6).
+
+    ``leaky_relu``: 1 if a > 0 else slope; ``tanh``: 1 - tanh(a)^2;
+    ``sigmoid``: s(a) (1 - s(a)); ``linear``: 1.
+    """
+    _check_name(name)
+    a = np.asarray(a)
+    one = a.dtype.type(1)
+    if name == "leaky_relu":
+        return np.where(a > 0, one, a.dtype.type(slope)).astype(a.dtype, copy=False)
+    if name == "tanh":
+        t = np.tanh(a)
+        return one - t * t
+    if name == "sigmoid":
+        s = _sigmoid(a)
+        return s * (one - s)
+    return np.ones_like(a)  # linear
+
+
+def predict(
+    Y: np.ndarray,
+    W: np.ndarray,
+    X: np.ndarray,
+    name: str = "leaky_relu",
+    slope: float = 0.2,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Prediction, error and gain of one layer (DESIGN §6).
+
+    Returns ``(A, P, E, G)`` with ``A = Y @ W``, ``P = phi(A)``, ``E = X - P`` and
+    ``G = phi'(A) * E``.
+    """
+    A = Y @ W
+    P = activation(A, name, slope)
+    E = X - P
+    G = activation_derivative(A, name, slope) * E
+    return A, P, E, G
+
+
+def latent_step(
+    Y: np.ndarray,
+    G: np.ndarray,
+    W: np.ndarray,
+    eta: float,
+    E_above: np.ndarray | None = None,
+) -> np.ndarray:
+    """One gradient step on the latent (DESIGN §6); returns the new ``Y``.
+
+    ``Y - eta * dF/dY`` with ``dF/dY = -2 G @ W.T + 2 E_above``, i.e.
+    ``Y + 2 eta G @ W.T - 2 eta E_above``. ``E_above`` is the error of the layer above
+    (whose target is ``Y``); pass ``None`` for the top / joint layer.
+    """
+    two_eta = Y.dtype.type(2 * eta)
+    out = Y + two_eta * (G @ W.T)
+    if E_above is not None:
+        out = out - two_eta * E_above
+    return out
+
+
+def weight_step(W: np.ndarray, Y: np.ndarray, G: np.ndarray, eta: float) -> np.ndarray:
+    """One gradient step on the weights (DESIGN §6); returns the new ``W``.
+
+    ``W - eta * dF/dW`` with ``dF/dW = -2 Y.T @ G``, i.e. ``W + 2 eta Y.T @ G``.
+    """
+    return W + W.dtype.type(2 * eta) * (Y.T @ G)
