@@ -1,15 +1,183 @@
-"""Command-line interface: `vitaplace run|simulate|train|evaluate|report|validate|plugins`."""
+"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|plugins|sweep``.
+
+User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
+training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
+"""
+
+from __future__ import annotations
+
 import argparse
+import logging
 import sys
+from pathlib import Path
 
 from vitaplace.engine import __version__
 
+EXIT_USER_ERROR = 2
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from vitaplace.engine.dataset import DatasetError
+    from vitaplace.engine.features import ExtractorParamsError
+    from vitaplace.engine.pc import NetworkError
+    from vitaplace.engine.plugins import PluginError
+    from vitaplace.engine.scenario import ScenarioError
+    from vitaplace.engine.sim.environment import EnvironmentError as SimEnvironmentError
+
+    return (ScenarioError, DatasetError, PluginError, ExtractorParamsError, NetworkError, SimEnvironmentError)
+
+
+def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True) -> None:
+    parser.add_argument("scenario", help="scenario YAML file, or the name of a built-in one (e.g. quickstart)")
+    parser.add_argument(
+        "--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
+        help="override a scenario value, e.g. --set methods.0.params.epochs=2 (repeatable)",
+    )
+    if out:
+        parser.add_argument("--out", type=Path, help="output directory (default: runs/<scenario name>)")
+        parser.add_argument(
+            "--force", action="append", default=[], metavar="STAGE",
+            help="redo a stage even if cached: simulate, fit, transform, evaluate, report (repeatable)",
+        )
+        parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="vitaplace",
+        description="Visuo-tactile place recognition with a simulated whiskered robot (MuPNet vs ViTa-SLAM).",
+    )
+    parser.add_argument("--version", action="version", version=f"vitaplace {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    stages = {
+        "run": "run the whole pipeline and write the report",
+        "simulate": "record the scenario's datasets (HDF5), or one foraging run of an environment file",
+        "train": "simulate, then fit every method on the training run",
+        "evaluate": "everything up to the evaluation: results.json and results.csv",
+        "report": "everything, then (re)write the report (cached stages are reused)",
+    }
+    for name, help_text in stages.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        _add_scenario_args(p)
+        if name == "simulate":
+            p.add_argument("--samples", type=int, help="environment file only: number of samples (default 200)")
+            p.add_argument("--seed", type=int, default=0, help="environment file only: run seed")
+    p = sub.add_parser("validate", help="check a scenario file without running anything")
+    _add_scenario_args(p, out=False)
+    sub.add_parser("plugins", help="list the feature-extractor plugins and any that failed to load")
+    p = sub.add_parser("sweep", help="run a scenario over several seeds (local process pool, or Ray)")
+    _add_scenario_args(p)
+    p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
+    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
+    p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster at ADDRESS ('auto' for a local one)")
+    return parser
+
+
+def _setup_logging(out: Path | None) -> None:
+    logger = logging.getLogger("vitaplace")
+    logger.setLevel(logging.INFO)
+    logger.handlers.clear()
+    console = logging.StreamHandler(sys.stderr)
+    console.setFormatter(logging.Formatter("%(message)s"))
+    logger.addHandler(console)
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        file_handler = logging.FileHandler(out / "log.txt")
+        file_handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
+        logger.addHandler(file_handler)
+
+
+def _run_stages(args: argparse.Namespace, until: str) -> int:
+    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.scenario import load_scenario
+
+    scenario, resolved = load_scenario(args.scenario, args.overrides)
+    out = args.out or Path("runs") / scenario.name
+    _setup_logging(out)
+    rows = Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress).run(until=until)
+    log = logging.getLogger("vitaplace")
+    for row in rows:
+        log.info(
+            "%-6s %-12s %-20s max F1 %.2f %%  AUC %.3f",
+            row["environment"], row["method"], row["direction"], 100 * row["max_f1"], row["auc"],
+        )
+    if until in ("report", "evaluate"):
+        log.info("results in %s", out / ("report.md" if until == "report" else "results.csv"))
+    return 0
+
+
+def _simulate_environment(args: argparse.Namespace) -> int:
+    """`vitaplace simulate ENV.yaml`: one foraging run of an environment file."""
+    from vitaplace.engine.dataset import write_run
+    from vitaplace.engine.sim.environment import load_environment
+    from vitaplace.engine.sim.simulate import RunSpec, simulate_run
+
+    environment = load_environment(args.scenario)
+    spec = RunSpec(kind="foraging", n_samples=args.samples or 200)
+    run = simulate_run(environment, spec, seed=args.seed, progress=not args.no_progress, name=Path(args.scenario).stem)
+    out = args.out or Path("runs") / "datasets"
+    path = write_run(out / f"{Path(args.scenario).stem}-foraging-seed{args.seed}.h5", run)
+    print(f"wrote {len(run)} samples to {path}")
+    return 0
+
+
+def _is_environment_file(name: str) -> bool:
+    from vitaplace.engine.scenario import read_yaml
+
+    path = Path(name)
+    return path.suffix in (".yaml", ".yml") and path.is_file() and "arena" in read_yaml(path)
+
+
+def _plugins() -> int:
+    from vitaplace.engine.plugins import discover
+
+    registry = discover()
+    for name in registry.names():
+        cls = registry.get(name)
+        doc = (cls.__doc__ or "").strip().splitlines()
+        print(f"{name:16s} {registry.sources[name]:40s} {doc[0] if doc else ''}")
+    for source, why in registry.failed.items():
+        print(f"{'(failed)':16s} {source:40s} {why}")
+    return 0
+
+
+def _validate(args: argparse.Namespace) -> int:
+    from vitaplace.engine.scenario import load_scenario
+
+    scenario, _ = load_scenario(args.scenario, args.overrides)
+    print(
+        f"{args.scenario}: valid scenario '{scenario.name}': {len(scenario.evaluations)} evaluation environment(s), "
+        f"methods {', '.join(m.name for m in scenario.methods)}"
+    )
+    return 0
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    from vitaplace.engine.sweep import run_sweep
+
+    run_sweep(args.scenario, args.overrides, args.seeds, args.out, args.workers, args.ray, not args.no_progress)
+    return 0
+
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="vitaplace", description=__doc__)
-    parser.add_argument("--version", action="version", version=f"vitaplace {__version__}")
-    parser.parse_args(argv)
-    return 0
+    args = build_parser().parse_args(argv)
+    try:
+        if args.command == "plugins":
+            return _plugins()
+        if args.command == "validate":
+            return _validate(args)
+        if args.command == "sweep":
+            return _sweep(args)
+        if args.command == "simulate" and _is_environment_file(args.scenario):
+            return _simulate_environment(args)
+        until = {"simulate": "simulate", "train": "fit", "evaluate": "evaluate"}.get(args.command, "report")
+        return _run_stages(args, until)
+    except _user_errors() as exc:
+        print(f"vitaplace: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("vitaplace: interrupted; finished stages are cached, run again to resume", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

@@ -40,6 +40,8 @@ class FeatureExtractor(ABC):
 
     name: ClassVar[str]
     Params: ClassVar[type[ExtractorParams]] = ExtractorParams
+    #: Whether long fit/transform calls may show progress bars (the runner sets it).
+    progress: bool = True
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         self.params = self.validate_params(params or {})
@@ -66,6 +68,10 @@ class FeatureExtractor(ABC):
     @abstractmethod
     def distance(self, query: Features, reference: Features) -> np.ndarray:
         """Template-match error matrix, shape (n_query, n_reference), lower = more similar."""
+
+    def training_history(self) -> dict[str, list[float]]:
+        """Per-epoch training curves to plot (e.g. energy per layer); empty when not iterative."""
+        return {}
 
     def save(self, directory: str | Path) -> None:
         """Write parameters and fitted state to ``directory`` (created if needed)."""

@@ -17,7 +17,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.collections import LineCollection
-from matplotlib.patches import Circle, Ellipse, Polygon, Rectangle
+from matplotlib.patches import Circle, Polygon, Rectangle
 
 from vitaplace.engine.atomic import atomic_path
 from vitaplace.engine.evaluate import Decisions, PRCurve
@@ -114,41 +114,26 @@ def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> 
 
 
 def _arena_bounds(arena: Mapping) -> tuple[float, float, float, float] | None:
-    """(xmin, xmax, ymin, ymax) of the arena: ``half_extent`` (scalar or [hx, hy]) or ``size``
-    (full width, scalar or [w, h]), centred on ``center`` (default origin)."""
-    cx, cy = (float(v) for v in arena.get("center", (0.0, 0.0)))
-    if "half_extent" in arena:
-        h = np.broadcast_to(np.asarray(arena["half_extent"], dtype=float), (2,))
-    elif "size" in arena:
-        h = np.broadcast_to(np.asarray(arena["size"], dtype=float), (2,)) / 2.0
-    else:
+    """(xmin, xmax, ymin, ymax) of a square arena of side ``size`` centred on the origin."""
+    if "size" not in arena:
         return None
-    return cx - h[0], cx + h[0], cy - h[1], cy + h[1]
+    h = float(arena["size"]) / 2.0
+    return -h, h, -h, h
 
 
 def _landmark_patch(lm: Mapping):
-    """Patch for a landmark dict: type 'box' (size [sx, sy] full lengths, optional yaw in rad),
-    'cylinder' (radius, or size scalar / [r]), 'rock' (vertices [[x, y], ...], else an ellipse
-    of size [sx, sy] or radius)."""
-    kind = str(lm.get("type", "box")).lower()
-    x, y = (float(v) for v in lm.get("pos", (0.0, 0.0))[:2])
-    size = np.atleast_1d(np.asarray(lm.get("size", lm.get("radius", 0.5)), dtype=float))
-    style = dict(facecolor=lm.get("colour", lm.get("color", "0.55")), edgecolor="black", alpha=0.6, zorder=1)
-    if isinstance(style["facecolor"], (list, tuple)):
-        style["facecolor"] = tuple(float(c) for c in style["facecolor"])
+    """Patch for a landmark of `EnvironmentSpec.top_view`: 'box' (size [sx, sy], yaw in degrees),
+    'cylinder' (radius), 'rock' (polygon [[x, y], ...] in the world frame)."""
+    kind = lm.get("type", "box")
+    x, y = (float(v) for v in lm["pos"][:2])
+    colour = tuple(float(c) for c in lm.get("rgba", (0.55, 0.55, 0.55, 1.0)))[:3]
+    style = dict(facecolor=colour, edgecolor="black", alpha=0.6, zorder=1)
     if kind == "cylinder":
-        r = float(lm.get("radius", size[0]))
-        return Circle((x, y), r, **style)
-    if kind == "rock":
-        if "vertices" in lm:
-            return Polygon(np.asarray(lm["vertices"], dtype=float)[:, :2], closed=True, **style)
-        if "radius" in lm or size.size == 1:
-            r = float(lm.get("radius", size[0]))
-            return Circle((x, y), r, **style)
-        return Ellipse((x, y), size[0], size[1], angle=np.degrees(float(lm.get("yaw", 0.0))), **style)
-    sx, sy = (size[0], size[0]) if size.size == 1 else (size[0], size[1])
-    return Rectangle((x - sx / 2, y - sy / 2), sx, sy, angle=np.degrees(float(lm.get("yaw", 0.0))),
-                     rotation_point="center", **style)
+        return Circle((x, y), float(lm["radius"]), **style)
+    if kind == "rock" and "polygon" in lm:
+        return Polygon(np.asarray(lm["polygon"], dtype=float)[:, :2], closed=True, **style)
+    sx, sy = (float(v) for v in lm["size"][:2])
+    return Rectangle((x - sx / 2, y - sy / 2), sx, sy, angle=float(lm.get("yaw", 0.0)), rotation_point="center", **style)
 
 
 def plot_trajectories(out_stem, query_poses, reference_poses, decisions: Decisions,

@@ -455,9 +455,9 @@ def test_plot_trajectories(tmp_path, small_case):
     arena = {
         "size": 6.0,
         "landmarks": [
-            {"type": "box", "pos": [1.0, 1.0], "size": [1.0, 1.0], "yaw": 0.4},
+            {"type": "box", "pos": [1.0, 1.0], "size": [1.0, 1.0], "yaw": 20.0},
             {"type": "cylinder", "pos": [-1.0, 1.0], "radius": 0.5},
-            {"type": "rock", "pos": [0.0, 0.0], "size": [0.8, 0.5]},
+            {"type": "rock", "pos": [0.0, 0.0], "size": [0.8, 0.5], "polygon": [[0, 0], [0.4, 0.1], [0.1, 0.5]]},
         ],
     }
     _assert_written(figures.plot_trajectories(tmp_path / "traj", qry, ref, d, arena, "E2"), tmp_path, "traj")

@@ -122,7 +122,7 @@ class MupnetExtractor(FeatureExtractor):
         assert self.network is not None
         return {m: self.network.scale_input(m, x) for m, x in self.raw_inputs(run).items()}
 
-    def fit(self, train: Run, progress: bool = True) -> None:
+    def fit(self, train: Run) -> None:
         p = self.params
         raw = self.raw_inputs(train)
         self.network = Network(self.network_config(train.n_whiskers * 3), seed=p.seed, backend=p.backend)
@@ -136,7 +136,10 @@ class MupnetExtractor(FeatureExtractor):
             epochs=p.epochs, batch_size=p.batch_size, inference_steps=p.inference_steps, seed=p.seed
         )
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
-        self.energy = self.network.train(inputs, training, progress=progress).energy
+        self.energy = self.network.train(inputs, training, progress=self.progress).energy
+
+    def training_history(self) -> dict[str, list[float]]:
+        return self.energy
 
     def transform(self, run: Run) -> Features:
         if self.network is None:

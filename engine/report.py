@@ -1,0 +1,102 @@
+"""The Markdown report of a scenario run, with the paper's figures (DESIGN §10, paper Fig. 4-5)."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from vitaplace.engine import evaluate as ev
+from vitaplace.engine import figures
+from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.sim.environment import load_environment
+
+if TYPE_CHECKING:
+    from vitaplace.engine.runner import Pipeline
+
+
+def _pct(value: Any) -> str:
+    return "–" if value is None else f"{100 * float(value):.2f}"
+
+
+def results_table(rows: list[dict[str, Any]]) -> str:
+    """Markdown table: one row per environment x method x direction (F1, P, R in %)."""
+    ks = sorted({k for row in rows for k in row.get("recall_at_k", {})}, key=int)
+    header = ["environment", "method", "direction", "max F1 %", "P %", "R %", "AUC", "δ at max F1"]
+    header += [f"R@{k} %" for k in ks]
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    for row in rows:
+        cells = [
+            row["environment"], row["method"], row["direction"], _pct(row["max_f1"]),
+            _pct(row.get("precision_at_max_f1")), _pct(row.get("recall_at_max_f1")),
+            f"{row['auc']:.3f}", "–" if row["delta_at_max_f1"] is None else f"{row['delta_at_max_f1']:.4g}",
+        ]
+        cells += [_pct(row["recall_at_k"].get(k)) for k in ks]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return "\n".join(lines)
+
+
+def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
+    """figures/ (PNG + PDF) and report.md for the evaluated scenario."""
+    out, scenario = pipeline.out, pipeline.scenario
+    fig_dir = out / "figures"
+    tau = scenario.evaluation.tau
+    sections = [f"# vitaplace report — {scenario.name}", ""]
+    if scenario.description:
+        sections += [scenario.description.strip(), ""]
+    sections += [
+        f"Place recognition, single best match per query, revisit tolerance τ = {tau} m"
+        + (f", heading weight {scenario.evaluation.heading_weight} m/rad" if scenario.evaluation.heading_weight else "")
+        + ". P and R are at the δ that maximises F1.",
+        "",
+        results_table(rows),
+        "",
+    ]
+    for e in scenario.evaluations:
+        arena = load_environment(e.environment).top_view()
+        curves = {}
+        sections += [f"## {e.name}", ""]
+        for method in scenario.methods:
+            for direction, q, r in pipeline.directions():
+                folder = pipeline.evaluation_dir(e.name, method.name, direction)
+                with np.load(folder / "matrices.npz") as m:
+                    tme, gtm = m["tme"], m["gtm"]
+                curve = ev.pr_curve(tme, gtm, tau)
+                curves[method.name if len(pipeline.directions()) == 1 else f"{method.name} {direction}"] = curve
+                decisions = ev.decide(tme, gtm, tau, curve.delta_at_max_f1)
+                stem = f"{e.name}-{method.name}-{direction}"
+                figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{e.name} {method.name}")
+                figures.plot_trajectories(
+                    fig_dir / f"trajectories-{stem}",
+                    pipeline.open(f"{e.name}/{q}").poses,
+                    pipeline.open(f"{e.name}/{r}").poses,
+                    decisions,
+                    arena=arena,
+                    title=f"{e.name} {method.name}: matches at max F1",
+                )
+                sections += [
+                    f"### {method.name} ({direction})",
+                    "",
+                    f"![GTM and TME](figures/matrices-{stem}.png)",
+                    "",
+                    f"![trajectories](figures/trajectories-{stem}.png)",
+                    "",
+                ]
+        figures.plot_pr_curves(fig_dir / f"pr-{e.name}", curves, title=f"{e.name}: precision-recall")
+        sections[sections.index(f"## {e.name}") + 2 : sections.index(f"## {e.name}") + 2] = [
+            f"![PR curves](figures/pr-{e.name}.png)",
+            "",
+        ]
+    training = [(m.name, pipeline.extractor(m).training_history()) for m in scenario.methods]
+    training = [(name, history) for name, history in training if history]
+    if training:
+        sections += ["## Training", ""]
+        for name, history in training:
+            figures.plot_energy(fig_dir / f"training-{name}", history, title=f"{name}: training energy per layer")
+            sections += [f"![training {name}](figures/training-{name}.png)", ""]
+    manifest_path = out / "manifest.json"
+    if manifest_path.exists():
+        manifest = json.loads(manifest_path.read_text())
+        sections += ["## Provenance", "", f"vitaplace {manifest['vitaplace_version']}, commit {manifest['git_commit']}.", ""]
+    write_text_atomic(out / "report.md", "\n".join(sections))

@@ -1,0 +1,307 @@
+"""The scenario pipeline: simulate -> fit -> transform -> evaluate -> report, cached per stage.
+
+Every stage's output lives under ``OUT/cache`` named by a hash of everything it depends on
+(config, upstream keys, format versions), so a re-run skips finished stages and an
+interrupted run resumes with the first missing output. ``force`` redoes named stages.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import platform
+import shutil
+import subprocess
+import tempfile
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from vitaplace.engine import __version__
+from vitaplace.engine import evaluate as ev
+from vitaplace.engine.atomic import atomic_path, write_text_atomic
+from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
+from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features
+from vitaplace.engine.plugins import Registry, discover
+from vitaplace.engine.scenario import Method, Scenario, SimulatedRun, content_hash
+from vitaplace.engine.sim.environment import load_environment
+
+STAGES = ("simulate", "fit", "transform", "evaluate", "report")
+#: Bump when a stage's output format or algorithm changes, to invalidate old caches.
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 1, "evaluate": 1, "report": 1}
+
+log = logging.getLogger("vitaplace")
+
+
+@dataclass
+class StageRecord:
+    stage: str
+    item: str
+    key: str
+    status: str  # "ran" or "cached"
+    seconds: float
+
+
+@dataclass
+class RunnerState:
+    records: list[StageRecord] = field(default_factory=list)
+    datasets: dict[str, str] = field(default_factory=dict)  # run label -> dataset key
+
+
+def seed_for(scenario_seed: int, *path: int) -> int:
+    """Independent, reproducible seeds for the runs of a scenario (numpy SeedSequence)."""
+    return int(np.random.SeedSequence([scenario_seed, *path]).generate_state(1)[0])
+
+
+class Pipeline:
+    """Runs the stages of one scenario into an output directory."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        resolved: dict[str, Any],
+        out: Path,
+        force: Iterable[str] = (),
+        progress: bool = True,
+        registry: Registry | None = None,
+    ) -> None:
+        self.scenario, self.resolved, self.out = scenario, resolved, Path(out)
+        self.force = set(force)
+        unknown = self.force - set(STAGES)
+        if unknown:
+            raise ValueError(f"--force: unknown stage(s) {sorted(unknown)}; stages: {', '.join(STAGES)}")
+        self.progress = progress
+        self.registry = registry or discover()
+        self.cache = self.out / "cache"
+        self.state = RunnerState()
+        self.extractors: dict[str, FeatureExtractor] = {}
+
+    # ------------------------------------------------------------------ bookkeeping
+    def _stage(self, stage: str, item: str, key: str, done: bool, work) -> Any:
+        """Run ``work()`` unless its output exists (``done``) and the stage is not forced."""
+        start = time.perf_counter()
+        if done and stage not in self.force:
+            status = "cached"
+            log.info("%-9s %-28s cached (%s)", stage, item, key)
+            result = None
+        else:
+            status = "ran"
+            log.info("%-9s %-28s running (%s)", stage, item, key)
+            result = work()
+        seconds = time.perf_counter() - start
+        self.state.records.append(StageRecord(stage, item, key, status, round(seconds, 3)))
+        return result
+
+    # ------------------------------------------------------------------ simulate
+    def runs(self) -> dict[str, tuple[SimulatedRun, int]]:
+        """Every run to record: label -> (spec, seed)."""
+        s = self.scenario
+        runs = {"train": (s.train, seed_for(s.seed, 0))}
+        for i, e in enumerate(s.evaluations):
+            runs[f"{e.name}/query"] = (e, seed_for(s.seed, i + 1, 1))
+            runs[f"{e.name}/reference"] = (e, seed_for(s.seed, i + 1, 2))
+        return runs
+
+    def dataset_path(self, label: str) -> Path:
+        return self.cache / "datasets" / f"{label.replace('/', '-')}-{self.state.datasets[label]}.h5"
+
+    def simulate(self) -> None:
+        from vitaplace.engine.sim.simulate import simulate_run
+
+        for label, (entry, seed) in self.runs().items():
+            environment = load_environment(entry.environment)
+            spec = [environment.model_dump(mode="json"), entry.run.model_dump(mode="json")]
+            key = content_hash("simulate", STAGE_VERSION["simulate"], spec, self.scenario.robot.model_dump(mode="json"), seed)
+            self.state.datasets[label] = key
+            path = self.dataset_path(label)
+
+            def work(entry=entry, seed=seed, environment=environment, path=path, label=label, key=key) -> None:
+                run = simulate_run(
+                    environment, entry.run, seed=seed, robot=self.scenario.robot, progress=self.progress, name=label
+                )
+                run.attrs["scenario_hash"] = key
+                write_run(path, run)
+
+            self._stage("simulate", label, key, path.exists(), work)
+
+    def open(self, label: str) -> Run:
+        return open_run(self.dataset_path(label))
+
+    # ------------------------------------------------------------------ fit / transform
+    def model_key(self, method: Method) -> str:
+        return content_hash("fit", STAGE_VERSION["fit"], method.plugin, method.params, self.state.datasets["train"])
+
+    def fit(self) -> None:
+        for method in self.scenario.methods:
+            key = self.model_key(method)
+            directory = self.cache / "models" / f"{method.name}-{key}"
+
+            def work(method=method, directory=directory) -> None:
+                extractor = self.registry.create(method.plugin, method.params)
+                extractor.progress = self.progress
+                extractor.fit(self.open("train"))
+                tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+                try:
+                    extractor.save(tmp)
+                    if directory.exists():
+                        shutil.rmtree(directory)
+                    os.replace(tmp, directory)
+                except BaseException:
+                    shutil.rmtree(tmp, ignore_errors=True)
+                    raise
+                self.extractors[method.name] = extractor
+
+            directory.parent.mkdir(parents=True, exist_ok=True)
+            self._stage("fit", method.name, key, directory.is_dir(), work)
+
+    def extractor(self, method: Method) -> FeatureExtractor:
+        if method.name not in self.extractors:
+            directory = self.cache / "models" / f"{method.name}-{self.model_key(method)}"
+            self.extractors[method.name] = self.registry.get(method.plugin).load(directory)
+            self.extractors[method.name].progress = self.progress
+        return self.extractors[method.name]
+
+    def features_path(self, method: Method, label: str) -> Path:
+        key = content_hash("transform", STAGE_VERSION["transform"], self.model_key(method), self.state.datasets[label])
+        return self.cache / "features" / f"{method.name}-{label.replace('/', '-')}-{key}.npz"
+
+    def transform(self) -> None:
+        labels = [label for label in self.runs() if label != "train"]
+        for method in self.scenario.methods:
+            for label in labels:
+                path = self.features_path(method, label)
+
+                def work(method=method, label=label, path=path) -> None:
+                    save_features(path, self.extractor(method).transform(self.open(label)))
+
+                self._stage("transform", f"{method.name} {label}", path.stem.rsplit("-", 1)[1], path.exists(), work)
+
+    # ------------------------------------------------------------------ evaluate
+    def directions(self) -> list[tuple[str, str, str]]:
+        d = self.scenario.evaluation.direction
+        pairs = [("query-to-reference", "query", "reference"), ("reference-to-query", "reference", "query")]
+        return [p for p in pairs if d in (p[0], "both")]
+
+    def evaluation_dir(self, env: str, method: str, direction: str) -> Path:
+        return self.out / "evaluations" / env / method / direction
+
+    def evaluate(self) -> list[dict[str, Any]]:
+        settings = self.scenario.evaluation
+        rows = []
+        for e in self.scenario.evaluations:
+            for method in self.scenario.methods:
+                for direction, q, r in self.directions():
+                    qpath = self.features_path(method, f"{e.name}/{q}")
+                    rpath = self.features_path(method, f"{e.name}/{r}")
+                    key = content_hash("evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name, settings.model_dump())
+                    folder = self.evaluation_dir(e.name, method.name, direction)
+                    summary_path = folder / "summary.json"
+                    done = summary_path.exists() and json.loads(summary_path.read_text()).get("key") == key
+
+                    def work(method=method, qpath=qpath, rpath=rpath, folder=folder, e=e, q=q, r=r, key=key) -> None:
+                        tme = self.extractor(method).distance(load_features(qpath), load_features(rpath))
+                        gtm = ev.ground_truth_matrix(
+                            self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses, settings.heading_weight
+                        )
+                        summary = ev.evaluate(tme, gtm, settings.tau, settings.delta, tuple(settings.recall_k))
+                        curve = ev.pr_curve(tme, gtm, settings.tau)
+                        decisions = ev.decide(tme, gtm, settings.tau, curve.delta_at_max_f1)
+                        ev.export_matrices_npz(folder / "matrices.npz", tme, gtm)
+                        ev.export_decisions_csv(folder / "decisions.csv", decisions)
+                        with atomic_path(folder / "pr_curve.npz") as tmp, open(tmp, "wb") as f:
+                            np.savez(f, deltas=curve.deltas, precision=curve.precision, recall=curve.recall, f1=curve.f1)
+                        write_text_atomic(folder / "summary.json", json.dumps({"key": key, **summary}, indent=2))
+
+                    folder.mkdir(parents=True, exist_ok=True)
+                    self._stage("evaluate", f"{e.name} {method.name} {direction}", key, done, work)
+                    summary = json.loads(summary_path.read_text())
+                    summary.pop("key")
+                    rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
+        return rows
+
+    # ------------------------------------------------------------------ everything
+    def run(self, until: str = "report") -> list[dict[str, Any]]:
+        """Run the stages up to and including ``until``; return the result rows (if evaluated)."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(self.out / "scenario.resolved.yaml", yaml.safe_dump(self.resolved, sort_keys=False))
+        started = time.perf_counter()
+        rows: list[dict[str, Any]] = []
+        stop = STAGES.index(until)
+        self.simulate()
+        if stop >= STAGES.index("fit"):
+            self.fit()
+        if stop >= STAGES.index("transform"):
+            self.transform()
+        if stop >= STAGES.index("evaluate"):
+            rows = self.evaluate()
+            write_results(self.out, rows)
+        if stop >= STAGES.index("report"):
+            from vitaplace.engine.report import write_report
+
+            key = content_hash("report", STAGE_VERSION["report"], rows)
+            marker = self.out / "report.key"
+            done = (self.out / "report.md").exists() and marker.exists() and marker.read_text() == key
+
+            def work() -> None:
+                write_report(self, rows)
+                write_text_atomic(marker, key)
+
+            self._stage("report", "report", key, done, work)
+        self.write_manifest(time.perf_counter() - started)
+        return rows
+
+    def write_manifest(self, seconds: float) -> None:
+        manifest = {
+            "scenario": self.scenario.name,
+            "vitaplace_version": __version__,
+            "git_commit": git_commit(),
+            "seed": self.scenario.seed,
+            "run_seeds": {label: seed for label, (_, seed) in self.runs().items()},
+            "datasets": self.state.datasets,
+            "stages": [record.__dict__ for record in self.state.records],
+            "seconds": round(seconds, 3),
+            "machine": {
+                "platform": platform.platform(),
+                "python": platform.python_version(),
+                "cpus": os.cpu_count(),
+            },
+        }
+        write_text_atomic(self.out / "manifest.json", json.dumps(manifest, indent=2))
+
+
+RESULT_COLUMNS = (
+    "environment", "method", "direction", "max_f1", "precision_at_max_f1", "recall_at_max_f1",
+    "delta_at_max_f1", "auc", "precision", "recall", "f1", "n_queries", "n_revisit",
+)
+
+
+def write_results(out: Path, rows: list[dict[str, Any]]) -> None:
+    """results.json (everything) and results.csv (one row per environment x method x direction)."""
+    import csv
+    import io
+
+    write_text_atomic(out / "results.json", json.dumps(rows, indent=2))
+    ks = sorted({k for row in rows for k in row.get("recall_at_k", {})}, key=int)
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow([*RESULT_COLUMNS, *(f"recall@{k}" for k in ks)])
+    for row in rows:
+        writer.writerow([row.get(c, "") for c in RESULT_COLUMNS] + [row["recall_at_k"].get(k, "") for k in ks])
+    write_text_atomic(out / "results.csv", buffer.getvalue())
+
+
+def git_commit() -> str | None:
+    """The commit of the source tree vitaplace runs from, when it is a git checkout."""
+    try:
+        result = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=5
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return result.stdout.strip() or None
