@@ -132,12 +132,15 @@ def _plugins() -> int:
     from vitaplace.engine.plugins import discover
 
     registry = discover()
+    rows = []
     for name in registry.names():
-        cls = registry.get(name)
-        doc = (cls.__doc__ or "").strip().splitlines()
-        print(f"{name:16s} {registry.sources[name]:40s} {doc[0] if doc else ''}")
-    for source, why in registry.failed.items():
-        print(f"{'(failed)':16s} {source:40s} {why}")
+        doc = (registry.get(name).__doc__ or "").strip().splitlines()
+        rows.append((name, registry.sources[name], doc[0] if doc else ""))
+    rows += [("(failed)", source, why) for source, why in registry.failed.items()]
+    width_name = max((len(r[0]) for r in rows), default=0)
+    width_source = max((len(r[1]) for r in rows), default=0)
+    for name, source, text in rows:
+        print(f"{name:{width_name}}  {source:{width_source}}  {text}")
     return 0
 
 

@@ -10,6 +10,7 @@ which plugins load.
 
 from __future__ import annotations
 
+import inspect
 import os
 import sys
 from collections.abc import Iterable, Mapping
@@ -53,6 +54,12 @@ class Registry:
 
     def add_plugin(self, plugin: object, source: str) -> None:
         """Register one plugin object (module or instance) and collect the extractors it contributes."""
+        for other, registered in self.manager.list_name_plugin():
+            if registered is plugin:
+                raise PluginError(
+                    f"plugins '{other}' and '{source}' are the same module {getattr(plugin, '__name__', plugin)!r}; "
+                    f"remove one of the two entry points or restrict plugins with {ONLY_ENV}"
+                )
         self.manager.register(plugin, name=source)
         hook_impls = [i for i in self.manager.hook.vitaplace_register_features.get_hookimpls() if i.plugin is plugin]
         for impl in hook_impls:
@@ -61,11 +68,19 @@ class Registry:
             except PluginError:
                 raise
             except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop the others
+                # A skipped plugin contributes nothing, not even what it registered before failing.
+                for name in [n for n, s in self.sources.items() if s == source]:
+                    del self.extractors[name], self.sources[name]
+                self.manager.unregister(plugin)
                 self._skip(source, f"its registration hook raised {type(exc).__name__}: {exc}")
+                return
 
     def _register(self, cls: type[FeatureExtractor], source: str) -> None:
         if not (isinstance(cls, type) and issubclass(cls, FeatureExtractor)):
             raise PluginError(f"plugin '{source}' registered {cls!r}, which is not a FeatureExtractor subclass")
+        if inspect.isabstract(cls):
+            missing = ", ".join(sorted(cls.__abstractmethods__))
+            raise PluginError(f"plugin '{source}' registered {cls.__name__}, which does not implement {missing}")
         name = getattr(cls, "name", None)
         if not isinstance(name, str) or not name:
             raise PluginError(f"plugin '{source}' registered {cls.__name__} without a 'name'")
@@ -99,7 +114,15 @@ def discover(eps: Iterable[EntryPoint] | None = None, only: str | None = None) -
     registry = Registry(manager)
     only = os.environ.get(ONLY_ENV) if only is None else only
     wanted = {name.strip() for name in only.split(",") if name.strip()} if only else None
-    for ep in entry_points(group=hookspecs.ENTRY_POINT_GROUP) if eps is None else eps:
+    available = list(entry_points(group=hookspecs.ENTRY_POINT_GROUP) if eps is None else eps)
+    unknown = sorted((wanted or set()) - {ep.name for ep in available})
+    if unknown:
+        print(
+            f"vitaplace: {ONLY_ENV} names unknown plugin(s) {', '.join(unknown)}; "
+            f"installed: {', '.join(sorted(ep.name for ep in available))}",
+            file=sys.stderr,
+        )
+    for ep in available:
         if wanted is not None and ep.name not in wanted:
             continue
         source = _source_label(ep)

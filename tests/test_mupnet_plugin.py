@@ -1,0 +1,211 @@
+"""The built-in MuPNet feature plugin on a small synthetic looped path (DESIGN §6, §9).
+
+The sensors are smooth functions of the position along a closed loop, so nearby poses give
+similar readings. Run B follows the same loop as run A, sampled in between A's samples, with
+pose and sensor noise. What counts as a correct match comes from the poses alone (ground
+truth): a query's best feature match must be a true revisit, i.e. lie within ``TAU`` metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.distance import cdist
+
+from vitaplace.engine.dataset import Run
+from vitaplace.engine.features import ExtractorParamsError
+from vitaplace.engine.plugins import discover
+
+N = 80  # samples per run
+H, W = 8, 10  # image size
+N_WHISKERS = 24
+RADIUS = 1.0  # [m], the loop is a circle
+SPACING = 2 * np.pi * RADIUS / N  # arc length between consecutive samples [m]
+TAU = 2 * SPACING  # revisit tolerance [m]
+
+PARAMS = {
+    "image_size": (H, W),
+    "visual_layers": [20],
+    "tactile_layers": [10],
+    "joint_size": 8,
+    "epochs": 20,
+    "batch_size": 10,
+    "eta_y_visual": 0.05,
+    "eta_y_tactile": 0.05,
+    "eta_y_joint": 0.05,
+    "eta_w_visual": 0.005,
+    "eta_w_tactile": 0.005,
+    "eta_w_joint": 0.005,
+    "backend": "numpy",
+    "max_steps": 200,
+    "seed": 0,
+}
+
+
+def sensor_readings(phi: np.ndarray, rng: np.random.Generator, image_noise: float, tactile_noise: float, size=(H, W)):
+    """Images, theta and xy as smooth, 2pi-periodic functions of the loop angle ``phi`` plus noise."""
+    n = len(phi)
+    h, w = size
+    rows = np.arange(h)[:, None] * (H / h)
+    cols = np.arange(w)[None, :] * (W / w)
+    images = np.empty((n, h, w, 3))
+    for channel, (k, a, b) in enumerate([(1, 0.5, 0.0), (1, 0.0, 0.4), (2, 0.3, 0.3)]):
+        images[..., channel] = 128 + 100 * np.cos(k * phi[:, None, None] + a * rows + b * cols + channel)
+    images += rng.normal(0, image_noise, images.shape)
+    whisker = np.arange(N_WHISKERS)
+    theta = 0.4 * np.sin(phi[:, None] + 2 * np.pi * whisker / N_WHISKERS)
+    xy = np.stack([0.05 * np.cos(phi[:, None] + whisker), 0.05 * np.sin(2 * phi[:, None] + whisker)], axis=-1)
+    theta = theta + rng.normal(0, tactile_noise, theta.shape)
+    xy = xy + rng.normal(0, tactile_noise / 10, xy.shape)
+    return np.clip(np.rint(images), 0, 255).astype(np.uint8), theta, xy
+
+
+def loop_run(offset: float, seed: int, size=(H, W), name="run") -> Run:
+    """N samples around the loop, starting ``offset`` sample spacings in, with pose and sensor noise."""
+    rng = np.random.default_rng(seed)
+    phi = 2 * np.pi * (np.arange(N) + offset) / N + rng.normal(0, 0.02, N)
+    poses = np.stack([RADIUS * np.cos(phi), RADIUS * np.sin(phi), phi + np.pi / 2], axis=1)
+    images, theta, xy = sensor_readings(phi, rng, image_noise=12, tactile_noise=0.04, size=size)
+    return Run.from_arrays(images=images, theta=theta, xy=xy, poses=poses, name=name)
+
+
+@pytest.fixture(scope="module")
+def runs() -> tuple[Run, Run]:
+    return loop_run(0.0, seed=1, name="A"), loop_run(0.5, seed=2, name="B")
+
+
+@pytest.fixture(scope="module")
+def mupnet_class():
+    return discover(only="mupnet").get("mupnet")
+
+
+def make(mupnet_class, **overrides):
+    extractor = mupnet_class({**PARAMS, **overrides})
+    extractor.progress = False
+    return extractor
+
+
+@pytest.fixture(scope="module")
+def fitted(mupnet_class, runs):
+    extractor = make(mupnet_class)
+    extractor.fit(runs[0])
+    return extractor
+
+
+def revisit_rate(extractor, query: Run, reference: Run, permute: bool = False) -> float:
+    """Fraction of queries whose best feature match (lowest TME) is within TAU of the query pose."""
+    fq, fr = extractor.transform(query), extractor.transform(reference)
+    if permute:  # break the link between features and poses
+        fq = {k: v[np.random.default_rng(0).permutation(len(v))] for k, v in fq.items()}
+    tme = extractor.distance(fq, fr)
+    assert tme.shape == (len(query), len(reference))
+    gtm = cdist(query.poses[:, :2], reference.poses[:, :2])
+    best = tme.argmin(axis=1)
+    return float(np.mean(gtm[np.arange(len(query)), best] <= TAU))
+
+
+def chance_rate(query: Run, reference: Run) -> float:
+    """Expected revisit rate of a uniformly random match, from the poses alone."""
+    gtm = cdist(query.poses[:, :2], reference.poses[:, :2])
+    return float(np.mean(gtm <= TAU))
+
+
+def test_ground_truth_of_the_synthetic_loop(runs):
+    a, b = runs
+    gtm = cdist(b.poses[:, :2], a.poses[:, :2])
+    # Every query of B has a true revisit in A; about 4-5 of 80 reference samples lie within TAU.
+    assert np.all(gtm.min(axis=1) <= TAU)
+    assert 0.03 < chance_rate(b, a) < 0.08
+
+
+def test_network_shape_follows_the_inputs(fitted):
+    assert fitted.network.modalities == ["visual", "tactile"]
+    assert fitted.network.sizes["visual.0"] == H * W * 3
+    assert fitted.network.sizes["tactile.0"] == N_WHISKERS * 3  # theta (24) + xy (24 x 2)
+    assert fitted.network.sizes["joint"] == 8
+
+
+def test_training_lowers_every_prediction_error(fitted):
+    history_by_edge = fitted.training_history()
+    assert set(history_by_edge) == {"visual.1", "tactile.1", "joint.visual", "joint.tactile"}
+    for edge, history in history_by_edge.items():
+        assert len(history) == PARAMS["epochs"]
+        assert history[-1] < 0.5 * history[0], edge
+
+
+def test_joint_latents_recognise_revisits(fitted, runs):
+    a, b = runs
+    features = fitted.transform(b)
+    assert set(features) == {"latent"}
+    assert features["latent"].shape == (N, 8)
+    assert np.all(np.isfinite(features["latent"]))
+    assert features["latent"].std(axis=0).min() > 1e-3  # not a constant code
+
+    chance = chance_rate(b, a)
+    rate = revisit_rate(fitted, b, a)
+    assert rate >= 0.8, rate
+    assert rate >= 8 * chance
+    # Control: with the query features shuffled against their poses, matching drops to chance level.
+    assert revisit_rate(fitted, b, a, permute=True) <= 0.25
+
+
+@pytest.mark.parametrize("modalities", [["visual"], ["tactile"]], ids=["visual-only", "tactile-only"])
+def test_single_modality_ablations(mupnet_class, runs, modalities):
+    a, b = runs
+    extractor = make(mupnet_class, modalities=modalities)
+    extractor.fit(a)
+    assert extractor.network.modalities == modalities
+    assert set(extractor.training_history()) == {f"{modalities[0]}.1", f"joint.{modalities[0]}"}
+    latent = extractor.transform(b)["latent"]
+    assert latent.shape == (N, 8)
+    assert np.all(np.isfinite(latent))
+    assert latent.std(axis=0).min() > 1e-3
+    assert revisit_rate(extractor, b, a) >= 0.6
+
+
+def test_images_are_resampled_to_the_network_size(mupnet_class):
+    big = loop_run(0.0, seed=3, size=(2 * H, 2 * W))
+    extractor = make(mupnet_class, modalities=["visual"], epochs=2)
+    extractor.fit(big)
+    assert extractor.network.sizes["visual.0"] == H * W * 3
+    assert extractor.transform(big)["latent"].shape == (N, 8)
+
+
+def test_save_load_gives_identical_features(fitted, mupnet_class, runs, tmp_path):
+    a, b = runs
+    fitted.save(tmp_path / "mupnet")
+    loaded = mupnet_class.load(tmp_path / "mupnet")
+    assert loaded.params == fitted.params
+    assert loaded.training_history() == fitted.training_history()  # JSON round-trips floats exactly
+    for run in runs:
+        np.testing.assert_array_equal(loaded.transform(run)["latent"], fitted.transform(run)["latent"])
+    np.testing.assert_array_equal(
+        loaded.distance(loaded.transform(b), loaded.transform(a)), fitted.distance(fitted.transform(b), fitted.transform(a))
+    )
+
+
+def test_transform_before_fit_is_an_error(mupnet_class, runs):
+    with pytest.raises(RuntimeError, match="fit"):
+        make(mupnet_class).transform(runs[0])
+
+
+@pytest.mark.parametrize(
+    "params, key",
+    [
+        ({"modalities": ["visual", "visual"]}, "modalities"),
+        ({"modalities": []}, "modalities"),
+        ({"modalities": ["smell"]}, "modalities"),
+        ({"hidden_layers": [5]}, "hidden_layers"),
+        ({"epochs": 0}, "epochs"),
+        ({"eta_y_joint": "fast"}, "eta_y_joint"),
+        ({"backend": "tpu"}, "backend"),
+        ({"image_size": (8,)}, "image_size"),
+    ],
+    ids=["duplicate-modalities", "no-modality", "unknown-modality", "unknown-key", "zero-epochs", "wrong-type",
+         "unknown-backend", "bad-image-size"],
+)
+def test_params_errors_name_extractor_and_key(mupnet_class, params, key):
+    with pytest.raises(ExtractorParamsError) as info:
+        mupnet_class(params)
+    assert "'mupnet'" in str(info.value)
+    assert key in str(info.value)
