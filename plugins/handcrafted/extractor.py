@@ -1,0 +1,199 @@
+"""`HandcraftedExtractor`: the ViTa-SLAM visuo-tactile front end as a feature plugin (DESIGN §8).
+
+Features per sample: the visual intensity profile (``profile``, a grid of grey values), the
+point feature histogram of the whisk cycle's contacts (``pfh``) and the slope distribution
+array of the whiskers' deflections (``sda``). The template-match error is
+
+    eps = |dV| / sigma_V + ||dPFH||_1 / sigma_PFH + ||dSDA||_1 / sigma_SDA
+
+over the enabled modalities, with |dV| the shift-tolerant profile distance and each sigma
+the standard deviation of that term's pairwise distances (i != j) on the training run
+(the paper's alpha, beta, gamma), estimated on at most ``sigma_samples`` evenly spaced
+training samples.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Annotated, Any, ClassVar, Literal
+
+import numpy as np
+import pydantic
+from scipy.spatial.distance import cdist
+
+from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.dataset import Run
+from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
+
+from .pfh import pfh_batch
+from .profile import TemplateMaker, template_distance
+from .sda import sda
+
+STATE_FILE = "handcrafted_state.json"
+STATE_VERSION = 1
+
+PositiveInt = Annotated[int, pydantic.Field(ge=1)]
+
+
+class HandcraftedParams(ExtractorParams):
+    """Parameters of the hand-crafted extractor (unknown keys are errors)."""
+
+    grid: tuple[PositiveInt, PositiveInt] = (40, 64)
+    """Profile grid (rows, columns); ViTa-SLAM uses 40 x 64."""
+    crop_fraction: float = pydantic.Field(0.625, gt=0.0, le=1.0)
+    """Fraction of the image rows, from the top, used for the profile (300/480 in ViTa-SLAM)."""
+    normalise: bool = True
+    """Scale each profile to mean 0.4 (OpenRatSLAM ``vt_normalisation``)."""
+    max_shift: int = pydantic.Field(5, ge=0)
+    """Horizontal shift tolerance of the profile comparison, in grid cells."""
+    pfh_bins: int = pydantic.Field(3, ge=1, le=16)
+    """Bins per PFH feature (alpha, phi, theta): pfh_bins**3 histogram bins."""
+    max_points: int = pydantic.Field(64, ge=2)
+    """At most this many contacts per whisk cycle enter the PFH (evenly spaced subsample)."""
+    sda_threshold: float = pydantic.Field(0.01, ge=0.0)
+    """Deflection [rad] above which a sample counts as positive (in contact) for the SDA. The
+    simulated whiskers deflect up to ~1e-3 rad from whisking alone and 0.08-0.85 rad on contact."""
+    sda_mode: Literal["magnitude", "per_axis"] = "magnitude"
+    """How a 2-axis deflection is reduced to a slope, see `vitaplace.plugins.handcrafted.sda`."""
+    use_visual: bool = True
+    use_tactile: bool = True
+    sigma_samples: int = pydantic.Field(500, ge=2)
+    """At most this many training samples (evenly spaced) are used to estimate the sigmas."""
+    batch_size: int = pydantic.Field(256, ge=1)
+    """Images converted to profiles per batch (a run is never loaded whole)."""
+    threads: int = pydantic.Field(0, ge=0)
+    """Threads for the profile distance; 0 = all cores."""
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> HandcraftedParams:
+        if not (self.use_visual or self.use_tactile):
+            raise ValueError("use_visual and use_tactile are both false; enable at least one modality")
+        if self.max_shift >= self.grid[1]:
+            raise ValueError(f"max_shift ({self.max_shift}) must be smaller than the grid width ({self.grid[1]})")
+        return self
+
+
+def _sample_index(n: int, limit: int) -> np.ndarray:
+    """At most ``limit`` evenly spaced indices of ``range(n)`` (deterministic)."""
+    if n <= limit:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, limit).round().astype(np.int64))
+
+
+def _spread(distances: np.ndarray) -> float:
+    """Standard deviation of the off-diagonal pairs (i < j) of a square distance matrix; 1 if 0 or undefined."""
+    iu = np.triu_indices(len(distances), k=1)
+    values = distances[iu]
+    if values.size == 0:
+        return 1.0
+    sigma = float(np.std(values))
+    return sigma if np.isfinite(sigma) and sigma > 0 else 1.0
+
+
+class HandcraftedExtractor(FeatureExtractor):
+    """ViTa-SLAM's hand-crafted front end: intensity profile + PFH + SDA, sigma-weighted."""
+
+    name: ClassVar[str] = "handcrafted"
+    Params: ClassVar[type[ExtractorParams]] = HandcraftedParams
+    params: HandcraftedParams
+
+    def __init__(self, params: Mapping[str, Any] | None = None) -> None:
+        super().__init__(params)
+        #: Fitted distance scales per feature name; None until `fit` or `load_state`.
+        self.sigmas: dict[str, float] | None = None
+
+    # -- features -------------------------------------------------------------------------
+
+    @property
+    def feature_names(self) -> list[str]:
+        """Names of the features this configuration produces (and compares)."""
+        names = []
+        if self.params.use_visual:
+            names.append("profile")
+        if self.params.use_tactile:
+            names += ["pfh", "sda"]
+        return names
+
+    def transform(self, run: Run) -> Features:
+        p = self.params
+        features: Features = {}
+        n = len(run)
+        if p.use_visual:
+            maker = TemplateMaker(run.image_shape, p.grid, p.crop_fraction, p.normalise)
+            profile = np.empty((n, *p.grid), dtype=np.float32)
+            for start in range(0, n, p.batch_size):
+                stop = min(start + p.batch_size, n)
+                profile[start:stop] = maker(run.image_batch(start, stop))
+            features["profile"] = profile
+        if p.use_tactile:
+            features["pfh"] = pfh_batch(run, p.pfh_bins, p.max_points)
+            features["sda"] = sda(run.deflection, p.sda_threshold, p.sda_mode)
+        return features
+
+    # -- distances ------------------------------------------------------------------------
+
+    def term_distances(self, query: Features, reference: Features) -> dict[str, np.ndarray]:
+        """Unscaled distance matrix (n_query, n_reference) of each enabled feature."""
+        out: dict[str, np.ndarray] = {}
+        for key in self.feature_names:
+            for side, feats in (("query", query), ("reference", reference)):
+                if key not in feats:
+                    raise ValueError(
+                        f"extractor '{self.name}': {side} features lack '{key}' "
+                        f"(have {sorted(feats)}); were they made with the same parameters?"
+                    )
+            q, r = query[key], reference[key]
+            if key == "profile":
+                out[key] = template_distance(q, r, self.params.max_shift, threads=self.params.threads or None)
+            else:
+                q2, r2 = (np.asarray(x, dtype=np.float64) for x in (q, r))
+                q2 = q2.reshape(len(q2), int(np.prod(q2.shape[1:])))
+                r2 = r2.reshape(len(r2), int(np.prod(r2.shape[1:])))
+                if len(q2) == 0 or len(r2) == 0:
+                    out[key] = np.zeros((len(q2), len(r2)))
+                else:
+                    out[key] = cdist(q2, r2, "cityblock")
+        return out
+
+    def distance(self, query: Features, reference: Features) -> np.ndarray:
+        if self.sigmas is None:
+            raise RuntimeError(f"extractor '{self.name}' is not fitted: call fit() or load() first")
+        terms = self.term_distances(query, reference)
+        total: np.ndarray | None = None
+        for key, d in terms.items():
+            sigma = self.sigmas[key]
+            scaled = d / sigma if np.isfinite(sigma) and sigma > 0 else d  # a zero sigma counts as 1
+            total = scaled if total is None else total + scaled
+        assert total is not None  # at least one modality is enabled (validated)
+        return total
+
+    # -- fitting and state ----------------------------------------------------------------
+
+    def fit(self, train: Run) -> None:
+        features = self.transform(train)
+        idx = _sample_index(len(train), self.params.sigma_samples)
+        sample = {key: value[idx] for key, value in features.items()}
+        terms = self.term_distances(sample, sample)
+        self.sigmas = {key: _spread(d) for key, d in terms.items()}
+
+    def save_state(self, directory: Path) -> None:
+        if self.sigmas is None:
+            raise RuntimeError(f"extractor '{self.name}' is not fitted: nothing to save")
+        state = {"version": STATE_VERSION, "sigmas": self.sigmas}
+        write_text_atomic(Path(directory) / STATE_FILE, json.dumps(state, indent=2))
+
+    def load_state(self, directory: Path) -> None:
+        path = Path(directory) / STATE_FILE
+        try:
+            state = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"{path}: no fitted state of extractor '{self.name}'") from None
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}: not valid JSON: {exc}") from None
+        sigmas = state.get("sigmas") if isinstance(state, dict) else None
+        missing = [key for key in self.feature_names if not isinstance(sigmas, dict) or key not in sigmas]
+        if missing:
+            raise ValueError(f"{path}: state lacks sigma(s) for {', '.join(missing)}")
+        self.sigmas = {key: float(sigmas[key]) for key in self.feature_names}
