@@ -156,7 +156,6 @@ class Network:
         self.sizes: dict[str, int] = {}
         self.eta_y: dict[str, float] = {}
         self.edges: list[Edge] = []
-        self.thresholds: dict[str, float] = {}
         for m, mc in self.config.modalities.items():
             n = len(mc.layers)
             etas_y = _per_layer(mc.eta_y, n, f"{m}.eta_y")
