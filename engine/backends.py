@@ -15,6 +15,7 @@ path is scalar single-threaded code, far slower than BLAS on the same cores.
 
 from __future__ import annotations
 
+import ctypes.util
 from typing import Any, Protocol
 
 import numpy as np
@@ -127,11 +128,15 @@ class WarpBackend:
 
 
 def cuda_available() -> bool:
-    """True when Warp finds a CUDA device (False when Warp cannot even initialise)."""
+    """True when Warp finds a CUDA device. Without an NVIDIA driver library Warp is not even
+    initialised (that would print its device banner and cost a second)."""
+    if ctypes.util.find_library("cuda") is None:
+        return False
     try:
+        from vitaplace.kernels import warp_kernels  # noqa: F401 - sets Warp's log level
+
         import warp as wp
 
-        wp.config.quiet = True
         wp.init()
         return bool(wp.is_cuda_available())
     except Exception:  # noqa: BLE001 - any failure means "no usable CUDA"

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from vitaplace.engine import __version__
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine import figures
 from vitaplace.engine.atomic import write_text_atomic
@@ -95,8 +95,13 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         for name, history in training:
             figures.plot_energy(fig_dir / f"training-{name}", history, title=f"{name}: training energy per layer")
             sections += [f"![training {name}](figures/training-{name}.png)", ""]
-    manifest_path = out / "manifest.json"
-    if manifest_path.exists():
-        manifest = json.loads(manifest_path.read_text())
-        sections += ["## Provenance", "", f"vitaplace {manifest['vitaplace_version']}, commit {manifest['git_commit']}.", ""]
+    from vitaplace.engine.runner import git_commit
+
+    sections += [
+        "## Provenance",
+        "",
+        f"vitaplace {__version__}, commit {git_commit() or 'unknown'}, scenario seed {scenario.seed}; "
+        "seeds, timings and machine in manifest.json, resolved configuration in scenario.resolved.yaml.",
+        "",
+    ]
     write_text_atomic(out / "report.md", "\n".join(sections))

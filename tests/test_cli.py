@@ -1,0 +1,177 @@
+"""The command line: bad scenarios fail with one clear line; the quickstart runs end to end and caches."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from vitaplace.engine.cli import main  # noqa: E402
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+ENV_E1 = str(SCENARIOS / "environments" / "e1.yaml")
+
+#: The quickstart scenario, sized down so the whole pipeline runs in seconds.
+TINY = [
+    "train.run.n_samples=12",
+    "evaluations.0.run.n_samples=10",
+    "methods.0.params.image_size=[9,16]",
+    "methods.0.params.visual_layers=[12]",
+    "methods.0.params.tactile_layers=[8]",
+    "methods.0.params.joint_size=6",
+    "methods.0.params.epochs=2",
+    "methods.0.params.batch_size=6",
+    "methods.0.params.max_steps=20",
+]
+
+
+def write_scenario(tmp_path: Path, data: dict, name: str = "scenario.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def valid_scenario() -> dict:
+    return {
+        "name": "t",
+        "train": {"environment": ENV_E1, "run": {"kind": "foraging", "n_samples": 5}},
+        "evaluations": [{"name": "E1", "environment": ENV_E1, "run": {"kind": "route", "n_samples": 5}}],
+        "methods": [{"name": "H", "plugin": "handcrafted"}],
+        "evaluation": {"tau": 0.3},
+    }
+
+
+def run_cli(args: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "vitaplace.engine.cli", *args], capture_output=True, text=True, timeout=600
+    )
+
+
+def test_valid_scenario_validates(tmp_path, capsys):
+    assert main(["validate", str(write_scenario(tmp_path, valid_scenario()))]) == 0
+    assert "valid scenario 't'" in capsys.readouterr().out
+
+
+BAD = {
+    "wrong type": (lambda d: d["evaluation"].update(tau="far"), r"evaluation\.tau: .*number"),
+    "unknown key": (lambda d: d.update(colour="red"), r"colour: unknown key"),
+    "typo": (lambda d: d["evaluation"].update(tua=0.3), r"evaluation\.tua: unknown key; did you mean 'tau'\?"),
+    "missing file": (lambda d: d["train"].update(environment="nowhere.yaml"), r"train\.environment: no such file"),
+    "unknown plugin": (
+        lambda d: d["methods"][0].update(plugin="sift"),
+        r"methods\.0\.plugin: unknown feature extractor 'sift'; available: .*handcrafted.*mupnet",
+    ),
+    "negative tau": (lambda d: d["evaluation"].update(tau=-1), r"evaluation\.tau: .*greater than or equal to 0"),
+    "bad params": (
+        lambda d: d["methods"][0].update(params={"grid": "big"}),
+        r"methods\.0\.params: extractor 'handcrafted': grid",
+    ),
+    "missing key": (lambda d: d.pop("methods"), r"methods: required key is missing"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD))
+def test_bad_scenario_exits_2_with_one_clear_line(tmp_path, case):
+    data = valid_scenario()
+    BAD[case][0](data)
+    path = write_scenario(tmp_path, data)
+    result = run_cli(["run", str(path), "--out", str(tmp_path / "out")])
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1, result.stderr
+    assert "Traceback" not in result.stderr
+    assert lines[0].startswith(f"vitaplace: error: {path}: ")
+    import re
+
+    assert re.search(BAD[case][1], lines[0]), lines[0]
+    assert not (tmp_path / "out" / "cache").exists()
+
+
+def test_invalid_yaml_names_the_line(tmp_path):
+    path = tmp_path / "broken.yaml"
+    path.write_text("name: t\ntrain: [unclosed\n")
+    result = run_cli(["validate", str(path)])
+    assert result.returncode == 2
+    assert re_line(result.stderr, rf"{path}: invalid YAML at line \d+")
+
+
+def test_missing_scenario_file(tmp_path):
+    result = run_cli(["run", str(tmp_path / "nope.yaml")])
+    assert result.returncode == 2
+    assert "no such scenario file" in result.stderr and "quickstart" in result.stderr
+
+
+def test_bad_override_is_reported(tmp_path):
+    path = write_scenario(tmp_path, valid_scenario())
+    result = run_cli(["validate", str(path), "--set", "evaluation.tau"])
+    assert result.returncode == 2 and "expected key.path=value" in result.stderr
+
+
+def re_line(text: str, pattern: str) -> bool:
+    import re
+
+    return any(re.search(pattern, line) for line in text.splitlines())
+
+
+def test_extends_merges_over_the_base(tmp_path):
+    from vitaplace.engine.scenario import load_scenario
+
+    base = write_scenario(tmp_path, valid_scenario(), "base.yaml")
+    child = write_scenario(tmp_path, {"extends": base.name, "name": "child", "evaluation": {"tau": 0.5}}, "child.yaml")
+    scenario, _ = load_scenario(child)
+    assert scenario.name == "child" and scenario.evaluation.tau == 0.5
+    assert scenario.methods[0].plugin == "handcrafted"
+
+
+@pytest.fixture(scope="module")
+def quickstart_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("quickstart") / "out"
+    args = ["run", "quickstart", "--out", str(out), "--no-progress"]
+    for override in TINY:
+        args += ["--set", override]
+    first = run_cli(args)
+    assert first.returncode == 0, first.stderr
+    manifest_first = json.loads((out / "manifest.json").read_text())
+    second = run_cli(args)
+    assert second.returncode == 0, second.stderr
+    return out, manifest_first, json.loads((out / "manifest.json").read_text())
+
+
+def test_quickstart_writes_every_output(quickstart_run):
+    out, manifest, _ = quickstart_run
+    for name in ("scenario.resolved.yaml", "manifest.json", "results.json", "results.csv", "report.md", "log.txt"):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0, name
+    rows = json.loads((out / "results.json").read_text())
+    assert {(r["environment"], r["method"]) for r in rows} == {("E1", "L"), ("E1", "H")}
+    for row in rows:
+        assert 0.0 <= row["max_f1"] <= 1.0 and row["n_queries"] == 10
+    for method in ("L", "H"):
+        folder = out / "evaluations" / "E1" / method / "query-to-reference"
+        assert (folder / "decisions.csv").is_file() and (folder / "matrices.npz").is_file()
+    figures = {p.name for p in (out / "figures").iterdir()}
+    for stem in ("pr-E1", "matrices-E1-L-query-to-reference", "trajectories-E1-H-query-to-reference", "training-L"):
+        assert {f"{stem}.png", f"{stem}.pdf"} <= figures, stem
+    assert all(r["status"] == "ran" for r in manifest["stages"])
+    assert manifest["vitaplace_version"] and manifest["machine"]["cpus"]
+
+
+def test_second_run_reuses_every_stage(quickstart_run):
+    _, first, second = quickstart_run
+    assert [(r["stage"], r["item"]) for r in second["stages"]] == [(r["stage"], r["item"]) for r in first["stages"]]
+    assert {r["status"] for r in second["stages"]} == {"cached"}
+
+
+def test_force_redoes_one_stage(quickstart_run):
+    out, _, _ = quickstart_run
+    args = ["evaluate", "quickstart", "--out", str(out), "--no-progress", "--force", "evaluate"]
+    for override in TINY:
+        args += ["--set", override]
+    assert run_cli(args).returncode == 0
+    stages = json.loads((out / "manifest.json").read_text())["stages"]
+    ran = {r["stage"] for r in stages if r["status"] == "ran"}
+    assert ran == {"evaluate"}
