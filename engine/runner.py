@@ -29,7 +29,7 @@ from vitaplace.engine.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features
 from vitaplace.engine.plugins import Registry, discover
-from vitaplace.engine.scenario import Method, Scenario, SimulatedRun, content_hash
+from vitaplace.engine.scenario import Method, Scenario, ScenarioError, SimulatedRun, content_hash
 from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
@@ -75,7 +75,7 @@ class Pipeline:
         self.force = set(force)
         unknown = self.force - set(STAGES)
         if unknown:
-            raise ValueError(f"--force: unknown stage(s) {sorted(unknown)}; stages: {', '.join(STAGES)}")
+            raise ScenarioError(f"--force: unknown stage(s) {', '.join(sorted(unknown))}; stages: {', '.join(STAGES)}")
         self.progress = progress
         self.registry = registry or discover()
         self.cache = self.out / "cache"

@@ -1,1 +1,39 @@
-"""MuJoCo simulation of the WhiskEye-like robot (DESIGN §3-4)."""
+"""MuJoCo simulation of the WhiskEye-like robot (DESIGN §3-4).
+
+Importing this package picks a headless GL backend (``MUJOCO_GL=egl``, else ``osmesa``)
+unless ``MUJOCO_GL`` is already set; see `vitaplace.engine.sim.glsetup`. The public names
+below are imported lazily, so ``load_environment`` does not pull in MuJoCo.
+
+Main entry points::
+
+    from vitaplace.engine.sim import load_environment, simulate_run, RobotSpec, RunSpec
+    env = load_environment("e1")
+    run = simulate_run(env, RunSpec(kind="foraging", n_samples=100), seed=0)
+"""
+
+from importlib import import_module
+from typing import Any
+
+from vitaplace.engine.sim.glsetup import select_gl_backend
+
+select_gl_backend()
+
+_EXPORTS = {
+    "EnvironmentSpecError": "environment",
+    "EnvironmentError": "environment",
+    "EnvironmentSpec": "environment",
+    "load_environment": "environment",
+    "environment_files": "environment",
+    "RobotSpec": "robot",
+    "RunSpec": "simulate",
+    "simulate_run": "simulate",
+    "GLUnavailableError": "render",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(import_module(f"vitaplace.engine.sim.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

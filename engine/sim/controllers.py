@@ -1,0 +1,386 @@
+"""Trajectories: a tactile-attention foraging controller (training runs) and a noisy route
+follower (evaluation runs) (DESIGN §4).
+
+Both controllers are called at every control tick (each deflection-series sample, 50 Hz by
+default) with an `Observation` and return a command ``(v, w)``: forward speed [m/s] and
+yaw rate [rad/s] of the base. All randomness comes from the ``numpy.random.Generator``
+they are given, so a seed reproduces the trajectory.
+
+Foraging (inspired by rodent exploration; Mitchinson & Prescott's "orient" behaviour):
+
+* ``wander``  - drive forward with a smoothly random turn rate (Ornstein-Uhlenbeck);
+* ``orient``  - on whisker contact, turn toward the contact (the attended point);
+* ``explore`` - keep the attended object at ~60 deg to one side and move slowly along it,
+  re-attending to the newest contacts (contour following), for a random 3-8 s;
+* ``leave``   - turn away from the explored object, ignore contacts for a refractory period;
+* ``avoid``   - whenever the chassis or the head gets close to a wall or landmark (from
+  the environment's 2-D obstacle map, a stand-in for a proximity sensor), turn away.
+
+Route following: pure pursuit along the closed waypoint loop with three independent
+Ornstein-Uhlenbeck noise processes (lateral offset from the route, heading offset, speed
+factor) plus a noisy start pose. Two runs with different seeds follow the same route
+closely but never identically.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
+from vitaplace.engine.sim.robot import BASE_RADIUS, HEAD_HALF, HEAD_POS
+
+__all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "make_controller", "Route"]
+
+HEAD_REACH = HEAD_POS[0] + HEAD_HALF[0]  #: distance from the base centre to the snout [m]
+HEAD_CENTRE = HEAD_POS[0]  #: the head is modelled as a disc at this distance ahead of the base centre
+HEAD_RADIUS = math.hypot(HEAD_HALF[0], HEAD_HALF[1])  #: ... with this radius (covers the head box)
+
+
+class RunSpec(BaseModel):
+    """What one recorded run does. Only ``kind`` and ``n_samples`` are required."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    kind: Literal["foraging", "route"]
+    n_samples: int = Field(gt=0, description="samples (whisk cycles) to record")
+    speed: float = Field(0.15, gt=0, le=1.0, description="nominal forward speed [m/s]")
+    max_turn_rate_deg: float = Field(90.0, gt=0, le=720, description="turn-rate limit [deg/s]")
+    max_accel: float = Field(0.5, gt=0, description="linear acceleration limit [m/s^2]")
+    warmup_cycles: int = Field(1, ge=0, le=100, description="whisk cycles simulated before the first sample")
+    start: tuple[float, float, float] | None = Field(
+        None, description="start pose [x, y, yaw_deg]; default: the environment's start (foraging) or the route start"
+    )
+    # route-following noise (independent per run, seeded)
+    lateral_noise: float = Field(0.02, ge=0, le=0.2, description="std of the lateral offset from the route [m]")
+    heading_noise_deg: float = Field(3.0, ge=0, le=45, description="std of the heading offset [deg]")
+    speed_noise: float = Field(0.1, ge=0, le=0.5, description="std of the relative speed change")
+    noise_time_constant: float = Field(3.0, gt=0, description="correlation time of the noise processes [s]")
+    start_noise: float = Field(0.03, ge=0, le=0.5, description="std of the start position along/across the route [m]")
+    lookahead: float = Field(0.3, gt=0.05, le=2.0, description="pure-pursuit lookahead distance [m]")
+    # foraging behaviour
+    wander_turn_deg: float = Field(20.0, ge=0, description="std of the wandering turn rate [deg/s]")
+    explore_time: tuple[float, float] = Field((3.0, 8.0), description="range of the exploration bout length [s]")
+    refractory_time: float = Field(4.0, ge=0, description="contacts ignored after leaving an object [s]")
+    avoid_margin: float = Field(0.06, ge=0, description="clearance kept between the body and obstacles [m]")
+    control_hz: float = Field(10.0, gt=0, le=500, description="controller update rate (rounded to deflection samples) [Hz]")
+
+    @model_validator(mode="after")
+    def _check(self) -> RunSpec:
+        lo, hi = self.explore_time
+        if not 0 < lo <= hi:
+            raise ValueError("explore_time must be [min, max] with 0 < min <= max")
+        return self
+
+
+@dataclass
+class Observation:
+    """What a controller sees at a control tick."""
+
+    time: float
+    pose: np.ndarray  #: (3,) x, y, yaw
+    contacts: np.ndarray  #: (k, 3) whisker contact points (world frame) at this tick
+    deflection: np.ndarray  #: (24,) |xy| per whisker [rad]
+
+
+class _OU:
+    """Ornstein-Uhlenbeck process with stationary std ``sigma`` and time constant ``tau``."""
+
+    def __init__(self, rng: np.random.Generator, sigma: float, tau: float, x0: float | None = None) -> None:
+        self.rng, self.sigma, self.tau = rng, sigma, tau
+        self.x = float(rng.normal(0.0, sigma)) if x0 is None else x0
+
+    def step(self, dt: float) -> float:
+        a = math.exp(-dt / self.tau)
+        self.x = a * self.x + self.sigma * math.sqrt(1 - a * a) * float(self.rng.normal())
+        return self.x
+
+
+def _wrap(a: float) -> float:
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+class _Limiter:
+    """Rate-limits commands so the base accelerates smoothly (keeps whisker inertial noise low)."""
+
+    def __init__(self, max_accel: float, max_yaw_accel: float) -> None:
+        self.v = 0.0
+        self.w = 0.0
+        self.a, self.aw = max_accel, max_yaw_accel
+
+    def __call__(self, v: float, w: float, dt: float) -> tuple[float, float]:
+        self.v += float(np.clip(v - self.v, -self.a * dt, self.a * dt))
+        self.w += float(np.clip(w - self.w, -self.aw * dt, self.aw * dt))
+        return self.v, self.w
+
+
+class Route:
+    """A closed polyline with arc-length parametrisation."""
+
+    def __init__(self, waypoints: list[tuple[float, float]] | np.ndarray) -> None:
+        pts = np.asarray(waypoints, dtype=float)
+        if len(pts) < 2:
+            raise ValueError("a route needs at least 2 waypoints")
+        if np.allclose(pts[0], pts[-1]):
+            pts = pts[:-1]
+        self.points = pts
+        self.seg_a = pts
+        self.seg_b = np.roll(pts, -1, axis=0)
+        seg = self.seg_b - self.seg_a
+        self.seg_len = np.linalg.norm(seg, axis=1)
+        self.seg_dir = seg / self.seg_len[:, None]
+        self.cum = np.concatenate([[0.0], np.cumsum(self.seg_len)])
+        self.length = float(self.cum[-1])
+
+    def at(self, s: np.ndarray) -> np.ndarray:
+        """Positions (n, 2) at arc lengths ``s`` (n,), wrapped around the loop."""
+        s = np.asarray(s, dtype=float) % self.length
+        i = np.clip(np.searchsorted(self.cum, s, side="right") - 1, 0, len(self.seg_len) - 1)
+        return self.seg_a[i] + (s - self.cum[i])[:, None] * self.seg_dir[i]
+
+    def point(self, s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Position and unit tangent at arc length ``s`` (wrapped around the loop)."""
+        s = s % self.length
+        i = int(np.searchsorted(self.cum, s, side="right") - 1)
+        i = min(max(i, 0), len(self.seg_len) - 1)
+        return self.seg_a[i] + (s - self.cum[i]) * self.seg_dir[i], self.seg_dir[i]
+
+    def project(self, p: np.ndarray) -> tuple[float, float]:
+        """Arc length of the closest route point to ``p`` and the distance to it."""
+        ap = p[None, :] - self.seg_a
+        t = np.clip(np.einsum("ij,ij->i", ap, self.seg_dir), 0, self.seg_len)
+        closest = self.seg_a + t[:, None] * self.seg_dir
+        dist = np.linalg.norm(closest - p[None, :], axis=1)
+        i = int(np.argmin(dist))
+        return float(self.cum[i] + t[i]), float(dist[i])
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """Distance of each of ``points`` (n, 2) to the route polyline."""
+        p = np.asarray(points, dtype=float)[:, None, :]
+        ap = p - self.seg_a[None]
+        t = np.clip(np.einsum("nij,ij->ni", ap, self.seg_dir), 0, self.seg_len[None])
+        closest = self.seg_a[None] + t[..., None] * self.seg_dir[None]
+        return np.linalg.norm(closest - p, axis=2).min(axis=1)
+
+    def sample(self, step: float = 0.05) -> np.ndarray:
+        """Points every ``step`` metres along the loop, (n, 2)."""
+        return np.array([self.point(s)[0] for s in np.arange(0.0, self.length, step)])
+
+
+@dataclass
+class ForagingController:
+    """Tactile-attention foraging (see the module docstring)."""
+
+    spec: RunSpec
+    obstacles: ObstacleMap
+    rng: np.random.Generator
+    mode: str = "wander"
+    target: np.ndarray | None = None
+    until: float = 0.0
+    refractory_until: float = 0.0
+    side: float = 1.0
+    _wander: _OU | None = None
+    _limit: _Limiter | None = None
+    _last_t: float | None = None
+
+    def __post_init__(self) -> None:
+        self._wander = _OU(self.rng, math.radians(self.spec.wander_turn_deg), 2.0, x0=0.0)
+        self._limit = _Limiter(self.spec.max_accel, 4.0)
+
+    def start_pose(self, default: tuple[float, float, float]) -> tuple[float, float, float]:
+        x, y, yaw = self.spec.start if self.spec.start is not None else default
+        return (x, y, math.radians(yaw))
+
+    def _escape_heading(self, pos: np.ndarray, yaw: float) -> float:
+        """The free-most of 12 headings (probed 0.4 m away), preferring small turns."""
+        cand = yaw + np.radians(np.arange(12) * 30.0)
+        probes = pos[None] + 0.4 * np.stack([np.cos(cand), np.sin(cand)], axis=1)
+        clear = self.obstacles.distance_many(probes)
+        turn = np.abs((np.arange(12) * 30.0 + 180.0) % 360.0 - 180.0)
+        score = np.minimum(clear, 0.35) - 1e-3 * turn  # free enough -> the smallest turn wins
+        return float(cand[int(np.argmax(score))])
+
+    def _probe(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Obstacle distances and escape directions at the base, the snout and 0.35 m ahead."""
+        x, y, yaw = pose
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        pts = np.array([[x, y], [x + HEAD_CENTRE * c, y + HEAD_CENTRE * s_], [x + 0.35 * c, y + 0.35 * s_]])
+        return self.obstacles.query(pts)
+
+    def __call__(self, obs: Observation) -> tuple[float, float]:
+        dt = 0.0 if self._last_t is None else obs.time - self._last_t
+        self._last_t = obs.time
+        spec = self.spec
+        wmax = math.radians(spec.max_turn_rate_deg)
+        x, y, yaw = obs.pose
+        pos = np.array([x, y])
+        wander = self._wander.step(dt) if dt > 0 else self._wander.x
+        dist, grad = self._probe(obs.pose)
+        d_base, d_head = dist[0] - BASE_RADIUS, dist[1] - HEAD_RADIUS
+        clearance = min(d_base, d_head)
+        margin = spec.avoid_margin
+
+        # ---- safety first: never drive the body into walls or landmarks (attending to an
+        # object allows getting closer: half the margin)
+        attending = self.mode in ("orient", "explore", "leave")
+        limit = 0.5 * margin if attending else margin
+        if self.mode == "avoid" and clearance >= margin + 0.04 and dist[2] > 0.1:
+            self.mode = "wander"  # free again
+        if clearance < limit or self.mode == "avoid":
+            if self.mode != "avoid":
+                self.mode = "avoid"
+                self.escape_heading = self._escape_heading(pos, yaw)
+            err = _wrap(self.escape_heading - yaw)
+            if abs(err) < math.radians(30):
+                v = 0.5 * spec.speed * float(np.clip((d_head - 0.5 * margin) / margin, 0.0, 1.0))
+                if v == 0.0:  # blocked in this direction too: look for another way out
+                    self.escape_heading = self._escape_heading(pos, yaw + math.pi / 6)
+            else:
+                v = -0.05 if min(d_head, d_base) < 0.5 * margin else 0.0  # make room to turn
+            w = float(np.clip(3.0 * err, -wmax, wmax))
+            return self._out(v, w, dt)
+
+        in_refractory = obs.time < self.refractory_until
+        if len(obs.contacts) and not in_refractory:
+            centroid = obs.contacts[:, :2].mean(axis=0)
+            if self.mode in ("wander",):
+                self.mode = "orient"
+                self.target = centroid
+            elif self.mode in ("orient", "explore"):
+                self.target = 0.7 * self.target + 0.3 * centroid  # follow the newest contacts
+
+        if self.mode == "orient":
+            err = _wrap(math.atan2(*(self.target - pos)[::-1]) - yaw)
+            # turn toward the attended contact; when it is too close to face it without the
+            # snout hitting it, back off first and turn slowly
+            reach = HEAD_CENTRE + HEAD_RADIUS + margin
+            dist_t = float(np.linalg.norm(self.target - pos))
+            v = float(np.clip(1.5 * (dist_t - reach), -0.08, 0.0))
+            slow = float(np.clip((dist_t - HEAD_REACH) / (reach - HEAD_REACH), 0.15, 1.0))
+            w = float(np.clip(3.0 * err * slow, -wmax, wmax))
+            if abs(err) < math.radians(15):
+                self.mode = "explore"
+                lo, hi = spec.explore_time
+                self.until = obs.time + float(self.rng.uniform(lo, hi))
+                self.side = float(self.rng.choice([-1.0, 1.0]))
+            return self._out(v, w, dt)
+
+        if self.mode == "explore":
+            if obs.time >= self.until:
+                self.mode = "leave"
+                self.until = obs.time + 1.5
+                self.refractory_until = obs.time + spec.refractory_time
+                away_dir = pos - self.target
+                self.leave_heading = math.atan2(away_dir[1], away_dir[0]) + float(self.rng.uniform(-0.8, 0.8))
+            else:
+                # keep the attended point ~60 deg to one side while moving: contour following
+                bearing = _wrap(math.atan2(*(self.target - pos)[::-1]) - yaw)
+                err = _wrap(bearing - self.side * math.radians(60))
+                dist = float(np.linalg.norm(self.target - pos))
+                w = 2.5 * err + 1.5 * (dist - 0.3) * self.side
+                if d_head < margin:  # snout too close: steer away from the object's side
+                    w -= self.side * 8.0 * (margin - d_head)
+                w = float(np.clip(w, -wmax, wmax))
+                v = 0.5 * spec.speed * float(np.clip((d_head - 0.25 * margin) / margin, 0.0, 1.0))
+                return self._out(v, w, dt)
+
+        if self.mode == "leave":
+            err = _wrap(self.leave_heading - yaw)
+            w = float(np.clip(3.0 * err, -wmax, wmax))
+            v = 0.0 if abs(err) > math.radians(45) else spec.speed
+            if d_head < margin:
+                v = -0.05
+            if obs.time >= self.until and abs(err) < math.radians(20):
+                self.mode = "wander"
+            return self._out(v, w, dt)
+
+        # ---- wander; steer gently away from obstacles seen ahead
+        self.mode = "wander"
+        w = wander
+        if dist[2] < 0.05 and not len(obs.contacts):  # e.g. a visual-only landmark ahead
+            g = grad[2]
+            w += 1.5 * _wrap(math.atan2(g[1], g[0]) - yaw)
+        v = spec.speed
+        return self._out(v, float(np.clip(w, -wmax, wmax)), dt)
+
+    def _out(self, v: float, w: float, dt: float) -> tuple[float, float]:
+        return self._limit(v, w, dt)
+
+
+@dataclass
+class RouteFollower:
+    """Pure pursuit along a closed route with seeded pose, heading and speed noise."""
+
+    spec: RunSpec
+    route: Route
+    obstacles: ObstacleMap
+    rng: np.random.Generator
+    s: float = 0.0
+
+    def __post_init__(self) -> None:
+        tau = self.spec.noise_time_constant
+        self._lateral = _OU(self.rng, self.spec.lateral_noise, tau)
+        self._heading = _OU(self.rng, math.radians(self.spec.heading_noise_deg), tau / 2)
+        self._speed = _OU(self.rng, self.spec.speed_noise, tau)
+        self._limit = _Limiter(self.spec.max_accel, 4.0)
+        self._last_t: float | None = None
+
+    def start_pose(self) -> tuple[float, float, float]:
+        if self.spec.start is not None:
+            x, y, yaw = self.spec.start
+            self.s, _ = self.route.project(np.array([x, y]))
+            return (x, y, math.radians(yaw))
+        s0 = abs(float(self.rng.normal(0.0, self.spec.start_noise)))
+        p, t = self.route.point(s0)
+        n = np.array([-t[1], t[0]])
+        lateral = float(np.clip(self.rng.normal(0.0, self.spec.start_noise), -0.05, 0.05))
+        p = p + lateral * n
+        yaw = math.atan2(t[1], t[0]) + float(self.rng.normal(0.0, math.radians(self.spec.heading_noise_deg)))
+        self.s = s0
+        return (float(p[0]), float(p[1]), yaw)
+
+    def __call__(self, obs: Observation) -> tuple[float, float]:
+        dt = 0.0 if self._last_t is None else obs.time - self._last_t
+        self._last_t = obs.time
+        spec = self.spec
+        if dt > 0:
+            self._lateral.step(dt)
+            self._heading.step(dt)
+            self._speed.step(dt)
+        x, y, yaw = obs.pose
+        pos = np.array([x, y])
+        # progress: closest route point, searched only slightly ahead of the last one
+        cand = self.s + np.linspace(-0.1, 0.5, 25)
+        d = np.linalg.norm(self.route.at(cand) - pos[None], axis=1)
+        self.s = max(self.s, float(cand[int(np.argmin(d))]))
+        target, tangent = self.route.point(self.s + spec.lookahead)
+        normal = np.array([-tangent[1], tangent[0]])
+        lateral = float(np.clip(self._lateral.x, -2 * spec.lateral_noise, 2 * spec.lateral_noise))
+        target = target + lateral * normal
+        desired = math.atan2(target[1] - y, target[0] - x) + self._heading.x
+        # keep the body clear of obstacles (the route passes close to landmarks)
+        dist, grad = self.obstacles.query(pos[None])
+        clearance = float(dist[0]) - BASE_RADIUS
+        if clearance < spec.avoid_margin:
+            g = grad[0]
+            desired += 0.6 * _wrap(math.atan2(g[1], g[0]) - desired) * (1 - clearance / spec.avoid_margin)
+        err = _wrap(desired - yaw)
+        wmax = math.radians(spec.max_turn_rate_deg)
+        w = float(np.clip(2.5 * err, -wmax, wmax))
+        v = spec.speed * (1.0 + float(np.clip(self._speed.x, -0.5, 0.5))) * max(0.0, math.cos(err)) ** 2
+        return self._limit(v, w, dt)
+
+
+def make_controller(env: EnvironmentSpec, spec: RunSpec, rng: np.random.Generator):
+    """The controller for ``spec.kind`` and its start pose ``(x, y, yaw_rad)``."""
+    if spec.kind == "foraging":
+        ctrl = ForagingController(spec, env.obstacles, rng)
+        return ctrl, ctrl.start_pose(env.start)
+    if not env.route:
+        raise ValueError(f"environment {env.name!r} has no route: a 'route' run needs route waypoints")
+    ctrl = RouteFollower(spec, Route(env.route), env.obstacles, rng)
+    return ctrl, ctrl.start_pose()

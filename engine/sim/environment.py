@@ -1,0 +1,610 @@
+"""Environments as data: YAML files loaded into validated pydantic models (DESIGN §4).
+
+An environment file describes a square arena (walls with a visual pattern, a floor),
+landmark objects (``box``, ``cylinder``, ``rock`` = convex hull of a seeded random point
+cloud) and an evaluation ``route`` (closed loop of waypoints). A file may ``extends:``
+another file (path relative to the extending file's folder): mappings are deep-merged,
+lists are replaced.
+
+Angles in the files are in degrees, lengths in metres, colours in [0, 1].
+
+>>> env = load_environment("scenarios/environments/e1.yaml")   # doctest: +SKIP
+>>> env.top_view()["landmarks"][0]                              # doctest: +SKIP
+{'name': 'box_a', 'type': 'box', 'pos': [...], 'size': [1.0, 1.0], 'yaw': 0.0, 'tactile': True}
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from functools import cached_property
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+import pydantic
+import yaml
+from pydantic import BaseModel, ConfigDict, Field
+
+__all__ = [
+    "EnvironmentSpecError",
+    "EnvironmentError",
+    "EnvironmentSpec",
+    "ArenaSpec",
+    "MaterialSpec",
+    "TextureSpec",
+    "BoxLandmark",
+    "CylinderLandmark",
+    "RockLandmark",
+    "load_environment",
+    "environment_files",
+    "ENVIRONMENTS_DIR",
+]
+
+#: Folder of the environments shipped with vitaplace (scenarios/environments).
+ENVIRONMENTS_DIR = Path(__file__).resolve().parents[2] / "scenarios" / "environments"
+
+# Collision bit masks (MuJoCo: two geoms collide when (contype1 & conaffinity2) or
+# (contype2 & conaffinity1) is non-zero).
+BIT_BODY = 2  #: robot chassis/head: collides with every world object
+BIT_WHISKER = 4  #: whisker shafts: collide with tactile world objects only
+WORLD_TACTILE_AFFINITY = BIT_BODY | BIT_WHISKER
+WORLD_VISUAL_AFFINITY = BIT_BODY
+
+RGB = tuple[
+    Annotated[float, Field(ge=0, le=1)], Annotated[float, Field(ge=0, le=1)], Annotated[float, Field(ge=0, le=1)]
+]
+RGBA = tuple[
+    Annotated[float, Field(ge=0, le=1)],
+    Annotated[float, Field(ge=0, le=1)],
+    Annotated[float, Field(ge=0, le=1)],
+    Annotated[float, Field(ge=0, le=1)],
+]
+Positive = Annotated[float, Field(gt=0)]
+XY = tuple[float, float]
+
+
+class EnvironmentSpecError(ValueError):
+    """An environment file that cannot be loaded; the message names the file and the key path."""
+
+
+#: Older name of `EnvironmentSpecError`, kept for code importing it (it shadows the builtin
+#: alias of OSError only inside namespaces that import it by this name).
+EnvironmentError = EnvironmentSpecError  # noqa: A001
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class TextureSpec(_Model):
+    """A MuJoCo procedural texture (``builtin``) or a PNG file (``file``, relative to the YAML)."""
+
+    builtin: Literal["checker", "gradient", "flat", "none"] = "checker"
+    file: str | None = None
+    rgb1: RGB = (0.8, 0.8, 0.8)
+    rgb2: RGB = (0.5, 0.5, 0.5)
+    mark: Literal["none", "edge", "cross", "random"] = "none"
+    markrgb: RGB = (0.0, 0.0, 0.0)
+    random: Annotated[float, Field(ge=0, le=1)] = 0.01
+    width: Annotated[int, Field(ge=2, le=2048)] = 64
+    height: Annotated[int, Field(ge=2, le=2048)] = 64
+
+
+class MaterialSpec(_Model):
+    """A render material: colour, optional texture, repetition. Reflectance is always 0 (fast rendering)."""
+
+    rgba: RGBA = (1.0, 1.0, 1.0, 1.0)
+    texture: TextureSpec | None = None
+    #: how often the 2-D texture repeats over the textured face (``texuniform``: per metre)
+    texrepeat: tuple[Positive, Positive] = (1.0, 1.0)
+    texuniform: bool = False
+    specular: Annotated[float, Field(ge=0, le=1)] = 0.1
+    shininess: Annotated[float, Field(ge=0, le=1)] = 0.2
+
+
+class ArenaSpec(_Model):
+    """Square arena centred on the origin: ``size`` is the inner side length."""
+
+    size: Annotated[float, Field(gt=1.0, le=50.0)] = 6.0
+    wall_height: Positive = 1.5
+    wall_thickness: Positive = 0.1
+    #: number of identical panels along each wall (visual aliasing: every wall looks the same)
+    wall_panels: Annotated[int, Field(ge=1, le=64)] = 6
+    wall_material: str = "wall"
+    floor_material: str = "floor"
+
+
+class _LandmarkBase(_Model):
+    name: str | None = None
+    pos: XY
+    yaw: float = 0.0  #: degrees, counter-clockwise
+    rgba: RGBA = (0.6, 0.6, 0.6, 1.0)
+    #: name of an entry of ``materials`` (overrides rgba for rendering when given)
+    material: str | None = None
+    #: reachable by whiskers (collides with whisker shafts); always an obstacle for the body
+    tactile: bool = True
+
+
+class BoxLandmark(_LandmarkBase):
+    type: Literal["box"]
+    size: tuple[Positive, Positive, Positive]  #: full extents x, y, z [m]
+
+
+class CylinderLandmark(_LandmarkBase):
+    type: Literal["cylinder"]
+    radius: Positive
+    height: Positive
+
+
+class RockLandmark(_LandmarkBase):
+    """Convex hull of a seeded random point cloud on a lumpy, sheared ellipsoid (asymmetric)."""
+
+    type: Literal["rock"]
+    seed: int = 0
+    size: tuple[Positive, Positive, Positive]  #: full extents of the envelope x, y, z [m]
+    roughness: Annotated[float, Field(ge=0, le=0.6)] = 0.25
+    #: shear of the upper part along x (makes the rock lean: asymmetric from every side)
+    lean: Annotated[float, Field(ge=-1, le=1)] = 0.3
+    n_points: Annotated[int, Field(ge=8, le=400)] = 48
+
+    def vertices(self) -> np.ndarray:
+        """(n, 3) vertices in the landmark frame; the lowest point sits on the floor (z = 0)."""
+        rng = np.random.default_rng(self.seed)
+        n = self.n_points
+        # Fibonacci sphere + jitter: evenly spread directions, reproducible from the seed.
+        k = np.arange(n) + 0.5
+        z = 1 - 2 * k / n
+        phi = math.pi * (1 + 5**0.5) * k + rng.uniform(-0.3, 0.3, n)
+        r = np.sqrt(np.clip(1 - z**2, 0, 1))
+        d = np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+        # Smooth lumps: a few random low-frequency waves over the sphere.
+        waves = rng.normal(size=(4, 3)) * 2.0
+        phases = rng.uniform(0, 2 * math.pi, 4)
+        lumps = np.sin(d @ waves.T + phases).mean(axis=1)
+        radius = 1 + self.roughness * (lumps + 0.5 * rng.uniform(-1, 1, n))
+        p = d * radius[:, None]
+        p[:, 2] = np.maximum(p[:, 2], -0.6)  # flattened base
+        p -= p.min(axis=0)
+        p /= p.max(axis=0)  # unit box [0,1]^3
+        p[:, 0] += self.lean * (p[:, 2] ** 2) * 0.5 - 0.5 * p[:, 1] * self.lean * 0.3  # lean + twist
+        p -= p.min(axis=0)
+        p /= p.max(axis=0)
+        sx, sy, sz = self.size
+        p = (p - [0.5, 0.5, 0.0]) * [sx, sy, sz]
+        return p
+
+    def footprint(self) -> np.ndarray:
+        """Convex outline (k, 2) of the rock on the floor, in the landmark frame, counter-clockwise."""
+        from scipy.spatial import ConvexHull
+
+        pts = self.vertices()[:, :2]
+        hull = ConvexHull(pts)
+        return pts[hull.vertices]
+
+
+Landmark = Annotated[Union[BoxLandmark, CylinderLandmark, RockLandmark], Field(discriminator="type")]
+
+
+def _default_materials() -> dict[str, MaterialSpec]:
+    return {
+        "wall": MaterialSpec(
+            texture=TextureSpec(builtin="checker", rgb1=(0.75, 0.72, 0.65), rgb2=(0.35, 0.4, 0.5), mark="edge"),
+        ),
+        "floor": MaterialSpec(
+            texture=TextureSpec(builtin="checker", rgb1=(0.45, 0.45, 0.45), rgb2=(0.4, 0.4, 0.4)),
+            texrepeat=(1.0, 1.0),
+            texuniform=True,
+        ),
+    }
+
+
+class EnvironmentSpec(_Model):
+    """A validated environment. Build one with `load_environment` (or ``model_validate`` a dict)."""
+
+    name: str
+    description: str = ""
+    arena: ArenaSpec = ArenaSpec()
+    materials: dict[str, MaterialSpec] = Field(default_factory=_default_materials)
+    landmarks: list[Landmark] = Field(default_factory=list)
+    #: closed loop of waypoints [x, y] for evaluation runs (driven in order, back to the first)
+    route: list[XY] = Field(default_factory=list)
+    #: where foraging runs start: [x, y, yaw_deg]
+    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: background (sky) colour seen above the walls
+    sky_rgb: RGB = (0.55, 0.65, 0.8)
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> EnvironmentSpec:
+        half = self.arena.size / 2
+        names: set[str] = set()
+        for i, lm in enumerate(self.landmarks):
+            name = lm.name or f"{lm.type}{i}"
+            if name in names:
+                raise ValueError(f"landmarks.{i}.name: duplicate landmark name {name!r}")
+            names.add(name)
+            r = _bounding_radius(lm)
+            if abs(lm.pos[0]) + r > half + 1e-9 or abs(lm.pos[1]) + r > half + 1e-9:
+                # exact test on the footprint (the bounding circle is conservative)
+                poly = _footprint_world(lm)
+                if np.any(np.abs(poly) > half + 1e-9):
+                    raise ValueError(f"landmarks.{i}.pos: landmark {name!r} sticks out of the {self.arena.size} m arena")
+            if lm.material is not None and lm.material not in self.materials:
+                raise ValueError(f"landmarks.{i}.material: unknown material {lm.material!r}")
+        for key in ("wall_material", "floor_material"):
+            if getattr(self.arena, key) not in self.materials:
+                raise ValueError(f"arena.{key}: unknown material {getattr(self.arena, key)!r}")
+        for i, (x, y) in enumerate(self.route):
+            if abs(x) >= half or abs(y) >= half:
+                raise ValueError(f"route.{i}: waypoint ({x}, {y}) is outside the arena")
+        if len(self.route) == 1:
+            raise ValueError("route: a route needs at least 2 waypoints")
+        if abs(self.start[0]) >= half or abs(self.start[1]) >= half:
+            raise ValueError("start: start position is outside the arena")
+        return self
+
+    # ------------------------------------------------------------------ geometry
+    def landmark_names(self) -> list[str]:
+        return [lm.name or f"{lm.type}{i}" for i, lm in enumerate(self.landmarks)]
+
+    def top_view(self) -> dict[str, Any]:
+        """Plain-data top view for plotting.
+
+        ``{"name", "size": arena side [m], "route": [[x, y], ...], "landmarks": [{"name", "type",
+        "pos": [x, y], "yaw": deg, "tactile": bool, "size": [sx, sy] (box, rock: full extents) or
+        "radius": r (cylinder), "polygon": [[x, y], ...] (rock: world-frame outline)}]}``
+        """
+        landmarks = []
+        for name, lm in zip(self.landmark_names(), self.landmarks):
+            item: dict[str, Any] = {
+                "name": name,
+                "type": lm.type,
+                "pos": [float(lm.pos[0]), float(lm.pos[1])],
+                "yaw": float(lm.yaw),
+                "tactile": bool(lm.tactile),
+                "rgba": [float(c) for c in lm.rgba],
+            }
+            if isinstance(lm, CylinderLandmark):
+                item["radius"] = float(lm.radius)
+            else:
+                item["size"] = [float(lm.size[0]), float(lm.size[1])]
+            if isinstance(lm, RockLandmark):
+                item["polygon"] = _footprint_world(lm).round(4).tolist()
+            landmarks.append(item)
+        return {
+            "name": self.name,
+            "size": float(self.arena.size),
+            "route": [[float(x), float(y)] for x, y in self.route],
+            "landmarks": landmarks,
+        }
+
+    @cached_property
+    def obstacles(self) -> ObstacleMap:
+        """2-D signed-distance model of walls and landmarks (used by the controllers)."""
+        return ObstacleMap(self)
+
+    # ------------------------------------------------------------------ MJCF
+    def mjcf(self) -> tuple[str, str]:
+        """MJCF fragments ``(asset_xml, worldbody_xml)`` of the arena, walls and landmarks."""
+        assets: list[str] = []
+        for mname, mat in self.materials.items():
+            attrs = {
+                "name": f"mat_{mname}",
+                "rgba": _fmt(mat.rgba),
+                "specular": _fmt(mat.specular),
+                "shininess": _fmt(mat.shininess),
+                "reflectance": "0",
+            }
+            if mat.texture is not None:
+                tex = mat.texture
+                tattrs = {"name": f"tex_{mname}", "type": "2d"}
+                if tex.file is not None:
+                    tattrs["file"] = tex.file
+                else:
+                    tattrs.update(
+                        builtin=tex.builtin,
+                        rgb1=_fmt(tex.rgb1),
+                        rgb2=_fmt(tex.rgb2),
+                        mark=tex.mark,
+                        markrgb=_fmt(tex.markrgb),
+                        random=_fmt(tex.random),
+                        width=str(tex.width),
+                        height=str(tex.height),
+                    )
+                assets.append(_tag("texture", tattrs))
+                attrs.update(
+                    texture=f"tex_{mname}",
+                    texrepeat=_fmt(mat.texrepeat),
+                    texuniform="true" if mat.texuniform else "false",
+                )
+            assets.append(_tag("material", attrs))
+        for name, lm in zip(self.landmark_names(), self.landmarks):
+            if isinstance(lm, RockLandmark):
+                assets.append(_tag("mesh", {"name": f"mesh_{name}", "vertex": _fmt(lm.vertices().ravel(), 5)}))
+
+        a = self.arena
+        half = a.size / 2
+        t = a.wall_thickness
+        h = a.wall_height
+        body: list[str] = []
+        floor_extent = half + t
+        body.append(
+            _tag(
+                "geom",
+                {
+                    "name": "floor",
+                    "type": "plane",
+                    "size": _fmt((floor_extent, floor_extent, 0.1)),
+                    "material": f"mat_{a.floor_material}",
+                    "contype": "0",
+                    "conaffinity": "0",
+                },
+            )
+        )
+        # Each wall is a thin box whose local +z faces the arena, so the 2-D panel texture
+        # lands on the inner face and repeats `wall_panels` times along it: all four walls
+        # look identical (visual aliasing).
+        assets.append(
+            _tag(
+                "material",
+                {
+                    "name": "mat_wall_panels",
+                    "rgba": _fmt(self.materials[a.wall_material].rgba),
+                    "specular": _fmt(self.materials[a.wall_material].specular),
+                    "shininess": _fmt(self.materials[a.wall_material].shininess),
+                    "reflectance": "0",
+                    **(
+                        {"texture": f"tex_{a.wall_material}", "texrepeat": f"{a.wall_panels} 1", "texuniform": "false"}
+                        if self.materials[a.wall_material].texture is not None
+                        else {}
+                    ),
+                },
+            )
+        )
+        for wname, (cx, cy, yaw) in {
+            "wall_north": (0.0, half + t / 2, -90.0),
+            "wall_south": (0.0, -half - t / 2, 90.0),
+            "wall_east": (half + t / 2, 0.0, 180.0),
+            "wall_west": (-half - t / 2, 0.0, 0.0),
+        }.items():
+            # local frame: x along the wall, y up, z into the arena
+            inward = np.array([math.cos(math.radians(yaw)), math.sin(math.radians(yaw)), 0.0])
+            up = np.array([0.0, 0.0, 1.0])
+            along = np.cross(up, inward)
+            body.append(
+                _static_body(
+                    wname,
+                    {
+                        "name": wname,
+                        "type": "box",
+                        "pos": _fmt((cx, cy, h / 2)),
+                        "size": _fmt((half + t, h / 2, t / 2)),
+                        "xyaxes": _fmt((*along, *up)),
+                        "material": "mat_wall_panels",
+                        "contype": "0",
+                        "conaffinity": str(WORLD_TACTILE_AFFINITY),
+                        "friction": "0.3 0.005 0.0001",
+                    },
+                )
+            )
+        for name, lm in zip(self.landmark_names(), self.landmarks):
+            attrs = {
+                "name": f"lm_{name}",
+                "euler": _fmt((0.0, 0.0, lm.yaw)),
+                "contype": "0",
+                "conaffinity": str(WORLD_TACTILE_AFFINITY if lm.tactile else WORLD_VISUAL_AFFINITY),
+                "friction": "0.3 0.005 0.0001",
+            }
+            if lm.material is not None:
+                attrs["material"] = f"mat_{lm.material}"
+            else:
+                attrs["rgba"] = _fmt(lm.rgba)
+            x, y = lm.pos
+            if isinstance(lm, BoxLandmark):
+                attrs.update(type="box", pos=_fmt((x, y, lm.size[2] / 2)), size=_fmt(np.array(lm.size) / 2))
+            elif isinstance(lm, CylinderLandmark):
+                attrs.update(type="cylinder", pos=_fmt((x, y, lm.height / 2)), size=_fmt((lm.radius, lm.height / 2)))
+            else:
+                attrs.update(type="mesh", mesh=f"mesh_{name}", pos=_fmt((x, y, 0.0)))
+            body.append(_static_body(f"lm_{name}", attrs))
+        return "\n".join(assets), "\n".join(body)
+
+
+def _bounding_radius(lm: BoxLandmark | CylinderLandmark | RockLandmark) -> float:
+    if isinstance(lm, CylinderLandmark):
+        return float(lm.radius)
+    return float(math.hypot(lm.size[0], lm.size[1]) / 2)
+
+
+def _rot2(yaw_deg: float) -> np.ndarray:
+    c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+    return np.array([[c, -s], [s, c]])
+
+
+def _footprint_world(lm: BoxLandmark | CylinderLandmark | RockLandmark) -> np.ndarray:
+    """Outline polygon (k, 2) of a landmark in world coordinates (cylinders: 32-gon)."""
+    if isinstance(lm, CylinderLandmark):
+        a = np.linspace(0, 2 * math.pi, 32, endpoint=False)
+        local = lm.radius * np.stack([np.cos(a), np.sin(a)], axis=1)
+    elif isinstance(lm, BoxLandmark):
+        sx, sy = lm.size[0] / 2, lm.size[1] / 2
+        local = np.array([[-sx, -sy], [sx, -sy], [sx, sy], [-sx, sy]])
+    else:
+        local = lm.footprint()
+    return local @ _rot2(lm.yaw).T + np.asarray(lm.pos)
+
+
+class ObstacleMap:
+    """Signed 2-D distance from points to the nearest wall or landmark outline (negative inside).
+
+    Vectorised over points; landmarks are approximated by their convex outlines (cylinders
+    exactly, by centre and radius).
+    """
+
+    def __init__(self, env: EnvironmentSpec) -> None:
+        self.half = env.arena.size / 2
+        circles = [(lm.pos[0], lm.pos[1], lm.radius) for lm in env.landmarks if isinstance(lm, CylinderLandmark)]
+        self.circles = np.array(circles, dtype=float).reshape(-1, 3)
+        a_list, b_list, pid = [], [], []
+        for k, lm in enumerate(lm for lm in env.landmarks if not isinstance(lm, CylinderLandmark)):
+            poly = _footprint_world(lm)
+            if _signed_area(poly) < 0:
+                poly = poly[::-1]
+            a_list.append(poly)
+            b_list.append(np.roll(poly, -1, axis=0))
+            pid.append(np.full(len(poly), k))
+        self.n_polygons = len(a_list)
+        self.edge_a = np.concatenate(a_list) if a_list else np.zeros((0, 2))
+        self.edge_e = (np.concatenate(b_list) if b_list else np.zeros((0, 2))) - self.edge_a
+        self.edge_ee = np.einsum("ij,ij->i", self.edge_e, self.edge_e)
+        self.edge_poly = np.concatenate(pid) if pid else np.zeros(0, dtype=int)
+        self.edge_start = np.flatnonzero(np.diff(np.concatenate([[-1], self.edge_poly])))
+
+    def distance_many(self, points: np.ndarray) -> np.ndarray:
+        """Signed distances (n,) of ``points`` (n, 2) to the closest obstacle surface [m]."""
+        p = np.asarray(points, dtype=float).reshape(-1, 2)
+        d = self.half - np.abs(p).max(axis=1)
+        if len(self.circles):
+            dc = np.hypot(p[:, None, 0] - self.circles[None, :, 0], p[:, None, 1] - self.circles[None, :, 1])
+            d = np.minimum(d, (dc - self.circles[None, :, 2]).min(axis=1))
+        if self.n_polygons:
+            w = p[:, None, :] - self.edge_a[None]  # (n, E, 2)
+            t = np.clip(np.einsum("nij,ij->ni", w, self.edge_e) / self.edge_ee, 0, 1)
+            diff = w - t[..., None] * self.edge_e[None]
+            dist = np.hypot(diff[..., 0], diff[..., 1])  # (n, E)
+            cross = self.edge_e[None, :, 0] * w[..., 1] - self.edge_e[None, :, 1] * w[..., 0]
+            # edges are stored polygon by polygon: reduce each contiguous block
+            outside_count = np.add.reduceat((cross < 0).astype(np.int32), self.edge_start, axis=1)
+            dmin = np.minimum.reduceat(dist, self.edge_start, axis=1)
+            signed = np.where(outside_count > 0, dmin, -dmin)
+            d = np.minimum(d, signed.min(axis=1))
+        return d
+
+    def distance(self, p: np.ndarray) -> float:
+        """Signed distance [m] from point ``p`` (x, y) to the closest obstacle surface."""
+        return float(self.distance_many(np.asarray(p, dtype=float)[None])[0])
+
+    def query(self, points: np.ndarray, eps: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (n,) and unit gradients (n, 2) of ``points`` (n, 2) in one batch."""
+        p = np.asarray(points, dtype=float).reshape(-1, 2)
+        offsets = np.array([[0, 0], [eps, 0], [-eps, 0], [0, eps], [0, -eps]])
+        d = self.distance_many((p[:, None, :] + offsets[None]).reshape(-1, 2)).reshape(len(p), 5)
+        g = np.stack([d[:, 1] - d[:, 2], d[:, 3] - d[:, 4]], axis=1)
+        norm = np.linalg.norm(g, axis=1, keepdims=True)
+        return d[:, 0], np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
+
+    def gradient(self, p: np.ndarray, eps: float = 1e-3) -> np.ndarray:
+        """Unit direction of steepest increase of `distance` at ``p`` (away from the obstacle)."""
+        p = np.asarray(p, dtype=float)
+        probes = p[None] + np.array([[eps, 0], [-eps, 0], [0, eps], [0, -eps]])
+        d = self.distance_many(probes)
+        g = np.array([d[0] - d[1], d[2] - d[3]])
+        n = np.linalg.norm(g)
+        return g / n if n > 0 else g
+
+
+def _signed_area(poly: np.ndarray) -> float:
+    x, y = poly[:, 0], poly[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+
+
+# ---------------------------------------------------------------------- loading
+def _deep_merge(base: Any, override: Any) -> Any:
+    """Merge ``override`` into ``base``: mappings recursively, everything else (lists too) replaced."""
+    if isinstance(base, dict) and isinstance(override, dict):
+        out = dict(base)
+        for key, value in override.items():
+            out[key] = _deep_merge(base[key], value) if key in base else copy.deepcopy(value)
+        return out
+    return copy.deepcopy(override)
+
+
+def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    if path in chain:
+        raise EnvironmentSpecError(f"{chain[0]}: circular 'extends:' chain: {' -> '.join(str(p) for p in (*chain, path))}")
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        where = f"{chain[-1]}: extends: " if chain else ""
+        raise EnvironmentSpecError(f"{where}{path}: cannot read environment file: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise EnvironmentSpecError(f"{path}: not valid YAML: {exc}") from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise EnvironmentSpecError(f"{path}: expected a mapping at the top level, got {type(data).__name__}")
+    parent = data.pop("extends", None)
+    if parent is not None:
+        if not isinstance(parent, str):
+            raise EnvironmentSpecError(f"{path}: extends: expected a file name, got {parent!r}")
+        base = _read_yaml((path.parent / parent).resolve(), (*chain, path))
+        base.pop("name", None)  # the name is the extending file's own (or its stem)
+        data = _deep_merge(base, data)
+    # relative texture files resolve against the file that names them
+    for mat in (data.get("materials") or {}).values() if isinstance(data.get("materials"), dict) else []:
+        tex = mat.get("texture") if isinstance(mat, dict) else None
+        if isinstance(tex, dict) and isinstance(tex.get("file"), str):
+            tex["file"] = str((path.parent / tex["file"]).resolve())
+    return data
+
+
+def _format_errors(exc: pydantic.ValidationError) -> str:
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in err["loc"] if not (isinstance(p, str) and p in ("box", "cylinder", "rock")))
+        msg = err["msg"]
+        if err["type"] == "value_error":
+            msg = msg.removeprefix("Value error, ")
+            if not loc:
+                parts.append(msg)
+                continue
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        elif "input" in err and err["type"] not in ("missing",):
+            msg = f"{msg} (got {err['input']!r})"
+        parts.append(f"{loc or '(top level)'}: {msg}")
+    return "; ".join(parts)
+
+
+def load_environment(path: str | Path) -> EnvironmentSpec:
+    """Load and validate an environment YAML file (resolving ``extends:``).
+
+    A bare name such as ``"e1"`` refers to a shipped environment
+    (``scenarios/environments/e1.yaml``). Errors raise `EnvironmentSpecError` naming the file and
+    the key path, e.g. ``e2.yaml: landmarks.3.size: Field required``.
+    """
+    p = Path(path)
+    if not p.suffix and not p.exists() and (ENVIRONMENTS_DIR / f"{p.name}.yaml").is_file():
+        p = ENVIRONMENTS_DIR / f"{p.name}.yaml"
+    p = p.resolve()
+    data = _read_yaml(p)
+    data.setdefault("name", p.stem)
+    try:
+        return EnvironmentSpec.model_validate(data)
+    except pydantic.ValidationError as exc:
+        raise EnvironmentSpecError(f"{p}: {_format_errors(exc)}") from None
+
+
+def environment_files() -> dict[str, Path]:
+    """The shipped environments by name (base files that only serve ``extends:`` excluded)."""
+    return {p.stem: p for p in sorted(ENVIRONMENTS_DIR.glob("*.yaml")) if p.stem != "base"}
+
+
+# ---------------------------------------------------------------------- XML helpers
+def _fmt(value: Any, digits: int = 6) -> str:
+    if isinstance(value, (int, float, np.floating, np.integer)):
+        return f"{float(value):.{digits}g}"
+    return " ".join(f"{float(v):.{digits}g}" for v in np.asarray(value, dtype=float).ravel())
+
+
+def _static_body(name: str, geom_attrs: dict[str, str]) -> str:
+    """A geom wrapped in its own fixed body: MuJoCo's broad phase prunes per body, so this
+    keeps the whiskers from being tested against every wall and landmark at every step."""
+    return f'<body name="{name}">' + _tag("geom", geom_attrs) + "</body>"
+
+
+def _tag(name: str, attrs: dict[str, str]) -> str:
+    return f"<{name} " + " ".join(f"{k}={quoteattr(str(v))}" for k, v in attrs.items()) + "/>"

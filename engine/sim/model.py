@@ -1,0 +1,254 @@
+"""Assemble environment + robot into one MuJoCo model and read the robot's sensors.
+
+Physics settings (stated here once, quoted in docs/SIMULATION.md):
+
+* ``timestep`` = `RobotSpec.timestep` (default 2 ms = 250 steps per 2 Hz whisk cycle);
+* ``integrator="implicitfast"`` - damping of the follicle springs, servo and base drives
+  is integrated implicitly, so the stiff-ish whisker dynamics (spring natural frequency
+  ~23 Hz, servo ~35 Hz) are stable and accurate at 2 ms;
+* ``solver="Newton"``, ``iterations=50``, ``ls_iterations=20``, ``tolerance=1e-8``,
+  pyramidal friction cones, default soft-contact parameters (``solref`` 0.02 s time
+  constant, i.e. 10 timesteps);
+* gravity off: the base is planar (x, y, yaw) and never leaves the floor, and the whisker
+  readings are zero-offset like calibrated Hall sensors (no sag of the shafts).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from vitaplace.engine.sim.environment import EnvironmentSpec, _fmt
+from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec, robot_mjcf, whisker_layout
+
+__all__ = ["SimModel", "build_model", "model_xml"]
+
+
+def model_xml(env: EnvironmentSpec, robot: RobotSpec, offscreen: tuple[int, int] = (0, 0)) -> str:
+    """The complete MJCF text of ``env`` with the robot in it (base at the origin)."""
+    assets, world = env.mjcf()
+    body, actuators = robot_mjcf(robot)
+    offw = max(robot.camera_width, offscreen[0], 64)
+    offh = max(robot.camera_height, offscreen[1], 64)
+    extent = env.arena.size
+    return f"""<mujoco model="vitaplace_{env.name}">
+  <compiler angle="degree" autolimits="true"/>
+  <option timestep="{_fmt(robot.timestep)}" integrator="implicitfast" solver="Newton" iterations="50"
+          ls_iterations="20" tolerance="1e-8" cone="pyramidal" gravity="0 0 0"/>
+  <statistic extent="{_fmt(extent)}" center="0 0 0.5"/>
+  <visual>
+    <global offwidth="{offw}" offheight="{offh}"/>
+    <quality shadowsize="0" offsamples="0"/>
+    <map znear="0.002" zfar="3"/>
+    <headlight ambient="0.45 0.45 0.45" diffuse="0.35 0.35 0.35" specular="0 0 0"/>
+  </visual>
+  <asset>
+    <texture name="sky" type="skybox" builtin="flat" rgb1="{_fmt(env.sky_rgb)}" rgb2="{_fmt(env.sky_rgb)}" width="8" height="8"/>
+{assets}
+  </asset>
+  <worldbody>
+    <light name="sun" directional="true" pos="0 0 5" dir="0.3 0.2 -1" diffuse="0.5 0.5 0.5" specular="0 0 0" castshadow="false"/>
+{world}
+{body}
+  </worldbody>
+  <actuator>
+{actuators}
+  </actuator>
+</mujoco>
+"""
+
+
+@dataclass
+class SimModel:
+    """A compiled model plus the addresses of everything the simulator reads and drives."""
+
+    env: EnvironmentSpec
+    robot: RobotSpec
+    model: mujoco.MjModel
+    xml: str
+    base_qadr: np.ndarray  #: (3,) qpos addresses of x, y, yaw
+    base_dofadr: np.ndarray  #: (3,)
+    theta_qadr: np.ndarray  #: (24,)
+    xy_qadr: np.ndarray  #: (24, 2)
+    drive_act: np.ndarray  #: (3,) actuator ids of the base drives (ctrl: vx, vy, yaw rate)
+    drive_actadr: np.ndarray  #: (3,) d.act addresses of the drives (integrated reference pose)
+    servo_act: np.ndarray  #: (24,) actuator ids of the protraction servos
+    whisker_of_geom: np.ndarray  #: (ngeom,) whisker index of a geom, -1 for other geoms
+    camera_id: int
+    is_body_geom: np.ndarray  #: (ngeom,) bool: chassis / head geoms
+    #: (steps_per_cycle,) servo target applied during each physics step of a whisk cycle
+    whisk_command: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
+    #: servo phase lag [rad] and gain compensated in `whisk_command`
+    servo_phase_lag: float = 0.0
+    servo_gain: float = 1.0
+    layout: list[dict] = field(repr=False, default_factory=list)
+
+    # ------------------------------------------------------------ state access
+    def new_data(self, pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> mujoco.MjData:
+        """Fresh data with the base at ``pose`` (x, y, yaw [rad]) and the whiskers fully protracted."""
+        d = mujoco.MjData(self.model)
+        self.set_pose(d, pose)
+        d.qpos[self.theta_qadr] = math.radians(self.robot.protraction_max_deg)
+        d.ctrl[self.servo_act] = self.whisk_command[0]
+        mujoco.mj_forward(self.model, d)
+        return d
+
+    def set_pose(self, d: mujoco.MjData, pose: tuple[float, float, float]) -> None:
+        """Teleport the base (and its servo reference) to ``pose``; velocities are zeroed."""
+        d.qpos[self.base_qadr] = pose
+        d.qvel[self.base_dofadr] = 0.0
+        d.act[self.drive_actadr] = pose
+
+    def pose(self, d: mujoco.MjData) -> np.ndarray:
+        """Ground-truth pose (x, y, yaw) of the base; yaw wrapped to [-pi, pi)."""
+        x, y, yaw = d.qpos[self.base_qadr]
+        return np.array([x, y, (yaw + math.pi) % (2 * math.pi) - math.pi])
+
+    def theta(self, d: mujoco.MjData) -> np.ndarray:
+        """Protraction angle per whisker [rad], (24,)."""
+        return d.qpos[self.theta_qadr].copy()
+
+    def xy(self, d: mujoco.MjData) -> np.ndarray:
+        """Two-axis base deflection per whisker [rad], (24, 2)."""
+        return d.qpos[self.xy_qadr]
+
+    def whisker_contacts(self, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Contacts between whisker shafts and the world in ``d``.
+
+        Returns ``points`` (k, 3) world-frame contact positions, ``normals`` (k, 3) unit
+        surface normals of the touched object (pointing out of the object, toward the
+        whisker) and ``whisker`` (k,) whisker indices. One contact per whisker (the deepest).
+        """
+        n = d.ncon
+        if n == 0:
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+        con = d.contact
+        geom = _contact_geoms(con, n)
+        w1 = self.whisker_of_geom[geom[:, 0]]
+        w2 = self.whisker_of_geom[geom[:, 1]]
+        mask = (w1 >= 0) | (w2 >= 0)
+        if not mask.any():
+            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
+        idx = np.flatnonzero(mask)
+        whisker = np.where(w1[idx] >= 0, w1[idx], w2[idx])
+        normal = con.frame[idx, :3].copy()
+        # MuJoCo's normal points from geom1 to geom2: flip it where the whisker is geom2
+        normal[w2[idx] >= 0] *= -1.0
+        normal = -normal  # now from the whisker toward the object -> negate: out of the object
+        dist = con.dist[idx]
+        # deepest contact per whisker
+        order = np.lexsort((dist, whisker))
+        whisker, first = np.unique(whisker[order], return_index=True)
+        sel = order[first]
+        return con.pos[idx][sel].copy(), normal[sel], whisker.astype(np.int64)
+
+    def body_contacts(self, d: mujoco.MjData) -> int:
+        """Number of contacts between the robot's chassis/head and the world in ``d``."""
+        n = d.ncon
+        if n == 0:
+            return 0
+        geom = _contact_geoms(d.contact, n)
+        return int(np.count_nonzero(self.is_body_geom[geom[:, 0]] | self.is_body_geom[geom[:, 1]]))
+
+    def warnings(self, d: mujoco.MjData) -> dict[str, int]:
+        """Non-zero MuJoCo warning counters of ``d`` by name."""
+        out = {}
+        for i in range(mujoco.mjtWarning.mjNWARNING.value):
+            count = int(d.warning[i].number)
+            if count:
+                out[mujoco.mjtWarning(i).name] = count
+        return out
+
+
+def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen: tuple[int, int] = (0, 0)) -> SimModel:
+    """Compile ``env`` + robot and derive actuator gains from the compiled inertias."""
+    robot = robot or RobotSpec()
+    xml = model_xml(env, robot, offscreen)
+    try:
+        m = mujoco.MjModel.from_xml_string(xml)
+    except ValueError as exc:
+        raise ValueError(f"environment {env.name!r}: MuJoCo could not compile the model: {exc}") from None
+
+    def jid(name: str) -> int:
+        return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)
+
+    def aid(name: str) -> int:
+        return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+
+    layout = whisker_layout(robot)
+    names = [w["name"] for w in layout]
+    base_j = [jid(n) for n in ("base_x", "base_y", "base_yaw")]
+    theta_j = [jid(f"{n}_theta") for n in names]
+    xy_j = [[jid(f"{n}_dx"), jid(f"{n}_dy")] for n in names]
+    whisker_of_geom = np.full(m.ngeom, -1, dtype=np.int64)
+    for i, n in enumerate(names):
+        whisker_of_geom[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, n)] = i
+
+    sim = SimModel(
+        env=env,
+        robot=robot,
+        model=m,
+        xml=xml,
+        base_qadr=m.jnt_qposadr[base_j].copy(),
+        base_dofadr=m.jnt_dofadr[base_j].copy(),
+        theta_qadr=m.jnt_qposadr[theta_j].copy(),
+        xy_qadr=m.jnt_qposadr[np.array(xy_j)].copy(),
+        drive_act=np.array([aid(n) for n in ("drive_x", "drive_y", "drive_yaw")]),
+        drive_actadr=m.actuator_actadr[[aid(n) for n in ("drive_x", "drive_y", "drive_yaw")]].copy(),
+        servo_act=np.array([aid(f"{n}_servo") for n in names]),
+        whisker_of_geom=whisker_of_geom,
+        camera_id=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "eye"),
+        is_body_geom=np.isin(np.arange(m.ngeom), [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in ("chassis", "head")]),
+        layout=layout,
+    )
+    assert len(sim.servo_act) == N_WHISKERS
+
+    # Joint-space inertia at the initial configuration -> damping gains and servo phase.
+    d = mujoco.MjData(m)
+    d.qpos[sim.theta_qadr] = math.radians(robot.protraction_max_deg)
+    mujoco.mj_forward(m, d)
+    full = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, full, d.qM) if _fullm_takes_qm() else mujoco.mj_fullM(m, d, full)
+    diag = np.diag(full)
+    wb = 2 * math.pi * robot.base_servo_hz
+    for a, dof in zip(sim.drive_act, sim.base_dofadr):
+        kp_b, kv_b = diag[dof] * wb * wb, 2.0 * diag[dof] * wb  # critically damped pose servo
+        m.actuator_gainprm[a, 0] = kp_b
+        m.actuator_biasprm[a, 1] = -kp_b
+        m.actuator_biasprm[a, 2] = -kv_b
+    theta_dof = m.jnt_dofadr[theta_j]
+    inertia = float(np.mean(diag[theta_dof]))
+    kp = robot.servo_kp
+    kv = 2.0 * robot.servo_damping_ratio * math.sqrt(kp * inertia)
+    for a in sim.servo_act:
+        m.actuator_biasprm[a, 2] = -kv
+    # Servo response H(iw) = kp / (kp - I w^2 + i kv w): pre-compensate phase and gain so the
+    # measured protraction peaks exactly at the end of every whisk cycle (the sample instant).
+    w = 2 * math.pi * robot.whisk_hz
+    re, im = kp - inertia * w * w, kv * w
+    sim.servo_phase_lag = math.atan2(im, re)
+    sim.servo_gain = kp / math.hypot(re, im)
+    lo, hi = math.radians(robot.protraction_min_deg), math.radians(robot.protraction_max_deg)
+    centre, amp = (hi + lo) / 2, (hi - lo) / 2
+    n = robot.steps_per_cycle
+    t_mid = (np.arange(n) + 0.5) * robot.timestep  # a step's control acts over [t_j, t_j + dt]
+    # cycle time origin: a cycle ends (t = T) at maximum protraction
+    sim.whisk_command = centre + (amp / sim.servo_gain) * np.cos(w * t_mid + sim.servo_phase_lag)
+    return sim
+
+
+def _contact_geoms(con, n: int) -> np.ndarray:
+    """(n, 2) geom ids of the contacts (``geom`` array in recent MuJoCo, geom1/geom2 before)."""
+    geom = getattr(con, "geom", None)
+    if geom is not None and np.ndim(geom) == 2:
+        return np.asarray(geom)[:n]
+    return np.stack([np.asarray(con.geom1)[:n], np.asarray(con.geom2)[:n]], axis=1)
+
+
+def _fullm_takes_qm() -> bool:
+    """mj_fullM's signature changed between MuJoCo versions (M, dst, qM) -> (m, d, dst)."""
+    doc = mujoco.mj_fullM.__doc__ or ""
+    return "qM" in doc.split("->")[0]

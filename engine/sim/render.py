@@ -1,0 +1,98 @@
+"""The robot's camera: fast headless rendering through `mujoco.Renderer` (DESIGN §3).
+
+Speed settings: the model is compiled with ``<quality shadowsize="0" offsamples="0"/>``
+(no shadow map, no multisampling), materials have zero reflectance, lights cast no
+shadows, and the scene flags for shadows and reflections are switched off here. The
+offscreen buffer is only as large as the largest image requested. The robot's own geoms
+(group 3) are hidden from its camera. Measured here (Mesa llvmpipe, 2 cores): ~1 ms per
+120x160 frame instead of ~35 ms with MuJoCo's default quality settings.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+from vitaplace.engine.sim.glsetup import INSTALL_HINT, STATE, GLUnavailableError, select_gl_backend
+
+select_gl_backend()
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+__all__ = ["Camera", "GLUnavailableError", "gl_help"]
+
+ROBOT_GROUP = 3
+
+
+def gl_help(cause: BaseException | str | None = None) -> str:
+    backend = os.environ.get("MUJOCO_GL", "(unset)")
+    msg = (
+        f"vitaplace could not create an OpenGL context for the robot camera (MUJOCO_GL={backend}; "
+        f"{STATE.get('reason') or 'no backend chosen'}). {INSTALL_HINT}"
+    )
+    if cause is not None:
+        msg += f" Underlying error: {cause}"
+    return msg
+
+
+class Camera:
+    """Renders the named model camera to uint8 RGB arrays (H, W, 3).
+
+    ``render_time`` accumulates the wall time spent rendering (scene update + GL + readback).
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        width: int,
+        height: int,
+        camera: str | int = "eye",
+        show_robot: bool = False,
+    ) -> None:
+        try:
+            self._renderer = mujoco.Renderer(model, height=height, width=width)
+        except ValueError:
+            raise
+        except Exception as exc:  # GL library missing / no display / context creation failed
+            raise GLUnavailableError(gl_help(exc)) from exc
+        scene = self._renderer.scene
+        scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+        scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+        self._option = mujoco.MjvOption()
+        self._option.geomgroup[ROBOT_GROUP] = 1 if show_robot else 0
+        if isinstance(camera, str):
+            cam_id = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+            if cam_id < 0:
+                raise ValueError(f"camera {camera!r} does not exist in the model")
+        else:
+            cam_id = camera
+        self.camera: int | mujoco.MjvCamera = cam_id
+        self.width, self.height = width, height
+        self.render_time = 0.0
+        self.frames = 0
+
+    def render(self, data: mujoco.MjData, out: np.ndarray | None = None) -> np.ndarray:
+        t0 = time.perf_counter()
+        self._renderer.update_scene(data, camera=self.camera, scene_option=self._option)
+        img = self._renderer.render(out=out)
+        self.render_time += time.perf_counter() - t0
+        self.frames += 1
+        return img
+
+    def close(self) -> None:
+        if getattr(self, "_renderer", None) is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __enter__(self) -> Camera:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:
+            pass

@@ -1,0 +1,282 @@
+"""Simulation driver: run the robot in an environment and record a `Run` (DESIGN §3-5).
+
+One sample per whisk cycle, taken at maximum protraction (the end of each cycle):
+
+* ``images``      camera frame (H, W, 3) uint8
+* ``theta``       (24,) protraction angle of every whisker [rad]
+* ``xy``          (24, 2) two-axis base deflection [rad]
+* ``deflection``  (S, 24, 2) the xy deflection sampled S times, evenly, over the cycle
+                  (the last entry is the sample instant itself)
+* contacts        world-frame points + outward unit normals of every whisker-world contact
+                  present at those S instants (at most one per whisker and instant)
+* ``poses``       ground-truth (x, y, yaw) of the base; ``times`` simulation time [s]
+
+Same environment + run spec + robot spec + seed => bitwise-identical physics and poses on
+the same machine (MuJoCo is deterministic; all randomness comes from ``seed``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+import warnings
+from typing import Any
+
+import mujoco
+import numpy as np
+from tqdm.auto import tqdm
+
+from vitaplace.engine.dataset import Run
+from vitaplace.engine.sim.controllers import Observation, RunSpec, make_controller
+from vitaplace.engine.sim.environment import EnvironmentSpec
+from vitaplace.engine.sim.glsetup import STATE as GL_STATE
+from vitaplace.engine.sim.model import SimModel, build_model
+from vitaplace.engine.sim.render import Camera
+from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec
+
+__all__ = ["RobotSpec", "RunSpec", "simulate_run", "Simulator", "run_hash"]
+
+
+def run_hash(environment: EnvironmentSpec, run: RunSpec, robot: RobotSpec, seed: int) -> str:
+    """Content hash of everything that determines a simulated run."""
+    payload = json.dumps(
+        {
+            "environment": environment.model_dump(mode="json"),
+            "run": run.model_dump(mode="json"),
+            "robot": robot.model_dump(mode="json"),
+            "seed": int(seed),
+        },
+        sort_keys=True,
+    )
+    return hashlib.sha256(payload.encode()).hexdigest()[:16]
+
+
+class Simulator:
+    """Steps one robot in one environment, whisk cycle by whisk cycle.
+
+    Lower-level than `simulate_run` (which is what the scenario runner calls); tests and
+    benchmarks use it to place the robot and read its sensors directly.
+    """
+
+    def __init__(self, environment: EnvironmentSpec, robot: RobotSpec | None = None, camera: bool = True) -> None:
+        self.robot = robot or RobotSpec()
+        self.env = environment
+        self.sim: SimModel = build_model(environment, self.robot)
+        self.model = self.sim.model
+        self.data = self.sim.new_data((0.0, 0.0, 0.0))
+        self.camera = Camera(self.model, self.robot.camera_width, self.robot.camera_height) if camera else None
+        self.series_steps = self.robot.series_steps()
+        self._chunks = np.diff(np.concatenate([[-1], self.series_steps]))  # steps before each series sample
+        self._cmd = [float(c) for c in self.sim.whisk_command]
+        servo = self.sim.servo_act
+        contiguous = np.array_equal(servo, np.arange(servo[0], servo[0] + len(servo)))
+        self._servo = slice(int(servo[0]), int(servo[-1]) + 1) if contiguous else servo
+        self.physics_time = 0.0
+        self.body_collisions = 0  #: series instants at which the chassis or head touched the world
+        self.collision_log: list[np.ndarray] | None = None  #: set to a list to record collision poses
+
+    # ------------------------------------------------------------------ control
+    def reset(self, pose: tuple[float, float, float]) -> None:
+        """Restart at ``pose`` (x, y, yaw [rad]), time 0, whiskers fully protracted."""
+        self.data = self.sim.new_data(pose)
+
+    def drive(self, v: float, w: float) -> None:
+        """Command forward speed ``v`` [m/s] and yaw rate ``w`` [rad/s] of the base."""
+        yaw = self.data.qpos[self.sim.base_qadr[2]]
+        ctrl = self.data.ctrl
+        a = self.sim.drive_act
+        ctrl[a[0]] = v * math.cos(yaw)
+        ctrl[a[1]] = v * math.sin(yaw)
+        ctrl[a[2]] = w
+
+    def cycle(self, on_series=None) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        """Simulate one whisk cycle; it ends at maximum protraction.
+
+        ``on_series(i, contact_points)`` is called after each of the S series instants (e.g. a
+        controller tick) with the whisker contact points (k, 3) present at that instant.
+        Returns the (S, 24, 2) deflection series and per-instant contact points / normals.
+        """
+        m, d, sim = self.model, self.data, self.sim
+        ctrl, servo, cmd = d.ctrl, self._servo, self._cmd
+        S = len(self.series_steps)
+        series = np.empty((S, N_WHISKERS, 2))
+        points: list[np.ndarray] = []
+        normals: list[np.ndarray] = []
+        j = 0
+        t0 = time.perf_counter()
+        step = mujoco.mj_step
+        xy_qadr = sim.xy_qadr
+        for i, chunk in enumerate(self._chunks):
+            for _ in range(chunk):
+                ctrl[servo] = cmd[j]
+                step(m, d)
+                j += 1
+            series[i] = d.qpos[xy_qadr]
+            if d.ncon and sim.body_contacts(d):
+                self.body_collisions += 1
+                if self.collision_log is not None:
+                    self.collision_log.append(sim.pose(d))
+            p, n, _ = sim.whisker_contacts(d)
+            points.append(p)
+            normals.append(n)
+            if on_series is not None:
+                on_series(i, p)
+        self.physics_time += time.perf_counter() - t0
+        return series, points, normals
+
+    def render(self, out: np.ndarray | None = None) -> np.ndarray:
+        if self.camera is None:
+            raise RuntimeError("this Simulator was created with camera=False")
+        return self.camera.render(self.data, out=out)
+
+    def close(self) -> None:
+        if self.camera is not None:
+            self.camera.close()
+
+
+def simulate_run(
+    environment: EnvironmentSpec,
+    run: RunSpec,
+    seed: int,
+    robot: RobotSpec | None = None,
+    progress: bool = True,
+    name: str = "run",
+    stats: dict[str, Any] | None = None,
+) -> Run:
+    """Simulate one run and return it as an in-memory `Run`.
+
+    ``run.kind == "foraging"`` drives the tactile-attention foraging controller from the
+    environment's ``start`` (or ``run.start``); ``"route"`` follows the environment's route
+    with the run's noise settings. ``stats``, if given, receives timing figures
+    (``physics_s`` - stepping and sensor readout, ``control_s`` - the controller,
+    ``render_s``, ``wall_s`` - everything including model build, ``samples_per_s``) - kept
+    out of ``attrs`` so the recorded data stay reproducible.
+    """
+    robot = robot or RobotSpec()
+    wall0 = time.perf_counter()
+    sim = Simulator(environment, robot)
+    rng = np.random.default_rng(seed)
+    controller, start = make_controller(environment, run, rng)
+    sim.reset(start)
+
+    N, S = run.n_samples, robot.deflection_samples
+    H, W = robot.camera_height, robot.camera_width
+    images = np.empty((N, H, W, 3), dtype=np.uint8)
+    theta = np.empty((N, N_WHISKERS), dtype=np.float32)
+    xy = np.empty((N, N_WHISKERS, 2), dtype=np.float32)
+    deflection = np.empty((N, S, N_WHISKERS, 2), dtype=np.float32)
+    poses = np.empty((N, 3), dtype=np.float64)
+    times = np.empty(N, dtype=np.float64)
+    all_points: list[np.ndarray] = []
+    all_normals: list[np.ndarray] = []
+    counts = np.zeros(N + 1, dtype=np.int64)
+
+    series_hz = S * robot.whisk_hz
+    every = max(1, int(round(series_hz / run.control_hz)))
+    pending: list[np.ndarray] = []
+    mode_counts: dict[str, int] = {}
+    control_time = [0.0]
+
+    def tick(i: int, contact_points: np.ndarray) -> None:
+        if len(contact_points):
+            pending.append(contact_points)
+        if i % every != every - 1:
+            return
+        d = sim.data
+        contacts = np.concatenate(pending) if pending else np.zeros((0, 3))
+        pending.clear()
+        obs = Observation(
+            time=float(d.time),
+            pose=sim.sim.pose(d),
+            contacts=contacts,
+            deflection=np.linalg.norm(d.qpos[sim.sim.xy_qadr], axis=1),
+        )
+        t0 = time.perf_counter()
+        v, w = controller(obs)
+        sim.drive(v, w)
+        control_time[0] += time.perf_counter() - t0
+        mode = getattr(controller, "mode", run.kind)
+        mode_counts[mode] = mode_counts.get(mode, 0) + 1
+
+    for _ in range(run.warmup_cycles):
+        sim.cycle()
+    bar = tqdm(total=N, unit="sample", desc=name, disable=not progress, smoothing=0.1, leave=False)
+    try:
+        for k in range(N):
+            series, points, normals = sim.cycle(tick)
+            d = sim.data
+            deflection[k] = series
+            xy[k] = series[-1]
+            theta[k] = sim.sim.theta(d)
+            poses[k] = sim.sim.pose(d)
+            times[k] = d.time
+            sim.render(out=images[k])
+            pts = np.concatenate(points)
+            all_points.append(pts)
+            all_normals.append(np.concatenate(normals))
+            counts[k + 1] = counts[k] + len(pts)
+            bar.update(1)
+    finally:
+        bar.close()
+        sim.close()
+
+    warn = sim.sim.warnings(sim.data)
+    if warn:
+        warnings.warn(f"MuJoCo reported warnings during run {name!r}: {warn}", RuntimeWarning, stacklevel=2)
+    layout = sim.sim.layout
+    attrs: dict[str, Any] = {
+        "seed": int(seed),
+        "scenario_hash": run_hash(environment, run, robot, seed),
+        "environment": environment.name,
+        "environment_spec": environment.model_dump(mode="json"),
+        "robot": robot.model_dump(mode="json"),
+        "camera": {
+            "width": robot.camera_width,
+            "height": robot.camera_height,
+            "fovy_deg": robot.camera_fovy_deg,
+            "pitch_deg": robot.camera_pitch_deg,
+        },
+        "run": run.model_dump(mode="json"),
+        "timestep": robot.timestep,
+        "steps_per_cycle": robot.steps_per_cycle,
+        "sample_period_s": robot.whisk_period,
+        "deflection_sample_times_s": ((robot.series_steps() + 1) * robot.timestep).tolist(),
+        "whiskers": {
+            "length_m": [w["length"] for w in layout],
+            "board": [w["board"] for w in layout],
+            "column": [w["column"] for w in layout],
+            "side": [w["side"] for w in layout],
+        },
+        "servo_phase_lag_rad": sim.sim.servo_phase_lag,
+        "controller_modes": mode_counts,
+        "body_collision_instants": sim.body_collisions,
+        "mujoco_version": mujoco.__version__,
+        "mujoco_warnings": warn,
+        "gl_backend": GL_STATE.get("chosen"),
+    }
+    run_out = Run.from_arrays(
+        images=images,
+        theta=theta,
+        xy=xy,
+        poses=poses,
+        times=times,
+        deflection=deflection,
+        contact_points=np.concatenate(all_points).astype(np.float32) if all_points else np.zeros((0, 3)),
+        contact_normals=np.concatenate(all_normals).astype(np.float32) if all_normals else np.zeros((0, 3)),
+        contact_offsets=counts,
+        name=name,
+        attrs=attrs,
+    )
+    if stats is not None:
+        wall = time.perf_counter() - wall0
+        stats.update(
+            physics_s=sim.physics_time - control_time[0],
+            control_s=control_time[0],
+            render_s=sim.camera.render_time if sim.camera else 0.0,
+            wall_s=wall,
+            samples=N,
+            samples_per_s=N / wall if wall > 0 else float("inf"),
+        )
+    return run_out

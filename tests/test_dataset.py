@@ -1,0 +1,141 @@
+"""The HDF5 dataset contract: round trip, corrupt/foreign files, schema version, atomic writes."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from vitaplace.engine import dataset as ds
+from vitaplace.engine.dataset import SCHEMA_VERSION, DatasetError, Run, open_run, write_run
+
+
+def make_run(n: int = 5, s: int = 3, seed: int = 0) -> Run:
+    rng = np.random.default_rng(seed)
+    counts = rng.integers(0, 4, size=n)
+    m = int(counts.sum())
+    normals = rng.normal(size=(m, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return Run.from_arrays(
+        images=rng.integers(0, 256, size=(n, 12, 16, 3), dtype=np.uint8),
+        theta=rng.normal(size=(n, 24)),
+        xy=rng.normal(size=(n, 24, 2)),
+        poses=rng.normal(size=(n, 3)),
+        times=np.arange(n) * 0.5,
+        deflection=rng.normal(size=(n, s, 24, 2)),
+        contact_points=rng.normal(size=(m, 3)),
+        contact_normals=normals,
+        contact_offsets=np.concatenate([[0], np.cumsum(counts)]),
+        name="unit",
+        attrs={"seed": 7, "scenario_hash": "abc123", "robot": {"whisk_hz": 2.0}, "camera": {"width": 16}},
+    )
+
+
+def test_round_trip(tmp_path):
+    run = make_run()
+    path = write_run(tmp_path / "run.h5", run)
+    back = open_run(path)
+    assert back.name == "unit" and len(back) == len(run) and back.path == path
+    for key in ds.FIELDS:
+        a, b = run._get(key), back._get(key)
+        assert a.dtype == b.dtype, key
+        assert np.array_equal(a, b), key
+    assert back.attrs["seed"] == 7
+    assert back.attrs["scenario_hash"] == "abc123"
+    assert back.attrs["robot"] == {"whisk_hz": 2.0}
+    assert back.n_whiskers == 24 and back.image_shape == (12, 16, 3)
+    for i in range(len(run)):
+        p, n = back.contacts(i)
+        p0, n0 = run.contacts(i)
+        assert np.array_equal(p, p0) and np.array_equal(n, n0)
+    assert np.array_equal(back.image_batch(1, 3), run.images[1:3])
+    sub = back.subset(np.array([4, 0]))
+    assert np.array_equal(sub.poses, run.poses[[4, 0]])
+    assert np.array_equal(sub.contacts(0)[0], run.contacts(4)[0])
+    with h5py.File(path) as f:
+        assert int(f.attrs["schema_version"]) == SCHEMA_VERSION
+
+
+def test_in_memory_shape_errors_are_dataset_errors():
+    run = make_run()
+    with pytest.raises(DatasetError, match="'xy'"):
+        Run.from_arrays(images=run.images, theta=run.theta, xy=run.xy[:, :3], poses=run.poses)
+    with pytest.raises(DatasetError, match="contact_offsets"):
+        Run.from_arrays(
+            images=run.images,
+            theta=run.theta,
+            xy=run.xy,
+            poses=run.poses,
+            contact_points=np.zeros((2, 3)),
+            contact_normals=np.zeros((2, 3)),
+            contact_offsets=np.array([0, 1, 1, 1, 1, 1]),
+        )
+
+
+def test_truncated_file(tmp_path):
+    path = write_run(tmp_path / "run.h5", make_run(n=20))
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(DatasetError, match=r"run\.h5: not a readable HDF5 file \(truncated or foreign\?\)"):
+        open_run(path)
+
+
+def test_foreign_hdf5_file(tmp_path):
+    path = tmp_path / "other.h5"
+    with h5py.File(path, "w") as f:
+        f["images"] = np.zeros((2, 4, 4, 3), np.uint8)
+    with pytest.raises(DatasetError, match=r"other\.h5: not a vitaplace dataset"):
+        open_run(path)
+
+
+def test_non_hdf5_file(tmp_path):
+    path = tmp_path / "notes.h5"
+    path.write_text("this is not HDF5\n" * 100)
+    with pytest.raises(DatasetError, match=r"notes\.h5: not a readable HDF5 file"):
+        open_run(path)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(DatasetError, match="no such dataset file"):
+        open_run(tmp_path / "nope.h5")
+
+
+def test_other_schema_version(tmp_path):
+    path = write_run(tmp_path / "run.h5", make_run())
+    with h5py.File(path, "a") as f:
+        f.attrs["schema_version"] = SCHEMA_VERSION + 1
+    with pytest.raises(DatasetError, match=rf"schema version {SCHEMA_VERSION + 1}.*reads version {SCHEMA_VERSION}"):
+        open_run(path)
+
+
+def test_missing_field(tmp_path):
+    path = write_run(tmp_path / "run.h5", make_run())
+    with h5py.File(path, "a") as f:
+        del f["deflection"]
+    with pytest.raises(DatasetError, match="lacks field.*deflection"):
+        open_run(path)
+
+
+def test_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
+    target = tmp_path / "run.h5"
+    run = make_run()
+    real_get = Run._get
+
+    def failing_get(self, key):
+        if key == "deflection":  # after images/theta/xy were written
+            raise KeyboardInterrupt("simulated crash mid-write")
+        return real_get(self, key)
+
+    monkeypatch.setattr(Run, "_get", failing_get)
+    with pytest.raises(KeyboardInterrupt):
+        write_run(target, run)
+    assert not target.exists()
+    assert list(tmp_path.iterdir()) == [], "the temporary file must be removed too"
+    monkeypatch.undo()
+    # an existing complete file is not damaged by a failed overwrite
+    write_run(target, run)
+    monkeypatch.setattr(Run, "_get", failing_get)
+    with pytest.raises(KeyboardInterrupt):
+        write_run(target, make_run(seed=1))
+    monkeypatch.undo()
+    assert np.array_equal(open_run(target).poses, run.poses)

@@ -1,0 +1,351 @@
+"""Tests of the MuJoCo WhiskEye-like simulator, the environments and the trajectories."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the mujoco import
+
+import math
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
+import mujoco  # noqa: E402
+
+from vitaplace.engine.dataset import Run  # noqa: E402
+from vitaplace.engine.sim.controllers import Route  # noqa: E402
+from vitaplace.engine.sim.environment import (  # noqa: E402
+    EnvironmentSpecError,
+    EnvironmentSpec,
+    environment_files,
+    load_environment,
+)
+from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec  # noqa: E402
+from vitaplace.engine.sim.simulate import RunSpec, Simulator, simulate_run  # noqa: E402
+
+ENVS = sorted(environment_files())
+LEFT = slice(0, 12)  # boards 0-2
+RIGHT = slice(12, 24)  # boards 3-5
+
+
+@pytest.fixture(scope="module")
+def e1() -> EnvironmentSpec:
+    return load_environment("e1")
+
+
+@pytest.fixture(scope="module")
+def e1_sim(e1) -> Simulator:
+    sim = Simulator(e1, RobotSpec())
+    yield sim
+    sim.close()
+
+
+def _cycles(sim: Simulator, pose, n: int = 2) -> np.ndarray:
+    """Reset at ``pose``, hold still for ``n`` whisk cycles, return the last cycle's (S, 24, 2) series."""
+    sim.reset(pose)
+    for _ in range(n):
+        series, _, _ = sim.cycle()
+    return series
+
+
+# ---------------------------------------------------------------------- environments
+def test_shipped_environments_are_the_papers():
+    assert {"e1", "e2", "e3"} <= set(ENVS)
+
+
+@pytest.mark.parametrize("name", ENVS)
+def test_environment_compiles_and_simulates_2s_without_mujoco_warnings(name):
+    env = load_environment(name)
+    sim = Simulator(env, RobotSpec(), camera=False)
+    try:
+        sim.reset((*env.start[:2], math.radians(env.start[2])))
+        for _ in range(4):  # 4 whisk cycles = 2 s at 2 Hz, base driving forward and turning
+            sim.drive(0.15, 0.3)
+            sim.cycle()
+        d = sim.data
+        assert d.time == pytest.approx(2.0)
+        warnings = {mujoco.mjtWarning(i).name: int(d.warning[i].number) for i in range(len(d.warning))}
+        assert not any(warnings.values()), warnings
+        assert np.all(np.isfinite(d.qpos)) and np.all(np.isfinite(d.qvel))
+    finally:
+        sim.close()
+
+
+@pytest.mark.parametrize("name", ENVS)
+def test_route_keeps_clear_of_obstacles_and_passes_within_whisker_reach(name):
+    env = load_environment(name)
+    route = Route(env.route)
+    clearance = env.obstacles.distance_many(route.sample(0.02))  # base centre -> nearest surface
+    assert clearance.min() >= 0.12, "the chassis (r = 0.10 m) would touch a landmark"
+    assert np.mean(clearance <= 0.2) > 0.25, "the whiskers (lateral reach ~0.2 m) should touch often"
+
+
+def test_top_view_structure(e1):
+    tv = load_environment("e2").top_view()
+    assert tv["size"] == pytest.approx(6.0)
+    kinds = {lm["type"] for lm in tv["landmarks"]}
+    assert kinds == {"box", "cylinder", "rock"}
+    for lm in tv["landmarks"]:
+        assert len(lm["pos"]) == 2
+        assert ("radius" in lm) == (lm["type"] == "cylinder")
+        assert ("size" in lm) == (lm["type"] != "cylinder")
+    rock = next(lm for lm in tv["landmarks"] if lm["type"] == "rock")
+    assert len(rock["polygon"]) >= 5
+    assert tv["route"] == [list(p) for p in load_environment("e2").route]
+
+
+def test_extends_deep_merges_and_replaces_lists(tmp_path):
+    (tmp_path / "parent.yaml").write_text(
+        "arena: {size: 5.0, wall_height: 1.0}\n"
+        "landmarks: [{type: box, pos: [1, 1], size: [0.5, 0.5, 0.3]}]\n"
+        "route: [[0, 0], [1, 0]]\n"
+    )
+    (tmp_path / "child.yaml").write_text(
+        "extends: parent.yaml\narena: {size: 4.0}\nlandmarks: [{type: cylinder, pos: [0, 1], radius: 0.2, height: 0.3}]\n"
+    )
+    env = load_environment(tmp_path / "child.yaml")
+    assert env.name == "child"
+    assert env.arena.size == 4.0 and env.arena.wall_height == 1.0  # merged
+    assert [lm.type for lm in env.landmarks] == ["cylinder"]  # replaced
+    assert env.route == [(0, 0), (1, 0)]
+
+
+def test_environment_errors_name_file_and_key_path(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("landmarks:\n  - {type: box, pos: [0, 0], size: [1, 1]}\n")
+    with pytest.raises(EnvironmentSpecError, match=r"bad\.yaml: landmarks\.0\.size"):
+        load_environment(bad)
+    bad.write_text("arena: {size: 6, colour: red}\n")
+    with pytest.raises(EnvironmentSpecError, match=r"bad\.yaml: arena\.colour: unknown key"):
+        load_environment(bad)
+    bad.write_text("landmarks:\n  - {type: box, pos: [2.9, 0], size: [1, 1, 0.3]}\n")
+    with pytest.raises(EnvironmentSpecError, match=r"bad\.yaml: landmarks\.0\.pos: .*sticks out"):
+        load_environment(bad)
+    bad.write_text("extends: nowhere.yaml\n")
+    with pytest.raises(EnvironmentSpecError, match=r"nowhere\.yaml"):
+        load_environment(bad)
+    with pytest.raises(EnvironmentSpecError, match="cannot read"):
+        load_environment(tmp_path / "missing.yaml")
+
+
+# ---------------------------------------------------------------------- whiskers
+def test_wall_contact_deflects_whiskers_far_above_the_noise_floor(e1_sim):
+    free = _cycles(e1_sim, (0.0, 0.0, 0.0))  # nothing within reach at the arena centre
+    noise = np.degrees(np.abs(free).max())
+    assert noise < 0.5, f"free-whisking deflection {noise:.3f} deg"
+    # facing north 0.15 m from the east wall: the wall is on the robot's right
+    pressed = _cycles(e1_sim, (2.85, 0.0, math.pi / 2))
+    right = np.degrees(np.abs(pressed[:, RIGHT]).max())
+    left = np.degrees(np.abs(pressed[:, LEFT]).max())
+    assert right > 5.0 and right > 20 * noise, f"pressed {right:.2f} deg vs noise {noise:.3f} deg"
+    assert left < 0.5, "whiskers on the far side of the head must stay free"
+
+
+def test_deflection_direction_flips_with_the_side_of_the_wall(e1_sim):
+    wall_right = _cycles(e1_sim, (2.85, 0.0, math.pi / 2))[:, RIGHT, 0].mean()
+    wall_left = _cycles(e1_sim, (-2.85, 0.0, math.pi / 2))[:, LEFT, 0].mean()
+    assert abs(wall_right) > math.radians(1) and abs(wall_left) > math.radians(1)
+    assert np.sign(wall_right) == -np.sign(wall_left)
+
+
+def test_contacts_are_reported_on_the_touched_surface_with_outward_normals(e1_sim):
+    e1_sim.reset((2.85, 0.0, math.pi / 2))
+    _, points, normals = e1_sim.cycle()
+    pts, nrm = np.concatenate(points), np.concatenate(normals)
+    assert len(pts) > 0
+    assert np.allclose(pts[:, 0], 3.0, atol=0.01)  # the east wall's inner face is x = 3
+    assert np.allclose(nrm, [-1.0, 0.0, 0.0], atol=1e-6)  # pointing into the arena
+
+
+def test_samples_are_taken_at_maximum_protraction(e1_sim):
+    sim = e1_sim
+    sim.reset((0.0, 0.0, 0.0))
+    m, d, cmd = sim.model, sim.data, sim.sim.whisk_command
+    n = sim.robot.steps_per_cycle
+    theta = np.empty((2 * n, N_WHISKERS))
+    for k in range(2 * n):  # the same per-step servo command the Simulator applies
+        d.ctrl[sim.sim.servo_act] = cmd[k % n]
+        mujoco.mj_step(m, d)
+        theta[k] = d.qpos[sim.sim.theta_qadr]
+    last = theta[n:]  # second cycle; the sample is taken after its final step
+    assert np.all(np.argmax(last, axis=0) >= n - 2), "theta must peak at the end of the cycle"
+    assert np.allclose(last[-1], last.max(axis=0), atol=math.radians(0.05))
+    assert np.allclose(np.degrees(last[-1]), 45.0, atol=0.3)
+    assert np.allclose(np.degrees(last.min(axis=0)), -30.0, atol=0.3)
+    # and the recorded samples of a run
+    run = simulate_run(load_environment("e1"), RunSpec(kind="route", n_samples=2), seed=0, progress=False)
+    assert np.allclose(np.degrees(run.theta), 45.0, atol=1.0)
+
+
+def test_timestep_halving_converges():
+    """Deflection series at dt = 2 ms and 1 ms vs a 0.5 ms reference, robot pressed to walls.
+
+    Tolerance: contacts with friction are stick-slip events, so a single series sample can
+    differ by about a degree where a whisker slips one step earlier; we therefore bound the
+    RMS error (over all whiskers and samples) to 5 % of the RMS deflection at the default
+    2 ms step, and require the error to shrink when the step is halved (first-order method).
+    """
+    env = load_environment("e1")
+    poses = [(2.85, 0.0, math.pi / 2), (2.7, 0.0, 0.5)]
+    series = {}
+    for dt in (0.002, 0.001, 0.0005):
+        sim = Simulator(env, RobotSpec(timestep=dt), camera=False)
+        series[dt] = np.array([_cycles(sim, p) for p in poses])
+        sim.close()
+    ref = series[0.0005]
+    signal = np.sqrt(np.mean(ref**2))
+    err2 = np.sqrt(np.mean((series[0.002] - ref) ** 2))
+    err1 = np.sqrt(np.mean((series[0.001] - ref) ** 2))
+    assert signal > math.radians(0.5)
+    assert err2 < 0.05 * signal, f"rms error {np.degrees(err2):.3f} deg vs signal {np.degrees(signal):.3f} deg"
+    assert err1 < err2
+
+
+# ---------------------------------------------------------------------- camera
+def test_camera_image_changes_with_pose_and_is_repeatable(e1_sim):
+    sim = e1_sim
+    sim.reset((0.0, -0.95, 0.0))
+    a = sim.render().copy()
+    sim.reset((0.0, -0.95, math.pi / 2))
+    b = sim.render().copy()
+    sim.reset((0.0, -0.95, 0.0))
+    a2 = sim.render().copy()
+    assert a.shape == (120, 160, 3) and a.dtype == np.uint8
+    assert np.array_equal(a, a2), "identical state must render identical pixels"
+    assert np.abs(a.astype(int) - b.astype(int)).mean() > 5.0
+    assert a.std() > 10, "the frame should show structure, not a flat colour"
+
+
+def test_missing_gl_gives_one_clear_error():
+    """Hide libEGL/libOSMesa from the process: the camera must say what to install and set."""
+    code = textwrap.dedent(
+        """
+        import ctypes, os, sys
+        real = ctypes.CDLL
+        class Hidden(real):
+            def __init__(self, name, *a, **k):
+                if name and any(s in str(name) for s in ("EGL", "OSMesa")):
+                    raise OSError("hidden by the test")
+                super().__init__(name, *a, **k)
+        ctypes.CDLL = Hidden
+        mode = sys.argv[1]
+        if mode == "user":
+            os.environ["MUJOCO_GL"] = "osmesa"
+        try:
+            from vitaplace.engine.sim.environment import EnvironmentSpec
+            from vitaplace.engine.sim.model import build_model
+            from vitaplace.engine.sim.render import Camera
+            sim = build_model(EnvironmentSpec(name="t"))
+            Camera(sim.model, 32, 24)
+        except Exception as exc:
+            print(type(exc).__name__ + ": " + str(exc))
+            sys.exit(3)
+        print("no error")
+        """
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM", "DISPLAY")}
+    for mode in ("auto", "user"):
+        out = subprocess.run(
+            [sys.executable, "-c", code, mode], capture_output=True, text=True, env=env, timeout=120
+        )
+        assert out.returncode == 3, out.stdout + out.stderr
+        msg = out.stdout
+        assert "GLUnavailableError" in msg
+        assert "libegl1" in msg and "libosmesa6" in msg and "MUJOCO_GL=egl" in msg
+
+
+# ---------------------------------------------------------------------- runs
+def test_same_scenario_and_seed_give_identical_runs(e1):
+    spec = RunSpec(kind="foraging", n_samples=6)
+    a = simulate_run(e1, spec, seed=3, progress=False)
+    b = simulate_run(e1, spec, seed=3, progress=False)
+    c = simulate_run(e1, spec, seed=4, progress=False)
+    assert isinstance(a, Run) and len(a) == 6
+    for key in ("poses", "times", "theta", "xy", "deflection", "contact_offsets"):
+        assert np.array_equal(getattr(a, key), getattr(b, key)), key
+    assert np.array_equal(a._get("contact_points"), b._get("contact_points"))
+    assert np.array_equal(a.images, b.images)
+    assert a.attrs == b.attrs
+    assert not np.array_equal(a.poses, c.poses)
+    assert a.deflection.shape == (6, 25, 24, 2)
+    assert a.images.shape == (6, 120, 160, 3)
+    assert np.allclose(np.diff(a.times), 0.5)
+    assert a.attrs["seed"] == 3 and a.attrs["environment"] == "e1"
+    assert a.attrs["camera"] == {"width": 160, "height": 120, "fovy_deg": 60.0, "pitch_deg": -5.0}
+
+
+def test_two_route_runs_differ_but_follow_the_route(e1):
+    spec = RunSpec(kind="route", n_samples=60)
+    a = simulate_run(e1, spec, seed=1, progress=False, name="query")
+    b = simulate_run(e1, spec, seed=2, progress=False, name="reference")
+    route = Route(e1.route)
+    for run in (a, b):
+        dist = route.distance(run.poses[:, :2])
+        assert dist.max() < 0.25, f"{run.name}: {dist.max():.3f} m off the route"
+        assert run.attrs["body_collision_instants"] == 0
+    gap = np.linalg.norm(a.poses[:, :2] - b.poses[:, :2], axis=1)
+    assert gap.max() > 0.01, "two seeds must not give the same trajectory"
+    assert np.diff(a.poses[:, :2], axis=0).any()
+    # ~30 s at 0.15 m/s: well past the first corner of the 7.6 m loop
+    travelled = np.linalg.norm(np.diff(a.poses[:, :2], axis=0), axis=1).sum()
+    assert 2.5 < travelled < 6.0
+
+
+def test_foraging_touches_things_and_never_drives_into_them(e1):
+    run = simulate_run(e1, RunSpec(kind="foraging", n_samples=80), seed=5, progress=False)
+    assert run.attrs["body_collision_instants"] == 0
+    assert np.diff(run.contact_offsets).sum() > 0
+    assert set(run.attrs["controller_modes"]) >= {"wander"}
+
+
+def test_run_spec_validation():
+    with pytest.raises(ValueError):
+        RunSpec(kind="foraging", n_samples=0)
+    with pytest.raises(ValueError):
+        RunSpec(kind="dance", n_samples=3)
+    with pytest.raises(ValueError):
+        RunSpec(kind="route", n_samples=3, colour="red")
+    with pytest.raises(ValueError, match="whole number of timesteps"):
+        RobotSpec(whisk_hz=3.0, timestep=0.002)
+    with pytest.raises(ValueError, match="no route"):
+        simulate_run(EnvironmentSpec(name="empty"), RunSpec(kind="route", n_samples=1), seed=0, progress=False)
+
+
+def test_shipped_environment_files_are_packaged():
+    root = Path(vitaplace.engine.sim.environment.__file__).resolve().parents[2]
+    assert (root / "scenarios" / "environments" / "base.yaml").is_file()
+
+
+def test_simulated_run_round_trips_through_hdf5(e1, tmp_path):
+    from vitaplace.engine.dataset import open_run, write_run
+
+    run = simulate_run(e1, RunSpec(kind="route", n_samples=3), seed=9, progress=False, name="r")
+    back = open_run(write_run(tmp_path / "r.h5", run))
+    for key in ("images", "theta", "xy", "deflection", "poses", "times", "contact_offsets"):
+        assert np.array_equal(getattr(back, key), getattr(run, key)), key
+    assert back.attrs["seed"] == 9 and back.attrs["scenario_hash"] == run.attrs["scenario_hash"]
+    assert back.attrs["robot"] == run.attrs["robot"]
+    assert back.attrs["environment"] == "e1"
+
+
+@pytest.mark.parametrize("tactile", [True, False])
+def test_visual_only_landmarks_are_not_felt(tactile):
+    env = EnvironmentSpec.model_validate(
+        {"name": "t", "landmarks": [{"type": "box", "pos": [0.45, 0.0], "size": [0.4, 1.0, 0.3], "tactile": tactile}]}
+    )
+    sim = Simulator(env, RobotSpec(), camera=False)
+    sim.reset((0.0, 0.0, 0.0))  # the box's near face is 0.25 m ahead: within reach of the whiskers only
+    sim.cycle()
+    series, points, _ = sim.cycle()
+    sim.close()
+    n_contacts = sum(len(p) for p in points)
+    if tactile:
+        assert n_contacts > 0 and np.degrees(np.abs(series).max()) > 2.0
+    else:
+        assert n_contacts == 0 and np.degrees(np.abs(series).max()) < 0.5
