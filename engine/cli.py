@@ -21,10 +21,10 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from vitaplace.engine.features import ExtractorParamsError
     from vitaplace.engine.pc import NetworkError
     from vitaplace.engine.plugins import PluginError
-    from vitaplace.engine.scenario import ScenarioError
-    from vitaplace.engine.sim.environment import EnvironmentError as SimEnvironmentError
+    from vitaplace.engine.configfile import ConfigError
+    from vitaplace.engine.sim.glsetup import GLUnavailableError
 
-    return (ScenarioError, DatasetError, PluginError, ExtractorParamsError, NetworkError, SimEnvironmentError)
+    return (ConfigError, DatasetError, PluginError, ExtractorParamsError, NetworkError, GLUnavailableError)
 
 
 def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True) -> None:
@@ -122,10 +122,16 @@ def _simulate_environment(args: argparse.Namespace) -> int:
 
 
 def _is_environment_file(name: str) -> bool:
-    from vitaplace.engine.scenario import read_yaml
+    from vitaplace.engine.configfile import ConfigError, load_yaml
 
     path = Path(name)
-    return path.suffix in (".yaml", ".yml") and path.is_file() and "arena" in read_yaml(path)
+    if path.suffix not in (".yaml", ".yml") or not path.is_file():
+        return False
+    try:
+        data = load_yaml(path)
+    except ConfigError:
+        return False  # reported by the scenario loader
+    return "route" in data or "landmarks" in data or "arena" in data
 
 
 def _plugins() -> int:

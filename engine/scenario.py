@@ -24,10 +24,8 @@ Example::
 from __future__ import annotations
 
 import copy
-import difflib
 import hashlib
 import json
-import types
 import typing
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -36,14 +34,15 @@ from typing import Any
 import pydantic
 import yaml
 
-from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
+from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml
+from vitaplace.engine.sim.environment import load_environment
 from vitaplace.engine.sim.robot import RobotSpec
 from vitaplace.engine.sim.simulate import RunSpec
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ConfigError):
     """A scenario that cannot run; the message is one line naming file, key path and problem."""
 
 
@@ -99,47 +98,9 @@ class Scenario(Strict):
         return self
 
 
-def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
-    """``override`` over ``base``: mappings merge key by key, anything else (lists too) replaces."""
-    merged = copy.deepcopy(dict(base))
-    for key, value in override.items():
-        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
-            merged[key] = deep_merge(merged[key], value)
-        else:
-            merged[key] = copy.deepcopy(value)
-    return merged
-
-
-def read_yaml(path: Path) -> dict[str, Any]:
-    """A YAML mapping from ``path``; ScenarioError for a missing file, bad YAML or a non-mapping."""
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ScenarioError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ScenarioError(f"{path}: invalid YAML{where}: {problem}") from None
-    if not isinstance(data, dict):
-        raise ScenarioError(f"{path}: expected a mapping of keys at the top level, got {type(data).__name__}")
-    return data
-
-
-def _load_raw(path: Path, seen: tuple[Path, ...] = ()) -> dict[str, Any]:
-    """The scenario mapping with ``extends`` resolved and relative environment paths made absolute."""
-    path = path.resolve()
-    if path in seen:
-        raise ScenarioError(f"{path}: 'extends' forms a cycle through {', '.join(str(p) for p in seen)}")
-    data = _absolute_paths(read_yaml(path), path.parent)
-    parent = data.pop("extends", None)
-    if parent is None:
-        return data
-    if not isinstance(parent, str):
-        raise ScenarioError(f"{path}: extends: expected a file name, got {type(parent).__name__}")
-    return deep_merge(_load_raw(path.parent / parent, (*seen, path)), data)
+def _load_raw(path: Path) -> dict[str, Any]:
+    """The scenario mapping with ``extends`` merged and environment paths made absolute."""
+    return load_yaml(path, ScenarioError, _absolute_paths)
 
 
 def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
@@ -182,58 +143,6 @@ def apply_overrides(data: dict[str, Any], assignments: Sequence[str], source: st
     return data
 
 
-def _model_at(model: Any, loc: Sequence[Any]) -> type[pydantic.BaseModel] | None:
-    """The pydantic model class found by following ``loc`` through ``model``'s annotations."""
-    current: Any = model
-    for part in loc:
-        while True:  # unwrap Optional / list / dict to the element type
-            origin = typing.get_origin(current)
-            if origin in (typing.Union, types.UnionType):
-                args = [a for a in typing.get_args(current) if a is not type(None)]
-                current = args[0] if args else None
-            elif origin in (list, tuple) and isinstance(part, int):
-                current = typing.get_args(current)[0]
-                break
-            elif origin is dict:
-                current = typing.get_args(current)[1]
-                break
-            else:
-                break
-        if isinstance(part, int):
-            continue
-        if not (isinstance(current, type) and issubclass(current, pydantic.BaseModel)):
-            return None
-        field = current.model_fields.get(part)
-        if field is None:
-            return None
-        current = field.annotation
-    while typing.get_origin(current) in (typing.Union, types.UnionType):
-        current = next((a for a in typing.get_args(current) if a is not type(None)), None)
-    return current if isinstance(current, type) and issubclass(current, pydantic.BaseModel) else None
-
-
-def format_validation_error(path: Path | str, exc: pydantic.ValidationError, model: type = Scenario) -> str:
-    """One line per problem: ``FILE: key.path: message`` with a suggestion for unknown keys."""
-    lines = []
-    for err in exc.errors():
-        loc = [p for p in err["loc"] if not (isinstance(p, str) and ("[" in p or p.startswith("function-")))]
-        key = ".".join(str(p) for p in loc) or "(top level)"
-        message = err["msg"]
-        if err["type"] == "extra_forbidden":
-            parent = _model_at(model, loc[:-1])
-            valid = sorted(parent.model_fields) if parent else []
-            close = difflib.get_close_matches(str(loc[-1]), valid, n=1)
-            message = "unknown key" + (f"; did you mean '{close[0]}'?" if close else "")
-            if valid:
-                message += f" (valid keys: {', '.join(valid)})"
-        elif err["type"] == "missing":
-            message = "required key is missing"
-        elif "input" in err and err["type"] not in ("value_error", "assertion_error"):
-            message += f" (got {err['input']!r})"
-        lines.append(f"{path}: {key}: {message}")
-    return "\n".join(lines)
-
-
 def resolve_path(name: str | Path) -> Path:
     """A scenario path as given, or the name of a built-in scenario (``quickstart``)."""
     path = Path(name)
@@ -259,7 +168,7 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
     try:
         scenario = Scenario.model_validate(raw)
     except pydantic.ValidationError as exc:
-        raise ScenarioError(format_validation_error(path, exc)) from None
+        raise ScenarioError(format_validation_error(path, exc, Scenario)) from None
     for where, entry in [("train", scenario.train)] + [
         (f"evaluations.{i}", e) for i, e in enumerate(scenario.evaluations)
     ]:
@@ -282,10 +191,6 @@ def _check_methods(path: Path, scenario: Scenario) -> None:
             raise ScenarioError(f"{path}: methods.{i}.plugin: {exc}") from None
         except ExtractorParamsError as exc:
             raise ScenarioError(f"{path}: methods.{i}.params: {exc}") from None
-
-
-def environment_of(entry: SimulatedRun) -> EnvironmentSpec:
-    return load_environment(entry.environment)
 
 
 def content_hash(*parts: Any) -> str:

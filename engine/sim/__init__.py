@@ -20,7 +20,6 @@ select_gl_backend()
 
 _EXPORTS = {
     "EnvironmentSpecError": "environment",
-    "EnvironmentError": "environment",
     "EnvironmentSpec": "environment",
     "load_environment": "environment",
     "environment_files": "environment",

@@ -27,9 +27,10 @@ import pydantic
 import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
+from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml
+
 __all__ = [
     "EnvironmentSpecError",
-    "EnvironmentError",
     "EnvironmentSpec",
     "ArenaSpec",
     "MaterialSpec",
@@ -65,13 +66,8 @@ Positive = Annotated[float, Field(gt=0)]
 XY = tuple[float, float]
 
 
-class EnvironmentSpecError(ValueError):
+class EnvironmentSpecError(ConfigError):
     """An environment file that cannot be loaded; the message names the file and the key path."""
-
-
-#: Older name of `EnvironmentSpecError`, kept for code importing it (it shadows the builtin
-#: alias of OSError only inside namespaces that import it by this name).
-EnvironmentError = EnvironmentSpecError  # noqa: A001
 
 
 class _Model(BaseModel):
@@ -510,63 +506,14 @@ def _signed_area(poly: np.ndarray) -> float:
 
 
 # ---------------------------------------------------------------------- loading
-def _deep_merge(base: Any, override: Any) -> Any:
-    """Merge ``override`` into ``base``: mappings recursively, everything else (lists too) replaced."""
-    if isinstance(base, dict) and isinstance(override, dict):
-        out = dict(base)
-        for key, value in override.items():
-            out[key] = _deep_merge(base[key], value) if key in base else copy.deepcopy(value)
-        return out
-    return copy.deepcopy(override)
-
-
-def _read_yaml(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
-    if path in chain:
-        raise EnvironmentSpecError(f"{chain[0]}: circular 'extends:' chain: {' -> '.join(str(p) for p in (*chain, path))}")
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        where = f"{chain[-1]}: extends: " if chain else ""
-        raise EnvironmentSpecError(f"{where}{path}: cannot read environment file: {exc.strerror or exc}") from None
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise EnvironmentSpecError(f"{path}: not valid YAML: {exc}") from None
-    if data is None:
-        data = {}
-    if not isinstance(data, dict):
-        raise EnvironmentSpecError(f"{path}: expected a mapping at the top level, got {type(data).__name__}")
-    parent = data.pop("extends", None)
-    if parent is not None:
-        if not isinstance(parent, str):
-            raise EnvironmentSpecError(f"{path}: extends: expected a file name, got {parent!r}")
-        base = _read_yaml((path.parent / parent).resolve(), (*chain, path))
-        base.pop("name", None)  # the name is the extending file's own (or its stem)
-        data = _deep_merge(base, data)
-    # relative texture files resolve against the file that names them
-    for mat in (data.get("materials") or {}).values() if isinstance(data.get("materials"), dict) else []:
+def _localise_textures(data: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """Relative texture files resolve against the file that names them."""
+    materials = data.get("materials")
+    for mat in materials.values() if isinstance(materials, dict) else []:
         tex = mat.get("texture") if isinstance(mat, dict) else None
         if isinstance(tex, dict) and isinstance(tex.get("file"), str):
-            tex["file"] = str((path.parent / tex["file"]).resolve())
+            tex["file"] = str((folder / tex["file"]).resolve())
     return data
-
-
-def _format_errors(exc: pydantic.ValidationError) -> str:
-    parts = []
-    for err in exc.errors():
-        loc = ".".join(str(p) for p in err["loc"] if not (isinstance(p, str) and p in ("box", "cylinder", "rock")))
-        msg = err["msg"]
-        if err["type"] == "value_error":
-            msg = msg.removeprefix("Value error, ")
-            if not loc:
-                parts.append(msg)
-                continue
-        if err["type"] == "extra_forbidden":
-            msg = "unknown key"
-        elif "input" in err and err["type"] not in ("missing",):
-            msg = f"{msg} (got {err['input']!r})"
-        parts.append(f"{loc or '(top level)'}: {msg}")
-    return "; ".join(parts)
 
 
 def load_environment(path: str | Path) -> EnvironmentSpec:
@@ -580,12 +527,12 @@ def load_environment(path: str | Path) -> EnvironmentSpec:
     if not p.suffix and not p.exists() and (ENVIRONMENTS_DIR / f"{p.name}.yaml").is_file():
         p = ENVIRONMENTS_DIR / f"{p.name}.yaml"
     p = p.resolve()
-    data = _read_yaml(p)
+    data = load_yaml(p, EnvironmentSpecError, _localise_textures)
     data.setdefault("name", p.stem)
     try:
         return EnvironmentSpec.model_validate(data)
     except pydantic.ValidationError as exc:
-        raise EnvironmentSpecError(f"{p}: {_format_errors(exc)}") from None
+        raise EnvironmentSpecError(format_validation_error(p, exc, EnvironmentSpec)) from None
 
 
 def environment_files() -> dict[str, Path]:

@@ -1,0 +1,159 @@
+"""YAML configuration files shared by scenarios and environments.
+
+* `load_yaml` reads a mapping, resolving ``extends: other.yaml`` (relative to the file,
+  cycles detected): mappings are deep-merged, anything else (lists too) is replaced.
+* `format_validation_error` turns a pydantic error into lines ``FILE: key.path: message``,
+  with the nearest valid key suggested for an unknown one.
+"""
+
+from __future__ import annotations
+
+import copy
+import difflib
+import types
+import typing
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import pydantic
+import yaml
+
+
+class ConfigError(ValueError):
+    """A configuration file that cannot be used; the message names the file and key path."""
+
+
+def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """``override`` over ``base``: mappings merge key by key, anything else (lists too) replaces."""
+    merged = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = deep_merge(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
+def read_yaml(path: Path, error: type[ConfigError] = ConfigError) -> dict[str, Any]:
+    """The YAML mapping in ``path`` (an empty file is an empty mapping)."""
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise error(f"{path}: invalid YAML{where}: {problem}") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a mapping of keys at the top level, got {type(data).__name__}")
+    return data
+
+
+def load_yaml(
+    path: Path,
+    error: type[ConfigError] = ConfigError,
+    localise: Callable[[dict[str, Any], Path], dict[str, Any]] | None = None,
+    _chain: tuple[Path, ...] = (),
+) -> dict[str, Any]:
+    """Read ``path`` with its ``extends:`` chain merged in.
+
+    ``localise(data, folder)`` makes relative paths in one file's own data absolute before
+    merging, so every path resolves against the file that names it.
+    """
+    path = path.resolve()
+    if path in _chain:
+        raise error(f"{_chain[0]}: 'extends' forms a cycle: {' -> '.join(str(p) for p in (*_chain, path))}")
+    data = read_yaml(path, error)
+    if localise is not None:
+        data = localise(data, path.parent)
+    parent = data.pop("extends", None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise error(f"{path}: extends: expected a file name, got {parent!r}")
+    base = load_yaml(path.parent / parent, error, localise, (*_chain, path))
+    base.pop("name", None)  # a name belongs to the file that states it
+    return deep_merge(base, data)
+
+
+def _unwrap(tp: Any) -> list[Any]:
+    """The alternatives of a type: Optional/Union members, Annotated stripped."""
+    if typing.get_origin(tp) is typing.Annotated:
+        return _unwrap(typing.get_args(tp)[0])
+    if typing.get_origin(tp) in (typing.Union, types.UnionType):
+        return [m for arg in typing.get_args(tp) for m in _unwrap(arg) if m is not type(None)]
+    return [tp]
+
+
+def _is_model(tp: Any) -> bool:
+    return isinstance(tp, type) and issubclass(tp, pydantic.BaseModel)
+
+
+def _tags(model: type[pydantic.BaseModel]) -> tuple[Any, ...]:
+    """The values of a model's ``type: Literal[...]`` field: its tags in a discriminated union."""
+    field = model.model_fields.get("type")
+    if field is None or typing.get_origin(field.annotation) is not typing.Literal:
+        return ()
+    return typing.get_args(field.annotation)
+
+
+def _resolve(tp: Any, loc: tuple[Any, ...]) -> tuple[type[pydantic.BaseModel] | None, list[Any] | None]:
+    """Follow ``loc`` through the annotations of ``tp``. Returns the model reached (None for a
+    non-model value) and the key path to show, without the tags of discriminated unions that
+    pydantic puts in ``loc``; the path is None when ``loc`` does not fit ``tp``."""
+    options = _unwrap(tp)
+    if not loc:
+        return next((o for o in options if _is_model(o)), None), []
+    part, rest = loc[0], loc[1:]
+    for option in options:
+        origin, args = typing.get_origin(option), typing.get_args(option)
+        if origin in (list, tuple) and isinstance(part, int) and args:
+            inner = args[0] if origin is list or len(args) == 2 and args[1] is Ellipsis else args[min(part, len(args) - 1)]
+            model, shown = _resolve(inner, rest)
+        elif origin is dict and args:
+            model, shown = _resolve(args[1], rest)
+        elif _is_model(option) and part in option.model_fields:
+            model, shown = _resolve(option.model_fields[part].annotation, rest)
+        elif _is_model(option) and part in _tags(option):
+            model, shown = _resolve(option, rest)  # a tag of a discriminated union: not shown
+            if shown is not None:
+                return model, shown
+            continue
+        else:
+            continue
+        if shown is not None:
+            return model, [part, *shown]
+    return None, None
+
+
+def format_validation_error(path: Path | str, exc: pydantic.ValidationError, model: type[pydantic.BaseModel]) -> str:
+    """One line per problem: ``FILE: key.path: message``, suggesting the nearest valid key."""
+    lines = []
+    for err in exc.errors():
+        loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and ("[" in p or p.startswith("function-"))))
+        parent, shown = _resolve(model, loc[:-1])
+        if shown is None:
+            parent, shown = None, list(loc[:-1])
+        key = ".".join(str(p) for p in (*shown, *loc[-1:])) or "(top level)"
+        message = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            valid = sorted(parent.model_fields) if parent else []
+            close = difflib.get_close_matches(str(loc[-1]), valid, n=1)
+            message = "unknown key" + (f"; did you mean '{close[0]}'?" if close else "")
+            if valid:
+                message += f" (valid keys: {', '.join(valid)})"
+        elif err["type"] == "missing":
+            message = "required key is missing"
+        elif "input" in err and err["type"] not in ("value_error", "assertion_error"):
+            message += f" (got {err['input']!r})"
+        if not loc and err["type"] == "value_error":
+            lines.append(f"{path}: {message}")  # model-level checks name their key path themselves
+        else:
+            lines.append(f"{path}: {key}: {message}")
+    return "\n".join(lines)
