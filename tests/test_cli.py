@@ -175,3 +175,58 @@ def test_force_redoes_one_stage(quickstart_run):
     stages = json.loads((out / "manifest.json").read_text())["stages"]
     ran = {r["stage"] for r in stages if r["status"] == "ran"}
     assert ran == {"evaluate"}
+
+
+@pytest.mark.parametrize("name", ["quickstart", "paper", "paper-cpu"])
+def test_shipped_scenarios_validate(name, capsys):
+    assert main(["validate", name]) == 0
+    assert f"valid scenario '{name}'" in capsys.readouterr().out
+
+
+def test_simulate_an_environment_file_writes_a_dataset(tmp_path):
+    import h5py
+
+    result = run_cli(["simulate", ENV_E1, "--samples", "3", "--out", str(tmp_path), "--no-progress"])
+    assert result.returncode == 0, result.stderr
+    (path,) = tmp_path.glob("*.h5")
+    with h5py.File(path) as f:
+        assert f["images"].shape == (3, 120, 160, 3) and f["theta"].shape == (3, 24)
+
+
+def test_unknown_forced_stage_is_a_user_error(tmp_path):
+    path = write_scenario(tmp_path, valid_scenario())
+    result = run_cli(["run", str(path), "--out", str(tmp_path / "out"), "--force", "fitt"])
+    assert result.returncode == 2 and "unknown stage(s) fitt" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_plugins_command_lists_the_builtins(capsys):
+    assert main(["plugins"]) == 0
+    out = capsys.readouterr().out
+    assert "handcrafted" in out and "mupnet" in out
+
+
+def test_sweep_aggregate_mean_and_sample_std():
+    from vitaplace.engine.sweep import aggregate
+
+    rows = [
+        {"environment": "E1", "method": "L", "direction": "q", "max_f1": f1, "auc": auc}
+        for f1, auc in ((0.5, 0.4), (0.7, 0.6), (0.9, 0.8))
+    ]
+    (row,) = aggregate(rows)
+    assert row["seeds"] == 3
+    assert row["max_f1_mean"] == pytest.approx(0.7) and row["max_f1_std"] == pytest.approx(0.2)
+    assert row["auc_mean"] == pytest.approx(0.6) and row["auc_std"] == pytest.approx(0.2)
+
+
+def test_sweep_runs_each_seed_into_its_folder(tmp_path):
+    args = ["sweep", "quickstart", "--seeds", "0", "1", "--workers", "2", "--out", str(tmp_path), "--no-progress"]
+    for override in TINY:
+        args += ["--set", override]
+    result = run_cli(args)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((tmp_path / "sweep.json").read_text())
+    assert {r["seed"] for r in summary["runs"]} == {0, 1}
+    assert {(r["method"], r["seeds"]) for r in summary["summary"]} == {("L", 2), ("H", 2)}
+    for seed in (0, 1):
+        assert (tmp_path / f"seed-{seed}" / "report.md").is_file()
+    assert (tmp_path / "sweep.csv").read_text().startswith("environment,method,direction,seeds")
