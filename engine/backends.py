@@ -6,11 +6,12 @@ A backend owns array storage and the three fused operations of one prediction ed
     latent_update(Y, G, W, eta, E_up) Y <- Y + 2 eta (G W^T) - 2 eta E_up     (-eta dF/dY)
     weight_update(W, Y, G, eta)       W <- W + 2 eta (Y^T G)                   (-eta dF/dW)
 
-``numpy`` runs them with float32 BLAS through scipy's ``gemm`` so that the step is fused
-into the GEMM (beta = 1, in place) and the element-wise epilogue reuses preallocated
-buffers. ``warp`` runs the tile kernels of `vitaplace.kernels.warp_kernels` on ``cpu`` or
-``cuda``. ``auto`` picks warp when a CUDA device exists and numpy otherwise: Warp's CPU
-path is scalar single-threaded code, far slower than BLAS on the same cores.
+``numpy`` runs them with float32 BLAS through ``np.matmul(..., out=)`` (numpy's own
+OpenBLAS only: never alternated with scipy's, whose thread pool would fight it for the
+cores) and element-wise epilogues in preallocated buffers. ``warp`` runs the tile kernels
+of `vitaplace.kernels.warp_kernels` on ``cpu`` or ``cuda``. ``auto`` picks warp when a CUDA
+device exists and numpy otherwise: Warp's CPU path is scalar single-threaded code, far
+slower than BLAS on the same cores.
 """
 
 from __future__ import annotations
@@ -19,7 +20,6 @@ import ctypes.util
 from typing import Any, Protocol
 
 import numpy as np
-from scipy.linalg import blas
 
 from vitaplace.kernels import reference
 
@@ -42,14 +42,32 @@ class Backend(Protocol):
 
 
 class NumpyBackend:
-    """numpy + BLAS (float32 by default; float64 for gradient checks), in preallocated arrays."""
+    """numpy + BLAS (float32 by default; float64 for gradient checks), in preallocated arrays.
+
+    Every GEMM goes through ``np.matmul(..., out=)``, i.e. numpy's own OpenBLAS, in the
+    orientation numpy picks for ``Y @ W``, ``G @ W.T`` and ``Y.T @ G``. scipy's BLAS is a
+    second OpenBLAS build with its own thread pool: alternating the two pools makes each
+    one's spinning worker threads steal the cores from the other (measured on 2 cores: the
+    training step ran at less than half speed), so the backend never mixes them
+    (bench/pc_step.py, docs/PERFORMANCE.md). Scratch buffers are cached per shape, so one
+    instance must not be used from several threads at once.
+    """
 
     name = "numpy"
     device = "cpu"
 
+    #: Rows of W per chunk of the weight update (GEMM into a scratch, then add).
+    WEIGHT_CHUNK = 128
+
     def __init__(self, dtype: np.dtype | type = np.float32) -> None:
         self.dtype = np.dtype(dtype)
-        self._gemm = blas.get_blas_funcs("gemm", dtype=self.dtype)
+        self._scratch: dict[tuple[str, tuple[int, int]], np.ndarray] = {}
+
+    def _buffer(self, use: str, shape: tuple[int, int]) -> np.ndarray:
+        buf = self._scratch.get((use, shape))
+        if buf is None:
+            buf = self._scratch[(use, shape)] = np.empty(shape, dtype=self.dtype)
+        return buf
 
     def empty(self, shape: tuple[int, int]) -> np.ndarray:
         return np.zeros(shape, dtype=self.dtype)
@@ -61,28 +79,43 @@ class NumpyBackend:
         return src.copy()
 
     def predict(self, Y, W, X, A, P, E, G, activation: str, slope: float) -> None:
-        # A^T = W^T Y^T in Fortran order is A = Y W in C order: no copies, result in A.
-        self._gemm(1.0, W.T, Y.T, beta=0.0, c=A.T, overwrite_c=True)
+        np.matmul(Y, W, out=A)
         if activation == "leaky_relu" and 0.0 <= slope <= 1.0:
-            np.multiply(A, self.dtype.type(slope), out=P)
-            np.maximum(A, P, out=P)  # max(a, s a) = leaky ReLU for 0 <= s <= 1
+            # Leaky ReLU is positively homogeneous: phi(a) = phi'(a) a with
+            # phi'(a) = max([a > 0], s) for 0 <= s <= 1. Five plain passes, no masked copy
+            # (np.copyto(where=) alone took 9 ms of a 12 ms epilogue at 150 x 10800).
+            np.greater(A, 0, out=G)
+            np.maximum(G, self.dtype.type(slope), out=G)  # G = phi'(A)
+            np.multiply(A, G, out=P)
             np.subtract(X, P, out=E)
-            np.multiply(E, self.dtype.type(slope), out=G)
-            np.copyto(G, E, where=A > 0)
+            np.multiply(G, E, out=G)
         else:
             P[...] = reference.activation(A, activation, slope)
             np.subtract(X, P, out=E)
             np.multiply(reference.activation_derivative(A, activation, slope), E, out=G)
 
     def latent_update(self, Y, G, W, eta: float, E_above) -> None:
+        # Y <- Y + 2 eta (G W^T - E_above): GEMM into a (batch x n_l) scratch, then small passes.
+        t = self._buffer("latent", Y.shape)
+        np.matmul(G, W.T, out=t)
         if E_above is not None:
-            Y -= self.dtype.type(2.0 * eta) * E_above
-        # Y^T <- 2 eta W G^T + Y^T, in place (Y^T is Fortran-contiguous).
-        self._gemm(2.0 * eta, W.T, G.T, beta=1.0, c=Y.T, trans_a=1, overwrite_c=True)
+            np.subtract(t, E_above, out=t)
+        np.multiply(t, self.dtype.type(2.0 * eta), out=t)
+        np.add(Y, t, out=Y)
 
     def weight_update(self, W, Y, G, eta: float) -> None:
-        # W^T <- 2 eta G^T Y + W^T, in place.
-        self._gemm(2.0 * eta, G.T, Y.T, beta=1.0, c=W.T, trans_b=1, overwrite_c=True)
+        # W <- W + (2 eta Y)^T G by chunks of rows: a W-sized temporary would cost as much
+        # memory again as W; 2 eta is folded into the small Y instead of a pass over W.
+        n_l, n_below = W.shape
+        ys = self._buffer("weight_y", Y.shape)
+        np.multiply(Y, self.dtype.type(2.0 * eta), out=ys)
+        step = min(self.WEIGHT_CHUNK, n_l)
+        t = self._buffer("weight_t", (step, n_below))
+        for i in range(0, n_l, step):
+            rows = slice(i, min(i + step, n_l))
+            tc = t[: rows.stop - rows.start]
+            np.matmul(ys[:, rows].T, G, out=tc)
+            np.add(W[rows], tc, out=W[rows])
 
     def squared_norm(self, E: np.ndarray) -> float:
         flat = E.reshape(-1)
