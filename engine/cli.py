@@ -22,9 +22,10 @@ def _user_errors() -> tuple[type[BaseException], ...]:
     from vitaplace.engine.pc import NetworkError
     from vitaplace.engine.plugins import PluginError
     from vitaplace.engine.configfile import ConfigError
+    from vitaplace.engine.runner import StageError
     from vitaplace.engine.sim.glsetup import GLUnavailableError
 
-    return (ConfigError, DatasetError, PluginError, ExtractorParamsError, NetworkError, GLUnavailableError)
+    return (ConfigError, DatasetError, PluginError, ExtractorParamsError, NetworkError, GLUnavailableError, StageError)
 
 
 def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True) -> None:

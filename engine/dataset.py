@@ -103,6 +103,8 @@ class Run:
         }
         arrays = {key: arrays[key].astype(FIELDS[key], copy=False) for key in FIELDS}
         _check_shapes(arrays, where=name)
+        for key, data in arrays.items():
+            _check_finite(data, key, name)
         return cls(name=name, attrs=dict(attrs or {}), _source=arrays)
 
     def __len__(self) -> int:
@@ -110,7 +112,9 @@ class Run:
 
     def _get(self, key: str) -> np.ndarray:
         if key not in self._cache:
-            self._cache[key] = np.asarray(self._source[key][...])
+            data = np.asarray(self._source[key][...])
+            _check_finite(data, key, str(self.path or self.name))
+            self._cache[key] = data
         return self._cache[key]
 
     @property
@@ -182,6 +186,18 @@ class Run:
             contact_offsets=np.cumsum(counts),
             name=self.name,
             attrs=self.attrs,
+        )
+
+
+def _check_finite(data: np.ndarray, key: str, where: str) -> None:
+    """DatasetError naming the field and the first sample with a NaN or infinite value."""
+    if data.dtype.kind != "f" or data.size == 0:
+        return
+    bad = ~np.isfinite(data.reshape(len(data), -1)).all(axis=1) if data.ndim > 1 else ~np.isfinite(data)
+    if bad.any():
+        raise DatasetError(
+            f"{where}: field '{key}' has NaN or infinite values ({int(bad.sum())} rows, first at index "
+            f"{int(np.argmax(bad))}); re-record or clean the dataset"
         )
 
 

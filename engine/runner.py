@@ -39,6 +39,23 @@ STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 1, "evaluate
 log = logging.getLogger("vitaplace")
 
 
+class StageError(RuntimeError):
+    """A stage produced unusable output (e.g. non-finite features); names the stage and item."""
+
+
+def check_finite(features: Features, what: str) -> Features:
+    """Raise StageError if any feature array holds NaN or infinite values."""
+    for key, values in features.items():
+        values = np.asarray(values)
+        if values.dtype.kind == "f" and not np.all(np.isfinite(values)):
+            rows = np.flatnonzero(~np.isfinite(values.reshape(len(values), -1)).all(axis=1))
+            raise StageError(
+                f"{what}: feature '{key}' has NaN or infinite values in {len(rows)} samples (first: {rows[0]}); "
+                "check the method's parameters (e.g. lower learning rates) and the dataset"
+            )
+    return features
+
+
 @dataclass
 class StageRecord:
     stage: str
@@ -178,7 +195,8 @@ class Pipeline:
                 path = self.features_path(method, label)
 
                 def work(method=method, label=label, path=path) -> None:
-                    save_features(path, self.extractor(method).transform(self.open(label)))
+                    features = self.extractor(method).transform(self.open(label))
+                    save_features(path, check_finite(features, f"transform {method.name} {label}"))
 
                 self._stage("transform", f"{method.name} {label}", path.stem.rsplit("-", 1)[1], path.exists(), work)
 
@@ -206,6 +224,7 @@ class Pipeline:
 
                     def work(method=method, qpath=qpath, rpath=rpath, folder=folder, e=e, q=q, r=r, key=key) -> None:
                         tme = self.extractor(method).distance(load_features(qpath), load_features(rpath))
+                        check_finite({"distance": tme}, f"evaluate {e.name} {method.name}")
                         gtm = ev.ground_truth_matrix(
                             self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses, settings.heading_weight
                         )

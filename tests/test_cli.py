@@ -230,3 +230,15 @@ def test_sweep_runs_each_seed_into_its_folder(tmp_path):
     for seed in (0, 1):
         assert (tmp_path / f"seed-{seed}" / "report.md").is_file()
     assert (tmp_path / "sweep.csv").read_text().startswith("environment,method,direction,seeds")
+
+
+def test_non_finite_features_stop_the_pipeline_with_a_clear_error():
+    import numpy as np
+
+    from vitaplace.engine.runner import StageError, check_finite
+
+    good = {"latent": np.ones((3, 2))}
+    assert check_finite(good, "x") is good
+    bad = {"latent": np.array([[1.0, 2.0], [np.nan, 0.0], [np.inf, 1.0]])}
+    with pytest.raises(StageError, match=r"transform L E1/query: feature 'latent' .* in 2 samples \(first: 1\)"):
+        check_finite(bad, "transform L E1/query")

@@ -139,3 +139,27 @@ def test_interrupted_write_leaves_no_file(tmp_path, monkeypatch):
         write_run(target, make_run(seed=1))
     monkeypatch.undo()
     assert np.array_equal(open_run(target).poses, run.poses)
+
+
+def test_nan_values_are_reported_with_field_and_sample(tmp_path):
+    run = make_run()
+    path = write_run(tmp_path / "run.h5", run)
+    with h5py.File(path, "r+") as f:
+        f["theta"][3, 5] = np.nan
+        f["poses"][1, 0] = np.inf
+    back = open_run(path)
+    with pytest.raises(DatasetError, match=r"run\.h5: field 'theta' has NaN or infinite values \(1 rows, first at index 3\)"):
+        back.theta
+    with pytest.raises(DatasetError, match=r"field 'poses' .* first at index 1"):
+        back.poses
+    np.testing.assert_array_equal(back.xy, run.xy)  # the other fields stay readable
+
+
+def test_nan_in_memory_is_rejected():
+    with pytest.raises(DatasetError, match=r"field 'xy' has NaN"):
+        Run.from_arrays(
+            images=np.zeros((2, 4, 4, 3), np.uint8),
+            theta=np.zeros((2, 24)),
+            xy=np.full((2, 24, 2), np.nan),
+            poses=np.zeros((2, 3)),
+        )
