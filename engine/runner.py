@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import multiprocessing
 import os
 import platform
 import shutil
@@ -16,7 +17,9 @@ import subprocess
 import tempfile
 import time
 from collections.abc import Iterable
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -71,6 +74,21 @@ class RunnerState:
     datasets: dict[str, str] = field(default_factory=dict)  # run label -> dataset key
 
 
+def record_run(
+    environment: str, run: dict[str, Any], robot: dict[str, Any], seed: int, label: str, key: str, path: Path,
+    progress: bool,
+) -> None:
+    """Simulate one run and write its dataset (a top-level function: runs in worker processes)."""
+    from vitaplace.engine.sim.robot import RobotSpec
+    from vitaplace.engine.sim.simulate import RunSpec, simulate_run
+
+    recorded = simulate_run(
+        load_environment(environment), RunSpec(**run), seed=seed, robot=RobotSpec(**robot), progress=progress, name=label
+    )
+    recorded.attrs["scenario_hash"] = key
+    write_run(path, recorded)
+
+
 def seed_for(scenario_seed: int, *path: int) -> int:
     """Independent, reproducible seeds for the runs of a scenario (numpy SeedSequence)."""
     return int(np.random.SeedSequence([scenario_seed, *path]).generate_state(1)[0])
@@ -87,6 +105,7 @@ class Pipeline:
         force: Iterable[str] = (),
         progress: bool = True,
         registry: Registry | None = None,
+        workers: int | None = None,
     ) -> None:
         self.scenario, self.resolved, self.out = scenario, resolved, Path(out)
         self.force = set(force)
@@ -94,6 +113,8 @@ class Pipeline:
         if unknown:
             raise ScenarioError(f"--force: unknown stage(s) {', '.join(sorted(unknown))}; stages: {', '.join(STAGES)}")
         self.progress = progress
+        #: processes recording runs in parallel (default: one per core)
+        self.workers = workers or os.cpu_count() or 1
         self.registry = registry or discover()
         self.cache = self.out / "cache"
         self.state = RunnerState()
@@ -129,23 +150,26 @@ class Pipeline:
         return self.cache / "datasets" / f"{label.replace('/', '-')}-{self.state.datasets[label]}.h5"
 
     def simulate(self) -> None:
-        from vitaplace.engine.sim.simulate import simulate_run
-
+        """Record every run not cached yet; several runs are recorded by parallel processes."""
+        jobs = {}
         for label, (entry, seed) in self.runs().items():
             environment = load_environment(entry.environment)
             spec = [environment.model_dump(mode="json"), entry.run.model_dump(mode="json")]
             key = content_hash("simulate", STAGE_VERSION["simulate"], spec, self.scenario.robot.model_dump(mode="json"), seed)
             self.state.datasets[label] = key
-            path = self.dataset_path(label)
-
-            def work(entry=entry, seed=seed, environment=environment, path=path, label=label, key=key) -> None:
-                run = simulate_run(
-                    environment, entry.run, seed=seed, robot=self.scenario.robot, progress=self.progress, name=label
-                )
-                run.attrs["scenario_hash"] = key
-                write_run(path, run)
-
-            self._stage("simulate", label, key, path.exists(), work)
+            args = (str(entry.environment), entry.run.model_dump(), self.scenario.robot.model_dump(), seed, label, key)
+            jobs[label] = (args, self.dataset_path(label))
+        pending = [label for label, (_, path) in jobs.items() if "simulate" in self.force or not path.exists()]
+        workers = min(self.workers, len(pending))
+        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) if workers > 1 else None
+        try:
+            futures = {label: pool.submit(record_run, *jobs[label][0], jobs[label][1], False) for label in pending} if pool else {}
+            for label, (args, path) in jobs.items():
+                work = futures[label].result if label in futures else partial(record_run, *args, path, self.progress)
+                self._stage("simulate", label, args[-1], label not in pending, work)
+        finally:
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
 
     def open(self, label: str) -> Run:
         return open_run(self.dataset_path(label))
