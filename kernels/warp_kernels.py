@@ -14,6 +14,9 @@ Design notes
 * Kernels are built by factories over the static tile sizes (and the activation / the
   ``E_above`` flag) and cached, so each configuration compiles once per process (and the
   compiled binary is cached on disk by Warp).
+* The tiled GEMM accumulation loops live in ``@wp.func`` helpers (:func:`_tile_gemms`, one
+  ``gemm_nn`` / ``gemm_nt`` / ``gemm_tn`` set per static tile size); each kernel is tile
+  indices -> helper GEMM -> its element-wise epilogue -> stores.
 * Shapes need not be multiples of the tile sizes: ``wp.tile_load`` (``bounds_check=True``,
   the default) reads elements past the array's extent as zero, and ``wp.tile_store`` skips
   writes past it. The zero padding along K is what keeps the edge GEMM tiles exact; the
@@ -197,10 +200,67 @@ def tile_config(device, m: int) -> TileConfig:
 _F32_2D = wp.array2d(dtype=wp.float32)
 
 
+class _TileGemms(NamedTuple):
+    """The tile-GEMM accumulators of one static ``(tm, tn, tk)``; see :func:`_tile_gemms`."""
+
+    gemm_nn: wp.Function
+    gemm_nt: wp.Function
+    gemm_tn: wp.Function
+
+
+@functools.lru_cache(maxsize=None)
+def _tile_gemms(tm: int, tn: int, tk: int) -> _TileGemms:
+    """``@wp.func`` helpers computing the ``tm x tn`` output tile at ``(row, col)`` of a GEMM,
+    stepping through K by ``tk`` (``nk = ceil(K / tk)`` steps):
+
+    * ``gemm_nn(A, B, row, col)``: ``A @ B``,   ``A`` (M x K), ``B`` (K x N)
+    * ``gemm_nt(A, B, row, col)``: ``A @ B.T``, ``A`` (M x K), ``B`` (N x K)
+    * ``gemm_tn(A, B, row, col)``: ``A.T @ B``, ``A`` (K x M), ``B`` (K x N)
+
+    Loads past an array's extent read zero, so the edge tiles are exact (see the module notes).
+    """
+
+    @wp.func
+    def gemm_nn(A: _F32_2D, B: _F32_2D, row: int, col: int):
+        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
+        for k in range((A.shape[1] + tk - 1) // tk):
+            a = wp.tile_load(A, shape=(tm, tk), offset=(row, k * tk))
+            b = wp.tile_load(B, shape=(tk, tn), offset=(k * tk, col))
+            wp.tile_matmul(a, b, acc)
+        return acc
+
+    @wp.func
+    def gemm_nt(A: _F32_2D, B: _F32_2D, row: int, col: int):
+        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
+        for k in range((A.shape[1] + tk - 1) // tk):
+            a = wp.tile_load(A, shape=(tm, tk), offset=(row, k * tk))
+            b = wp.tile_load(B, shape=(tn, tk), offset=(col, k * tk))
+            wp.tile_matmul(a, wp.tile_transpose(b), acc)
+        return acc
+
+    @wp.func
+    def gemm_tn(A: _F32_2D, B: _F32_2D, row: int, col: int):
+        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
+        for k in range((A.shape[0] + tk - 1) // tk):
+            a = wp.tile_load(A, shape=(tk, tm), offset=(k * tk, row))
+            b = wp.tile_load(B, shape=(tk, tn), offset=(k * tk, col))
+            wp.tile_matmul(wp.tile_transpose(a), b, acc)
+        return acc
+
+    return _TileGemms(gemm_nn, gemm_nt, gemm_tn)
+
+
+def _tiled_kernel(fn, name: str):
+    """Compile ``fn`` as a forward-only kernel in its own module, named ``name``."""
+    fn.__name__ = fn.__qualname__ = name
+    return wp.kernel(fn, enable_backward=False, module="unique")
+
+
 @functools.lru_cache(maxsize=None)
 def _predict_kernel(tm: int, tn: int, tk: int, activation: str):
     """(a) A = Y @ W; P = phi(A); E = X - P; G = phi'(A) * E.   GEMM M=B, N=n_below, K=n_l."""
     phi, gain = _PHI[activation]
+    gemm = _tile_gemms(tm, tn, tk).gemm_nn
 
     def predict_kernel(
         Y: _F32_2D,
@@ -213,25 +273,17 @@ def _predict_kernel(tm: int, tn: int, tk: int, activation: str):
         G: _F32_2D,
     ):
         i, j = wp.tid()
-        row = i * tm
-        col = j * tn
-        nk = (Y.shape[1] + tk - 1) // tk
-        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
-        for k in range(nk):
-            y = wp.tile_load(Y, shape=(tm, tk), offset=(row, k * tk))
-            w = wp.tile_load(W, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(y, w, acc)
-        x = wp.tile_load(X, shape=(tm, tn), offset=(row, col))
-        p = wp.tile_map(phi, acc, slope)
-        e = x - p
-        g = wp.tile_map(gain, acc, e, slope)
-        wp.tile_store(A, acc, offset=(row, col))
+        row, col = i * tm, j * tn
+        a = gemm(Y, W, row, col)
+        p = wp.tile_map(phi, a, slope)
+        e = wp.tile_load(X, shape=(tm, tn), offset=(row, col)) - p
+        g = wp.tile_map(gain, a, e, slope)
+        wp.tile_store(A, a, offset=(row, col))
         wp.tile_store(P, p, offset=(row, col))
         wp.tile_store(E, e, offset=(row, col))
         wp.tile_store(G, g, offset=(row, col))
 
-    predict_kernel.__name__ = predict_kernel.__qualname__ = f"pc_predict_{activation}_{tm}x{tn}x{tk}"
-    return wp.kernel(predict_kernel, enable_backward=False, module="unique")
+    return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tm}x{tn}x{tk}")
 
 
 @functools.lru_cache(maxsize=None)
@@ -240,6 +292,7 @@ def _latent_kernel(tm: int, tn: int, tk: int, has_above: bool):
 
     Y_out may alias Y: output tile (i, j) reads only Y's tile (i, j), after its GEMM.
     """
+    gemm = _tile_gemms(tm, tn, tk).gemm_nt
 
     def latent_kernel(
         Y: _F32_2D,
@@ -250,31 +303,20 @@ def _latent_kernel(tm: int, tn: int, tk: int, has_above: bool):
         Y_out: _F32_2D,
     ):
         i, j = wp.tid()
-        row = i * tm
-        col = j * tn
-        nk = (G.shape[1] + tk - 1) // tk
-        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
-        for k in range(nk):
-            g = wp.tile_load(G, shape=(tm, tk), offset=(row, k * tk))
-            w = wp.tile_load(W, shape=(tn, tk), offset=(col, k * tk))
-            wp.tile_matmul(g, wp.tile_transpose(w), acc)
+        row, col = i * tm, j * tn
+        d = gemm(G, W, row, col)
         y = wp.tile_load(Y, shape=(tm, tn), offset=(row, col))
         if wp.static(has_above):
-            ea = wp.tile_load(E_above, shape=(tm, tn), offset=(row, col))
-            y = y + (acc - ea) * two_eta
-        else:
-            y = y + acc * two_eta
-        wp.tile_store(Y_out, y, offset=(row, col))
+            d = d - wp.tile_load(E_above, shape=(tm, tn), offset=(row, col))
+        wp.tile_store(Y_out, y + d * two_eta, offset=(row, col))
 
-    latent_kernel.__name__ = latent_kernel.__qualname__ = (
-        f"pc_latent_{'above' if has_above else 'top'}_{tm}x{tn}x{tk}"
-    )
-    return wp.kernel(latent_kernel, enable_backward=False, module="unique")
+    return _tiled_kernel(latent_kernel, f"pc_latent_{'above' if has_above else 'top'}_{tm}x{tn}x{tk}")
 
 
 @functools.lru_cache(maxsize=None)
 def _weight_kernel(tm: int, tn: int, tk: int):
     """(c) W += 2 eta Y.T @ G (in place).   GEMM M=n_l, N=n_below, K=B."""
+    gemm = _tile_gemms(tm, tn, tk).gemm_tn
 
     def weight_kernel(
         W: _F32_2D,
@@ -283,19 +325,12 @@ def _weight_kernel(tm: int, tn: int, tk: int):
         two_eta: wp.float32,
     ):
         i, j = wp.tid()
-        row = i * tm
-        col = j * tn
-        nk = (Y.shape[0] + tk - 1) // tk
-        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
-        for k in range(nk):
-            y = wp.tile_load(Y, shape=(tk, tm), offset=(k * tk, row))
-            g = wp.tile_load(G, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(wp.tile_transpose(y), g, acc)
+        row, col = i * tm, j * tn
+        d = gemm(Y, G, row, col)
         w = wp.tile_load(W, shape=(tm, tn), offset=(row, col))
-        wp.tile_store(W, w + acc * two_eta, offset=(row, col))
+        wp.tile_store(W, w + d * two_eta, offset=(row, col))
 
-    weight_kernel.__name__ = weight_kernel.__qualname__ = f"pc_weight_{tm}x{tn}x{tk}"
-    return wp.kernel(weight_kernel, enable_backward=False, module="unique")
+    return _tiled_kernel(weight_kernel, f"pc_weight_{tm}x{tn}x{tk}")
 
 
 @functools.lru_cache(maxsize=None)
@@ -308,8 +343,7 @@ def _sqnorm_kernel(tm: int, tn: int):
         s = wp.tile_sum(wp.tile_map(_square64, e))
         wp.tile_store(partial, s, offset=i * ((E.shape[1] + tn - 1) // tn) + j)
 
-    sqnorm_kernel.__name__ = sqnorm_kernel.__qualname__ = f"pc_sqnorm_{tm}x{tn}"
-    return wp.kernel(sqnorm_kernel, enable_backward=False, module="unique")
+    return _tiled_kernel(sqnorm_kernel, f"pc_sqnorm_{tm}x{tn}")
 
 
 # --------------------------------------------------------------------------------------
