@@ -27,7 +27,7 @@ import copy
 import hashlib
 import json
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 

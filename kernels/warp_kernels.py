@@ -208,7 +208,7 @@ class _TileGemms(NamedTuple):
     gemm_tn: wp.Function
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _tile_gemms(tm: int, tn: int, tk: int) -> _TileGemms:
     """``@wp.func`` helpers computing the ``tm x tn`` output tile at ``(row, col)`` of a GEMM,
     stepping through K by ``tk`` (``nk = ceil(K / tk)`` steps):
@@ -256,7 +256,7 @@ def _tiled_kernel(fn, name: str):
     return wp.kernel(fn, enable_backward=False, module="unique")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _predict_kernel(tm: int, tn: int, tk: int, activation: str):
     """(a) A = Y @ W; P = phi(A); E = X - P; G = phi'(A) * E.   GEMM M=B, N=n_below, K=n_l."""
     phi, gain = _PHI[activation]
@@ -286,7 +286,7 @@ def _predict_kernel(tm: int, tn: int, tk: int, activation: str):
     return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tm}x{tn}x{tk}")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _latent_kernel(tm: int, tn: int, tk: int, has_above: bool):
     """(b) Y_out = Y + 2 eta G @ W.T [- 2 eta E_above].   GEMM M=B, N=n_l, K=n_below.
 
@@ -313,7 +313,7 @@ def _latent_kernel(tm: int, tn: int, tk: int, has_above: bool):
     return _tiled_kernel(latent_kernel, f"pc_latent_{'above' if has_above else 'top'}_{tm}x{tn}x{tk}")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _weight_kernel(tm: int, tn: int, tk: int):
     """(c) W += 2 eta Y.T @ G (in place).   GEMM M=n_l, N=n_below, K=B."""
     gemm = _tile_gemms(tm, tn, tk).gemm_tn
@@ -333,7 +333,7 @@ def _weight_kernel(tm: int, tn: int, tk: int):
     return _tiled_kernel(weight_kernel, f"pc_weight_{tm}x{tn}x{tk}")
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _sqnorm_kernel(tm: int, tn: int):
     """(d) per-tile partial sums of squares, accumulated in float64."""
 

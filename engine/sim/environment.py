@@ -15,7 +15,6 @@ Angles in the files are in degrees, lengths in metres, colours in [0, 1].
 
 from __future__ import annotations
 
-import copy
 import math
 from functools import cached_property
 from pathlib import Path
@@ -24,7 +23,6 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 import pydantic
-import yaml
 from pydantic import BaseModel, ConfigDict, Field
 
 from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml
