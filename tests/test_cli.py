@@ -177,7 +177,7 @@ def test_force_redoes_one_stage(quickstart_run):
     assert ran == {"evaluate"}
 
 
-@pytest.mark.parametrize("name", ["quickstart", "paper", "paper-cpu"])
+@pytest.mark.parametrize("name", sorted(p.stem for p in SCENARIOS.glob("*.yaml")))
 def test_shipped_scenarios_validate(name, capsys):
     assert main(["validate", name]) == 0
     assert f"valid scenario '{name}'" in capsys.readouterr().out
