@@ -16,6 +16,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pydantic
 
+from vitaplace.engine.atomic import atomic_path
 from vitaplace.engine.dataset import Run
 
 #: Features of one run: named arrays whose first axis is the sample index.
@@ -99,8 +100,6 @@ class FeatureExtractor(ABC):
 
 def save_features(path: str | Path, features: Features) -> None:
     """Write features to an ``.npz`` file atomically."""
-    from vitaplace.engine.atomic import atomic_path
-
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
             np.savez(f, **features)

@@ -255,6 +255,12 @@ class Network:
         """Buffers for a minibatch of ``batch`` samples of the given (default: all) modalities."""
         return BatchState(self, batch, self.modalities if modalities is None else modalities)
 
+    def _cached_state(self, states: dict[int, BatchState], batch: int, modalities: Sequence[str]) -> BatchState:
+        """One BatchState per minibatch size (a run has at most two: full and last)."""
+        if batch not in states:
+            states[batch] = self.batch_state(batch, modalities)
+        return states[batch]
+
     def energy(self, inputs: Mapping[str, np.ndarray], latents: Mapping[str, np.ndarray]) -> dict[str, float]:
         """F per edge (eq. 2) for given scaled inputs and latents, computed with the backend."""
         present, n = self._check_inputs(inputs)
@@ -293,7 +299,7 @@ class Network:
             totals = dict.fromkeys(history.energy, 0.0)
             for b in range(batches_per_epoch):
                 index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
-                state = states.get(len(index)) or states.setdefault(len(index), self.batch_state(len(index), present))
+                state = self._cached_state(states, len(index), present)
                 state.load({m: inputs[m][index] for m in present}, {k: v[index] for k, v in store.items()})
                 energy = state.predict_all()
                 for step in range(1, cfg.inference_steps + 1):
@@ -336,7 +342,7 @@ class Network:
         states: dict[int, BatchState] = {}
         for start in range(0, n, batch_size):
             index = np.arange(start, min(start + batch_size, n))
-            state = states.get(len(index)) or states.setdefault(len(index), self.batch_state(len(index), present))
+            state = self._cached_state(states, len(index), present)
             state.load({m: inputs[m][index] for m in present}, None)
             energy = state.predict_all()
             steps = 0

@@ -56,7 +56,7 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
     for e in scenario.evaluations:
         arena = load_environment(e.environment).top_view()
         curves = {}
-        sections += [f"## {e.name}", ""]
+        sections += [f"## {e.name}", "", f"![PR curves](figures/pr-{e.name}.png)", ""]
         for method in scenario.methods:
             for direction, q, r in pipeline.directions():
                 folder = pipeline.evaluation_dir(e.name, method.name, direction)
@@ -84,10 +84,6 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
                     "",
                 ]
         figures.plot_pr_curves(fig_dir / f"pr-{e.name}", curves, title=f"{e.name}: precision-recall")
-        sections[sections.index(f"## {e.name}") + 2 : sections.index(f"## {e.name}") + 2] = [
-            f"![PR curves](figures/pr-{e.name}.png)",
-            "",
-        ]
     training = [(m.name, pipeline.extractor(m).training_history()) for m in scenario.methods]
     training = [(name, history) for name, history in training if history]
     if training:

@@ -119,6 +119,7 @@ class Pipeline:
         self.cache = self.out / "cache"
         self.state = RunnerState()
         self.extractors: dict[str, FeatureExtractor] = {}
+        self.opened: dict[str, Run] = {}
 
     # ------------------------------------------------------------------ bookkeeping
     def _stage(self, stage: str, item: str, key: str, done: bool, work) -> Any:
@@ -172,7 +173,10 @@ class Pipeline:
                 pool.shutdown(cancel_futures=True)
 
     def open(self, label: str) -> Run:
-        return open_run(self.dataset_path(label))
+        """The recorded run ``label``, opened once per pipeline (its fields load lazily, once)."""
+        if label not in self.opened:
+            self.opened[label] = open_run(self.dataset_path(label))
+        return self.opened[label]
 
     # ------------------------------------------------------------------ fit / transform
     def model_key(self, method: Method) -> str:
