@@ -1,22 +1,30 @@
-"""Compute backends for the predictive-coding layer steps (DESIGN §7).
+"""Compute backends for the predictive-coding layer steps.
 
-A backend owns array storage and the three fused operations of one prediction edge:
+A backend owns array storage and the operations the network is built from:
 
-    predict(Y, W, X, A, P, E, G)      A = Y W, P = phi(A), E = X - P, G = phi'(A) * E
-    latent_update(Y, G, W, eta, E_up) Y <- Y + 2 eta (G W^T) - 2 eta E_up     (-eta dF/dY)
-    weight_update(W, Y, G, eta)       W <- W + 2 eta (Y^T G)                   (-eta dF/dW)
+    predict(Y, W, X, E, G, R, k)      A = Y W, E = X - phi(A), G = phi'(A) * E,
+                                      R[k, r] = sum_c E[r, c]^2   (per-sample energy, float64)
+    latent_update(Y, G, W, eta, E_up, mask)
+                                      Y <- Y + 2 eta mask * (G W^T - E_up)      (-eta dF/dY)
+    weight_update(W, Y, G, eta)       W <- W + 2 eta (Y^T G)                    (-eta dF/dW)
+    gather_rows / scatter_rows        minibatch rows of a resident store, by an index array
+    stop_converged(R, limits, active, steps)   per-sample stopping of inference
+    capture(fn)                       a replayable recording of fn's launches (a CUDA graph)
 
 ``numpy`` runs them with float32 BLAS through ``np.matmul(..., out=)`` (numpy's own
 OpenBLAS only: never alternated with scipy's, whose thread pool would fight it for the
-cores) and element-wise epilogues in preallocated buffers. ``warp`` runs the tile kernels
-of `vitaplace.kernels.warp_kernels` on ``cpu`` or ``cuda``. ``auto`` picks warp when a CUDA
+cores) and element-wise epilogues in preallocated buffers. ``warp`` runs the kernels of
+`vitaplace.kernels.warp_kernels` on ``cpu`` or ``cuda``; on CUDA a whole minibatch is one
+CUDA graph and nothing leaves the device but the energies. ``auto`` picks warp when a CUDA
 device exists and numpy otherwise: Warp's CPU path is scalar single-threaded code, far
 slower than BLAS on the same cores.
 """
 
 from __future__ import annotations
 
-import ctypes.util
+import ctypes
+import sys
+from collections.abc import Callable
 from typing import Any, Protocol
 
 import numpy as np
@@ -27,21 +35,41 @@ BACKENDS = ("auto", "numpy", "warp")
 
 
 class Backend(Protocol):
-    """What the network needs from a backend; arrays are opaque handles of float32 matrices."""
+    """What the network needs from a backend; arrays are opaque handles (float32 matrices
+    unless a dtype is given)."""
 
     name: str
     device: str
 
-    def empty(self, shape: tuple[int, int]) -> Any: ...
+    def empty(self, shape: tuple[int, ...], dtype: type = np.float32) -> Any: ...
+    def to_device(self, host: np.ndarray) -> Any: ...
     def upload(self, host: np.ndarray, dst: Any) -> None: ...
     def download(self, src: Any) -> np.ndarray: ...
-    def predict(self, Y: Any, W: Any, X: Any, A: Any, P: Any, E: Any, G: Any, activation: str, slope: float) -> None: ...
-    def latent_update(self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None) -> None: ...
+    def fill(self, dst: Any, value: float) -> None: ...
+    def predict(self, Y: Any, W: Any, X: Any, E: Any, G: Any, R: Any, slot: int, activation: str, slope: float) -> None: ...
+    def latent_update(self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None, mask: Any | None) -> None: ...
     def weight_update(self, W: Any, Y: Any, G: Any, eta: float) -> None: ...
-    def squared_norm(self, E: Any) -> float: ...
+    def gather_rows(self, src: Any, index: Any, dst: Any) -> None: ...
+    def scatter_rows(self, src: Any, index: Any, dst: Any) -> None: ...
+    def stop_converged(self, R: Any, limits: Any, active: Any, steps: Any) -> None: ...
+    def capture(self, fn: Callable[[], None]) -> Callable[[], None]: ...
 
 
-class NumpyBackend:
+class _Scratch:
+    """Scratch buffers cached per (use, shape): one instance must not be used from several
+    threads at once."""
+
+    def __init__(self) -> None:
+        self._scratch: dict[tuple[str, tuple[int, ...]], Any] = {}
+
+    def _buffer(self, use: str, shape: tuple[int, ...]) -> Any:
+        buf = self._scratch.get((use, shape))
+        if buf is None:
+            buf = self._scratch[(use, shape)] = self.empty(shape)
+        return buf
+
+
+class NumpyBackend(_Scratch):
     """numpy + BLAS (float32 by default; float64 for gradient checks), in preallocated arrays.
 
     Every GEMM goes through ``np.matmul(..., out=)``, i.e. numpy's own OpenBLAS, in the
@@ -49,8 +77,7 @@ class NumpyBackend:
     second OpenBLAS build with its own thread pool: alternating the two pools makes each
     one's spinning worker threads steal the cores from the other (measured on 2 cores: the
     training step ran at less than half speed), so the backend never mixes them
-    (bench/pc_step.py, docs/PERFORMANCE.md). Scratch buffers are cached per shape, so one
-    instance must not be used from several threads at once.
+    (bench/pc_step.py, docs/PERFORMANCE.md).
     """
 
     name = "numpy"
@@ -60,17 +87,14 @@ class NumpyBackend:
     WEIGHT_CHUNK = 128
 
     def __init__(self, dtype: np.dtype | type = np.float32) -> None:
+        super().__init__()
         self.dtype = np.dtype(dtype)
-        self._scratch: dict[tuple[str, tuple[int, int]], np.ndarray] = {}
 
-    def _buffer(self, use: str, shape: tuple[int, int]) -> np.ndarray:
-        buf = self._scratch.get((use, shape))
-        if buf is None:
-            buf = self._scratch[(use, shape)] = np.empty(shape, dtype=self.dtype)
-        return buf
+    def empty(self, shape: tuple[int, ...], dtype: type | None = None) -> np.ndarray:
+        return np.zeros(shape, dtype=self.dtype if dtype in (None, np.float32) else dtype)
 
-    def empty(self, shape: tuple[int, int]) -> np.ndarray:
-        return np.zeros(shape, dtype=self.dtype)
+    def to_device(self, host: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(host, dtype=self.dtype)
 
     def upload(self, host: np.ndarray, dst: np.ndarray) -> None:
         np.copyto(dst, host, casting="same_kind")
@@ -78,29 +102,35 @@ class NumpyBackend:
     def download(self, src: np.ndarray) -> np.ndarray:
         return src.copy()
 
-    def predict(self, Y, W, X, A, P, E, G, activation: str, slope: float) -> None:
+    def fill(self, dst: np.ndarray, value: float) -> None:
+        dst.fill(value)
+
+    def predict(self, Y, W, X, E, G, R, slot: int, activation: str, slope: float) -> None:
+        A = self._buffer("A", E.shape)
         np.matmul(Y, W, out=A)
         if activation == "leaky_relu" and 0.0 <= slope <= 1.0:
             # Leaky ReLU is positively homogeneous: phi(a) = phi'(a) a with
-            # phi'(a) = max([a > 0], s) for 0 <= s <= 1. Five plain passes, no masked copy
+            # phi'(a) = max([a > 0], s) for 0 <= s <= 1. Four plain passes, no masked copy
             # (np.copyto(where=) alone took 9 ms of a 12 ms epilogue at 150 x 10800).
             np.greater(A, 0, out=G)
             np.maximum(G, self.dtype.type(slope), out=G)  # G = phi'(A)
-            np.multiply(A, G, out=P)
-            np.subtract(X, P, out=E)
+            np.multiply(A, G, out=E)
+            np.subtract(X, E, out=E)
             np.multiply(G, E, out=G)
         else:
-            P[...] = reference.activation(A, activation, slope)
-            np.subtract(X, P, out=E)
+            np.subtract(X, reference.activation(A, activation, slope), out=E)
             np.multiply(reference.activation_derivative(A, activation, slope), E, out=G)
+        R[slot] = np.einsum("ij,ij->i", E, E)  # float32 row sums, stored as float64
 
-    def latent_update(self, Y, G, W, eta: float, E_above) -> None:
+    def latent_update(self, Y, G, W, eta: float, E_above, mask) -> None:
         # Y <- Y + 2 eta (G W^T - E_above): GEMM into a (batch x n_l) scratch, then small passes.
         t = self._buffer("latent", Y.shape)
         np.matmul(G, W.T, out=t)
         if E_above is not None:
             np.subtract(t, E_above, out=t)
         np.multiply(t, self.dtype.type(2.0 * eta), out=t)
+        if mask is not None:
+            np.multiply(t, mask[:, None], out=t)
         np.add(Y, t, out=Y)
 
     def weight_update(self, W, Y, G, eta: float) -> None:
@@ -117,13 +147,23 @@ class NumpyBackend:
             np.matmul(ys[:, rows].T, G, out=tc)
             np.add(W[rows], tc, out=W[rows])
 
-    def squared_norm(self, E: np.ndarray) -> float:
-        flat = E.reshape(-1)
-        return float(np.dot(flat, flat))
+    def gather_rows(self, src, index, dst) -> None:
+        np.take(src, index, axis=0, out=dst)
+
+    def scatter_rows(self, src, index, dst) -> None:
+        dst[index] = src
+
+    def stop_converged(self, R, limits, active, steps) -> None:
+        done = np.all(R < limits[:, None], axis=0)
+        active &= ~done
+        steps += active
+
+    def capture(self, fn: Callable[[], None]) -> Callable[[], None]:
+        return fn
 
 
-class WarpBackend:
-    """Warp tile kernels on ``cpu`` or ``cuda``."""
+class WarpBackend(_Scratch):
+    """Warp kernels on ``cpu`` or ``cuda``; on CUDA, captured sequences replay as CUDA graphs."""
 
     name = "warp"
 
@@ -132,38 +172,101 @@ class WarpBackend:
 
         import warp as wp
 
+        super().__init__()
         self._wp = wp
         self._kernels = warp_kernels
         wp.init()
         self.device = device or ("cuda" if wp.is_cuda_available() else "cpu")
+        self._device = wp.get_device(self.device)
 
-    def empty(self, shape: tuple[int, int]) -> Any:
-        return self._wp.zeros(shape, dtype=self._wp.float32, device=self.device)
+    _DTYPES = {np.dtype(np.float32): "float32", np.dtype(np.float64): "float64", np.dtype(np.int32): "int32"}
+
+    def _wp_dtype(self, dtype) -> Any:
+        return getattr(self._wp, self._DTYPES[np.dtype(dtype)])
+
+    def empty(self, shape: tuple[int, ...], dtype: type = np.float32) -> Any:
+        return self._wp.zeros(shape, dtype=self._wp_dtype(dtype), device=self.device)
+
+    def to_device(self, host: np.ndarray) -> Any:
+        host = np.ascontiguousarray(host, dtype=np.float32)
+        return self._wp.array(host, dtype=self._wp.float32, device=self.device)
 
     def upload(self, host: np.ndarray, dst: Any) -> None:
-        src = self._wp.array(np.ascontiguousarray(host, dtype=np.float32), dtype=self._wp.float32, device="cpu")
+        host = np.ascontiguousarray(host, dtype=self._wp.dtype_to_numpy(dst.dtype))
+        src = self._wp.array(host, dtype=dst.dtype, device="cpu")
         self._wp.copy(dst, src)
 
     def download(self, src: Any) -> np.ndarray:
         return src.numpy().copy()
 
-    def predict(self, Y, W, X, A, P, E, G, activation: str, slope: float) -> None:
-        self._kernels.predict(Y, W, X, A, P, E, G, activation=activation, slope=slope)
+    def fill(self, dst: Any, value: float) -> None:
+        dst.fill_(value)
 
-    def latent_update(self, Y, G, W, eta: float, E_above) -> None:
-        self._kernels.latent_update(Y, G, W, eta, E_above=E_above)
+    def predict(self, Y, W, X, E, G, R, slot: int, activation: str, slope: float) -> None:
+        k = self._kernels
+        tiles = k.tile_config(self._device, "predict", Y.shape[0])
+        partial = self._buffer("row_partial", k.row_partial_shape(Y.shape[0], W.shape[1], tiles))
+        k.predict(Y, W, X, E, G, partial, R, slot, activation=activation, slope=slope, tiles=tiles)
+
+    def latent_update(self, Y, G, W, eta: float, E_above, mask) -> None:
+        k = self._kernels
+        scratch = self._buffer("latent", k.latent_scratch_shape(Y.shape[0], Y.shape[1], W.shape[1], self._device))
+        k.latent_update(Y, G, W, eta, scratch, E_above=E_above, mask=mask)
 
     def weight_update(self, W, Y, G, eta: float) -> None:
         self._kernels.weight_update(W, Y, G, eta)
 
-    def squared_norm(self, E: Any) -> float:
-        return self._kernels.squared_norm(E)
+    def gather_rows(self, src, index, dst) -> None:
+        self._kernels.gather_rows(src, index, dst)
+
+    def scatter_rows(self, src, index, dst) -> None:
+        self._kernels.scatter_rows(src, index, dst)
+
+    def stop_converged(self, R, limits, active, steps) -> None:
+        self._kernels.stop_converged(R, limits, active, steps)
+
+    def capture(self, fn: Callable[[], None]) -> Callable[[], None]:
+        """On CUDA: run ``fn`` once directly (loads the kernels, allocates the scratch),
+        then record its launches as a CUDA graph the next time and replay that graph from
+        then on. Elsewhere: ``fn`` itself."""
+        if not self._device.is_cuda:
+            return fn
+        wp = self._wp
+        graph = None
+        calls = 0
+
+        def replay() -> None:
+            nonlocal graph, calls
+            calls += 1
+            if calls == 1:
+                fn()
+                return
+            if graph is None:
+                with wp.ScopedCapture(device=self._device, force_module_load=False) as capture:
+                    fn()
+                graph = capture.graph
+            wp.capture_launch(graph)
+
+        return replay
+
+
+def _cuda_driver_loads() -> bool:
+    """Whether the NVIDIA driver library can be loaded (the dynamic loader's own search,
+    so LD_LIBRARY_PATH counts), without initialising anything."""
+    names = ("nvcuda.dll",) if sys.platform == "win32" else ("libcuda.so.1", "libcuda.so", "libcuda.dylib")
+    for name in names:
+        try:
+            ctypes.CDLL(name)
+            return True
+        except OSError:
+            continue
+    return False
 
 
 def cuda_available() -> bool:
     """True when Warp finds a CUDA device. Without an NVIDIA driver library Warp is not even
     initialised (that would print its device banner and cost a second)."""
-    if ctypes.util.find_library("cuda") is None:
+    if not _cuda_driver_loads():
         return False
     try:
         from vitaplace.kernels import warp_kernels  # noqa: F401 - sets Warp's log level

@@ -17,9 +17,10 @@ without phi' and with the top-down sign flipped; this follows the gradient.)
 
 from __future__ import annotations
 
+import functools
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -132,12 +133,20 @@ class TrainingHistory:
 
 @dataclass
 class InferenceResult:
-    """Latents of every node (host arrays), the steps taken and per-edge mean squared errors."""
+    """Latents of every node (host arrays) and how inference ended.
+
+    ``steps`` is the largest number of steps any sample took, ``steps_per_sample`` each
+    sample's; ``mse`` the per-edge mean squared error averaged over the samples;
+    ``stopped`` says per sample whether it ended under every threshold (rather than at the
+    step cap) and ``converged`` whether all did.
+    """
 
     latents: dict[str, np.ndarray]
     steps: int
     mse: dict[str, float]
     converged: bool
+    steps_per_sample: np.ndarray
+    stopped: np.ndarray
 
 
 def glorot_uniform(rng: np.random.Generator, fan_in: int, fan_out: int) -> np.ndarray:
@@ -266,7 +275,8 @@ class Network:
         present, n = self._check_inputs(inputs)
         state = self.batch_state(n, present)
         state.load(inputs, latents)
-        return state.predict_all()
+        state.predict_all()
+        return state.energies()
 
     # ------------------------------------------------------------------ training
     def train(
@@ -279,8 +289,11 @@ class Network:
         """Learn the weights from (already scaled) inputs of N samples.
 
         Each sample's latents persist across epochs (initialised to 0.1, or ``latents`` to
-        continue). Per minibatch: T inference steps, then one weight step (eq. 4).
-        Raises NetworkError naming the edge and the step when an error becomes NaN/Inf.
+        continue; that dict is updated in place). Per minibatch: T inference steps, then
+        one weight step (eq. 4). Inputs, latents and weights stay on the backend's device
+        for the whole run; a minibatch is one captured sequence (a CUDA graph on CUDA) and
+        only its energies come back to the host.
+        Raises NetworkError naming the epoch and minibatch when an error becomes NaN/Inf.
         """
         cfg = training if isinstance(training, TrainingConfig) else TrainingConfig.model_validate(training or {})
         present, n = self._check_inputs(inputs)
@@ -288,10 +301,14 @@ class Network:
         store = latents if latents is not None else {}
         for node in nodes:
             store.setdefault(node, np.full((n, self.sizes[node]), LATENT_INIT, dtype=np.float32))
+        be = self.backend
+        resident_x = {self.input_node(m): be.to_device(inputs[m]) for m in present}
+        resident_y = {node: be.to_device(store[node]) for node in nodes}
         edges = self.active_edges(present)
         history = TrainingHistory({e.name: [] for e in edges})
         rng = np.random.default_rng(cfg.seed)
         states: dict[int, BatchState] = {}
+        runs: dict[int, Callable[[], None]] = {}
         batches_per_epoch = math.ceil(n / cfg.batch_size)
         bar = tqdm(total=cfg.epochs * batches_per_epoch, desc="train", unit="batch", disable=not progress)
         for epoch in range(cfg.epochs):
@@ -300,27 +317,29 @@ class Network:
             for b in range(batches_per_epoch):
                 index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
                 state = self._cached_state(states, len(index), present)
-                state.load({m: inputs[m][index] for m in present}, {k: v[index] for k, v in store.items()})
-                energy = state.predict_all()
-                for step in range(1, cfg.inference_steps + 1):
-                    state.latent_step()
-                    energy = state.predict_all()
-                    state.check_finite(energy, f"epoch {epoch + 1}, batch {b + 1}, inference step {step}")
+                if len(index) not in runs:
+                    runs[len(index)] = be.capture(functools.partial(state.minibatch, resident_x, resident_y, cfg.inference_steps))
+                be.upload(index.astype(np.int32), state.index)
+                runs[len(index)]()
+                energy = state.energies()
+                state.check_finite(energy, f"epoch {epoch + 1}, minibatch {b + 1}")
                 for name, value in energy.items():
                     totals[name] += value
-                state.weight_step()
-                for node, values in state.download_latents().items():
-                    store[node][index] = values
                 bar.update()
                 bar.set_postfix(epoch=epoch + 1, F=f"{sum(energy.values()) / len(index):.4g}")
             for name, total in totals.items():
                 history.energy[name].append(total / n)
         bar.close()
+        for node in nodes:
+            store[node][...] = be.download(resident_y[node])
         self._sync_weights_to_host()
         self.train_latents = store
         return history
 
     # ------------------------------------------------------------------ inference
+    #: Inference steps per captured chunk between two looks at which samples are still active.
+    STEPS_PER_CHECK = 50
+
     def infer(
         self,
         inputs: Mapping[str, np.ndarray],
@@ -330,37 +349,52 @@ class Network:
     ) -> InferenceResult:
         """Latents for (scaled) inputs with frozen weights, from 0.1, batch by batch.
 
-        A batch stops when every active edge's mean squared error is below its threshold, or
-        after ``max_steps``. Missing modalities are left out (their errors do not reach the
-        joint layer). ``steps`` is the largest step count over the batches.
+        Each sample stops on its own, as soon as every active edge's mean squared error
+        for that sample is below its threshold, or after ``max_steps`` steps; the others
+        in its batch go on. Missing modalities are left out (their errors do not reach
+        the joint layer).
         """
         present, n = self._check_inputs(inputs)
-        limits = {e.name: e.threshold for e in self.active_edges(present)}
+        edges = self.active_edges(present)
+        limits = {e.name: e.threshold for e in edges}
         limits.update(thresholds or {})
+        be = self.backend
+        resident_x = {self.input_node(m): be.to_device(inputs[m]) for m in present}
         out = {node: np.empty((n, self.sizes[node]), np.float32) for node in self.latent_nodes(present)}
-        steps_taken, converged, mse_sum = 0, True, dict.fromkeys(limits, 0.0)
+        steps = np.zeros(n, dtype=np.int64)
+        mse = np.zeros((len(edges), n))
         states: dict[int, BatchState] = {}
+        chunks: dict[int, Callable[[], None]] = {}
         for start in range(0, n, batch_size):
             index = np.arange(start, min(start + batch_size, n))
             state = self._cached_state(states, len(index), present)
-            state.load({m: inputs[m][index] for m in present}, None)
-            energy = state.predict_all()
-            steps = 0
-            while True:
-                mse = {name: value / state.error_size[name] for name, value in energy.items()}
-                if all(mse[name] < limits[name] for name in mse) or steps >= max_steps:
-                    break
-                state.latent_step()
-                energy = state.predict_all()
-                steps += 1
-                state.check_finite(energy, f"inference step {steps}")
-            converged &= all(mse[name] < limits[name] for name in mse)
-            steps_taken = max(steps_taken, steps)
-            for name, value in mse.items():
-                mse_sum[name] += value * len(index)
+            if len(index) not in chunks:
+                be.upload(np.array([limits[e.name] * state.error_width[e.name] for e in edges]), state.limits)
+                chunks[len(index)] = be.capture(functools.partial(state.inference_steps, self.STEPS_PER_CHECK))
+            be.upload(index.astype(np.int32), state.index)
+            state.start_inference(resident_x)
+            done = 0
+            while done < max_steps and be.download(state.active).any():
+                todo = min(self.STEPS_PER_CHECK, max_steps - done)
+                if todo == self.STEPS_PER_CHECK:
+                    chunks[len(index)]()
+                else:
+                    state.inference_steps(todo)
+                done += todo
+            steps[index] = be.download(state.steps)
+            widths = np.array([state.error_width[e.name] for e in edges], dtype=np.float64)
+            mse[:, index] = be.download(state.R) / widths[:, None]
             for node, values in state.download_latents().items():
                 out[node][index] = values
-        return InferenceResult(out, steps_taken, {k: v / n for k, v in mse_sum.items()}, converged)
+        stopped = np.all(mse < np.array([limits[e.name] for e in edges])[:, None], axis=0)
+        return InferenceResult(
+            out,
+            int(steps.max(initial=0)),
+            {e.name: float(mse[k].mean()) for k, e in enumerate(edges)},
+            bool(stopped.all()),
+            steps,
+            stopped,
+        )
 
     def reconstruct(self, joint: np.ndarray, modality: str) -> np.ndarray:
         """Top-down prediction of a modality's scaled input from joint latents (host numpy)."""
@@ -421,10 +455,13 @@ class Network:
 
 
 class BatchState:
-    """Backend buffers of one minibatch: latents Y per node, inputs X, and A, P, E, G per edge.
+    """Backend buffers of one minibatch: latents Y per node, inputs X, errors E and gains G
+    per edge, per-sample energies R (edges x batch, float64), and the int32 row index,
+    active mask and step counts of the samples.
 
-    `load` fills inputs and latents, `predict_all` computes eq. 1-2, `latent_step` and
-    `weight_step` apply eq. 3 and eq. 4; the training and inference loops are built from these.
+    `predict_all` computes eq. 1-2, `latent_step` and `weight_step` apply eq. 3 and eq. 4;
+    `minibatch` (training) and `inference_steps` (test time) are built from these and only
+    launch work on the backend, so each can be captured once and replayed.
     """
 
     def __init__(self, net: Network, batch: int, modalities: Sequence[str]) -> None:
@@ -435,17 +472,20 @@ class BatchState:
         self.weights = net._device_weight_handles()
         self.Y = {node: be.empty((batch, net.sizes[node])) for node in self.nodes}
         self.X = {net.input_node(m): be.empty((batch, net.sizes[net.input_node(m)])) for m in modalities}
-        shape = {e.name: (batch, net.sizes[e.lower]) for e in self.edges}
-        self.A = {name: be.empty(s) for name, s in shape.items()}
-        self.P = {name: be.empty(s) for name, s in shape.items()}
-        self.E = {name: be.empty(s) for name, s in shape.items()}
-        self.G = {name: be.empty(s) for name, s in shape.items()}
-        self.error_size = {name: s[0] * s[1] for name, s in shape.items()}
+        self.error_width = {e.name: net.sizes[e.lower] for e in self.edges}
+        self.E = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
+        self.G = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
+        self.R = be.empty((len(self.edges), batch), np.float64)
+        self.index = be.empty((batch,), np.int32)
+        self.active = be.empty((batch,), np.int32)
+        self.steps = be.empty((batch,), np.int32)
+        self.limits = be.empty((len(self.edges),), np.float64)
         self.edge_above = {e.lower: e.name for e in self.edges}
         # The top-down term (+2 E_above) of a node is applied once, with its first edge below.
         self.first_below = {e.upper: e.name for e in reversed(self.edges)}
 
     def load(self, inputs: Mapping[str, np.ndarray], latents: Mapping[str, np.ndarray] | None) -> None:
+        """Host inputs and latents (default: all 0.1) into the buffers."""
         for m, x in inputs.items():
             self.be.upload(np.asarray(x), self.X[self.net.input_node(m)])
         for node, y in self.Y.items():
@@ -455,29 +495,65 @@ class BatchState:
     def _node(self, name: str):
         return self.Y[name] if name in self.Y else self.X[name]
 
-    def predict_all(self) -> dict[str, float]:
-        """Eq. 1 on every edge from the current latents; returns F per edge (eq. 2)."""
+    def predict_all(self) -> None:
+        """Eq. 1 on every edge from the current latents, and each sample's energy per edge."""
         act, slope = self.net.config.activation, self.net.config.slope
-        for e in self.edges:
+        for slot, e in enumerate(self.edges):
             n = e.name
-            self.be.predict(
-                self.Y[e.upper], self.weights[n], self._node(e.lower), self.A[n], self.P[n], self.E[n], self.G[n], act, slope
-            )
-        return {e.name: self.be.squared_norm(self.E[e.name]) for e in self.edges}
+            self.be.predict(self.Y[e.upper], self.weights[n], self._node(e.lower), self.E[n], self.G[n], self.R, slot, act, slope)
 
-    def latent_step(self) -> None:
-        """Y <- Y - eta_y dF/dY for every node (eq. 3), all from the errors of one predict_all."""
+    def energies(self) -> dict[str, float]:
+        """F per edge (eq. 2) of the last `predict_all` (waits for the device)."""
+        sums = self.be.download(self.R).sum(axis=1)
+        return {e.name: float(s) for e, s in zip(self.edges, sums)}
+
+    def latent_step(self, mask=None) -> None:
+        """Y <- Y - eta_y dF/dY for every node (eq. 3), all from the errors of one predict_all;
+        only the rows where ``mask`` is non-zero, when given."""
         for e in self.edges:
             eta = self.net.eta_y[e.upper]
             above = self.edge_above.get(e.upper) if self.first_below[e.upper] == e.name else None
             self.be.latent_update(
-                self.Y[e.upper], self.G[e.name], self.weights[e.name], eta, self.E[above] if above else None
+                self.Y[e.upper], self.G[e.name], self.weights[e.name], eta, self.E[above] if above else None, mask
             )
 
     def weight_step(self) -> None:
         """W <- W - eta_w dF/dW on every edge (eq. 4)."""
         for e in self.edges:
             self.be.weight_update(self.weights[e.name], self.Y[e.upper], self.G[e.name], e.eta_w)
+
+    def minibatch(self, inputs: Mapping[str, object], latents: Mapping[str, object], steps: int) -> None:
+        """One training minibatch: rows ``index`` of the resident inputs and latents, T
+        inference steps, one weight step, the latents written back."""
+        for node, x in self.X.items():
+            self.be.gather_rows(inputs[node], self.index, x)
+        for node, y in self.Y.items():
+            self.be.gather_rows(latents[node], self.index, y)
+        self.predict_all()
+        for _ in range(steps):
+            self.latent_step()
+            self.predict_all()
+        self.weight_step()
+        for node, y in self.Y.items():
+            self.be.scatter_rows(y, self.index, latents[node])
+
+    def start_inference(self, inputs: Mapping[str, object]) -> None:
+        """Rows ``index`` of the resident inputs, latents at 0.1, every sample active."""
+        for node, x in self.X.items():
+            self.be.gather_rows(inputs[node], self.index, x)
+        for y in self.Y.values():
+            self.be.fill(y, LATENT_INIT)
+        self.be.fill(self.active, 1)
+        self.be.fill(self.steps, 0)
+        self.predict_all()
+
+    def inference_steps(self, count: int) -> None:
+        """``count`` test-time steps with per-sample stopping (samples under their limits
+        are frozen and no longer counted)."""
+        for _ in range(count):
+            self.be.stop_converged(self.R, self.limits, self.active, self.steps)
+            self.latent_step(self.active)
+            self.predict_all()
 
     def check_finite(self, energy: Mapping[str, float], where: str) -> None:
         for name, value in energy.items():
@@ -488,4 +564,3 @@ class BatchState:
 
     def download_latents(self) -> dict[str, np.ndarray]:
         return {node: self.be.download(y) for node, y in self.Y.items()}
-

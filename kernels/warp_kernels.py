@@ -1,39 +1,42 @@
-"""Warp tile kernels for the predictive-coding layer steps (DESIGN §6-7).
+"""Warp kernels for the predictive-coding layer steps, on CPU or CUDA.
 
-Three fused tile GEMMs, each with its element-wise epilogue, plus a reduction:
+Fused tile GEMMs with their element-wise epilogues, and the small kernels that keep a
+whole training or inference run on the device:
 
 (a) :func:`predict`        ``A = Y @ W``, ``P = phi(A)``, ``E = X - P``, ``G = phi'(A) * E``
-(b) :func:`latent_update`  ``Y <- Y + 2 eta G @ W.T - 2 eta E_above``   (in place)
-(c) :func:`weight_update`  ``W <- W + 2 eta Y.T @ G``                     (in place)
-(d) :func:`squared_norm`   ``sum(E**2)`` (for the energy ``F = sum_l ||E_l||^2``)
+                           and each row's ``sum(E**2)`` (the per-sample energy of the edge)
+(b) :func:`latent_update`  ``Y <- Y + 2 eta m * (G @ W.T - E_above)``  (in place; ``m`` the
+                           per-sample 0/1 mask of samples still being updated)
+(c) :func:`weight_update`  ``W <- W + 2 eta Y.T @ G``                 (in place)
+(d) :func:`gather_rows` / :func:`scatter_rows`   minibatch rows of a device-resident store
+(e) :func:`stop_converged` per-sample stopping of test-time inference
 
 ``kernels/reference.py`` is the numpy specification these are tested against.
 
 Design notes
 ------------
-* Kernels are built by factories over the static tile sizes (and the activation / the
-  ``E_above`` flag) and cached, so each configuration compiles once per process (and the
-  compiled binary is cached on disk by Warp).
-* The tiled GEMM accumulation loops live in ``@wp.func`` helpers (:func:`_tile_gemms`, one
-  ``gemm_nn`` / ``gemm_nt`` / ``gemm_tn`` set per static tile size); each kernel is tile
-  indices -> helper GEMM -> its element-wise epilogue -> stores.
-* Shapes need not be multiples of the tile sizes: ``wp.tile_load`` (``bounds_check=True``,
-  the default) reads elements past the array's extent as zero, and ``wp.tile_store`` skips
-  writes past it. The zero padding along K is what keeps the edge GEMM tiles exact; the
-  padded rows / columns of the output tiles are computed but never stored.
-* No code depends on ``block_dim`` or the lane index: only cooperative tile operations are
-  used. On CPU Warp runs a tile with one thread (``block_dim`` resolves to 1 unless
-  ``wp.config.enable_cpu_blocks`` is set).
-* In-place updates are safe: every output tile reads only its own tile of the updated
-  array (``Y`` or ``W``), after its GEMM and before its store, and the GEMM operands
-  (``G``, ``W`` resp. ``Y``, ``G``) never alias the updated array.
+* Kernels are built by factories over the static tile sizes (and the activation / flags)
+  and cached, so each configuration compiles once per process (and is cached on disk by
+  Warp).
+* Shapes need not be multiples of the tile sizes: ``wp.tile_load`` reads elements past the
+  array's extent as zero and ``wp.tile_store`` skips writes past it. The zero padding along
+  K keeps the edge tiles exact; padded output rows / columns are computed, never stored.
+* No code depends on ``block_dim`` or the lane index: only cooperative tile operations.
+  On CPU Warp runs a tile with one thread.
+* The latent update's GEMM has few output tiles (batch x n_l) and a long K (n_below), so
+  on CUDA it is split along K: each split writes its partial product to a scratch buffer
+  and a fused element-wise kernel sums the splits in a fixed order and applies the step.
+  No atomics anywhere: results are bitwise reproducible run to run on one device.
+* Per-row energies are written per column tile and summed by a second small kernel in a
+  fixed order, for the same reason.
+* Every operation only launches kernels (no host synchronisation, no allocation once its
+  scratch exists), so a sequence of them can be captured as a CUDA graph.
 """
 
 import functools
 import threading
 from typing import NamedTuple
 
-import numpy as np
 import warp as wp
 
 from vitaplace.kernels.reference import ACTIVATIONS
@@ -42,19 +45,18 @@ __all__ = [
     "ACTIVATIONS",
     "TileConfig",
     "tile_config",
+    "latent_splits",
     "predict",
     "latent_update",
     "weight_update",
-    "squared_norm",
+    "gather_rows",
+    "scatter_rows",
+    "stop_converged",
 ]
 
 
 def _quiet_warp() -> None:
-    """Silence Warp's greeting and per-module load messages (warnings still shown).
-
-    Warp 1.19 uses ``wp.config.log_level`` (``wp.config.quiet`` is gone); older versions
-    use ``wp.config.quiet``.
-    """
+    """Silence Warp's greeting and per-module load messages (warnings still shown)."""
     wp.config.quiet = True
     level = getattr(wp, "LOG_WARNING", None)
     if level is not None and getattr(wp.config, "log_level", level) < level:
@@ -132,9 +134,13 @@ def _gain_linear(a: wp.float32, e: wp.float32, slope: wp.float32) -> wp.float32:
 
 
 @wp.func
-def _square64(x: wp.float32) -> wp.float64:
-    y = wp.float64(x)
-    return y * y
+def _square(x: wp.float32) -> wp.float32:
+    return x * x
+
+
+@wp.func
+def _below(c: wp.int32, n: wp.int32) -> wp.float32:
+    return wp.where(c < n, wp.float32(1.0), wp.float32(0.0))
 
 
 _PHI = {
@@ -170,12 +176,19 @@ class TileConfig(NamedTuple):
 # GEMM, so the tile sizes only trade padding waste against per-tile load / loop overhead.
 # Measured at B=150, n_l=1000, n_below=10800 (predict): 16^3 ~0.68 s, 32^3 ~0.39 s,
 # 64x64x32 ~0.33 s, 64x128x32 ~0.28 s.
-# CUDA (not measured here, no GPU): 64 threads per block, 32 x 32 output tiles with a
-# 32-deep K step (3 x 4 KiB of shared memory per block), enough blocks even for B = 150.
-# The row tile (the batch for predict / latent, the K step for the weight update) is
-# shrunk to the next power of two >= B for small batches.
-_CPU_TILES = (64, 128, 32, 1)
-_CUDA_TILES = (32, 32, 32, 64)
+_CPU_TILES = {
+    "predict": TileConfig(64, 128, 32, 1),
+    "latent": TileConfig(64, 128, 32, 1),
+    "weight": TileConfig(64, 128, 32, 1),
+}
+# CUDA: chosen by bench/tile_sweep.py on an H100 at the paper's shapes (docs/PERFORMANCE.md).
+_CUDA_TILES = {
+    "predict": TileConfig(64, 64, 32, 128),
+    "latent": TileConfig(64, 64, 32, 128),
+    "weight": TileConfig(64, 64, 32, 128),
+}
+#: Element-wise / per-row kernels: threads per block on CUDA.
+_SIMT_BLOCK = 256
 
 
 def _round_rows(m: int, cap: int) -> int:
@@ -187,10 +200,31 @@ def _round_rows(m: int, cap: int) -> int:
     return t
 
 
-def tile_config(device, m: int) -> TileConfig:
-    """Tile sizes for a GEMM with ``m`` output rows (the batch for predict / latent)."""
-    tm, tn, tk, bd = _CUDA_TILES if device.is_cuda else _CPU_TILES
-    return TileConfig(_round_rows(m, tm), tn, tk, bd)
+def tile_config(device, kernel: str, rows: int) -> TileConfig:
+    """Tile sizes of ``kernel`` (``predict``, ``latent``, ``weight``) on ``device``.
+
+    ``rows`` is the batch: the output rows of predict / latent (the row tile shrinks to
+    the next power of two >= batch) and the K of the weight update (so is its K step).
+    """
+    cfg = (_CUDA_TILES if wp.get_device(device).is_cuda else _CPU_TILES)[kernel]
+    if kernel == "weight":
+        return cfg._replace(tk=_round_rows(rows, cfg.tk))
+    return cfg._replace(tm=_round_rows(rows, cfg.tm))
+
+
+def _cdiv(a: int, b: int) -> int:
+    return (a + b - 1) // b
+
+
+def latent_splits(device, tiles: TileConfig, batch: int, n_l: int, n_below: int) -> int:
+    """How many K-slices the latent GEMM is split into: 1 on CPU; on CUDA enough blocks for
+    two waves over the multiprocessors, each slice at least 8 K-steps long."""
+    dev = wp.get_device(device)
+    if not dev.is_cuda:
+        return 1
+    blocks = _cdiv(batch, tiles.tm) * _cdiv(n_l, tiles.tn)
+    want = _cdiv(2 * dev.sm_count, blocks)
+    return max(1, min(want, _cdiv(n_below, 8 * tiles.tk)))
 
 
 # --------------------------------------------------------------------------------------
@@ -198,56 +232,8 @@ def tile_config(device, m: int) -> TileConfig:
 # --------------------------------------------------------------------------------------
 
 _F32_2D = wp.array2d(dtype=wp.float32)
-
-
-class _TileGemms(NamedTuple):
-    """The tile-GEMM accumulators of one static ``(tm, tn, tk)``; see :func:`_tile_gemms`."""
-
-    gemm_nn: wp.Function
-    gemm_nt: wp.Function
-    gemm_tn: wp.Function
-
-
-@functools.cache
-def _tile_gemms(tm: int, tn: int, tk: int) -> _TileGemms:
-    """``@wp.func`` helpers computing the ``tm x tn`` output tile at ``(row, col)`` of a GEMM,
-    stepping through K by ``tk`` (``nk = ceil(K / tk)`` steps):
-
-    * ``gemm_nn(A, B, row, col)``: ``A @ B``,   ``A`` (M x K), ``B`` (K x N)
-    * ``gemm_nt(A, B, row, col)``: ``A @ B.T``, ``A`` (M x K), ``B`` (N x K)
-    * ``gemm_tn(A, B, row, col)``: ``A.T @ B``, ``A`` (K x M), ``B`` (K x N)
-
-    Loads past an array's extent read zero, so the edge tiles are exact (see the module notes).
-    """
-
-    @wp.func
-    def gemm_nn(A: _F32_2D, B: _F32_2D, row: int, col: int):
-        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
-        for k in range((A.shape[1] + tk - 1) // tk):
-            a = wp.tile_load(A, shape=(tm, tk), offset=(row, k * tk))
-            b = wp.tile_load(B, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(a, b, acc)
-        return acc
-
-    @wp.func
-    def gemm_nt(A: _F32_2D, B: _F32_2D, row: int, col: int):
-        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
-        for k in range((A.shape[1] + tk - 1) // tk):
-            a = wp.tile_load(A, shape=(tm, tk), offset=(row, k * tk))
-            b = wp.tile_load(B, shape=(tn, tk), offset=(col, k * tk))
-            wp.tile_matmul(a, wp.tile_transpose(b), acc)
-        return acc
-
-    @wp.func
-    def gemm_tn(A: _F32_2D, B: _F32_2D, row: int, col: int):
-        acc = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
-        for k in range((A.shape[0] + tk - 1) // tk):
-            a = wp.tile_load(A, shape=(tk, tm), offset=(k * tk, row))
-            b = wp.tile_load(B, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(wp.tile_transpose(a), b, acc)
-        return acc
-
-    return _TileGemms(gemm_nn, gemm_nt, gemm_tn)
+_F32_3D = wp.array3d(dtype=wp.float32)
+_F64_2D = wp.array2d(dtype=wp.float64)
 
 
 def _tiled_kernel(fn, name: str):
@@ -257,10 +243,10 @@ def _tiled_kernel(fn, name: str):
 
 
 @functools.cache
-def _predict_kernel(tm: int, tn: int, tk: int, activation: str):
-    """(a) A = Y @ W; P = phi(A); E = X - P; G = phi'(A) * E.   GEMM M=B, N=n_below, K=n_l."""
+def _predict_kernel(tm: int, tn: int, tk: int, activation: str, store_prediction: bool):
+    """(a) GEMM M=B, N=n_below, K=n_l, then the epilogue; ``row_partial[j, r]`` receives
+    row r's sum of squared errors over column tile j."""
     phi, gain = _PHI[activation]
-    gemm = _tile_gemms(tm, tn, tk).gemm_nn
 
     def predict_kernel(
         Y: _F32_2D,
@@ -271,79 +257,132 @@ def _predict_kernel(tm: int, tn: int, tk: int, activation: str):
         P: _F32_2D,
         E: _F32_2D,
         G: _F32_2D,
+        row_partial: _F32_2D,
     ):
         i, j = wp.tid()
         row, col = i * tm, j * tn
-        a = gemm(Y, W, row, col)
+        a = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
+        for k in range((Y.shape[1] + tk - 1) // tk):
+            y = wp.tile_load(Y, shape=(tm, tk), offset=(row, k * tk))
+            w = wp.tile_load(W, shape=(tk, tn), offset=(k * tk, col))
+            wp.tile_matmul(y, w, a)
         p = wp.tile_map(phi, a, slope)
         e = wp.tile_load(X, shape=(tm, tn), offset=(row, col)) - p
         g = wp.tile_map(gain, a, e, slope)
-        wp.tile_store(A, a, offset=(row, col))
-        wp.tile_store(P, p, offset=(row, col))
+        if wp.static(store_prediction):
+            wp.tile_store(A, a, offset=(row, col))
+            wp.tile_store(P, p, offset=(row, col))
         wp.tile_store(E, e, offset=(row, col))
         wp.tile_store(G, g, offset=(row, col))
+        if wp.static(activation == "sigmoid"):
+            # padded columns read X = A = 0, so e = -phi(0) there: zero them for the sums
+            cols = wp.tile_arange(tn, dtype=wp.int32)
+            left = wp.tile_ones(shape=(tn,), dtype=wp.int32) * (X.shape[1] - col)
+            e = e * wp.tile_broadcast(wp.tile_map(_below, cols, left), shape=(tm, tn))
+        wp.tile_store(row_partial[j], wp.tile_sum(wp.tile_map(_square, e), axis=1), offset=row)
 
-    return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tm}x{tn}x{tk}")
+    tag = "AP" if store_prediction else "EG"
+    return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tag}_{tm}x{tn}x{tk}")
 
 
 @functools.cache
-def _latent_kernel(tm: int, tn: int, tk: int, has_above: bool):
-    """(b) Y_out = Y + 2 eta G @ W.T [- 2 eta E_above].   GEMM M=B, N=n_l, K=n_below.
+def _latent_gemm_kernel(tm: int, tn: int, tk: int):
+    """(b, GEMM) ``D[s] = G[:, Ks] @ W[:, Ks].T`` for K-slice ``s`` of ``steps`` K-steps."""
 
-    Y_out may alias Y: output tile (i, j) reads only Y's tile (i, j), after its GEMM.
-    """
-    gemm = _tile_gemms(tm, tn, tk).gemm_nt
-
-    def latent_kernel(
-        Y: _F32_2D,
-        G: _F32_2D,
-        W: _F32_2D,
-        E_above: _F32_2D,
-        two_eta: wp.float32,
-        Y_out: _F32_2D,
-    ):
-        i, j = wp.tid()
+    def latent_gemm_kernel(G: _F32_2D, W: _F32_2D, steps: int, D: _F32_3D):
+        i, j, s = wp.tid()
         row, col = i * tm, j * tn
-        d = gemm(G, W, row, col)
-        y = wp.tile_load(Y, shape=(tm, tn), offset=(row, col))
-        if wp.static(has_above):
-            d = d - wp.tile_load(E_above, shape=(tm, tn), offset=(row, col))
-        wp.tile_store(Y_out, y + d * two_eta, offset=(row, col))
+        d = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
+        end = wp.min((s + 1) * steps, (G.shape[1] + tk - 1) // tk)
+        for k in range(s * steps, end):
+            g = wp.tile_load(G, shape=(tm, tk), offset=(row, k * tk))
+            w = wp.tile_load(W, shape=(tn, tk), offset=(col, k * tk))
+            wp.tile_matmul(g, wp.tile_transpose(w), d)
+        wp.tile_store(D[s], d, offset=(row, col))
 
-    return _tiled_kernel(latent_kernel, f"pc_latent_{'above' if has_above else 'top'}_{tm}x{tn}x{tk}")
+    return _tiled_kernel(latent_gemm_kernel, f"pc_latent_gemm_{tm}x{tn}x{tk}")
+
+
+@functools.cache
+def _latent_step_kernel(has_above: bool, has_mask: bool):
+    """(b, epilogue) ``Y += 2 eta * mask * (sum_s D[s] - E_above)``, splits summed in order."""
+
+    def latent_step_kernel(
+        Y: _F32_2D, D: _F32_3D, E_above: _F32_2D, mask: wp.array(dtype=wp.int32), two_eta: wp.float32
+    ):
+        r, c = wp.tid()
+        if wp.static(has_mask):
+            if mask[r] == 0:
+                return
+        d = D[0, r, c]
+        for s in range(1, D.shape[0]):
+            d += D[s, r, c]
+        if wp.static(has_above):
+            d -= E_above[r, c]
+        Y[r, c] = Y[r, c] + two_eta * d
+
+    name = f"pc_latent_step_{'above' if has_above else 'top'}_{'masked' if has_mask else 'all'}"
+    return _tiled_kernel(latent_step_kernel, name)
 
 
 @functools.cache
 def _weight_kernel(tm: int, tn: int, tk: int):
     """(c) W += 2 eta Y.T @ G (in place).   GEMM M=n_l, N=n_below, K=B."""
-    gemm = _tile_gemms(tm, tn, tk).gemm_tn
 
-    def weight_kernel(
-        W: _F32_2D,
-        Y: _F32_2D,
-        G: _F32_2D,
-        two_eta: wp.float32,
-    ):
+    def weight_kernel(W: _F32_2D, Y: _F32_2D, G: _F32_2D, two_eta: wp.float32):
         i, j = wp.tid()
         row, col = i * tm, j * tn
-        d = gemm(Y, G, row, col)
+        d = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
+        for k in range((Y.shape[0] + tk - 1) // tk):
+            y = wp.tile_load(Y, shape=(tk, tm), offset=(k * tk, row))
+            g = wp.tile_load(G, shape=(tk, tn), offset=(k * tk, col))
+            wp.tile_matmul(wp.tile_transpose(y), g, d)
         w = wp.tile_load(W, shape=(tm, tn), offset=(row, col))
         wp.tile_store(W, w + d * two_eta, offset=(row, col))
 
     return _tiled_kernel(weight_kernel, f"pc_weight_{tm}x{tn}x{tk}")
 
 
-@functools.cache
-def _sqnorm_kernel(tm: int, tn: int):
-    """(d) per-tile partial sums of squares, accumulated in float64."""
+@wp.kernel(enable_backward=False, module="unique")
+def _row_energy_kernel(row_partial: _F32_2D, out: _F64_2D, slot: int):
+    """out[slot, r] = sum over column tiles of row_partial[:, r], in float64, in order."""
+    r = wp.tid()
+    s = wp.float64(0.0)
+    for j in range(row_partial.shape[0]):
+        s += wp.float64(row_partial[j, r])
+    out[slot, r] = s
 
-    def sqnorm_kernel(E: _F32_2D, partial: wp.array(dtype=wp.float64)):
-        i, j = wp.tid()
-        e = wp.tile_load(E, shape=(tm, tn), offset=(i * tm, j * tn))
-        s = wp.tile_sum(wp.tile_map(_square64, e))
-        wp.tile_store(partial, s, offset=i * ((E.shape[1] + tn - 1) // tn) + j)
 
-    return _tiled_kernel(sqnorm_kernel, f"pc_sqnorm_{tm}x{tn}")
+@wp.kernel(enable_backward=False, module="unique")
+def _gather_kernel(src: _F32_2D, index: wp.array(dtype=wp.int32), dst: _F32_2D):
+    r, c = wp.tid()
+    dst[r, c] = src[index[r], c]
+
+
+@wp.kernel(enable_backward=False, module="unique")
+def _scatter_kernel(src: _F32_2D, index: wp.array(dtype=wp.int32), dst: _F32_2D):
+    r, c = wp.tid()
+    dst[index[r], c] = src[r, c]
+
+
+@wp.kernel(enable_backward=False, module="unique")
+def _stop_kernel(
+    row_energy: _F64_2D,
+    limits: wp.array(dtype=wp.float64),
+    active: wp.array(dtype=wp.int32),
+    steps: wp.array(dtype=wp.int32),
+):
+    r = wp.tid()
+    if active[r] == 0:
+        return
+    done = int(1)
+    for e in range(row_energy.shape[0]):
+        if not (row_energy[e, r] < limits[e]):
+            done = 0
+    if done == 1:
+        active[r] = 0
+    else:
+        steps[r] = steps[r] + 1
 
 
 # --------------------------------------------------------------------------------------
@@ -351,17 +390,13 @@ def _sqnorm_kernel(tm: int, tn: int):
 # --------------------------------------------------------------------------------------
 
 
-def _cdiv(a: int, b: int) -> int:
-    return (a + b - 1) // b
+def _check_type(name: str, arr, dtype=wp.float32, ndim: int = 2) -> None:
+    if not isinstance(arr, wp.array) or arr.ndim != ndim or arr.dtype != dtype:
+        raise TypeError(f"{name} must be a wp.array{ndim}d(dtype={dtype.__name__}), got {arr!r}")
 
 
-def _check_type(name: str, arr) -> None:
-    if not isinstance(arr, wp.array) or arr.ndim != 2 or arr.dtype != wp.float32:
-        raise TypeError(f"{name} must be a wp.array2d(dtype=wp.float32), got {arr!r}")
-
-
-def _check(name: str, arr, shape: tuple[int, int], device) -> None:
-    _check_type(name, arr)
+def _check(name: str, arr, shape: tuple[int, ...], device, dtype=wp.float32) -> None:
+    _check_type(name, arr, dtype, len(shape))
     if tuple(arr.shape) != tuple(shape):
         raise ValueError(f"{name} has shape {tuple(arr.shape)}, expected {tuple(shape)}")
     if arr.device != device:
@@ -370,11 +405,37 @@ def _check(name: str, arr, shape: tuple[int, int], device) -> None:
         raise ValueError(f"{name} must be contiguous")
 
 
-def predict(Y, W, X, A, P, E, G, activation: str = "leaky_relu", slope: float = 0.2) -> None:
-    """Kernel (a): write ``A = Y @ W``, ``P = phi(A)``, ``E = X - P``, ``G = phi'(A) * E``.
+def _simt_launch(kernel, dim, inputs, device) -> None:
+    wp.launch(kernel, dim=dim, inputs=inputs, device=device, block_dim=_SIMT_BLOCK if device.is_cuda else 1)
 
-    Shapes: ``Y`` (B x n_l), ``W`` (n_l x n_below); ``X``, ``A``, ``P``, ``E``, ``G``
-    (B x n_below). All float32 2-D Warp arrays on one device.
+
+def row_partial_shape(batch: int, n_below: int, tiles: TileConfig) -> tuple[int, int]:
+    """Shape of the scratch :func:`predict` writes per-row partial energies to."""
+    return (_cdiv(n_below, tiles.tn), batch)
+
+
+def predict(
+    Y,
+    W,
+    X,
+    E,
+    G,
+    row_partial,
+    row_energy,
+    slot: int,
+    activation: str = "leaky_relu",
+    slope: float = 0.2,
+    A=None,
+    P=None,
+    tiles: TileConfig | None = None,
+) -> None:
+    """Kernel (a): ``E = X - phi(Y @ W)``, ``G = phi'(Y @ W) * E`` and
+    ``row_energy[slot, r] = sum_c E[r, c]**2`` (float64); ``A = Y @ W`` and ``P = phi(A)``
+    too when given.
+
+    Shapes: ``Y`` (B x n_l), ``W`` (n_l x n_below); ``X``, ``E``, ``G`` (and ``A``, ``P``)
+    (B x n_below), float32; ``row_energy`` (slots x B) float64; ``row_partial`` the
+    float32 scratch of :func:`row_partial_shape`. All on one device.
     """
     _check_activation(activation)
     _ensure_init()
@@ -382,59 +443,83 @@ def predict(Y, W, X, A, P, E, G, activation: str = "leaky_relu", slope: float = 
     _check_type("W", W)
     b, n_l = Y.shape
     device = Y.device
-    _check("Y", Y, (b, n_l), device)
     n_below = W.shape[1]
     _check("W", W, (n_l, n_below), device)
-    for name, arr in (("X", X), ("A", A), ("P", P), ("E", E), ("G", G)):
+    store = A is not None or P is not None
+    if store and (A is None or P is None):
+        raise ValueError("give both A and P, or neither")
+    for name, arr in (("X", X), ("E", E), ("G", G)) + ((("A", A), ("P", P)) if store else ()):
         _check(name, arr, (b, n_below), device)
-    cfg = tile_config(device, b)
-    kernel = _predict_kernel(cfg.tm, cfg.tn, cfg.tk, activation)
+    cfg = tiles or tile_config(device, "predict", b)
+    _check("row_partial", row_partial, row_partial_shape(b, n_below, cfg), device)
+    _check_type("row_energy", row_energy, wp.float64)
+    _check("row_energy", row_energy, (row_energy.shape[0], b), device, wp.float64)
+    if not 0 <= slot < row_energy.shape[0]:
+        raise ValueError(f"slot {slot} outside row_energy's {row_energy.shape[0]} rows")
     wp.launch_tiled(
-        kernel,
+        _predict_kernel(cfg.tm, cfg.tn, cfg.tk, activation, store),
         dim=(_cdiv(b, cfg.tm), _cdiv(n_below, cfg.tn)),
-        inputs=[Y, W, X, wp.float32(slope), A, P, E, G],
+        inputs=[Y, W, X, wp.float32(slope), A if store else E, P if store else E, E, G, row_partial],
         block_dim=cfg.block_dim,
         device=device,
     )
+    _simt_launch(_row_energy_kernel, b, [row_partial, row_energy, slot], device)
 
 
-def latent_update(Y, G, W, eta: float, E_above=None) -> None:
-    """Kernel (b), in place: ``Y <- Y + 2 eta G @ W.T - 2 eta E_above``.
+def latent_scratch_shape(batch: int, n_l: int, n_below: int, device, tiles: TileConfig | None = None) -> tuple[int, int, int]:
+    """Shape of the split-K scratch :func:`latent_update` needs (splits x B x n_l)."""
+    cfg = tiles or tile_config(device, "latent", batch)
+    return (latent_splits(device, cfg, batch, n_l, n_below), batch, n_l)
+
+
+def latent_update(Y, G, W, eta: float, scratch, E_above=None, mask=None, tiles: TileConfig | None = None) -> None:
+    """Kernel (b), in place: ``Y <- Y + 2 eta * mask * (G @ W.T - E_above)``.
 
     The gradient step ``Y - eta dF/dY`` with ``dF/dY = -2 G @ W.T + 2 E_above``.
     ``Y`` (B x n_l), ``G`` (B x n_below), ``W`` (n_l x n_below), ``E_above`` (B x n_l) or
-    ``None`` (top / joint layer).
+    ``None`` (top / joint layer), ``mask`` (B,) int32 (0: leave that row alone) or
+    ``None``; ``scratch`` float32 of :func:`latent_scratch_shape` (its first dimension is
+    the number of K-slices).
 
     Calls accumulate into ``Y``: the joint layer, which predicts several modalities, calls
-    this once per modality (``E_above=None``), giving ``Y + 2 eta sum_m G_m @ W_m.T``.
-    For the parallel update of DESIGN §6 run :func:`predict` for every layer first: this
-    kernel reads only ``G``, ``W`` and ``E_above`` besides ``Y``, none of which another
-    layer's latent update writes.
+    this once per modality (``E_above=None``). Run :func:`predict` for every layer first:
+    this reads only ``G``, ``W`` and ``E_above`` besides ``Y``, which no other layer's
+    latent update writes, so all layers step from the same state.
     """
     _ensure_init()
     _check_type("Y", Y)
     _check_type("W", W)
     b, n_l = Y.shape
     device = Y.device
-    _check("Y", Y, (b, n_l), device)
     n_below = W.shape[1]
     _check("W", W, (n_l, n_below), device)
     _check("G", G, (b, n_below), device)
-    has_above = E_above is not None
-    if has_above:
+    if E_above is not None:
         _check("E_above", E_above, (b, n_l), device)
-    cfg = tile_config(device, b)
-    kernel = _latent_kernel(cfg.tm, cfg.tn, cfg.tk, has_above)
+    if mask is not None:
+        _check("mask", mask, (b,), device, wp.int32)
+    cfg = tiles or tile_config(device, "latent", b)
+    _check_type("scratch", scratch, ndim=3)
+    splits = scratch.shape[0]
+    _check("scratch", scratch, (splits, b, n_l), device)
+    steps = _cdiv(_cdiv(n_below, cfg.tk), splits)
     wp.launch_tiled(
-        kernel,
-        dim=(_cdiv(b, cfg.tm), _cdiv(n_l, cfg.tn)),
-        inputs=[Y, G, W, E_above if has_above else Y, wp.float32(2.0 * eta), Y],
+        _latent_gemm_kernel(cfg.tm, cfg.tn, cfg.tk),
+        dim=(_cdiv(b, cfg.tm), _cdiv(n_l, cfg.tn), splits),
+        inputs=[G, W, steps, scratch],
         block_dim=cfg.block_dim,
         device=device,
     )
+    dummy_mask = mask if mask is not None else wp.empty(0, dtype=wp.int32, device=device)
+    _simt_launch(
+        _latent_step_kernel(E_above is not None, mask is not None),
+        (b, n_l),
+        [Y, scratch, E_above if E_above is not None else Y, dummy_mask, wp.float32(2.0 * eta)],
+        device,
+    )
 
 
-def weight_update(W, Y, G, eta: float) -> None:
+def weight_update(W, Y, G, eta: float, tiles: TileConfig | None = None) -> None:
     """Kernel (c), in place: ``W <- W + 2 eta Y.T @ G`` (``W - eta dF/dW``, ``dF/dW = -2 Y.T @ G``).
 
     ``W`` (n_l x n_below), ``Y`` (B x n_l), ``G`` (B x n_below).
@@ -448,35 +533,52 @@ def weight_update(W, Y, G, eta: float) -> None:
     b = Y.shape[0]
     _check("Y", Y, (b, n_l), device)
     _check("G", G, (b, n_below), device)
-    tm, tn, tk, bd = _CUDA_TILES if device.is_cuda else _CPU_TILES
-    tk = _round_rows(b, tk)  # K = batch: no padded K work for a single sample
-    kernel = _weight_kernel(tm, tn, tk)
+    cfg = tiles or tile_config(device, "weight", b)
     wp.launch_tiled(
-        kernel,
-        dim=(_cdiv(n_l, tm), _cdiv(n_below, tn)),
+        _weight_kernel(cfg.tm, cfg.tn, cfg.tk),
+        dim=(_cdiv(n_l, cfg.tm), _cdiv(n_below, cfg.tn)),
         inputs=[W, Y, G, wp.float32(2.0 * eta)],
-        block_dim=bd,
+        block_dim=cfg.block_dim,
         device=device,
     )
 
 
-def squared_norm(E) -> float:
-    """``sum(E**2)`` as a Python float (per-tile partial sums in float64, summed on host)."""
+def gather_rows(src, index, dst) -> None:
+    """``dst[r] = src[index[r]]`` (``index`` int32 of length ``dst.shape[0]``)."""
     _ensure_init()
-    _check_type("E", E)
-    m, n = E.shape
-    if m == 0 or n == 0:
-        return 0.0
-    device = E.device
-    tm, tn, _, bd = _CUDA_TILES if device.is_cuda else _CPU_TILES
-    tm = _round_rows(m, tm)
-    gm, gn = _cdiv(m, tm), _cdiv(n, tn)
-    partial = wp.empty(gm * gn, dtype=wp.float64, device=device)
-    wp.launch_tiled(
-        _sqnorm_kernel(tm, tn),
-        dim=(gm, gn),
-        inputs=[E, partial],
-        block_dim=bd,
-        device=device,
-    )
-    return float(np.sum(partial.numpy()))
+    _check_type("src", src)
+    _check_type("dst", dst)
+    _check("index", index, (dst.shape[0],), src.device, wp.int32)
+    if dst.shape[1] != src.shape[1]:
+        raise ValueError(f"dst has {dst.shape[1]} columns, src {src.shape[1]}")
+    _simt_launch(_gather_kernel, tuple(dst.shape), [src, index, dst], src.device)
+
+
+def scatter_rows(src, index, dst) -> None:
+    """``dst[index[r]] = src[r]`` (``index`` int32 of length ``src.shape[0]``, no repeats)."""
+    _ensure_init()
+    _check_type("src", src)
+    _check_type("dst", dst)
+    _check("index", index, (src.shape[0],), src.device, wp.int32)
+    if dst.shape[1] != src.shape[1]:
+        raise ValueError(f"dst has {dst.shape[1]} columns, src {src.shape[1]}")
+    _simt_launch(_scatter_kernel, tuple(src.shape), [src, index, dst], src.device)
+
+
+def stop_converged(row_energy, limits, active, steps) -> None:
+    """Per-sample stopping: for every row ``r`` still ``active``, if
+    ``row_energy[e, r] < limits[e]`` for every edge ``e`` set ``active[r] = 0``, otherwise
+    count the step about to be taken in ``steps[r]``.
+
+    ``row_energy`` (edges x B) float64, ``limits`` (edges,) float64 (threshold x layer
+    width: a per-sample sum of squares against a mean-squared-error threshold),
+    ``active`` and ``steps`` (B,) int32.
+    """
+    _ensure_init()
+    _check_type("row_energy", row_energy, wp.float64)
+    n_edges, b = row_energy.shape
+    device = row_energy.device
+    _check("limits", limits, (n_edges,), device, wp.float64)
+    _check("active", active, (b,), device, wp.int32)
+    _check("steps", steps, (b,), device, wp.int32)
+    _simt_launch(_stop_kernel, b, [row_energy, limits, active, steps], device)

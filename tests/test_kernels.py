@@ -1,7 +1,9 @@
-"""Warp kernels (CPU) vs the numpy reference, and the reference vs closed forms (DESIGN §6-7).
+"""Warp kernels vs the numpy reference on every device, and the reference vs closed forms.
 
 Expected values come from ``kernels/reference.py`` evaluated in float64 on the same float32
 inputs, or from hand computation / finite differences; never from the kernels themselves.
+Kernel tests take the ``device`` fixture (tests/conftest.py): ``cpu`` always, ``cuda``
+where a CUDA device exists.
 """
 
 import numpy as np
@@ -12,12 +14,14 @@ from vitaplace.kernels import reference as ref
 wp = pytest.importorskip("warp")
 wk = pytest.importorskip("vitaplace.kernels.warp_kernels")
 
-DEVICE = "cpu"
 TOL = 1e-5  # max relative error, float32 kernels vs float64 reference
 
 # (B, n_l, n_below): batch of one, shapes that are not tile multiples, several tiles.
 SHAPES = [(1, 7, 5), (3, 33, 17), (150, 100, 72), (17, 65, 129)]
 SHAPE_IDS = ["x".join(map(str, s)) for s in SHAPES]
+# Wider layers (the paper's 1000 and 300 units, one past a tile): few shapes, big GEMMs.
+WIDE = [(150, 129, 300), (40, 1000, 300), (20, 300, 1000)]
+WIDE_IDS = ["x".join(map(str, s)) for s in WIDE]
 
 
 def rel_err(a, b) -> float:
@@ -32,8 +36,14 @@ def f64(*arrays):
     return tuple(np.asarray(a, dtype=np.float64) for a in arrays)
 
 
-def to_wp(a):
-    return wp.array(np.ascontiguousarray(a, dtype=np.float32), dtype=wp.float32, device=DEVICE)
+def to_wp(a, device, dtype=wp.float32):
+    return wp.array(np.ascontiguousarray(a, dtype=wp.dtype_to_numpy(dtype)), dtype=dtype, device=device)
+
+
+def poisoned(shape, device, dtype=wp.float32):
+    """An output buffer full of NaN (or -1 for integers): every element must be written."""
+    fill = -1 if dtype == wp.int32 else np.nan
+    return to_wp(np.full(shape, fill), device, dtype)
 
 
 def layer(shape, seed=0):
@@ -46,11 +56,26 @@ def layer(shape, seed=0):
     return Y, W, X
 
 
-def run_predict(Y, W, X, activation="leaky_relu", slope=0.2):
+def run_predict(Y, W, X, device, activation="leaky_relu", slope=0.2, tiles=None, store_prediction=True, slot=1):
+    """Returns (A, P, E, G, row energies) from the kernel; A, P None unless stored."""
     b, n_below = X.shape
-    outs = [wp.zeros((b, n_below), dtype=wp.float32, device=DEVICE) for _ in range(4)]
-    wk.predict(to_wp(Y), to_wp(W), to_wp(X), *outs, activation=activation, slope=slope)
-    return [o.numpy() for o in outs]
+    dev = wp.get_device(device)
+    cfg = tiles or wk.tile_config(dev, "predict", b)
+    outs = [poisoned((b, n_below), device) for _ in range(4)]
+    R = poisoned((3, b), device, wp.float64)
+    partial = poisoned(wk.row_partial_shape(b, n_below, cfg), device)
+    A, P = (outs[0], outs[1]) if store_prediction else (None, None)
+    wk.predict(to_wp(Y, device), to_wp(W, device), to_wp(X, device), outs[2], outs[3], partial, R, slot,
+               activation=activation, slope=slope, A=A, P=P, tiles=cfg)
+    got = [o.numpy() for o in outs]
+    rows = R.numpy()
+    assert np.isnan(rows[[s for s in range(3) if s != slot]]).all(), "only the given slot is written"
+    return (*(got[:2] if store_prediction else (None, None)), got[2], got[3], rows[slot])
+
+
+def latent_scratch(b, n_l, n_below, device, splits=None):
+    shape = wk.latent_scratch_shape(b, n_l, n_below, device)
+    return poisoned((splits or shape[0], b, n_l), device)
 
 
 # --------------------------------------------------------------------------------------
@@ -60,41 +85,90 @@ def run_predict(Y, W, X, activation="leaky_relu", slope=0.2):
 
 @pytest.mark.parametrize("activation", ref.ACTIVATIONS)
 @pytest.mark.parametrize("shape", SHAPES, ids=SHAPE_IDS)
-def test_predict_matches_reference(shape, activation):
+def test_predict_matches_reference(shape, activation, device):
     Y, W, X = layer(shape)
-    got = run_predict(Y, W, X, activation)
+    *got, rows = run_predict(Y, W, X, device, activation)
     expected = ref.predict(*f64(Y, W, X), activation)
     for name, g, e in zip("APEG", got, expected):
         assert g.dtype == np.float32
         assert rel_err(g, e) <= TOL, (name, rel_err(g, e))
+    assert rel_err(rows, np.sum(expected[2] ** 2, axis=1)) <= TOL
 
 
-def test_predict_leaky_relu_slope_is_runtime_parameter():
+@pytest.mark.parametrize("shape", WIDE, ids=WIDE_IDS)
+def test_wide_layers_match_reference(shape, device):
+    """All three kernels at the paper's layer widths (every tile, every K step)."""
+    b, n_l, n_below = shape
+    Y, W, X = layer(shape, seed=12)
+    _, _, E, G, rows = run_predict(Y, W, X, device, "leaky_relu", store_prediction=False)
+    _, _, e, g = ref.predict(*f64(Y, W, X))
+    assert rel_err(E, e) <= TOL and rel_err(G, g) <= TOL
+    assert rel_err(rows, np.sum(e**2, axis=1)) <= TOL
+    wY = to_wp(Y, device)
+    wk.latent_update(wY, to_wp(G, device), to_wp(W, device), 0.01, latent_scratch(b, n_l, n_below, device))
+    assert rel_err(wY.numpy(), ref.latent_step(*f64(Y, G, W), 0.01)) <= TOL
+    wW = to_wp(W, device)
+    wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), 0.01)
+    assert rel_err(wW.numpy(), ref.weight_step(*f64(W, Y, G), 0.01)) <= TOL
+
+
+def test_predict_without_prediction_outputs(device):
+    Y, W, X = layer((17, 65, 129), seed=13)
+    A, P, E, G, rows = run_predict(Y, W, X, device, "sigmoid", store_prediction=False)
+    _, _, e, g = ref.predict(*f64(Y, W, X), "sigmoid")
+    assert A is None and P is None
+    assert rel_err(E, e) <= TOL and rel_err(G, g) <= TOL
+    # sigmoid(0) = 0.5: padded columns must not leak into the row energies
+    assert rel_err(rows, np.sum(e**2, axis=1)) <= TOL
+
+
+def test_predict_leaky_relu_slope_is_runtime_parameter(device):
     Y, W, X = layer((3, 33, 17), seed=1)
     for slope in (0.01, 0.5):
-        got = run_predict(Y, W, X, "leaky_relu", slope)
+        *got, _ = run_predict(Y, W, X, device, "leaky_relu", slope)
         expected = ref.predict(*f64(Y, W, X), "leaky_relu", slope)
         for g, e in zip(got, expected):
             assert rel_err(g, e) <= TOL
 
 
+@pytest.mark.parametrize("splits", [None, 1, 3], ids=["auto", "split1", "split3"])
 @pytest.mark.parametrize("with_above", [True, False], ids=["E_above", "top"])
 @pytest.mark.parametrize("shape", SHAPES, ids=SHAPE_IDS)
-def test_latent_update_matches_reference(shape, with_above):
+def test_latent_update_matches_reference(shape, with_above, splits, device):
     b, n_l, n_below = shape
     Y, W, _ = layer(shape, seed=2)
     rng = np.random.default_rng(3)
     G = rng.standard_normal((b, n_below)).astype(np.float32)
     E_above = rng.standard_normal((b, n_l)).astype(np.float32) if with_above else None
     eta = 0.05
-    wY = to_wp(Y)
-    wk.latent_update(wY, to_wp(G), to_wp(W), eta, to_wp(E_above) if with_above else None)
+    wY = to_wp(Y, device)
+    tiles = wk.TileConfig(4, 8, 4, 32) if splits == 3 else None  # several K steps to split
+    scratch = latent_scratch(b, n_l, n_below, device, splits)
+    wk.latent_update(wY, to_wp(G, device), to_wp(W, device), eta, scratch,
+                     E_above=to_wp(E_above, device) if with_above else None, tiles=tiles)
     expected = ref.latent_step(*f64(Y, G, W), eta, None if E_above is None else f64(E_above)[0])
     assert rel_err(wY.numpy(), expected) <= TOL
 
 
+def test_latent_update_mask_leaves_inactive_rows_alone(device):
+    b, n_l, n_below = 9, 33, 17
+    Y, W, _ = layer((b, n_l, n_below), seed=14)
+    rng = np.random.default_rng(15)
+    G = rng.standard_normal((b, n_below)).astype(np.float32)
+    E_above = rng.standard_normal((b, n_l)).astype(np.float32)
+    mask = np.array([1, 0, 1, 1, 0, 0, 1, 0, 1], dtype=np.int32)
+    wY = to_wp(Y, device)
+    wk.latent_update(wY, to_wp(G, device), to_wp(W, device), 0.05, latent_scratch(b, n_l, n_below, device),
+                     E_above=to_wp(E_above, device), mask=to_wp(mask, device, wp.int32))
+    stepped = ref.latent_step(*f64(Y, G, W), 0.05, f64(E_above)[0])
+    got = wY.numpy()
+    on = mask == 1
+    assert rel_err(got[on], stepped[on]) <= TOL
+    np.testing.assert_array_equal(got[~on], Y[~on])
+
+
 @pytest.mark.parametrize("first_above", [True, False], ids=["E_above_first", "no_E_above"])
-def test_latent_update_accumulates_modalities(first_above):
+def test_latent_update_accumulates_modalities(first_above, device):
     """Joint layer: two (G, W) pairs (different n_below) accumulated into one Y."""
     b, n_l = 17, 65
     rng = np.random.default_rng(4)
@@ -105,9 +179,10 @@ def test_latent_update_accumulates_modalities(first_above):
     G2 = rng.standard_normal((b, 5)).astype(np.float32)
     E_above = rng.standard_normal((b, n_l)).astype(np.float32)
     eta = 0.01
-    wY = to_wp(Y)
-    wk.latent_update(wY, to_wp(G1), to_wp(W1), eta, to_wp(E_above) if first_above else None)
-    wk.latent_update(wY, to_wp(G2), to_wp(W2), eta, None)
+    wY = to_wp(Y, device)
+    wk.latent_update(wY, to_wp(G1, device), to_wp(W1, device), eta, latent_scratch(b, n_l, 129, device),
+                     E_above=to_wp(E_above, device) if first_above else None)
+    wk.latent_update(wY, to_wp(G2, device), to_wp(W2, device), eta, latent_scratch(b, n_l, 5, device))
     y, g1, w1, g2, w2, ea = f64(Y, G1, W1, G2, W2, E_above)
     expected = y + 2 * eta * (g1 @ w1.T + g2 @ w2.T)
     if first_above:
@@ -116,75 +191,102 @@ def test_latent_update_accumulates_modalities(first_above):
 
 
 @pytest.mark.parametrize("shape", SHAPES, ids=SHAPE_IDS)
-def test_weight_update_matches_reference(shape):
+def test_weight_update_matches_reference(shape, device):
     b, n_l, n_below = shape
     Y, W, _ = layer(shape, seed=5)
     G = np.random.default_rng(6).standard_normal((b, n_below)).astype(np.float32)
     eta = 0.05
-    wW = to_wp(W)
-    wk.weight_update(wW, to_wp(Y), to_wp(G), eta)
+    wW = to_wp(W, device)
+    wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), eta)
     assert rel_err(wW.numpy(), ref.weight_step(*f64(W, Y, G), eta)) <= TOL
 
 
-@pytest.mark.parametrize("shape", [(1, 1), (1, 7), (3, 17), (150, 300), (65, 129)])
-def test_squared_norm(shape):
-    E = np.random.default_rng(7).standard_normal(shape).astype(np.float32)
-    got = wk.squared_norm(to_wp(E))
-    assert isinstance(got, float)
-    expected = float(np.sum(E.astype(np.float64) ** 2))
-    assert abs(got - expected) <= 1e-6 * expected
+def test_gather_and_scatter_rows(device):
+    src = np.arange(7 * 5, dtype=np.float32).reshape(7, 5)
+    index = np.array([6, 0, 3], dtype=np.int32)
+    dst = poisoned((3, 5), device)
+    wk.gather_rows(to_wp(src, device), to_wp(index, device, wp.int32), dst)
+    np.testing.assert_array_equal(dst.numpy(), src[[6, 0, 3]])
+    store = to_wp(np.zeros((7, 5)), device)
+    wk.scatter_rows(dst, to_wp(index, device, wp.int32), store)
+    expected = np.zeros((7, 5), np.float32)
+    expected[[6, 0, 3]] = src[[6, 0, 3]]
+    np.testing.assert_array_equal(store.numpy(), expected)
 
 
-def test_squared_norm_empty():
-    assert wk.squared_norm(wp.zeros((0, 4), dtype=wp.float32, device=DEVICE)) == 0.0
+def test_stop_converged_hand_case(device):
+    """Two edges, four samples; limits 1 and 2: sample 0 is under both, 1 only under one,
+    2 was already stopped, 3 is exactly on a limit (not under it)."""
+    R = np.array([[0.5, 0.5, 9.0, 1.0], [1.9, 2.5, 9.0, 0.1]])
+    active = to_wp(np.array([1, 1, 0, 1]), device, wp.int32)
+    steps = to_wp(np.array([4, 4, 2, 4]), device, wp.int32)
+    wk.stop_converged(to_wp(R, device, wp.float64), to_wp(np.array([1.0, 2.0]), device, wp.float64), active, steps)
+    np.testing.assert_array_equal(active.numpy(), [0, 1, 0, 1])
+    np.testing.assert_array_equal(steps.numpy(), [4, 5, 2, 5])
 
 
-def _all_kernels_vs_reference(shape, activation="tanh"):
+def _all_kernels_vs_reference(shape, device, tiles, activation="tanh"):
     b, n_l, n_below = shape
     Y, W, X = layer(shape, seed=8)
-    for g, e in zip(run_predict(Y, W, X, activation), ref.predict(*f64(Y, W, X), activation)):
+    *got, rows = run_predict(Y, W, X, device, activation, tiles=tiles)
+    expected = ref.predict(*f64(Y, W, X), activation)
+    for g, e in zip(got, expected):
         assert rel_err(g, e) <= TOL
+    assert rel_err(rows, np.sum(expected[2] ** 2, axis=1)) <= TOL
     rng = np.random.default_rng(9)
     G = rng.standard_normal((b, n_below)).astype(np.float32)
     E_above = rng.standard_normal((b, n_l)).astype(np.float32)
-    wY = to_wp(Y)
-    wk.latent_update(wY, to_wp(G), to_wp(W), 0.03, to_wp(E_above))
+    wY = to_wp(Y, device)
+    wk.latent_update(wY, to_wp(G, device), to_wp(W, device), 0.03, latent_scratch(b, n_l, n_below, device, 2),
+                     E_above=to_wp(E_above, device), tiles=tiles)
     assert rel_err(wY.numpy(), ref.latent_step(*f64(Y, G, W), 0.03, f64(E_above)[0])) <= TOL
-    wW = to_wp(W)
-    wk.weight_update(wW, to_wp(Y), to_wp(G), 0.03)
+    wW = to_wp(W, device)
+    wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), 0.03, tiles=tiles)
     assert rel_err(wW.numpy(), ref.weight_step(*f64(W, Y, G), 0.03)) <= TOL
-    E = X - Y[:, :1]
-    assert abs(wk.squared_norm(to_wp(E)) - np.sum(f64(E)[0] ** 2)) <= 1e-6 * np.sum(f64(E)[0] ** 2)
 
 
-def test_small_tiles_many_partial_edges(monkeypatch):
+def test_small_tiles_many_partial_edges(device):
     """Tiny tiles: several tiles with ragged edges along M, N and K in every kernel."""
-    monkeypatch.setattr(wk, "_CPU_TILES", (4, 8, 4, 1))
-    _all_kernels_vs_reference((17, 65, 29))
-    _all_kernels_vs_reference((1, 7, 5))
+    tiles = wk.TileConfig(4, 8, 4, 32 if device == "cuda" else 1)
+    _all_kernels_vs_reference((17, 65, 29), device, tiles)
+    _all_kernels_vs_reference((1, 7, 5), device, tiles)
 
 
-def test_results_do_not_depend_on_block_dim(monkeypatch):
-    """Cooperative CPU blocks (fibers) with an odd block_dim give the same results."""
-    monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
-    monkeypatch.setattr(wk, "_CPU_TILES", (8, 16, 8, 7))
-    _all_kernels_vs_reference((17, 65, 29), "sigmoid")
+@pytest.mark.parametrize("block_dim", [7, 64, 256])
+def test_results_do_not_depend_on_block_dim(block_dim, device, monkeypatch):
+    """Any block_dim gives the same results (on CPU: cooperative fibres)."""
+    if device == "cpu":
+        monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
+    _all_kernels_vs_reference((17, 65, 29), device, wk.TileConfig(8, 16, 8, block_dim), "sigmoid")
 
 
-def test_warp_api_validation():
+def test_tile_config_shrinks_rows_for_small_batches(device):
+    big = wk.tile_config(device, "predict", 10_000)
+    assert wk.tile_config(device, "predict", 1).tm == 1
+    assert wk.tile_config(device, "predict", 5).tm == min(8, big.tm)
+    assert wk.tile_config(device, "weight", 3).tk == min(4, wk.tile_config(device, "weight", 10_000).tk)
+
+
+def test_warp_api_validation(device):
     Y, W, X = layer((3, 33, 17))
     b, n_below = X.shape
-    outs = [wp.zeros((b, n_below), dtype=wp.float32, device=DEVICE) for _ in range(4)]
+    E, G = (wp.zeros((b, n_below), dtype=wp.float32, device=device) for _ in range(2))
+    R = wp.zeros((1, b), dtype=wp.float64, device=device)
+    cfg = wk.tile_config(device, "predict", b)
+    part = wp.zeros(wk.row_partial_shape(b, n_below, cfg), dtype=wp.float32, device=device)
     with pytest.raises(ValueError, match="leaky_relu"):
-        wk.predict(to_wp(Y), to_wp(W), to_wp(X), *outs, activation="relu6")
+        wk.predict(to_wp(Y, device), to_wp(W, device), to_wp(X, device), E, G, part, R, 0, activation="relu6")
     with pytest.raises(ValueError, match="shape"):
-        wk.predict(to_wp(Y), to_wp(W.T), to_wp(X), *outs)
+        wk.predict(to_wp(Y, device), to_wp(W.T, device), to_wp(X, device), E, G, part, R, 0)
+    with pytest.raises(ValueError, match="slot"):
+        wk.predict(to_wp(Y, device), to_wp(W, device), to_wp(X, device), E, G, part, R, 1)
     with pytest.raises(ValueError, match="shape"):
-        wk.latent_update(to_wp(Y), to_wp(X), to_wp(W), 0.1, to_wp(X))
+        wk.latent_update(to_wp(Y, device), to_wp(X, device), to_wp(W, device), 0.1,
+                         latent_scratch(b, 33, 17, device), E_above=to_wp(X, device))
     with pytest.raises(ValueError, match="shape"):
-        wk.weight_update(to_wp(W), to_wp(Y), to_wp(X[:, :3]), 0.1)
+        wk.weight_update(to_wp(W, device), to_wp(Y, device), to_wp(X[:, :3], device), 0.1)
     with pytest.raises(TypeError):
-        wk.weight_update(wp.array(W.astype(np.float64), dtype=wp.float64, device=DEVICE), to_wp(Y), to_wp(X), 0.1)
+        wk.weight_update(to_wp(W, device, wp.float64), to_wp(Y, device), to_wp(X, device), 0.1)
 
 
 # --------------------------------------------------------------------------------------

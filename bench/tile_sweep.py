@@ -1,0 +1,207 @@
+#!/usr/bin/env python
+"""Sweep the Warp kernels' tile sizes and block_dim on one device at the paper's largest edge.
+
+The visual input edge dominates a MuPNet minibatch (W is 1000 x 10800; the other edges
+hold 3 % of the weights). For each kernel -- predict (M=B, N=10800, K=1000), the latent
+GEMM (M=B, N=1000, K=10800, split along K) and the weight update (M=1000, N=10800, K=B)
+-- every configuration is compiled, checked against a float64 reference on random data,
+and timed as the median of several replays of a graph of ``--launches`` launches (graphs
+keep launch gaps out). Where PyTorch with CUDA is installed, the same GEMMs through cuBLAS
+(float32, TF32 off) are timed in the same run as the baseline.
+
+    python bench/tile_sweep.py --device cuda --json sweep.json
+    python bench/tile_sweep.py --device cpu --quick      # smoke run of the script itself
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import statistics
+import sys
+import time
+
+import numpy as np
+import warp as wp
+
+from vitaplace.kernels import warp_kernels as wk
+
+CANDIDATES = [
+    wk.TileConfig(*c)
+    for c in [
+        (64, 64, 32, 128), (64, 64, 32, 256), (64, 64, 16, 128), (64, 64, 64, 128),
+        (32, 64, 32, 128), (64, 128, 32, 128), (64, 128, 32, 256), (128, 64, 32, 256),
+        (128, 128, 32, 256), (128, 128, 16, 256), (32, 32, 32, 64), (64, 128, 16, 256),
+    ]
+]
+CPU_CANDIDATES = [wk.TileConfig(64, 128, 32, 1), wk.TileConfig(32, 32, 32, 1)]
+
+
+def timed(fn, device: str, launches: int, repeat: int) -> float:
+    """Seconds per call of ``fn``: median over ``repeat`` replays of ``launches`` calls."""
+    fn()  # load the module, allocate
+    wp.synchronize_device(device)
+    dev = wp.get_device(device)
+    if dev.is_cuda:
+        with wp.ScopedCapture(device=device, force_module_load=False) as cap:
+            for _ in range(launches):
+                fn()
+        run = lambda: wp.capture_launch(cap.graph)  # noqa: E731
+    else:
+        def run():
+            for _ in range(launches):
+                fn()
+    run()
+    wp.synchronize_device(device)
+    samples = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        run()
+        wp.synchronize_device(device)
+        samples.append((time.perf_counter() - t0) / launches)
+    return statistics.median(samples)
+
+
+def rel_err(a, b) -> float:
+    return float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+
+
+def problem(b: int, n_l: int, n_below: int, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    Y = rng.standard_normal((b, n_l)).astype(np.float32)
+    W = (rng.standard_normal((n_l, n_below)) / np.sqrt(n_l)).astype(np.float32)
+    X = rng.random((b, n_below)).astype(np.float32)
+    G = rng.standard_normal((b, n_below)).astype(np.float32)
+    return Y, W, X, G
+
+
+def sweep(
+    device: str, shape: tuple[int, int, int], candidates, splits_list, launches: int, repeat: int, log, budget: float
+) -> list[dict]:
+    b, n_l, n_below = shape
+    Y, W, X, G = problem(b, n_l, n_below)
+    y64, w64, x64, g64 = (a.astype(np.float64) for a in (Y, W, X, G))
+    ref_e = x64 - np.where(y64 @ w64 > 0, y64 @ w64, 0.2 * (y64 @ w64))
+    ref_lat = y64 + 2 * 0.01 * (g64 @ w64.T)
+    ref_w = w64 + 2 * 0.01 * (y64.T @ g64)
+    d = lambda a: wp.array(a, dtype=wp.float32, device=device)  # noqa: E731
+    wY, wW, wX, wG = d(Y), d(W), d(X), d(G)
+    E, Gout = (wp.zeros((b, n_below), dtype=wp.float32, device=device) for _ in range(2))
+    R = wp.zeros((1, b), dtype=wp.float64, device=device)
+    rows = []
+    deadline = time.perf_counter() + budget
+    for cfg, kernel in itertools.product(candidates, ("predict", "latent", "weight")):
+        tiles = cfg._replace(tk=min(cfg.tk, b)) if kernel == "weight" else cfg._replace(tm=min(cfg.tm, wk._round_rows(b, cfg.tm)))
+        for splits in splits_list if kernel == "latent" else [1]:
+            row = {"kernel": kernel, "tm": tiles.tm, "tn": tiles.tn, "tk": tiles.tk, "block_dim": tiles.block_dim, "splits": splits}
+            if time.perf_counter() > deadline:
+                return rows
+            try:
+                t_compile = time.perf_counter()
+                if kernel == "predict":
+                    part = wp.zeros(wk.row_partial_shape(b, n_below, tiles), dtype=wp.float32, device=device)
+                    fn = lambda: wk.predict(wY, wW, wX, E, Gout, part, R, 0, tiles=tiles)  # noqa: E731
+                    fn()
+                    err = rel_err(E.numpy(), ref_e)
+                    flops = 2 * b * n_l * n_below
+                elif kernel == "latent":
+                    scratch = wp.zeros((splits, b, n_l), dtype=wp.float32, device=device)
+                    y = wp.clone(wY)
+                    fn = lambda: wk.latent_update(y, wG, wW, 0.01, scratch, tiles=tiles)  # noqa: E731
+                    fn()
+                    err = rel_err(y.numpy(), ref_lat)
+                    flops = 2 * b * n_l * n_below
+                else:
+                    w = wp.clone(wW)
+                    fn = lambda: wk.weight_update(w, wY, wG, 0.01, tiles=tiles)  # noqa: E731
+                    fn()
+                    err = rel_err(w.numpy(), ref_w)
+                    flops = 2 * b * n_l * n_below
+                row["compile_s"] = round(time.perf_counter() - t_compile, 2)
+                row["rel_err"] = err
+                row["seconds"] = timed(fn, device, launches, repeat)
+                row["tflops"] = flops / row["seconds"] / 1e12
+            except Exception as exc:  # noqa: BLE001 - a configuration that does not build or run is recorded
+                row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"
+            rows.append(row)
+            log(row)
+    return rows
+
+
+def cublas_baseline(shape: tuple[int, int, int], repeat: int) -> dict | None:
+    """The three GEMMs through torch.matmul (cuBLAS, float32, TF32 off)."""
+    try:
+        import torch
+    except ImportError:
+        return None
+    if not torch.cuda.is_available():
+        return None
+    torch.backends.cuda.matmul.allow_tf32 = False
+    b, n_l, n_below = shape
+    g = torch.Generator(device="cuda").manual_seed(0)
+    Y = torch.randn(b, n_l, device="cuda", generator=g)
+    W = torch.randn(n_l, n_below, device="cuda", generator=g)
+    G = torch.randn(b, n_below, device="cuda", generator=g)
+    out = {}
+    for name, fn in {
+        "predict": lambda: Y @ W,
+        "latent": lambda: G @ W.T,
+        "weight": lambda: Y.T @ G,
+    }.items():
+        for _ in range(3):
+            fn()
+        torch.cuda.synchronize()
+        times = []
+        for _ in range(repeat):
+            start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+            start.record()
+            for _ in range(20):
+                fn()
+            end.record()
+            torch.cuda.synchronize()
+            times.append(start.elapsed_time(end) / 1e3 / 20)
+        t = statistics.median(times)
+        out[name] = {"seconds": t, "tflops": 2 * b * n_l * n_below / t / 1e12}
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--device", default="cuda")
+    ap.add_argument("--batch", type=int, default=150)
+    ap.add_argument("--quick", action="store_true", help="small shapes, two configurations")
+    ap.add_argument("--launches", type=int, default=20)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--splits", type=int, nargs="*", default=[1, 2, 4, 8, 16])
+    ap.add_argument("--budget", type=float, default=1e9, help="seconds after which no new configuration is tried")
+    ap.add_argument("--json", help="write every row to this file")
+    args = ap.parse_args(argv)
+    wp.init()
+    dev = wp.get_device(args.device)
+    shape = (args.batch, 100, 1080) if args.quick else (args.batch, 1000, 10800)
+    candidates = CANDIDATES if dev.is_cuda else CPU_CANDIDATES
+    if args.quick:
+        candidates = candidates[:2]
+    print(f"device {dev.name} ({dev.alias}), shape B x n_l x n_below = {shape}", flush=True)
+    rows = sweep(args.device, shape, candidates, args.splits if dev.is_cuda else [1], args.launches, args.repeat,
+                 lambda r: print(json.dumps(r), flush=True), args.budget)
+    baseline = cublas_baseline(shape, args.repeat) if dev.is_cuda else None
+    print("\nbest per kernel (median seconds per launch):")
+    for kernel in ("predict", "latent", "weight"):
+        ok = [r for r in rows if r["kernel"] == kernel and "seconds" in r and r["rel_err"] < 1e-4]
+        if not ok:
+            print(f"  {kernel}: nothing ran")
+            continue
+        best = min(ok, key=lambda r: r["seconds"])
+        base = f", cuBLAS {baseline[kernel]['tflops']:.1f} TFLOP/s" if baseline else ""
+        print(f"  {kernel}: {best['tm']}x{best['tn']}x{best['tk']} block_dim {best['block_dim']} splits {best['splits']}: "
+              f"{best['seconds'] * 1e6:.0f} us, {best['tflops']:.1f} TFLOP/s{base}")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump({"device": dev.name, "shape": shape, "rows": rows, "cublas": baseline}, f, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
