@@ -40,6 +40,7 @@ updates against the numpy backend.
     python bench/pc_step.py --repeat 9
     python bench/pc_step.py --quick         # small shapes, smoke run
     python bench/pc_step.py --skip-warp --legacy
+    python bench/pc_step.py --device cuda   # GPU: cuBLAS vs PyTorch vs Warp, timed training
 """
 
 from __future__ import annotations
@@ -214,7 +215,9 @@ def _own_seconds() -> float:
 
 
 class BatchStateImpl:
-    """The project's own step: Network + BatchState on a backend."""
+    """The project's own step: Network + BatchState on a backend, one minibatch exactly as
+    ``Network.train`` runs it (captured and replayed as a CUDA graph on CUDA; energies
+    read back and checked once per minibatch)."""
 
     def __init__(self, prob: Problem, backend, steps: int | None = None) -> None:
         self.prob = prob
@@ -222,26 +225,29 @@ class BatchStateImpl:
         self.net = Network(prob.net.config, seed=0, backend=backend)
         self.state = self.net.batch_state(prob.batch)
         self.reset()
+        self._minibatch = self.net.backend.capture(self._body)
 
     def reset(self) -> None:
-        for name, handle in self.state.weights.items():
-            self.net.backend.upload(self.prob.weights[name], handle)
+        self.net.set_weights(self.prob.weights)
         ins = {m: self.prob.inputs[self.net.input_node(m)] for m in self.net.modalities}
         self.state.load(ins, self.prob.latents)
 
-    def run(self) -> None:
+    def _body(self) -> None:
         s = self.state
-        energy = s.predict_all()
+        s.predict_all(energy=self.steps == 0)
         for step in range(1, self.steps + 1):
             s.latent_step()
-            energy = s.predict_all()
-            s.check_finite(energy, f"inference step {step}")
+            s.predict_all(energy=step == self.steps)
         s.weight_step()
+
+    def run(self) -> None:
+        self._minibatch()
+        self.state.check_finite(self.state.energies(), "the benchmark minibatch")
 
     def result(self):
         be = self.net.backend
         return ({k: be.download(v) for k, v in self.state.Y.items()},
-                {k: be.download(v) for k, v in self.state.weights.items()})
+                {k: be.weights_to_host(v) for k, v in self.state.weights.items()})
 
 
 class GemmImpl:
@@ -304,24 +310,32 @@ class GemmImpl:
 
 
 class TorchImpl:
-    """The same step in PyTorch: float32, no_grad, in-place ops, fused leaky-ReLU kernels."""
+    """The same step in PyTorch: float32, no_grad, in-place ops, fused leaky-ReLU kernels.
+    On CUDA the minibatch is captured once as a CUDA graph and replayed (TF32 off); the
+    energies are checked once per minibatch, as in the project's step."""
 
-    def __init__(self, prob: Problem, threads: int) -> None:
+    def __init__(self, prob: Problem, threads: int, device: str = "cpu") -> None:
         import torch
 
-        torch.set_num_threads(threads)
-        self.torch, self.prob = torch, prob
+        if device == "cpu":
+            torch.set_num_threads(threads)
+        else:
+            torch.backends.cuda.matmul.allow_tf32 = False
+        self.torch, self.prob, self.device = torch, prob, device
         b, sz = prob.batch, prob.sizes
-        t = lambda a: torch.from_numpy(np.array(a, np.float32))  # noqa: E731
+        t = lambda a: torch.from_numpy(np.array(a, np.float32)).to(device)  # noqa: E731
         self.X = {n: t(x) for n, x in prob.inputs.items()}
         self.Y = {n: t(y) for n, y in prob.latents.items()}
         self.W = {n: t(w) for n, w in prob.weights.items()}
-        z = lambda e: torch.zeros((b, sz[e.lower]), dtype=torch.float32)  # noqa: E731
+        z = lambda e: torch.zeros((b, sz[e.lower]), dtype=torch.float32, device=device)  # noqa: E731
         self.A = {e.name: z(e) for e in prob.edges}
         self.P = {e.name: z(e) for e in prob.edges}
         self.E = {e.name: z(e) for e in prob.edges}
         self.G = {e.name: z(e) for e in prob.edges}
+        self.energy = torch.zeros(len(prob.edges), dtype=torch.float32, device=device)
         self.aten = torch.ops.aten
+        self.graph = None
+        self.calls = 0
 
     def reset(self) -> None:
         for n, y in self.prob.latents.items():
@@ -332,10 +346,9 @@ class TorchImpl:
     def _node(self, n):
         return self.Y[n] if n in self.Y else self.X[n]
 
-    def predict_all(self) -> list[float]:
+    def predict_all(self) -> None:
         torch, aten, slope = self.torch, self.aten, self.prob.slope
-        out = []
-        for e in self.prob.edges:
+        for i, e in enumerate(self.prob.edges):
             n = e.name
             A, P, E, G = self.A[n], self.P[n], self.E[n], self.G[n]
             torch.matmul(self.Y[e.upper], self.W[n], out=A)
@@ -343,8 +356,7 @@ class TorchImpl:
             torch.sub(self._node(e.lower), P, out=E)
             aten.leaky_relu_backward.grad_input(E, A, slope, False, grad_input=G)  # G = phi'(A) * E
             flat = E.view(-1)
-            out.append(torch.dot(flat, flat))
-        return [float(v) for v in out]
+            torch.dot(flat, flat, out=self.energy[i])
 
     def latent_step(self) -> None:
         for e in self.prob.edges:
@@ -357,18 +369,31 @@ class TorchImpl:
         for e in self.prob.edges:
             self.W[e.name].addmm_(self.Y[e.upper].t(), self.G[e.name], alpha=2.0 * e.eta_w)
 
-    def run(self) -> None:
+    def _body(self) -> None:
         with self.torch.no_grad():
             self.predict_all()
             for _ in range(self.prob.steps):
                 self.latent_step()
-                energy = self.predict_all()
-                if not all(np.isfinite(energy)):
-                    raise RuntimeError("torch step diverged")
+                self.predict_all()
             self.weight_step()
 
+    def run(self) -> None:
+        torch = self.torch
+        self.calls += 1
+        if self.device == "cpu" or self.calls == 1:
+            self._body()
+        else:
+            if self.graph is None:
+                self.graph = torch.cuda.CUDAGraph()
+                with torch.cuda.graph(self.graph):
+                    self._body()
+            self.graph.replay()
+        if not bool(torch.isfinite(self.energy).all()):
+            raise RuntimeError("torch step diverged")
+
     def result(self):
-        return ({k: v.numpy().copy() for k, v in self.Y.items()}, {k: v.numpy().copy() for k, v in self.W.items()})
+        return ({k: v.cpu().numpy().copy() for k, v in self.Y.items()},
+                {k: v.cpu().numpy().copy() for k, v in self.W.items()})
 
 
 class JaxImpl:
@@ -642,7 +667,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--single-thread-gemms", action="store_true",
                     help="also time the per-GEMM table with BLAS and torch limited to 1 thread")
     ap.add_argument("--json", help="also write the results to this file")
+    ap.add_argument("--device", choices=("cpu", "cuda"), default="cpu",
+                    help="cuda: cuBLAS GEMMs vs a PyTorch-CUDA step vs the Warp backend, then a timed training "
+                         "(bench/pc_step_cuda.py)")
+    ap.add_argument("--minibatches", type=int, default=10, help="cuda: minibatches per timed sample (default 10)")
+    ap.add_argument("--epochs", type=int, default=3, help="cuda: timed training epochs after the first (default 3)")
+    ap.add_argument("--tiles", help="cuda: use the fastest tile configurations of this bench/tile_sweep.py --json")
     args = ap.parse_args(argv)
+    if args.device == "cuda":
+        import pc_step_cuda
+
+        if args.tiles:
+            import tile_sweep
+
+            for kernel, r in tile_sweep.apply_best(args.tiles).items():
+                print(f"tiles from {args.tiles}: {kernel} {r['tm']}x{r['tn']}x{r['tk']} block_dim {r['block_dim']} "
+                      f"mathdx {r['mathdx']}")
+
+        out = pc_step_cuda.cuda_main(args, sys.modules[__name__])
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(out, f, indent=2)
+        return 0
 
     spec = QUICK if args.quick else PAPER
     print("optional frameworks:")

@@ -4,8 +4,8 @@
 The visual input edge dominates a MuPNet minibatch (W is 1000 x 10800; the other edges
 hold 3 % of the weights). For each kernel -- predict (M=B, N=10800, K=1000), the latent
 GEMM (M=B, N=1000, K=10800, split along K) and the weight update (M=1000, N=10800, K=B)
--- every configuration is compiled, checked against a float64 reference on random data,
-and timed as the median of several replays of a graph of ``--launches`` launches (graphs
+-- every configuration is compiled (all at once, in parallel threads), checked against a
+float64 reference on random data, and timed as the median of several replays of a graph of ``--launches`` launches (graphs
 keep launch gaps out). Where PyTorch with CUDA is installed, the same GEMMs through cuBLAS
 (float32, TF32 off) are timed in the same run as the baseline.
 
@@ -30,9 +30,8 @@ from vitaplace.kernels import warp_kernels as wk
 CANDIDATES = [
     wk.TileConfig(*c)
     for c in [
-        (64, 64, 32, 128), (64, 64, 32, 256), (64, 64, 16, 128), (64, 64, 64, 128),
-        (32, 64, 32, 128), (64, 128, 32, 128), (64, 128, 32, 256), (128, 64, 32, 256),
-        (128, 128, 32, 256), (128, 128, 16, 256), (32, 32, 32, 64), (64, 128, 16, 256),
+        (64, 64, 32, 128), (64, 128, 32, 256), (128, 64, 32, 256), (128, 128, 32, 256),
+        (32, 64, 32, 128), (64, 64, 64, 128), (64, 64, 32, 128, False), (64, 128, 32, 256, False),
     ]
 ]
 CPU_CANDIDATES = [wk.TileConfig(64, 128, 32, 1), wk.TileConfig(32, 32, 32, 1)]
@@ -79,54 +78,89 @@ def problem(b: int, n_l: int, n_below: int, seed: int = 0):
 def sweep(
     device: str, shape: tuple[int, int, int], candidates, splits_list, launches: int, repeat: int, log, budget: float
 ) -> list[dict]:
+    """Every (kernel, configuration): compiled first, all in parallel threads, then each
+    checked against the float64 reference and timed; a configuration that does not build
+    or run is recorded with its error. Stops timing new ones after ``budget`` seconds."""
     b, n_l, n_below = shape
     Y, W, X, G = problem(b, n_l, n_below)
     y64, w64, x64, g64 = (a.astype(np.float64) for a in (Y, W, X, G))
-    ref_e = x64 - np.where(y64 @ w64 > 0, y64 @ w64, 0.2 * (y64 @ w64))
-    ref_lat = y64 + 2 * 0.01 * (g64 @ w64.T)
-    ref_w = w64 + 2 * 0.01 * (y64.T @ g64)
+    a64 = y64 @ w64
+    reference = {
+        "predict": x64 - np.where(a64 > 0, a64, 0.2 * a64),
+        "latent": y64 + 2 * 0.01 * (g64 @ w64.T),
+        "weight": w64 + 2 * 0.01 * (y64.T @ g64),
+    }
     d = lambda a: wp.array(a, dtype=wp.float32, device=device)  # noqa: E731
-    wY, wW, wX, wG = d(Y), d(W), d(X), d(G)
+    wY, wW, wWt, wX, wG = d(Y), d(W), d(np.ascontiguousarray(W.T)), d(X), d(G)
     E, Gout = (wp.zeros((b, n_below), dtype=wp.float32, device=device) for _ in range(2))
     R = wp.zeros((1, b), dtype=wp.float64, device=device)
+
+    cases = []  # (row, fn, output array)
+    for cfg, kernel in itertools.product(candidates, ("predict", "latent", "weight")):
+        if kernel == "weight":
+            tiles = cfg._replace(tk=wk._round_rows(b, cfg.tk))
+        else:
+            tiles = cfg._replace(tm=wk._round_rows(b, cfg.tm))
+        for splits in splits_list if kernel == "latent" else [1]:
+            row = {"kernel": kernel, "tm": tiles.tm, "tn": tiles.tn, "tk": tiles.tk, "block_dim": tiles.block_dim,
+                   "mathdx": tiles.mathdx, "splits": splits}
+            if kernel == "predict":
+                part = wp.zeros(wk.row_partial_shape(b, n_below, tiles), dtype=wp.float32, device=device)
+                out = E
+                fn = lambda t=tiles, p=part: wk.predict(wY, wW, wX, E, Gout, p, R, 0, tiles=t)  # noqa: E731
+            elif kernel == "latent":
+                scratch = wp.zeros((splits, b, n_l), dtype=wp.float32, device=device) if splits > 1 else None
+                out = wp.clone(wY)
+                fn = lambda t=tiles, s=scratch, y=out: wk.latent_update(y, wG, wWt, 0.01, s, tiles=t)  # noqa: E731
+            else:
+                out = wp.clone(wW)
+                fn = lambda t=tiles, w=out: wk.weight_update(w, wY, wG, 0.01, tiles=t)  # noqa: E731
+            cases.append((row, fn, out))
+
+    t0 = time.perf_counter()
+    with wk.planned_kernels() as plan:
+        for _, fn, _ in cases:
+            fn()
+    try:
+        wk.preload(device, plan)
+    except Exception as exc:  # noqa: BLE001 - the configurations that fail show up one by one below
+        log({"preload_error": f"{type(exc).__name__}: {exc}"})
+    log({"compile_all_s": round(time.perf_counter() - t0, 1), "kernels": len(plan)})
+
     rows = []
     deadline = time.perf_counter() + budget
-    for cfg, kernel in itertools.product(candidates, ("predict", "latent", "weight")):
-        tiles = cfg._replace(tk=min(cfg.tk, b)) if kernel == "weight" else cfg._replace(tm=min(cfg.tm, wk._round_rows(b, cfg.tm)))
-        for splits in splits_list if kernel == "latent" else [1]:
-            row = {"kernel": kernel, "tm": tiles.tm, "tn": tiles.tn, "tk": tiles.tk, "block_dim": tiles.block_dim, "splits": splits}
-            if time.perf_counter() > deadline:
-                return rows
-            try:
-                t_compile = time.perf_counter()
-                if kernel == "predict":
-                    part = wp.zeros(wk.row_partial_shape(b, n_below, tiles), dtype=wp.float32, device=device)
-                    fn = lambda: wk.predict(wY, wW, wX, E, Gout, part, R, 0, tiles=tiles)  # noqa: E731
-                    fn()
-                    err = rel_err(E.numpy(), ref_e)
-                    flops = 2 * b * n_l * n_below
-                elif kernel == "latent":
-                    scratch = wp.zeros((splits, b, n_l), dtype=wp.float32, device=device)
-                    y = wp.clone(wY)
-                    fn = lambda: wk.latent_update(y, wG, wW, 0.01, scratch, tiles=tiles)  # noqa: E731
-                    fn()
-                    err = rel_err(y.numpy(), ref_lat)
-                    flops = 2 * b * n_l * n_below
-                else:
-                    w = wp.clone(wW)
-                    fn = lambda: wk.weight_update(w, wY, wG, 0.01, tiles=tiles)  # noqa: E731
-                    fn()
-                    err = rel_err(w.numpy(), ref_w)
-                    flops = 2 * b * n_l * n_below
-                row["compile_s"] = round(time.perf_counter() - t_compile, 2)
-                row["rel_err"] = err
-                row["seconds"] = timed(fn, device, launches, repeat)
-                row["tflops"] = flops / row["seconds"] / 1e12
-            except Exception as exc:  # noqa: BLE001 - a configuration that does not build or run is recorded
-                row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"
-            rows.append(row)
-            log(row)
+    for row, fn, out in cases:
+        if time.perf_counter() > deadline:
+            break
+        try:
+            fn()
+            row["rel_err"] = rel_err(out.numpy(), reference[row["kernel"]])
+            row["seconds"] = timed(fn, device, launches, repeat)
+            row["tflops"] = 2 * b * n_l * n_below / row["seconds"] / 1e12
+        except Exception as exc:  # noqa: BLE001 - a configuration that does not build or run is recorded
+            row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"
+        rows.append(row)
+        log(row)
     return rows
+
+
+def best_tiles(rows: list[dict]) -> dict[str, dict]:
+    """The fastest correct configuration of each kernel (rows of a sweep)."""
+    best = {}
+    for kernel in ("predict", "latent", "weight"):
+        ok = [r for r in rows if r["kernel"] == kernel and "seconds" in r and r["rel_err"] < 1e-4]
+        if ok:
+            best[kernel] = min(ok, key=lambda r: r["seconds"])
+    return best
+
+
+def apply_best(path: str) -> dict[str, dict]:
+    """Make the kernels use the winners of the sweep saved at ``path`` (on CUDA)."""
+    with open(path) as f:
+        best = best_tiles(json.load(f)["rows"])
+    for kernel, r in best.items():
+        wk.set_tile_config(kernel, wk.TileConfig(r["tm"], r["tn"], r["tk"], r["block_dim"], r["mathdx"]))
+    return best
 
 
 def cublas_baseline(shape: tuple[int, int, int], repeat: int) -> dict | None:
@@ -173,7 +207,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="small shapes, two configurations")
     ap.add_argument("--launches", type=int, default=20)
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--splits", type=int, nargs="*", default=[1, 2, 4, 8, 16])
+    ap.add_argument("--splits", type=int, nargs="*", default=[1, 4, 8],
+                    help="K-slices of the latent GEMM to try (1: the fused single kernel)")
     ap.add_argument("--budget", type=float, default=1e9, help="seconds after which no new configuration is tried")
     ap.add_argument("--json", help="write every row to this file")
     args = ap.parse_args(argv)
@@ -188,15 +223,15 @@ def main(argv: list[str] | None = None) -> int:
                  lambda r: print(json.dumps(r), flush=True), args.budget)
     baseline = cublas_baseline(shape, args.repeat) if dev.is_cuda else None
     print("\nbest per kernel (median seconds per launch):")
+    best = best_tiles(rows)
     for kernel in ("predict", "latent", "weight"):
-        ok = [r for r in rows if r["kernel"] == kernel and "seconds" in r and r["rel_err"] < 1e-4]
-        if not ok:
+        if kernel not in best:
             print(f"  {kernel}: nothing ran")
             continue
-        best = min(ok, key=lambda r: r["seconds"])
+        r = best[kernel]
         base = f", cuBLAS {baseline[kernel]['tflops']:.1f} TFLOP/s" if baseline else ""
-        print(f"  {kernel}: {best['tm']}x{best['tn']}x{best['tk']} block_dim {best['block_dim']} splits {best['splits']}: "
-              f"{best['seconds'] * 1e6:.0f} us, {best['tflops']:.1f} TFLOP/s{base}")
+        print(f"  {kernel}: {r['tm']}x{r['tn']}x{r['tk']} block_dim {r['block_dim']} mathdx {r['mathdx']} "
+              f"splits {r['splits']}: {r['seconds'] * 1e6:.0f} us, {r['tflops']:.1f} TFLOP/s{base}")
     if args.json:
         with open(args.json, "w") as f:
             json.dump({"device": dev.name, "shape": shape, "rows": rows, "cublas": baseline}, f, indent=1)

@@ -2,7 +2,9 @@
 
 A backend owns array storage and the operations the network is built from:
 
-    predict(Y, W, X, E, G, R, k)      A = Y W, E = X - phi(A), G = phi'(A) * E,
+    weights(W) / upload_weights(W, h) / weights_to_host(h)
+                                      a layer's weights onto the device (new, or in place) and back
+    predict(Y, W, X, E, G, R, k)      A = Y W, E = X - phi(A), G = phi'(A) * E, and with R:
                                       R[k, r] = sum_c E[r, c]^2   (per-sample energy, float64)
     latent_update(Y, G, W, eta, E_up, mask)
                                       Y <- Y + 2 eta mask * (G W^T - E_up)      (-eta dF/dY)
@@ -25,7 +27,7 @@ from __future__ import annotations
 import ctypes
 import sys
 from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
@@ -46,7 +48,12 @@ class Backend(Protocol):
     def upload(self, host: np.ndarray, dst: Any) -> None: ...
     def download(self, src: Any) -> np.ndarray: ...
     def fill(self, dst: Any, value: float) -> None: ...
-    def predict(self, Y: Any, W: Any, X: Any, E: Any, G: Any, R: Any, slot: int, activation: str, slope: float) -> None: ...
+    def weights(self, host: np.ndarray) -> Any: ...
+    def upload_weights(self, host: np.ndarray, handle: Any) -> None: ...
+    def weights_to_host(self, handle: Any) -> np.ndarray: ...
+    def predict(
+        self, Y: Any, W: Any, X: Any, E: Any, G: Any, R: Any | None, slot: int, activation: str, slope: float
+    ) -> None: ...
     def latent_update(self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None, mask: Any | None) -> None: ...
     def weight_update(self, W: Any, Y: Any, G: Any, eta: float) -> None: ...
     def gather_rows(self, src: Any, index: Any, dst: Any) -> None: ...
@@ -105,6 +112,15 @@ class NumpyBackend(_Scratch):
     def fill(self, dst: np.ndarray, value: float) -> None:
         dst.fill(value)
 
+    def weights(self, host: np.ndarray) -> np.ndarray:
+        return np.array(host, dtype=self.dtype)
+
+    def upload_weights(self, host: np.ndarray, handle: np.ndarray) -> None:
+        self.upload(host, handle)
+
+    def weights_to_host(self, handle: np.ndarray) -> np.ndarray:
+        return handle.copy()
+
     def predict(self, Y, W, X, E, G, R, slot: int, activation: str, slope: float) -> None:
         A = self._buffer("A", E.shape)
         np.matmul(Y, W, out=A)
@@ -120,7 +136,8 @@ class NumpyBackend(_Scratch):
         else:
             np.subtract(X, reference.activation(A, activation, slope), out=E)
             np.multiply(reference.activation_derivative(A, activation, slope), E, out=G)
-        R[slot] = np.einsum("ij,ij->i", E, E)  # float32 row sums, stored as float64
+        if R is not None:
+            R[slot] = np.einsum("ij,ij->i", E, E)  # float32 row sums, stored as float64
 
     def latent_update(self, Y, G, W, eta: float, E_above, mask) -> None:
         # Y <- Y + 2 eta (G W^T - E_above): GEMM into a (batch x n_l) scratch, then small passes.
@@ -160,6 +177,11 @@ class NumpyBackend(_Scratch):
 
     def capture(self, fn: Callable[[], None]) -> Callable[[], None]:
         return fn
+
+
+class _Weights(NamedTuple):
+    W: Any
+    Wt: Any
 
 
 class WarpBackend(_Scratch):
@@ -202,19 +224,32 @@ class WarpBackend(_Scratch):
     def fill(self, dst: Any, value: float) -> None:
         dst.fill_(value)
 
-    def predict(self, Y, W, X, E, G, R, slot: int, activation: str, slope: float) -> None:
+    def weights(self, host: np.ndarray) -> _Weights:
+        """``W`` and its transpose ``Wt`` (read by the latent update), kept in step by
+        the weight update."""
+        return _Weights(self.to_device(host), self.to_device(np.asarray(host).T))
+
+    def upload_weights(self, host: np.ndarray, handle: _Weights) -> None:
+        self.upload(host, handle.W)
+        self.upload(np.asarray(host).T, handle.Wt)
+
+    def weights_to_host(self, handle: _Weights) -> np.ndarray:
+        return handle.W.numpy().copy()
+
+    def predict(self, Y, W: _Weights, X, E, G, R, slot: int, activation: str, slope: float) -> None:
         k = self._kernels
         tiles = k.tile_config(self._device, "predict", Y.shape[0])
-        partial = self._buffer("row_partial", k.row_partial_shape(Y.shape[0], W.shape[1], tiles))
-        k.predict(Y, W, X, E, G, partial, R, slot, activation=activation, slope=slope, tiles=tiles)
+        partial = None if R is None else self._buffer("row_partial", k.row_partial_shape(Y.shape[0], W.W.shape[1], tiles))
+        k.predict(Y, W.W, X, E, G, partial, R, slot, activation=activation, slope=slope, tiles=tiles)
 
-    def latent_update(self, Y, G, W, eta: float, E_above, mask) -> None:
+    def latent_update(self, Y, G, W: _Weights, eta: float, E_above, mask) -> None:
         k = self._kernels
-        scratch = self._buffer("latent", k.latent_scratch_shape(Y.shape[0], Y.shape[1], W.shape[1], self._device))
-        k.latent_update(Y, G, W, eta, scratch, E_above=E_above, mask=mask)
+        shape = k.latent_scratch_shape(Y.shape[0], Y.shape[1], W.W.shape[1], self._device)
+        scratch = self._buffer("latent", shape) if shape[0] else None
+        k.latent_update(Y, G, W.Wt, eta, scratch, E_above=E_above, mask=mask)
 
-    def weight_update(self, W, Y, G, eta: float) -> None:
-        self._kernels.weight_update(W, Y, G, eta)
+    def weight_update(self, W: _Weights, Y, G, eta: float) -> None:
+        self._kernels.weight_update(W.W, Y, G, eta, Wt=W.Wt)
 
     def gather_rows(self, src, index, dst) -> None:
         self._kernels.gather_rows(src, index, dst)
@@ -226,9 +261,12 @@ class WarpBackend(_Scratch):
         self._kernels.stop_converged(R, limits, active, steps)
 
     def capture(self, fn: Callable[[], None]) -> Callable[[], None]:
-        """On CUDA: run ``fn`` once directly (loads the kernels, allocates the scratch),
-        then record its launches as a CUDA graph the next time and replay that graph from
-        then on. Elsewhere: ``fn`` itself."""
+        """Compile every kernel ``fn`` launches, in parallel, then return its replay: on
+        CUDA ``fn`` runs once directly (allocating its scratch), is recorded as a CUDA graph
+        the next time, and that graph is replayed from then on; elsewhere ``fn`` itself."""
+        with self._kernels.planned_kernels() as plan:
+            fn()
+        self._kernels.preload(self._device, plan)
         if not self._device.is_cuda:
             return fn
         wp = self._wp

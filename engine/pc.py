@@ -238,27 +238,26 @@ class Network:
         return present, n
 
     def set_weights(self, weights: Mapping[str, np.ndarray]) -> None:
-        """Replace weights (by edge name, shapes checked); the backend copies are refreshed."""
+        """Replace weights (by edge name, shapes checked); the backend copies are updated in
+        place (buffers, and graphs captured over them, stay valid)."""
         for name, w in weights.items():
             if name not in self.weights or np.shape(w) != self.weights[name].shape:
                 raise NetworkError(f"weights '{name}' unknown or misshaped: {np.shape(w)}")
         self._sync_weights_to_host()
         self.weights.update({name: np.array(w, np.float32) for name, w in weights.items()})
-        self._device_weights = None
+        if self._device_weights is not None:
+            for name in weights:
+                self.backend.upload_weights(self.weights[name], self._device_weights[name])
 
     def _device_weight_handles(self) -> dict[str, object]:
         if self._device_weights is None:
-            handles = {}
-            for name, w in self.weights.items():
-                handles[name] = self.backend.empty(w.shape)
-                self.backend.upload(w, handles[name])
-            self._device_weights = handles
+            self._device_weights = {name: self.backend.weights(w) for name, w in self.weights.items()}
         return self._device_weights
 
     def _sync_weights_to_host(self) -> None:
         if self._device_weights is not None:
             for name, handle in self._device_weights.items():
-                self.weights[name] = self.backend.download(handle)
+                self.weights[name] = self.backend.weights_to_host(handle)
 
     def batch_state(self, batch: int, modalities: Sequence[str] | None = None) -> BatchState:
         """Buffers for a minibatch of ``batch`` samples of the given (default: all) modalities."""
@@ -495,12 +494,14 @@ class BatchState:
     def _node(self, name: str):
         return self.Y[name] if name in self.Y else self.X[name]
 
-    def predict_all(self) -> None:
-        """Eq. 1 on every edge from the current latents, and each sample's energy per edge."""
+    def predict_all(self, energy: bool = True) -> None:
+        """Eq. 1 on every edge from the current latents, and (``energy``) each sample's
+        energy per edge into ``R``."""
         act, slope = self.net.config.activation, self.net.config.slope
+        R = self.R if energy else None
         for slot, e in enumerate(self.edges):
             n = e.name
-            self.be.predict(self.Y[e.upper], self.weights[n], self._node(e.lower), self.E[n], self.G[n], self.R, slot, act, slope)
+            self.be.predict(self.Y[e.upper], self.weights[n], self._node(e.lower), self.E[n], self.G[n], R, slot, act, slope)
 
     def energies(self) -> dict[str, float]:
         """F per edge (eq. 2) of the last `predict_all` (waits for the device)."""
@@ -529,10 +530,10 @@ class BatchState:
             self.be.gather_rows(inputs[node], self.index, x)
         for node, y in self.Y.items():
             self.be.gather_rows(latents[node], self.index, y)
-        self.predict_all()
-        for _ in range(steps):
+        self.predict_all(energy=steps == 0)
+        for step in range(1, steps + 1):
             self.latent_step()
-            self.predict_all()
+            self.predict_all(energy=step == steps)
         self.weight_step()
         for node, y in self.Y.items():
             self.be.scatter_rows(y, self.index, latents[node])

@@ -6,8 +6,9 @@ whole training or inference run on the device:
 (a) :func:`predict`        ``A = Y @ W``, ``P = phi(A)``, ``E = X - P``, ``G = phi'(A) * E``
                            and each row's ``sum(E**2)`` (the per-sample energy of the edge)
 (b) :func:`latent_update`  ``Y <- Y + 2 eta m * (G @ W.T - E_above)``  (in place; ``m`` the
-                           per-sample 0/1 mask of samples still being updated)
-(c) :func:`weight_update`  ``W <- W + 2 eta Y.T @ G``                 (in place)
+                           per-sample 0/1 mask of samples still being updated; reads the
+                           transposed copy ``Wt`` of ``W``)
+(c) :func:`weight_update`  ``W <- W + 2 eta Y.T @ G`` and ``Wt <- W.T`` (in place)
 (d) :func:`gather_rows` / :func:`scatter_rows`   minibatch rows of a device-resident store
 (e) :func:`stop_converged` per-sample stopping of test-time inference
 
@@ -26,6 +27,9 @@ Design notes
 * The latent update's GEMM has few output tiles (batch x n_l) and a long K (n_below), so
   on CUDA it is split along K: each split writes its partial product to a scratch buffer
   and a fused element-wise kernel sums the splits in a fixed order and applies the step.
+  Small layers (and the CPU) use one kernel for GEMM and step. It reads ``Wt``, the
+  transpose of ``W`` that the weight update keeps, so both GEMM operands are read along
+  rows (a transposed tile load of ``W`` ran at a third of the speed on an H100).
   No atomics anywhere: results are bitwise reproducible run to run on one device.
 * Per-row energies are written per column tile and summed by a second small kernel in a
   fixed order, for the same reason.
@@ -33,8 +37,11 @@ Design notes
   scratch exists), so a sequence of them can be captured as a CUDA graph.
 """
 
+import contextlib
 import functools
+import os
 import threading
+from collections.abc import Iterator
 from typing import NamedTuple
 
 import warp as wp
@@ -46,6 +53,9 @@ __all__ = [
     "TileConfig",
     "tile_config",
     "latent_splits",
+    "set_tile_config",
+    "planned_kernels",
+    "preload",
     "predict",
     "latent_update",
     "weight_update",
@@ -163,13 +173,15 @@ def _check_activation(name: str) -> None:
 
 
 class TileConfig(NamedTuple):
-    """Static tile sizes of one GEMM (output tile tm x tn, K step tk) and the launch
-    ``block_dim``."""
+    """Static tile sizes of one GEMM (output tile tm x tn, K step tk), the launch
+    ``block_dim``, and whether ``tile_matmul`` goes through libmathdx (cuBLASDx) on CUDA
+    (``False``: Warp's own tile GEMM, which compiles in a fraction of the time)."""
 
     tm: int
     tn: int
     tk: int
     block_dim: int
+    mathdx: bool = True
 
 
 # CPU: Warp runs each tile serially with one thread through its scalar register-blocked
@@ -189,6 +201,16 @@ _CUDA_TILES = {
 }
 #: Element-wise / per-row kernels: threads per block on CUDA.
 _SIMT_BLOCK = 256
+
+
+def set_tile_config(kernel: str, tiles: TileConfig, cuda: bool = True) -> None:
+    """Use ``tiles`` for ``kernel`` (``predict``, ``latent``, ``weight``) from now on, on
+    CUDA devices (or on the CPU with ``cuda=False``): e.g. the winner of a tile sweep on
+    another GPU model."""
+    table = _CUDA_TILES if cuda else _CPU_TILES
+    if kernel not in table:
+        raise ValueError(f"unknown kernel {kernel!r}; valid: {', '.join(table)}")
+    table[kernel] = TileConfig(*tiles)
 
 
 def _round_rows(m: int, cap: int) -> int:
@@ -218,13 +240,13 @@ def _cdiv(a: int, b: int) -> int:
 
 def latent_splits(device, tiles: TileConfig, batch: int, n_l: int, n_below: int) -> int:
     """How many K-slices the latent GEMM is split into: 1 on CPU; on CUDA enough blocks for
-    two waves over the multiprocessors, each slice at least 8 K-steps long."""
+    two waves over the multiprocessors, each slice at least 16 K-steps long."""
     dev = wp.get_device(device)
     if not dev.is_cuda:
         return 1
     blocks = _cdiv(batch, tiles.tm) * _cdiv(n_l, tiles.tn)
     want = _cdiv(2 * dev.sm_count, blocks)
-    return max(1, min(want, _cdiv(n_below, 8 * tiles.tk)))
+    return max(1, min(want, _cdiv(n_below, 16 * tiles.tk)))
 
 
 # --------------------------------------------------------------------------------------
@@ -236,16 +258,17 @@ _F32_3D = wp.array3d(dtype=wp.float32)
 _F64_2D = wp.array2d(dtype=wp.float64)
 
 
-def _tiled_kernel(fn, name: str):
+def _tiled_kernel(fn, name: str, mathdx: bool = True):
     """Compile ``fn`` as a forward-only kernel in its own module, named ``name``."""
-    fn.__name__ = fn.__qualname__ = name
-    return wp.kernel(fn, enable_backward=False, module="unique")
+    fn.__name__ = fn.__qualname__ = name + ("" if mathdx else "_nomathdx")
+    return wp.kernel(fn, enable_backward=False, module="unique", module_options={"enable_mathdx_gemm": mathdx})
 
 
 @functools.cache
-def _predict_kernel(tm: int, tn: int, tk: int, activation: str, store_prediction: bool):
+def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, with_energy: bool):
     """(a) GEMM M=B, N=n_below, K=n_l, then the epilogue; ``row_partial[j, r]`` receives
-    row r's sum of squared errors over column tile j."""
+    row r's sum of squared errors over column tile j (when ``with_energy``)."""
+    tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
     phi, gain = _PHI[activation]
 
     def predict_kernel(
@@ -274,38 +297,77 @@ def _predict_kernel(tm: int, tn: int, tk: int, activation: str, store_prediction
             wp.tile_store(P, p, offset=(row, col))
         wp.tile_store(E, e, offset=(row, col))
         wp.tile_store(G, g, offset=(row, col))
-        if wp.static(activation == "sigmoid"):
-            # padded columns read X = A = 0, so e = -phi(0) there: zero them for the sums
-            cols = wp.tile_arange(tn, dtype=wp.int32)
-            left = wp.tile_ones(shape=(tn,), dtype=wp.int32) * (X.shape[1] - col)
-            e = e * wp.tile_broadcast(wp.tile_map(_below, cols, left), shape=(tm, tn))
-        wp.tile_store(row_partial[j], wp.tile_sum(wp.tile_map(_square, e), axis=1), offset=row)
+        if wp.static(with_energy):
+            if wp.static(activation == "sigmoid"):
+                # padded columns read X = A = 0, so e = -phi(0) there: zero them for the sums
+                cols = wp.tile_arange(tn, dtype=wp.int32)
+                left = wp.tile_ones(shape=(tn,), dtype=wp.int32) * (X.shape[1] - col)
+                e = e * wp.tile_broadcast(wp.tile_map(_below, cols, left), shape=(tm, tn))
+            wp.tile_store(row_partial[j], wp.tile_sum(wp.tile_map(_square, e), axis=1), offset=row)
 
-    tag = "AP" if store_prediction else "EG"
-    return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tag}_{tm}x{tn}x{tk}")
+    tag = ("AP" if store_prediction else "EG") + ("R" if with_energy else "")
+    return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tag}_{tm}x{tn}x{tk}", tiles.mathdx)
+
+
+@wp.func
+def _row_gate(active: wp.int32) -> wp.float32:
+    return wp.where(active != 0, wp.float32(1.0), wp.float32(0.0))
 
 
 @functools.cache
-def _latent_gemm_kernel(tm: int, tn: int, tk: int):
-    """(b, GEMM) ``D[s] = G[:, Ks] @ W[:, Ks].T`` for K-slice ``s`` of ``steps`` K-steps."""
+def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool):
+    """(b) in one kernel: ``Y += 2 eta * mask * (G @ Wt - E_above)``, GEMM M=B, N=n_l,
+    K=n_below (``Wt`` = W transposed, n_below x n_l).
 
-    def latent_gemm_kernel(G: _F32_2D, W: _F32_2D, steps: int, D: _F32_3D):
+    Output tile (i, j) reads only Y's tile (i, j), after its GEMM, so Y is updated in place.
+    """
+    tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
+
+    def latent_kernel(
+        Y: _F32_2D, G: _F32_2D, Wt: _F32_2D, E_above: _F32_2D, mask: wp.array(dtype=wp.int32), two_eta: wp.float32
+    ):
+        i, j = wp.tid()
+        row, col = i * tm, j * tn
+        d = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
+        for k in range((G.shape[1] + tk - 1) // tk):
+            g = wp.tile_load(G, shape=(tm, tk), offset=(row, k * tk))
+            w = wp.tile_load(Wt, shape=(tk, tn), offset=(k * tk, col))
+            wp.tile_matmul(g, w, d)
+        if wp.static(has_above):
+            d = d - wp.tile_load(E_above, shape=(tm, tn), offset=(row, col))
+        d = d * two_eta
+        if wp.static(has_mask):
+            gate = wp.tile_map(_row_gate, wp.tile_load(mask, shape=(tm,), offset=(row,)))
+            d = d * wp.tile_broadcast(wp.tile_reshape(gate, shape=(tm, 1)), shape=(tm, tn))
+        wp.tile_store(Y, wp.tile_load(Y, shape=(tm, tn), offset=(row, col)) + d, offset=(row, col))
+
+    name = f"pc_latent_{'above' if has_above else 'top'}_{'masked' if has_mask else 'all'}_{tm}x{tn}x{tk}"
+    return _tiled_kernel(latent_kernel, name, tiles.mathdx)
+
+
+@functools.cache
+def _latent_gemm_kernel(tiles: TileConfig):
+    """(b, split along K) ``D[s] = G[:, Ks] @ Wt[Ks, :]`` for K-slice ``s`` of ``steps`` K-steps."""
+    tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
+
+    def latent_gemm_kernel(G: _F32_2D, Wt: _F32_2D, steps: int, D: _F32_3D):
         i, j, s = wp.tid()
         row, col = i * tm, j * tn
         d = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
         end = wp.min((s + 1) * steps, (G.shape[1] + tk - 1) // tk)
         for k in range(s * steps, end):
             g = wp.tile_load(G, shape=(tm, tk), offset=(row, k * tk))
-            w = wp.tile_load(W, shape=(tn, tk), offset=(col, k * tk))
-            wp.tile_matmul(g, wp.tile_transpose(w), d)
+            w = wp.tile_load(Wt, shape=(tk, tn), offset=(k * tk, col))
+            wp.tile_matmul(g, w, d)
         wp.tile_store(D[s], d, offset=(row, col))
 
-    return _tiled_kernel(latent_gemm_kernel, f"pc_latent_gemm_{tm}x{tn}x{tk}")
+    return _tiled_kernel(latent_gemm_kernel, f"pc_latent_gemm_{tm}x{tn}x{tk}", tiles.mathdx)
 
 
 @functools.cache
 def _latent_step_kernel(has_above: bool, has_mask: bool):
-    """(b, epilogue) ``Y += 2 eta * mask * (sum_s D[s] - E_above)``, splits summed in order."""
+    """(b, split along K: epilogue) ``Y += 2 eta * mask * (sum_s D[s] - E_above)``, the
+    splits summed in order."""
 
     def latent_step_kernel(
         Y: _F32_2D, D: _F32_3D, E_above: _F32_2D, mask: wp.array(dtype=wp.int32), two_eta: wp.float32
@@ -326,10 +388,12 @@ def _latent_step_kernel(has_above: bool, has_mask: bool):
 
 
 @functools.cache
-def _weight_kernel(tm: int, tn: int, tk: int):
-    """(c) W += 2 eta Y.T @ G (in place).   GEMM M=n_l, N=n_below, K=B."""
+def _weight_kernel(tiles: TileConfig, with_transpose: bool):
+    """(c) W += 2 eta Y.T @ G (in place), and Wt = W.T of the result when asked.
+    GEMM M=n_l, N=n_below, K=B."""
+    tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
 
-    def weight_kernel(W: _F32_2D, Y: _F32_2D, G: _F32_2D, two_eta: wp.float32):
+    def weight_kernel(W: _F32_2D, Y: _F32_2D, G: _F32_2D, two_eta: wp.float32, Wt: _F32_2D):
         i, j = wp.tid()
         row, col = i * tm, j * tn
         d = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
@@ -337,10 +401,12 @@ def _weight_kernel(tm: int, tn: int, tk: int):
             y = wp.tile_load(Y, shape=(tk, tm), offset=(k * tk, row))
             g = wp.tile_load(G, shape=(tk, tn), offset=(k * tk, col))
             wp.tile_matmul(wp.tile_transpose(y), g, d)
-        w = wp.tile_load(W, shape=(tm, tn), offset=(row, col))
-        wp.tile_store(W, w + d * two_eta, offset=(row, col))
+        w = wp.tile_load(W, shape=(tm, tn), offset=(row, col)) + d * two_eta
+        wp.tile_store(W, w, offset=(row, col))
+        if wp.static(with_transpose):
+            wp.tile_store(Wt, wp.tile_transpose(w), offset=(col, row))
 
-    return _tiled_kernel(weight_kernel, f"pc_weight_{tm}x{tn}x{tk}")
+    return _tiled_kernel(weight_kernel, f"pc_weight_{'WWt' if with_transpose else 'W'}_{tm}x{tn}x{tk}", tiles.mathdx)
 
 
 @wp.kernel(enable_backward=False, module="unique")
@@ -405,8 +471,50 @@ def _check(name: str, arr, shape: tuple[int, ...], device, dtype=wp.float32) -> 
         raise ValueError(f"{name} must be contiguous")
 
 
+# While a plan is being recorded (see `planned_kernels`), launches are recorded, not run.
+_plan: list[tuple[wp.Kernel, int]] | None = None
+
+
+def _launch_tiled(kernel, dim, inputs, block_dim: int, device) -> None:
+    if _plan is not None:
+        _plan.append((kernel, block_dim))
+        return
+    wp.launch_tiled(kernel, dim=dim, inputs=inputs, block_dim=block_dim, device=device)
+
+
 def _simt_launch(kernel, dim, inputs, device) -> None:
-    wp.launch(kernel, dim=dim, inputs=inputs, device=device, block_dim=_SIMT_BLOCK if device.is_cuda else 1)
+    block_dim = _SIMT_BLOCK if device.is_cuda else 1
+    if _plan is not None:
+        _plan.append((kernel, block_dim))
+        return
+    wp.launch(kernel, dim=dim, inputs=inputs, device=device, block_dim=block_dim)
+
+
+@contextlib.contextmanager
+def planned_kernels() -> Iterator[list[tuple[wp.Kernel, int]]]:
+    """Record, instead of launching, the kernels the operations called inside the block
+    would launch (checks and scratch allocation still happen): the list of
+    ``(kernel, block_dim)`` to hand to :func:`preload`."""
+    global _plan
+    outer, _plan = _plan, []
+    try:
+        yield _plan
+    finally:
+        _plan = outer
+
+
+def preload(device, kernels: list[tuple[wp.Kernel, int]], workers: int | None = None) -> None:
+    """Compile and load ``kernels`` on ``device`` in parallel threads (one per core by
+    default). A cuBLASDx tile GEMM takes tens of seconds to compile on CUDA; compiled
+    modules are cached on disk by Warp, so this costs nothing the second time."""
+    _ensure_init()
+    by_block: dict[int, list] = {}
+    for kernel, block_dim in kernels:
+        modules = by_block.setdefault(block_dim, [])
+        if kernel.module not in modules:
+            modules.append(kernel.module)
+    for block_dim, modules in by_block.items():
+        wp.force_load(device=device, modules=modules, block_dim=block_dim, max_workers=workers or os.cpu_count() or 1)
 
 
 def row_partial_shape(batch: int, n_below: int, tiles: TileConfig) -> tuple[int, int]:
@@ -420,21 +528,21 @@ def predict(
     X,
     E,
     G,
-    row_partial,
-    row_energy,
-    slot: int,
+    row_partial=None,
+    row_energy=None,
+    slot: int = 0,
     activation: str = "leaky_relu",
     slope: float = 0.2,
     A=None,
     P=None,
     tiles: TileConfig | None = None,
 ) -> None:
-    """Kernel (a): ``E = X - phi(Y @ W)``, ``G = phi'(Y @ W) * E`` and
-    ``row_energy[slot, r] = sum_c E[r, c]**2`` (float64); ``A = Y @ W`` and ``P = phi(A)``
-    too when given.
+    """Kernel (a): ``E = X - phi(Y @ W)``, ``G = phi'(Y @ W) * E``; with ``row_energy``,
+    also ``row_energy[slot, r] = sum_c E[r, c]**2`` (float64); with ``A`` and ``P``, also
+    ``A = Y @ W`` and ``P = phi(A)``.
 
     Shapes: ``Y`` (B x n_l), ``W`` (n_l x n_below); ``X``, ``E``, ``G`` (and ``A``, ``P``)
-    (B x n_below), float32; ``row_energy`` (slots x B) float64; ``row_partial`` the
+    (B x n_below), float32; ``row_energy`` (slots x B) float64 with ``row_partial`` the
     float32 scratch of :func:`row_partial_shape`. All on one device.
     """
     _check_activation(activation)
@@ -451,78 +559,97 @@ def predict(
     for name, arr in (("X", X), ("E", E), ("G", G)) + ((("A", A), ("P", P)) if store else ()):
         _check(name, arr, (b, n_below), device)
     cfg = tiles or tile_config(device, "predict", b)
-    _check("row_partial", row_partial, row_partial_shape(b, n_below, cfg), device)
-    _check_type("row_energy", row_energy, wp.float64)
-    _check("row_energy", row_energy, (row_energy.shape[0], b), device, wp.float64)
-    if not 0 <= slot < row_energy.shape[0]:
-        raise ValueError(f"slot {slot} outside row_energy's {row_energy.shape[0]} rows")
-    wp.launch_tiled(
-        _predict_kernel(cfg.tm, cfg.tn, cfg.tk, activation, store),
-        dim=(_cdiv(b, cfg.tm), _cdiv(n_below, cfg.tn)),
-        inputs=[Y, W, X, wp.float32(slope), A if store else E, P if store else E, E, G, row_partial],
-        block_dim=cfg.block_dim,
-        device=device,
+    with_energy = row_energy is not None
+    if with_energy:
+        _check("row_partial", row_partial, row_partial_shape(b, n_below, cfg), device)
+        _check_type("row_energy", row_energy, wp.float64)
+        _check("row_energy", row_energy, (row_energy.shape[0], b), device, wp.float64)
+        if not 0 <= slot < row_energy.shape[0]:
+            raise ValueError(f"slot {slot} outside row_energy's {row_energy.shape[0]} rows")
+    _launch_tiled(
+        _predict_kernel(cfg, activation, store, with_energy),
+        (_cdiv(b, cfg.tm), _cdiv(n_below, cfg.tn)),
+        [Y, W, X, wp.float32(slope), A if store else E, P if store else E, E, G, row_partial if with_energy else E],
+        cfg.block_dim,
+        device,
     )
-    _simt_launch(_row_energy_kernel, b, [row_partial, row_energy, slot], device)
+    if with_energy:
+        _simt_launch(_row_energy_kernel, b, [row_partial, row_energy, slot], device)
 
 
 def latent_scratch_shape(batch: int, n_l: int, n_below: int, device, tiles: TileConfig | None = None) -> tuple[int, int, int]:
-    """Shape of the split-K scratch :func:`latent_update` needs (splits x B x n_l)."""
+    """Shape of the split-K scratch :func:`latent_update` needs (splits x B x n_l); with a
+    single split the update is one fused kernel and needs none (shape (0, B, n_l))."""
     cfg = tiles or tile_config(device, "latent", batch)
-    return (latent_splits(device, cfg, batch, n_l, n_below), batch, n_l)
+    splits = latent_splits(device, cfg, batch, n_l, n_below)
+    return (splits if splits > 1 else 0, batch, n_l)
 
 
-def latent_update(Y, G, W, eta: float, scratch, E_above=None, mask=None, tiles: TileConfig | None = None) -> None:
-    """Kernel (b), in place: ``Y <- Y + 2 eta * mask * (G @ W.T - E_above)``.
+def latent_update(Y, G, Wt, eta: float, scratch=None, E_above=None, mask=None, tiles: TileConfig | None = None) -> None:
+    """Kernel (b), in place: ``Y <- Y + 2 eta * mask * (G @ Wt - E_above)``.
 
-    The gradient step ``Y - eta dF/dY`` with ``dF/dY = -2 G @ W.T + 2 E_above``.
-    ``Y`` (B x n_l), ``G`` (B x n_below), ``W`` (n_l x n_below), ``E_above`` (B x n_l) or
-    ``None`` (top / joint layer), ``mask`` (B,) int32 (0: leave that row alone) or
-    ``None``; ``scratch`` float32 of :func:`latent_scratch_shape` (its first dimension is
-    the number of K-slices).
+    The gradient step ``Y - eta dF/dY`` with ``dF/dY = -2 G @ W.T + 2 E_above``; it takes
+    ``Wt`` = W transposed (n_below x n_l, kept by :func:`weight_update`) so that the long
+    K runs down the rows of both operands. ``Y`` (B x n_l), ``G`` (B x n_below),
+    ``E_above`` (B x n_l) or ``None`` (top / joint layer), ``mask`` (B,) int32 (0: leave
+    that row alone) or ``None``. ``scratch``: float32 (splits x B x n_l) of
+    :func:`latent_scratch_shape`; ``None`` or zero splits run the single fused kernel,
+    more split the GEMM along K (each split's partial product into the scratch, then a
+    fused element-wise kernel sums them in order and applies the step).
 
     Calls accumulate into ``Y``: the joint layer, which predicts several modalities, calls
     this once per modality (``E_above=None``). Run :func:`predict` for every layer first:
-    this reads only ``G``, ``W`` and ``E_above`` besides ``Y``, which no other layer's
+    this reads only ``G``, ``Wt`` and ``E_above`` besides ``Y``, which no other layer's
     latent update writes, so all layers step from the same state.
     """
     _ensure_init()
     _check_type("Y", Y)
-    _check_type("W", W)
+    _check_type("Wt", Wt)
     b, n_l = Y.shape
     device = Y.device
-    n_below = W.shape[1]
-    _check("W", W, (n_l, n_below), device)
+    n_below = Wt.shape[0]
+    _check("Wt", Wt, (n_below, n_l), device)
     _check("G", G, (b, n_below), device)
     if E_above is not None:
         _check("E_above", E_above, (b, n_l), device)
     if mask is not None:
         _check("mask", mask, (b,), device, wp.int32)
     cfg = tiles or tile_config(device, "latent", b)
-    _check_type("scratch", scratch, ndim=3)
-    splits = scratch.shape[0]
+    has_above, has_mask = E_above is not None, mask is not None
+    placeholder = E_above if has_above else Y
+    mask_arg = mask if has_mask else wp.empty(0, dtype=wp.int32, device=device)
+    splits = 0 if scratch is None else scratch.shape[0]
+    if splits <= 1:
+        _launch_tiled(
+            _latent_fused_kernel(cfg, has_above, has_mask),
+            (_cdiv(b, cfg.tm), _cdiv(n_l, cfg.tn)),
+            [Y, G, Wt, placeholder, mask_arg, wp.float32(2.0 * eta)],
+            cfg.block_dim,
+            device,
+        )
+        return
     _check("scratch", scratch, (splits, b, n_l), device)
     steps = _cdiv(_cdiv(n_below, cfg.tk), splits)
-    wp.launch_tiled(
-        _latent_gemm_kernel(cfg.tm, cfg.tn, cfg.tk),
-        dim=(_cdiv(b, cfg.tm), _cdiv(n_l, cfg.tn), splits),
-        inputs=[G, W, steps, scratch],
-        block_dim=cfg.block_dim,
-        device=device,
+    _launch_tiled(
+        _latent_gemm_kernel(cfg),
+        (_cdiv(b, cfg.tm), _cdiv(n_l, cfg.tn), splits),
+        [G, Wt, steps, scratch],
+        cfg.block_dim,
+        device,
     )
-    dummy_mask = mask if mask is not None else wp.empty(0, dtype=wp.int32, device=device)
     _simt_launch(
-        _latent_step_kernel(E_above is not None, mask is not None),
+        _latent_step_kernel(has_above, has_mask),
         (b, n_l),
-        [Y, scratch, E_above if E_above is not None else Y, dummy_mask, wp.float32(2.0 * eta)],
+        [Y, scratch, placeholder, mask_arg, wp.float32(2.0 * eta)],
         device,
     )
 
 
-def weight_update(W, Y, G, eta: float, tiles: TileConfig | None = None) -> None:
-    """Kernel (c), in place: ``W <- W + 2 eta Y.T @ G`` (``W - eta dF/dW``, ``dF/dW = -2 Y.T @ G``).
+def weight_update(W, Y, G, eta: float, Wt=None, tiles: TileConfig | None = None) -> None:
+    """Kernel (c), in place: ``W <- W + 2 eta Y.T @ G`` (``W - eta dF/dW``,
+    ``dF/dW = -2 Y.T @ G``), and ``Wt <- W.T`` of the result when ``Wt`` is given.
 
-    ``W`` (n_l x n_below), ``Y`` (B x n_l), ``G`` (B x n_below).
+    ``W`` (n_l x n_below), ``Y`` (B x n_l), ``G`` (B x n_below), ``Wt`` (n_below x n_l).
     """
     _ensure_init()
     _check_type("W", W)
@@ -533,13 +660,15 @@ def weight_update(W, Y, G, eta: float, tiles: TileConfig | None = None) -> None:
     b = Y.shape[0]
     _check("Y", Y, (b, n_l), device)
     _check("G", G, (b, n_below), device)
+    if Wt is not None:
+        _check("Wt", Wt, (n_below, n_l), device)
     cfg = tiles or tile_config(device, "weight", b)
-    wp.launch_tiled(
-        _weight_kernel(cfg.tm, cfg.tn, cfg.tk),
-        dim=(_cdiv(n_l, cfg.tm), _cdiv(n_below, cfg.tn)),
-        inputs=[W, Y, G, wp.float32(2.0 * eta)],
-        block_dim=cfg.block_dim,
-        device=device,
+    _launch_tiled(
+        _weight_kernel(cfg, Wt is not None),
+        (_cdiv(n_l, cfg.tm), _cdiv(n_below, cfg.tn)),
+        [W, Y, G, wp.float32(2.0 * eta), Wt if Wt is not None else W],
+        cfg.block_dim,
+        device,
     )
 
 

@@ -74,8 +74,10 @@ def run_predict(Y, W, X, device, activation="leaky_relu", slope=0.2, tiles=None,
 
 
 def latent_scratch(b, n_l, n_below, device, splits=None):
-    shape = wk.latent_scratch_shape(b, n_l, n_below, device)
-    return poisoned((splits or shape[0], b, n_l), device)
+    """The split-K scratch (poisoned): the device's own choice, or ``splits`` slices;
+    ``None`` for the single fused kernel."""
+    count = wk.latent_scratch_shape(b, n_l, n_below, device)[0] if splits is None else splits
+    return poisoned((count, b, n_l), device) if count > 1 else None
 
 
 # --------------------------------------------------------------------------------------
@@ -105,7 +107,7 @@ def test_wide_layers_match_reference(shape, device):
     assert rel_err(E, e) <= TOL and rel_err(G, g) <= TOL
     assert rel_err(rows, np.sum(e**2, axis=1)) <= TOL
     wY = to_wp(Y, device)
-    wk.latent_update(wY, to_wp(G, device), to_wp(W, device), 0.01, latent_scratch(b, n_l, n_below, device))
+    wk.latent_update(wY, to_wp(G, device), to_wp(W.T, device), 0.01, latent_scratch(b, n_l, n_below, device))
     assert rel_err(wY.numpy(), ref.latent_step(*f64(Y, G, W), 0.01)) <= TOL
     wW = to_wp(W, device)
     wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), 0.01)
@@ -131,7 +133,7 @@ def test_predict_leaky_relu_slope_is_runtime_parameter(device):
             assert rel_err(g, e) <= TOL
 
 
-@pytest.mark.parametrize("splits", [None, 1, 3], ids=["auto", "split1", "split3"])
+@pytest.mark.parametrize("splits", [None, 1, 3], ids=["auto", "fused", "split3"])
 @pytest.mark.parametrize("with_above", [True, False], ids=["E_above", "top"])
 @pytest.mark.parametrize("shape", SHAPES, ids=SHAPE_IDS)
 def test_latent_update_matches_reference(shape, with_above, splits, device):
@@ -144,7 +146,7 @@ def test_latent_update_matches_reference(shape, with_above, splits, device):
     wY = to_wp(Y, device)
     tiles = wk.TileConfig(4, 8, 4, 32) if splits == 3 else None  # several K steps to split
     scratch = latent_scratch(b, n_l, n_below, device, splits)
-    wk.latent_update(wY, to_wp(G, device), to_wp(W, device), eta, scratch,
+    wk.latent_update(wY, to_wp(G, device), to_wp(W.T, device), eta, scratch,
                      E_above=to_wp(E_above, device) if with_above else None, tiles=tiles)
     expected = ref.latent_step(*f64(Y, G, W), eta, None if E_above is None else f64(E_above)[0])
     assert rel_err(wY.numpy(), expected) <= TOL
@@ -158,7 +160,7 @@ def test_latent_update_mask_leaves_inactive_rows_alone(device):
     E_above = rng.standard_normal((b, n_l)).astype(np.float32)
     mask = np.array([1, 0, 1, 1, 0, 0, 1, 0, 1], dtype=np.int32)
     wY = to_wp(Y, device)
-    wk.latent_update(wY, to_wp(G, device), to_wp(W, device), 0.05, latent_scratch(b, n_l, n_below, device),
+    wk.latent_update(wY, to_wp(G, device), to_wp(W.T, device), 0.05, latent_scratch(b, n_l, n_below, device),
                      E_above=to_wp(E_above, device), mask=to_wp(mask, device, wp.int32))
     stepped = ref.latent_step(*f64(Y, G, W), 0.05, f64(E_above)[0])
     got = wY.numpy()
@@ -180,9 +182,9 @@ def test_latent_update_accumulates_modalities(first_above, device):
     E_above = rng.standard_normal((b, n_l)).astype(np.float32)
     eta = 0.01
     wY = to_wp(Y, device)
-    wk.latent_update(wY, to_wp(G1, device), to_wp(W1, device), eta, latent_scratch(b, n_l, 129, device),
+    wk.latent_update(wY, to_wp(G1, device), to_wp(W1.T, device), eta, latent_scratch(b, n_l, 129, device),
                      E_above=to_wp(E_above, device) if first_above else None)
-    wk.latent_update(wY, to_wp(G2, device), to_wp(W2, device), eta, latent_scratch(b, n_l, 5, device))
+    wk.latent_update(wY, to_wp(G2, device), to_wp(W2.T, device), eta, latent_scratch(b, n_l, 5, device))
     y, g1, w1, g2, w2, ea = f64(Y, G1, W1, G2, W2, E_above)
     expected = y + 2 * eta * (g1 @ w1.T + g2 @ w2.T)
     if first_above:
@@ -199,6 +201,18 @@ def test_weight_update_matches_reference(shape, device):
     wW = to_wp(W, device)
     wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), eta)
     assert rel_err(wW.numpy(), ref.weight_step(*f64(W, Y, G), eta)) <= TOL
+
+
+@pytest.mark.parametrize("shape", SHAPES, ids=SHAPE_IDS)
+def test_weight_update_keeps_the_transpose(shape, device):
+    b, n_l, n_below = shape
+    Y, W, _ = layer(shape, seed=16)
+    G = np.random.default_rng(17).standard_normal((b, n_below)).astype(np.float32)
+    wW, wWt = to_wp(W, device), poisoned((n_below, n_l), device)
+    wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), 0.05, Wt=wWt)
+    expected = ref.weight_step(*f64(W, Y, G), 0.05)
+    assert rel_err(wW.numpy(), expected) <= TOL
+    np.testing.assert_array_equal(wWt.numpy(), wW.numpy().T)
 
 
 def test_gather_and_scatter_rows(device):
@@ -237,7 +251,7 @@ def _all_kernels_vs_reference(shape, device, tiles, activation="tanh"):
     G = rng.standard_normal((b, n_below)).astype(np.float32)
     E_above = rng.standard_normal((b, n_l)).astype(np.float32)
     wY = to_wp(Y, device)
-    wk.latent_update(wY, to_wp(G, device), to_wp(W, device), 0.03, latent_scratch(b, n_l, n_below, device, 2),
+    wk.latent_update(wY, to_wp(G, device), to_wp(W.T, device), 0.03, latent_scratch(b, n_l, n_below, device, 2),
                      E_above=to_wp(E_above, device), tiles=tiles)
     assert rel_err(wY.numpy(), ref.latent_step(*f64(Y, G, W), 0.03, f64(E_above)[0])) <= TOL
     wW = to_wp(W, device)
@@ -258,6 +272,24 @@ def test_results_do_not_depend_on_block_dim(block_dim, device, monkeypatch):
     if device == "cpu":
         monkeypatch.setattr(wp.config, "enable_cpu_blocks", True)
     _all_kernels_vs_reference((17, 65, 29), device, wk.TileConfig(8, 16, 8, block_dim), "sigmoid")
+
+
+def test_planned_kernels_records_instead_of_launching(device):
+    """Inside planned_kernels nothing runs (outputs stay poisoned); preload compiles what
+    was recorded, and the operations then run as usual."""
+    Y, W, X = layer((3, 33, 17), seed=18)
+    E, G = poisoned((3, 17), device), poisoned((3, 17), device)
+    R = poisoned((1, 3), device, wp.float64)
+    part = poisoned(wk.row_partial_shape(3, 17, wk.tile_config(device, "predict", 3)), device)
+    args = (to_wp(Y, device), to_wp(W, device), to_wp(X, device), E, G, part, R, 0)
+    with wk.planned_kernels() as plan:
+        wk.predict(*args)
+    assert np.isnan(E.numpy()).all() and np.isnan(R.numpy()).all()
+    assert len(plan) == 2 and all(isinstance(k, wp.Kernel) for k, _ in plan)
+    wk.preload(device, plan, workers=2)
+    wk.predict(*args)
+    _, _, e, _ = ref.predict(*f64(Y, W, X))
+    assert rel_err(E.numpy(), e) <= TOL and rel_err(R.numpy()[0], np.sum(e**2, axis=1)) <= TOL
 
 
 def test_tile_config_shrinks_rows_for_small_batches(device):

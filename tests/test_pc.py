@@ -181,6 +181,39 @@ def test_inference_stops_at_threshold_or_step_cap(trained):
     assert moderate.converged and all(v < 5e-3 for v in moderate.mse.values())
 
 
+def test_each_sample_stops_on_its_own(trained):
+    """Per-sample stopping: a batch gives every sample the steps and latents it gets when
+    inferred alone (samples never interact), and the samples do stop at different steps."""
+    net, inputs, _, _, _ = trained
+    subset = {m: x[:12] for m, x in inputs.items()}
+    limits = dict.fromkeys(NO_STOP, 4e-3)
+    batched = net.infer(subset, max_steps=400, thresholds=limits, batch_size=12)
+    alone = [net.infer({m: x[i : i + 1] for m, x in subset.items()}, max_steps=400, thresholds=limits) for i in range(12)]
+    np.testing.assert_array_equal(batched.steps_per_sample, [r.steps for r in alone])
+    assert len(set(batched.steps_per_sample)) > 3, batched.steps_per_sample
+    assert batched.steps == max(r.steps for r in alone)
+    for node, y in batched.latents.items():
+        np.testing.assert_allclose(y, np.concatenate([r.latents[node] for r in alone]), rtol=1e-4, atol=1e-5)
+    np.testing.assert_array_equal(batched.stopped, [r.converged for r in alone])
+    # every sample that stopped is under every threshold; the mean mse is the samples' mean
+    for name in limits:
+        assert batched.mse[name] == pytest.approx(np.mean([r.mse[name] for r in alone]), rel=1e-4)
+
+
+def test_a_sample_at_the_cap_is_not_stopped(trained):
+    net, inputs, _, _, _ = trained
+    subset = {m: x[:12] for m, x in inputs.items()}
+    limits = dict.fromkeys(NO_STOP, 4e-3)
+    free = net.infer(subset, max_steps=400, thresholds=limits).steps_per_sample
+    cap = int(np.median(free))
+    result = net.infer(subset, max_steps=cap, thresholds=limits)
+    assert not result.converged and result.steps == cap
+    late = free > cap
+    assert late.any() and not result.stopped[late].any()
+    np.testing.assert_array_equal(result.steps_per_sample, np.minimum(free, cap))
+    assert result.stopped[~late].all()
+
+
 def test_save_load_gives_identical_inference(trained, tmp_path):
     net, inputs, _, _, _ = trained
     net.set_scaler("tactile", np.zeros(10), np.full(10, 2.0))
@@ -231,13 +264,30 @@ def test_bad_input_shape_is_reported():
         net.infer({"audio": np.zeros((3, 4))})
 
 
-def test_numpy_and_warp_backends_train_to_the_same_weights():
+def test_numpy_and_warp_backends_agree(device):
+    """Training (two minibatch sizes: 25 and the last 10, replayed from captured graphs on
+    CUDA) and per-sample-stopping inference give the same numbers on the numpy backend
+    and on Warp on every device."""
     pytest.importorskip("warp")
+    from vitaplace.engine.backends import WarpBackend
+
     inputs, _ = synthetic(n=60)
-    weights = {}
-    for backend in ("numpy", "warp"):
+    runs = {}
+    for name, backend in (("numpy", "numpy"), ("warp", WarpBackend(device))):
         net = Network(SYNTH, seed=1, backend=backend)
-        net.train(inputs, {**TRAIN, "epochs": 2, "batch_size": 25, "inference_steps": 5}, progress=False)
-        weights[backend] = net.weights
-    for name, w in weights["numpy"].items():
-        np.testing.assert_allclose(weights["warp"][name], w, rtol=1e-4, atol=1e-5, err_msg=name)
+        history = net.train(inputs, {**TRAIN, "epochs": 3, "batch_size": 25, "inference_steps": 5}, progress=False)
+        result = net.infer(inputs, max_steps=200, thresholds=dict.fromkeys(NO_STOP, 0.1), batch_size=40)
+        runs[name] = (net.weights, net.train_latents, history, result)
+    (w_np, y_np, h_np, r_np), (w_wp, y_wp, h_wp, r_wp) = runs["numpy"], runs["warp"]
+    for name, w in w_np.items():
+        np.testing.assert_allclose(w_wp[name], w, rtol=1e-4, atol=1e-5, err_msg=name)
+    for node, y in y_np.items():
+        np.testing.assert_allclose(y_wp[node], y, rtol=1e-4, atol=1e-5, err_msg=node)
+    for name, energy in h_np.energy.items():
+        np.testing.assert_allclose(h_wp.energy[name], energy, rtol=1e-4, err_msg=name)
+    assert len(set(r_np.steps_per_sample)) > 1
+    # a sample whose error crosses its threshold within rounding may stop one step apart
+    assert np.abs(r_wp.steps_per_sample - r_np.steps_per_sample).max() <= 1
+    assert np.mean(r_wp.steps_per_sample == r_np.steps_per_sample) > 0.9
+    same = r_wp.steps_per_sample == r_np.steps_per_sample
+    np.testing.assert_allclose(r_wp.latents["joint"][same], r_np.latents["joint"][same], rtol=1e-4, atol=1e-5)
