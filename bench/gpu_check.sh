@@ -31,11 +31,11 @@ stage() {  # stage NAME SECONDS COMMAND...: run with a time limit, log to DIR/NA
     [ "$rc" -eq 0 ] || status=1
 }
 : > "$dir/stages.txt"
-stage sweep 170 "$python" bench/tile_sweep.py --device cuda --json "$dir/sweep.json"
+stage sweep 140 "$python" bench/tile_sweep.py --device cuda --json "$dir/sweep.json"
 tiles=()
 [ -s "$dir/sweep.json" ] && tiles=(--tiles "$dir/sweep.json")
-stage bench 200 "$python" bench/pc_step.py --device cuda --repeat 5 "${tiles[@]}" --json "$dir/bench.json"
-stage tests 200 "$python" -m pytest -q -p no:cacheprovider -m cuda -n "$jobs" tests/test_kernels.py tests/test_pc.py
+stage bench 240 "$python" bench/pc_step.py --device cuda --repeat 5 "${tiles[@]}" --json "$dir/bench.json"
+stage tests 170 "$python" -m pytest -q -p no:cacheprovider -m cuda -n "$jobs" tests/test_kernels.py tests/test_pc.py
 "$python" bench/gpu_summary.py "$dir" > "$dir/SUMMARY.md" || status=1
 cat "$dir/SUMMARY.md"
 exit "$status"

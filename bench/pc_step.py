@@ -684,10 +684,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"tiles from {args.tiles}: {kernel} {r['tm']}x{r['tn']}x{r['tk']} block_dim {r['block_dim']} "
                       f"mathdx {r['mathdx']}")
 
-        out = pc_step_cuda.cuda_main(args, sys.modules[__name__])
-        if args.json:
-            with open(args.json, "w") as f:
-                json.dump(out, f, indent=2)
+        pc_step_cuda.cuda_main(args, sys.modules[__name__])
         return 0
 
     spec = QUICK if args.quick else PAPER

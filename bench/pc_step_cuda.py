@@ -22,6 +22,7 @@ steps (thresholds 0: every sample runs to the cap).
 
 from __future__ import annotations
 
+import json
 import statistics
 import time
 from collections.abc import Callable
@@ -198,12 +199,20 @@ def cuda_main(args, pc) -> dict:
     print(f"target: warp step ahead of the torch step: torch takes {t['median_s'] / w['median_s']:.2f} x the warp "
           f"time -> {'met' if w['median_s'] < t['median_s'] else 'NOT met'}")
 
-    training = None
+    out = {"device": info, "gflop": flops / 1e9, "smoke": agree, "results": results, "times": times, "training": None}
+    _save(args.json, out)  # the comparison survives a time limit hit during the training
     if not args.quick:
         print(f"\ntimed training at the paper's shapes on the Warp backend ({PAPER_SAMPLES} random samples):", flush=True)
         training = timed_training(pc, args.epochs, PAPER_SAMPLES, lambda line: print(line, flush=True))
         print(f"target: {PAPER_EPOCHS} epochs <= 30 min: {training['projected_min']:.1f} min -> "
               f"{'met' if training['projected_min'] <= 30 else 'NOT met'}")
         print(f"target: inference of 300 samples x 3000 steps in seconds: {training['inference_300x3000_s']:.1f} s")
-    return {"device": info, "gflop": flops / 1e9, "smoke": agree, "results": results, "times": times,
-            "training": training}
+        out["training"] = training
+        _save(args.json, out)
+    return out
+
+
+def _save(path: str | None, out: dict) -> None:
+    if path:
+        with open(path, "w") as f:
+            json.dump(out, f, indent=2)
