@@ -44,39 +44,49 @@ def summary(dir_: Path) -> str:
             out.append(f"| {name} | {r['median_s'] * 1e3:.2f} | {r['best_s'] * 1e3:.2f} | {r['tflops']:.1f} | "
                        f"{r['ratio']:.2f} |")
         names = list(bench["results"])
-        warp, torch = bench["results"][names[2]], bench["results"][names[1]]
         out += ["", "Agreement with the numpy backend (one small minibatch, max |diff| / max |numpy| of the updates): "
                 + ", ".join(f"{k}: latents {v[0]:.1e}, weights {v[1]:.1e}" for k, v in bench["smoke"].items()), ""]
-        out += ["## Targets", "",
-                f"- Warp step >= 0.8 x the cuBLAS GEMM rate of the same shapes: {warp['ratio']:.2f} x -> "
-                f"**{_verdict(warp['ratio'] >= 0.8)}**",
-                f"- Warp step ahead of the PyTorch-CUDA step: PyTorch takes {torch['median_s'] / warp['median_s']:.2f} x "
-                f"the Warp time -> **{_verdict(warp['median_s'] < torch['median_s'])}**"]
-        t = bench.get("training")
-        if t:
-            out += [f"- The paper's 10000 epochs x 5550 samples projected at <= 30 min: {t['projected_min']:.1f} min "
-                    f"({t['epoch_s']:.3f} s per epoch over {t['epochs']} epochs, {t['tflops']:.1f} TFLOP/s; "
-                    f"first epoch with compilation {t['first_epoch_s']:.0f} s; "
-                    f"{t['speedup_vs_paper'][0]:.1f}-{t['speedup_vs_paper'][1]:.1f} x the paper's 5-6 h) -> "
-                    f"**{_verdict(t['projected_min'] <= 30)}**",
-                    f"- Test-time inference of 300 samples x {t['inference_steps']} steps: "
-                    f"{t['inference_300x3000_s']:.1f} s"]
+        if bench.get("breakdown_ms"):
+            out += ["Warp float32, per operation (ms): "
+                    + ", ".join(f"{k} {v:.3f}" for k, v in bench["breakdown_ms"].items()), ""]
+        out += ["## Targets", ""]
+        for label, (t_name, w_name) in {"float32": (names[1], names[2]), "TF32": (names[4], names[5])}.items():
+            if w_name not in bench["results"]:
+                continue
+            warp, torch = bench["results"][w_name], bench["results"][t_name]
+            out += [f"- {label}: Warp step >= 0.8 x the cuBLAS GEMM rate of the same shapes: {warp['ratio']:.2f} x -> "
+                    f"**{_verdict(warp['ratio'] >= 0.8)}**; ahead of the PyTorch-CUDA step: PyTorch takes "
+                    f"{torch['median_s'] / warp['median_s']:.2f} x the Warp time -> "
+                    f"**{_verdict(warp['median_s'] < torch['median_s'])}**"]
+        for key in ("training", "training_tf32"):
+            t = bench.get(key)
+            if not t:
+                continue
+            out.append(f"- {t['precision']}: the paper's 10000 epochs x 5550 samples projected at <= 30 min: "
+                       f"{t['projected_min']:.1f} min ({t['epoch_s']:.3f} s per epoch over {t['epochs']} epochs, "
+                       f"{t['tflops']:.1f} TFLOP/s; first epoch with compilation {t['first_epoch_s']:.0f} s; "
+                       f"{t['speedup_vs_paper'][0]:.1f}-{t['speedup_vs_paper'][1]:.1f} x the paper's 5-6 h) -> "
+                       f"**{_verdict(t['projected_min'] <= 30)}**")
+            if "inference_300x3000_s" in t:
+                out.append(f"- Test-time inference of 300 samples x {t['inference_steps']} steps: "
+                           f"{t['inference_300x3000_s']:.1f} s")
         out.append("")
 
     sweep = _load(dir_ / "sweep.json")
     if sweep:
         out += ["## Tile sweep", "", f"Shape B x n_l x n_below = {sweep['shape']}; median of graph replays.", "",
-                "| kernel | tm x tn x tk | block_dim | mathdx | splits | us | TFLOP/s | cuBLAS TFLOP/s |",
-                "|---|---|---|---|---|---|---|---|"]
+                "| kernel | precision | tm x tn x tk | block_dim | mathdx | splits | us | TFLOP/s | cuBLAS TFLOP/s |",
+                "|---|---|---|---|---|---|---|---|---|"]
         cublas = sweep.get("cublas") or {}
         for r in sweep["rows"]:
             if "seconds" in r:
                 us, tf = f"{r['seconds'] * 1e6:.0f}", f"{r['tflops']:.1f}"
             else:
                 us, tf = r.get("error", "not run")[:60], "-"
-            base = cublas.get(r["kernel"], {}).get("tflops")
-            out.append(f"| {r['kernel']} | {r['tm']}x{r['tn']}x{r['tk']} | {r['block_dim']} | {r['mathdx']} | "
-                       f"{r['splits']} | {us} | {tf} | {'-' if base is None else f'{base:.1f}'} |")
+            precision = r.get("precision", "float32")
+            base = cublas.get(precision, {}).get(r["kernel"], {}).get("tflops")
+            out.append(f"| {r['kernel']} | {precision} | {r['tm']}x{r['tn']}x{r['tk']} | {r['block_dim']} | "
+                       f"{r['mathdx']} | {r['splits']} | {us} | {tf} | {'-' if base is None else f'{base:.1f}'} |")
         out.append("")
 
     tests = dir_ / "tests.log"

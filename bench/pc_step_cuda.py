@@ -38,9 +38,8 @@ PAPER_HOURS = (5.0, 6.0)
 class TorchGemms:
     """Only the GEMMs of the step (no epilogue) through cuBLAS, as one CUDA graph."""
 
-    def __init__(self, prob, torch) -> None:
-        torch.backends.cuda.matmul.allow_tf32 = False
-        self.torch, self.prob = torch, prob
+    def __init__(self, prob, torch, tf32: bool = False) -> None:
+        self.torch, self.prob, self.tf32 = torch, prob, tf32
         gen = torch.Generator(device="cuda").manual_seed(7)
         r = lambda *shape: torch.randn(*shape, device="cuda", generator=gen) * 0.1  # noqa: E731
         sz, b = prob.sizes, prob.batch
@@ -68,6 +67,7 @@ class TorchGemms:
 
     def run(self) -> None:
         if self.graph is None:
+            self.torch.backends.cuda.matmul.allow_tf32 = self.tf32  # fixed in the graph at capture
             self._body()  # warm-up: cuBLAS handles and workspaces
             self.torch.cuda.synchronize()
             self.graph = self.torch.cuda.CUDAGraph()
@@ -91,9 +91,31 @@ def time_minibatches(impl, count: int, sync: Callable[[], None]) -> float:
     return (time.perf_counter() - t0) / count
 
 
-def timed_training(pc, epochs: int, samples: int, log) -> dict:
+def op_breakdown(impl, repeat: int, sync: Callable[[], None]) -> dict[str, float]:
+    """Milliseconds of each operation of the Warp minibatch (predict_all without energies,
+    latent_step, weight_step), each replayed as a graph of 20 and timed over ``repeat``."""
+    s, be = impl.state, impl.net.backend
+    ops = {"predict_all": lambda: s.predict_all(energy=False), "latent_step": s.latent_step, "weight_step": s.weight_step}
+    out = {}
+    for name, op in ops.items():
+        run = be.capture(lambda op=op: [op() for _ in range(20)])
+        run()
+        run()
+        times = []
+        for _ in range(repeat):
+            sync()
+            t0 = time.perf_counter()
+            run()
+            sync()
+            times.append((time.perf_counter() - t0) / 20)
+        out[name] = statistics.median(times) * 1e3
+    return out
+
+
+def timed_training(pc, epochs: int, samples: int, log, precision: str = "float32", inference: bool = True) -> dict:
     """The paper's network trained on random data: the first epoch (kernel compilation,
     graph capture) timed apart, then ``epochs`` epochs; projected to the paper's budget."""
+    from vitaplace.engine.backends import WarpBackend
     from vitaplace.engine.pc import Network
 
     import warp as wp
@@ -102,7 +124,7 @@ def timed_training(pc, epochs: int, samples: int, log) -> dict:
     rng = np.random.default_rng(0)
     mods = spec["config"]["modalities"]
     inputs = {m: rng.random((samples, mc["input_size"]), dtype=np.float32) for m, mc in mods.items()}
-    net = Network(spec["config"], seed=0, backend="warp")
+    net = Network(spec["config"], seed=0, backend=WarpBackend("cuda", precision))
     train = {"batch_size": spec["batch"], "inference_steps": spec["steps"]}
     latents: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
@@ -125,18 +147,20 @@ def timed_training(pc, epochs: int, samples: int, log) -> dict:
     energy = {k: v[-1] for k, v in history.energy.items()}
     if not all(np.isfinite(list(energy.values()))):
         raise RuntimeError(f"training diverged: {energy}")
+    result = {"precision": precision, "first_epoch_s": first, "epochs": epochs, "samples": samples,
+              "epoch_s": per_epoch, "tflops": flops_epoch / per_epoch / 1e12, "projected_min": projected / 60,
+              "speedup_vs_paper": [h * 3600 / projected for h in PAPER_HOURS], "energy": energy}
+    if not inference:
+        return result
 
     test = {m: x[:300] for m, x in inputs.items()}
     never = {e.name: 0.0 for e in net.edges}
     net.infer(test, max_steps=10, thresholds=never)  # compile the inference kernels
     t0 = time.perf_counter()
-    result = net.infer(test, max_steps=3000, thresholds=never)
+    inferred = net.infer(test, max_steps=3000, thresholds=never)
     infer_s = time.perf_counter() - t0
-    log(f"  inference, 300 samples x {result.steps} steps: {infer_s:.2f} s")
-    return {"first_epoch_s": first, "epochs": epochs, "samples": samples, "epoch_s": per_epoch,
-            "tflops": flops_epoch / per_epoch / 1e12, "projected_min": projected / 60,
-            "speedup_vs_paper": [h * 3600 / projected for h in PAPER_HOURS],
-            "inference_300x3000_s": infer_s, "inference_steps": result.steps}
+    log(f"  inference, 300 samples x {inferred.steps} steps: {infer_s:.2f} s")
+    return {**result, "inference_300x3000_s": infer_s, "inference_steps": inferred.steps}
 
 
 def cuda_main(args, pc) -> dict:
@@ -161,6 +185,7 @@ def cuda_main(args, pc) -> dict:
         "numpy backend": lambda p: pc.BatchStateImpl(p, pc.NumpyBackend()),
         "warp cuda": lambda p: pc.BatchStateImpl(p, WarpBackend("cuda")),
         "torch cuda": lambda p: pc.TorchImpl(p, 1, device="cuda"),
+        "warp cuda tf32": lambda p: pc.BatchStateImpl(p, WarpBackend("cuda", "tf32")),
     })
     for name, (dy, dw) in agree.items():
         print(f"  {name:10s} vs numpy backend: latents {dy:.2e}, weights {dw:.2e}")
@@ -173,6 +198,9 @@ def cuda_main(args, pc) -> dict:
         "cuBLAS GEMMs (baseline)": TorchGemms(prob, torch),
         "torch step (CUDA graph)": pc.TorchImpl(prob, 1, device="cuda"),
         "warp backend (CUDA graph)": pc.BatchStateImpl(prob, WarpBackend("cuda")),
+        "cuBLAS GEMMs, TF32": TorchGemms(prob, torch, tf32=True),
+        "torch step, TF32": pc.TorchImpl(prob, 1, device="cuda", tf32=True),
+        "warp backend, TF32": pc.BatchStateImpl(prob, WarpBackend("cuda", "tf32")),
     }
     for name, impl in impls.items():
         print(f"  warm-up / compile: {name} ...", flush=True)
@@ -185,21 +213,26 @@ def cuda_main(args, pc) -> dict:
         for name in names[r % len(names):] + names[: r % len(names)]:
             impls[name].reset()
             times[name].append(time_minibatches(impls[name], args.minibatches, sync))
-    base = statistics.median(times[names[0]])
     rows, results = [], {}
-    for name in names:
+    for i, name in enumerate(names):
+        base = statistics.median(times[names[0 if i < 3 else 3]])  # float32 vs float32, TF32 vs TF32
         med, best = statistics.median(times[name]), min(times[name])
         results[name] = {"median_s": med, "best_s": best, "tflops": flops / med / 1e12, "ratio": base / med}
         rows.append([name, f"{med * 1e3:.2f}", f"{best * 1e3:.2f}", f"{flops / med / 1e12:.1f}", f"{base / med:.2f}"])
     print(f"\nper minibatch, median of {args.repeat} rounds x {args.minibatches} minibatches; "
-          "'x cuBLAS' = rate / the cuBLAS GEMM rate:")
+          "'x cuBLAS' = rate / the cuBLAS GEMM rate in the same precision:")
     print(pc.fmt_table(rows, ["implementation", "median ms", "best ms", "TFLOP/s", "x cuBLAS"]))
-    w, t = results[names[2]], results[names[1]]
-    print(f"\ntarget: warp step >= 0.8 x cuBLAS GEMM rate: {w['ratio']:.2f} x -> {'met' if w['ratio'] >= 0.8 else 'NOT met'}")
-    print(f"target: warp step ahead of the torch step: torch takes {t['median_s'] / w['median_s']:.2f} x the warp "
-          f"time -> {'met' if w['median_s'] < t['median_s'] else 'NOT met'}")
+    for label, (t, w) in {"float32": (names[1], names[2]), "TF32": (names[4], names[5])}.items():
+        w, t = results[w], results[t]
+        print(f"target ({label}): warp step >= 0.8 x cuBLAS GEMM rate: {w['ratio']:.2f} x -> "
+              f"{'met' if w['ratio'] >= 0.8 else 'NOT met'}; ahead of the torch step: torch takes "
+              f"{t['median_s'] / w['median_s']:.2f} x the warp time -> {'met' if w['median_s'] < t['median_s'] else 'NOT met'}")
+    breakdown = op_breakdown(impls[names[2]], args.repeat, sync)
+    print("warp float32, per operation (ms): " + ", ".join(f"{k} {v:.3f}" for k, v in breakdown.items())
+          + f"; minibatch = {prob.steps + 1} predict_all + {prob.steps} latent_step + 1 weight_step")
 
-    out = {"device": info, "gflop": flops / 1e9, "smoke": agree, "results": results, "times": times, "training": None}
+    out = {"device": info, "gflop": flops / 1e9, "smoke": agree, "results": results, "times": times,
+           "breakdown_ms": breakdown, "training": None, "training_tf32": None}
     _save(args.json, out)  # the comparison survives a time limit hit during the training
     if not args.quick:
         print(f"\ntimed training at the paper's shapes on the Warp backend ({PAPER_SAMPLES} random samples):", flush=True)
@@ -208,6 +241,10 @@ def cuda_main(args, pc) -> dict:
               f"{'met' if training['projected_min'] <= 30 else 'NOT met'}")
         print(f"target: inference of 300 samples x 3000 steps in seconds: {training['inference_300x3000_s']:.1f} s")
         out["training"] = training
+        _save(args.json, out)
+        print("the same in TF32 (2 epochs, no inference):", flush=True)
+        out["training_tf32"] = timed_training(pc, 2, PAPER_SAMPLES, lambda line: print(line, flush=True),
+                                              precision="tf32", inference=False)
         _save(args.json, out)
     return out
 

@@ -4,9 +4,11 @@
 The visual input edge dominates a MuPNet minibatch (W is 1000 x 10800; the other edges
 hold 3 % of the weights). For each kernel -- predict (M=B, N=10800, K=1000), the latent
 GEMM (M=B, N=1000, K=10800, split along K) and the weight update (M=1000, N=10800, K=B)
--- every configuration is compiled (all at once, in parallel threads), checked against a
-float64 reference on random data, and timed as the median of several replays of a graph of ``--launches`` launches (graphs
-keep launch gaps out). Where PyTorch with CUDA is installed, the same GEMMs through cuBLAS
+-- every configuration is compiled (each in its own process, all at once, with a time
+limit: a cuBLASDx tile GEMM takes tens of seconds to compile), checked against a float64
+reference on random data, and timed as the median of several replays of a graph of
+``--launches`` launches (graphs keep launch gaps out). Rows are written to ``--json`` as
+they come. Where PyTorch with CUDA is installed, the same GEMMs through cuBLAS
 (float32, TF32 off) are timed in the same run as the baseline.
 
     python bench/tile_sweep.py --device cuda --json sweep.json
@@ -16,8 +18,8 @@ keep launch gaps out). Where PyTorch with CUDA is installed, the same GEMMs thro
 from __future__ import annotations
 
 import argparse
-import itertools
 import json
+import multiprocessing
 import statistics
 import sys
 import time
@@ -31,7 +33,7 @@ CANDIDATES = [
     wk.TileConfig(*c)
     for c in [
         (64, 64, 32, 128), (64, 128, 32, 256), (128, 64, 32, 256), (128, 128, 32, 256),
-        (32, 64, 32, 128), (64, 64, 64, 128), (64, 64, 32, 128, False), (64, 128, 32, 256, False),
+        (64, 64, 32, 128, False), (64, 64, 32, 128, True, "tf32"), (128, 128, 32, 256, True, "tf32"),
     ]
 ]
 CPU_CANDIDATES = [wk.TileConfig(64, 128, 32, 1), wk.TileConfig(32, 32, 32, 1)]
@@ -75,12 +77,8 @@ def problem(b: int, n_l: int, n_below: int, seed: int = 0):
     return Y, W, X, G
 
 
-def sweep(
-    device: str, shape: tuple[int, int, int], candidates, splits_list, launches: int, repeat: int, log, budget: float
-) -> list[dict]:
-    """Every (kernel, configuration): compiled first, all in parallel threads, then each
-    checked against the float64 reference and timed; a configuration that does not build
-    or run is recorded with its error. Stops timing new ones after ``budget`` seconds."""
+def _cases(device: str, shape: tuple[int, int, int], cfg: wk.TileConfig, splits_list) -> tuple[list, dict]:
+    """(row, fn, output) for the three kernels of one configuration, and the references."""
     b, n_l, n_below = shape
     Y, W, X, G = problem(b, n_l, n_below)
     y64, w64, x64, g64 = (a.astype(np.float64) for a in (Y, W, X, G))
@@ -94,16 +92,15 @@ def sweep(
     wY, wW, wWt, wX, wG = d(Y), d(W), d(np.ascontiguousarray(W.T)), d(X), d(G)
     E, Gout = (wp.zeros((b, n_below), dtype=wp.float32, device=device) for _ in range(2))
     R = wp.zeros((1, b), dtype=wp.float64, device=device)
-
-    cases = []  # (row, fn, output array)
-    for cfg, kernel in itertools.product(candidates, ("predict", "latent", "weight")):
+    cases = []
+    for kernel in ("predict", "latent", "weight"):
         if kernel == "weight":
             tiles = cfg._replace(tk=wk._round_rows(b, cfg.tk))
         else:
             tiles = cfg._replace(tm=wk._round_rows(b, cfg.tm))
         for splits in splits_list if kernel == "latent" else [1]:
             row = {"kernel": kernel, "tm": tiles.tm, "tn": tiles.tn, "tk": tiles.tk, "block_dim": tiles.block_dim,
-                   "mathdx": tiles.mathdx, "splits": splits}
+                   "mathdx": tiles.mathdx, "precision": tiles.precision, "splits": splits}
             if kernel == "predict":
                 part = wp.zeros(wk.row_partial_shape(b, n_below, tiles), dtype=wp.float32, device=device)
                 out = E
@@ -116,46 +113,77 @@ def sweep(
                 out = wp.clone(wW)
                 fn = lambda t=tiles, w=out: wk.weight_update(w, wY, wG, 0.01, tiles=t)  # noqa: E731
             cases.append((row, fn, out))
+    return cases, reference
 
-    t0 = time.perf_counter()
+
+def _compile(device: str, shape, cfg: tuple, splits_list) -> None:
+    """Child process: compile one configuration's kernels into Warp's on-disk cache."""
+    wp.config.quiet = True
+    wp.init()
+    cases, _ = _cases(device, shape, wk.TileConfig(*cfg), splits_list)
     with wk.planned_kernels() as plan:
         for _, fn, _ in cases:
             fn()
-    try:
-        wk.preload(device, plan)
-    except Exception as exc:  # noqa: BLE001 - the configurations that fail show up one by one below
-        log({"preload_error": f"{type(exc).__name__}: {exc}"})
-    log({"compile_all_s": round(time.perf_counter() - t0, 1), "kernels": len(plan)})
+    wk.preload(device, plan, workers=4)
 
+
+def compile_all(device: str, shape, candidates, splits_list, limit: float, log) -> set[wk.TileConfig]:
+    """Compile every configuration in its own process, all at once; the ones not done
+    within ``limit`` seconds are stopped. Returns the configurations that compiled."""
+    ctx = multiprocessing.get_context("spawn")
+    procs = {cfg: ctx.Process(target=_compile, args=(device, shape, tuple(cfg), splits_list)) for cfg in candidates}
+    t0 = time.perf_counter()
+    for p in procs.values():
+        p.start()
+    done = set()
+    for cfg, p in procs.items():
+        p.join(max(0.0, limit - (time.perf_counter() - t0)))
+        if p.is_alive():
+            p.terminate()
+            p.join()
+            log({"config": list(cfg), "compile": f"not done within {limit:.0f} s"})
+        elif p.exitcode == 0:
+            done.add(cfg)
+        else:
+            log({"config": list(cfg), "compile": f"failed (exit status {p.exitcode})"})
+    log({"compile_all_s": round(time.perf_counter() - t0, 1), "compiled": len(done), "of": len(procs)})
+    return done
+
+
+def sweep(device: str, shape: tuple[int, int, int], candidates, splits_list, launches: int, repeat: int, log) -> list[dict]:
+    """Every (kernel, configuration) checked against the float64 reference and timed; a
+    configuration that does not build or run is recorded with its error."""
+    b, n_l, n_below = shape
     rows = []
-    deadline = time.perf_counter() + budget
-    for row, fn, out in cases:
-        if time.perf_counter() > deadline:
-            break
-        try:
-            fn()
-            row["rel_err"] = rel_err(out.numpy(), reference[row["kernel"]])
-            row["seconds"] = timed(fn, device, launches, repeat)
-            row["tflops"] = 2 * b * n_l * n_below / row["seconds"] / 1e12
-        except Exception as exc:  # noqa: BLE001 - a configuration that does not build or run is recorded
-            row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"
-        rows.append(row)
-        log(row)
+    for cfg in candidates:
+        cases, reference = _cases(device, shape, cfg, splits_list)
+        for row, fn, out in cases:
+            try:
+                fn()
+                row["rel_err"] = rel_err(out.numpy(), reference[row["kernel"]])
+                row["seconds"] = timed(fn, device, launches, repeat)
+                row["tflops"] = 2 * b * n_l * n_below / row["seconds"] / 1e12
+            except Exception as exc:  # noqa: BLE001 - a configuration that does not build or run is recorded
+                row["error"] = f"{type(exc).__name__}: {str(exc).splitlines()[0][:200] if str(exc) else ''}"
+            rows.append(row)
+            log(row)
     return rows
 
 
-def best_tiles(rows: list[dict]) -> dict[str, dict]:
-    """The fastest correct configuration of each kernel (rows of a sweep)."""
+def best_tiles(rows: list[dict], precision: str = "float32") -> dict[str, dict]:
+    """The fastest correct configuration of each kernel (rows of a sweep) in ``precision``."""
     best = {}
+    tolerance = 1e-4 if precision == "float32" else 5e-3
     for kernel in ("predict", "latent", "weight"):
-        ok = [r for r in rows if r["kernel"] == kernel and "seconds" in r and r["rel_err"] < 1e-4]
+        ok = [r for r in rows if r["kernel"] == kernel and "seconds" in r and r["rel_err"] < tolerance
+              and r.get("precision", "float32") == precision]
         if ok:
             best[kernel] = min(ok, key=lambda r: r["seconds"])
     return best
 
 
 def apply_best(path: str) -> dict[str, dict]:
-    """Make the kernels use the winners of the sweep saved at ``path`` (on CUDA)."""
+    """Make the kernels use the float32 winners of the sweep saved at ``path`` (on CUDA)."""
     with open(path) as f:
         best = best_tiles(json.load(f)["rows"])
     for kernel, r in best.items():
@@ -164,39 +192,38 @@ def apply_best(path: str) -> dict[str, dict]:
 
 
 def cublas_baseline(shape: tuple[int, int, int], repeat: int) -> dict | None:
-    """The three GEMMs through torch.matmul (cuBLAS, float32, TF32 off)."""
+    """The three GEMMs through torch.matmul (cuBLAS), float32 (TF32 off) and TF32."""
     try:
         import torch
     except ImportError:
         return None
     if not torch.cuda.is_available():
         return None
-    torch.backends.cuda.matmul.allow_tf32 = False
     b, n_l, n_below = shape
     g = torch.Generator(device="cuda").manual_seed(0)
     Y = torch.randn(b, n_l, device="cuda", generator=g)
     W = torch.randn(n_l, n_below, device="cuda", generator=g)
     G = torch.randn(b, n_below, device="cuda", generator=g)
     out = {}
-    for name, fn in {
-        "predict": lambda: Y @ W,
-        "latent": lambda: G @ W.T,
-        "weight": lambda: Y.T @ G,
-    }.items():
-        for _ in range(3):
-            fn()
-        torch.cuda.synchronize()
-        times = []
-        for _ in range(repeat):
-            start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
-            start.record()
-            for _ in range(20):
+    for precision in wk.PRECISIONS:
+        torch.backends.cuda.matmul.allow_tf32 = precision == "tf32"
+        out[precision] = {}
+        for name, fn in {"predict": lambda: Y @ W, "latent": lambda: G @ W.T, "weight": lambda: Y.T @ G}.items():
+            for _ in range(3):
                 fn()
-            end.record()
             torch.cuda.synchronize()
-            times.append(start.elapsed_time(end) / 1e3 / 20)
-        t = statistics.median(times)
-        out[name] = {"seconds": t, "tflops": 2 * b * n_l * n_below / t / 1e12}
+            times = []
+            for _ in range(repeat):
+                start, end = torch.cuda.Event(enable_timing=True), torch.cuda.Event(enable_timing=True)
+                start.record()
+                for _ in range(20):
+                    fn()
+                end.record()
+                torch.cuda.synchronize()
+                times.append(start.elapsed_time(end) / 1e3 / 20)
+            t = statistics.median(times)
+            out[precision][name] = {"seconds": t, "tflops": 2 * b * n_l * n_below / t / 1e12}
+    torch.backends.cuda.matmul.allow_tf32 = False
     return out
 
 
@@ -209,8 +236,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--splits", type=int, nargs="*", default=[1, 4, 8],
                     help="K-slices of the latent GEMM to try (1: the fused single kernel)")
-    ap.add_argument("--budget", type=float, default=1e9, help="seconds after which no new configuration is tried")
-    ap.add_argument("--json", help="write every row to this file")
+    ap.add_argument("--compile-limit", type=float, default=100.0,
+                    help="seconds the configurations may take to compile (in parallel processes)")
+    ap.add_argument("--json", help="write the rows to this file (rewritten after every row)")
     args = ap.parse_args(argv)
     wp.init()
     dev = wp.get_device(args.device)
@@ -218,23 +246,33 @@ def main(argv: list[str] | None = None) -> int:
     candidates = CANDIDATES if dev.is_cuda else CPU_CANDIDATES
     if args.quick:
         candidates = candidates[:2]
+    splits = args.splits if dev.is_cuda else [1]
     print(f"device {dev.name} ({dev.alias}), shape B x n_l x n_below = {shape}", flush=True)
-    rows = sweep(args.device, shape, candidates, args.splits if dev.is_cuda else [1], args.launches, args.repeat,
-                 lambda r: print(json.dumps(r), flush=True), args.budget)
     baseline = cublas_baseline(shape, args.repeat) if dev.is_cuda else None
-    print("\nbest per kernel (median seconds per launch):")
-    best = best_tiles(rows)
-    for kernel in ("predict", "latent", "weight"):
-        if kernel not in best:
-            print(f"  {kernel}: nothing ran")
+    result = {"device": dev.name, "shape": shape, "cublas": baseline, "rows": []}
+
+    def log(row: dict) -> None:
+        print(json.dumps(row), flush=True)
+        if "kernel" in row:
+            result["rows"].append(row)
+        if args.json:
+            with open(args.json, "w") as f:
+                json.dump(result, f, indent=1)
+
+    log({"cublas": baseline})
+    if dev.is_cuda:
+        compiled = compile_all(args.device, shape, candidates, splits, args.compile_limit, log)
+        candidates = [c for c in candidates if c in compiled]
+    sweep(args.device, shape, candidates, splits, args.launches, args.repeat, log)
+    for precision in wk.PRECISIONS:
+        best = best_tiles(result["rows"], precision)
+        if not best:
             continue
-        r = best[kernel]
-        base = f", cuBLAS {baseline[kernel]['tflops']:.1f} TFLOP/s" if baseline else ""
-        print(f"  {kernel}: {r['tm']}x{r['tn']}x{r['tk']} block_dim {r['block_dim']} mathdx {r['mathdx']} "
-              f"splits {r['splits']}: {r['seconds'] * 1e6:.0f} us, {r['tflops']:.1f} TFLOP/s{base}")
-    if args.json:
-        with open(args.json, "w") as f:
-            json.dump({"device": dev.name, "shape": shape, "rows": rows, "cublas": baseline}, f, indent=1)
+        print(f"\nbest per kernel, {precision} (median seconds per launch):")
+        for kernel, r in best.items():
+            base = f", cuBLAS {baseline[precision][kernel]['tflops']:.1f} TFLOP/s" if baseline else ""
+            print(f"  {kernel}: {r['tm']}x{r['tn']}x{r['tk']} block_dim {r['block_dim']} mathdx {r['mathdx']} "
+                  f"splits {r['splits']}: {r['seconds'] * 1e6:.0f} us, {r['tflops']:.1f} TFLOP/s{base}")
     return 0
 
 

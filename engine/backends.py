@@ -185,11 +185,15 @@ class _Weights(NamedTuple):
 
 
 class WarpBackend(_Scratch):
-    """Warp kernels on ``cpu`` or ``cuda``; on CUDA, captured sequences replay as CUDA graphs."""
+    """Warp kernels on ``cpu`` or ``cuda``; on CUDA, captured sequences replay as CUDA graphs.
+
+    ``precision``: ``float32`` (exact float32 GEMMs, the default) or ``tf32`` (CUDA only:
+    tensor-core GEMMs on inputs rounded to 10 mantissa bits, float32 accumulation).
+    """
 
     name = "warp"
 
-    def __init__(self, device: str | None = None) -> None:
+    def __init__(self, device: str | None = None, precision: str = "float32") -> None:
         from vitaplace.kernels import warp_kernels  # imported lazily: compiles on first use
 
         import warp as wp
@@ -200,6 +204,11 @@ class WarpBackend(_Scratch):
         wp.init()
         self.device = device or ("cuda" if wp.is_cuda_available() else "cpu")
         self._device = wp.get_device(self.device)
+        warp_kernels.check_precision(self._device, precision)
+        self.precision = precision
+
+    def _tiles(self, kernel: str, rows: int):
+        return self._kernels.tile_config(self._device, kernel, rows, self.precision)
 
     _DTYPES = {np.dtype(np.float32): "float32", np.dtype(np.float64): "float64", np.dtype(np.int32): "int32"}
 
@@ -238,18 +247,19 @@ class WarpBackend(_Scratch):
 
     def predict(self, Y, W: _Weights, X, E, G, R, slot: int, activation: str, slope: float) -> None:
         k = self._kernels
-        tiles = k.tile_config(self._device, "predict", Y.shape[0])
+        tiles = self._tiles("predict", Y.shape[0])
         partial = None if R is None else self._buffer("row_partial", k.row_partial_shape(Y.shape[0], W.W.shape[1], tiles))
         k.predict(Y, W.W, X, E, G, partial, R, slot, activation=activation, slope=slope, tiles=tiles)
 
     def latent_update(self, Y, G, W: _Weights, eta: float, E_above, mask) -> None:
         k = self._kernels
-        shape = k.latent_scratch_shape(Y.shape[0], Y.shape[1], W.W.shape[1], self._device)
+        tiles = self._tiles("latent", Y.shape[0])
+        shape = k.latent_scratch_shape(Y.shape[0], Y.shape[1], W.W.shape[1], self._device, tiles)
         scratch = self._buffer("latent", shape) if shape[0] else None
-        k.latent_update(Y, G, W.Wt, eta, scratch, E_above=E_above, mask=mask)
+        k.latent_update(Y, G, W.Wt, eta, scratch, E_above=E_above, mask=mask, tiles=tiles)
 
     def weight_update(self, W: _Weights, Y, G, eta: float) -> None:
-        self._kernels.weight_update(W.W, Y, G, eta, Wt=W.Wt)
+        self._kernels.weight_update(W.W, Y, G, eta, Wt=W.Wt, tiles=self._tiles("weight", Y.shape[0]))
 
     def gather_rows(self, src, index, dst) -> None:
         self._kernels.gather_rows(src, index, dst)
@@ -317,14 +327,17 @@ def cuda_available() -> bool:
         return False
 
 
-def get_backend(name: str = "auto", device: str | None = None) -> Backend:
-    """Backend by name: ``numpy``, ``warp`` (device ``cpu``/``cuda``/None = best) or ``auto``."""
+def get_backend(name: str = "auto", device: str | None = None, precision: str = "float32") -> Backend:
+    """Backend by name: ``numpy``, ``warp`` (device ``cpu``/``cuda``/None = best) or ``auto``;
+    ``precision`` ``tf32`` only with warp on CUDA."""
     if name == "auto":
         name = "warp" if cuda_available() else "numpy"
     if name == "numpy":
         if device not in (None, "cpu"):
             raise ValueError(f"backend 'numpy' runs on the cpu only, not on device '{device}'")
+        if precision != "float32":
+            raise ValueError(f"precision {precision!r} needs the warp backend on a CUDA GPU; numpy runs float32")
         return NumpyBackend()
     if name == "warp":
-        return WarpBackend(device)
+        return WarpBackend(device, precision)
     raise ValueError(f"unknown backend '{name}'; valid: {', '.join(BACKENDS)}")

@@ -54,6 +54,8 @@ __all__ = [
     "tile_config",
     "latent_splits",
     "set_tile_config",
+    "PRECISIONS",
+    "check_precision",
     "planned_kernels",
     "preload",
     "predict",
@@ -172,16 +174,22 @@ def _check_activation(name: str) -> None:
 # --------------------------------------------------------------------------------------
 
 
+PRECISIONS = ("float32", "tf32")
+
+
 class TileConfig(NamedTuple):
     """Static tile sizes of one GEMM (output tile tm x tn, K step tk), the launch
-    ``block_dim``, and whether ``tile_matmul`` goes through libmathdx (cuBLASDx) on CUDA
-    (``False``: Warp's own tile GEMM, which compiles in a fraction of the time)."""
+    ``block_dim``, whether ``tile_matmul`` goes through libmathdx (cuBLASDx) on CUDA
+    (``False``: Warp's own tile GEMM, which compiles in a fraction of the time), and the
+    GEMM's input precision: ``float32``, or ``tf32`` (CUDA, compute capability >= 8.0:
+    tensor cores on inputs rounded to 10 mantissa bits, float32 accumulation)."""
 
     tm: int
     tn: int
     tk: int
     block_dim: int
     mathdx: bool = True
+    precision: str = "float32"
 
 
 # CPU: Warp runs each tile serially with one thread through its scalar register-blocked
@@ -222,16 +230,28 @@ def _round_rows(m: int, cap: int) -> int:
     return t
 
 
-def tile_config(device, kernel: str, rows: int) -> TileConfig:
+def tile_config(device, kernel: str, rows: int, precision: str = "float32") -> TileConfig:
     """Tile sizes of ``kernel`` (``predict``, ``latent``, ``weight``) on ``device``.
 
     ``rows`` is the batch: the output rows of predict / latent (the row tile shrinks to
     the next power of two >= batch) and the K of the weight update (so is its K step).
+    ``precision`` ``tf32`` needs a CUDA device of compute capability 8.0 or newer.
     """
-    cfg = (_CUDA_TILES if wp.get_device(device).is_cuda else _CPU_TILES)[kernel]
+    dev = wp.get_device(device)
+    check_precision(dev, precision)
+    cfg = (_CUDA_TILES if dev.is_cuda else _CPU_TILES)[kernel]._replace(precision=precision)
     if kernel == "weight":
         return cfg._replace(tk=_round_rows(rows, cfg.tk))
     return cfg._replace(tm=_round_rows(rows, cfg.tm))
+
+
+def check_precision(device, precision: str) -> None:
+    """Raise ValueError unless ``device`` can run GEMMs in ``precision``."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"unknown precision {precision!r}; valid: {', '.join(PRECISIONS)}")
+    dev = wp.get_device(device)
+    if precision == "tf32" and not (dev.is_cuda and dev.arch >= 80):
+        raise ValueError(f"precision 'tf32' needs a CUDA GPU of compute capability 8.0 or newer, not {dev.alias}")
 
 
 def _cdiv(a: int, b: int) -> int:
@@ -258,10 +278,15 @@ _F32_3D = wp.array3d(dtype=wp.float32)
 _F64_2D = wp.array2d(dtype=wp.float64)
 
 
-def _tiled_kernel(fn, name: str, mathdx: bool = True):
-    """Compile ``fn`` as a forward-only kernel in its own module, named ``name``."""
-    fn.__name__ = fn.__qualname__ = name + ("" if mathdx else "_nomathdx")
+def _tiled_kernel(fn, name: str, tiles: TileConfig | None = None):
+    """Compile ``fn`` as a forward-only kernel in its own module, named ``name`` (and the
+    tile GEMM's options)."""
+    mathdx = tiles is None or tiles.mathdx
+    if tiles is not None:
+        name += ("" if mathdx else "_nomathdx") + ("_tf32" if tiles.precision == "tf32" else "")
+    fn.__name__ = fn.__qualname__ = name
     return wp.kernel(fn, enable_backward=False, module="unique", module_options={"enable_mathdx_gemm": mathdx})
+
 
 
 @functools.cache
@@ -269,6 +294,7 @@ def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, 
     """(a) GEMM M=B, N=n_below, K=n_l, then the epilogue; ``row_partial[j, r]`` receives
     row r's sum of squared errors over column tile j (when ``with_energy``)."""
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
+    tf32 = tiles.precision == "tf32"
     phi, gain = _PHI[activation]
 
     def predict_kernel(
@@ -288,7 +314,10 @@ def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, 
         for k in range((Y.shape[1] + tk - 1) // tk):
             y = wp.tile_load(Y, shape=(tm, tk), offset=(row, k * tk))
             w = wp.tile_load(W, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(y, w, a)
+            if wp.static(tf32):
+                wp.tile_matmul(y, w, a, precision="tf32")
+            else:
+                wp.tile_matmul(y, w, a)
         p = wp.tile_map(phi, a, slope)
         e = wp.tile_load(X, shape=(tm, tn), offset=(row, col)) - p
         g = wp.tile_map(gain, a, e, slope)
@@ -306,7 +335,7 @@ def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, 
             wp.tile_store(row_partial[j], wp.tile_sum(wp.tile_map(_square, e), axis=1), offset=row)
 
     tag = ("AP" if store_prediction else "EG") + ("R" if with_energy else "")
-    return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tag}_{tm}x{tn}x{tk}", tiles.mathdx)
+    return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tag}_{tm}x{tn}x{tk}", tiles)
 
 
 @wp.func
@@ -322,6 +351,7 @@ def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool):
     Output tile (i, j) reads only Y's tile (i, j), after its GEMM, so Y is updated in place.
     """
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
+    tf32 = tiles.precision == "tf32"
 
     def latent_kernel(
         Y: _F32_2D, G: _F32_2D, Wt: _F32_2D, E_above: _F32_2D, mask: wp.array(dtype=wp.int32), two_eta: wp.float32
@@ -332,7 +362,10 @@ def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool):
         for k in range((G.shape[1] + tk - 1) // tk):
             g = wp.tile_load(G, shape=(tm, tk), offset=(row, k * tk))
             w = wp.tile_load(Wt, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(g, w, d)
+            if wp.static(tf32):
+                wp.tile_matmul(g, w, d, precision="tf32")
+            else:
+                wp.tile_matmul(g, w, d)
         if wp.static(has_above):
             d = d - wp.tile_load(E_above, shape=(tm, tn), offset=(row, col))
         d = d * two_eta
@@ -342,13 +375,14 @@ def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool):
         wp.tile_store(Y, wp.tile_load(Y, shape=(tm, tn), offset=(row, col)) + d, offset=(row, col))
 
     name = f"pc_latent_{'above' if has_above else 'top'}_{'masked' if has_mask else 'all'}_{tm}x{tn}x{tk}"
-    return _tiled_kernel(latent_kernel, name, tiles.mathdx)
+    return _tiled_kernel(latent_kernel, name, tiles)
 
 
 @functools.cache
 def _latent_gemm_kernel(tiles: TileConfig):
     """(b, split along K) ``D[s] = G[:, Ks] @ Wt[Ks, :]`` for K-slice ``s`` of ``steps`` K-steps."""
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
+    tf32 = tiles.precision == "tf32"
 
     def latent_gemm_kernel(G: _F32_2D, Wt: _F32_2D, steps: int, D: _F32_3D):
         i, j, s = wp.tid()
@@ -358,10 +392,13 @@ def _latent_gemm_kernel(tiles: TileConfig):
         for k in range(s * steps, end):
             g = wp.tile_load(G, shape=(tm, tk), offset=(row, k * tk))
             w = wp.tile_load(Wt, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(g, w, d)
+            if wp.static(tf32):
+                wp.tile_matmul(g, w, d, precision="tf32")
+            else:
+                wp.tile_matmul(g, w, d)
         wp.tile_store(D[s], d, offset=(row, col))
 
-    return _tiled_kernel(latent_gemm_kernel, f"pc_latent_gemm_{tm}x{tn}x{tk}", tiles.mathdx)
+    return _tiled_kernel(latent_gemm_kernel, f"pc_latent_gemm_{tm}x{tn}x{tk}", tiles)
 
 
 @functools.cache
@@ -392,6 +429,7 @@ def _weight_kernel(tiles: TileConfig, with_transpose: bool):
     """(c) W += 2 eta Y.T @ G (in place), and Wt = W.T of the result when asked.
     GEMM M=n_l, N=n_below, K=B."""
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
+    tf32 = tiles.precision == "tf32"
 
     def weight_kernel(W: _F32_2D, Y: _F32_2D, G: _F32_2D, two_eta: wp.float32, Wt: _F32_2D):
         i, j = wp.tid()
@@ -400,13 +438,16 @@ def _weight_kernel(tiles: TileConfig, with_transpose: bool):
         for k in range((Y.shape[0] + tk - 1) // tk):
             y = wp.tile_load(Y, shape=(tk, tm), offset=(k * tk, row))
             g = wp.tile_load(G, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(wp.tile_transpose(y), g, d)
+            if wp.static(tf32):
+                wp.tile_matmul(wp.tile_transpose(y), g, d, precision="tf32")
+            else:
+                wp.tile_matmul(wp.tile_transpose(y), g, d)
         w = wp.tile_load(W, shape=(tm, tn), offset=(row, col)) + d * two_eta
         wp.tile_store(W, w, offset=(row, col))
         if wp.static(with_transpose):
             wp.tile_store(Wt, wp.tile_transpose(w), offset=(col, row))
 
-    return _tiled_kernel(weight_kernel, f"pc_weight_{'WWt' if with_transpose else 'W'}_{tm}x{tn}x{tk}", tiles.mathdx)
+    return _tiled_kernel(weight_kernel, f"pc_weight_{'WWt' if with_transpose else 'W'}_{tm}x{tn}x{tk}", tiles)
 
 
 @wp.kernel(enable_backward=False, module="unique")
