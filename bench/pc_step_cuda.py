@@ -8,7 +8,9 @@ Measured in one run, on one GPU, interleaved round by round (median over rounds)
 * ``torch step``    the same minibatch written in PyTorch (bench/pc_step.py ``TorchImpl``),
                     captured as a CUDA graph;
 * ``warp backend``  the project's step: ``BatchState`` on ``WarpBackend('cuda')``, captured
-                    as a CUDA graph by the backend, exactly as ``Network.train`` runs it.
+                    as a CUDA graph by the backend, exactly as ``Network.train`` runs it;
+* for context, the cuBLAS GEMMs and the PyTorch step again with TF32 tensor-core GEMMs
+  (inputs rounded to 10 mantissa bits): not the same arithmetic, so not a target.
 
 Every implementation reads its energies back and checks them once per minibatch (one
 host round trip), and each timed sample is a host clock around ``--minibatches``
@@ -112,7 +114,7 @@ def op_breakdown(impl, repeat: int, sync: Callable[[], None]) -> dict[str, float
     return out
 
 
-def timed_training(pc, epochs: int, samples: int, log, precision: str = "float32", inference: bool = True) -> dict:
+def timed_training(pc, epochs: int, samples: int, log) -> dict:
     """The paper's network trained on random data: the first epoch (kernel compilation,
     graph capture) timed apart, then ``epochs`` epochs; projected to the paper's budget."""
     from vitaplace.engine.backends import WarpBackend
@@ -124,7 +126,7 @@ def timed_training(pc, epochs: int, samples: int, log, precision: str = "float32
     rng = np.random.default_rng(0)
     mods = spec["config"]["modalities"]
     inputs = {m: rng.random((samples, mc["input_size"]), dtype=np.float32) for m, mc in mods.items()}
-    net = Network(spec["config"], seed=0, backend=WarpBackend("cuda", precision))
+    net = Network(spec["config"], seed=0, backend=WarpBackend("cuda"))
     train = {"batch_size": spec["batch"], "inference_steps": spec["steps"]}
     latents: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
@@ -147,11 +149,9 @@ def timed_training(pc, epochs: int, samples: int, log, precision: str = "float32
     energy = {k: v[-1] for k, v in history.energy.items()}
     if not all(np.isfinite(list(energy.values()))):
         raise RuntimeError(f"training diverged: {energy}")
-    result = {"precision": precision, "first_epoch_s": first, "epochs": epochs, "samples": samples,
+    result = {"first_epoch_s": first, "epochs": epochs, "samples": samples,
               "epoch_s": per_epoch, "tflops": flops_epoch / per_epoch / 1e12, "projected_min": projected / 60,
               "speedup_vs_paper": [h * 3600 / projected for h in PAPER_HOURS], "energy": energy}
-    if not inference:
-        return result
 
     test = {m: x[:300] for m, x in inputs.items()}
     never = {e.name: 0.0 for e in net.edges}
@@ -185,7 +185,6 @@ def cuda_main(args, pc) -> dict:
         "numpy backend": lambda p: pc.BatchStateImpl(p, pc.NumpyBackend()),
         "warp cuda": lambda p: pc.BatchStateImpl(p, WarpBackend("cuda")),
         "torch cuda": lambda p: pc.TorchImpl(p, 1, device="cuda"),
-        "warp cuda tf32": lambda p: pc.BatchStateImpl(p, WarpBackend("cuda", "tf32")),
     })
     for name, (dy, dw) in agree.items():
         print(f"  {name:10s} vs numpy backend: latents {dy:.2e}, weights {dw:.2e}")
@@ -198,9 +197,8 @@ def cuda_main(args, pc) -> dict:
         "cuBLAS GEMMs (baseline)": TorchGemms(prob, torch),
         "torch step (CUDA graph)": pc.TorchImpl(prob, 1, device="cuda"),
         "warp backend (CUDA graph)": pc.BatchStateImpl(prob, WarpBackend("cuda")),
-        "cuBLAS GEMMs, TF32": TorchGemms(prob, torch, tf32=True),
-        "torch step, TF32": pc.TorchImpl(prob, 1, device="cuda", tf32=True),
-        "warp backend, TF32": pc.BatchStateImpl(prob, WarpBackend("cuda", "tf32")),
+        "cuBLAS GEMMs, TF32 (context)": TorchGemms(prob, torch, tf32=True),
+        "torch step, TF32 (context)": pc.TorchImpl(prob, 1, device="cuda", tf32=True),
     }
     for name, impl in impls.items():
         print(f"  warm-up / compile: {name} ...", flush=True)
@@ -222,17 +220,16 @@ def cuda_main(args, pc) -> dict:
     print(f"\nper minibatch, median of {args.repeat} rounds x {args.minibatches} minibatches; "
           "'x cuBLAS' = rate / the cuBLAS GEMM rate in the same precision:")
     print(pc.fmt_table(rows, ["implementation", "median ms", "best ms", "TFLOP/s", "x cuBLAS"]))
-    for label, (t, w) in {"float32": (names[1], names[2]), "TF32": (names[4], names[5])}.items():
-        w, t = results[w], results[t]
-        print(f"target ({label}): warp step >= 0.8 x cuBLAS GEMM rate: {w['ratio']:.2f} x -> "
-              f"{'met' if w['ratio'] >= 0.8 else 'NOT met'}; ahead of the torch step: torch takes "
-              f"{t['median_s'] / w['median_s']:.2f} x the warp time -> {'met' if w['median_s'] < t['median_s'] else 'NOT met'}")
+    w, t = results[names[2]], results[names[1]]
+    print(f"target: warp step >= 0.8 x cuBLAS GEMM rate: {w['ratio']:.2f} x -> {'met' if w['ratio'] >= 0.8 else 'NOT met'}")
+    print(f"target: warp step ahead of the torch step: torch takes {t['median_s'] / w['median_s']:.2f} x the warp "
+          f"time -> {'met' if w['median_s'] < t['median_s'] else 'NOT met'}")
     breakdown = op_breakdown(impls[names[2]], args.repeat, sync)
     print("warp float32, per operation (ms): " + ", ".join(f"{k} {v:.3f}" for k, v in breakdown.items())
           + f"; minibatch = {prob.steps + 1} predict_all + {prob.steps} latent_step + 1 weight_step")
 
     out = {"device": info, "gflop": flops / 1e9, "smoke": agree, "results": results, "times": times,
-           "breakdown_ms": breakdown, "training": None, "training_tf32": None}
+           "breakdown_ms": breakdown, "training": None}
     _save(args.json, out)  # the comparison survives a time limit hit during the training
     if not args.quick:
         print(f"\ntimed training at the paper's shapes on the Warp backend ({PAPER_SAMPLES} random samples):", flush=True)
@@ -241,10 +238,6 @@ def cuda_main(args, pc) -> dict:
               f"{'met' if training['projected_min'] <= 30 else 'NOT met'}")
         print(f"target: inference of 300 samples x 3000 steps in seconds: {training['inference_300x3000_s']:.1f} s")
         out["training"] = training
-        _save(args.json, out)
-        print("the same in TF32 (2 epochs, no inference):", flush=True)
-        out["training_tf32"] = timed_training(pc, 2, PAPER_SAMPLES, lambda line: print(line, flush=True),
-                                              precision="tf32", inference=False)
         _save(args.json, out)
     return out
 

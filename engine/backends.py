@@ -185,15 +185,11 @@ class _Weights(NamedTuple):
 
 
 class WarpBackend(_Scratch):
-    """Warp kernels on ``cpu`` or ``cuda``; on CUDA, captured sequences replay as CUDA graphs.
-
-    ``precision``: ``float32`` (exact float32 GEMMs, the default) or ``tf32`` (CUDA only:
-    tensor-core GEMMs on inputs rounded to 10 mantissa bits, float32 accumulation).
-    """
+    """Warp kernels on ``cpu`` or ``cuda``; on CUDA, captured sequences replay as CUDA graphs."""
 
     name = "warp"
 
-    def __init__(self, device: str | None = None, precision: str = "float32") -> None:
+    def __init__(self, device: str | None = None) -> None:
         from vitaplace.kernels import warp_kernels  # imported lazily: compiles on first use
 
         import warp as wp
@@ -204,11 +200,9 @@ class WarpBackend(_Scratch):
         wp.init()
         self.device = device or ("cuda" if wp.is_cuda_available() else "cpu")
         self._device = wp.get_device(self.device)
-        warp_kernels.check_precision(self._device, precision)
-        self.precision = precision
 
     def _tiles(self, kernel: str, rows: int):
-        return self._kernels.tile_config(self._device, kernel, rows, self.precision)
+        return self._kernels.tile_config(self._device, kernel, rows)
 
     _DTYPES = {np.dtype(np.float32): "float32", np.dtype(np.float64): "float64", np.dtype(np.int32): "int32"}
 
@@ -327,17 +321,14 @@ def cuda_available() -> bool:
         return False
 
 
-def get_backend(name: str = "auto", device: str | None = None, precision: str = "float32") -> Backend:
-    """Backend by name: ``numpy``, ``warp`` (device ``cpu``/``cuda``/None = best) or ``auto``;
-    ``precision`` ``tf32`` only with warp on CUDA."""
+def get_backend(name: str = "auto", device: str | None = None) -> Backend:
+    """Backend by name: ``numpy``, ``warp`` (device ``cpu``/``cuda``/None = best) or ``auto``."""
     if name == "auto":
         name = "warp" if cuda_available() else "numpy"
     if name == "numpy":
         if device not in (None, "cpu"):
             raise ValueError(f"backend 'numpy' runs on the cpu only, not on device '{device}'")
-        if precision != "float32":
-            raise ValueError(f"precision {precision!r} needs the warp backend on a CUDA GPU; numpy runs float32")
         return NumpyBackend()
     if name == "warp":
-        return WarpBackend(device, precision)
+        return WarpBackend(device)
     raise ValueError(f"unknown backend '{name}'; valid: {', '.join(BACKENDS)}")

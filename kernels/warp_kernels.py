@@ -54,8 +54,6 @@ __all__ = [
     "tile_config",
     "latent_splits",
     "set_tile_config",
-    "PRECISIONS",
-    "check_precision",
     "planned_kernels",
     "preload",
     "predict",
@@ -174,22 +172,17 @@ def _check_activation(name: str) -> None:
 # --------------------------------------------------------------------------------------
 
 
-PRECISIONS = ("float32", "tf32")
-
-
 class TileConfig(NamedTuple):
     """Static tile sizes of one GEMM (output tile tm x tn, K step tk), the launch
-    ``block_dim``, whether ``tile_matmul`` goes through libmathdx (cuBLASDx) on CUDA
-    (``False``: Warp's own tile GEMM, which compiles in a fraction of the time), and the
-    GEMM's input precision: ``float32``, or ``tf32`` (CUDA, compute capability >= 8.0:
-    tensor cores on inputs rounded to 10 mantissa bits, float32 accumulation)."""
+    ``block_dim``, and whether ``tile_matmul`` goes through libmathdx (cuBLASDx) on CUDA
+    (``False``: Warp's own tile GEMM, which compiles in seconds rather than tens of
+    seconds)."""
 
     tm: int
     tn: int
     tk: int
     block_dim: int
     mathdx: bool = True
-    precision: str = "float32"
 
 
 # CPU: Warp runs each tile serially with one thread through its scalar register-blocked
@@ -201,11 +194,15 @@ _CPU_TILES = {
     "latent": TileConfig(64, 128, 32, 1),
     "weight": TileConfig(64, 128, 32, 1),
 }
-# CUDA: chosen by bench/tile_sweep.py on an H100 at the paper's shapes (docs/PERFORMANCE.md).
+# CUDA: chosen by bench/tile_sweep.py on an H100 at the paper's largest edge (B=150,
+# n_l=1000, n_below=10800; docs/PERFORMANCE.md). 64x64 output tiles with a 32-deep K step and
+# 128 threads beat 64x128, 128x64 and 128x128 in every kernel, and Warp's own tile GEMM
+# matched or beat cuBLASDx there (predict 270 vs 281 us, latent 218 vs 226 us, weight 195 vs
+# 300 us) while compiling in seconds instead of ~35 s per kernel.
 _CUDA_TILES = {
-    "predict": TileConfig(64, 64, 32, 128),
-    "latent": TileConfig(64, 64, 32, 128),
-    "weight": TileConfig(64, 64, 32, 128),
+    "predict": TileConfig(64, 64, 32, 128, mathdx=False),
+    "latent": TileConfig(64, 64, 32, 128, mathdx=False),
+    "weight": TileConfig(64, 64, 32, 128, mathdx=False),
 }
 #: Element-wise / per-row kernels: threads per block on CUDA.
 _SIMT_BLOCK = 256
@@ -230,28 +227,16 @@ def _round_rows(m: int, cap: int) -> int:
     return t
 
 
-def tile_config(device, kernel: str, rows: int, precision: str = "float32") -> TileConfig:
+def tile_config(device, kernel: str, rows: int) -> TileConfig:
     """Tile sizes of ``kernel`` (``predict``, ``latent``, ``weight``) on ``device``.
 
     ``rows`` is the batch: the output rows of predict / latent (the row tile shrinks to
     the next power of two >= batch) and the K of the weight update (so is its K step).
-    ``precision`` ``tf32`` needs a CUDA device of compute capability 8.0 or newer.
     """
-    dev = wp.get_device(device)
-    check_precision(dev, precision)
-    cfg = (_CUDA_TILES if dev.is_cuda else _CPU_TILES)[kernel]._replace(precision=precision)
+    cfg = (_CUDA_TILES if wp.get_device(device).is_cuda else _CPU_TILES)[kernel]
     if kernel == "weight":
         return cfg._replace(tk=_round_rows(rows, cfg.tk))
     return cfg._replace(tm=_round_rows(rows, cfg.tm))
-
-
-def check_precision(device, precision: str) -> None:
-    """Raise ValueError unless ``device`` can run GEMMs in ``precision``."""
-    if precision not in PRECISIONS:
-        raise ValueError(f"unknown precision {precision!r}; valid: {', '.join(PRECISIONS)}")
-    dev = wp.get_device(device)
-    if precision == "tf32" and not (dev.is_cuda and dev.arch >= 80):
-        raise ValueError(f"precision 'tf32' needs a CUDA GPU of compute capability 8.0 or newer, not {dev.alias}")
 
 
 def _cdiv(a: int, b: int) -> int:
@@ -283,7 +268,7 @@ def _tiled_kernel(fn, name: str, tiles: TileConfig | None = None):
     tile GEMM's options)."""
     mathdx = tiles is None or tiles.mathdx
     if tiles is not None:
-        name += ("" if mathdx else "_nomathdx") + ("_tf32" if tiles.precision == "tf32" else "")
+        name += "" if mathdx else "_nomathdx"
     fn.__name__ = fn.__qualname__ = name
     return wp.kernel(fn, enable_backward=False, module="unique", module_options={"enable_mathdx_gemm": mathdx})
 
@@ -294,7 +279,6 @@ def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, 
     """(a) GEMM M=B, N=n_below, K=n_l, then the epilogue; ``row_partial[j, r]`` receives
     row r's sum of squared errors over column tile j (when ``with_energy``)."""
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
-    tf32 = tiles.precision == "tf32"
     phi, gain = _PHI[activation]
 
     def predict_kernel(
@@ -314,10 +298,7 @@ def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, 
         for k in range((Y.shape[1] + tk - 1) // tk):
             y = wp.tile_load(Y, shape=(tm, tk), offset=(row, k * tk))
             w = wp.tile_load(W, shape=(tk, tn), offset=(k * tk, col))
-            if wp.static(tf32):
-                wp.tile_matmul(y, w, a, precision="tf32")
-            else:
-                wp.tile_matmul(y, w, a)
+            wp.tile_matmul(y, w, a)
         p = wp.tile_map(phi, a, slope)
         e = wp.tile_load(X, shape=(tm, tn), offset=(row, col)) - p
         g = wp.tile_map(gain, a, e, slope)
@@ -351,7 +332,6 @@ def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool):
     Output tile (i, j) reads only Y's tile (i, j), after its GEMM, so Y is updated in place.
     """
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
-    tf32 = tiles.precision == "tf32"
 
     def latent_kernel(
         Y: _F32_2D, G: _F32_2D, Wt: _F32_2D, E_above: _F32_2D, mask: wp.array(dtype=wp.int32), two_eta: wp.float32
@@ -362,10 +342,7 @@ def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool):
         for k in range((G.shape[1] + tk - 1) // tk):
             g = wp.tile_load(G, shape=(tm, tk), offset=(row, k * tk))
             w = wp.tile_load(Wt, shape=(tk, tn), offset=(k * tk, col))
-            if wp.static(tf32):
-                wp.tile_matmul(g, w, d, precision="tf32")
-            else:
-                wp.tile_matmul(g, w, d)
+            wp.tile_matmul(g, w, d)
         if wp.static(has_above):
             d = d - wp.tile_load(E_above, shape=(tm, tn), offset=(row, col))
         d = d * two_eta
@@ -382,7 +359,6 @@ def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool):
 def _latent_gemm_kernel(tiles: TileConfig):
     """(b, split along K) ``D[s] = G[:, Ks] @ Wt[Ks, :]`` for K-slice ``s`` of ``steps`` K-steps."""
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
-    tf32 = tiles.precision == "tf32"
 
     def latent_gemm_kernel(G: _F32_2D, Wt: _F32_2D, steps: int, D: _F32_3D):
         i, j, s = wp.tid()
@@ -392,10 +368,7 @@ def _latent_gemm_kernel(tiles: TileConfig):
         for k in range(s * steps, end):
             g = wp.tile_load(G, shape=(tm, tk), offset=(row, k * tk))
             w = wp.tile_load(Wt, shape=(tk, tn), offset=(k * tk, col))
-            if wp.static(tf32):
-                wp.tile_matmul(g, w, d, precision="tf32")
-            else:
-                wp.tile_matmul(g, w, d)
+            wp.tile_matmul(g, w, d)
         wp.tile_store(D[s], d, offset=(row, col))
 
     return _tiled_kernel(latent_gemm_kernel, f"pc_latent_gemm_{tm}x{tn}x{tk}", tiles)
@@ -429,7 +402,6 @@ def _weight_kernel(tiles: TileConfig, with_transpose: bool):
     """(c) W += 2 eta Y.T @ G (in place), and Wt = W.T of the result when asked.
     GEMM M=n_l, N=n_below, K=B."""
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
-    tf32 = tiles.precision == "tf32"
 
     def weight_kernel(W: _F32_2D, Y: _F32_2D, G: _F32_2D, two_eta: wp.float32, Wt: _F32_2D):
         i, j = wp.tid()
@@ -438,10 +410,7 @@ def _weight_kernel(tiles: TileConfig, with_transpose: bool):
         for k in range((Y.shape[0] + tk - 1) // tk):
             y = wp.tile_load(Y, shape=(tk, tm), offset=(k * tk, row))
             g = wp.tile_load(G, shape=(tk, tn), offset=(k * tk, col))
-            if wp.static(tf32):
-                wp.tile_matmul(wp.tile_transpose(y), g, d, precision="tf32")
-            else:
-                wp.tile_matmul(wp.tile_transpose(y), g, d)
+            wp.tile_matmul(wp.tile_transpose(y), g, d)
         w = wp.tile_load(W, shape=(tm, tn), offset=(row, col)) + d * two_eta
         wp.tile_store(W, w, offset=(row, col))
         if wp.static(with_transpose):

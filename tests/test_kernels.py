@@ -295,33 +295,6 @@ def test_planned_kernels_records_instead_of_launching(device):
     assert rel_err(E.numpy(), e) <= TOL and rel_err(R.numpy()[0], np.sum(e**2, axis=1)) <= TOL
 
 
-def test_tf32_kernels_are_tf32_accurate(device):
-    """precision='tf32': tensor-core GEMMs on inputs rounded to 10 mantissa bits. The error
-    against the float64 reference must be of TF32's size: far above float32 rounding (so
-    TF32 really ran) and within a few units of 2**-11 (so it is still the same maths)."""
-    if device == "cpu":
-        with pytest.raises(ValueError, match="tf32"):
-            wk.tile_config(device, "predict", 8, "tf32")
-        return
-    b, n_l, n_below = 150, 1000, 300
-    Y, W, X = layer((b, n_l, n_below), seed=19)
-    G = np.random.default_rng(20).standard_normal((b, n_below)).astype(np.float32)
-    tiles = {k: wk.tile_config(device, k, b, "tf32") for k in ("predict", "latent", "weight")}
-    _, _, E, _, _ = run_predict(Y, W, X, device, "linear", tiles=tiles["predict"], store_prediction=False)
-    a = f64(Y)[0] @ f64(W)[0]
-    pred_err = rel_err(f64(X)[0] - E, a)  # the error of the product A = X - E
-    wY = to_wp(Y, device)
-    shape = wk.latent_scratch_shape(b, n_l, n_below, device, tiles["latent"])
-    scratch = poisoned(shape, device) if shape[0] else None
-    wk.latent_update(wY, to_wp(G, device), to_wp(W.T, device), 0.5, scratch, tiles=tiles["latent"])
-    lat_err = rel_err(wY.numpy() - Y, f64(G)[0] @ f64(W)[0].T)  # 2 eta = 1: the increment is G W^T
-    wW = to_wp(W, device)
-    wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), 0.5, tiles=tiles["weight"])
-    wt_err = rel_err(wW.numpy() - W, f64(Y)[0].T @ f64(G)[0])
-    for name, err in (("predict", pred_err), ("latent", lat_err), ("weight", wt_err)):
-        assert 2e-5 < err < 5e-3, (name, err)
-
-
 def test_tile_config_shrinks_rows_for_small_batches(device):
     big = wk.tile_config(device, "predict", 10_000)
     assert wk.tile_config(device, "predict", 1).tm == 1

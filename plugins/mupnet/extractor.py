@@ -17,7 +17,6 @@ from scipy.ndimage import zoom
 from scipy.spatial.distance import cdist
 
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.backends import get_backend
 from vitaplace.engine.dataset import Run
 from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
 from vitaplace.engine.pc import Network, NetworkConfig, TrainingConfig
@@ -49,16 +48,7 @@ class MupnetParams(ExtractorParams):
     inference_steps: pydantic.PositiveInt = 20
     max_steps: pydantic.PositiveInt = pydantic.Field(3000, description="test-time inference step cap")
     backend: Literal["auto", "numpy", "warp"] = "auto"
-    precision: Literal["float32", "tf32"] = pydantic.Field(
-        "float32", description="GEMM input precision; tf32 (tensor cores) needs the warp backend on a CUDA GPU"
-    )
     seed: int = 0
-
-    @pydantic.model_validator(mode="after")
-    def _tf32_needs_warp(self) -> MupnetParams:
-        if self.precision == "tf32" and self.backend == "numpy":
-            raise ValueError("precision 'tf32' needs backend 'warp' (or 'auto') on a CUDA GPU")
-        return self
 
     @pydantic.field_validator("modalities")
     @classmethod
@@ -135,8 +125,7 @@ class MupnetExtractor(FeatureExtractor):
     def fit(self, train: Run) -> None:
         p = self.params
         raw = self.raw_inputs(train)
-        backend = get_backend(p.backend, precision=p.precision)
-        self.network = Network(self.network_config(train.n_whiskers * 3), seed=p.seed, backend=backend)
+        self.network = Network(self.network_config(train.n_whiskers * 3), seed=p.seed, backend=p.backend)
         if "visual" in raw:
             self.network.set_scaler("visual", np.zeros(1, np.float32), np.full(1, 1 / 255, np.float32))
         if "tactile" in raw:
@@ -168,7 +157,6 @@ class MupnetExtractor(FeatureExtractor):
         write_text_atomic(directory / "energy.json", json.dumps(self.energy))
 
     def load_state(self, directory: Path) -> None:
-        backend = get_backend(self.params.backend, precision=self.params.precision)
-        self.network = Network.load(directory / "network", backend=backend)
+        self.network = Network.load(directory / "network", backend=self.params.backend)
         energy = directory / "energy.json"
         self.energy = json.loads(energy.read_text()) if energy.exists() else {}
