@@ -2,8 +2,7 @@
 """Benchmark one predictive-coding training minibatch at the MuPNet paper's shapes.
 
 One minibatch is exactly what ``Network.train`` does per minibatch, minus data loading:
-``predict_all``, then T x (``latent_step`` + ``predict_all``), then ``weight_step``
-(DESIGN §6-7). Shapes: visual 10800 -> 1000 -> 300, tactile 72 -> 100, joint 200,
+``predict_all``, then T x (``latent_step`` + ``predict_all``), then ``weight_step``. Shapes: visual 10800 -> 1000 -> 300, tactile 72 -> 100, joint 200,
 B = 150, T = 20.
 
 Measured in one run, interleaved round by round (the machine is shared and noisy; the

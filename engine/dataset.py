@@ -1,4 +1,4 @@
-"""Recorded runs: the in-memory `Run` type and its HDF5 file format (DESIGN §5).
+"""Recorded runs: the in-memory `Run` type and its HDF5 file format.
 
 One HDF5 file per run. Datasets (N samples, S deflection samples per whisk cycle,
 W whiskers, M contacts in total):

@@ -1,4 +1,4 @@
-"""Place-recognition evaluation: ground truth, decisions, PR curves, recall@K (DESIGN §10).
+"""Place-recognition evaluation: ground truth, decisions, PR curves, recall@K.
 
 Conventions (single-best-match VPR, as VPR_Tutorial's ``createPR(..., matching='single')``):
 
@@ -182,7 +182,7 @@ def _best(tme: np.ndarray, gtm: np.ndarray, tau: float):
 
 
 def decide(tme, gtm, tau: float, delta: float) -> Decisions:
-    """Single-best-match decisions (DESIGN §10) for acceptance threshold ``delta`` on the TME."""
+    """Single-best-match decisions for acceptance threshold ``delta`` on the TME."""
     tme_a, gtm_a = _check_matrices(tme, gtm)
     tau = _check_tau(tau)
     delta = float(delta)

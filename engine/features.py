@@ -1,4 +1,4 @@
-"""The feature-extractor interface every place-recognition front end implements (DESIGN §9).
+"""The feature-extractor interface every place-recognition front end implements.
 
 An extractor turns a recorded `Run` into per-sample features and compares two feature
 sets with a template-match error (TME, lower = more similar). Evaluation only ever talks

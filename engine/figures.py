@@ -1,4 +1,4 @@
-"""Figures for the evaluation (DESIGN §10): matrices with decisions (paper Fig. 4), PR curves
+"""Figures for the evaluation: matrices with decisions (paper Fig. 4), PR curves
 (paper Fig. 5), trajectories over the arena map, training energy.
 
 Every function draws on its own ``matplotlib.figure.Figure`` with an Agg canvas (no pyplot,

@@ -1,4 +1,4 @@
-"""Import MultiPredNet / WhiskEye MATLAB recordings as a `Run` (DESIGN §5).
+"""Import MultiPredNet / WhiskEye MATLAB recordings as a `Run`.
 
 The layout read by the MultiPredNet scripts (github.com/TomKnowles1994/MultiPredNet,
 ``load_mat_data``): a folder with

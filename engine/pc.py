@@ -1,4 +1,4 @@
-"""The multi-modal predictive-coding network (MuPNet, DESIGN §6).
+"""The multi-modal predictive-coding network (MuPNet; maths in docs/MUPNET.md).
 
 The network is a tree of latent nodes: each modality ``m`` has a stack ``m.1 .. m.L`` above
 its input ``m.0``, and one ``joint`` node predicts the top node of every modality. Each

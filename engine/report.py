@@ -1,4 +1,4 @@
-"""The Markdown report of a scenario run, with the paper's figures (DESIGN §10, paper Fig. 4-5)."""
+"""The Markdown report of a scenario run, with the paper's figures (paper Fig. 4-5)."""
 
 from __future__ import annotations
 

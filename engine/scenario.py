@@ -1,4 +1,4 @@
-"""Scenario files: what to simulate, which methods to compare, how to evaluate (DESIGN §11).
+"""Scenario files: what to simulate, which methods to compare, how to evaluate.
 
 A scenario is YAML validated by pydantic before anything runs. ``extends: other.yaml``
 (relative to the file) deep-merges the file over another scenario. Errors name the file,

@@ -1,4 +1,4 @@
-"""Sweeps: one scenario over many seeds, on a local process pool or a Ray cluster (DESIGN §11).
+"""Sweeps: one scenario over many seeds, on a local process pool or a Ray cluster.
 
 Each seed is one job running the whole pipeline into ``OUT/seed-<s>``; all jobs share the
 stage cache ``OUT/cache`` (keys are content hashes, writes are atomic renames), so stages

@@ -1,1 +1,1 @@
-"""Warp kernels for the predictive-coding hot loops and their numpy reference (DESIGN §7)."""
+"""Warp kernels for the predictive-coding hot loops and their numpy reference."""

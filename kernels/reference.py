@@ -1,4 +1,4 @@
-"""Plain numpy reference for one predictive-coding layer step (DESIGN §6).
+"""Plain numpy reference for one predictive-coding layer step.
 
 This module is the *specification* that the Warp kernels (``warp_kernels.py``) and the
 numpy backend are tested against. Every function is dtype-preserving: float32 inputs give
@@ -47,7 +47,7 @@ def _sigmoid(a: np.ndarray) -> np.ndarray:
 
 
 def activation(a: np.ndarray, name: str, slope: float = 0.2) -> np.ndarray:
-    """phi(a), element-wise (P = phi(A), DESIGN §6).
+    """phi(a), element-wise (P = phi(A)).
 
     ``leaky_relu``: a if a > 0 else slope * a; ``tanh``; ``sigmoid``: 1 / (1 + exp(-a));
     ``linear``: a.
@@ -64,7 +64,7 @@ def activation(a: np.ndarray, name: str, slope: float = 0.2) -> np.ndarray:
 
 
 def activation_derivative(a: np.ndarray, name: str, slope: float = 0.2) -> np.ndarray:
-    """phi'(a), element-wise (the gain in G = phi'(A) * E, DESIGN §6).
+    """phi'(a), element-wise (the gain in G = phi'(A) * E).
 
     ``leaky_relu``: 1 if a > 0 else slope; ``tanh``: 1 - tanh(a)^2;
     ``sigmoid``: s(a) (1 - s(a)); ``linear``: 1.
@@ -90,7 +90,7 @@ def predict(
     name: str = "leaky_relu",
     slope: float = 0.2,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Prediction, error and gain of one layer (DESIGN §6).
+    """Prediction, error and gain of one layer.
 
     Returns ``(A, P, E, G)`` with ``A = Y @ W``, ``P = phi(A)``, ``E = X - P`` and
     ``G = phi'(A) * E``.
@@ -109,7 +109,7 @@ def latent_step(
     eta: float,
     E_above: np.ndarray | None = None,
 ) -> np.ndarray:
-    """One gradient step on the latent (DESIGN §6); returns the new ``Y``.
+    """One gradient step on the latent; returns the new ``Y``.
 
     ``Y - eta * dF/dY`` with ``dF/dY = -2 G @ W.T + 2 E_above``, i.e.
     ``Y + 2 eta G @ W.T - 2 eta E_above``. ``E_above`` is the error of the layer above
@@ -123,7 +123,7 @@ def latent_step(
 
 
 def weight_step(W: np.ndarray, Y: np.ndarray, G: np.ndarray, eta: float) -> np.ndarray:
-    """One gradient step on the weights (DESIGN §6); returns the new ``W``.
+    """One gradient step on the weights; returns the new ``W``.
 
     ``W - eta * dF/dW`` with ``dF/dW = -2 Y.T @ G``, i.e. ``W + 2 eta Y.T @ G``.
     """

@@ -1,7 +1,7 @@
-"""Tests of vitaplace.engine.evaluate (DESIGN §10) and vitaplace.engine.figures.
+"""Tests of vitaplace.engine.evaluate and vitaplace.engine.figures.
 
 Expected values come from hand derivations (comments), scikit-learn, an independent
-per-query loop of the DESIGN definition, and an independent re-implementation of
+per-query loop of the definition (docs/RESULTS.md, evaluation), and an independent re-implementation of
 VPR_Tutorial's createPR(..., matching='single') — never from the code under test.
 """
 
@@ -244,7 +244,7 @@ def test_export_matrices_npz(tmp_path):
 
 
 def loop_decisions(tme, gtm, tau, delta):
-    """Per-query loop straight from DESIGN §10 (independent of the vectorised code)."""
+    """Per-query loop straight from the definition (independent of the vectorised code)."""
     out = []
     for i in range(len(tme)):
         best = 0

@@ -1,4 +1,4 @@
-"""The hand-crafted ViTa-SLAM front end (DESIGN §8): profile, PFH, SDA and the extractor plugin.
+"""The hand-crafted ViTa-SLAM front end: profile, PFH, SDA and the extractor plugin.
 
 Expected values come from hand computation (written out in comments), from direct Python
 loops over the definitions, or from the generative structure of synthetic data, never from

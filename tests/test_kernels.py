@@ -152,7 +152,8 @@ def test_latent_update_matches_reference(shape, with_above, splits, device):
     assert rel_err(wY.numpy(), expected) <= TOL
 
 
-def test_latent_update_mask_leaves_inactive_rows_alone(device):
+@pytest.mark.parametrize("splits", [1, 3], ids=["fused", "split3"])
+def test_latent_update_mask_leaves_inactive_rows_alone(splits, device):
     b, n_l, n_below = 9, 33, 17
     Y, W, _ = layer((b, n_l, n_below), seed=14)
     rng = np.random.default_rng(15)
@@ -160,8 +161,9 @@ def test_latent_update_mask_leaves_inactive_rows_alone(device):
     E_above = rng.standard_normal((b, n_l)).astype(np.float32)
     mask = np.array([1, 0, 1, 1, 0, 0, 1, 0, 1], dtype=np.int32)
     wY = to_wp(Y, device)
-    wk.latent_update(wY, to_wp(G, device), to_wp(W.T, device), 0.05, latent_scratch(b, n_l, n_below, device),
-                     E_above=to_wp(E_above, device), mask=to_wp(mask, device, wp.int32))
+    tiles = wk.TileConfig(4, 8, 4, 32 if device == "cuda" else 1)  # several K steps to split
+    wk.latent_update(wY, to_wp(G, device), to_wp(W.T, device), 0.05, latent_scratch(b, n_l, n_below, device, splits),
+                     E_above=to_wp(E_above, device), mask=to_wp(mask, device, wp.int32), tiles=tiles)
     stepped = ref.latent_step(*f64(Y, G, W), 0.05, f64(E_above)[0])
     got = wY.numpy()
     on = mask == 1

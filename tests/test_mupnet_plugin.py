@@ -1,4 +1,4 @@
-"""The built-in MuPNet feature plugin on a small synthetic looped path (DESIGN §6, §9).
+"""The built-in MuPNet feature plugin on a small synthetic looped path.
 
 The sensors are smooth functions of the position along a closed loop, so nearby poses give
 similar readings. Run B follows the same loop as run A, sampled in between A's samples, with

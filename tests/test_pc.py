@@ -1,4 +1,4 @@
-"""The predictive-coding network (DESIGN §6): gradients, inference, learning, persistence.
+"""The predictive-coding network: gradients, inference, learning, persistence.
 
 Expectations come from the energy's definition (finite differences in float64), from
 monotonicity of gradient descent with a small step, and from the generative structure of
@@ -234,6 +234,18 @@ def test_load_refuses_other_format_version(trained, tmp_path):
     (tmp_path / "net" / "config.json").write_text(json.dumps(meta))
     with pytest.raises(NetworkError, match="format version 999"):
         Network.load(tmp_path / "net")
+
+
+def test_training_moves_every_sample_every_epoch():
+    """With 60 samples in minibatches of 25 (25, 25, 10) every sample is trained once per
+    epoch: after one epoch no sample's latents are still at their initial 0.1."""
+    inputs, _ = synthetic(n=60)
+    net = Network(SYNTH, seed=2, backend="numpy")
+    latents: dict[str, np.ndarray] = {}
+    net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25, "shuffle": True}, progress=False, latents=latents)
+    for node, y in latents.items():
+        assert y.shape[0] == 60
+        assert np.all(np.any(y != np.float32(0.1), axis=1)), f"{node}: samples never trained"
 
 
 def test_same_seed_gives_identical_training():

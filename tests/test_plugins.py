@@ -1,4 +1,4 @@
-"""Plugin discovery and the third-party extractor contract (DESIGN §9, docs/plugins.md).
+"""Plugin discovery and the third-party extractor contract (docs/plugins.md).
 
 The third-party package used here is the real one in tests/plugin_example (the same code
 docs/plugins.md prints). Expected distances are computed by hand from the synthetic runs.

@@ -1,4 +1,4 @@
-"""MuJoCo simulation of the WhiskEye-like robot (DESIGN §3-4).
+"""MuJoCo simulation of the WhiskEye-like robot.
 
 Importing this package picks a headless GL backend (``MUJOCO_GL=egl``, else ``osmesa``)
 unless ``MUJOCO_GL`` is already set; see `vitaplace.engine.sim.glsetup`. The public names

@@ -1,5 +1,5 @@
 """Trajectories: a tactile-attention foraging controller (training runs) and a noisy route
-follower (evaluation runs) (DESIGN §4).
+follower (evaluation runs).
 
 Both controllers are called at every control tick (each deflection-series sample, 50 Hz by
 default) with an `Observation` and return a command ``(v, w)``: forward speed [m/s] and

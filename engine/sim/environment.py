@@ -1,4 +1,4 @@
-"""Environments as data: YAML files loaded into validated pydantic models (DESIGN §4).
+"""Environments as data: YAML files loaded into validated pydantic models.
 
 An environment file describes a square arena (walls with a visual pattern, a floor),
 landmark objects (``box``, ``cylinder``, ``rock`` = convex hull of a seeded random point

@@ -1,4 +1,4 @@
-"""The robot's camera: fast headless rendering through `mujoco.Renderer` (DESIGN §3).
+"""The robot's camera: fast headless rendering through `mujoco.Renderer`.
 
 Speed settings: the model is compiled with ``<quality shadowsize="0" offsamples="0"/>``
 (no shadow map, no multisampling), materials have zero reflectance, lights cast no

@@ -1,4 +1,4 @@
-"""The WhiskEye-like robot, generated as MJCF by code (DESIGN §3).
+"""The WhiskEye-like robot, generated as MJCF by code.
 
 Kinematic tree::
 

@@ -1,4 +1,4 @@
-"""Simulation driver: run the robot in an environment and record a `Run` (DESIGN §3-5).
+"""Simulation driver: run the robot in an environment and record a `Run`.
 
 One sample per whisk cycle, taken at maximum protraction (the end of each cycle):
 

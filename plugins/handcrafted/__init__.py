@@ -1,4 +1,4 @@
-"""ViTa-SLAM's hand-crafted visuo-tactile front end (DESIGN §8) as a vitaplace feature plugin.
+"""ViTa-SLAM's hand-crafted visuo-tactile front end as a vitaplace feature plugin.
 
 Registered through the entry point ``handcrafted`` of the group ``vitaplace.features``.
 """

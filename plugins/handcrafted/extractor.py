@@ -1,4 +1,4 @@
-"""`HandcraftedExtractor`: the ViTa-SLAM visuo-tactile front end as a feature plugin (DESIGN §8).
+"""`HandcraftedExtractor`: the ViTa-SLAM visuo-tactile front end as a feature plugin.
 
 Features per sample: the visual intensity profile (``profile``, a grid of grey values), the
 point feature histogram of the whisk cycle's contacts (``pfh``) and the slope distribution

@@ -1,4 +1,4 @@
-"""Point feature histogram (Rusu et al.) over one whisk cycle's contact points (DESIGN §8).
+"""Point feature histogram (Rusu et al.) over one whisk cycle's contact points.
 
 For every unordered pair of contacts (i, j) one point is chosen as the *source* s and the
 other as the *target* t. As in Rusu's PFH (and PCL's ``computePairFeatures``) the source is

@@ -1,4 +1,4 @@
-"""Visual intensity profile: the OpenRatSLAM / ViTa-SLAM view template (DESIGN §8).
+"""Visual intensity profile: the OpenRatSLAM / ViTa-SLAM view template.
 
 A template is the upper part of the camera frame, grey-scaled and block-averaged into a
 small grid (ViTa-SLAM: 64 x 40 cells from a 640 x 300 crop of a 640 x 480 frame), optionally

@@ -1,6 +1,6 @@
-"""Slope distribution array (SDA): one deflection slope per whisker per whisk cycle (DESIGN §8).
+"""Slope distribution array (SDA): one deflection slope per whisker per whisk cycle.
 
-DESIGN gives ``slope = (y_max - y_init) / (x_max - x_init)`` with init = the first positive
+The method's slope is ``slope = (y_max - y_init) / (x_max - x_init)`` with init = the first positive
 sample and max over the positive values, 0 when the denominator is 0, without saying what
 "positive" and "max" mean for a two-axis (x, y) deflection. Two readings are implemented:
 

@@ -1,4 +1,4 @@
-"""MuPNet features: the joint latent of the multi-modal predictive-coding network (DESIGN §6).
+"""MuPNet features: the joint latent of the multi-modal predictive-coding network.
 
 ``fit`` scales the inputs (images to [0, 1] after resampling to the network's image size,
 theta + xy min-max fitted on the training run), trains the network, and ``transform``
