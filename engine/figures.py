@@ -114,11 +114,11 @@ def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> 
 
 
 def _arena_bounds(arena: Mapping) -> tuple[float, float, float, float] | None:
-    """(xmin, xmax, ymin, ymax) of a square arena of side ``size`` centred on the origin."""
-    if "size" not in arena:
+    """(xmin, xmax, ymin, ymax) of an arena ``width`` x ``depth`` centred on the origin."""
+    if "width" not in arena or "depth" not in arena:
         return None
-    h = float(arena["size"]) / 2.0
-    return -h, h, -h, h
+    hx, hy = float(arena["width"]) / 2.0, float(arena["depth"]) / 2.0
+    return -hx, hx, -hy, hy
 
 
 def _landmark_patch(lm: Mapping):

@@ -453,7 +453,8 @@ def test_plot_trajectories(tmp_path, small_case):
     qry, ref, tme, gtm = small_case
     d = ev.decide(tme, gtm, 0.3, 0.8)
     arena = {
-        "size": 6.0,
+        "width": 6.0,
+        "depth": 6.0,
         "landmarks": [
             {"type": "box", "pos": [1.0, 1.0], "size": [1.0, 1.0], "yaw": 20.0},
             {"type": "cylinder", "pos": [-1.0, 1.0], "radius": 0.5},

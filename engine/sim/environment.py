@@ -98,16 +98,107 @@ class MaterialSpec(_Model):
     shininess: Annotated[float, Field(ge=0, le=1)] = 0.2
 
 
+WALLS = ("north", "south", "east", "west")
+
+
+class PanelSpec(_Model):
+    """A box fixed to a wall's inner face (e.g. a coloured sign): ``width`` along the wall,
+    from ``bottom`` to ``top`` above the floor, ``depth`` thick, its front face
+    ``protrusion`` in front of the wall's inner face, centred ``offset`` from the wall's middle."""
+
+    width: Positive
+    bottom: Annotated[float, Field(ge=0)]
+    top: Positive
+    depth: Positive
+    protrusion: Annotated[float, Field(ge=0)]
+    offset: float = 0.0
+    rgba: RGBA = (1.0, 0.0, 0.0, 1.0)
+
+    @pydantic.model_validator(mode="after")
+    def _check(self) -> PanelSpec:
+        if self.top <= self.bottom:
+            raise ValueError("top must be above bottom")
+        return self
+
+
+class WallSpec(_Model):
+    """One wall's look: a plain colour, or a material (a textured material repeats
+    ``ArenaSpec.wall_panels`` times along the wall), and an optional panel."""
+
+    rgba: RGBA = (0.8, 0.8, 0.8, 1.0)
+    material: str | None = None
+    panel: PanelSpec | None = None
+
+
 class ArenaSpec(_Model):
-    """Square arena centred on the origin: ``size`` is the inner side length."""
+    """Rectangular arena centred on the origin: ``width`` (x) by ``depth`` (y) inside the
+    walls, or a ``size`` x ``size`` square when those are not given."""
 
     size: Annotated[float, Field(gt=1.0, le=50.0)] = 6.0
+    width: Annotated[float, Field(gt=1.0, le=50.0)] | None = None
+    depth: Annotated[float, Field(gt=1.0, le=50.0)] | None = None
     wall_height: Positive = 1.5
     wall_thickness: Positive = 0.1
     #: number of identical panels along each wall (visual aliasing: every wall looks the same)
     wall_panels: Annotated[int, Field(ge=1, le=64)] = 6
+    #: material of every wall without its own entry in ``walls``
     wall_material: str = "wall"
+    #: per-wall look (keys: north, south, east, west); missing walls use ``wall_material``
+    walls: dict[Literal["north", "south", "east", "west"], WallSpec] = Field(default_factory=dict)
     floor_material: str = "floor"
+
+    @property
+    def half_x(self) -> float:
+        return (self.width or self.size) / 2
+
+    @property
+    def half_y(self) -> float:
+        return (self.depth or self.size) / 2
+
+
+class LightSpec(_Model):
+    """A directional light (sun): direction of travel of the light, diffuse and specular level."""
+
+    direction: tuple[float, float, float] = (0.3, 0.2, -1.0)
+    diffuse: Annotated[float, Field(ge=0, le=1)] = 0.5
+    specular: Annotated[float, Field(ge=0, le=1)] = 0.0
+
+    @pydantic.field_validator("direction")
+    @classmethod
+    def _nonzero(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not any(v):
+            raise ValueError("direction must not be zero")
+        return v
+
+
+class LightingSpec(_Model):
+    """Directional lights, a uniform ambient level, the camera-mounted headlight (diffuse
+    only) and shadows. The defaults are vitaplace's original look (sun 0.5, ambient 0.45,
+    headlight 0.35, no shadows)."""
+
+    lights: list[LightSpec] = Field(default_factory=lambda: [LightSpec()], max_length=6)
+    ambient: Annotated[float, Field(ge=0, le=1)] = 0.45
+    headlight: Annotated[float, Field(ge=0, le=1)] = 0.35
+    shadows: bool = False
+
+
+class BoardSpec(_Model):
+    """A flat board standing upright (render only, no collision), e.g. a banner seen over a
+    wall: ``width`` x ``height`` x ``thickness``, its front facing ``yaw`` (degrees from +x,
+    counter-clockwise; -90 faces -y), its bottom edge at ``bottom`` (may be below the
+    floor), and a horizontal strip of ``strip_rgba`` ``strip_height`` high on its front,
+    centred ``strip_below_top`` under the top edge."""
+
+    pos: XY
+    yaw: float = 0.0
+    width: Positive
+    height: Positive
+    thickness: Positive = 0.05
+    bottom: float = 0.0
+    rgba: RGBA = (0.6, 0.6, 0.6, 1.0)
+    strip_rgba: RGBA = (0.05, 0.05, 0.05, 1.0)
+    strip_height: Annotated[float, Field(ge=0)] = 0.0
+    strip_below_top: Annotated[float, Field(ge=0)] = 0.0
 
 
 class _LandmarkBase(_Model):
@@ -119,6 +210,8 @@ class _LandmarkBase(_Model):
     material: str | None = None
     #: reachable by whiskers (collides with whisker shafts); always an obstacle for the body
     tactile: bool = True
+    #: height of the landmark's bottom above the floor [m] (a floating box)
+    z: Annotated[float, Field(ge=0)] = 0.0
 
 
 class BoxLandmark(_LandmarkBase):
@@ -206,12 +299,15 @@ class EnvironmentSpec(_Model):
     route: list[XY] = Field(default_factory=list)
     #: where foraging runs start: [x, y, yaw_deg]
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    #: background (sky) colour seen above the walls
-    sky_rgb: RGB = (0.55, 0.65, 0.8)
+    #: flat background colour seen above the walls
+    background_rgb: RGB = (0.55, 0.65, 0.8)
+    lighting: LightingSpec = LightingSpec()
+    #: render-only boards (e.g. a banner behind a wall)
+    boards: list[BoardSpec] = Field(default_factory=list)
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> EnvironmentSpec:
-        half = self.arena.size / 2
+        hx, hy = self.arena.half_x, self.arena.half_y
         names: set[str] = set()
         for i, lm in enumerate(self.landmarks):
             name = lm.name or f"{lm.type}{i}"
@@ -219,22 +315,30 @@ class EnvironmentSpec(_Model):
                 raise ValueError(f"landmarks.{i}.name: duplicate landmark name {name!r}")
             names.add(name)
             r = _bounding_radius(lm)
-            if abs(lm.pos[0]) + r > half + 1e-9 or abs(lm.pos[1]) + r > half + 1e-9:
+            if abs(lm.pos[0]) + r > hx + 1e-9 or abs(lm.pos[1]) + r > hy + 1e-9:
                 # exact test on the footprint (the bounding circle is conservative)
                 poly = _footprint_world(lm)
-                if np.any(np.abs(poly) > half + 1e-9):
-                    raise ValueError(f"landmarks.{i}.pos: landmark {name!r} sticks out of the {self.arena.size} m arena")
+                if np.any(np.abs(poly[:, 0]) > hx + 1e-9) or np.any(np.abs(poly[:, 1]) > hy + 1e-9):
+                    raise ValueError(
+                        f"landmarks.{i}.pos: landmark {name!r} sticks out of the {2 * hx:g} x {2 * hy:g} m arena"
+                    )
             if lm.material is not None and lm.material not in self.materials:
                 raise ValueError(f"landmarks.{i}.material: unknown material {lm.material!r}")
         for key in ("wall_material", "floor_material"):
             if getattr(self.arena, key) not in self.materials:
                 raise ValueError(f"arena.{key}: unknown material {getattr(self.arena, key)!r}")
+        for wall, spec in self.arena.walls.items():
+            if spec.material is not None and spec.material not in self.materials:
+                raise ValueError(f"arena.walls.{wall}.material: unknown material {spec.material!r}")
+            length = 2 * (hx if wall in ("north", "south") else hy)
+            if spec.panel is not None and abs(spec.panel.offset) + spec.panel.width / 2 > length / 2:
+                raise ValueError(f"arena.walls.{wall}.panel: wider than the {length:g} m wall")
         for i, (x, y) in enumerate(self.route):
-            if abs(x) >= half or abs(y) >= half:
+            if abs(x) >= hx or abs(y) >= hy:
                 raise ValueError(f"route.{i}: waypoint ({x}, {y}) is outside the arena")
         if len(self.route) == 1:
             raise ValueError("route: a route needs at least 2 waypoints")
-        if abs(self.start[0]) >= half or abs(self.start[1]) >= half:
+        if abs(self.start[0]) >= hx or abs(self.start[1]) >= hy:
             raise ValueError("start: start position is outside the arena")
         return self
 
@@ -245,7 +349,7 @@ class EnvironmentSpec(_Model):
     def top_view(self) -> dict[str, Any]:
         """Plain-data top view for plotting.
 
-        ``{"name", "size": arena side [m], "route": [[x, y], ...], "landmarks": [{"name", "type",
+        ``{"name", "width", "depth": arena inside [m], "route": [[x, y], ...], "landmarks": [{"name", "type",
         "pos": [x, y], "yaw": deg, "tactile": bool, "size": [sx, sy] (box, rock: full extents) or
         "radius": r (cylinder), "polygon": [[x, y], ...] (rock: world-frame outline)}]}``
         """
@@ -268,7 +372,8 @@ class EnvironmentSpec(_Model):
             landmarks.append(item)
         return {
             "name": self.name,
-            "size": float(self.arena.size),
+            "width": 2 * self.arena.half_x,
+            "depth": 2 * self.arena.half_y,
             "route": [[float(x), float(y)] for x, y in self.route],
             "landmarks": landmarks,
         }
@@ -318,70 +423,118 @@ class EnvironmentSpec(_Model):
                 assets.append(_tag("mesh", {"name": f"mesh_{name}", "vertex": _fmt(lm.vertices().ravel(), 5)}))
 
         a = self.arena
-        half = a.size / 2
+        hx, hy = a.half_x, a.half_y
         t = a.wall_thickness
         h = a.wall_height
         body: list[str] = []
-        floor_extent = half + t
         body.append(
             _tag(
                 "geom",
                 {
                     "name": "floor",
                     "type": "plane",
-                    "size": _fmt((floor_extent, floor_extent, 0.1)),
+                    "size": _fmt((hx + t, hy + t, 0.1)),
                     "material": f"mat_{a.floor_material}",
                     "contype": "0",
                     "conaffinity": "0",
                 },
             )
         )
-        # Each wall is a thin box whose local +z faces the arena, so the 2-D panel texture
-        # lands on the inner face and repeats `wall_panels` times along it: all four walls
-        # look identical (visual aliasing).
-        assets.append(
-            _tag(
-                "material",
-                {
-                    "name": "mat_wall_panels",
-                    "rgba": _fmt(self.materials[a.wall_material].rgba),
-                    "specular": _fmt(self.materials[a.wall_material].specular),
-                    "shininess": _fmt(self.materials[a.wall_material].shininess),
-                    "reflectance": "0",
-                    **(
-                        {"texture": f"tex_{a.wall_material}", "texrepeat": f"{a.wall_panels} 1", "texuniform": "false"}
-                        if self.materials[a.wall_material].texture is not None
-                        else {}
-                    ),
-                },
-            )
-        )
-        for wname, (cx, cy, yaw) in {
-            "wall_north": (0.0, half + t / 2, -90.0),
-            "wall_south": (0.0, -half - t / 2, 90.0),
-            "wall_east": (half + t / 2, 0.0, 180.0),
-            "wall_west": (-half - t / 2, 0.0, 0.0),
+        # Each wall is a thin box whose local +z faces the arena, so a 2-D texture lands on
+        # the inner face and repeats `wall_panels` times along it.
+        for wname, (cx, cy, yaw, half_len) in {
+            "north": (0.0, hy + t / 2, -90.0, hx + t),
+            "south": (0.0, -hy - t / 2, 90.0, hx + t),
+            "east": (hx + t / 2, 0.0, 180.0, hy + t),
+            "west": (-hx - t / 2, 0.0, 0.0, hy + t),
         }.items():
+            spec = a.walls.get(wname)
+            material = a.wall_material if spec is None else spec.material
+            look: dict[str, str] = {}
+            if material is not None:
+                look["material"] = f"mat_wall_{material}"
+                mname = f"mat_wall_{material}"
+                if not any(f'name="{mname}"' in x for x in assets):
+                    assets.append(_repeated_material(mname, self.materials[material], material, a.wall_panels))
+            else:
+                look["rgba"] = _fmt(spec.rgba)
             # local frame: x along the wall, y up, z into the arena
             inward = np.array([math.cos(math.radians(yaw)), math.sin(math.radians(yaw)), 0.0])
             up = np.array([0.0, 0.0, 1.0])
             along = np.cross(up, inward)
             body.append(
                 _static_body(
-                    wname,
+                    f"wall_{wname}",
                     {
-                        "name": wname,
+                        "name": f"wall_{wname}",
                         "type": "box",
                         "pos": _fmt((cx, cy, h / 2)),
-                        "size": _fmt((half + t, h / 2, t / 2)),
+                        "size": _fmt((half_len, h / 2, t / 2)),
                         "xyaxes": _fmt((*along, *up)),
-                        "material": "mat_wall_panels",
+                        **look,
                         "contype": "0",
                         "conaffinity": str(WORLD_TACTILE_AFFINITY),
                         "friction": "0.3 0.005 0.0001",
                     },
                 )
             )
+            if spec is not None and spec.panel is not None:
+                pn = spec.panel
+                face = np.array([cx, cy]) + inward[:2] * t / 2  # centre of the wall's inner face
+                centre = face + inward[:2] * (pn.protrusion - pn.depth / 2) + along[:2] * pn.offset
+                body.append(
+                    _static_body(
+                        f"panel_{wname}",
+                        {
+                            "name": f"panel_{wname}",
+                            "type": "box",
+                            "pos": _fmt((*centre, (pn.bottom + pn.top) / 2)),
+                            "size": _fmt((pn.width / 2, (pn.top - pn.bottom) / 2, pn.depth / 2)),
+                            "xyaxes": _fmt((*along, *up)),
+                            "rgba": _fmt(pn.rgba),
+                            "contype": "0",
+                            "conaffinity": str(WORLD_TACTILE_AFFINITY),
+                            "friction": "0.3 0.005 0.0001",
+                        },
+                    )
+                )
+        for k, board in enumerate(self.boards):
+            front = np.array([math.cos(math.radians(board.yaw)), math.sin(math.radians(board.yaw)), 0.0])
+            side = np.cross(np.array([0.0, 0.0, 1.0]), front)
+            top = board.bottom + board.height
+            geoms = [
+                _tag(
+                    "geom",
+                    {
+                        "name": f"board{k}",
+                        "type": "box",
+                        "pos": _fmt((*board.pos, board.bottom + board.height / 2)),
+                        "size": _fmt((board.width / 2, board.thickness / 2, board.height / 2)),
+                        "xyaxes": _fmt((*side, *front)),
+                        "rgba": _fmt(board.rgba),
+                        "contype": "0",
+                        "conaffinity": "0",
+                    },
+                )
+            ]
+            if board.strip_height > 0:
+                strip_pos = np.array([*board.pos, top - board.strip_below_top]) + front * (board.thickness / 2 + 0.002)
+                geoms.append(
+                    _tag(
+                        "geom",
+                        {
+                            "name": f"board{k}_strip",
+                            "type": "box",
+                            "pos": _fmt(strip_pos),
+                            "size": _fmt((board.width / 2, 0.002, board.strip_height / 2)),
+                            "xyaxes": _fmt((*side, *front)),
+                            "rgba": _fmt(board.strip_rgba),
+                            "contype": "0",
+                            "conaffinity": "0",
+                        },
+                    )
+                )
+            body.append(f'<body name="board{k}">' + "".join(geoms) + "</body>")
         for name, lm in zip(self.landmark_names(), self.landmarks):
             attrs = {
                 "name": f"lm_{name}",
@@ -396,13 +549,54 @@ class EnvironmentSpec(_Model):
                 attrs["rgba"] = _fmt(lm.rgba)
             x, y = lm.pos
             if isinstance(lm, BoxLandmark):
-                attrs.update(type="box", pos=_fmt((x, y, lm.size[2] / 2)), size=_fmt(np.array(lm.size) / 2))
+                attrs.update(type="box", pos=_fmt((x, y, lm.z + lm.size[2] / 2)), size=_fmt(np.array(lm.size) / 2))
             elif isinstance(lm, CylinderLandmark):
-                attrs.update(type="cylinder", pos=_fmt((x, y, lm.height / 2)), size=_fmt((lm.radius, lm.height / 2)))
+                attrs.update(type="cylinder", pos=_fmt((x, y, lm.z + lm.height / 2)), size=_fmt((lm.radius, lm.height / 2)))
             else:
-                attrs.update(type="mesh", mesh=f"mesh_{name}", pos=_fmt((x, y, 0.0)))
+                attrs.update(type="mesh", mesh=f"mesh_{name}", pos=_fmt((x, y, lm.z)))
             body.append(_static_body(f"lm_{name}", attrs))
         return "\n".join(assets), "\n".join(body)
+
+
+def _repeated_material(name: str, mat: MaterialSpec, texture_of: str, repeats: int) -> str:
+    """A wall's copy of a material whose texture repeats ``repeats`` times along the wall."""
+    attrs = {
+        "name": name,
+        "rgba": _fmt(mat.rgba),
+        "specular": _fmt(mat.specular),
+        "shininess": _fmt(mat.shininess),
+        "reflectance": "0",
+    }
+    if mat.texture is not None:
+        attrs.update(texture=f"tex_{texture_of}", texrepeat=f"{repeats} 1", texuniform="false")
+    return _tag("material", attrs)
+
+
+def lighting_mjcf(lighting: LightingSpec) -> tuple[str, str]:
+    """MJCF of ``lighting``: the ``<headlight>`` element (for ``<visual>``) and the world's
+    ``<light>`` elements (the ambient level is a light of its own, with no diffuse part)."""
+    headlight = _tag(
+        "headlight",
+        {"ambient": "0 0 0", "diffuse": _fmt([lighting.headlight] * 3), "specular": "0 0 0",
+         "active": "1" if lighting.headlight > 0 else "0"},
+    )
+    lights = [
+        _tag(
+            "light",
+            {"name": "ambient", "directional": "true", "pos": "0 0 5", "dir": "0 0 -1", "diffuse": "0 0 0",
+             "specular": "0 0 0", "ambient": _fmt([lighting.ambient] * 3), "castshadow": "false"},
+        )
+    ]
+    for k, light in enumerate(lighting.lights):
+        lights.append(
+            _tag(
+                "light",
+                {"name": f"sun{k}", "directional": "true", "pos": "0 0 5", "dir": _fmt(light.direction),
+                 "diffuse": _fmt([light.diffuse] * 3), "specular": _fmt([light.specular] * 3),
+                 "castshadow": "true" if lighting.shadows else "false"},
+            )
+        )
+    return headlight, "\n".join(lights)
 
 
 def _bounding_radius(lm: BoxLandmark | CylinderLandmark | RockLandmark) -> float:
@@ -437,7 +631,7 @@ class ObstacleMap:
     """
 
     def __init__(self, env: EnvironmentSpec) -> None:
-        self.half = env.arena.size / 2
+        self.half = np.array([env.arena.half_x, env.arena.half_y])
         circles = [(lm.pos[0], lm.pos[1], lm.radius) for lm in env.landmarks if isinstance(lm, CylinderLandmark)]
         self.circles = np.array(circles, dtype=float).reshape(-1, 3)
         a_list, b_list, pid = [], [], []
@@ -458,7 +652,7 @@ class ObstacleMap:
     def distance_many(self, points: np.ndarray) -> np.ndarray:
         """Signed distances (n,) of ``points`` (n, 2) to the closest obstacle surface [m]."""
         p = np.asarray(points, dtype=float).reshape(-1, 2)
-        d = self.half - np.abs(p).max(axis=1)
+        d = (self.half[None] - np.abs(p)).min(axis=1)
         if len(self.circles):
             dc = np.hypot(p[:, None, 0] - self.circles[None, :, 0], p[:, None, 1] - self.circles[None, :, 1])
             d = np.minimum(d, (dc - self.circles[None, :, 2]).min(axis=1))
@@ -534,8 +728,8 @@ def load_environment(path: str | Path) -> EnvironmentSpec:
 
 
 def environment_files() -> dict[str, Path]:
-    """The shipped environments by name (base files that only serve ``extends:`` excluded)."""
-    return {p.stem: p for p in sorted(ENVIRONMENTS_DIR.glob("*.yaml")) if p.stem != "base"}
+    """The shipped environments by name (``base*`` files, which only serve ``extends:``, excluded)."""
+    return {p.stem: p for p in sorted(ENVIRONMENTS_DIR.glob("*.yaml")) if not p.stem.startswith("base")}
 
 
 # ---------------------------------------------------------------------- XML helpers

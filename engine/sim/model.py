@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from vitaplace.engine.sim.environment import EnvironmentSpec, _fmt
+from vitaplace.engine.sim.environment import EnvironmentSpec, _fmt, lighting_mjcf
 from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec, robot_mjcf, whisker_layout
 
 __all__ = ["SimModel", "build_model", "model_xml"]
@@ -33,7 +33,9 @@ def model_xml(env: EnvironmentSpec, robot: RobotSpec, offscreen: tuple[int, int]
     body, actuators = robot_mjcf(robot)
     offw = max(robot.camera_width, offscreen[0], 64)
     offh = max(robot.camera_height, offscreen[1], 64)
-    extent = env.arena.size
+    extent = 2 * max(env.arena.half_x, env.arena.half_y)
+    headlight, lights = lighting_mjcf(env.lighting)
+    shadowsize = 2048 if env.lighting.shadows else 0
     return f"""<mujoco model="vitaplace_{env.name}">
   <compiler angle="degree" autolimits="true"/>
   <option timestep="{_fmt(robot.timestep)}" integrator="implicitfast" solver="Newton" iterations="50"
@@ -41,16 +43,16 @@ def model_xml(env: EnvironmentSpec, robot: RobotSpec, offscreen: tuple[int, int]
   <statistic extent="{_fmt(extent)}" center="0 0 0.5"/>
   <visual>
     <global offwidth="{offw}" offheight="{offh}"/>
-    <quality shadowsize="0" offsamples="0"/>
+    <quality shadowsize="{shadowsize}" offsamples="0"/>
     <map znear="0.002" zfar="3"/>
-    <headlight ambient="0.45 0.45 0.45" diffuse="0.35 0.35 0.35" specular="0 0 0"/>
+    {headlight}
   </visual>
   <asset>
-    <texture name="sky" type="skybox" builtin="flat" rgb1="{_fmt(env.sky_rgb)}" rgb2="{_fmt(env.sky_rgb)}" width="8" height="8"/>
+    <texture name="sky" type="skybox" builtin="flat" rgb1="{_fmt(env.background_rgb)}" rgb2="{_fmt(env.background_rgb)}" width="8" height="8"/>
 {assets}
   </asset>
   <worldbody>
-    <light name="sun" directional="true" pos="0 0 5" dir="0.3 0.2 -1" diffuse="0.5 0.5 0.5" specular="0 0 0" castshadow="false"/>
+{lights}
 {world}
 {body}
   </worldbody>

@@ -36,8 +36,8 @@ def plot_environment(
 
     if ax is None:
         _, ax = plt.subplots(figsize=(5.5, 5.5))
-    h = top_view["size"] / 2
-    ax.add_patch(Rectangle((-h, -h), 2 * h, 2 * h, fill=False, lw=2.5, ec="0.3"))
+    hx, hy = top_view["width"] / 2, top_view["depth"] / 2
+    ax.add_patch(Rectangle((-hx, -hy), 2 * hx, 2 * hy, fill=False, lw=2.5, ec="0.3"))
     for lm in top_view["landmarks"]:
         colour = lm.get("rgba", (0.5, 0.5, 0.5, 1))[:3]
         style = {"fc": colour, "ec": "0.15", "lw": 0.8, "alpha": 0.85, "hatch": None if lm["tactile"] else "//"}
@@ -59,8 +59,8 @@ def plot_environment(
         lw = 0.7 if len(t) > 300 else 1.2
         ax.plot(t[:, 0], t[:, 1], color=colour, lw=lw, label=label, zorder=4)
         ax.plot(t[0, 0], t[0, 1], marker="o", ms=4, color=colour, zorder=5)
-    ax.set_xlim(-h - 0.25, h + 0.25)
-    ax.set_ylim(-h - 0.25, h + 0.25)
+    ax.set_xlim(-hx - 0.25, hx + 0.25)
+    ax.set_ylim(-hy - 0.25, hy + 0.25)
     ax.set_aspect("equal")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
