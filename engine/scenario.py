@@ -37,7 +37,7 @@ import yaml
 from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml
 from vitaplace.engine.sim.environment import load_environment
 from vitaplace.engine.sim.robot import RobotSpec
-from vitaplace.engine.sim.simulate import RunSpec
+from vitaplace.engine.sim.controllers import RunSpec
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 

@@ -136,3 +136,18 @@ def test_e1_aliases_east_and_south_but_not_north_and_west():
     # the red panel is in view: the east frame holds many strongly red pixels
     red = (east[..., 0] > 0.3) & (east[..., 1] < 0.1) & (east[..., 2] < 0.1)  # unlit red: 0.4 ambient
     assert red.mean() > 0.02
+
+
+def test_validate_does_not_load_mujoco():
+    """Validation is pure schema work: `vitaplace validate` never imports MuJoCo (nor Warp)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from vitaplace.engine.cli import main\n"
+        "try:\n    main(['validate', 'quickstart'])\nexcept SystemExit as exc:\n    assert not exc.code, exc.code\n"
+        "print(sorted(m for m in ('mujoco', 'warp') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr
