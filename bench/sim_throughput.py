@@ -1,6 +1,7 @@
-"""Simulator throughput: samples per second of an E1 foraging run (camera + physical whiskers).
+"""Simulator throughput: samples per second of an E1 foraging run (camera + whiskers), for the
+physical and the penetration tactile model.
 
-    python bench/sim_throughput.py                  # 400 samples, 1 and 2 worker processes
+    python bench/sim_throughput.py                  # 400 samples, 1 and 2 worker processes, both models
     python bench/sim_throughput.py --samples 1000 --workers 1 2
 
 Each sample is one 2 Hz whisk cycle: 250 physics steps of 2 ms (the default, stable
@@ -26,16 +27,17 @@ from pathlib import Path
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 
-def one_run(args: tuple[str, int, int, str]) -> dict:
-    env_name, n, seed, out_dir = args
+def one_run(args: tuple[str, int, int, str, str]) -> dict:
+    env_name, n, seed, out_dir, tactile_model = args
     from vitaplace.engine.dataset import write_run
-    from vitaplace.engine.sim import RunSpec, load_environment
+    from vitaplace.engine.sim import RobotSpec, RunSpec, load_environment
     from vitaplace.engine.sim.simulate import simulate_run
 
     env = load_environment(env_name)
     stats: dict = {}
     c0 = time.process_time()
-    run = simulate_run(env, RunSpec(kind="foraging", n_samples=n), seed=seed, progress=False, stats=stats)
+    robot = RobotSpec(tactile_model=tactile_model)
+    run = simulate_run(env, RunSpec(kind="foraging", n_samples=n), seed=seed, robot=robot, progress=False, stats=stats)
     stats["cpu_s"] = time.process_time() - c0
     t0 = time.perf_counter()
     path = write_run(Path(out_dir) / f"bench_{seed}.h5", run)
@@ -50,13 +52,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--samples", type=int, default=400, help="samples per configuration (split over workers)")
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2], help="process counts to measure")
     parser.add_argument("--env", default="e1")
+    parser.add_argument("--tactile-model", nargs="+", default=["physical", "penetration"],
+                        choices=["physical", "penetration"])
     args = parser.parse_args(argv)
 
     print(f"E{args.env[1:]} foraging, {args.samples} samples per configuration, {os.cpu_count()} CPU cores")
     with tempfile.TemporaryDirectory() as tmp:
-        for workers in args.workers:
+        for model, workers in [(m, w) for m in args.tactile_model for w in args.workers]:
             per = args.samples // workers
-            jobs = [(args.env, per, 100 + k, tmp) for k in range(workers)]
+            jobs = [(args.env, per, 100 + k, tmp, model) for k in range(workers)]
             t0 = time.perf_counter()
             if workers == 1:
                 results = [one_run(jobs[0])]
@@ -67,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
             total = per * workers
             r = results[0]
             setup = r["wall_s"] - r["physics_s"] - r["control_s"] - r["render_s"]
-            print(f"\n{workers} worker(s): {total} samples in {wall:.2f} s wall -> "
+            print(f"\n{model} touch, {workers} worker(s): {total} samples in {wall:.2f} s wall -> "
                   f"{total / wall:.1f} samples/s aggregate")
             print(f"  per worker: {r['samples_per_s']:.1f} samples/s (simulate_run wall incl. setup), "
                   f"CPU {r['cpu_s']:.2f} s")

@@ -360,3 +360,66 @@ def test_visual_only_landmarks_are_not_felt(tactile):
         assert n_contacts > 0 and np.degrees(np.abs(series).max()) > 2.0
     else:
         assert n_contacts == 0 and np.degrees(np.abs(series).max()) < 0.5
+
+
+# ---------------------------------------------------------------------- penetration touch model
+def test_penetration_deflection_hand_case():
+    from vitaplace.engine.sim.model import penetration_deflection
+
+    # 1 cm deep, 10 cm along the shaft, normal along the whisker's -y: 10 * 0.01 * (-1, 0) / 0.2
+    got = penetration_deflection(np.array([0.01, 0.02, -0.005]),
+                                 np.array([[-1.0, 0.0], [0.6, 0.8], [1.0, 0.0]]),
+                                 np.array([0.1, 0.0, 0.05]))
+    np.testing.assert_allclose(got, [[-0.5, 0.0], [1.2, 1.6], [0.0, 0.0]])  # 10*0.02*(0.6,0.8)/0.1; not touching
+
+
+@pytest.fixture(scope="module")
+def bare_sims():
+    env = EnvironmentSpec.model_validate(BARE)
+    sims = {model: Simulator(env, RobotSpec(tactile_model=model), camera=False) for model in ("physical", "penetration")}
+    yield sims
+    for sim in sims.values():
+        sim.close()
+
+
+def test_penetration_whiskers_pass_through_and_report_the_plugin_formula(bare_sims):
+    sim = bare_sims["penetration"]
+    pose = (2.85, 0.0, math.pi / 2)  # facing north, the east wall 0.15 m to the right
+    free = []
+    sim.reset((0.0, 0.0, math.pi / 2))
+    for _ in range(2):
+        sim.cycle(on_series=lambda i, p: free.append(sim.sim.theta(sim.data)))
+    pressed = []
+    sim.reset(pose)
+    for _ in range(2):
+        series, _, _ = sim.cycle(on_series=lambda i, p: pressed.append(sim.sim.theta(sim.data)))
+    # the whiskers sweep through the wall as through air
+    np.testing.assert_allclose(np.array(pressed), np.array(free), atol=1e-3)
+    # touching whiskers on the right only, at some instant of the cycle
+    touched = np.abs(series).max(axis=(0, 2))
+    assert touched[RIGHT].max() > 0.05 and touched[LEFT].max() == 0.0
+    # the signal equals the plugin's formula recomputed here from MuJoCo's raw contacts
+    d, m, s = sim.data, sim.model, sim.sim
+    expected = np.zeros((N_WHISKERS, 2))
+    for c in d.contact[: d.ncon]:
+        g1, g2 = int(c.geom[0]), int(c.geom[1])
+        w = s.whisker_of_geom[g1] if s.whisker_of_geom[g1] >= 0 else s.whisker_of_geom[g2]
+        if w < 0:
+            continue
+        # MuJoCo's frame normal points from geom1 to geom2; we want object -> whisker
+        n = np.array(c.frame[:3]) * (1.0 if s.whisker_of_geom[g2] >= 0 else -1.0)
+        body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"w{w:02d}")
+        R = d.xmat[body].reshape(3, 3)
+        along = float((c.pos - d.xpos[body]) @ R[:, 0])
+        expected[w] += 10 * max(-c.dist, 0.0) * np.array([n @ R[:, 1], n @ R[:, 2]]) / (along + 0.1)
+    np.testing.assert_allclose(s.xy(d), expected, atol=1e-12)
+
+
+def test_penetration_and_physical_models_agree_on_the_direction_of_touch(bare_sims):
+    """The wall on the right pushes the right whiskers the same way in both models."""
+    signs = {}
+    for model, sim in bare_sims.items():
+        series = _cycles(sim, (2.85, 0.0, math.pi / 2))
+        signs[model] = np.sign(series[:, RIGHT, 0].sum())
+        assert signs[model] != 0
+    assert signs["physical"] == signs["penetration"]

@@ -79,6 +79,7 @@ class SimModel:
     drive_actadr: np.ndarray  #: (3,) d.act addresses of the drives (integrated reference pose)
     servo_act: np.ndarray  #: (24,) actuator ids of the protraction servos
     whisker_of_geom: np.ndarray  #: (ngeom,) whisker index of a geom, -1 for other geoms
+    whisker_body: np.ndarray  #: (24,) body id of each whisker
     camera_id: int
     is_body_geom: np.ndarray  #: (ngeom,) bool: chassis / head geoms
     #: (steps_per_cycle,) servo target applied during each physics step of a whisk cycle
@@ -114,8 +115,32 @@ class SimModel:
         return d.qpos[self.theta_qadr].copy()
 
     def xy(self, d: mujoco.MjData) -> np.ndarray:
-        """Two-axis base deflection per whisker [rad], (24, 2)."""
-        return d.qpos[self.xy_qadr]
+        """Two-axis whisker signal (24, 2) of the robot's tactile model: the base deflection
+        [rad] (``physical``) or the Gazebo plugin's penetration signal (``penetration``)."""
+        if self.robot.tactile_model == "penetration":
+            return self.penetration_xy(d)
+        return d.qpos[self.xy_qadr].copy()
+
+    def _whisker_contact_arrays(self, d: mujoco.MjData):
+        """All whisker-world contacts: (positions (k, 3), normals (k, 3) out of the touched
+        object toward the whisker, signed distances (k,), whisker indices (k,)) or None."""
+        n = d.ncon
+        if n == 0:
+            return None
+        con = d.contact
+        geom = _contact_geoms(con, n)
+        w1 = self.whisker_of_geom[geom[:, 0]]
+        w2 = self.whisker_of_geom[geom[:, 1]]
+        mask = (w1 >= 0) | (w2 >= 0)
+        if not mask.any():
+            return None
+        idx = np.flatnonzero(mask)
+        whisker = np.where(w1[idx] >= 0, w1[idx], w2[idx])
+        normal = con.frame[idx, :3].copy()
+        # MuJoCo's normal points from geom1 to geom2: make it point from the whisker to the
+        # object, then negate: out of the object, toward the whisker
+        normal[w2[idx] >= 0] *= -1.0
+        return con.pos[idx].copy(), -normal, con.dist[idx].copy(), whisker
 
     def whisker_contacts(self, d: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Contacts between whisker shafts and the world in ``d``.
@@ -124,28 +149,31 @@ class SimModel:
         surface normals of the touched object (pointing out of the object, toward the
         whisker) and ``whisker`` (k,) whisker indices. One contact per whisker (the deepest).
         """
-        n = d.ncon
-        if n == 0:
+        found = self._whisker_contact_arrays(d)
+        if found is None:
             return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-        con = d.contact
-        geom = _contact_geoms(con, n)
-        w1 = self.whisker_of_geom[geom[:, 0]]
-        w2 = self.whisker_of_geom[geom[:, 1]]
-        mask = (w1 >= 0) | (w2 >= 0)
-        if not mask.any():
-            return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, dtype=np.int64)
-        idx = np.flatnonzero(mask)
-        whisker = np.where(w1[idx] >= 0, w1[idx], w2[idx])
-        normal = con.frame[idx, :3].copy()
-        # MuJoCo's normal points from geom1 to geom2: flip it where the whisker is geom2
-        normal[w2[idx] >= 0] *= -1.0
-        normal = -normal  # now from the whisker toward the object -> negate: out of the object
-        dist = con.dist[idx]
-        # deepest contact per whisker
+        pos, normal, dist, whisker = found
         order = np.lexsort((dist, whisker))
         whisker, first = np.unique(whisker[order], return_index=True)
         sel = order[first]
-        return con.pos[idx][sel].copy(), normal[sel], whisker.astype(np.int64)
+        return pos[sel], normal[sel], whisker.astype(np.int64)
+
+    def penetration_xy(self, d: mujoco.MjData) -> np.ndarray:
+        """The Gazebo WhiskEye plugin's touch signal (24, 2): per whisker, the sum over its
+        contacts of ``10 * depth * normal / (s + 0.1)``, the normal (out of the object) in the
+        whisker's frame (components along its y and z axes, x being the shaft) and ``s`` the
+        contact's distance along the shaft from the base [m]."""
+        out = np.zeros((N_WHISKERS, 2))
+        found = self._whisker_contact_arrays(d)
+        if found is None:
+            return out
+        pos, normal, dist, whisker = found
+        body = self.whisker_body[whisker]
+        frames = d.xmat[body].reshape(-1, 3, 3)  # columns: the whisker frame's axes in world
+        local_normal = np.einsum("kij,ki->kj", frames, normal)
+        along = np.einsum("ki,ki->k", pos - d.xpos[body], frames[:, :, 0])
+        np.add.at(out, whisker, penetration_deflection(-dist, local_normal[:, 1:], along))
+        return out
 
     def body_contacts(self, d: mujoco.MjData) -> int:
         """Number of contacts between the robot's chassis/head and the world in ``d``."""
@@ -202,6 +230,7 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
         drive_actadr=m.actuator_actadr[[aid(n) for n in ("drive_x", "drive_y", "drive_yaw")]].copy(),
         servo_act=np.array([aid(f"{n}_servo") for n in names]),
         whisker_of_geom=whisker_of_geom,
+        whisker_body=np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]),
         camera_id=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "eye"),
         is_body_geom=np.isin(np.arange(m.ngeom), [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in ("chassis", "head")]),
         layout=layout,
@@ -240,6 +269,17 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
     # cycle time origin: a cycle ends (t = T) at maximum protraction
     sim.whisk_command = centre + (amp / sim.servo_gain) * np.cos(w * t_mid + sim.servo_phase_lag)
     return sim
+
+
+def penetration_deflection(depth: np.ndarray, normal_yz: np.ndarray, along: np.ndarray) -> np.ndarray:
+    """The WhiskEye plugin's signal of single contacts: ``10 * depth * normal / (s + 0.1)``.
+
+    ``depth`` (k,) penetration depths [m] (negative: not touching, counted as 0),
+    ``normal_yz`` (k, 2) the contact normal's components across the shaft (whisker frame
+    y, z), ``along`` (k,) the contact's distance along the shaft from the base [m].
+    """
+    depth = np.maximum(np.asarray(depth, dtype=float), 0.0)
+    return 10.0 * depth[:, None] * np.asarray(normal_yz, dtype=float) / (np.asarray(along, dtype=float)[:, None] + 0.1)
 
 
 def _contact_geoms(con, n: int) -> np.ndarray:

@@ -33,6 +33,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from vitaplace.engine.sim.environment import BIT_BODY, BIT_WHISKER, _fmt, _tag
@@ -82,6 +84,11 @@ class RobotSpec(BaseModel):
         0.3, gt=0, description="torque limit of the protraction servo: a blocked whisker stalls it [N m]"
     )
     whisker_friction: float = Field(0.3, ge=0, description="sliding friction of the shafts")
+    tactile_model: Literal["physical", "penetration"] = Field(
+        "physical",
+        description="physical: compliant whiskers bent by contact, xy = base deflection [rad]; penetration: the "
+        "Gazebo WhiskEye plugin's model, whiskers pass through objects and xy = 10 sum(depth normal) / (s + 0.1)",
+    )
     # camera
     camera_width: int = Field(160, ge=8, le=2048, description="recorded image width [px]")
     camera_height: int = Field(120, ge=8, le=2048, description="recorded image height [px]")
@@ -171,6 +178,10 @@ def robot_mjcf(robot: RobotSpec) -> tuple[str, str]:
         "friction": f"{robot.whisker_friction:g} 0.005 0.0001",
         "rgba": "0.85 0.85 0.8 1",
     }
+    if robot.tactile_model == "penetration":
+        # contacts are still detected (depth, normal) but nearly forceless: a 1000 s time
+        # constant and ~0 impedance, dominating the mix with the world geom's parameters
+        whisker_geom.update(solref="1000 1", solimp="0.0001 0.0001 0.001", solmix="1e9", friction="0 0 0")
     lines = [
         '<body name="base" pos="0 0 0">',
         '  <joint name="base_x" type="slide" axis="1 0 0"/>',

@@ -107,13 +107,13 @@ class Simulator:
         j = 0
         t0 = time.perf_counter()
         step = mujoco.mj_step
-        xy_qadr = sim.xy_qadr
+        read_xy = sim.xy
         for i, chunk in enumerate(self._chunks):
             for _ in range(chunk):
                 ctrl[servo] = cmd[j]
                 step(m, d)
                 j += 1
-            series[i] = d.qpos[xy_qadr]
+            series[i] = read_xy(d)
             if d.ncon and sim.body_contacts(d):
                 self.body_collisions += 1
                 if self.collision_log is not None:
@@ -191,7 +191,7 @@ def simulate_run(
             time=float(d.time),
             pose=sim.sim.pose(d),
             contacts=contacts,
-            deflection=np.linalg.norm(d.qpos[sim.sim.xy_qadr], axis=1),
+            deflection=np.linalg.norm(sim.sim.xy(d), axis=1),
         )
         t0 = time.perf_counter()
         v, w = controller(obs)
