@@ -6,6 +6,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -242,3 +243,55 @@ def test_non_finite_features_stop_the_pipeline_with_a_clear_error():
     bad = {"latent": np.array([[1.0, 2.0], [np.nan, 0.0], [np.inf, 1.0]])}
     with pytest.raises(StageError, match=r"transform L E1/query: feature 'latent' .* in 2 samples \(first: 1\)"):
         check_finite(bad, "transform L E1/query")
+
+
+ORACLE_PLUGIN = '''
+from pathlib import Path
+import numpy as np
+from scipy.spatial.distance import cdist
+from vitaplace.engine.features import FeatureExtractor
+from vitaplace.engine.hookspecs import hookimpl
+
+
+class Oracle(FeatureExtractor):
+    """Test-only: the feature of a sample is its true position, the distance Euclidean."""
+    name = "oracle"
+    def fit(self, train): pass
+    def transform(self, run): return {"xy": np.asarray(run.poses[:, :2], dtype=np.float64)}
+    def distance(self, query, reference): return cdist(query["xy"], reference["xy"])
+    def save_state(self, directory: Path): pass
+    def load_state(self, directory: Path): pass
+
+
+@hookimpl
+def vitaplace_register_features(register):
+    register(Oracle)
+'''
+
+
+def test_oracle_features_score_perfectly_end_to_end(tmp_path):
+    """Features that are the true positions must give max F1 = 1 and recall@1 = 1 through the
+    whole CLI, and matrices.npz must hold TME and GTM index-aligned (query rows, reference
+    columns): GTM is the Euclidean distance of the two runs' poses, which here is the TME."""
+    pkg = tmp_path / "site"
+    pkg.mkdir()
+    (pkg / "vitaplace_oracle_plugin.py").write_text(ORACLE_PLUGIN)
+    dist = pkg / "vitaplace_oracle_plugin-0.0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: vitaplace-oracle-plugin\nVersion: 0.0.1\n")
+    (dist / "entry_points.txt").write_text("[vitaplace.features]\noracle = vitaplace_oracle_plugin\n")
+    scenario = valid_scenario()
+    scenario["evaluations"][0]["run"]["n_samples"] = 12
+    scenario["methods"] = [{"name": "O", "plugin": "oracle"}]
+    path = write_scenario(tmp_path, scenario)
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(pkg), os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli", "run", str(path), "--out", str(out)],
+                          capture_output=True, text=True, timeout=600, env=env)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    (row,) = json.loads((out / "results.json").read_text())
+    assert row["max_f1"] == pytest.approx(1.0)
+    assert row["recall_at_k"]["1"] == pytest.approx(1.0)
+    (npz,) = list(out.glob("evaluations/E1/O/**/matrices.npz"))
+    with np.load(npz) as m:
+        np.testing.assert_allclose(m["gtm"], m["tme"], atol=1e-9)

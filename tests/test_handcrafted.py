@@ -69,6 +69,19 @@ def test_pfh_three_points_by_hand():
     np.testing.assert_allclose(pfh(points[::-1], normals[::-1], bins=3), expected, atol=1e-4)
 
 
+def test_pfh_value_on_a_bins_upper_edge_goes_to_the_last_bin():
+    """Two contacts with alpha = 1 exactly (the upper edge of its range).
+    Source (0,0,0) with n = (0,0,1), target (1,0,0) with n = (0,-1,0) (|n.d| ties at 0, so the
+    first point is the source): u = (0,0,1), d = (1,0,0), v = d x u = (0,-1,0), w = u x v =
+    (1,0,0); alpha = v.n_t = 1 -> bin 2 (last), phi = u.d = 0 -> bin 1, theta = atan2(w.n_t,
+    u.n_t) = atan2(0, 0) = 0 -> bin 1: index (2*3 + 1)*3 + 1 = 22 (swapping source and target
+    gives the same three values)."""
+    hist = pfh(np.array([[0.0, 0, 0], [1, 0, 0]]), np.array([[0.0, 0, 1], [0, -1, 0]]))
+    expected = np.zeros(27, dtype=np.float32)
+    expected[22] = 100.0
+    np.testing.assert_allclose(hist, expected)
+
+
 def test_pfh_invariant_to_rigid_motion_and_sums_to_100():
     rng = np.random.default_rng(1)
     for k in (2, 5, 30):
@@ -175,6 +188,16 @@ def test_sda_per_axis_mode_is_vitaslam():
     # w4: x 1e-4 -> 2e-4, y 1e-4 -> 3e-4: 2
     # w5: x .01 -> .04, y .01 -> .05: .04/.03
     np.testing.assert_allclose(slopes[0], [1.5, 0, 0, 0, 2, 0.04 / 0.03], rtol=1e-5)
+
+
+def test_sda_per_axis_with_a_threshold():
+    """Threshold 0.015 on each axis: init = first value above it, max = the largest value."""
+    slopes = sda(deflection_series(), threshold=0.015, mode="per_axis")
+    # w0: x 0 .01 .03 .05 .02 -> init .03, max .05; y 0 .02 .04 .08 .01 -> init .02, max .08:
+    #     .06/.02 = 3 (threshold 0 would give init .01 and 1.5)
+    # w2: x 0 .02 .02 .02 0 -> dx 0 -> 0;  w5: x .01 .04 .02 0 0 -> init .04 = max -> dx 0 -> 0
+    assert slopes[0, 0] == pytest.approx(3.0, rel=1e-5)
+    assert slopes[0, 2] == 0.0 and slopes[0, 5] == 0.0
 
 
 def test_sda_vectorised_over_samples():

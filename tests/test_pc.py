@@ -248,6 +248,50 @@ def test_training_moves_every_sample_every_epoch():
         assert np.all(np.any(y != np.float32(0.1), axis=1)), f"{node}: samples never trained"
 
 
+def test_energy_history_is_the_per_sample_energy_of_the_epoch():
+    """With the weights frozen (eta_w = 0) every minibatch's final energy is F of its samples'
+    final latents under the same weights, so an epoch's history entry must equal
+    Network.energy of all samples at their final latents, divided by the sample count."""
+    inputs, _ = synthetic(n=60)
+    frozen = {**SYNTH, "modalities": {m: {**mc, "eta_w": 0.0} for m, mc in SYNTH["modalities"].items()},
+              "joint": {**SYNTH["joint"], "eta_w": 0.0}}
+    net = Network(frozen, seed=4, backend="numpy")
+    latents: dict[str, np.ndarray] = {}
+    history = net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, progress=False, latents=latents)
+    expected = net.energy(inputs, latents)
+    for name, value in expected.items():
+        assert history.energy[name][0] == pytest.approx(value / 60, rel=1e-5), name
+
+
+@pytest.mark.parametrize("shape", [(150, 129, 300), (40, 1000, 300), (20, 300, 1000)], ids=str)
+def test_numpy_backend_matches_the_reference_on_wide_layers(shape):
+    """Layers wider than the weight update's 128-row chunks: every row of W must learn."""
+    from vitaplace.kernels import reference as ref
+
+    b, n_l, n_below = shape
+    rng = np.random.default_rng(21)
+    Y = rng.standard_normal((b, n_l)).astype(np.float32)
+    W = (rng.standard_normal((n_l, n_below)) / np.sqrt(n_l)).astype(np.float32)
+    X = rng.random((b, n_below)).astype(np.float32)
+    E_above = rng.standard_normal((b, n_l)).astype(np.float32)
+    be = NumpyBackend()
+    E, G = np.zeros((b, n_below), np.float32), np.zeros((b, n_below), np.float32)
+    R = np.zeros((1, b))
+    be.predict(Y, W, X, E, G, R, 0, "leaky_relu", 0.2)
+    _, _, e, g = ref.predict(*(a.astype(np.float64) for a in (Y, W, X)))
+    np.testing.assert_allclose(E, e, rtol=1e-5, atol=1e-5 * np.abs(e).max())
+    np.testing.assert_allclose(R[0], np.sum(e**2, axis=1), rtol=1e-4)
+    y = Y.copy()
+    be.latent_update(y, G, W, 0.01, E_above, None)
+    expected = ref.latent_step(Y.astype(np.float64), G.astype(np.float64), W.astype(np.float64), 0.01, E_above.astype(np.float64))
+    np.testing.assert_allclose(y, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
+    w = W.copy()
+    be.weight_update(w, Y, G, 0.01)
+    expected = ref.weight_step(W.astype(np.float64), Y.astype(np.float64), G.astype(np.float64), 0.01)
+    np.testing.assert_allclose(w, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
+    assert np.all(np.any(w != W, axis=1)), "some rows of W did not learn"
+
+
 def test_same_seed_gives_identical_training():
     inputs, _ = synthetic(n=100)
     runs = []

@@ -423,3 +423,30 @@ def test_penetration_and_physical_models_agree_on_the_direction_of_touch(bare_si
         signs[model] = np.sign(series[:, RIGHT, 0].sum())
         assert signs[model] != 0
     assert signs["physical"] == signs["penetration"]
+
+
+# ---------------------------------------------------------------------- the sensor contract
+def test_stored_xy_is_the_deflection_at_maximum_protraction_and_yaw_is_wrapped(e1):
+    run = simulate_run(e1, RunSpec(kind="route", n_samples=4), seed=3, progress=False)
+    # the series' last instant is the sample instant (maximum protraction)
+    np.testing.assert_array_equal(run.xy, run.deflection[:, -1])
+    assert np.all(run.poses[:, 2] >= -math.pi) and np.all(run.poses[:, 2] < math.pi)
+
+
+def test_route_noise_processes_have_the_documented_standard_deviations(e1):
+    """The route follower's lateral, heading and speed noise are stationary OU processes with
+    the RunSpec's standard deviations: sampled every 0.1 s for 20 000 s, their empirical std
+    must be within 5 % (the estimate's own error is ~2 % for 2000 correlation times)."""
+    from vitaplace.engine.sim.controllers import make_controller
+
+    spec = RunSpec(kind="route", n_samples=2, lateral_noise=0.05, heading_noise_deg=4.0, speed_noise=0.2)
+    ctrl, _ = make_controller(e1, spec, np.random.default_rng(0))
+    for process, sigma in ((ctrl._lateral, 0.05), (ctrl._heading, math.radians(4.0)), (ctrl._speed, 0.2)):
+        samples = np.array([process.step(0.1) for _ in range(200_000)])
+        assert np.std(samples) == pytest.approx(sigma, rel=0.05)
+
+
+def test_obstacle_map_of_a_rectangular_arena():
+    env = EnvironmentSpec.model_validate({"name": "rect", "arena": {"width": 8.0, "depth": 4.0}})
+    np.testing.assert_allclose(env.obstacles.distance_many(np.array([[0.0, 1.9], [3.9, 0.0], [0.0, 0.0]])),
+                               [0.1, 0.1, 2.0])
