@@ -136,7 +136,8 @@ def test_training_lowers_every_prediction_error(fitted):
 def test_joint_latents_recognise_revisits(fitted, runs):
     a, b = runs
     features = fitted.transform(b)
-    assert set(features) == {"latent"}
+    assert set(features) == {"latent", "diverged"}
+    assert not features["diverged"].any()
     assert features["latent"].shape == (N, 8)
     assert np.all(np.isfinite(features["latent"]))
     assert features["latent"].std(axis=0).min() > 1e-3  # not a constant code
@@ -209,3 +210,53 @@ def test_params_errors_name_extractor_and_key(mupnet_class, params, key):
         mupnet_class(params)
     assert "'mupnet'" in str(info.value)
     assert key in str(info.value)
+
+
+def with_flat_channel(run: Run, value: float) -> Run:
+    """``run`` with whisker 0's x deflection replaced by a constant (a channel that never moves)."""
+    xy = run.xy.copy()
+    xy[:, 0, 0] = value
+    return Run.from_arrays(images=run.images, theta=run.theta, xy=xy, poses=run.poses, name=run.name)
+
+
+def test_a_channel_flat_in_training_is_not_blown_up(mupnet_class, runs):
+    """A tactile channel that did not move in training (range 1e-9) is scaled by the floor
+    (0.05), not by 1/1e-9: a test reading 0.1 away from it becomes 2 scaled units, the joint
+    latents stay within the training range, and nothing is flagged as diverged."""
+    a, b = runs
+    train = with_flat_channel(a, 0.0)
+    xy = train.xy.copy()
+    xy[1, 0, 0] = 1e-9
+    train = Run.from_arrays(images=train.images, theta=train.theta, xy=xy, poses=train.poses, name="A")
+    extractor = make(mupnet_class)
+    extractor.fit(train)
+    offset, scale = extractor.network.scalers["tactile"]
+    channel = N_WHISKERS + 0  # theta first (24 values), then x, y of whisker 0
+    assert scale[channel] == pytest.approx(1 / 0.05)
+    test = with_flat_channel(b, 0.1)
+    scaled = extractor.scaled_inputs(test)["tactile"][:, channel]
+    np.testing.assert_allclose(scaled, 0.1 / 0.05, rtol=1e-5)
+    features = extractor.transform(test)
+    assert not features["diverged"].any()
+    assert np.linalg.norm(features["latent"], axis=1).max() < 10 * extractor.train_norm_max
+
+
+def test_diverging_latents_are_flagged_per_sample(mupnet_class, runs, caplog):
+    """Without the floor the same channel gets a 1e9 scale factor; test samples whose reading
+    is off by 0.1 then have inputs of 1e8 and their latents explode: each is flagged and the
+    run is named in one warning."""
+    a, b = runs
+    xy = a.xy.copy()
+    xy[:, 0, 0] = 0.0
+    xy[1, 0, 0] = 1e-9
+    train = Run.from_arrays(images=a.images, theta=a.theta, xy=xy, poses=a.poses, name="A")
+    extractor = make(mupnet_class, tactile_min_range=0.0, max_steps=5)
+    extractor.fit(train)
+    test_xy = b.xy.copy()
+    test_xy[:, 0, 0] = 0.0
+    test_xy[[3, 7], 0, 0] = 0.1
+    test = Run.from_arrays(images=b.images, theta=b.theta, xy=test_xy, poses=b.poses, name="B")
+    with caplog.at_level("WARNING", logger="vitaplace.mupnet"):
+        features = extractor.transform(test)
+    assert list(np.flatnonzero(features["diverged"])) == [3, 7]
+    assert "2 of 80 samples of run 'B'" in caplog.text and "first: 3, 7" in caplog.text

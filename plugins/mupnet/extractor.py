@@ -8,6 +8,8 @@ infers the joint latent of every sample with frozen weights. Distance: L2.
 from __future__ import annotations
 
 import json
+import logging
+import math
 from pathlib import Path
 from typing import Literal
 
@@ -22,6 +24,9 @@ from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Feature
 from vitaplace.engine.pc import Network, NetworkConfig, TrainingConfig
 
 Modality = Literal["visual", "tactile"]
+log = logging.getLogger("vitaplace.mupnet")
+#: a test-time joint latent longer than this many times the longest training one has diverged
+DIVERGED_FACTOR = 10.0
 
 
 class MupnetParams(ExtractorParams):
@@ -47,6 +52,11 @@ class MupnetParams(ExtractorParams):
     batch_size: pydantic.PositiveInt = 150
     inference_steps: pydantic.PositiveInt = 20
     max_steps: pydantic.PositiveInt = pydantic.Field(3000, description="test-time inference step cap")
+    tactile_min_range: pydantic.NonNegativeFloat = pydantic.Field(
+        0.05,
+        description="floor on each tactile channel's min-max range before scaling (theta and xy units): a channel "
+        "that barely moved in training is not blown up to unit range",
+    )
     backend: Literal["auto", "numpy", "warp"] = "auto"
     seed: int = 0
 
@@ -78,6 +88,8 @@ class MupnetExtractor(FeatureExtractor):
         super().__init__(params)
         self.network: Network | None = None
         self.energy: dict[str, list[float]] = {}
+        #: largest joint-latent norm over the training samples (test-time divergence check)
+        self.train_norm_max = math.inf
 
     def network_config(self, tactile_size: int) -> NetworkConfig:
         p = self.params
@@ -130,13 +142,14 @@ class MupnetExtractor(FeatureExtractor):
             self.network.set_scaler("visual", np.zeros(1, np.float32), np.full(1, 1 / 255, np.float32))
         if "tactile" in raw:
             low, high = raw["tactile"].min(axis=0), raw["tactile"].max(axis=0)
-            span = high - low
+            span = np.maximum(high - low, p.tactile_min_range)
             self.network.set_scaler("tactile", low, np.where(span > 0, 1 / np.where(span > 0, span, 1), 0))
         training = TrainingConfig(
             epochs=p.epochs, batch_size=p.batch_size, inference_steps=p.inference_steps, seed=p.seed
         )
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
         self.energy = self.network.train(inputs, training, progress=self.progress).energy
+        self.train_norm_max = float(np.linalg.norm(self.network.train_latents["joint"], axis=1).max())
 
     def training_history(self) -> dict[str, list[float]]:
         return self.energy
@@ -145,7 +158,17 @@ class MupnetExtractor(FeatureExtractor):
         if self.network is None:
             raise RuntimeError("mupnet: fit() or load() before transform()")
         result = self.network.infer(self.scaled_inputs(run), max_steps=self.params.max_steps)
-        return {"latent": result.latents["joint"]}
+        latent = result.latents["joint"]
+        diverged = np.linalg.norm(latent, axis=1) > DIVERGED_FACTOR * self.train_norm_max
+        if diverged.any():
+            where = np.flatnonzero(diverged)
+            log.warning(
+                "mupnet: %d of %d samples of run %r have a joint latent norm over %g x the training maximum "
+                "(%.3g): diverged at test time (first: %s); their features are not trustworthy",
+                len(where), len(latent), run.name, DIVERGED_FACTOR, self.train_norm_max,
+                ", ".join(map(str, where[:10])),
+            )
+        return {"latent": latent, "diverged": diverged}
 
     def distance(self, query: Features, reference: Features) -> np.ndarray:
         return cdist(query["latent"], reference["latent"])
@@ -155,8 +178,11 @@ class MupnetExtractor(FeatureExtractor):
             raise RuntimeError("mupnet: nothing to save before fit()")
         self.network.save(directory / "network")
         write_text_atomic(directory / "energy.json", json.dumps(self.energy))
+        write_text_atomic(directory / "latent_norm.json", json.dumps({"train_max": self.train_norm_max}))
 
     def load_state(self, directory: Path) -> None:
         self.network = Network.load(directory / "network", backend=self.params.backend)
         energy = directory / "energy.json"
         self.energy = json.loads(energy.read_text()) if energy.exists() else {}
+        norm = directory / "latent_norm.json"
+        self.train_norm_max = json.loads(norm.read_text())["train_max"] if norm.exists() else math.inf
