@@ -114,6 +114,9 @@ MUTANTS = [
     m("runner: ground truth built reference-to-query", "engine/runner.py",
       'self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses, settings.heading_weight',
       'self.open(f"{e.name}/{r}").poses, self.open(f"{e.name}/{q}").poses, settings.heading_weight', *CLI),
+    m("runner: evaluation cache key ignores the settings", "engine/runner.py",
+      'key = content_hash("evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name, settings.model_dump())',
+      'key = content_hash("evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name)', *CLI),
     # --- the hand-crafted front end
     m("pfh: upper-edge values beyond the last bin", "plugins/handcrafted/pfh.py",
       "    return np.clip(idx, 0, bins - 1)", "    return np.clip(idx, 0, bins)", *HAND),

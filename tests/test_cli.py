@@ -178,6 +178,32 @@ def test_force_redoes_one_stage(quickstart_run):
     assert ran == {"evaluate"}
 
 
+def _rerun(out: Path, *extra: str) -> dict[tuple[str, str], str]:
+    """Re-run the tiny quickstart into ``out`` with extra overrides; (stage, item) -> status."""
+    args = ["run", "quickstart", "--out", str(out), "--no-progress"]
+    for override in (*TINY, *extra):
+        args += ["--set", override]
+    result = run_cli(args)
+    assert result.returncode == 0, result.stderr
+    return {(r["stage"], r["item"]): r["status"] for r in json.loads((out / "manifest.json").read_text())["stages"]}
+
+
+def test_cache_redoes_exactly_what_a_change_touches(tmp_path):
+    """A method parameter re-runs that method's fit, transforms and evaluations and the report,
+    never the simulation nor the other method; the revisit tolerance re-runs only the
+    evaluations and the report."""
+    out = tmp_path / "out"
+    assert set(_rerun(out).values()) == {"ran"}
+    status = _rerun(out, "methods.0.params.epochs=3")
+    ran = {key for key, s in status.items() if s == "ran"}
+    assert ran == {("fit", "L"), ("transform", "L E1/query"), ("transform", "L E1/reference"),
+                   ("evaluate", "E1 L query-to-reference"), ("report", "report")}, ran
+    status = _rerun(out, "methods.0.params.epochs=3", "evaluation.tau=0.4")
+    ran = {key for key, s in status.items() if s == "ran"}
+    assert ran == {("evaluate", "E1 L query-to-reference"), ("evaluate", "E1 H query-to-reference"),
+                   ("report", "report")}, ran
+
+
 @pytest.mark.parametrize("name", sorted(p.stem for p in SCENARIOS.glob("*.yaml")))
 def test_shipped_scenarios_validate(name, capsys):
     assert main(["validate", name]) == 0
