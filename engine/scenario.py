@@ -53,21 +53,27 @@ class Strict(pydantic.BaseModel):
 class SimulatedRun(Strict):
     """One recorded run: an environment file and how the robot moves in it."""
 
+    #: environment YAML, relative to the scenario file (or a shipped name)
     environment: Path
+    #: how the robot moves and how many samples are recorded
     run: RunSpec
 
 
 class EvaluationRuns(SimulatedRun):
     """An evaluation environment: two noisy runs along the same route (query and reference)."""
 
+    #: label of the evaluation (E1, E2, ...), letters, digits, _ . -
     name: str = pydantic.Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
 
 
 class Method(Strict):
     """A feature extractor to compare: a label, the plugin's extractor name, its parameters."""
 
+    #: label of the method in results and figures (L, H, ...)
     name: str = pydantic.Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    #: name of the registered feature extractor (`vitaplace plugins` lists them)
     plugin: str
+    #: the extractor's parameters (validated by the extractor, see its section)
     params: dict[str, Any] = {}
 
 
@@ -75,18 +81,28 @@ class EvaluationSettings(Strict):
     tau: float = pydantic.Field(0.3, ge=0, description="ground-truth revisit tolerance [m]")
     heading_weight: float = pydantic.Field(0.0, ge=0, description="GTM += weight * |yaw difference| [m/rad]")
     delta: float | None = pydantic.Field(None, description="fixed acceptance threshold for the F1 at delta")
+    #: K values of recall@K
     recall_k: list[pydantic.PositiveInt] = [1, 5, 10]
+    #: which run queries which: query-to-reference, the reverse, or both
     direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = "query-to-reference"
 
 
 class Scenario(Strict):
+    #: the scenario's name (reports, output folders)
     name: str = pydantic.Field(min_length=1)
+    #: free text shown in the report
     description: str = ""
+    #: master seed: every run's and method's seed derives from it
     seed: int = 0
+    #: robot, sensors and physics for every run of the scenario
     robot: RobotSpec = RobotSpec()
+    #: the run the methods are fitted on
     train: SimulatedRun
+    #: evaluation environments, each with a query and a reference run
     evaluations: list[EvaluationRuns] = pydantic.Field(min_length=1)
+    #: the feature extractors compared
     methods: list[Method] = pydantic.Field(min_length=1)
+    #: how features are scored
     evaluation: EvaluationSettings = EvaluationSettings()
 
     @pydantic.model_validator(mode="after")

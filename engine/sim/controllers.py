@@ -46,6 +46,7 @@ class RunSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    #: foraging (tactile-attention exploration, training) or route (noisy laps of the environment's route)
     kind: Literal["foraging", "route"]
     n_samples: int = Field(gt=0, description="samples (whisk cycles) to record")
     speed: float = Field(0.15, gt=0, le=1.0, description="nominal forward speed [m/s]")

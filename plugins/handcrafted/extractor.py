@@ -57,7 +57,9 @@ class HandcraftedParams(ExtractorParams):
     simulated whiskers deflect up to ~1e-3 rad from whisking alone and 0.08-0.85 rad on contact."""
     sda_mode: Literal["magnitude", "per_axis"] = "magnitude"
     """How a 2-axis deflection is reduced to a slope, see `vitaplace.plugins.handcrafted.sda`."""
+    #: include the visual intensity profile term
     use_visual: bool = True
+    #: include the PFH and SDA terms
     use_tactile: bool = True
     sigma_samples: int = pydantic.Field(500, ge=2)
     """At most this many training samples (evenly spaced) are used to estimate the sigmas."""

@@ -32,24 +32,43 @@ DIVERGED_FACTOR = 10.0
 class MupnetParams(ExtractorParams):
     """Network, training and test-time inference settings (defaults: the MuPNet paper/code)."""
 
+    #: modalities fed to the network (an ablation leaves one out)
     modalities: list[Modality] = pydantic.Field(default_factory=lambda: ["visual", "tactile"], min_length=1)
+    #: (rows, columns) the camera frames are resampled to
     image_size: tuple[pydantic.PositiveInt, pydantic.PositiveInt] = (45, 80)
+    #: latent layer sizes of the visual stack, bottom first
     visual_layers: list[pydantic.PositiveInt] = pydantic.Field(default_factory=lambda: [1000, 300], min_length=1)
+    #: latent layer sizes of the tactile stack, bottom first
     tactile_layers: list[pydantic.PositiveInt] = pydantic.Field(default_factory=lambda: [100], min_length=1)
+    #: size of the joint latent: the place feature
     joint_size: pydantic.PositiveInt = 200
+    #: latent step size of the visual layers
     eta_y_visual: pydantic.PositiveFloat = 4e-4
+    #: latent step size of the tactile layers
     eta_y_tactile: pydantic.PositiveFloat = 4e-3
+    #: latent step size of the joint layer
     eta_y_joint: pydantic.PositiveFloat = 4e-4
+    #: weight step size of the visual layers
     eta_w_visual: pydantic.PositiveFloat = 1e-4
+    #: weight step size of the tactile layers
     eta_w_tactile: pydantic.PositiveFloat = 1e-3
+    #: weight step size of the joint layer's edges
     eta_w_joint: pydantic.PositiveFloat = 1e-4
+    #: test-time stop: mean squared error of each visual layer's prediction
     threshold_visual: pydantic.NonNegativeFloat = 1e-3
+    #: test-time stop: mean squared error of each tactile layer's prediction
     threshold_tactile: pydantic.NonNegativeFloat = 1e-3
+    #: test-time stop: mean squared error of the joint layer's predictions
     threshold_joint: pydantic.NonNegativeFloat = 1e-3
+    #: leaky_relu, tanh, sigmoid or linear
     activation: str = "leaky_relu"
+    #: negative slope of the leaky ReLU
     slope: pydantic.NonNegativeFloat = 0.2
+    #: passes over the training run
     epochs: pydantic.PositiveInt = 10
+    #: samples per minibatch
     batch_size: pydantic.PositiveInt = 150
+    #: T latent steps per minibatch before the weight step
     inference_steps: pydantic.PositiveInt = 20
     max_steps: pydantic.PositiveInt = pydantic.Field(3000, description="test-time inference step cap")
     tactile_min_range: pydantic.NonNegativeFloat = pydantic.Field(
@@ -57,7 +76,9 @@ class MupnetParams(ExtractorParams):
         description="floor on each tactile channel's min-max range before scaling (theta and xy units): a channel "
         "that barely moved in training is not blown up to unit range",
     )
+    #: auto (warp on CUDA, numpy otherwise), numpy or warp
     backend: Literal["auto", "numpy", "warp"] = "auto"
+    #: network initialisation and minibatch order
     seed: int = 0
 
     @pydantic.field_validator("modalities")

@@ -1,0 +1,182 @@
+"""docs/SCENARIOS.md, generated from the pydantic schemas, so the reference cannot drift.
+
+    python -m vitaplace.engine.schema_docs docs/SCENARIOS.md     # regenerate
+    python -m vitaplace.engine.schema_docs                       # print
+
+`tests/test_docs.py` checks the committed file equals what this module generates.
+"""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import re
+import textwrap
+import sys
+import types
+import typing
+from pathlib import Path
+
+import pydantic
+from pydantic_core import PydanticUndefined
+
+from vitaplace.engine.scenario import EvaluationRuns, EvaluationSettings, Method, Scenario, SimulatedRun
+from vitaplace.engine.sim.controllers import RunSpec
+from vitaplace.engine.sim.environment import (
+    ArenaSpec,
+    BoardSpec,
+    BoxLandmark,
+    CylinderLandmark,
+    EnvironmentSpec,
+    LightingSpec,
+    LightSpec,
+    MaterialSpec,
+    PanelSpec,
+    RockLandmark,
+    TextureSpec,
+    WallSpec,
+)
+from vitaplace.engine.sim.robot import RobotSpec
+from vitaplace.plugins.handcrafted.extractor import HandcraftedParams
+from vitaplace.plugins.mupnet.extractor import MupnetParams
+
+#: (heading, model, what it is) in the order the reference presents them
+SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
+    ("Scenario", Scenario, "the top level of a scenario file"),
+    ("train: SimulatedRun", SimulatedRun, "the training run"),
+    ("evaluations[]: EvaluationRuns", EvaluationRuns, "one evaluation environment (two route runs)"),
+    ("run: RunSpec", RunSpec, "how the robot moves in a recorded run"),
+    ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),
+    ("methods[]: Method", Method, "a feature extractor to compare"),
+    ("methods[].params for plugin mupnet", MupnetParams, "the learned MuPNet features"),
+    ("methods[].params for plugin handcrafted", HandcraftedParams, "the ViTa-SLAM front end"),
+    ("evaluation: EvaluationSettings", EvaluationSettings, "how features are scored"),
+    ("Environment file: EnvironmentSpec", EnvironmentSpec, "an environment YAML (scenarios/environments)"),
+    ("arena: ArenaSpec", ArenaSpec, "walls and floor"),
+    ("arena.walls.<wall>: WallSpec", WallSpec, "one wall's look"),
+    ("arena.walls.<wall>.panel: PanelSpec", PanelSpec, "a box on a wall's inner face"),
+    ("materials.<name>: MaterialSpec", MaterialSpec, "a render material"),
+    ("materials.<name>.texture: TextureSpec", TextureSpec, "a procedural or file texture"),
+    ("landmarks[] (type: box): BoxLandmark", BoxLandmark, "a box"),
+    ("landmarks[] (type: cylinder): CylinderLandmark", CylinderLandmark, "a cylinder"),
+    ("landmarks[] (type: rock): RockLandmark", RockLandmark, "a seeded asymmetric convex rock"),
+    ("lighting: LightingSpec", LightingSpec, "lights of the scene"),
+    ("lighting.lights[]: LightSpec", LightSpec, "a directional light"),
+    ("boards[]: BoardSpec", BoardSpec, "a render-only board"),
+]
+
+
+def _type_name(annotation: typing.Any) -> str:
+    origin = typing.get_origin(annotation)
+    args = typing.get_args(annotation)
+    if annotation is type(None):
+        return "null"
+    if origin is typing.Annotated:
+        return _type_name(args[0])
+    if origin is typing.Literal:
+        return " \\| ".join(repr(a) for a in args)
+    if origin in (typing.Union, types.UnionType):
+        return " \\| ".join(_type_name(a) for a in args)
+    if origin is not None:
+        name = getattr(origin, "__name__", str(origin))
+        return f"{name}[{', '.join(_type_name(a) for a in args)}]" if args else name
+    return getattr(annotation, "__name__", str(annotation))
+
+
+def _default(field: pydantic.fields.FieldInfo) -> str:
+    if field.default is PydanticUndefined and field.default_factory is None:
+        return "**required**"
+    value = field.default_factory() if field.default_factory is not None else field.default
+    if isinstance(value, pydantic.BaseModel):
+        return "(see its section)"
+    if isinstance(value, dict) and len(str(value)) > 60:
+        return "(built in)"
+    return f"`{value!r}`" if value is not None else "`None`"
+
+
+def _constraints(field: pydantic.fields.FieldInfo) -> str:
+    out = []
+    for item in field.metadata:
+        for attr, sign in (("gt", ">"), ("ge", ">="), ("lt", "<"), ("le", "<="), ("min_length", "min length"),
+                           ("max_length", "max length"), ("pattern", "pattern")):
+            value = getattr(item, attr, None)
+            if value is not None:
+                out.append(f"{sign} {value}")
+    return ", ".join(out)
+
+
+def _first_line(doc: str | None) -> str:
+    return " ".join((doc or "").strip().split("\n\n")[0].split())
+
+
+def _comment_docs(model: type[pydantic.BaseModel]) -> dict[str, str]:
+    """Attribute documentation of ``model`` and its bases, Sphinx style: a string right after
+    a field, ``#: text`` on the lines above it, or ``name: type = value  #: text``."""
+    docs: dict[str, str] = {}
+    for cls in reversed(model.__mro__):
+        if not (isinstance(cls, type) and issubclass(cls, pydantic.BaseModel)) or cls is pydantic.BaseModel:
+            continue
+        try:
+            lines = inspect.getsource(cls).splitlines()
+        except (OSError, TypeError):
+            continue
+        tree = ast.parse(textwrap.dedent("\n".join(lines)))
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for node, after in zip(body, body[1:]):
+            if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                    and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+                    and isinstance(after.value.value, str)):
+                docs[node.target.id] = " ".join(after.value.value.split())
+        pending: list[str] = []
+        for line in lines:
+            stripped = line.strip()
+            if stripped.startswith("#:"):
+                pending.append(stripped[2:].strip())
+                continue
+            match = re.match(r"^(\w+)\s*:", stripped)
+            if match and match.group(1) in cls.model_fields:
+                trailing = re.search(r"#:\s*(.*)$", stripped)
+                text = " ".join(pending) or (trailing.group(1) if trailing else "")
+                if text and match.group(1) not in docs:
+                    docs[match.group(1)] = text
+            pending = []
+    return docs
+
+
+def model_table(model: type[pydantic.BaseModel]) -> str:
+    rows = ["| key | type | default | constraints | meaning |", "|---|---|---|---|---|"]
+    comments = _comment_docs(model)
+    for name, field in model.model_fields.items():
+        meaning = (field.description or comments.get(name, "")).replace("|", "\\|").replace("\n", " ")
+        rows.append(f"| `{name}` | {_type_name(field.annotation)} | {_default(field)} | {_constraints(field)} | {meaning} |")
+    return "\n".join(rows)
+
+
+def markdown() -> str:
+    parts = [
+        "# Scenario and environment reference",
+        "",
+        "Generated from the pydantic schemas by `python -m vitaplace.engine.schema_docs docs/SCENARIOS.md`;",
+        "`tests/test_docs.py` fails when this file is out of date. Unknown keys are errors everywhere.",
+        "Units: metres, seconds, degrees in files (radians inside), colours in [0, 1].",
+        "",
+    ]
+    for heading, model, what in SECTIONS:
+        doc = _first_line(model.__doc__)
+        parts += [f"## {heading}", "", f"{what[0].upper()}{what[1:]}." + (f" {doc}" if doc else ""), "",
+                  model_table(model), ""]
+    return "\n".join(parts)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    text = markdown()
+    if args:
+        Path(args[0]).write_text(text)
+    else:
+        print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
