@@ -216,12 +216,6 @@ class Network:
         offset, scale = self.scalers[modality]
         return (x - offset) * scale
 
-    def unscale_input(self, modality: str, x: np.ndarray) -> np.ndarray:
-        if modality not in self.scalers:
-            return x
-        offset, scale = self.scalers[modality]
-        return x / np.where(scale == 0, 1, scale) + offset
-
     # ------------------------------------------------------------------ the PC step
     def _check_inputs(self, inputs: Mapping[str, np.ndarray]) -> tuple[list[str], int]:
         unknown = set(inputs) - set(self.modalities)

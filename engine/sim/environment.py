@@ -746,15 +746,6 @@ class ObstacleMap:
         norm = np.linalg.norm(g, axis=1, keepdims=True)
         return d[:, 0], np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)
 
-    def gradient(self, p: np.ndarray, eps: float = 1e-3) -> np.ndarray:
-        """Unit direction of steepest increase of `distance` at ``p`` (away from the obstacle)."""
-        p = np.asarray(p, dtype=float)
-        probes = p[None] + np.array([[eps, 0], [-eps, 0], [0, eps], [0, -eps]])
-        d = self.distance_many(probes)
-        g = np.array([d[0] - d[1], d[2] - d[3]])
-        n = np.linalg.norm(g)
-        return g / n if n > 0 else g
-
 
 def _signed_area(poly: np.ndarray) -> float:
     x, y = poly[:, 0], poly[:, 1]

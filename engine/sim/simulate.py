@@ -75,7 +75,6 @@ class Simulator:
         self._servo = slice(int(servo[0]), int(servo[-1]) + 1) if contiguous else servo
         self.physics_time = 0.0
         self.body_collisions = 0  #: series instants at which the chassis or head touched the world
-        self.collision_log: list[np.ndarray] | None = None  #: set to a list to record collision poses
 
     # ------------------------------------------------------------------ control
     def reset(self, pose: tuple[float, float, float]) -> None:
@@ -116,8 +115,6 @@ class Simulator:
             series[i] = read_xy(d)
             if d.ncon and sim.body_contacts(d):
                 self.body_collisions += 1
-                if self.collision_log is not None:
-                    self.collision_log.append(sim.pose(d))
             p, n, _ = sim.whisker_contacts(d)
             points.append(p)
             normals.append(n)
