@@ -6,10 +6,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vitaplace.engine import __version__
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine import figures
 from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.provenance import provenance
 from vitaplace.engine.sim.environment import load_environment
 
 if TYPE_CHECKING:
@@ -91,13 +91,14 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         for name, history in training:
             figures.plot_energy(fig_dir / f"training-{name}", history, title=f"{name}: training energy per layer")
             sections += [f"![training {name}](figures/training-{name}.png)", ""]
-    from vitaplace.engine.runner import git_commit
-
+    origin = provenance()
+    packages = ", ".join(f"{name} {v}" for name, v in origin["packages"].items() if v)
     sections += [
         "## Provenance",
         "",
-        f"vitaplace {__version__}, commit {git_commit() or 'unknown'}, scenario seed {scenario.seed}; "
-        "seeds, timings and machine in manifest.json, resolved configuration in scenario.resolved.yaml.",
+        f"vitaplace {origin['vitaplace_version']}, commit {origin['git_commit'] or 'unknown'}, scenario seed "
+        f"{scenario.seed}; {packages}. Seeds, timings and machine in manifest.json, resolved configuration in "
+        "scenario.resolved.yaml.",
         "",
     ]
     write_text_atomic(out / "report.md", "\n".join(sections))

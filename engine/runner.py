@@ -11,9 +11,7 @@ import json
 import logging
 import multiprocessing
 import os
-import platform
 import shutil
-import subprocess
 import tempfile
 import time
 from collections.abc import Iterable
@@ -26,7 +24,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from vitaplace.engine import __version__
+from vitaplace.engine.provenance import provenance
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
@@ -306,18 +304,12 @@ class Pipeline:
     def write_manifest(self, seconds: float) -> None:
         manifest = {
             "scenario": self.scenario.name,
-            "vitaplace_version": __version__,
-            "git_commit": git_commit(),
+            **provenance(),
             "seed": self.scenario.seed,
             "run_seeds": {label: seed for label, (_, seed) in self.runs().items()},
             "datasets": self.state.datasets,
             "stages": [record.__dict__ for record in self.state.records],
             "seconds": round(seconds, 3),
-            "machine": {
-                "platform": platform.platform(),
-                "python": platform.python_version(),
-                "cpus": os.cpu_count(),
-            },
         }
         write_text_atomic(self.out / "manifest.json", json.dumps(manifest, indent=2))
 
@@ -342,13 +334,3 @@ def write_results(out: Path, rows: list[dict[str, Any]]) -> None:
         writer.writerow([row.get(c, "") for c in RESULT_COLUMNS] + [row["recall_at_k"].get(k, "") for k in ks])
     write_text_atomic(out / "results.csv", buffer.getvalue())
 
-
-def git_commit() -> str | None:
-    """The commit of the source tree vitaplace runs from, when it is a git checkout."""
-    try:
-        result = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=5
-        )
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return result.stdout.strip() or None

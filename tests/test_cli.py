@@ -159,6 +159,7 @@ def test_quickstart_writes_every_output(quickstart_run):
         assert {f"{stem}.png", f"{stem}.pdf"} <= figures, stem
     assert all(r["status"] == "ran" for r in manifest["stages"])
     assert manifest["vitaplace_version"] and manifest["machine"]["cpus"]
+    assert manifest["packages"]["numpy"] == np.__version__ and manifest["packages"]["mujoco"]
 
 
 def test_second_run_reuses_every_stage(quickstart_run):

@@ -1,0 +1,48 @@
+"""Where a result came from: vitaplace's version and git commit, the versions of the
+packages that compute it, and the machine. Written into manifest.json and the report."""
+
+from __future__ import annotations
+
+import os
+import platform
+import subprocess
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from vitaplace.engine import __version__
+
+#: distributions whose version can change a result
+PACKAGES = ("numpy", "scipy", "scikit-learn", "mujoco", "warp-lang", "pluggy", "h5py", "pydantic")
+
+
+def git_commit() -> str | None:
+    """The commit of the source tree vitaplace runs from, when it is a git checkout."""
+    try:
+        result = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=5
+        )
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return result.stdout.strip() or None
+
+
+def package_versions() -> dict[str, str | None]:
+    """Installed version of each of `PACKAGES` (None when absent)."""
+    out: dict[str, str | None] = {}
+    for name in PACKAGES:
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def provenance() -> dict[str, Any]:
+    """vitaplace version and commit, package versions and the machine, as plain data."""
+    return {
+        "vitaplace_version": __version__,
+        "git_commit": git_commit(),
+        "packages": package_versions(),
+        "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count()},
+    }
