@@ -12,20 +12,9 @@ import sys
 from pathlib import Path
 
 from vitaplace.engine import __version__
+from vitaplace.engine.errors import UserError
 
 EXIT_USER_ERROR = 2
-
-
-def _user_errors() -> tuple[type[BaseException], ...]:
-    from vitaplace.engine.dataset import DatasetError
-    from vitaplace.engine.features import ExtractorParamsError
-    from vitaplace.engine.pc import NetworkError
-    from vitaplace.engine.plugins import PluginError
-    from vitaplace.engine.configfile import ConfigError
-    from vitaplace.engine.runner import StageError
-    from vitaplace.engine.sim.glsetup import GLUnavailableError
-
-    return (ConfigError, DatasetError, PluginError, ExtractorParamsError, NetworkError, GLUnavailableError, StageError)
 
 
 def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True) -> None:
@@ -182,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
             return _simulate_environment(args)
         until = {"simulate": "simulate", "train": "fit", "evaluate": "evaluate"}.get(args.command, "report")
         return _run_stages(args, until)
-    except _user_errors() as exc:
+    except UserError as exc:
         print(f"vitaplace: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:

@@ -19,8 +19,10 @@ from typing import Any
 import pydantic
 import yaml
 
+from vitaplace.engine.errors import UserError
 
-class ConfigError(ValueError):
+
+class ConfigError(UserError, ValueError):
     """A configuration file that cannot be used; the message names the file and key path."""
 
 

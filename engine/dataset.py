@@ -32,6 +32,7 @@ import numpy as np
 
 from vitaplace.engine import __version__
 from vitaplace.engine.atomic import atomic_path
+from vitaplace.engine.errors import UserError
 
 SCHEMA_VERSION = 1
 
@@ -49,7 +50,7 @@ FIELDS: dict[str, np.dtype] = {
 }
 
 
-class DatasetError(ValueError):
+class DatasetError(UserError, ValueError):
     """A dataset file or array set that cannot be used; the message names the file and the problem."""
 
 

@@ -18,12 +18,13 @@ import pydantic
 
 from vitaplace.engine.atomic import atomic_path
 from vitaplace.engine.dataset import Run
+from vitaplace.engine.errors import UserError
 
 #: Features of one run: named arrays whose first axis is the sample index.
 Features = dict[str, np.ndarray]
 
 
-class ExtractorParamsError(ValueError):
+class ExtractorParamsError(UserError, ValueError):
     """Invalid extractor parameters; the message names the extractor and the key."""
 
 

@@ -30,13 +30,14 @@ from tqdm.auto import tqdm
 
 from vitaplace.engine.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.backends import Backend, get_backend
+from vitaplace.engine.errors import UserError
 from vitaplace.kernels.reference import ACTIVATIONS
 
 FORMAT_VERSION = 1
 LATENT_INIT = 0.1
 
 
-class NetworkError(RuntimeError):
+class NetworkError(UserError, RuntimeError):
     """Training or inference cannot go on (divergence, incompatible file, bad input)."""
 
 

@@ -21,12 +21,13 @@ from typing import Any
 import pluggy
 
 from vitaplace.engine import hookspecs
+from vitaplace.engine.errors import UserError
 from vitaplace.engine.features import FeatureExtractor
 
 ONLY_ENV = "VITAPLACE_PLUGINS"
 
 
-class PluginError(ValueError):
+class PluginError(UserError, ValueError):
     """A plugin problem the user must fix (duplicate name, unknown extractor, bad class)."""
 
 

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from vitaplace.engine.errors import UserError
 from vitaplace.engine.provenance import provenance
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine.atomic import atomic_path, write_text_atomic
@@ -40,7 +41,7 @@ STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 1, "evaluate
 log = logging.getLogger("vitaplace")
 
 
-class StageError(RuntimeError):
+class StageError(UserError, RuntimeError):
     """A stage produced unusable output (e.g. non-finite features); names the stage and item."""
 
 

@@ -14,9 +14,11 @@ import ctypes.util
 import os
 import sys
 
+from vitaplace.engine.errors import UserError
+
 _LIBS = {"egl": ("EGL", "libEGL.so.1"), "osmesa": ("OSMesa", "libOSMesa.so.8")}
 
-class GLUnavailableError(RuntimeError):
+class GLUnavailableError(UserError, RuntimeError):
     """No OpenGL context can be created for offscreen rendering (the message says what to install)."""
 
 
