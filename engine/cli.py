@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -63,6 +64,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class OutputDirError(UserError):
+    """``--out`` cannot hold the results."""
+
+
+def writable_dir(out: Path) -> Path:
+    """``out`` as a directory that exists and can be written, or OutputDirError saying why."""
+    if out.exists() and not out.is_dir():
+        raise OutputDirError(f"--out {out}: exists and is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".vitaplace-write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise OutputDirError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+    return out
+
+
 def _setup_logging(out: Path | None) -> None:
     logger = logging.getLogger("vitaplace")
     logger.setLevel(logging.INFO)
@@ -71,7 +90,7 @@ def _setup_logging(out: Path | None) -> None:
     console.setFormatter(logging.Formatter("%(message)s"))
     logger.addHandler(console)
     if out is not None:
-        out.mkdir(parents=True, exist_ok=True)
+        writable_dir(out)
         file_handler = logging.FileHandler(out / "log.txt")
         file_handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
         logger.addHandler(file_handler)
@@ -105,7 +124,7 @@ def _simulate_environment(args: argparse.Namespace) -> int:
     environment = load_environment(args.scenario)
     spec = RunSpec(kind="foraging", n_samples=args.samples or 200)
     run = simulate_run(environment, spec, seed=args.seed, progress=not args.no_progress, name=Path(args.scenario).stem)
-    out = args.out or Path("runs") / "datasets"
+    out = writable_dir(args.out or Path("runs") / "datasets")
     path = write_run(out / f"{Path(args.scenario).stem}-foraging-seed{args.seed}.h5", run)
     print(f"wrote {len(run)} samples to {path}")
     return 0

@@ -37,21 +37,91 @@ def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str
     return merged
 
 
+#: Limits on what a configuration file may expand to (alias "bombs", absurd nesting).
+MAX_VALUES = 1_000_000
+MAX_DEPTH = 100
+MAX_QUOTE = 80
+
+
+def _quote(value: Any) -> str:
+    """``repr(value)``, capped: an error message never quotes a huge value whole."""
+    text = repr(value)
+    return text if len(text) <= MAX_QUOTE else text[: MAX_QUOTE - 3] + "..."
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """Safe YAML that refuses duplicate keys (instead of keeping the last one silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: dict[Any, int] = {}
+        for key_node, _ in node.value:
+            if key_node.tag == "tag:yaml.org,2002:merge":
+                continue
+            key = self.construct_object(key_node, deep=deep)
+            if isinstance(key, typing.Hashable) and key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {_quote(key)} (first at line {seen[key] + 1})", key_node.start_mark
+                )
+            if isinstance(key, typing.Hashable):
+                seen[key] = key_node.start_mark.line
+        return super().construct_mapping(node, deep=deep)
+
+
+def _expanded_size(root: yaml.Node) -> int:
+    """How many values the node graph expands to (aliases counted each time they are used),
+    capped just above `MAX_VALUES`; raises ValueError past `MAX_DEPTH` levels of nesting."""
+    memo: dict[int, int] = {}
+
+    def size(node: yaml.Node, depth: int) -> int:
+        if depth > MAX_DEPTH:
+            raise ValueError(f"nested more than {MAX_DEPTH} levels deep")
+        key = id(node)
+        if key in memo:
+            return memo[key]
+        if isinstance(node, yaml.SequenceNode):
+            total = 1 + sum(size(child, depth + 1) for child in node.value)
+        elif isinstance(node, yaml.MappingNode):
+            total = 1 + sum(size(k, depth + 1) + size(v, depth + 1) for k, v in node.value)
+        else:
+            total = 1
+        memo[key] = total = min(total, MAX_VALUES + 1)
+        return total
+
+    return size(root, 0)
+
+
 def read_yaml(path: Path, error: type[ConfigError] = ConfigError) -> dict[str, Any]:
-    """The YAML mapping in ``path`` (an empty file is an empty mapping)."""
+    """The YAML mapping in ``path`` (an empty file is an empty mapping). Undecodable text,
+    invalid YAML, duplicate keys, documents expanding to more than `MAX_VALUES` values and
+    nesting deeper than `MAX_DEPTH` are errors naming the file."""
     try:
-        text = path.read_text()
+        text = path.read_bytes().decode("utf-8")
     except OSError as exc:
         raise error(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not UTF-8 text (byte {exc.start}); is this a YAML file?") from None
     try:
-        data = yaml.safe_load(text)
+        loader = _StrictLoader(text)
+        try:
+            node = loader.get_single_node()
+            if node is None:
+                return {}
+            try:
+                values = _expanded_size(node)
+            except ValueError as exc:
+                raise error(f"{path}: {exc}") from None
+            if values > MAX_VALUES:
+                raise error(f"{path}: expands to more than {MAX_VALUES:,} values (aliases used recursively?)")
+            data = loader.construct_document(node)
+        finally:
+            loader.dispose()
+    except RecursionError:
+        raise error(f"{path}: nested more than {MAX_DEPTH} levels deep") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise error(f"{path}: invalid YAML{where}: {problem}") from None
-    if data is None:
-        return {}
     if not isinstance(data, dict):
         raise error(f"{path}: expected a mapping of keys at the top level, got {type(data).__name__}")
     return data
@@ -153,7 +223,7 @@ def format_validation_error(path: Path | str, exc: pydantic.ValidationError, mod
         elif err["type"] == "missing":
             message = "required key is missing"
         elif "input" in err and err["type"] not in ("value_error", "assertion_error"):
-            message += f" (got {err['input']!r})"
+            message += f" (got {_quote(err['input'])})"
         if not loc and err["type"] == "value_error":
             lines.append(f"{path}: {message}")  # model-level checks name their key path themselves
         else:

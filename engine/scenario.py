@@ -25,11 +25,12 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import math
 import json
 import typing
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import pydantic
 import yaml
@@ -59,18 +60,37 @@ class SimulatedRun(Strict):
     run: RunSpec
 
 
+def _not_only_dots(name: str) -> str:
+    if set(name) == {"."}:
+        raise ValueError(f"{name!r} is not a usable name: it would name a parent folder")
+    return name
+
+
+#: Names that become folder or file names: letters, digits, _ . - (not only dots), <= 64 long.
+SafeName = Annotated[str, pydantic.StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$"), pydantic.AfterValidator(_not_only_dots)]
+#: An evaluation run with fewer samples gives no meaningful precision-recall curve.
+MIN_EVALUATION_SAMPLES = 5
+
+
 class EvaluationRuns(SimulatedRun):
     """An evaluation environment: two noisy runs along the same route (query and reference)."""
 
+    @pydantic.field_validator("run")
+    @classmethod
+    def _enough_samples(cls, run: RunSpec) -> RunSpec:
+        if run.n_samples < MIN_EVALUATION_SAMPLES:
+            raise ValueError(f"an evaluation run needs at least {MIN_EVALUATION_SAMPLES} samples, got {run.n_samples}")
+        return run
+
     #: label of the evaluation (E1, E2, ...), letters, digits, _ . -
-    name: str = pydantic.Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    name: SafeName
 
 
 class Method(Strict):
     """A feature extractor to compare: a label, the plugin's extractor name, its parameters."""
 
     #: label of the method in results and figures (L, H, ...)
-    name: str = pydantic.Field(min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
+    name: SafeName
     #: name of the registered feature extractor (`vitaplace plugins` lists them)
     plugin: str
     #: the extractor's parameters (validated by the extractor, see its section)
@@ -78,9 +98,15 @@ class Method(Strict):
 
 
 class EvaluationSettings(Strict):
-    tau: float = pydantic.Field(0.3, ge=0, description="ground-truth revisit tolerance [m]")
-    heading_weight: float = pydantic.Field(0.0, ge=0, description="GTM += weight * |yaw difference| [m/rad]")
-    delta: float | None = pydantic.Field(None, description="fixed acceptance threshold for the F1 at delta")
+    tau: float = pydantic.Field(
+        0.3, gt=0, allow_inf_nan=False, description="ground-truth revisit tolerance [m], below the arena's diagonal"
+    )
+    heading_weight: float = pydantic.Field(
+        0.0, ge=0, allow_inf_nan=False, description="GTM += weight * |yaw difference| [m/rad]"
+    )
+    delta: float | None = pydantic.Field(
+        None, allow_inf_nan=False, description="fixed acceptance threshold for the F1 at delta"
+    )
     #: K values of recall@K
     recall_k: list[pydantic.PositiveInt] = [1, 5, 10]
     #: which run queries which: query-to-reference, the reverse, or both
@@ -88,12 +114,12 @@ class EvaluationSettings(Strict):
 
 
 class Scenario(Strict):
-    #: the scenario's name (reports, output folders)
-    name: str = pydantic.Field(min_length=1)
+    #: the scenario's name (reports, output folders): letters, digits, _ . -
+    name: SafeName
     #: free text shown in the report
     description: str = ""
     #: master seed: every run's and method's seed derives from it
-    seed: int = 0
+    seed: int = pydantic.Field(0, ge=0, lt=2**32)
     #: robot, sensors and physics for every run of the scenario
     robot: RobotSpec = RobotSpec()
     #: the run the methods are fitted on
@@ -190,7 +216,13 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
     ]:
         if not entry.environment.is_file():
             raise ScenarioError(f"{path}: {where}.environment: no such file {entry.environment}")
-        load_environment(entry.environment)
+        env = load_environment(entry.environment)
+        diagonal = 2 * math.hypot(env.arena.half_x, env.arena.half_y)
+        if where != "train" and scenario.evaluation.tau >= diagonal:
+            raise ScenarioError(
+                f"{path}: evaluation.tau: {scenario.evaluation.tau} m is not below the {diagonal:.2f} m diagonal of "
+                f"{env.name}: every pair of poses would count as a revisit"
+            )
     _check_methods(path, scenario)
     return scenario, raw
 

@@ -67,7 +67,23 @@ BAD = {
         lambda d: d["methods"][0].update(plugin="sift"),
         r"methods\.0\.plugin: unknown feature extractor 'sift'; available: .*handcrafted.*mupnet",
     ),
-    "negative tau": (lambda d: d["evaluation"].update(tau=-1), r"evaluation\.tau: .*greater than or equal to 0"),
+    "negative tau": (lambda d: d["evaluation"].update(tau=-1), r"evaluation\.tau: .*greater than 0"),
+    "zero tau": (lambda d: d["evaluation"].update(tau=0), r"evaluation\.tau: .*greater than 0"),
+    "infinite tau": (lambda d: d["evaluation"].update(tau=float("inf")), r"evaluation\.tau: .*finite"),
+    # the faithful E1 is 6.05 m square: its diagonal is 8.56 m
+    "tau over the diagonal": (lambda d: d["evaluation"].update(tau=9.0), r"evaluation\.tau: 9\.0 m is not below the 8\.56 m"),
+    "nan delta": (lambda d: d["evaluation"].update(delta=float("nan")), r"evaluation\.delta: .*finite"),
+    "one evaluation sample": (
+        lambda d: d["evaluations"][0]["run"].update(n_samples=1), r"evaluations\.0\.run: .*at least 5 samples"
+    ),
+    "negative seed": (lambda d: d.update(seed=-1), r"seed: .*greater than or equal to 0"),
+    "method named ..": (lambda d: d["methods"][0].update(name=".."), r"methods\.0\.name: .*parent folder"),
+    "method name with a slash": (lambda d: d["methods"][0].update(name="../../x"), r"methods\.0\.name: .*pattern"),
+    "huge name": (lambda d: d.update(name="x" * 1_000_000), r"name: .*pattern"),
+    "unknown activation": (
+        lambda d: d["methods"][0].update(plugin="mupnet", params={"activation": "relu6"}),
+        r"methods\.0\.params: .*activation",
+    ),
     "bad params": (
         lambda d: d["methods"][0].update(params={"grid": "big"}),
         r"methods\.0\.params: extractor 'handcrafted': grid",
@@ -322,3 +338,64 @@ def test_oracle_features_score_perfectly_end_to_end(tmp_path):
     (npz,) = list(out.glob("evaluations/E1/O/**/matrices.npz"))
     with np.load(npz) as m:
         np.testing.assert_allclose(m["gtm"], m["tme"], atol=1e-9)
+
+
+def _alias_bomb() -> str:
+    text = "a: &a [x, x, x, x, x, x, x, x, x]\n"
+    for i in range(1, 12):
+        prev = "a" if i == 1 else f"b{i - 1}"
+        text += f"b{i}: &b{i} [" + ", ".join([f"*{prev}"] * 9) + "]\n"
+    return text
+
+
+HOSTILE = {
+    "binary": (bytes(range(256)), r"not UTF-8 text"),
+    "duplicate key": (b"name: a\nname: b\n", r"duplicate key 'name'"),
+    "alias bomb": (_alias_bomb().encode(), r"expands to more than 1,000,000 values"),
+    "deep nesting": (b"name: " + b"[" * 20000 + b"]" * 20000 + b"\n", r"nested more than 100 levels deep"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE))
+def test_hostile_files_end_in_one_line_quickly(tmp_path, case):
+    content, pattern = HOSTILE[case]
+    path = tmp_path / "hostile.yaml"
+    path.write_bytes(content)
+    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli", "validate", str(path)],
+                            capture_output=True, text=True, timeout=60)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-500:]
+    import re
+
+    assert re.search(pattern, lines[0]), lines[0]
+    assert len(lines[0]) < 400
+
+
+@pytest.mark.parametrize("kind", ["a file", "/dev/null", "read-only"])
+def test_unusable_output_directory_is_one_line_before_any_work(tmp_path, kind):
+    if kind == "a file":
+        out = tmp_path / "file"
+        out.write_text("x")
+    elif kind == "/dev/null":
+        out = Path("/dev/null")
+    else:
+        if os.geteuid() == 0:
+            pytest.skip("root can write anywhere")
+        out = tmp_path / "ro" / "out"
+        (tmp_path / "ro").mkdir(mode=0o500)
+    path = write_scenario(tmp_path, valid_scenario())
+    result = run_cli(["run", str(path), "--out", str(out)])
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-500:]
+    assert f"--out {out}" in lines[0]
+
+
+def test_an_unstable_simulation_stops_the_run_with_one_clear_error(tmp_path):
+    data = valid_scenario()
+    data["robot"] = {"spring_stiffness": 1e30}
+    path = write_scenario(tmp_path, data)
+    result = run_cli(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress"])
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr[-800:]
+    last = result.stderr.strip().splitlines()[-1]
+    assert last.startswith("vitaplace: error:") and "simulation was unstable" in last, last
+    assert not (tmp_path / "out" / "results.json").exists()

@@ -452,3 +452,38 @@ def test_obstacle_map_of_a_rectangular_arena():
     env = EnvironmentSpec.model_validate({"name": "rect", "arena": {"width": 8.0, "depth": 4.0}})
     np.testing.assert_allclose(env.obstacles.distance_many(np.array([[0.0, 1.9], [3.9, 0.0], [0.0, 0.0]])),
                                [0.1, 0.1, 2.0])
+
+
+# ---------------------------------------------------------------------- implausible runs are errors
+def test_unstable_physics_fails_the_run_naming_it(e1):
+    from vitaplace.engine.sim.simulate import SimulationError
+
+    with pytest.raises(SimulationError, match=r"run 'bad': the simulation was unstable .*BADQACC"):
+        simulate_run(e1, RunSpec(kind="route", n_samples=3), seed=0, robot=RobotSpec(spring_stiffness=1e30),
+                     progress=False, name="bad")
+
+
+def test_check_plausible_refuses_still_robots_frozen_cameras_and_escapes(e1):
+    from vitaplace.engine.sim.simulate import SimulationError, check_plausible
+
+    rng = np.random.default_rng(0)
+    images = rng.integers(0, 255, (4, 6, 8, 3), dtype=np.uint8)
+    moving = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.2, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    check_plausible("ok", {}, moving, images, e1)  # nothing wrong
+    with pytest.raises(SimulationError, match="never moved"):
+        check_plausible("r", {}, np.zeros((4, 3)), images, e1)
+    with pytest.raises(SimulationError, match="all 4 camera frames are identical"):
+        check_plausible("r", {}, moving, np.repeat(images[:1], 4, axis=0), e1)
+    outside = moving.copy()
+    outside[2, 1] = 3.5  # the faithful E1's walls are at +-3.025
+    with pytest.raises(SimulationError, match="sample 2 is outside the arena"):
+        check_plausible("r", {}, outside, images, e1)
+    with pytest.raises(SimulationError, match="not finite"):
+        check_plausible("r", {}, np.full((4, 3), np.nan), images, e1)
+
+
+def test_run_and_robot_numbers_must_be_finite():
+    with pytest.raises(ValueError, match="max_accel"):
+        RunSpec(kind="route", n_samples=3, max_accel=float("inf"))
+    with pytest.raises(ValueError, match="spring_stiffness"):
+        RobotSpec(spring_stiffness=float("nan"))

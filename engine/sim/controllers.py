@@ -44,7 +44,7 @@ HEAD_RADIUS = math.hypot(HEAD_HALF[0], HEAD_HALF[1])  #: ... with this radius (c
 class RunSpec(BaseModel):
     """What one recorded run does. Only ``kind`` and ``n_samples`` are required."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     #: foraging (tactile-attention exploration, training) or route (noisy laps of the environment's route)
     kind: Literal["foraging", "route"]

@@ -61,7 +61,7 @@ WHISKER_DENSITY = 1200.0  #: shaft material density [kg/m^3] (plastic)
 class RobotSpec(BaseModel):
     """Robot, sensor and physics parameters. Every field has a default (the WhiskEye-like robot)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     # whisking
     whisk_hz: float = Field(2.0, gt=0, le=20, description="whisking frequency; one sample per whisk cycle [Hz]")

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import logging
 import math
 import time
-import warnings
 from typing import Any
 
 import mujoco
@@ -29,6 +29,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from vitaplace.engine.dataset import Run
+from vitaplace.engine.errors import UserError
 from vitaplace.engine.sim.controllers import Observation, RunSpec, make_controller
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.glsetup import STATE as GL_STATE
@@ -133,6 +134,40 @@ class Simulator:
             self.camera.close()
 
 
+log = logging.getLogger("vitaplace.sim")
+# MuJoCo's own warnings (e.g. "the simulation is unstable") go to the log, not raw to stderr;
+# the counters in mjData still record them and check_plausible turns them into an error.
+mujoco.set_mju_user_warning(lambda message: log.warning("MuJoCo: %s", message.strip()))
+
+
+class SimulationError(UserError):
+    """A recorded run that cannot be right: unstable physics, a robot that never moved,
+    identical frames, poses outside the arena."""
+
+
+def check_plausible(name: str, mujoco_warnings: dict[str, int], poses: np.ndarray, images: np.ndarray,
+                    environment: EnvironmentSpec) -> None:
+    """Raise SimulationError naming run ``name`` when its recording is physically implausible."""
+    if mujoco_warnings:
+        raise SimulationError(
+            f"run {name!r}: the simulation was unstable (MuJoCo warnings {mujoco_warnings}); check the robot's "
+            "stiffness, damping, masses and timestep"
+        )
+    if not np.all(np.isfinite(poses)):
+        raise SimulationError(f"run {name!r}: poses are not finite")
+    hx, hy = environment.arena.half_x, environment.arena.half_y
+    outside = (np.abs(poses[:, 0]) > hx) | (np.abs(poses[:, 1]) > hy)
+    if outside.any():
+        k = int(np.argmax(outside))
+        raise SimulationError(f"run {name!r}: sample {k} is outside the arena at ({poses[k, 0]:.2f}, {poses[k, 1]:.2f})")
+    if len(poses) > 1:
+        travelled = float(np.sum(np.hypot(*np.diff(poses[:, :2], axis=0).T)))
+        if travelled < 0.01:
+            raise SimulationError(f"run {name!r}: the robot never moved ({travelled:.3g} m in {len(poses)} samples)")
+        if np.all(images == images[:1]):
+            raise SimulationError(f"run {name!r}: all {len(images)} camera frames are identical")
+
+
 def simulate_run(
     environment: EnvironmentSpec,
     run: RunSpec,
@@ -220,8 +255,7 @@ def simulate_run(
         sim.close()
 
     warn = sim.sim.warnings(sim.data)
-    if warn:
-        warnings.warn(f"MuJoCo reported warnings during run {name!r}: {warn}", RuntimeWarning, stacklevel=2)
+    check_plausible(name, warn, poses, images, environment)
     layout = sim.sim.layout
     attrs: dict[str, Any] = {
         "seed": int(seed),

@@ -61,7 +61,7 @@ class MupnetParams(ExtractorParams):
     #: test-time stop: mean squared error of the joint layer's predictions
     threshold_joint: pydantic.NonNegativeFloat = 1e-3
     #: leaky_relu, tanh, sigmoid or linear
-    activation: str = "leaky_relu"
+    activation: Literal["leaky_relu", "tanh", "sigmoid", "linear"] = "leaky_relu"
     #: negative slope of the leaky ReLU
     slope: pydantic.NonNegativeFloat = 0.2
     #: passes over the training run
