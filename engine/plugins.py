@@ -68,7 +68,9 @@ class Registry:
                 impl.function(register=lambda cls, _source=source: self._register(cls, _source))
             except PluginError:
                 raise
-            except Exception as exc:  # noqa: BLE001 - a broken plugin must not stop the others
+            except (KeyboardInterrupt, GeneratorExit):
+                raise
+            except BaseException as exc:  # noqa: BLE001 - a broken plugin (even one calling sys.exit) must not stop the others
                 # A skipped plugin contributes nothing, not even what it registered before failing.
                 for name in [n for n, s in self.sources.items() if s == source]:
                     del self.extractors[name], self.sources[name]
@@ -129,7 +131,9 @@ def discover(eps: Iterable[EntryPoint] | None = None, only: str | None = None) -
         source = _source_label(ep)
         try:
             plugin = ep.load()
-        except Exception as exc:  # noqa: BLE001 - a plugin that fails to import is skipped
+        except (KeyboardInterrupt, GeneratorExit):
+            raise
+        except BaseException as exc:  # noqa: BLE001 - a plugin that fails to import (even by sys.exit) is skipped
             registry._skip(source, f"import failed with {type(exc).__name__}: {exc}")
             continue
         registry.add_plugin(plugin, source)

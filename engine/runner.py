@@ -58,6 +58,26 @@ def check_finite(features: Features, what: str) -> Features:
     return features
 
 
+def check_features(features: Any, samples: int, what: str) -> Features:
+    """An extractor's ``transform`` output must be a mapping of arrays with one row per sample."""
+    if not isinstance(features, dict) or not features:
+        raise StageError(f"{what}: transform returned {type(features).__name__}, expected a non-empty mapping of arrays")
+    for key, values in features.items():
+        shape = np.shape(values)
+        if not shape or shape[0] != samples:
+            raise StageError(f"{what}: feature '{key}' has shape {shape}, expected {samples} rows (one per sample)")
+    return check_finite(features, what)
+
+
+def check_distance(tme: Any, shape: tuple[int, int], what: str) -> np.ndarray:
+    """An extractor's ``distance`` output must be a finite (n_query, n_reference) matrix."""
+    tme = np.asarray(tme)
+    if tme.shape != shape:
+        raise StageError(f"{what}: distance returned shape {tme.shape}, expected {shape} (queries x references)")
+    check_finite({"distance": tme}, what)
+    return tme
+
+
 @dataclass
 class StageRecord:
     stage: str
@@ -222,8 +242,9 @@ class Pipeline:
                 path = self.features_path(method, label)
 
                 def work(method=method, label=label, path=path) -> None:
-                    features = self.extractor(method).transform(self.open(label))
-                    save_features(path, check_finite(features, f"transform {method.name} {label}"))
+                    run = self.open(label)
+                    features = self.extractor(method).transform(run)
+                    save_features(path, check_features(features, len(run), f"transform {method.name} {label}"))
 
                 self._stage("transform", f"{method.name} {label}", path.stem.rsplit("-", 1)[1], path.exists(), work)
 
@@ -250,8 +271,9 @@ class Pipeline:
                     done = summary_path.exists() and json.loads(summary_path.read_text()).get("key") == key
 
                     def work(method=method, qpath=qpath, rpath=rpath, folder=folder, e=e, q=q, r=r, key=key) -> None:
-                        tme = self.extractor(method).distance(load_features(qpath), load_features(rpath))
-                        check_finite({"distance": tme}, f"evaluate {e.name} {method.name}")
+                        shape = (len(self.open(f"{e.name}/{q}")), len(self.open(f"{e.name}/{r}")))
+                        tme = check_distance(self.extractor(method).distance(load_features(qpath), load_features(rpath)),
+                                             shape, f"evaluate {e.name} {method.name}")
                         gtm = ev.ground_truth_matrix(
                             self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses, settings.heading_weight
                         )

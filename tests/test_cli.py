@@ -399,3 +399,16 @@ def test_an_unstable_simulation_stops_the_run_with_one_clear_error(tmp_path):
     last = result.stderr.strip().splitlines()[-1]
     assert last.startswith("vitaplace: error:") and "simulation was unstable" in last, last
     assert not (tmp_path / "out" / "results.json").exists()
+
+
+def test_extractor_outputs_are_checked_with_one_line():
+    from vitaplace.engine.runner import StageError, check_distance, check_features
+
+    good = {"x": np.zeros((3, 2))}
+    assert check_features(good, 3, "t") is good
+    with pytest.raises(StageError, match=r"t: feature 'x' has shape \(2, 2\), expected 3 rows"):
+        check_features({"x": np.zeros((2, 2))}, 3, "t")
+    with pytest.raises(StageError, match=r"t: transform returned list"):
+        check_features([np.zeros(3)], 3, "t")
+    with pytest.raises(StageError, match=r"t: distance returned shape \(3, 2\), expected \(2, 3\)"):
+        check_distance(np.zeros((3, 2)), (2, 3), "t")

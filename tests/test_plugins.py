@@ -236,6 +236,13 @@ def test_plugin_whose_module_raises_on_import_is_skipped(example_path, plugin_di
     assert registry.names() == [EXAMPLE]
 
 
+def test_plugin_calling_sys_exit_at_import_is_skipped(example_path, plugin_dir, capsys):
+    write_plugin(plugin_dir, "tmp_plugin_exits", "import sys\nsys.exit(3)\n")
+    registry = discover(eps=[ep("exits", "tmp_plugin_exits"), ep("example", "vitaplace_example_plugin")])
+    assert "SystemExit" in registry.failed["exits (tmp_plugin_exits)"]
+    assert registry.names() == [EXAMPLE]
+
+
 def test_plugin_whose_hook_raises_is_skipped(example_path, plugin_dir, capsys):
     write_plugin(
         plugin_dir,
