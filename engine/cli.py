@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import sys
 from pathlib import Path
 
 from vitaplace.engine import __version__
 from vitaplace.engine.errors import UserError
+from vitaplace.engine.outdir import OutputLock, remove_stale_temporaries, writable_dir
 
 EXIT_USER_ERROR = 2
 
@@ -64,24 +64,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-class OutputDirError(UserError):
-    """``--out`` cannot hold the results."""
-
-
-def writable_dir(out: Path) -> Path:
-    """``out`` as a directory that exists and can be written, or OutputDirError saying why."""
-    if out.exists() and not out.is_dir():
-        raise OutputDirError(f"--out {out}: exists and is not a directory")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".vitaplace-write-test-{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise OutputDirError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
-    return out
-
-
 def _setup_logging(out: Path | None) -> None:
     logger = logging.getLogger("vitaplace")
     logger.setLevel(logging.INFO)
@@ -101,10 +83,13 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
     from vitaplace.engine.scenario import load_scenario
 
     scenario, resolved = load_scenario(args.scenario, args.overrides)
-    out = args.out or Path("runs") / scenario.name
-    _setup_logging(out)
-    rows = Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress).run(until=until)
+    out = writable_dir(args.out or Path("runs") / scenario.name)
     log = logging.getLogger("vitaplace")
+    with OutputLock(out):
+        _setup_logging(out)
+        for path in remove_stale_temporaries(out):
+            log.info("removed %s, left by an interrupted run", path)
+        rows = Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress).run(until=until)
     for row in rows:
         log.info(
             "%-6s %-12s %-20s max F1 %.2f %%  AUC %.3f",

@@ -7,12 +7,15 @@ interrupted run resumes with the first missing output. ``force`` redoes named st
 
 from __future__ import annotations
 
+import ctypes
 import json
 import logging
 import multiprocessing
 import os
 import shutil
+import signal
 import tempfile
+import threading
 import time
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
@@ -56,6 +59,26 @@ def check_finite(features: Features, what: str) -> Features:
                 "check the method's parameters (e.g. lower learning rates) and the dataset"
             )
     return features
+
+
+def die_with_parent() -> None:
+    """Worker-process initializer: end this worker when the process that started it dies
+    (even by kill -9), so no simulation keeps running orphaned. Linux: the kernel's parent-
+    death signal; elsewhere a daemon thread that notices the parent is gone."""
+    parent = os.getppid()
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.prctl(1, signal.SIGTERM) == 0 and os.getppid() == parent:  # PR_SET_PDEATHSIG
+            return
+    except (OSError, AttributeError):
+        pass
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
 
 
 def check_features(features: Any, samples: int, what: str) -> Features:
@@ -181,7 +204,11 @@ class Pipeline:
             jobs[label] = (args, self.dataset_path(label))
         pending = [label for label, (_, path) in jobs.items() if "simulate" in self.force or not path.exists()]
         workers = min(self.workers, len(pending))
-        pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) if workers > 1 else None
+        pool = (
+            ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=die_with_parent)
+            if workers > 1
+            else None
+        )
         try:
             futures = {label: pool.submit(record_run, *jobs[label][0], jobs[label][1], False) for label in pending} if pool else {}
             for label, (args, path) in jobs.items():

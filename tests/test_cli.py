@@ -412,3 +412,79 @@ def test_extractor_outputs_are_checked_with_one_line():
         check_features([np.zeros(3)], 3, "t")
     with pytest.raises(StageError, match=r"t: distance returned shape \(3, 2\), expected \(2, 3\)"):
         check_distance(np.zeros((3, 2)), (2, 3), "t")
+
+
+def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path):
+    from vitaplace.engine.outdir import OutputDirError, OutputLock
+
+    out = tmp_path / "out"
+    out.mkdir()
+    with OutputLock(out):  # taken and released in this process
+        pass
+    holder = subprocess.Popen(
+        [sys.executable, "-c",
+         "import time\nfrom pathlib import Path\nfrom vitaplace.engine.outdir import OutputLock\n"
+         f"with OutputLock(Path({str(out)!r})):\n    print('locked', flush=True)\n    time.sleep(30)\n"],
+        stdout=subprocess.PIPE, text=True,
+    )
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        with pytest.raises(OutputDirError, match=rf"another vitaplace run \(pid {holder.pid}\) is writing there"):
+            with OutputLock(out):
+                pass
+        path = write_scenario(tmp_path, valid_scenario())
+        result = run_cli(["run", str(path), "--out", str(out)])
+        assert result.returncode == 2 and f"pid {holder.pid}" in result.stderr.strip().splitlines()[-1]
+    finally:
+        holder.kill()
+        holder.wait()
+    with OutputLock(out):  # released by the kernel when the holder died, even by SIGKILL
+        pass
+
+
+def test_temporaries_left_by_an_interrupted_run_are_removed(tmp_path):
+    from vitaplace.engine.outdir import remove_stale_temporaries
+
+    (tmp_path / "cache" / "models").mkdir(parents=True)
+    part = tmp_path / "evaluations" / ".summary.json.abc.part"
+    part.parent.mkdir(parents=True)
+    part.write_text("half")
+    model_tmp = tmp_path / "cache" / "models" / ".L-123.xyz"
+    model_tmp.mkdir()
+    keep = tmp_path / "evaluations" / "summary.json"
+    keep.write_text("{}")
+    removed = remove_stale_temporaries(tmp_path)
+    assert set(removed) == {part, model_tmp} and keep.exists() and not part.exists() and not model_tmp.exists()
+
+
+def test_simulation_workers_die_with_their_parent(tmp_path):
+    """kill -9 of the process that started a worker pool takes the workers with it."""
+    import signal
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import multiprocessing, os, time\n"
+        "from concurrent.futures import ProcessPoolExecutor\n"
+        "from vitaplace.engine.runner import die_with_parent\n"
+        "if __name__ == '__main__':\n"
+        "    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context('spawn'), initializer=die_with_parent)\n"
+        "    print(pool.submit(os.getpid).result(), flush=True)\n"
+        "    time.sleep(60)\n"
+    )
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    worker = int(parent.stdout.readline())
+    os.kill(parent.pid, signal.SIGKILL)
+    parent.wait()
+
+    def alive(pid: int) -> bool:
+        try:
+            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            return False
+        return state != "Z"
+
+    deadline = time.monotonic() + 10
+    while alive(worker) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not alive(worker), f"worker {worker} outlived its parent"
