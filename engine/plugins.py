@@ -39,9 +39,15 @@ class Registry:
     extractors: dict[str, type[FeatureExtractor]] = field(default_factory=dict)
     sources: dict[str, str] = field(default_factory=dict)
     failed: dict[str, str] = field(default_factory=dict)
+    #: "distribution==version" of each plugin source (part of the cache keys of its stages)
+    distributions: dict[str, str] = field(default_factory=dict)
 
     def names(self) -> list[str]:
         return sorted(self.extractors)
+
+    def version_of(self, name: str) -> str:
+        """The distribution and version that provide extractor ``name`` ("unknown" if not installed as one)."""
+        return self.distributions.get(self.sources.get(name, ""), "unknown")
 
     def get(self, name: str) -> type[FeatureExtractor]:
         try:
@@ -129,6 +135,8 @@ def discover(eps: Iterable[EntryPoint] | None = None, only: str | None = None) -
         if wanted is not None and ep.name not in wanted:
             continue
         source = _source_label(ep)
+        dist = getattr(ep, "dist", None)
+        registry.distributions[source] = f"{dist.name}=={dist.version}" if dist is not None else "unknown"
         try:
             plugin = ep.load()
         except (KeyboardInterrupt, GeneratorExit):

@@ -29,6 +29,7 @@ import yaml
 
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.provenance import provenance
+from vitaplace.engine import checksum
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
@@ -164,6 +165,14 @@ class Pipeline:
         self.opened: dict[str, Run] = {}
 
     # ------------------------------------------------------------------ bookkeeping
+    def _cached(self, stage: str, item: str, artifact: Path) -> bool:
+        """Whether ``artifact`` exists and matches its checksum; a damaged one is logged."""
+        problem = checksum.check(artifact)
+        if problem is not None:
+            log.warning("%-9s %-28s cached artifact %s is %s: recomputing", stage, item, artifact.name, problem)
+            return False
+        return artifact.exists()
+
     def _stage(self, stage: str, item: str, key: str, done: bool, work) -> Any:
         """Run ``work()`` unless its output exists (``done``) and the stage is not forced."""
         start = time.perf_counter()
@@ -202,7 +211,10 @@ class Pipeline:
             self.state.datasets[label] = key
             args = (str(entry.environment), entry.run.model_dump(), self.scenario.robot.model_dump(), seed, label, key)
             jobs[label] = (args, self.dataset_path(label))
-        pending = [label for label, (_, path) in jobs.items() if "simulate" in self.force or not path.exists()]
+        pending = [
+            label for label, (_, path) in jobs.items()
+            if "simulate" in self.force or not self._cached("simulate", label, path)
+        ]
         workers = min(self.workers, len(pending))
         pool = (
             ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=die_with_parent)
@@ -214,6 +226,8 @@ class Pipeline:
             for label, (args, path) in jobs.items():
                 work = futures[label].result if label in futures else partial(record_run, *args, path, self.progress)
                 self._stage("simulate", label, args[-1], label not in pending, work)
+                if label in pending:
+                    checksum.seal(path)
         finally:
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
@@ -226,7 +240,10 @@ class Pipeline:
 
     # ------------------------------------------------------------------ fit / transform
     def model_key(self, method: Method) -> str:
-        return content_hash("fit", STAGE_VERSION["fit"], method.plugin, method.params, self.state.datasets["train"])
+        return content_hash(
+            "fit", STAGE_VERSION["fit"], method.plugin, self.registry.version_of(method.plugin), method.params,
+            self.state.datasets["train"],
+        )
 
     def fit(self) -> None:
         for method in self.scenario.methods:
@@ -249,7 +266,10 @@ class Pipeline:
                 self.extractors[method.name] = extractor
 
             directory.parent.mkdir(parents=True, exist_ok=True)
-            self._stage("fit", method.name, key, directory.is_dir(), work)
+            done = self._cached("fit", method.name, directory)
+            self._stage("fit", method.name, key, done, work)
+            if not done or "fit" in self.force:
+                checksum.seal(directory)
 
     def extractor(self, method: Method) -> FeatureExtractor:
         if method.name not in self.extractors:
@@ -272,8 +292,10 @@ class Pipeline:
                     run = self.open(label)
                     features = self.extractor(method).transform(run)
                     save_features(path, check_features(features, len(run), f"transform {method.name} {label}"))
+                    checksum.seal(path)
 
-                self._stage("transform", f"{method.name} {label}", path.stem.rsplit("-", 1)[1], path.exists(), work)
+                item = f"{method.name} {label}"
+                self._stage("transform", item, path.stem.rsplit("-", 1)[1], self._cached("transform", item, path), work)
 
     # ------------------------------------------------------------------ evaluate
     def directions(self) -> list[tuple[str, str, str]]:

@@ -488,3 +488,27 @@ def test_simulation_workers_die_with_their_parent(tmp_path):
     while alive(worker) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not alive(worker), f"worker {worker} outlived its parent"
+
+
+def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
+    """Flip a byte of a recorded dataset, truncate a feature file, delete a file of a trained
+    model: the next run recomputes exactly those (and what depends on them), says why in
+    one log line each, and ends with the same results as before."""
+    out = tmp_path / "out"
+    _rerun(out)
+    first = json.loads((out / "results.json").read_text())
+    cache = out / "cache"
+    dataset = next(p for p in (cache / "datasets").rglob("*.h5") if "train" not in p.name)
+    data = bytearray(dataset.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    dataset.write_bytes(bytes(data))
+    features = next((cache / "features").glob("H-*.npz"))
+    features.write_bytes(features.read_bytes()[:100])
+    model = next(p for p in (cache / "models").iterdir() if p.is_dir() and p.name.startswith("L-"))
+    victim = next(p for p in sorted(model.rglob("*")) if p.is_file())
+    victim.unlink()
+    status = _rerun(out)
+    log_text = (out / "log.txt").read_text()
+    assert log_text.count("is damaged") == 3 and "recomputing" in log_text  # dataset, features, model
+    assert ("fit", "L") in {k for k, s in status.items() if s == "ran"}
+    assert json.loads((out / "results.json").read_text()) == first

@@ -461,3 +461,19 @@ def test_doc_mentions_error_behaviour_and_usage():
     for needle in [ONLY_ENV, "vitaplace plugins", "methods:", "plugin: example-mean-colour", "PluginError",
                    "ExtractorParamsError", "skipping plugin", "save_state", "load_state"]:
         assert needle in text, needle
+
+
+def test_cache_keys_change_with_the_plugin_version(monkeypatch):
+    """A new version of a plugin must not reuse the old version's fitted model and features."""
+    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.scenario import load_scenario
+
+    scenario, resolved = load_scenario("quickstart")
+    registry = discover()
+    assert registry.version_of("handcrafted").startswith("vitaplace==")
+    pipeline = Pipeline(scenario, resolved, Path("unused"), registry=registry)
+    pipeline.state.datasets["train"] = "k"
+    method = scenario.methods[1]
+    before = pipeline.model_key(method)
+    registry.distributions[registry.sources[method.plugin]] = "vitaplace==99.0"
+    assert pipeline.model_key(method) != before
