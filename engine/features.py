@@ -75,6 +75,11 @@ class FeatureExtractor(ABC):
         """Per-epoch training curves to plot (e.g. energy per layer); empty when not iterative."""
         return {}
 
+    def training_summary(self) -> dict[str, object]:
+        """How training ended, for the manifest (e.g. epochs run, converged or not); empty when
+        not iterative."""
+        return {}
+
     def save(self, directory: str | Path) -> None:
         """Write parameters and fitted state to ``directory`` (created if needed)."""
         directory = Path(directory)

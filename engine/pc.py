@@ -106,11 +106,15 @@ class NetworkConfig(pydantic.BaseModel):
 class TrainingConfig(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
 
-    epochs: int = pydantic.Field(10, gt=0)
+    epochs: int = pydantic.Field(10, gt=0, description="passes over the data; the maximum when converging")
     batch_size: int = pydantic.Field(150, gt=0)
     inference_steps: int = pydantic.Field(20, gt=0, description="T latent steps per minibatch")
     shuffle: bool = True
     seed: int = 0
+    converge_window: int = pydantic.Field(
+        0, ge=0, description="stop once the epoch energy fell by less than converge_tol over this many epochs (0: off)"
+    )
+    converge_tol: float = pydantic.Field(0.01, gt=0, lt=1, description="relative energy improvement that counts")
 
 
 @dataclass
@@ -127,9 +131,19 @@ class Edge:
 
 @dataclass
 class TrainingHistory:
-    """Per-epoch mean energy per edge (sum of squared errors / samples) after inference."""
+    """Per-epoch mean energy per edge (sum of squared errors / samples) after inference, and
+    whether training stopped because the energy had converged (else it ran all epochs)."""
 
     energy: dict[str, list[float]] = field(default_factory=dict)
+    converged: bool = False
+
+    @property
+    def epochs(self) -> int:
+        return len(next(iter(self.energy.values()), []))
+
+    def total(self) -> list[float]:
+        """Energy per sample of each epoch, summed over the edges."""
+        return [float(sum(values)) for values in zip(*self.energy.values())]
 
 
 @dataclass
@@ -154,6 +168,15 @@ def glorot_uniform(rng: np.random.Generator, fan_in: int, fan_out: int) -> np.nd
     """Glorot/Xavier uniform init: U(-l, l), l = sqrt(6 / (fan_in + fan_out))."""
     limit = math.sqrt(6.0 / (fan_in + fan_out))
     return rng.uniform(-limit, limit, size=(fan_in, fan_out)).astype(np.float32)
+
+
+def converged(energies: Sequence[float], window: int, tol: float) -> bool:
+    """True when ``window`` > 0 and the last energy is less than ``tol`` (relative) below the
+    energy ``window`` epochs earlier."""
+    if window <= 0 or len(energies) <= window:
+        return False
+    before, now = energies[-1 - window], energies[-1]
+    return before - now < tol * abs(before)
 
 
 class Network:
@@ -323,6 +346,9 @@ class Network:
                 bar.set_postfix(epoch=epoch + 1, F=f"{sum(energy.values()) / len(index):.4g}")
             for name, total in totals.items():
                 history.energy[name].append(total / n)
+            if converged(history.total(), cfg.converge_window, cfg.converge_tol):
+                history.converged = True
+                break
         bar.close()
         for node in nodes:
             store[node][...] = be.download(resident_y[node])

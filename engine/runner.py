@@ -381,6 +381,7 @@ class Pipeline:
             "run_seeds": {label: seed for label, (_, seed) in self.runs().items()},
             "datasets": self.state.datasets,
             "stages": [record.__dict__ for record in self.state.records],
+            "training": {m.name: summary for m in self.scenario.methods if (summary := self.extractor(m).training_summary())},
             "seconds": round(seconds, 3),
         }
         write_text_atomic(self.out / "manifest.json", json.dumps(manifest, indent=2))

@@ -347,3 +347,24 @@ def test_numpy_and_warp_backends_agree(device):
     assert np.mean(r_wp.steps_per_sample == r_np.steps_per_sample) > 0.9
     same = r_wp.steps_per_sample == r_np.steps_per_sample
     np.testing.assert_allclose(r_wp.latents["joint"][same], r_np.latents["joint"][same], rtol=1e-4, atol=1e-5)
+
+
+def test_convergence_rule_by_hand():
+    from vitaplace.engine.pc import converged
+
+    # window 2, tol 0.1: 10 -> 9.5 over two epochs is a 5 % improvement: converged
+    assert converged([12.0, 10.0, 9.8, 9.5], 2, 0.1)
+    assert not converged([12.0, 10.0, 9.0, 8.5], 2, 0.1)  # 15 %: still improving
+    assert not converged([10.0, 9.9], 2, 0.1)  # not enough epochs for the window
+    assert not converged([10.0, 10.0, 10.0, 10.0], 0, 0.1)  # off
+
+
+def test_training_stops_when_the_energy_has_converged():
+    inputs, _ = synthetic(n=60)
+    net = Network(SYNTH, seed=1, backend="numpy")
+    cfg = {**TRAIN, "epochs": 200, "batch_size": 25, "converge_window": 5, "converge_tol": 0.02}
+    history = net.train(inputs, cfg, progress=False)
+    assert history.converged and 5 < history.epochs < 200
+    total = history.total()
+    assert total[-6] - total[-1] < 0.02 * total[-6]  # the rule held at the stop
+    assert total[-7] - total[-2] >= 0.02 * total[-7]  # and not one epoch earlier

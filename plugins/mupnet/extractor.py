@@ -64,8 +64,12 @@ class MupnetParams(ExtractorParams):
     activation: Literal["leaky_relu", "tanh", "sigmoid", "linear"] = "leaky_relu"
     #: negative slope of the leaky ReLU
     slope: pydantic.NonNegativeFloat = 0.2
-    #: passes over the training run
+    #: passes over the training run (the maximum when converge_window > 0)
     epochs: pydantic.PositiveInt = 10
+    #: stop once the training energy fell by less than converge_tol over this many epochs (0: run all epochs)
+    converge_window: pydantic.NonNegativeInt = 0
+    #: relative improvement of the training energy over converge_window epochs that still counts as progress
+    converge_tol: float = pydantic.Field(0.01, gt=0, lt=1)
     #: samples per minibatch
     batch_size: pydantic.PositiveInt = 150
     #: T latent steps per minibatch before the weight step
@@ -111,6 +115,8 @@ class MupnetExtractor(FeatureExtractor):
         self.energy: dict[str, list[float]] = {}
         #: largest joint-latent norm over the training samples (test-time divergence check)
         self.train_norm_max = math.inf
+        #: training stopped because the energy converged (converge_window), not at the epoch cap
+        self.converged = False
 
     def network_config(self, tactile_size: int) -> NetworkConfig:
         p = self.params
@@ -166,14 +172,21 @@ class MupnetExtractor(FeatureExtractor):
             span = np.maximum(high - low, p.tactile_min_range)
             self.network.set_scaler("tactile", low, np.where(span > 0, 1 / np.where(span > 0, span, 1), 0))
         training = TrainingConfig(
-            epochs=p.epochs, batch_size=p.batch_size, inference_steps=p.inference_steps, seed=p.seed
+            epochs=p.epochs, batch_size=p.batch_size, inference_steps=p.inference_steps, seed=p.seed,
+            converge_window=p.converge_window, converge_tol=p.converge_tol,
         )
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
-        self.energy = self.network.train(inputs, training, progress=self.progress).energy
+        history = self.network.train(inputs, training, progress=self.progress)
+        self.energy = history.energy
+        self.converged = history.converged
         self.train_norm_max = float(np.linalg.norm(self.network.train_latents["joint"], axis=1).max())
 
     def training_history(self) -> dict[str, list[float]]:
         return self.energy
+
+    def training_summary(self) -> dict[str, object]:
+        epochs = len(next(iter(self.energy.values()), []))
+        return {"epochs": epochs, "max_epochs": self.params.epochs, "converged": self.converged}
 
     def transform(self, run: Run) -> Features:
         if self.network is None:
@@ -200,10 +213,13 @@ class MupnetExtractor(FeatureExtractor):
         self.network.save(directory / "network")
         write_text_atomic(directory / "energy.json", json.dumps(self.energy))
         write_text_atomic(directory / "latent_norm.json", json.dumps({"train_max": self.train_norm_max}))
+        write_text_atomic(directory / "training.json", json.dumps({"converged": self.converged}))
 
     def load_state(self, directory: Path) -> None:
         self.network = Network.load(directory / "network", backend=self.params.backend)
         energy = directory / "energy.json"
         self.energy = json.loads(energy.read_text()) if energy.exists() else {}
+        training = directory / "training.json"
+        self.converged = bool(json.loads(training.read_text())["converged"]) if training.exists() else False
         norm = directory / "latent_norm.json"
         self.train_norm_max = json.loads(norm.read_text())["train_max"] if norm.exists() else math.inf
