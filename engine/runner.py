@@ -239,9 +239,19 @@ class Pipeline:
         return self.opened[label]
 
     # ------------------------------------------------------------------ fit / transform
+    def method_params(self, method: Method) -> dict[str, Any]:
+        """The method's parameters, with ``seed`` derived from the scenario seed when the
+        extractor takes one and the scenario does not set it (so every scenario seed also
+        changes the method's initialisation)."""
+        params = dict(method.params)
+        if "seed" not in params and "seed" in self.registry.get(method.plugin).Params.model_fields:
+            index = [m.name for m in self.scenario.methods].index(method.name)
+            params["seed"] = seed_for(self.scenario.seed, 1000 + index)
+        return params
+
     def model_key(self, method: Method) -> str:
         return content_hash(
-            "fit", STAGE_VERSION["fit"], method.plugin, self.registry.version_of(method.plugin), method.params,
+            "fit", STAGE_VERSION["fit"], method.plugin, self.registry.version_of(method.plugin), self.method_params(method),
             self.state.datasets["train"],
         )
 
@@ -251,7 +261,7 @@ class Pipeline:
             directory = self.cache / "models" / f"{method.name}-{key}"
 
             def work(method=method, directory=directory) -> None:
-                extractor = self.registry.create(method.plugin, method.params)
+                extractor = self.registry.create(method.plugin, self.method_params(method))
                 extractor.progress = self.progress
                 extractor.fit(self.open("train"))
                 tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))

@@ -477,3 +477,18 @@ def test_cache_keys_change_with_the_plugin_version(monkeypatch):
     before = pipeline.model_key(method)
     registry.distributions[registry.sources[method.plugin]] = "vitaplace==99.0"
     assert pipeline.model_key(method) != before
+
+
+def test_the_scenario_seed_reaches_the_methods_seed():
+    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.scenario import load_scenario
+
+    keys = {}
+    for seed in (0, 1):
+        scenario, resolved = load_scenario("quickstart", [f"seed={seed}"])
+        pipeline = Pipeline(scenario, resolved, Path("unused"))
+        learned = scenario.methods[0]
+        keys[seed] = pipeline.method_params(learned)["seed"]
+    assert keys[0] != keys[1]
+    scenario, resolved = load_scenario("quickstart", ["methods.0.params.seed=7"])
+    assert Pipeline(scenario, resolved, Path("unused")).method_params(scenario.methods[0])["seed"] == 7
