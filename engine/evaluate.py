@@ -28,9 +28,11 @@ Conventions (single-best-match VPR, as VPR_Tutorial's ``createPR(..., matching='
 from __future__ import annotations
 
 import csv
+import dataclasses
 import os
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy.spatial.distance import cdist
@@ -47,6 +49,9 @@ __all__ = [
     "ground_truth_matrix",
     "pr_curve",
     "recall_at_k",
+    "save_curve_and_decisions",
+    "load_curve",
+    "load_decisions",
 ]
 
 
@@ -434,3 +439,31 @@ def export_matrices_npz(path: str | os.PathLike, tme, gtm, **extra) -> None:
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:  # file object: numpy would append '.npz' to a bare name
             np.savez_compressed(fh, tme=tme_a, gtm=gtm_a, **{k: np.asarray(v) for k, v in extra.items()})
+
+
+def save_curve_and_decisions(folder: str | os.PathLike, curve: PRCurve, decisions: Decisions) -> None:
+    """``pr_curve.npz`` and ``decisions.npz`` in ``folder``, every field, atomically: what
+    the report reads back with `load_curve` and `load_decisions`."""
+    folder = Path(folder)
+    for name, obj in (("pr_curve.npz", curve), ("decisions.npz", decisions)):
+        with atomic_path(folder / name) as tmp, open(tmp, "wb") as f:
+            np.savez(f, **{k: np.asarray(v) for k, v in dataclasses.asdict(obj).items()})
+
+
+def _load(cls, path: str | os.PathLike):
+    with np.load(path) as data:
+        values = {}
+        for f in dataclasses.fields(cls):
+            arr = data[f.name]
+            values[f.name] = arr.item() if arr.ndim == 0 else arr
+        return cls(**values)
+
+
+def load_curve(path: str | os.PathLike) -> PRCurve:
+    """The PRCurve `save_curve_and_decisions` wrote."""
+    return _load(PRCurve, path)
+
+
+def load_decisions(path: str | os.PathLike) -> Decisions:
+    """The Decisions `save_curve_and_decisions` wrote."""
+    return _load(Decisions, path)

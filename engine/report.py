@@ -62,9 +62,9 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
                 folder = pipeline.evaluation_dir(e.name, method.name, direction)
                 with np.load(folder / "matrices.npz") as m:
                     tme, gtm = m["tme"], m["gtm"]
-                curve = ev.pr_curve(tme, gtm, tau)
+                curve = ev.load_curve(folder / "pr_curve.npz")
                 curves[method.name if len(pipeline.directions()) == 1 else f"{method.name} {direction}"] = curve
-                decisions = ev.decide(tme, gtm, tau, curve.delta_at_max_f1)
+                decisions = ev.load_decisions(folder / "decisions.npz")
                 stem = f"{e.name}-{method.name}-{direction}"
                 figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{e.name} {method.name}")
                 figures.plot_trajectories(
@@ -84,7 +84,7 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
                     "",
                 ]
         figures.plot_pr_curves(fig_dir / f"pr-{e.name}", curves, title=f"{e.name}: precision-recall")
-    training = [(m.name, pipeline.extractor(m).training_history()) for m in scenario.methods]
+    training = [(m.name, pipeline.training_record(m)["history"]) for m in scenario.methods]
     training = [(name, history) for name, history in training if history]
     if training:
         sections += ["## Training", ""]

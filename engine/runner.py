@@ -31,7 +31,7 @@ from vitaplace.engine.errors import UserError
 from vitaplace.engine.provenance import provenance
 from vitaplace.engine import checksum
 from vitaplace.engine import evaluate as ev
-from vitaplace.engine.atomic import atomic_path, write_text_atomic
+from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features
 from vitaplace.engine.plugins import Registry, discover
@@ -274,12 +274,23 @@ class Pipeline:
                     shutil.rmtree(tmp, ignore_errors=True)
                     raise
                 self.extractors[method.name] = extractor
+                record = {"history": extractor.training_history(), "summary": extractor.training_summary()}
+                write_text_atomic(self.training_path(method), json.dumps(record))
 
             directory.parent.mkdir(parents=True, exist_ok=True)
             done = self._cached("fit", method.name, directory)
             self._stage("fit", method.name, key, done, work)
             if not done or "fit" in self.force:
                 checksum.seal(directory)
+
+    def training_path(self, method: Method) -> Path:
+        """Where the fit stage records how training went (read by the report and the manifest)."""
+        return self.cache / "models" / f"{method.name}-{self.model_key(method)}.training.json"
+
+    def training_record(self, method: Method) -> dict[str, Any]:
+        """``{"history": per-epoch curves, "summary": how training ended}`` saved by the fit stage."""
+        path = self.training_path(method)
+        return json.loads(path.read_text()) if path.exists() else {"history": {}, "summary": {}}
 
     def extractor(self, method: Method) -> FeatureExtractor:
         if method.name not in self.extractors:
@@ -341,8 +352,7 @@ class Pipeline:
                         decisions = ev.decide(tme, gtm, settings.tau, curve.delta_at_max_f1)
                         ev.export_matrices_npz(folder / "matrices.npz", tme, gtm)
                         ev.export_decisions_csv(folder / "decisions.csv", decisions)
-                        with atomic_path(folder / "pr_curve.npz") as tmp, open(tmp, "wb") as f:
-                            np.savez(f, deltas=curve.deltas, precision=curve.precision, recall=curve.recall, f1=curve.f1)
+                        ev.save_curve_and_decisions(folder, curve, decisions)
                         write_text_atomic(folder / "summary.json", json.dumps({"key": key, **summary}, indent=2))
 
                     folder.mkdir(parents=True, exist_ok=True)
@@ -391,7 +401,7 @@ class Pipeline:
             "run_seeds": {label: seed for label, (_, seed) in self.runs().items()},
             "datasets": self.state.datasets,
             "stages": [record.__dict__ for record in self.state.records],
-            "training": {m.name: summary for m in self.scenario.methods if (summary := self.extractor(m).training_summary())},
+            "training": {m.name: s for m in self.scenario.methods if (s := self.training_record(m)["summary"])},
             "seconds": round(seconds, 3),
         }
         write_text_atomic(self.out / "manifest.json", json.dumps(manifest, indent=2))

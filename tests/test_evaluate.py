@@ -471,3 +471,14 @@ def test_plot_energy(tmp_path):
     energy = {"visual/1": [100.0, 40.0, 20.0, 15.0], "tactile/1": [50.0, 30.0, 0.0, 9.0], "joint": []}
     _assert_written(figures.plot_energy(tmp_path / "energy", energy), tmp_path, "energy")
     _assert_written(figures.plot_energy(tmp_path / "empty", {}), tmp_path, "empty")
+
+
+def test_curve_and_decisions_round_trip_through_files(tmp_path):
+    curve = ev.pr_curve(HAND_TME, HAND_GTM, HAND_TAU)
+    decisions = ev.decide(HAND_TME, HAND_GTM, HAND_TAU, curve.delta_at_max_f1)
+    ev.save_curve_and_decisions(tmp_path, curve, decisions)
+    back, back_d = ev.load_curve(tmp_path / "pr_curve.npz"), ev.load_decisions(tmp_path / "decisions.npz")
+    np.testing.assert_allclose(back.precision, HAND_P)
+    assert (back.max_f1, back.delta_at_max_f1, back.auc, back.n_revisit) == (curve.max_f1, curve.delta_at_max_f1,
+                                                                            curve.auc, 3)
+    assert list(back_d.outcome) == list(decisions.outcome) and back_d.tau == HAND_TAU
