@@ -50,6 +50,7 @@ __all__ = [
     "pr_curve",
     "recall_at_k",
     "save_curve_and_decisions",
+    "evaluate_pair",
     "load_curve",
     "load_decisions",
 ]
@@ -467,3 +468,28 @@ def load_curve(path: str | os.PathLike) -> PRCurve:
 def load_decisions(path: str | os.PathLike) -> Decisions:
     """The Decisions `save_curve_and_decisions` wrote."""
     return _load(Decisions, path)
+
+
+def evaluate_pair(
+    folder: str | os.PathLike,
+    tme: np.ndarray,
+    query_poses: np.ndarray,
+    reference_poses: np.ndarray,
+    tau: float,
+    delta: float | None = None,
+    heading_weight: float = 0.0,
+    ks: Sequence[int] = (1, 5, 10),
+) -> dict:
+    """Everything about one query run against one reference run, written to ``folder``:
+    the ground truth from the poses, ``matrices.npz`` (TME, GTM), the decisions at the
+    F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR curve
+    (``pr_curve.npz``); returns the summary (`evaluate`)."""
+    folder = Path(folder)
+    gtm = ground_truth_matrix(query_poses, reference_poses, heading_weight)
+    summary = evaluate(tme, gtm, tau, delta, tuple(ks))
+    curve = pr_curve(tme, gtm, tau)
+    decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
+    export_matrices_npz(folder / "matrices.npz", tme, gtm)
+    export_decisions_csv(folder / "decisions.csv", decisions)
+    save_curve_and_decisions(folder, curve, decisions)
+    return summary

@@ -149,6 +149,7 @@ class Pipeline:
         progress: bool = True,
         registry: Registry | None = None,
         workers: int | None = None,
+        cache: Path | None = None,
     ) -> None:
         self.scenario, self.resolved, self.out = scenario, resolved, Path(out)
         self.force = set(force)
@@ -159,7 +160,8 @@ class Pipeline:
         #: processes recording runs in parallel (default: one per core)
         self.workers = workers or os.cpu_count() or 1
         self.registry = registry or discover()
-        self.cache = self.out / "cache"
+        #: where stage outputs are cached (default OUT/cache; sweeps share one across seeds)
+        self.cache = Path(cache) if cache is not None else self.out / "cache"
         self.state = RunnerState()
         self.extractors: dict[str, FeatureExtractor] = {}
         self.opened: dict[str, Run] = {}
@@ -344,15 +346,10 @@ class Pipeline:
                         shape = (len(self.open(f"{e.name}/{q}")), len(self.open(f"{e.name}/{r}")))
                         tme = check_distance(self.extractor(method).distance(load_features(qpath), load_features(rpath)),
                                              shape, f"evaluate {e.name} {method.name}")
-                        gtm = ev.ground_truth_matrix(
-                            self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses, settings.heading_weight
+                        summary = ev.evaluate_pair(
+                            folder, tme, self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses,
+                            settings.tau, settings.delta, settings.heading_weight, tuple(settings.recall_k),
                         )
-                        summary = ev.evaluate(tme, gtm, settings.tau, settings.delta, tuple(settings.recall_k))
-                        curve = ev.pr_curve(tme, gtm, settings.tau)
-                        decisions = ev.decide(tme, gtm, settings.tau, curve.delta_at_max_f1)
-                        ev.export_matrices_npz(folder / "matrices.npz", tme, gtm)
-                        ev.export_decisions_csv(folder / "decisions.csv", decisions)
-                        ev.save_curve_and_decisions(folder, curve, decisions)
                         write_text_atomic(folder / "summary.json", json.dumps({"key": key, **summary}, indent=2))
 
                     folder.mkdir(parents=True, exist_ok=True)

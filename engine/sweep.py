@@ -33,8 +33,8 @@ def run_seed(scenario: str, overrides: Sequence[str], seed: int, out: str, progr
     from vitaplace.engine.scenario import load_scenario
 
     loaded, resolved = load_scenario(scenario, [*overrides, f"seed={seed}"])
-    pipeline = Pipeline(loaded, resolved, Path(out) / f"seed-{seed}", progress=progress, workers=1)
-    pipeline.cache = Path(out) / "cache"
+    pipeline = Pipeline(loaded, resolved, Path(out) / f"seed-{seed}", progress=progress, workers=1,
+                        cache=Path(out) / "cache")
     return [{"seed": seed, **row} for row in pipeline.run()]
 
 
