@@ -1,15 +1,17 @@
-"""Content checksums of cached artifacts, so the cache verifies itself.
+"""Seals on stage outputs: one "done" rule for every stage, and a cache that verifies itself.
 
-After a stage writes an artifact (a file, or a folder of files) it *seals* it: the SHA-256
-of its content goes to ``<artifact>.sha256`` beside it, written atomically after the
-artifact. Before a stage trusts a cached artifact it checks the seal: a missing seal, a
-missing artifact or a different digest (a truncated file, a flipped byte, a file deleted
-from a model folder) means the artifact is recomputed, with one log line saying why.
+When a stage has written its output (a file, or a folder of files) it *seals* it:
+``<output>.seal`` beside it, written atomically after the output, holds the stage key the
+output was made for and the SHA-256 of its content. A stage counts as done only when its
+output is there and its seal holds the same key and a matching digest; a missing seal, a
+different key, a truncated file, a flipped byte or a file missing from a folder means the
+stage runs again, with one log line saying why.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 
 from vitaplace.engine.atomic import write_text_atomic
@@ -31,20 +33,28 @@ def digest(path: Path) -> str:
 
 
 def seal_path(path: Path) -> Path:
-    return path.with_name(path.name + ".sha256")
+    return path.with_name(path.name + ".seal")
 
 
-def seal(path: Path) -> None:
-    """Record ``path``'s digest beside it."""
-    write_text_atomic(seal_path(path), digest(path))
+def seal(path: Path, key: str) -> None:
+    """Record that ``path`` is the output of the stage with ``key``, and its digest."""
+    write_text_atomic(seal_path(path), json.dumps({"key": key, "sha256": digest(path)}))
 
 
-def check(path: Path) -> str | None:
-    """None when ``path`` is intact (present and matching its seal), else why it is not."""
+def check(path: Path, key: str) -> str | None:
+    """None when ``path`` is the intact output for ``key``; else why it cannot be used
+    ("absent" when neither output nor seal exists: simply not made yet)."""
+    sealed = seal_path(path)
+    if not sealed.exists():
+        return "absent" if not path.exists() else "not sealed (written by an interrupted or older run)"
     if not path.exists():
-        return None if not seal_path(path).exists() else "missing"
-    if not seal_path(path).exists():
-        return "not sealed (written by an interrupted or older run)"
-    if digest(path) != seal_path(path).read_text().strip():
+        return "missing"
+    try:
+        record = json.loads(sealed.read_text())
+    except (OSError, ValueError):
+        return "sealed unreadably"
+    if record.get("key") != key:
+        return "made for other settings"
+    if record.get("sha256") != digest(path):
         return "damaged (its content no longer matches its checksum)"
     return None

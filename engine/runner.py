@@ -167,13 +167,15 @@ class Pipeline:
         self.opened: dict[str, Run] = {}
 
     # ------------------------------------------------------------------ bookkeeping
-    def _cached(self, stage: str, item: str, artifact: Path) -> bool:
-        """Whether ``artifact`` exists and matches its checksum; a damaged one is logged."""
-        problem = checksum.check(artifact)
-        if problem is not None:
-            log.warning("%-9s %-28s cached artifact %s is %s: recomputing", stage, item, artifact.name, problem)
-            return False
-        return artifact.exists()
+    def _done(self, stage: str, item: str, output: Path, key: str) -> bool:
+        """The one "done" rule of every stage: ``output`` is there and sealed for ``key`` with
+        a matching digest (`checksum`); anything else but "not made yet" is logged."""
+        problem = checksum.check(output, key)
+        if problem is None:
+            return True
+        if problem not in ("absent", "made for other settings"):
+            log.warning("%-9s %-28s cached output %s is %s: recomputing", stage, item, output.name, problem)
+        return False
 
     def _stage(self, stage: str, item: str, key: str, done: bool, work) -> Any:
         """Run ``work()`` unless its output exists (``done``) and the stage is not forced."""
@@ -214,8 +216,8 @@ class Pipeline:
             args = (str(entry.environment), entry.run.model_dump(), self.scenario.robot.model_dump(), seed, label, key)
             jobs[label] = (args, self.dataset_path(label))
         pending = [
-            label for label, (_, path) in jobs.items()
-            if "simulate" in self.force or not self._cached("simulate", label, path)
+            label for label, (job_args, path) in jobs.items()
+            if "simulate" in self.force or not self._done("simulate", label, path, job_args[-1])
         ]
         workers = min(self.workers, len(pending))
         pool = (
@@ -229,7 +231,7 @@ class Pipeline:
                 work = futures[label].result if label in futures else partial(record_run, *args, path, self.progress)
                 self._stage("simulate", label, args[-1], label not in pending, work)
                 if label in pending:
-                    checksum.seal(path)
+                    checksum.seal(path, args[-1])
         finally:
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
@@ -280,10 +282,10 @@ class Pipeline:
                 write_text_atomic(self.training_path(method), json.dumps(record))
 
             directory.parent.mkdir(parents=True, exist_ok=True)
-            done = self._cached("fit", method.name, directory)
+            done = self._done("fit", method.name, directory, key)
             self._stage("fit", method.name, key, done, work)
             if not done or "fit" in self.force:
-                checksum.seal(directory)
+                checksum.seal(directory, key)
 
     def training_path(self, method: Method) -> Path:
         """Where the fit stage records how training went (read by the report and the manifest)."""
@@ -315,10 +317,10 @@ class Pipeline:
                     run = self.open(label)
                     features = self.extractor(method).transform(run)
                     save_features(path, check_features(features, len(run), f"transform {method.name} {label}"))
-                    checksum.seal(path)
+                    checksum.seal(path, key)
 
-                item = f"{method.name} {label}"
-                self._stage("transform", item, path.stem.rsplit("-", 1)[1], self._cached("transform", item, path), work)
+                item, key = f"{method.name} {label}", path.stem.rsplit("-", 1)[1]
+                self._stage("transform", item, key, self._done("transform", item, path, key), work)
 
     # ------------------------------------------------------------------ evaluate
     def directions(self) -> list[tuple[str, str, str]]:
@@ -340,7 +342,8 @@ class Pipeline:
                     key = content_hash("evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name, settings.model_dump())
                     folder = self.evaluation_dir(e.name, method.name, direction)
                     summary_path = folder / "summary.json"
-                    done = summary_path.exists() and json.loads(summary_path.read_text()).get("key") == key
+                    item = f"{e.name} {method.name} {direction}"
+                    done = self._done("evaluate", item, folder, key)
 
                     def work(method=method, qpath=qpath, rpath=rpath, folder=folder, e=e, q=q, r=r, key=key) -> None:
                         shape = (len(self.open(f"{e.name}/{q}")), len(self.open(f"{e.name}/{r}")))
@@ -350,12 +353,12 @@ class Pipeline:
                             folder, tme, self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses,
                             settings.tau, settings.delta, settings.heading_weight, tuple(settings.recall_k),
                         )
-                        write_text_atomic(folder / "summary.json", json.dumps({"key": key, **summary}, indent=2))
+                        write_text_atomic(folder / "summary.json", json.dumps(summary, indent=2))
+                        checksum.seal(folder, key)
 
                     folder.mkdir(parents=True, exist_ok=True)
-                    self._stage("evaluate", f"{e.name} {method.name} {direction}", key, done, work)
+                    self._stage("evaluate", item, key, done, work)
                     summary = json.loads(summary_path.read_text())
-                    summary.pop("key")
                     rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
         return rows
 
@@ -379,12 +382,12 @@ class Pipeline:
             from vitaplace.engine.report import write_report
 
             key = content_hash("report", STAGE_VERSION["report"], rows)
-            marker = self.out / "report.key"
-            done = (self.out / "report.md").exists() and marker.exists() and marker.read_text() == key
+            report = self.out / "report.md"
+            done = self._done("report", "report", report, key)
 
             def work() -> None:
                 write_report(self, rows)
-                write_text_atomic(marker, key)
+                checksum.seal(report, key)
 
             self._stage("report", "report", key, done, work)
         self.write_manifest(time.perf_counter() - started)

@@ -492,8 +492,8 @@ def test_simulation_workers_die_with_their_parent(tmp_path):
 
 def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
     """Flip a byte of a recorded dataset, truncate a feature file, delete a file of a trained
-    model: the next run recomputes exactly those (and what depends on them), says why in
-    one log line each, and ends with the same results as before."""
+    model and one of an evaluation: the next run recomputes exactly those (and what depends
+    on them), says why in one log line each, and ends with the same results as before."""
     out = tmp_path / "out"
     _rerun(out)
     first = json.loads((out / "results.json").read_text())
@@ -507,8 +507,9 @@ def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
     model = next(p for p in (cache / "models").iterdir() if p.is_dir() and p.name.startswith("L-"))
     victim = next(p for p in sorted(model.rglob("*")) if p.is_file())
     victim.unlink()
+    (out / "evaluations" / "E1" / "H" / "query-to-reference" / "decisions.npz").unlink()
     status = _rerun(out)
     log_text = (out / "log.txt").read_text()
-    assert log_text.count("is damaged") == 3 and "recomputing" in log_text  # dataset, features, model
+    assert log_text.count("is damaged") == 4 and "recomputing" in log_text  # dataset, features, model, evaluation
     assert ("fit", "L") in {k for k, s in status.items() if s == "ran"}
     assert json.loads((out / "results.json").read_text()) == first
