@@ -104,11 +104,16 @@ def check_distance(tme: Any, shape: tuple[int, int], what: str) -> np.ndarray:
 
 @dataclass
 class StageRecord:
+    """One stage of one item: what keyed it (the keys of its inputs), where its output is,
+    and whether it ran or came from the cache."""
+
     stage: str
     item: str
     key: str
     status: str  # "ran" or "cached"
     seconds: float
+    inputs: list[str] = field(default_factory=list)  # keys of the upstream outputs it was made from
+    output: str = ""  # its output, relative to the output directory when inside it
 
 
 @dataclass
@@ -177,7 +182,9 @@ class Pipeline:
             log.warning("%-9s %-28s cached output %s is %s: recomputing", stage, item, output.name, problem)
         return False
 
-    def _stage(self, stage: str, item: str, key: str, done: bool, work) -> Any:
+    def _stage(
+        self, stage: str, item: str, key: str, done: bool, work, output: Path, inputs: Iterable[str] = ()
+    ) -> Any:
         """Run ``work()`` unless its output exists (``done``) and the stage is not forced."""
         start = time.perf_counter()
         if done and stage not in self.force:
@@ -189,7 +196,8 @@ class Pipeline:
             log.info("%-9s %-28s running (%s)", stage, item, key)
             result = work()
         seconds = time.perf_counter() - start
-        self.state.records.append(StageRecord(stage, item, key, status, round(seconds, 3)))
+        where = output.relative_to(self.out) if output.is_relative_to(self.out) else output
+        self.state.records.append(StageRecord(stage, item, key, status, round(seconds, 3), list(inputs), str(where)))
         return result
 
     # ------------------------------------------------------------------ simulate
@@ -229,7 +237,7 @@ class Pipeline:
             futures = {label: pool.submit(record_run, *jobs[label][0], jobs[label][1], False) for label in pending} if pool else {}
             for label, (args, path) in jobs.items():
                 work = futures[label].result if label in futures else partial(record_run, *args, path, self.progress)
-                self._stage("simulate", label, args[-1], label not in pending, work)
+                self._stage("simulate", label, args[-1], label not in pending, work, path)
                 if label in pending:
                     checksum.seal(path, args[-1])
         finally:
@@ -283,7 +291,7 @@ class Pipeline:
 
             directory.parent.mkdir(parents=True, exist_ok=True)
             done = self._done("fit", method.name, directory, key)
-            self._stage("fit", method.name, key, done, work)
+            self._stage("fit", method.name, key, done, work, directory, [self.state.datasets["train"]])
             if not done or "fit" in self.force:
                 checksum.seal(directory, key)
 
@@ -320,7 +328,8 @@ class Pipeline:
                     checksum.seal(path, key)
 
                 item, key = f"{method.name} {label}", path.stem.rsplit("-", 1)[1]
-                self._stage("transform", item, key, self._done("transform", item, path, key), work)
+                self._stage("transform", item, key, self._done("transform", item, path, key), work, path,
+                            [self.model_key(method), self.state.datasets[label]])
 
     # ------------------------------------------------------------------ evaluate
     def directions(self) -> list[tuple[str, str, str]]:
@@ -357,7 +366,7 @@ class Pipeline:
                         checksum.seal(folder, key)
 
                     folder.mkdir(parents=True, exist_ok=True)
-                    self._stage("evaluate", item, key, done, work)
+                    self._stage("evaluate", item, key, done, work, folder, [qpath.stem, rpath.stem])
                     summary = json.loads(summary_path.read_text())
                     rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
         return rows
@@ -389,7 +398,7 @@ class Pipeline:
                 write_report(self, rows)
                 checksum.seal(report, key)
 
-            self._stage("report", "report", key, done, work)
+            self._stage("report", "report", key, done, work, report)
         self.write_manifest(time.perf_counter() - started)
         return rows
 

@@ -174,6 +174,10 @@ def test_quickstart_writes_every_output(quickstart_run):
     for stem in ("pr-E1", "matrices-E1-L-query-to-reference", "trajectories-E1-H-query-to-reference", "training-L"):
         assert {f"{stem}.png", f"{stem}.pdf"} <= figures, stem
     assert all(r["status"] == "ran" for r in manifest["stages"])
+    by_stage = {(r["stage"], r["item"]): r for r in manifest["stages"]}
+    transform = by_stage[("transform", "L E1/query")]
+    assert transform["inputs"] == [by_stage[("fit", "L")]["key"], by_stage[("simulate", "E1/query")]["key"]]
+    assert (out / transform["output"]).is_file() and (out / by_stage[("fit", "L")]["output"]).is_dir()
     assert manifest["vitaplace_version"] and manifest["machine"]["cpus"]
     assert manifest["packages"]["numpy"] == np.__version__ and manifest["packages"]["mujoco"]
 
