@@ -232,12 +232,7 @@ class BatchStateImpl:
         self.state.load(ins, self.prob.latents)
 
     def _body(self) -> None:
-        s = self.state
-        s.predict_all(energy=self.steps == 0)
-        for step in range(1, self.steps + 1):
-            s.latent_step()
-            s.predict_all(energy=step == self.steps)
-        s.weight_step()
+        self.state.train_steps(self.steps)
 
     def run(self) -> None:
         self._minibatch()

@@ -551,13 +551,18 @@ class BatchState:
             self.be.gather_rows(inputs[node], self.index, x)
         for node, y in self.Y.items():
             self.be.gather_rows(latents[node], self.index, y)
+        self.train_steps(steps)
+        for node, y in self.Y.items():
+            self.be.scatter_rows(y, self.index, latents[node])
+
+    def train_steps(self, steps: int) -> None:
+        """The learning step on the loaded minibatch: T inference steps, then one weight step
+        (the energies of the final state in ``R``)."""
         self.predict_all(energy=steps == 0)
         for step in range(1, steps + 1):
             self.latent_step()
             self.predict_all(energy=step == steps)
         self.weight_step()
-        for node, y in self.Y.items():
-            self.be.scatter_rows(y, self.index, latents[node])
 
     def start_inference(self, inputs: Mapping[str, object]) -> None:
         """Rows ``index`` of the resident inputs, latents at 0.1, every sample active."""
