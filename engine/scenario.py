@@ -26,6 +26,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import math
+import os
 import json
 import typing
 from collections.abc import Sequence
@@ -224,7 +225,49 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
                 f"{env.name}: every pair of poses would count as a revisit"
             )
     _check_methods(path, scenario)
+    _check_memory(path, scenario, physical_memory())
     return scenario, raw
+
+
+def physical_memory() -> int | None:
+    """Bytes of RAM of this machine (None where the OS does not say)."""
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def run_bytes(run: RunSpec, robot: RobotSpec) -> int:
+    """Memory a recorded run takes while it is simulated: frames, deflection series, sensors."""
+    frame = robot.camera_height * robot.camera_width * 3
+    series = robot.deflection_samples * 24 * 2 * 4
+    return run.n_samples * (frame + series + 24 * 3 * 4 + 64)
+
+
+def _check_memory(path: Path, scenario: Scenario, limit: int | None) -> None:
+    """Refuse, before any compute, runs and networks that cannot fit in this machine's memory."""
+    if limit is None:
+        return
+    runs = [("train.run", scenario.train.run)] + [(f"evaluations.{i}.run", e.run) for i, e in enumerate(scenario.evaluations)]
+    for where, run in runs:
+        need = run_bytes(run, scenario.robot)
+        if need > limit:
+            raise ScenarioError(
+                f"{path}: {where}.n_samples: {run.n_samples} samples of {scenario.robot.camera_height}x"
+                f"{scenario.robot.camera_width} frames need {need / 1e9:.3g} GB of memory; this machine has "
+                f"{limit / 1e9:.3g} GB"
+            )
+    for i, method in enumerate(scenario.methods):
+        size = method.params.get("image_size") if isinstance(method.params, dict) else None
+        layers = method.params.get("visual_layers", [1000]) if isinstance(method.params, dict) else [1000]
+        if isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) for v in size) and layers:
+            inputs = size[0] * size[1] * 3
+            need = inputs * int(layers[0]) * 4 * 2 + scenario.train.run.n_samples * inputs * 4
+            if need > limit:
+                raise ScenarioError(
+                    f"{path}: methods.{i}.params.image_size: {size[0]}x{size[1]} images need {need / 1e9:.3g} GB for "
+                    f"the first layer's weights and the training inputs; this machine has {limit / 1e9:.3g} GB"
+                )
 
 
 def _check_methods(path: Path, scenario: Scenario) -> None:

@@ -80,6 +80,12 @@ BAD = {
     "method named ..": (lambda d: d["methods"][0].update(name=".."), r"methods\.0\.name: .*parent folder"),
     "method name with a slash": (lambda d: d["methods"][0].update(name="../../x"), r"methods\.0\.name: .*pattern"),
     "huge name": (lambda d: d.update(name="x" * 1_000_000), r"name: .*pattern"),
+    # refused before any compute: memory estimated from sizes against this machine's RAM
+    "1e12 samples": (lambda d: d["train"]["run"].update(n_samples=10**12), r"train\.run\.n_samples: .* GB of memory"),
+    "huge images": (
+        lambda d: d["methods"][0].update(plugin="mupnet", params={"image_size": [20000, 20000]}),
+        r"methods\.0\.params\.image_size: 20000x20000 images need .* GB",
+    ),
     "unknown activation": (
         lambda d: d["methods"][0].update(plugin="mupnet", params={"activation": "relu6"}),
         r"methods\.0\.params: .*activation",
