@@ -205,8 +205,10 @@ def _resolve(tp: Any, loc: tuple[Any, ...]) -> tuple[type[pydantic.BaseModel] | 
 
 
 def format_validation_error(path: Path | str, exc: pydantic.ValidationError, model: type[pydantic.BaseModel]) -> str:
-    """One line per problem: ``FILE: key.path: message``, suggesting the nearest valid key."""
-    lines = []
+    """One line: ``FILE: key.path: message`` for the first problem (suggesting the nearest
+    valid key), followed by the key paths of any others."""
+    lines: list[str] = []
+    keys: list[str] = []
     for err in exc.errors():
         loc = tuple(p for p in err["loc"] if not (isinstance(p, str) and ("[" in p or p.startswith("function-"))))
         parent, shown = _resolve(model, loc[:-1])
@@ -228,4 +230,8 @@ def format_validation_error(path: Path | str, exc: pydantic.ValidationError, mod
             lines.append(f"{path}: {message}")  # model-level checks name their key path themselves
         else:
             lines.append(f"{path}: {key}: {message}")
-    return "\n".join(lines)
+        keys.append(key)
+    if len(lines) > 1:  # one line: the first problem, and where the others are
+        others = ", ".join(dict.fromkeys(keys[1:]))
+        return f"{lines[0]}; {len(lines) - 1} more problem(s) at {_quote(others)[1:-1]}"
+    return lines[0]
