@@ -523,3 +523,34 @@ def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
     assert log_text.count("is damaged") == 4 and "recomputing" in log_text  # dataset, features, model, evaluation
     assert ("fit", "L") in {k for k, s in status.items() if s == "ran"}
     assert json.loads((out / "results.json").read_text()) == first
+
+
+def test_kill_9_during_a_stage_then_resume_gives_identical_results(tmp_path):
+    """SIGKILL the run while the learned method trains; running again resumes from the cached
+    stages and ends with results byte-identical to an uninterrupted run."""
+    import signal
+    import time
+
+    args = ["run", "quickstart", "--no-progress"]
+    for override in (*TINY, "methods.0.params.epochs=400"):
+        args += ["--set", override]
+    clean = tmp_path / "clean"
+    assert run_cli([*args, "--out", str(clean)]).returncode == 0
+    out = tmp_path / "killed"
+    proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli", *args, "--out", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    log_file = out / "log.txt"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if log_file.exists() and "fit       L" in log_file.read_text():
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (out / "results.json").exists()
+    resumed = run_cli([*args, "--out", str(out)])
+    assert resumed.returncode == 0, resumed.stderr[-500:]
+    assert (out / "results.json").read_bytes() == (clean / "results.json").read_bytes()
+    statuses = {(r["stage"], r["item"]): r["status"] for r in json.loads((out / "manifest.json").read_text())["stages"]}
+    assert statuses[("simulate", "train")] == "cached" and statuses[("fit", "L")] == "ran"
