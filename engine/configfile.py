@@ -204,6 +204,12 @@ def _resolve(tp: Any, loc: tuple[Any, ...]) -> tuple[type[pydantic.BaseModel] | 
     return None, None
 
 
+def _show(part: Any) -> str:
+    """A key path part as text on one line (quoted when it holds control characters)."""
+    text = str(part)
+    return text if text.isprintable() else _quote(text)
+
+
 def format_validation_error(path: Path | str, exc: pydantic.ValidationError, model: type[pydantic.BaseModel]) -> str:
     """One line: ``FILE: key.path: message`` for the first problem (suggesting the nearest
     valid key), followed by the key paths of any others."""
@@ -214,7 +220,7 @@ def format_validation_error(path: Path | str, exc: pydantic.ValidationError, mod
         parent, shown = _resolve(model, loc[:-1])
         if shown is None:
             parent, shown = None, list(loc[:-1])
-        key = ".".join(str(p) for p in (*shown, *loc[-1:])) or "(top level)"
+        key = ".".join(_show(p) for p in (*shown, *loc[-1:])) or "(top level)"
         message = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             valid = sorted(parent.model_fields) if parent else []

@@ -54,7 +54,7 @@ class Registry:
             return self.extractors[name]
         except KeyError:
             valid = ", ".join(self.names()) or "none installed"
-            raise PluginError(f"unknown feature extractor '{name}'; available: {valid}") from None
+            raise PluginError(f"unknown feature extractor {name!r}; available: {valid}") from None
 
     def create(self, name: str, params: Mapping[str, Any] | None = None) -> FeatureExtractor:
         return self.get(name)(params)

@@ -216,7 +216,7 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
         (f"evaluations.{i}", e) for i, e in enumerate(scenario.evaluations)
     ]:
         if not entry.environment.is_file():
-            raise ScenarioError(f"{path}: {where}.environment: no such file {entry.environment}")
+            raise ScenarioError(f"{path}: {where}.environment: no such file {str(entry.environment)!r}")
         env = load_environment(entry.environment)
         diagonal = 2 * math.hypot(env.arena.half_x, env.arena.half_y)
         if where != "train" and scenario.evaluation.tau >= diagonal:

@@ -63,7 +63,7 @@ def mutate(data: dict, path: list, value, delete: bool) -> dict:
     return out
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", 60)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(path=paths, value=values, delete=st.booleans())
 def test_any_mutated_scenario_gets_a_clean_answer(tmp_path, capsys, path, value, delete):
     scenario = tmp_path / "fuzz.yaml"
