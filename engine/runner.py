@@ -183,10 +183,13 @@ class Pipeline:
         return False
 
     def _stage(
-        self, stage: str, item: str, key: str, done: bool, work, output: Path, inputs: Iterable[str] = ()
+        self, stage: str, item: str, key: str, output: Path, work, inputs: Iterable[str] = (), done: bool | None = None
     ) -> Any:
-        """Run ``work()`` unless its output exists (``done``) and the stage is not forced."""
+        """Run ``work()`` unless ``output`` is done for ``key`` (`_done`, or ``done`` when the
+        caller has checked already) and the stage is not forced; seal what it wrote."""
         start = time.perf_counter()
+        if done is None:
+            done = self._done(stage, item, output, key)
         if done and stage not in self.force:
             status = "cached"
             log.info("%-9s %-28s cached (%s)", stage, item, key)
@@ -195,6 +198,7 @@ class Pipeline:
             status = "ran"
             log.info("%-9s %-28s running (%s)", stage, item, key)
             result = work()
+            checksum.seal(output, key)
         seconds = time.perf_counter() - start
         where = output.relative_to(self.out) if output.is_relative_to(self.out) else output
         self.state.records.append(StageRecord(stage, item, key, status, round(seconds, 3), list(inputs), str(where)))
@@ -237,9 +241,7 @@ class Pipeline:
             futures = {label: pool.submit(record_run, *jobs[label][0], jobs[label][1], False) for label in pending} if pool else {}
             for label, (args, path) in jobs.items():
                 work = futures[label].result if label in futures else partial(record_run, *args, path, self.progress)
-                self._stage("simulate", label, args[-1], label not in pending, work, path)
-                if label in pending:
-                    checksum.seal(path, args[-1])
+                self._stage("simulate", label, args[-1], path, work, done=label not in pending)
         finally:
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
@@ -290,10 +292,7 @@ class Pipeline:
                 write_text_atomic(self.training_path(method), json.dumps(record))
 
             directory.parent.mkdir(parents=True, exist_ok=True)
-            done = self._done("fit", method.name, directory, key)
-            self._stage("fit", method.name, key, done, work, directory, [self.state.datasets["train"]])
-            if not done or "fit" in self.force:
-                checksum.seal(directory, key)
+            self._stage("fit", method.name, key, directory, work, [self.state.datasets["train"]])
 
     def training_path(self, method: Method) -> Path:
         """Where the fit stage records how training went (read by the report and the manifest)."""
@@ -325,10 +324,8 @@ class Pipeline:
                     run = self.open(label)
                     features = self.extractor(method).transform(run)
                     save_features(path, check_features(features, len(run), f"transform {method.name} {label}"))
-                    checksum.seal(path, key)
 
-                item, key = f"{method.name} {label}", path.stem.rsplit("-", 1)[1]
-                self._stage("transform", item, key, self._done("transform", item, path, key), work, path,
+                self._stage("transform", f"{method.name} {label}", path.stem.rsplit("-", 1)[1], path, work,
                             [self.model_key(method), self.state.datasets[label]])
 
     # ------------------------------------------------------------------ evaluate
@@ -351,10 +348,9 @@ class Pipeline:
                     key = content_hash("evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name, settings.model_dump())
                     folder = self.evaluation_dir(e.name, method.name, direction)
                     summary_path = folder / "summary.json"
-                    item = f"{e.name} {method.name} {direction}"
-                    done = self._done("evaluate", item, folder, key)
 
-                    def work(method=method, qpath=qpath, rpath=rpath, folder=folder, e=e, q=q, r=r, key=key) -> None:
+                    def work(method=method, qpath=qpath, rpath=rpath, folder=folder, e=e, q=q, r=r) -> None:
+                        folder.mkdir(parents=True, exist_ok=True)
                         shape = (len(self.open(f"{e.name}/{q}")), len(self.open(f"{e.name}/{r}")))
                         tme = check_distance(self.extractor(method).distance(load_features(qpath), load_features(rpath)),
                                              shape, f"evaluate {e.name} {method.name}")
@@ -363,10 +359,9 @@ class Pipeline:
                             settings.tau, settings.delta, settings.heading_weight, tuple(settings.recall_k),
                         )
                         write_text_atomic(folder / "summary.json", json.dumps(summary, indent=2))
-                        checksum.seal(folder, key)
 
-                    folder.mkdir(parents=True, exist_ok=True)
-                    self._stage("evaluate", item, key, done, work, folder, [qpath.stem, rpath.stem])
+                    item = f"{e.name} {method.name} {direction}"
+                    self._stage("evaluate", item, key, folder, work, [qpath.stem, rpath.stem])
                     summary = json.loads(summary_path.read_text())
                     rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
         return rows
@@ -391,14 +386,7 @@ class Pipeline:
             from vitaplace.engine.report import write_report
 
             key = content_hash("report", STAGE_VERSION["report"], rows)
-            report = self.out / "report.md"
-            done = self._done("report", "report", report, key)
-
-            def work() -> None:
-                write_report(self, rows)
-                checksum.seal(report, key)
-
-            self._stage("report", "report", key, done, work, report)
+            self._stage("report", "report", key, self.out / "report.md", lambda: write_report(self, rows))
         self.write_manifest(time.perf_counter() - started)
         return rows
 
