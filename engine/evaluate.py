@@ -347,17 +347,21 @@ def _json_float(x) -> float | None:
     return x if np.isfinite(x) else None
 
 
-def evaluate(tme, gtm, tau: float, delta: float | None = None, ks: Sequence[int] = (1, 5, 10)) -> dict:
+def evaluate(
+    tme, gtm, tau: float, delta: float | None = None, ks: Sequence[int] = (1, 5, 10), curve: PRCurve | None = None
+) -> dict:
     """JSON-serialisable summary (plain floats/ints; non-finite thresholds reported as None).
 
     Keys: n_queries, n_references, n_revisit, tau, max_f1, precision_at_max_f1,
     recall_at_max_f1, delta_at_max_f1, auc,
     auc_method, recall_at_k ({"1": ..., ...}, string keys so JSON round-trips), and when
     ``delta`` is given: delta, precision, recall, f1, tp, fp, fn, tn, n_accepted.
+    ``curve``: the default-sweep `pr_curve` of the same matrices, when already computed.
     """
     tme_a, gtm_a = _check_matrices(tme, gtm)
     tau = _check_tau(tau)
-    curve = pr_curve(tme_a, gtm_a, tau)
+    if curve is None:
+        curve = pr_curve(tme_a, gtm_a, tau)
     rk = recall_at_k(tme_a, gtm_a, tau, ks)
     out: dict = {
         "n_queries": int(tme_a.shape[0]),
@@ -486,8 +490,8 @@ def evaluate_pair(
     (``pr_curve.npz``); returns the summary (`evaluate`)."""
     folder = Path(folder)
     gtm = ground_truth_matrix(query_poses, reference_poses, heading_weight)
-    summary = evaluate(tme, gtm, tau, delta, tuple(ks))
     curve = pr_curve(tme, gtm, tau)
+    summary = evaluate(tme, gtm, tau, delta, tuple(ks), curve=curve)
     decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
     export_matrices_npz(folder / "matrices.npz", tme, gtm)
     export_decisions_csv(folder / "decisions.csv", decisions)
