@@ -682,26 +682,25 @@ def weight_update(W, Y, G, eta: float, Wt=None, tiles: TileConfig | None = None)
     )
 
 
-def gather_rows(src, index, dst) -> None:
-    """``dst[r] = src[index[r]]`` (``index`` int32 of length ``dst.shape[0]``)."""
+def _move_rows(kernel, src, index, dst, small) -> None:
+    """Launch ``kernel`` over the rows of ``small`` (the side ``index`` runs along)."""
     _ensure_init()
     _check_type("src", src)
     _check_type("dst", dst)
-    _check("index", index, (dst.shape[0],), src.device, wp.int32)
+    _check("index", index, (small.shape[0],), src.device, wp.int32)
     if dst.shape[1] != src.shape[1]:
         raise ValueError(f"dst has {dst.shape[1]} columns, src {src.shape[1]}")
-    _simt_launch(_gather_kernel, tuple(dst.shape), [src, index, dst], src.device)
+    _simt_launch(kernel, tuple(small.shape), [src, index, dst], src.device)
+
+
+def gather_rows(src, index, dst) -> None:
+    """``dst[r] = src[index[r]]`` (``index`` int32 of length ``dst.shape[0]``)."""
+    _move_rows(_gather_kernel, src, index, dst, dst)
 
 
 def scatter_rows(src, index, dst) -> None:
     """``dst[index[r]] = src[r]`` (``index`` int32 of length ``src.shape[0]``, no repeats)."""
-    _ensure_init()
-    _check_type("src", src)
-    _check_type("dst", dst)
-    _check("index", index, (src.shape[0],), src.device, wp.int32)
-    if dst.shape[1] != src.shape[1]:
-        raise ValueError(f"dst has {dst.shape[1]} columns, src {src.shape[1]}")
-    _simt_launch(_scatter_kernel, tuple(src.shape), [src, index, dst], src.device)
+    _move_rows(_scatter_kernel, src, index, dst, src)
 
 
 def stop_converged(row_energy, limits, active, steps) -> None:
