@@ -157,11 +157,17 @@ class InferenceResult:
     """
 
     latents: dict[str, np.ndarray]
-    steps: int
     mse: dict[str, float]
-    converged: bool
     steps_per_sample: np.ndarray
     stopped: np.ndarray
+
+    @property
+    def steps(self) -> int:
+        return int(self.steps_per_sample.max(initial=0))
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.stopped.all())
 
 
 def glorot_uniform(rng: np.random.Generator, fan_in: int, fan_out: int) -> np.ndarray:
@@ -378,6 +384,8 @@ class Network:
         edges = self.active_edges(present)
         limits = {e.name: e.threshold for e in edges}
         limits.update(thresholds or {})
+        threshold = np.array([limits[e.name] for e in edges], dtype=np.float64)
+        width = np.array([self.sizes[e.lower] for e in edges], dtype=np.float64)
         be = self.backend
         resident_x = {self.input_node(m): be.to_device(inputs[m]) for m in present}
         out = {node: np.empty((n, self.sizes[node]), np.float32) for node in self.latent_nodes(present)}
@@ -389,7 +397,7 @@ class Network:
             index = np.arange(start, min(start + batch_size, n))
             state = self._cached_state(states, len(index), present)
             if len(index) not in chunks:
-                be.upload(np.array([limits[e.name] * state.error_width[e.name] for e in edges]), state.limits)
+                be.upload(threshold * width, state.limits)
                 chunks[len(index)] = be.capture(functools.partial(state.inference_steps, self.STEPS_PER_CHECK))
             be.upload(index.astype(np.int32), state.index)
             state.start_inference(resident_x)
@@ -402,19 +410,14 @@ class Network:
                     state.inference_steps(todo)
                 done += todo
             steps[index] = be.download(state.steps)
-            widths = np.array([state.error_width[e.name] for e in edges], dtype=np.float64)
-            mse[:, index] = be.download(state.R) / widths[:, None]
+            row_energy = be.download(state.R)
+            energy = {e.name: float(total) for e, total in zip(edges, row_energy.sum(axis=1))}
+            state.check_finite(energy, f"inference of samples {start}-{index[-1]}")
+            mse[:, index] = row_energy / width[:, None]
             for node, values in state.download_latents().items():
                 out[node][index] = values
-        stopped = np.all(mse < np.array([limits[e.name] for e in edges])[:, None], axis=0)
-        return InferenceResult(
-            out,
-            int(steps.max(initial=0)),
-            {e.name: float(mse[k].mean()) for k, e in enumerate(edges)},
-            bool(stopped.all()),
-            steps,
-            stopped,
-        )
+        stopped = np.all(mse < threshold[:, None], axis=0)
+        return InferenceResult(out, {e.name: float(mse[k].mean()) for k, e in enumerate(edges)}, steps, stopped)
 
     def reconstruct(self, joint: np.ndarray, modality: str) -> np.ndarray:
         """Top-down prediction of a modality's scaled input from joint latents (host numpy)."""
@@ -492,7 +495,6 @@ class BatchState:
         self.weights = net._device_weight_handles()
         self.Y = {node: be.empty((batch, net.sizes[node])) for node in self.nodes}
         self.X = {net.input_node(m): be.empty((batch, net.sizes[net.input_node(m)])) for m in modalities}
-        self.error_width = {e.name: net.sizes[e.lower] for e in self.edges}
         self.E = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
         self.G = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
         self.R = be.empty((len(self.edges), batch), np.float64)

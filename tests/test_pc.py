@@ -312,6 +312,15 @@ def test_divergence_names_the_layer_and_suggests_lower_rates():
             net.train(inputs, {**TRAIN, "epochs": 2}, progress=False)
 
 
+def test_diverging_inference_names_the_layer_and_the_samples():
+    inputs, _ = synthetic(n=20)
+    config = {**SYNTH, "joint": {**SYNTH["joint"], "eta_y": 1e4}}
+    net = Network(config, seed=0, backend="numpy")
+    with pytest.raises(NetworkError, match=r"layer '.*' became (nan|inf) at inference of samples 0-19"):
+        with np.errstate(all="ignore"):
+            net.infer(inputs, max_steps=50, thresholds=NO_STOP)
+
+
 def test_bad_input_shape_is_reported():
     net = Network(SYNTH, seed=0, backend="numpy")
     with pytest.raises(NetworkError, match=r"input 'visual' has shape \(3, 39\), expected \(3, 40\)"):
