@@ -9,6 +9,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+#: How a file would cite the design brief and its folder that live outside the repository
+#: (built from parts, so this test does not match itself).
+OUTSIDE_CITATIONS = ("/".join(["..", "shared", ""]), " ".join(["DESIGN", "§"]))
 
 
 def test_scenario_reference_is_current():
@@ -38,7 +41,7 @@ def test_nothing_cites_documents_outside_the_repository():
         if path.suffix not in {".py", ".md", ".yaml", ".toml", ".sh", ".txt"} or not path.is_file():
             continue
         text = path.read_text(errors="replace")
-        for needle in ("../shared/", "DESIGN §"):
-            if needle in text and name != "tests/test_docs.py":
+        for needle in OUTSIDE_CITATIONS:
+            if needle in text:
                 offenders.append(f"{name}: {needle}")
     assert not offenders, offenders
