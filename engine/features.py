@@ -59,6 +59,13 @@ class FeatureExtractor(ABC):
             )
             raise ExtractorParamsError(f"extractor '{cls.name}': {problems}") from None
 
+    @classmethod
+    def memory_bytes(cls, params: ExtractorParams, train_samples: int) -> tuple[int, str, str]:
+        """Memory the method needs beyond the recorded runs, for ``train_samples`` training
+        samples: (bytes, the parameter that drives it, what needs it), checked against the
+        machine before any compute. The default: nothing worth counting."""
+        return 0, "", "nothing"
+
     @abstractmethod
     def fit(self, train: Run) -> None:
         """Learn whatever the method needs (weights, scalers, distance scales) from a training run."""

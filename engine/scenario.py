@@ -257,17 +257,17 @@ def _check_memory(path: Path, scenario: Scenario, limit: int | None) -> None:
                 f"{scenario.robot.camera_width} frames need {need / 1e9:.3g} GB of memory; this machine has "
                 f"{limit / 1e9:.3g} GB"
             )
+    from vitaplace.engine.plugins import discover
+
+    registry = discover()
     for i, method in enumerate(scenario.methods):
-        size = method.params.get("image_size") if isinstance(method.params, dict) else None
-        layers = method.params.get("visual_layers", [1000]) if isinstance(method.params, dict) else [1000]
-        if isinstance(size, (list, tuple)) and len(size) == 2 and all(isinstance(v, int) for v in size) and layers:
-            inputs = size[0] * size[1] * 3
-            need = inputs * int(layers[0]) * 4 * 2 + scenario.train.run.n_samples * inputs * 4
-            if need > limit:
-                raise ScenarioError(
-                    f"{path}: methods.{i}.params.image_size: {size[0]}x{size[1]} images need {need / 1e9:.3g} GB for "
-                    f"the first layer's weights and the training inputs; this machine has {limit / 1e9:.3g} GB"
-                )
+        extractor = registry.get(method.plugin)
+        need, key, what = extractor.memory_bytes(extractor.validate_params(method.params), scenario.train.run.n_samples)
+        if need > limit:
+            raise ScenarioError(
+                f"{path}: methods.{i}.params.{key}: {what} need {need / 1e9:.3g} GB of memory for the method; "
+                f"this machine has {limit / 1e9:.3g} GB"
+            )
 
 
 def _check_methods(path: Path, scenario: Scenario) -> None:

@@ -118,6 +118,14 @@ class MupnetExtractor(FeatureExtractor):
         #: training stopped because the energy converged (converge_window), not at the epoch cap
         self.converged = False
 
+    @classmethod
+    def memory_bytes(cls, params: MupnetParams, train_samples: int) -> tuple[int, str, str]:
+        """The first visual layer's weights (W and its transposed copy) and the training images."""
+        h, w = params.image_size
+        inputs = h * w * 3 if "visual" in params.modalities else 0
+        need = inputs * params.visual_layers[0] * 4 * 2 + train_samples * inputs * 4
+        return need, "image_size", f"{h}x{w} images"
+
     def network_config(self, tactile_size: int) -> NetworkConfig:
         p = self.params
         h, w = p.image_size
