@@ -204,7 +204,7 @@ def _resolve(tp: Any, loc: tuple[Any, ...]) -> tuple[type[pydantic.BaseModel] | 
     return None, None
 
 
-def _show(part: Any) -> str:
+def show_key(part: Any) -> str:
     """A key path part as text on one line (quoted when it holds control characters)."""
     text = str(part)
     return text if text.isprintable() else _quote(text)
@@ -220,7 +220,7 @@ def format_validation_error(path: Path | str, exc: pydantic.ValidationError, mod
         parent, shown = _resolve(model, loc[:-1])
         if shown is None:
             parent, shown = None, list(loc[:-1])
-        key = ".".join(_show(p) for p in (*shown, *loc[-1:])) or "(top level)"
+        key = ".".join(show_key(p) for p in (*shown, *loc[-1:])) or "(top level)"
         message = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             valid = sorted(parent.model_fields) if parent else []

@@ -17,6 +17,7 @@ import numpy as np
 import pydantic
 
 from vitaplace.engine.atomic import atomic_path
+from vitaplace.engine.configfile import show_key
 from vitaplace.engine.dataset import Run
 from vitaplace.engine.errors import UserError
 
@@ -55,7 +56,7 @@ class FeatureExtractor(ABC):
             return cls.Params.model_validate(dict(params))
         except pydantic.ValidationError as exc:
             problems = "; ".join(
-                f"{'.'.join(str(p) for p in err['loc']) or '(params)'}: {err['msg']}" for err in exc.errors()
+                f"{'.'.join(show_key(p) for p in err['loc']) or '(params)'}: {err['msg']}" for err in exc.errors()
             )
             raise ExtractorParamsError(f"extractor '{cls.name}': {problems}") from None
 

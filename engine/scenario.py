@@ -224,8 +224,8 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
                 f"{path}: evaluation.tau: {scenario.evaluation.tau} m is not below the {diagonal:.2f} m diagonal of "
                 f"{env.name}: every pair of poses would count as a revisit"
             )
-    _check_methods(path, scenario)
-    _check_memory(path, scenario, physical_memory())
+    params = _check_methods(path, scenario)
+    _check_memory(path, scenario, params, physical_memory())
     return scenario, raw
 
 
@@ -244,7 +244,7 @@ def run_bytes(run: RunSpec, robot: RobotSpec) -> int:
     return run.n_samples * (frame + series + 24 * 3 * 4 + 64)
 
 
-def _check_memory(path: Path, scenario: Scenario, limit: int | None) -> None:
+def _check_memory(path: Path, scenario: Scenario, methods: list[tuple[Any, Any]], limit: int | None) -> None:
     """Refuse, before any compute, runs and networks that cannot fit in this machine's memory."""
     if limit is None:
         return
@@ -257,12 +257,8 @@ def _check_memory(path: Path, scenario: Scenario, limit: int | None) -> None:
                 f"{scenario.robot.camera_width} frames need {need / 1e9:.3g} GB of memory; this machine has "
                 f"{limit / 1e9:.3g} GB"
             )
-    from vitaplace.engine.plugins import discover
-
-    registry = discover()
-    for i, method in enumerate(scenario.methods):
-        extractor = registry.get(method.plugin)
-        need, key, what = extractor.memory_bytes(extractor.validate_params(method.params), scenario.train.run.n_samples)
+    for i, (extractor, params) in enumerate(methods):
+        need, key, what = extractor.memory_bytes(params, scenario.train.run.n_samples)
         if need > limit:
             raise ScenarioError(
                 f"{path}: methods.{i}.params.{key}: {what} need {need / 1e9:.3g} GB of memory for the method; "
@@ -270,18 +266,22 @@ def _check_memory(path: Path, scenario: Scenario, limit: int | None) -> None:
             )
 
 
-def _check_methods(path: Path, scenario: Scenario) -> None:
+def _check_methods(path: Path, scenario: Scenario) -> list[tuple[Any, Any]]:
+    """Each method's extractor class and validated parameters (errors name the method)."""
     from vitaplace.engine.features import ExtractorParamsError
     from vitaplace.engine.plugins import PluginError, discover
 
     registry = discover()
+    checked = []
     for i, method in enumerate(scenario.methods):
         try:
-            registry.get(method.plugin).validate_params(method.params)
+            extractor = registry.get(method.plugin)
+            checked.append((extractor, extractor.validate_params(method.params)))
         except PluginError as exc:
             raise ScenarioError(f"{path}: methods.{i}.plugin: {exc}") from None
         except ExtractorParamsError as exc:
             raise ScenarioError(f"{path}: methods.{i}.params: {exc}") from None
+    return checked
 
 
 def content_hash(*parts: Any) -> str:
