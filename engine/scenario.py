@@ -154,7 +154,8 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
             entry["environment"] = str((folder / entry["environment"]).resolve())
 
     fix(data.get("train"))
-    for entry in data.get("evaluations") or []:
+    evaluations = data.get("evaluations")
+    for entry in evaluations if isinstance(evaluations, list) else []:  # anything else: the schema says why
         fix(entry)
     return data
 

@@ -95,6 +95,7 @@ BAD = {
         r"methods\.0\.params: extractor 'handcrafted': grid",
     ),
     "missing key": (lambda d: d.pop("methods"), r"methods: required key is missing"),
+    "evaluations not a list": (lambda d: d.update(evaluations=True), r"evaluations: Input should be a valid list"),
 }
 
 
