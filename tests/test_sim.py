@@ -30,8 +30,13 @@ from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec  # noqa: E402
 from vitaplace.engine.sim.simulate import RunSpec, Simulator, simulate_run  # noqa: E402
 
 ENVS = sorted(environment_files())
-LEFT = slice(0, 12)  # boards 0-2
-RIGHT = slice(12, 24)  # boards 3-5
+RIGHT = slice(0, 8)  # boards 0-1, the right side of the head
+LEFT = slice(16, 24)  # boards 4-5, the left side (boards 2-3 are on top)
+#: In the bare 6 m arena (walls' inner faces at +-3 m): 2.55 m east of the centre, heading
+#: 60 deg, the east wall is ahead and to the right; the right-side whiskers' bases are
+#: ~0.1 m from it (shafts 50-160 mm), the left-side ones ~0.3 m, the body 0.22 m.
+WALL_RIGHT = (2.55, 0.0, math.radians(60))
+WALL_LEFT = (-2.55, 0.0, math.radians(120))  # its mirror image: the west wall on the left
 
 
 @pytest.fixture(scope="module")
@@ -82,19 +87,59 @@ def test_environment_compiles_and_simulates_2s_without_mujoco_warnings(name):
         sim.close()
 
 
+#: WhiskEye's footprint (whiskeye_robot.sdf): body radius 0.23 m; the head, 0.42-0.58 m
+#: ahead and 0.16 m wide, is covered by a disc of radius 0.113 m centred 0.5 m ahead.
+BODY_R, HEAD_AHEAD, HEAD_R = 0.23, 0.5, 0.113
+
+
 @pytest.mark.parametrize("name", ENVS)
-def test_route_keeps_clear_of_obstacles_and_passes_within_whisker_reach(name):
-    """The chassis (r = 0.10 m) never touches anything along the route, and every tactile
-    landmark comes within the whiskers' lateral reach (~0.2 m; 0.22 allows the 36-waypoint
-    routes' rounding) somewhere on it."""
+def test_route_keeps_body_and_head_clear_of_obstacles(name):
+    """Every point of the route, with the heading the route is driven at (towards the
+    pursuit point 0.3 m further along the loop, or away from its centroid), keeps the body and the head at least 3 cm from everything
+    (the pursuit controller's corner cutting and noise are a few cm)."""
     env = load_environment(name)
-    points = Route(env.route).sample(0.02)
-    clearance = env.obstacles.distance_many(points)  # base centre -> nearest surface
-    assert clearance.min() >= 0.12, "the chassis would touch a landmark"
-    for lm_name, lm in zip(env.landmark_names(), env.landmarks):
+    route = Route(env.route)
+    points = route.sample(0.02)
+    if env.route_facing == "outward":
+        rel = points - np.mean(env.route, axis=0)
+        heading = np.arctan2(rel[:, 1], rel[:, 0])
+    else:  # pure pursuit: towards the route point 0.3 m further on
+        ahead = route.at(np.arange(0.0, route.length, 0.02) + 0.3) - points
+        heading = np.arctan2(ahead[:, 1], ahead[:, 0])
+    head = points + HEAD_AHEAD * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    assert (env.obstacles.distance_many(points) - BODY_R).min() >= 0.03, "the body would touch something"
+    assert (env.obstacles.distance_many(head) - HEAD_R).min() >= 0.03, "the head would touch something"
+
+
+def test_one_lap_of_the_e1_route_touches_every_landmark_without_collision(e1):
+    """E1's route (driven sideways, facing the walls) brings the whiskers onto both boxes and
+    the cylinder, and never the body or head (one lap: ~8.5 m at 0.3 m/s)."""
+    run = simulate_run(e1, RunSpec(kind="route", n_samples=60, speed=0.3), seed=4, progress=False)
+    assert run.attrs["body_collision_instants"] == 0
+    points = run._get("contact_points")
+    for lm_name, lm in zip(e1.landmark_names(), e1.landmarks):
         alone = {**lm.model_dump(), "material": None}
         single = EnvironmentSpec.model_validate({"name": "one", "arena": {"size": 50.0}, "landmarks": [alone]})
-        assert single.obstacles.distance_many(points).min() <= 0.22, f"{lm_name} is never within whisker reach"
+        assert (single.obstacles.distance_many(points[:, :2]) < 0.01).any(), f"{lm_name} was never touched"
+
+
+def test_orbit_faces_outward_on_its_circle_and_goes_off_route_when_asked(e1):
+    """The orbit stays within a few cm of its 1 m circle, faces away from the centre (the
+    camera towards the walls) and goes round counter-clockwise; with off_route_fraction the
+    final part runs off_route_offset closer to the centre."""
+    spec = RunSpec(kind="orbit", n_samples=40, speed=0.3)
+    run = simulate_run(e1, spec, seed=2, progress=False)
+    r = np.hypot(run.poses[:, 0], run.poses[:, 1])
+    phi = np.arctan2(run.poses[:, 1], run.poses[:, 0])
+    assert np.abs(r[4:] - 1.0).max() < 0.08
+    facing = (run.poses[:, 2] - phi + np.pi) % (2 * np.pi) - np.pi
+    assert np.abs(facing).max() < math.radians(12)  # heading noise 3 deg std, plus lag
+    assert (np.diff(np.unwrap(phi)) > 0).mean() > 0.9
+    off = simulate_run(e1, spec.model_copy(update={"off_route_fraction": 0.5, "off_route_offset": 0.5}), seed=2,
+                       progress=False)
+    r_off = np.hypot(off.poses[:, 0], off.poses[:, 1])
+    np.testing.assert_allclose(r_off[:20], r[:20], atol=1e-9)  # same seed: identical until the detour
+    assert np.abs(r_off[-10:] - 0.5).max() < 0.08
 
 
 def test_top_view_structure(e1):
@@ -150,23 +195,24 @@ def test_wall_contact_deflects_whiskers_far_above_the_noise_floor(e1_sim):
     free = _cycles(e1_sim, (0.0, 0.0, 0.0))  # nothing within reach at the arena centre
     noise = np.degrees(np.abs(free).max())
     assert noise < 0.5, f"free-whisking deflection {noise:.3f} deg"
-    # facing north 0.15 m from the east wall: the wall is on the robot's right
-    pressed = _cycles(e1_sim, (2.85, 0.0, math.pi / 2))
+    pressed = _cycles(e1_sim, WALL_RIGHT)
     right = np.degrees(np.abs(pressed[:, RIGHT]).max())
     left = np.degrees(np.abs(pressed[:, LEFT]).max())
     assert right > 5.0 and right > 20 * noise, f"pressed {right:.2f} deg vs noise {noise:.3f} deg"
     assert left < 0.5, "whiskers on the far side of the head must stay free"
 
 
-def test_deflection_direction_flips_with_the_side_of_the_wall(e1_sim):
-    wall_right = _cycles(e1_sim, (2.85, 0.0, math.pi / 2))[:, RIGHT, 0].mean()
-    wall_left = _cycles(e1_sim, (-2.85, 0.0, math.pi / 2))[:, LEFT, 0].mean()
+def test_mirror_image_contacts_give_deflections_of_the_same_sign(e1_sim):
+    """xy[..., 0] is signed along each whisker's own protraction direction, so a wall on the
+    right and its mirror image on the left bend the two sides' whiskers with the same sign."""
+    wall_right = _cycles(e1_sim, WALL_RIGHT)[:, RIGHT, 0].mean()
+    wall_left = _cycles(e1_sim, WALL_LEFT)[:, LEFT, 0].mean()
     assert abs(wall_right) > math.radians(1) and abs(wall_left) > math.radians(1)
-    assert np.sign(wall_right) == -np.sign(wall_left)
+    assert np.sign(wall_right) == np.sign(wall_left)
 
 
 def test_contacts_are_reported_on_the_touched_surface_with_outward_normals(e1_sim):
-    e1_sim.reset((2.85, 0.0, math.pi / 2))
+    e1_sim.reset(WALL_RIGHT)
     _, points, normals = e1_sim.cycle()
     pts, nrm = np.concatenate(points), np.concatenate(normals)
     assert len(pts) > 0
@@ -187,11 +233,12 @@ def test_samples_are_taken_at_maximum_protraction(e1_sim):
     last = theta[n:]  # second cycle; the sample is taken after its final step
     assert np.all(np.argmax(last, axis=0) >= n - 2), "theta must peak at the end of the cycle"
     assert np.allclose(last[-1], last.max(axis=0), atol=math.radians(0.05))
-    assert np.allclose(np.degrees(last[-1]), 45.0, atol=0.3)
-    assert np.allclose(np.degrees(last.min(axis=0)), -30.0, atol=0.3)
+    # WhiskEye's joint limits: +-60 deg
+    assert np.allclose(np.degrees(last[-1]), 60.0, atol=0.3)
+    assert np.allclose(np.degrees(last.min(axis=0)), -60.0, atol=0.3)
     # and the recorded samples of a run
     run = simulate_run(load_environment("e1"), RunSpec(kind="route", n_samples=2), seed=0, progress=False)
-    assert np.allclose(np.degrees(run.theta), 45.0, atol=1.0)
+    assert np.allclose(np.degrees(run.theta), 60.0, atol=1.0)
 
 
 def test_timestep_halving_converges():
@@ -203,7 +250,7 @@ def test_timestep_halving_converges():
     2 ms step, and require the error to shrink when the step is halved (first-order method).
     """
     env = load_environment("e1")
-    poses = [(2.85, 0.0, math.pi / 2), (2.7, 0.0, 0.5)]
+    poses = [WALL_RIGHT, (2.3, 0.0, 0.3)]
     series = {}
     for dt in (0.002, 0.001, 0.0005):
         sim = Simulator(env, RobotSpec(timestep=dt), camera=False)
@@ -231,6 +278,37 @@ def test_camera_image_changes_with_pose_and_is_repeatable(e1_sim):
     assert np.array_equal(a, a2), "identical state must render identical pixels"
     assert np.abs(a.astype(int) - b.astype(int)).mean() > 5.0
     assert a.std() > 10, "the frame should show structure, not a flat colour"
+
+
+def test_camera_projects_a_known_point_where_the_whiskeye_pinhole_model_says():
+    """cam0 of whiskeye_robot.sdf: 0.517 m ahead of the base centre, 0.057 m to the left,
+    0.315 m above the floor, level, 90 deg horizontal field of view. A small red cube centred
+    at a known world point must appear where a pinhole camera with that pose puts it:
+    focal length f = (W / 2) / tan(45 deg) pixels, u = W/2 - f Y/X, v = H/2 - f Z/X for
+    the point's offset (X ahead, Y left, Z up) from the camera."""
+    cube = np.array([2.0, 0.4, 0.4])  # world position of the cube's centre [m]
+    env = EnvironmentSpec.model_validate(
+        {**BARE, "materials": {"wall": {"rgba": [0.8, 0.8, 0.8, 1]}, "floor": {"rgba": [0.7, 0.7, 0.7, 1]},
+                               "red": {"rgba": [1, 0, 0, 1]}},
+         "landmarks": [{"type": "box", "pos": cube[:2].tolist(), "z": cube[2] - 0.02, "size": [0.04, 0.04, 0.04],
+                        "material": "red", "tactile": False}]}
+    )
+    sim = Simulator(env, RobotSpec(camera_width=320, camera_height=240))
+    try:
+        sim.reset((0.0, 0.0, 0.0))
+        img = sim.render()
+    finally:
+        sim.close()
+    W, H = 320, 240
+    X, Y, Z = cube - np.array([0.5166, 0.0573, 0.315])
+    f = (W / 2) / math.tan(math.radians(45))
+    u, v = W / 2 - f * Y / X, H / 2 - f * Z / X
+    red = (img[..., 0] > 120) & (img[..., 1] < 60) & (img[..., 2] < 60)
+    assert red.sum() >= 9, "the cube should cover a few pixels"
+    rows, cols = np.nonzero(red)
+    # pixel centres are at index + 0.5; a 4 cm cube at 1.5 m spans ~4 px, its centroid
+    # within 1 px of the projected centre
+    assert abs(cols.mean() + 0.5 - u) < 1.0 and abs(rows.mean() + 0.5 - v) < 1.0, (cols.mean() + 0.5, rows.mean() + 0.5, u, v)
 
 
 def test_missing_gl_gives_one_clear_error():
@@ -288,7 +366,10 @@ def test_same_scenario_and_seed_give_identical_runs(e1):
     assert a.images.shape == (6, 120, 160, 3)
     assert np.allclose(np.diff(a.times), 0.5)
     assert a.attrs["seed"] == 3 and a.attrs["environment"] == "e1"
-    assert a.attrs["camera"] == {"width": 160, "height": 120, "fovy_deg": 60.0, "pitch_deg": -5.0}
+    # WhiskEye's camera: 90 deg horizontal, so 2 atan(tan 45 deg x 120/160) = 73.74 deg vertical, level
+    camera = a.attrs["camera"]
+    assert (camera["width"], camera["height"], camera["hfov_deg"], camera["pitch_deg"]) == (160, 120, 90.0, 0.0)
+    assert camera["fovy_deg"] == pytest.approx(73.7398, abs=1e-4)
 
 
 def test_two_route_runs_differ_but_follow_the_route(e1):
@@ -309,10 +390,10 @@ def test_two_route_runs_differ_but_follow_the_route(e1):
 
 
 def test_foraging_touches_things_and_never_drives_into_them(e1):
-    run = simulate_run(e1, RunSpec(kind="foraging", n_samples=80), seed=5, progress=False)
+    run = simulate_run(e1, RunSpec(kind="foraging", n_samples=120), seed=5, progress=False)
     assert run.attrs["body_collision_instants"] == 0
     assert np.diff(run.contact_offsets).sum() > 0
-    # the foraging state machine goes through every mode in 40 s
+    # the foraging state machine goes through every mode in 60 s
     modes = run.attrs["controller_modes"]
     assert set(modes) == {"wander", "orient", "explore", "leave", "avoid"} and min(modes.values()) > 0, modes
 
@@ -386,7 +467,7 @@ def bare_sims():
 
 def test_penetration_whiskers_pass_through_and_report_the_plugin_formula(bare_sims):
     sim = bare_sims["penetration"]
-    pose = (2.85, 0.0, math.pi / 2)  # facing north, the east wall 0.15 m to the right
+    pose = WALL_RIGHT
     free = []
     sim.reset((0.0, 0.0, math.pi / 2))
     for _ in range(2):
@@ -415,16 +496,6 @@ def test_penetration_whiskers_pass_through_and_report_the_plugin_formula(bare_si
         along = float((c.pos - d.xpos[body]) @ R[:, 0])
         expected[w] += 10 * max(-c.dist, 0.0) * np.array([n @ R[:, 1], n @ R[:, 2]]) / (along + 0.1)
     np.testing.assert_allclose(s.xy(d), expected, atol=1e-12)
-
-
-def test_penetration_and_physical_models_agree_on_the_direction_of_touch(bare_sims):
-    """The wall on the right pushes the right whiskers the same way in both models."""
-    signs = {}
-    for model, sim in bare_sims.items():
-        series = _cycles(sim, (2.85, 0.0, math.pi / 2))
-        signs[model] = np.sign(series[:, RIGHT, 0].sum())
-        assert signs[model] != 0
-    assert signs["physical"] == signs["penetration"]
 
 
 # ---------------------------------------------------------------------- the sensor contract

@@ -1,9 +1,10 @@
-"""Trajectories: a tactile-attention foraging controller (training runs) and a noisy route
-follower (evaluation runs).
+"""Trajectories: a tactile-attention foraging controller (training runs), a noisy route
+follower and a noisy orbit (evaluation runs).
 
-Both controllers are called at every control tick (each deflection-series sample, 50 Hz by
-default) with an `Observation` and return a command ``(v, w)``: forward speed [m/s] and
-yaw rate [rad/s] of the base. All randomness comes from the ``numpy.random.Generator``
+Every controller is called at each control tick (``control_hz``, rounded to
+deflection-series samples) with an `Observation` and returns a command ``(v, w)`` or
+``(v, w, lateral)``: forward speed [m/s], yaw rate [rad/s] and sideways (leftward) speed
+[m/s] of the holonomic base. All randomness comes from the ``numpy.random.Generator``
 they are given, so a seed reproduces the trajectory.
 
 Foraging (inspired by rodent exploration; Mitchinson & Prescott's "orient" behaviour):
@@ -16,10 +17,21 @@ Foraging (inspired by rodent exploration; Mitchinson & Prescott's "orient" behav
 * ``avoid``   - whenever the chassis or the head gets close to a wall or landmark (from
   the environment's 2-D obstacle map, a stand-in for a proximity sensor), turn away.
 
-Route following: pure pursuit along the closed waypoint loop with three independent
-Ornstein-Uhlenbeck noise processes (lateral offset from the route, heading offset, speed
-factor) plus a noisy start pose. Two runs with different seeds follow the same route
-closely but never identically.
+Route following (``route``): pure pursuit along the environment's closed waypoint loop,
+facing the direction of travel.
+
+Orbit (``orbit``, ViTa-SLAM's evaluation trajectory): a circle of ``orbit_radius`` around
+``orbit_centre`` driven sideways (counter-clockwise), the camera facing outward, towards
+the walls. An environment whose ``route_facing`` is ``outward`` has its route driven the
+same way, facing away from the route's centroid.
+
+Both evaluation kinds add three independent Ornstein-Uhlenbeck noise processes - an offset
+across the path (``lateral_noise``), a heading offset (``heading_noise_deg``) and a speed
+factor (``speed_noise``) - and start from a noisy pose, so two runs with different seeds
+follow the same path closely but never see the same frame. With ``off_route_fraction`` > 0
+the final fraction of the run leaves the path, ``off_route_offset`` metres across it (to
+the left of the direction of travel; for the orbit, towards the centre), so those places are
+not revisits and true negatives occur.
 """
 
 from __future__ import annotations
@@ -32,13 +44,17 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
-from vitaplace.engine.sim.robot import BASE_RADIUS, HEAD_HALF, HEAD_POS
+from vitaplace.engine.sim.robot import BODY_RADIUS, HEAD_HALF, HEAD_POS
 
 __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "make_controller", "Route"]
 
 HEAD_REACH = HEAD_POS[0] + HEAD_HALF[0]  #: distance from the base centre to the snout [m]
 HEAD_CENTRE = HEAD_POS[0]  #: the head is modelled as a disc at this distance ahead of the base centre
 HEAD_RADIUS = math.hypot(HEAD_HALF[0], HEAD_HALF[1])  #: ... with this radius (covers the head box)
+#: where an attended object is kept while exploring it: within the whiskers' reach, which
+#: begins at the head (bases 0.54-0.60 m ahead) and ends ~0.16 m beyond
+TOUCH_DISTANCE = HEAD_CENTRE + 0.12
+TOUCH_BEARING_DEG = 25.0
 
 
 class RunSpec(BaseModel):
@@ -46,8 +62,9 @@ class RunSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    #: foraging (tactile-attention exploration, training) or route (noisy laps of the environment's route)
-    kind: Literal["foraging", "route"]
+    #: foraging (tactile-attention exploration, training), route (noisy laps of the environment's
+    #: route) or orbit (noisy laps of a circle, driven sideways with the camera facing outward)
+    kind: Literal["foraging", "route", "orbit"]
     n_samples: int = Field(gt=0, description="samples (whisk cycles) to record")
     speed: float = Field(0.15, gt=0, le=1.0, description="nominal forward speed [m/s]")
     max_turn_rate_deg: float = Field(90.0, gt=0, le=720, description="turn-rate limit [deg/s]")
@@ -63,6 +80,15 @@ class RunSpec(BaseModel):
     noise_time_constant: float = Field(3.0, gt=0, description="correlation time of the noise processes [s]")
     start_noise: float = Field(0.03, ge=0, le=0.5, description="std of the start position along/across the route [m]")
     lookahead: float = Field(0.3, gt=0.05, le=2.0, description="pure-pursuit lookahead distance [m]")
+    off_route_fraction: float = Field(
+        0.0, ge=0, le=0.9, description="final fraction of a route/orbit run driven off the path (not revisits)"
+    )
+    off_route_offset: float = Field(
+        0.6, ge=-3, le=3, description="how far off the path that part runs: left of travel, or towards the orbit's centre [m]"
+    )
+    # orbit
+    orbit_radius: float = Field(1.0, gt=0.1, le=20, description="orbit radius [m] (ViTa-SLAM: 1 m)")
+    orbit_centre: tuple[float, float] = Field((0.0, 0.0), description="orbit centre [x, y] [m]")
     # foraging behaviour
     wander_turn_deg: float = Field(20.0, ge=0, description="std of the wandering turn rate [deg/s]")
     explore_time: tuple[float, float] = Field((3.0, 8.0), description="range of the exploration bout length [s]")
@@ -106,17 +132,17 @@ def _wrap(a: float) -> float:
 
 
 class _Limiter:
-    """Rate-limits commands so the base accelerates smoothly (keeps whisker inertial noise low)."""
+    """Rate-limits each command component (so the base accelerates smoothly and whisker
+    inertial noise stays low): ``limits`` are the largest changes per second."""
 
-    def __init__(self, max_accel: float, max_yaw_accel: float) -> None:
-        self.v = 0.0
-        self.w = 0.0
-        self.a, self.aw = max_accel, max_yaw_accel
+    def __init__(self, *limits: float) -> None:
+        self.limits = np.asarray(limits, dtype=float)
+        self.state = np.zeros(len(limits))
 
-    def __call__(self, v: float, w: float, dt: float) -> tuple[float, float]:
-        self.v += float(np.clip(v - self.v, -self.a * dt, self.a * dt))
-        self.w += float(np.clip(w - self.w, -self.aw * dt, self.aw * dt))
-        return self.v, self.w
+    def __call__(self, *command: float, dt: float) -> tuple[float, ...]:
+        step = self.limits * dt
+        self.state += np.clip(np.asarray(command, dtype=float) - self.state, -step, step)
+        return tuple(float(c) for c in self.state)
 
 
 class Route:
@@ -197,19 +223,20 @@ class ForagingController:
         return (x, y, math.radians(yaw))
 
     def _escape_heading(self, pos: np.ndarray, yaw: float) -> float:
-        """The free-most of 12 headings (probed 0.4 m away), preferring small turns."""
+        """The free-most of 12 headings (probed where the head would be), preferring small turns."""
         cand = yaw + np.radians(np.arange(12) * 30.0)
-        probes = pos[None] + 0.4 * np.stack([np.cos(cand), np.sin(cand)], axis=1)
+        probes = pos[None] + HEAD_CENTRE * np.stack([np.cos(cand), np.sin(cand)], axis=1)
         clear = self.obstacles.distance_many(probes)
         turn = np.abs((np.arange(12) * 30.0 + 180.0) % 360.0 - 180.0)
-        score = np.minimum(clear, 0.35) - 1e-3 * turn  # free enough -> the smallest turn wins
+        score = np.minimum(clear, HEAD_RADIUS + 0.25) - 1e-3 * turn  # free enough -> the smallest turn wins
         return float(cand[int(np.argmax(score))])
 
     def _probe(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Obstacle distances and escape directions at the base, the snout and 0.35 m ahead."""
+        """Obstacle distances and escape directions at the base, the head and 0.15 m beyond the snout."""
         x, y, yaw = pose
         c, s_ = math.cos(yaw), math.sin(yaw)
-        pts = np.array([[x, y], [x + HEAD_CENTRE * c, y + HEAD_CENTRE * s_], [x + 0.35 * c, y + 0.35 * s_]])
+        ahead = HEAD_REACH + 0.15
+        pts = np.array([[x, y], [x + HEAD_CENTRE * c, y + HEAD_CENTRE * s_], [x + ahead * c, y + ahead * s_]])
         return self.obstacles.query(pts)
 
     def __call__(self, obs: Observation) -> tuple[float, float]:
@@ -221,7 +248,7 @@ class ForagingController:
         pos = np.array([x, y])
         wander = self._wander.step(dt) if dt > 0 else self._wander.x
         dist, grad = self._probe(obs.pose)
-        d_base, d_head = dist[0] - BASE_RADIUS, dist[1] - HEAD_RADIUS
+        d_base, d_head = dist[0] - BODY_RADIUS, dist[1] - HEAD_RADIUS
         clearance = min(d_base, d_head)
         margin = spec.avoid_margin
 
@@ -243,7 +270,7 @@ class ForagingController:
             else:
                 v = -0.05 if min(d_head, d_base) < 0.5 * margin else 0.0  # make room to turn
             w = float(np.clip(3.0 * err, -wmax, wmax))
-            return self._out(v, w, dt)
+            return self._out(v, w, dt, obs.pose)
 
         in_refractory = obs.time < self.refractory_until
         if len(obs.contacts) and not in_refractory:
@@ -268,7 +295,7 @@ class ForagingController:
                 lo, hi = spec.explore_time
                 self.until = obs.time + float(self.rng.uniform(lo, hi))
                 self.side = float(self.rng.choice([-1.0, 1.0]))
-            return self._out(v, w, dt)
+            return self._out(v, w, dt, obs.pose)
 
         if self.mode == "explore":
             if obs.time >= self.until:
@@ -278,16 +305,17 @@ class ForagingController:
                 away_dir = pos - self.target
                 self.leave_heading = math.atan2(away_dir[1], away_dir[0]) + float(self.rng.uniform(-0.8, 0.8))
             else:
-                # keep the attended point ~60 deg to one side while moving: contour following
+                # keep the attended point a little to one side, at the whiskers' reach, while
+                # moving: contour following
                 bearing = _wrap(math.atan2(*(self.target - pos)[::-1]) - yaw)
-                err = _wrap(bearing - self.side * math.radians(60))
+                err = _wrap(bearing - self.side * math.radians(TOUCH_BEARING_DEG))
                 dist = float(np.linalg.norm(self.target - pos))
-                w = 2.5 * err + 1.5 * (dist - 0.3) * self.side
+                w = 2.5 * err + 1.5 * (dist - TOUCH_DISTANCE) * self.side
                 if d_head < margin:  # snout too close: steer away from the object's side
                     w -= self.side * 8.0 * (margin - d_head)
                 w = float(np.clip(w, -wmax, wmax))
                 v = 0.5 * spec.speed * float(np.clip((d_head - 0.25 * margin) / margin, 0.0, 1.0))
-                return self._out(v, w, dt)
+                return self._out(v, w, dt, obs.pose)
 
         if self.mode == "leave":
             err = _wrap(self.leave_heading - yaw)
@@ -297,7 +325,7 @@ class ForagingController:
                 v = -0.05
             if obs.time >= self.until and abs(err) < math.radians(20):
                 self.mode = "wander"
-            return self._out(v, w, dt)
+            return self._out(v, w, dt, obs.pose)
 
         # ---- wander; steer gently away from obstacles seen ahead
         self.mode = "wander"
@@ -306,20 +334,45 @@ class ForagingController:
             g = grad[2]
             w += 1.5 * _wrap(math.atan2(g[1], g[0]) - yaw)
         v = spec.speed
-        return self._out(v, float(np.clip(w, -wmax, wmax)), dt)
+        return self._out(v, float(np.clip(w, -wmax, wmax)), dt, obs.pose)
 
-    def _out(self, v: float, w: float, dt: float) -> tuple[float, float]:
-        return self._limit(v, w, dt)
+    def _clearance(self, pose: np.ndarray, v: float, w: float, horizon: float) -> float:
+        """Smallest clearance of the body and the head after driving (v, w) for ``horizon`` s."""
+        x, y, yaw = pose
+        yaw_end = yaw + w * horizon
+        mid = yaw + 0.5 * w * horizon
+        pos = np.array([x + v * horizon * math.cos(mid), y + v * horizon * math.sin(mid)])
+        head = pos + HEAD_CENTRE * np.array([math.cos(yaw_end), math.sin(yaw_end)])
+        dist = self.obstacles.distance_many(np.stack([pos, head]))
+        return float(min(dist[0] - BODY_RADIUS, dist[1] - HEAD_RADIUS))
+
+    def _out(self, v: float, w: float, dt: float, pose: np.ndarray | None = None) -> tuple[float, float]:
+        """Rate-limited command; with ``pose``, a command that would swing the head or drive the
+        body into an obstacle within 0.5 s is replaced by the first safe one of: backing off
+        while turning, backing off straight, not turning, standing still."""
+        if pose is not None:
+            floor = min(self._clearance(pose, 0.0, 0.0, 0.0), 0.25 * self.spec.avoid_margin)
+            for cand in ((v, w), (-0.05, w), (-0.05, 0.0), (v, 0.0), (0.0, 0.0)):
+                if self._clearance(pose, *cand, horizon=0.5) >= floor:
+                    v, w = cand
+                    break
+            else:
+                v, w = 0.0, 0.0
+        return self._limit(v, w, dt=dt)
 
 
 @dataclass
 class RouteFollower:
-    """Pure pursuit along a closed route with seeded pose, heading and speed noise."""
+    """Pure pursuit along a closed route with seeded pose, heading and speed noise; facing the
+    direction of travel, or (``outward`` given) driven sideways with the camera facing away
+    from that point."""
 
     spec: RunSpec
     route: Route
     obstacles: ObstacleMap
     rng: np.random.Generator
+    off_route_from: float = math.inf  #: time [s] from which the run leaves the route
+    outward: np.ndarray | None = None  #: face away from this point instead of along the route
     s: float = 0.0
 
     def __post_init__(self) -> None:
@@ -327,8 +380,15 @@ class RouteFollower:
         self._lateral = _OU(self.rng, self.spec.lateral_noise, tau)
         self._heading = _OU(self.rng, math.radians(self.spec.heading_noise_deg), tau / 2)
         self._speed = _OU(self.rng, self.spec.speed_noise, tau)
-        self._limit = _Limiter(self.spec.max_accel, 4.0)
+        self._limit = _Limiter(self.spec.max_accel, 4.0, self.spec.max_accel)
         self._last_t: float | None = None
+        self.mode = self.spec.kind
+
+    def _facing(self, pos: np.ndarray, tangent: np.ndarray) -> float:
+        """The heading the robot should have at ``pos`` (noise-free)."""
+        if self.outward is None:
+            return math.atan2(tangent[1], tangent[0])
+        return math.atan2(pos[1] - self.outward[1], pos[0] - self.outward[0])
 
     def start_pose(self) -> tuple[float, float, float]:
         if self.spec.start is not None:
@@ -340,11 +400,11 @@ class RouteFollower:
         n = np.array([-t[1], t[0]])
         lateral = float(np.clip(self.rng.normal(0.0, self.spec.start_noise), -0.05, 0.05))
         p = p + lateral * n
-        yaw = math.atan2(t[1], t[0]) + float(self.rng.normal(0.0, math.radians(self.spec.heading_noise_deg)))
+        yaw = self._facing(p, t) + float(self.rng.normal(0.0, math.radians(self.spec.heading_noise_deg)))
         self.s = s0
         return (float(p[0]), float(p[1]), yaw)
 
-    def __call__(self, obs: Observation) -> tuple[float, float]:
+    def __call__(self, obs: Observation) -> tuple[float, float, float]:
         dt = 0.0 if self._last_t is None else obs.time - self._last_t
         self._last_t = obs.time
         spec = self.spec
@@ -361,27 +421,48 @@ class RouteFollower:
         target, tangent = self.route.point(self.s + spec.lookahead)
         normal = np.array([-tangent[1], tangent[0]])
         lateral = float(np.clip(self._lateral.x, -2 * spec.lateral_noise, 2 * spec.lateral_noise))
+        if obs.time >= self.off_route_from:
+            lateral += spec.off_route_offset
         target = target + lateral * normal
-        desired = math.atan2(target[1] - y, target[0] - x) + self._heading.x
+        course = math.atan2(target[1] - y, target[0] - x)
         # keep the body clear of obstacles (the route passes close to landmarks)
         dist, grad = self.obstacles.query(pos[None])
-        clearance = float(dist[0]) - BASE_RADIUS
+        clearance = float(dist[0]) - BODY_RADIUS
         if clearance < spec.avoid_margin:
             g = grad[0]
-            desired += 0.6 * _wrap(math.atan2(g[1], g[0]) - desired) * (1 - clearance / spec.avoid_margin)
-        err = _wrap(desired - yaw)
+            course += 0.6 * _wrap(math.atan2(g[1], g[0]) - course) * (1 - clearance / spec.avoid_margin)
+        speed = spec.speed * (1.0 + float(np.clip(self._speed.x, -0.5, 0.5)))
         wmax = math.radians(spec.max_turn_rate_deg)
-        w = float(np.clip(2.5 * err, -wmax, wmax))
-        v = spec.speed * (1.0 + float(np.clip(self._speed.x, -0.5, 0.5))) * max(0.0, math.cos(err)) ** 2
-        return self._limit(v, w, dt)
+        if self.outward is None:  # drive forward along the course
+            err = _wrap(course + self._heading.x - yaw)
+            w = float(np.clip(2.5 * err, -wmax, wmax))
+            v, side = speed * max(0.0, math.cos(err)) ** 2, 0.0
+        else:  # holonomic: move along the course whatever the heading, face outward
+            vel = speed * np.array([math.cos(course), math.sin(course)])
+            rel = pos - self.outward
+            turning = float(rel[0] * vel[1] - rel[1] * vel[0]) / max(float(rel @ rel), 0.01)  # d/dt of the bearing
+            err = _wrap(self._facing(pos, tangent) + self._heading.x - yaw)
+            w = float(np.clip(turning + 2.5 * err, -wmax, wmax))
+            v, side = speed * math.cos(course - yaw), speed * math.sin(course - yaw)
+        return self._limit(v, w, side, dt=dt)
 
 
-def make_controller(env: EnvironmentSpec, spec: RunSpec, rng: np.random.Generator):
-    """The controller for ``spec.kind`` and its start pose ``(x, y, yaw_rad)``."""
+def make_controller(env: EnvironmentSpec, spec: RunSpec, rng: np.random.Generator, sample_period: float = 0.5):
+    """The controller for ``spec.kind`` and its start pose ``(x, y, yaw_rad)``; ``sample_period``
+    [s] (one whisk cycle) places the off-route part at the end of the run."""
     if spec.kind == "foraging":
         ctrl = ForagingController(spec, env.obstacles, rng)
         return ctrl, ctrl.start_pose(env.start)
+    off_from = (spec.warmup_cycles + (1.0 - spec.off_route_fraction) * spec.n_samples) * sample_period
+    off_from = off_from if spec.off_route_fraction > 0 else math.inf
+    if spec.kind == "orbit":
+        phi = np.radians(np.arange(0.0, 360.0, 5.0))
+        centre = np.asarray(spec.orbit_centre, dtype=float)
+        circle = centre + spec.orbit_radius * np.stack([np.cos(phi), np.sin(phi)], axis=1)
+        ctrl = RouteFollower(spec, Route(circle), env.obstacles, rng, off_from, outward=centre)
+        return ctrl, ctrl.start_pose()
     if not env.route:
         raise ValueError(f"environment {env.name!r} has no route: a 'route' run needs route waypoints")
-    ctrl = RouteFollower(spec, Route(env.route), env.obstacles, rng)
+    outward = np.mean(env.route, axis=0) if env.route_facing == "outward" else None
+    ctrl = RouteFollower(spec, Route(env.route), env.obstacles, rng, off_from, outward)
     return ctrl, ctrl.start_pose()

@@ -360,6 +360,9 @@ class EnvironmentSpec(_Model):
     landmarks: list[Landmark] = Field(default_factory=list)
     #: closed loop of waypoints [x, y] for evaluation runs (driven in order, back to the first)
     route: list[XY] = Field(default_factory=list)
+    #: how route runs drive the loop: facing the direction of travel, or sideways with the
+    #: camera facing away from the loop's centroid (towards the walls)
+    route_facing: Literal["travel", "outward"] = "travel"
     #: where foraging runs start: [x, y, yaw_deg]
     start: tuple[float, float, float] = (0.0, 0.0, 0.0)
     #: flat background colour seen above the walls

@@ -1,31 +1,43 @@
-"""The WhiskEye-like robot, generated as MJCF by code.
+"""The WhiskEye robot, generated as MJCF by code, with the original robot's geometry.
+
+Geometry from the public Gazebo model of WhiskEye (repository
+aalto-intelligent-robotics/ViTa-SLAM, branch ``whiskeye_robot``: ``whiskeye_robot.sdf``
+and ``src/plugin/whisker_pose.h``), with the neck at its default pose, the head level
+and facing forward. The model file's head frame has x down, y left and z forward; a
+rotation maps it onto the base frame (x forward, y left, z up) and a lift of 0.393 m
+puts the camera at its recorded 0.315 m above the floor.
 
 Kinematic tree::
 
     base            slide x, slide y, hinge yaw (world frame) - 3 velocity actuators
-    ├─ chassis      cylinder r = 0.10 m (collides with the world, not with the whiskers)
-    └─ head         box at 0.16 m ahead of the base centre, 0.15 m above the floor
-       ├─ camera "eye" looking forward along the head's x axis
-       └─ 24 whiskers = 6 row-boards (3 per side: top/middle/bottom) x 4 columns
-          each whisker is ONE body with three hinges at its follicle:
+    ├─ chassis      cylinder r = 0.23 m, h = 0.295 m (collides with the world, not the whiskers)
+    └─ head         box around the whisker bases, 0.42-0.58 m ahead, 0.18-0.31 m high
+       ├─ camera "eye" (the model's cam0): 0.517 m ahead, 0.057 m left, 0.315 m high,
+       │  level, 90 deg horizontal field of view
+       └─ 24 whiskers = 6 boards x 4 (shafts 50, 70, 100, 160 mm, front to back);
+          each whisker is ONE body with three hinges at its base:
             w{i}_theta   protraction, driven by a position servo (whisking)
             w{i}_dx      compliant base, in-plane bending (spring + damper)
             w{i}_dy      compliant base, out-of-plane bending (spring + damper)
           and one capsule geom (the shaft) that collides with tactile world objects only.
 
-Whisker index ``i = board * 4 + column``; boards 0-2 are the left side (top, middle,
-bottom), 3-5 the right side; columns 0-3 run front to back with shaft lengths 50, 70,
-100, 160 mm (the MultiPredNet/WhiskEye ``4 x 6`` layout: ``theta[col, board]``).
+Whisker index ``i = board * 4 + column``, boards numbered as on the robot (board b here
+is the model's board b + 1): 0-1 on the right side (lower, upper), 2-3 on top (right,
+left), 4-5 on the left side (upper, lower); columns 0-3 run front to back (the
+MultiPredNet/WhiskEye ``4 x 6`` layout: ``theta[col, board]``). At theta = 0 every shaft
+points 45 deg away from straight ahead (outward, and upward for the top boards); the
+original joint limits are +-60 deg, so full protraction carries each shaft 15 deg past
+straight ahead.
 
-Sign conventions (every whisker has the same right-handed shaft frame: x along the shaft
-from base to tip, z the board normal (roughly up), y = z x x):
+Every whisker has a right-handed shaft frame: x along the shaft from base to tip, z the
+protraction axis (from the model file), y = z x x, the direction in which protraction
+sweeps the tip. Sign conventions:
 
-* ``theta`` - protraction angle relative to the rest angle; positive = swept forward
-  (rostrally) on both sides of the head.
-* ``xy[..., 0]`` - rotation of the shaft about its frame's z axis at the follicle; positive
-  bends the tip toward the frame's +y. Because the frame is not mirrored between the sides,
-  an object pushing both sides' whiskers backward gives opposite signs left and right.
-* ``xy[..., 1]`` - positive bends the tip up (toward the frame's +z).
+* ``theta`` - protraction angle; positive = swept forward (rostrally), on every board.
+* ``xy[..., 0]`` - in-plane component: for ``physical``, the rotation of the shaft about
+  its frame's z axis at the base, positive bending the tip toward +y (forward, the
+  direction of protraction); for ``penetration``, the contact normal's y component.
+* ``xy[..., 1]`` - out-of-plane component (frame z), likewise.
 """
 
 from __future__ import annotations
@@ -39,23 +51,52 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from vitaplace.engine.sim.environment import BIT_BODY, BIT_WHISKER, _fmt, _tag
 
-__all__ = ["RobotSpec", "robot_mjcf", "whisker_layout", "N_WHISKERS", "N_BOARDS", "N_COLUMNS"]
+__all__ = ["RobotSpec", "robot_mjcf", "whisker_layout", "camera_fovy_deg", "N_WHISKERS", "N_BOARDS", "N_COLUMNS"]
 
 N_BOARDS = 6
 N_COLUMNS = 4
 N_WHISKERS = N_BOARDS * N_COLUMNS
 
-BASE_RADIUS = 0.10  #: chassis radius [m]
-HEAD_POS = (0.16, 0.0, 0.15)  #: head centre in the base frame [m]
-HEAD_HALF = (0.05, 0.04, 0.03)  #: head box half-extents [m]
-FOLLICLE_Y = 0.045  #: lateral offset of the row-boards (follicles) from the head centre [m]
-#: rest angle of each column's shaft from straight ahead (outward positive) [deg]
-REST_YAW_DEG = (50.0, 60.0, 70.0, 80.0)
-#: elevation of each row-board (top, middle, bottom) [deg]
-ROW_PITCH_DEG = (20.0, 0.0, -20.0)
-ROW_Z = (0.02, 0.0, -0.02)  #: follicle height of each row in the head frame [m]
-COLUMN_X = (0.045, 0.03, 0.015, 0.0)  #: follicle position of each column along the head [m]
+BODY_RADIUS = 0.23  #: chassis radius [m]
+BODY_HEIGHT = 0.295  #: chassis height [m]
+HEAD_POS = (0.50, 0.0, 0.245)  #: head box centre in the base frame [m]
+HEAD_HALF = (0.08, 0.08, 0.065)  #: head box half-extents [m] (encloses the whisker bases' mounts)
+CAMERA_POS = (0.5166, 0.0573, 0.315)  #: the model's cam0 in the base frame [m]
+#: Per whisker at theta = 0, in the base frame: base position [m], shaft direction and
+#: protraction axis (unit vectors), from the model's whisker_pose.h (rounded to 0.1 mm).
+WHISKER_BASES = (
+    ((0.5796, -0.0666, 0.1884), (0.7050, -0.6823, -0.1936), (0.0529, -0.2183, 0.9744)),
+    ((0.5671, -0.0795, 0.1868), (0.7072, -0.6922, -0.1441), (0.0177, -0.1840, 0.9828)),
+    ((0.5543, -0.0921, 0.1854), (0.7066, -0.7016, -0.0919), (-0.0177, -0.1491, 0.9887)),
+    ((0.5411, -0.1043, 0.1841), (0.7045, -0.7084, -0.0436), (-0.0529, -0.1140, 0.9921)),
+    ((0.5890, -0.0624, 0.2354), (0.7057, -0.6828, 0.1890), (0.0529, 0.3137, 0.9481)),
+    ((0.5766, -0.0743, 0.2407), (0.7056, -0.6685, 0.2349), (0.0177, 0.3474, 0.9376)),
+    ((0.5638, -0.0858, 0.2460), (0.7069, -0.6488, 0.2818), (-0.0177, 0.3803, 0.9247)),
+    ((0.5505, -0.0969, 0.2511), (0.7045, -0.6300, 0.3267), (-0.0529, 0.4122, 0.9096)),
+    ((0.5979, -0.0272, 0.2729), (0.7061, -0.3409, 0.6206), (0.0529, 0.8981, 0.4365)),
+    ((0.5854, -0.0317, 0.2850), (0.7076, -0.2962, 0.6416), (0.0177, 0.9141, 0.4051)),
+    ((0.5726, -0.0359, 0.2970), (0.7061, -0.2528, 0.6615), (-0.0177, 0.9279, 0.3725)),
+    ((0.5594, -0.0400, 0.3085), (0.7046, -0.2051, 0.6793), (-0.0529, 0.9393, 0.3391)),
+    ((0.5979, 0.0243, 0.2737), (0.7068, 0.2052, 0.6769), (0.0529, 0.9393, -0.3391)),
+    ((0.5854, 0.0299, 0.2855), (0.7076, 0.2531, 0.6598), (0.0177, 0.9279, -0.3725)),
+    ((0.5726, 0.0355, 0.2968), (0.7062, 0.2973, 0.6425), (-0.0177, 0.9141, -0.4051)),
+    ((0.5594, 0.0409, 0.3078), (0.7046, 0.3437, 0.6208), (-0.0529, 0.8981, -0.4365)),
+    ((0.5890, 0.0608, 0.2374), (0.7034, 0.6312, 0.3269), (0.0529, 0.4122, -0.9096)),
+    ((0.5766, 0.0731, 0.2417), (0.7056, 0.6507, 0.2806), (0.0177, 0.3803, -0.9247)),
+    ((0.5638, 0.0851, 0.2455), (0.7072, 0.6668, 0.2351), (-0.0177, 0.3474, -0.9376)),
+    ((0.5505, 0.0968, 0.2493), (0.7045, 0.6846, 0.1870), (-0.0529, 0.3137, -0.9481)),
+    ((0.5797, 0.0660, 0.1907), (0.7050, 0.7077, -0.0463), (0.0529, -0.1211, -0.9912)),
+    ((0.5672, 0.0787, 0.1879), (0.7056, 0.7018, -0.0984), (0.0177, -0.1562, -0.9876)),
+    ((0.5544, 0.0910, 0.1849), (0.7078, 0.6908, -0.1475), (-0.0177, -0.1910, -0.9814)),
+    ((0.5412, 0.1029, 0.1821), (0.7045, 0.6820, -0.1964), (-0.0529, -0.2252, -0.9729)),
+)
 WHISKER_DENSITY = 1200.0  #: shaft material density [kg/m^3] (plastic)
+
+
+def camera_fovy_deg(hfov_deg: float, width: int, height: int) -> float:
+    """Vertical field of view of a pinhole camera with horizontal field ``hfov_deg`` and an
+    image of ``width`` x ``height`` pixels (square pixels)."""
+    return math.degrees(2.0 * math.atan(math.tan(math.radians(hfov_deg) / 2.0) * height / width))
 
 
 class RobotSpec(BaseModel):
@@ -65,8 +106,8 @@ class RobotSpec(BaseModel):
 
     # whisking
     whisk_hz: float = Field(2.0, gt=0, le=20, description="whisking frequency; one sample per whisk cycle [Hz]")
-    protraction_min_deg: float = Field(-30.0, ge=-80, le=80, description="full retraction angle [deg]")
-    protraction_max_deg: float = Field(45.0, ge=-80, le=80, description="full protraction angle [deg]")
+    protraction_min_deg: float = Field(-60.0, ge=-80, le=80, description="full retraction angle [deg] (WhiskEye: -60)")
+    protraction_max_deg: float = Field(60.0, ge=-80, le=80, description="full protraction angle [deg] (WhiskEye: 60)")
     whisker_lengths_mm: tuple[float, float, float, float] = Field(
         (50.0, 70.0, 100.0, 160.0), description="shaft length per column, front to back [mm]"
     )
@@ -92,10 +133,12 @@ class RobotSpec(BaseModel):
     # camera
     camera_width: int = Field(160, ge=8, le=2048, description="recorded image width [px]")
     camera_height: int = Field(120, ge=8, le=2048, description="recorded image height [px]")
-    camera_fovy_deg: float = Field(60.0, gt=5, lt=170, description="vertical field of view [deg]")
-    camera_pitch_deg: float = Field(-5.0, ge=-60, le=60, description="camera tilt, negative = down [deg]")
+    camera_hfov_deg: float = Field(
+        90.0, gt=5, lt=170, description="horizontal field of view [deg] (WhiskEye: 90); the vertical one follows from the image's aspect"
+    )
+    camera_pitch_deg: float = Field(0.0, ge=-60, le=60, description="camera tilt, negative = down [deg] (WhiskEye: level)")
     # base
-    base_mass: float = Field(4.0, gt=0, description="mass of the mobile base [kg]")
+    base_mass: float = Field(10.0, gt=0, description="mass of the mobile base [kg] (WhiskEye model: 10)")
     base_servo_hz: float = Field(10.0, gt=0, le=50, description="bandwidth of the base's pose servo [Hz]")
     # simulation
     timestep: float = Field(0.002, gt=0, le=0.01, description="physics timestep [s]")
@@ -122,6 +165,11 @@ class RobotSpec(BaseModel):
         return 1.0 / self.whisk_hz
 
     @property
+    def camera_fovy_deg(self) -> float:
+        """Vertical field of view [deg] of the recorded image."""
+        return camera_fovy_deg(self.camera_hfov_deg, self.camera_width, self.camera_height)
+
+    @property
     def steps_per_cycle(self) -> int:
         return int(round(self.whisk_period / self.timestep))
 
@@ -135,32 +183,31 @@ class RobotSpec(BaseModel):
 
 
 def whisker_layout(robot: RobotSpec) -> list[dict]:
-    """Per whisker: name, board, column, side (+1 left / -1 right), follicle position in the
-    head frame, rest orientation quaternion (w, x, y, z) and length [m]."""
+    """Per whisker: name, board, column, side (+1 left / -1 right / 0 top), base position in
+    the base frame, shaft-frame orientation quaternion (w, x, y, z) at theta = 0 and length [m]."""
     from scipy.spatial.transform import Rotation
 
     out = []
-    for board in range(N_BOARDS):
-        side = 1 if board < 3 else -1
-        row = board % 3
-        for col in range(N_COLUMNS):
-            i = board * N_COLUMNS + col
-            yaw = side * REST_YAW_DEG[col]
-            pitch = ROW_PITCH_DEG[row]
-            rot = Rotation.from_euler("ZY", [yaw, -pitch], degrees=True)  # intrinsic: yaw, then tilt up
-            qx, qy, qz, qw = rot.as_quat()
-            out.append(
-                {
-                    "index": i,
-                    "name": f"w{i:02d}",
-                    "board": board,
-                    "column": col,
-                    "side": side,
-                    "pos": (COLUMN_X[col], side * FOLLICLE_Y, ROW_Z[row]),
-                    "quat": (qw, qx, qy, qz),
-                    "length": robot.whisker_lengths_mm[col] / 1000.0,
-                }
-            )
+    for i, (pos, shaft, axis) in enumerate(WHISKER_BASES):
+        board, col = divmod(i, N_COLUMNS)
+        x = np.asarray(shaft, dtype=float)
+        x /= np.linalg.norm(x)
+        z = np.asarray(axis, dtype=float)
+        z = z - (z @ x) * x  # the model's axes are orthogonal to 0.3 %: make them exactly so
+        z /= np.linalg.norm(z)
+        qx, qy, qz, qw = Rotation.from_matrix(np.column_stack([x, np.cross(z, x), z])).as_quat()
+        out.append(
+            {
+                "index": i,
+                "name": f"w{i:02d}",
+                "board": board,
+                "column": col,
+                "side": (-1, -1, 0, 0, 1, 1)[board],
+                "pos": tuple(float(v) for v in pos),
+                "quat": (float(qw), float(qx), float(qy), float(qz)),
+                "length": robot.whisker_lengths_mm[col] / 1000.0,
+            }
+        )
     return out
 
 
@@ -193,8 +240,8 @@ def robot_mjcf(robot: RobotSpec) -> tuple[str, str]:
             {
                 "name": "chassis",
                 "type": "cylinder",
-                "size": _fmt((BASE_RADIUS, 0.05)),
-                "pos": "0 0 0.06",
+                "size": _fmt((BODY_RADIUS, BODY_HEIGHT / 2)),
+                "pos": _fmt((0.0, 0.0, BODY_HEIGHT / 2)),
                 "mass": _fmt(robot.base_mass),
                 "rgba": "0.25 0.25 0.3 1",
                 **body_geom,
@@ -206,8 +253,8 @@ def robot_mjcf(robot: RobotSpec) -> tuple[str, str]:
             {
                 "name": "neck",
                 "type": "capsule",
-                "fromto": "0.03 0 0.11 0.12 0 0.15",
-                "size": "0.015",
+                "fromto": _fmt((0.1, 0.0, BODY_HEIGHT, HEAD_POS[0] - HEAD_HALF[0], 0.0, HEAD_POS[2])),
+                "size": "0.03",
                 "mass": "0.2",
                 "rgba": "0.3 0.3 0.35 1",
                 "contype": "0",
@@ -229,7 +276,7 @@ def robot_mjcf(robot: RobotSpec) -> tuple[str, str]:
             },
         ),
     ]
-    # camera: looks along the head's +x, image right = -y, tilted by camera_pitch_deg
+    # camera: looks along the base's +x, image right = -y, tilted by camera_pitch_deg
     p = math.radians(robot.camera_pitch_deg)
     d = np.array([math.cos(p), 0.0, math.sin(p)])
     right = np.array([0.0, -1.0, 0.0])
@@ -240,7 +287,7 @@ def robot_mjcf(robot: RobotSpec) -> tuple[str, str]:
             "camera",
             {
                 "name": "eye",
-                "pos": _fmt((HEAD_HALF[0] + 0.002, 0.0, 0.015)),
+                "pos": _fmt(np.subtract(CAMERA_POS, HEAD_POS)),
                 "xyaxes": _fmt((*right, *up)),
                 "fovy": _fmt(robot.camera_fovy_deg),
             },
@@ -249,8 +296,8 @@ def robot_mjcf(robot: RobotSpec) -> tuple[str, str]:
     for w in whisker_layout(robot):
         n = w["name"]
         lines += [
-            f'    <body name="{n}" pos="{_fmt(w["pos"])}" quat="{_fmt(w["quat"])}">',
-            f'      <joint name="{n}_theta" type="hinge" axis="0 0 {-w["side"]}" armature="{_fmt(robot.servo_armature)}"/>',
+            f'    <body name="{n}" pos="{_fmt(np.subtract(w["pos"], HEAD_POS))}" quat="{_fmt(w["quat"])}">',
+            f'      <joint name="{n}_theta" type="hinge" axis="0 0 1" armature="{_fmt(robot.servo_armature)}"/>',
             f'      <joint name="{n}_dx" type="hinge" axis="0 0 1" stiffness="{_fmt(robot.spring_stiffness)}" '
             f'damping="{_fmt(robot.spring_damping)}" armature="{_fmt(robot.spring_armature)}" '
             f'limited="true" range="{_fmt((lo, hi))}"/>',

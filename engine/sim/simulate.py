@@ -82,13 +82,15 @@ class Simulator:
         """Restart at ``pose`` (x, y, yaw [rad]), time 0, whiskers fully protracted."""
         self.data = self.sim.new_data(pose)
 
-    def drive(self, v: float, w: float) -> None:
-        """Command forward speed ``v`` [m/s] and yaw rate ``w`` [rad/s] of the base."""
+    def drive(self, v: float, w: float, lateral: float = 0.0) -> None:
+        """Command forward speed ``v`` [m/s], yaw rate ``w`` [rad/s] and sideways (leftward)
+        speed ``lateral`` [m/s] of the holonomic base."""
         yaw = self.data.qpos[self.sim.base_qadr[2]]
         ctrl = self.data.ctrl
         a = self.sim.drive_act
-        ctrl[a[0]] = v * math.cos(yaw)
-        ctrl[a[1]] = v * math.sin(yaw)
+        c, s = math.cos(yaw), math.sin(yaw)
+        ctrl[a[0]] = v * c - lateral * s
+        ctrl[a[1]] = v * s + lateral * c
         ctrl[a[2]] = w
 
     def cycle(self, on_series=None) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
@@ -190,7 +192,7 @@ def simulate_run(
     wall0 = time.perf_counter()
     sim = Simulator(environment, robot)
     rng = np.random.default_rng(seed)
-    controller, start = make_controller(environment, run, rng)
+    controller, start = make_controller(environment, run, rng, robot.whisk_period)
     sim.reset(start)
 
     N, S = run.n_samples, robot.deflection_samples
@@ -226,8 +228,7 @@ def simulate_run(
             deflection=np.linalg.norm(sim.sim.xy(d), axis=1),
         )
         t0 = time.perf_counter()
-        v, w = controller(obs)
-        sim.drive(v, w)
+        sim.drive(*controller(obs))
         control_time[0] += time.perf_counter() - t0
         mode = getattr(controller, "mode", run.kind)
         mode_counts[mode] = mode_counts.get(mode, 0) + 1
@@ -266,6 +267,7 @@ def simulate_run(
         "camera": {
             "width": robot.camera_width,
             "height": robot.camera_height,
+            "hfov_deg": robot.camera_hfov_deg,
             "fovy_deg": robot.camera_fovy_deg,
             "pitch_deg": robot.camera_pitch_deg,
         },
