@@ -1,4 +1,4 @@
-"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|plugins|sweep``.
+"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|plugins|sweep|import``.
 
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
@@ -56,6 +56,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="check a scenario file without running anything")
     _add_scenario_args(p, out=False)
     sub.add_parser("plugins", help="list the feature-extractor plugins and any that failed to load")
+    p = sub.add_parser("import", help="convert a MultiPredNet/WhiskEye MATLAB folder into a run file (HDF5)")
+    p.add_argument("source", type=Path, help="folder with images.mat, theta.mat, xy.mat and poses.mat")
+    p.add_argument("--out", type=Path, required=True, help="the run file to write (e.g. runs/real/query.h5)")
+    p.add_argument("--name", help="name of the run (default: the folder's name)")
     p = sub.add_parser("sweep", help="run a scenario over several seeds (local process pool, or Ray)")
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
@@ -155,6 +159,22 @@ def _validate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _import(args: argparse.Namespace) -> int:
+    """`vitaplace import SRC --out RUN.h5`: a MultiPredNet-layout folder as a run file."""
+    from vitaplace.engine.dataset import DatasetError, write_run
+    from vitaplace.engine.matimport import import_mat
+
+    if args.out.is_dir():
+        raise DatasetError(f"--out {args.out}: is a folder; expected the run file to write (e.g. {args.out / 'run.h5'})")
+    run = import_mat(args.source, name=args.name)
+    try:
+        path = write_run(args.out, run)
+    except OSError as exc:
+        raise DatasetError(f"--out {args.out}: cannot write ({exc.strerror or exc})") from None
+    print(f"imported {len(run)} samples from {args.source} into {path}")
+    return 0
+
+
 def _sweep(args: argparse.Namespace) -> int:
     from vitaplace.engine.sweep import run_sweep
 
@@ -171,6 +191,8 @@ def main(argv: list[str] | None = None) -> int:
             return _validate(args)
         if args.command == "sweep":
             return _sweep(args)
+        if args.command == "import":
+            return _import(args)
         if args.command == "simulate" and _is_environment_file(args.scenario):
             return _simulate_environment(args)
         until = {"simulate": "simulate", "train": "fit", "evaluate": "evaluate"}.get(args.command, "report")

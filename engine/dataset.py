@@ -66,6 +66,8 @@ class Run:
     _source: Mapping[str, Any] = field(repr=False)
     _cache: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     path: Path | None = None
+    #: feature -> warning about data of this run that feature cannot use (`features.warn_once`); not stored
+    warnings: dict[str, str] = field(default_factory=dict, repr=False)
 
     @classmethod
     def from_arrays(
@@ -153,6 +155,13 @@ class Run:
     @property
     def image_shape(self) -> tuple[int, int, int]:
         return tuple(self._source["images"].shape[1:])  # type: ignore[return-value]
+
+    def validate(self) -> None:
+        """Read every numeric field once (images excepted): NaN or infinite values raise
+        `DatasetError` naming the field and the first bad sample."""
+        for key, dtype in FIELDS.items():
+            if dtype.kind == "f":
+                self._get(key)
 
     def image_batch(self, start: int, stop: int) -> np.ndarray:
         """Images ``start:stop`` without loading the whole image stack."""

@@ -8,6 +8,7 @@ to this interface, so learned, hand-crafted and third-party methods are intercha
 from __future__ import annotations
 
 import json
+import logging
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from pathlib import Path
@@ -122,3 +123,13 @@ def save_features(path: str | Path, features: Features) -> None:
 def load_features(path: str | Path) -> Features:
     with np.load(path) as data:
         return {key: data[key] for key in data.files}
+
+
+def warn_once(run: Run, feature: str, message: str) -> None:
+    """Warn, once per run and feature, that ``feature`` cannot use ``run``'s data (e.g. a
+    recorded run without contacts): logged on the ``vitaplace`` logger and kept in
+    ``run.warnings``, which the runner copies into manifest.json."""
+    if feature in run.warnings:
+        return
+    run.warnings[feature] = message
+    logging.getLogger("vitaplace").warning(message)

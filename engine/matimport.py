@@ -8,12 +8,17 @@ The layout read by the MultiPredNet scripts (github.com/TomKnowles1994/MultiPred
                  in the original loader unpacks), or N x 45 x 80 x 3
     theta.mat    variable ``theta``: 4 x 6 x N  (column x row-board x sample) [rad]
     xy.mat       variable ``xy``:    2 x 4 x 6 x N  (axis x column x row-board x sample)
-    poses.mat    N x 3 (or 3 x N) x, y, yaw - e.g. ``pose_return`` of ``extract_poses.m``
+    poses.mat    N x 3 (or 3 x N) x, y, yaw - e.g. ``pose_return`` of ``extract_poses.m``;
+                 without poses.mat, ``pose_return.mat`` (``save pose_return.mat pose_return``)
 
 When a file does not hold the expected variable name (``images``, ``theta``, ``xy``,
-``poses``/``pose``), its single non-``__dunder__`` variable is used. MATLAB v7.3 files
-(HDF5) are read with h5py. Whisker ``(column c, board r)`` becomes vitaplace whisker index
-``r * 4 + c`` (see `vitaplace.engine.sim.robot`).
+``poses``/``pose``/``pose_return``), its single non-``__dunder__`` variable is used. MATLAB
+v5 files are read with scipy, v7.3 files (HDF5) with h5py: there every array is stored with
+its dimensions reversed (MATLAB is column-major) and a cell array is an array of object
+references into ``#refs#``; both are undone here. Whisker ``(column c, board r)`` becomes
+vitaplace whisker index ``r * 4 + c`` (see `vitaplace.engine.sim.robot`).
+
+Every error is one line naming the file, the variable and what was expected.
 """
 
 from __future__ import annotations
@@ -34,23 +39,39 @@ _NAMES = {
     "xy": ("xy",),
     "poses": ("poses", "pose", "pose_return", "pose_head"),
 }
+#: What each variable must hold, for error messages.
+_EXPECTED = {
+    "images": "45 x 80 x 3 x N (H x W x 3 x N) or a 1 x N cell array of H x W x 3 frames",
+    "theta": "4 x 6 x N",
+    "xy": "2 x 4 x 6 x N",
+    "poses": "N x 3 (x, y, yaw)",
+}
+#: Where the poses may be: poses.mat, else pose_return.mat (the output of extract_poses.m).
+POSE_FILES = ("poses.mat", "pose_return.mat")
+#: Cells nested deeper than this in a v7.3 file are refused (frames are one level deep).
+_MAX_CELL_DEPTH = 4
 
 
 def load_mat_variable(path: Path, kind: str) -> np.ndarray:
     """The array stored in ``path`` for ``kind`` (one of images, theta, xy, poses)."""
+    return _load(path, kind)[1]
+
+
+def _load(path: Path, kind: str) -> tuple[str, np.ndarray]:
+    """(variable name, array) of ``kind`` in the MATLAB file ``path``."""
     if not path.is_file():
-        raise DatasetError(f"{path}: missing MATLAB file ({kind})")
+        raise DatasetError(f"{path}: missing MATLAB file; expected variable '{_NAMES[kind][0]}' ({_EXPECTED[kind]})")
     try:
         variables = _read_mat(path)
     except DatasetError:
         raise
-    except Exception as exc:  # scipy raises ValueError/TypeError/... on garbage
+    except Exception as exc:  # scipy and h5py raise ValueError/TypeError/OSError/... on garbage
         raise DatasetError(f"{path}: not a readable MATLAB .mat file: {exc}") from None
     for name in _NAMES[kind]:
         if name in variables:
-            return variables[name]
+            return name, variables[name]
     if len(variables) == 1:
-        return next(iter(variables.values()))
+        return next(iter(variables.items()))
     raise DatasetError(
         f"{path}: cannot tell which variable holds {kind}: expected one named "
         f"{' or '.join(repr(n) for n in _NAMES[kind])} or a single variable, found {sorted(variables)}"
@@ -58,12 +79,12 @@ def load_mat_variable(path: Path, kind: str) -> np.ndarray:
 
 
 def _read_mat(path: Path) -> dict[str, Any]:
+    import h5py
     import scipy.io
 
-    try:
-        data = scipy.io.loadmat(path)
-    except NotImplementedError:  # MATLAB v7.3 = HDF5
+    if h5py.is_hdf5(path):  # MATLAB v7.3
         return _read_mat73(path)
+    data = scipy.io.loadmat(path)
     return {k: v for k, v in data.items() if not k.startswith("__")}
 
 
@@ -75,32 +96,107 @@ def _read_mat73(path: Path) -> dict[str, Any]:
         for key, item in f.items():
             if key.startswith("#") or not isinstance(item, h5py.Dataset):
                 continue
-            if item.dtype == h5py.ref_dtype:
-                raise DatasetError(f"{path}: variable {key!r} is a v7.3 cell array; save it as a numeric array")
-            out[key] = np.asarray(item[()]).T  # MATLAB is column-major
+            out[key] = _mat73_value(f, item, f"{path}: variable {key!r}", 0)
     return out
 
 
-def _images(raw: np.ndarray, path: Path) -> np.ndarray:
+def _mat73_value(f: Any, item: Any, where: str, depth: int) -> np.ndarray:
+    """A v7.3 dataset as MATLAB sees it: dimensions reversed back, a cell array (object
+    references into ``#refs#``) as an object array of its elements."""
+    import h5py
+
+    if item.attrs.get("MATLAB_empty", 0):  # an empty array stores its dimensions as data
+        return np.zeros((0,))
+    data = np.asarray(item[()])
+    if h5py.check_dtype(ref=item.dtype) is None:
+        return data.T
+    if depth >= _MAX_CELL_DEPTH:
+        raise DatasetError(f"{where}: cell arrays nested more than {_MAX_CELL_DEPTH} deep")
+    cells = np.empty(data.shape, dtype=object)
+    for index, ref in np.ndenumerate(data):
+        if not ref:
+            raise DatasetError(f"{where}: cell {index[::-1]} holds a null reference")
+        cells[index] = _mat73_value(f, f[ref], where, depth + 1)
+    return cells.T
+
+
+def _check_finite(arr: np.ndarray, path: Path, name: str) -> None:
+    """DatasetError naming file and variable when a sample (last axis) holds NaN or inf."""
+    bad = ~np.isfinite(arr.reshape(-1, arr.shape[-1])).all(axis=0)
+    if bad.any():
+        raise DatasetError(
+            f"{path}: variable '{name}' has NaN or infinite values in {int(bad.sum())} sample(s) (first: sample "
+            f"{int(np.argmax(bad))}, counting from 0); expected finite values"
+        )
+
+
+def _numeric(path: Path, kind: str) -> np.ndarray:
+    """theta (4 x 6 x N) or xy (2 x 4 x 6 x N) from ``path``, checked: shape, numbers, finite."""
+    lead = {"theta": (4, 6), "xy": (2, 4, 6)}[kind]
+    name, raw = _load(path, kind)
+    try:
+        arr = np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{path}: variable '{name}' is not a numeric array; expected {_EXPECTED[kind]}") from None
+    if arr.shape == lead:  # MATLAB drops the trailing N = 1
+        arr = arr[..., None]
+    if arr.ndim != len(lead) + 1 or arr.shape[: len(lead)] != lead:
+        raise DatasetError(f"{path}: variable '{name}' has shape {arr.shape}, expected {_EXPECTED[kind]}")
+    _check_finite(arr, path, name)
+    return arr
+
+
+def _poses(folder: Path) -> tuple[Path, np.ndarray]:
+    """(file, N x 3 poses) from poses.mat, or pose_return.mat when there is no poses.mat."""
+    path = next((folder / f for f in POSE_FILES if (folder / f).is_file()), folder / POSE_FILES[0])
+    if not path.is_file():
+        raise DatasetError(
+            f"{path}: missing MATLAB file (nor is there {POSE_FILES[1]}); expected variable 'poses' or "
+            f"'pose_return' ({_EXPECTED['poses']})"
+        )
+    name, raw = _load(path, "poses")
+    try:
+        poses = np.asarray(raw, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DatasetError(f"{path}: variable '{name}' is not a numeric array; expected {_EXPECTED['poses']}") from None
+    if poses.ndim == 1 and poses.shape[0] == 3:
+        poses = poses[None]
+    if poses.ndim == 2 and poses.shape[1] != 3 and poses.shape[0] == 3:
+        poses = poses.T
+    if poses.ndim != 2 or poses.shape[1] != 3:
+        raise DatasetError(f"{path}: variable '{name}' has shape {poses.shape}, expected {_EXPECTED['poses']}")
+    _check_finite(poses.T, path, name)
+    return path, poses
+
+
+def _images(raw: np.ndarray, path: Path, name: str = "images") -> np.ndarray:
+    """N x H x W x 3 uint8 frames from the variable ``name`` of ``path``."""
+    where = f"{path}: variable '{name}'"
     arr = raw
     if arr.dtype == object:  # cell array of frames
         frames = [np.asarray(x) for x in arr.ravel()]
         if not frames or any(fr.ndim != 3 or fr.shape[2] != 3 for fr in frames):
-            raise DatasetError(f"{path}: the images cell array must hold H x W x 3 frames")
+            shapes = sorted({fr.shape for fr in frames})[:3]
+            raise DatasetError(f"{where} is a cell array of frames of shape {shapes}, expected H x W x 3 frames")
         if len({fr.shape for fr in frames}) != 1:
-            raise DatasetError(f"{path}: the frames in the images cell array differ in size")
+            raise DatasetError(f"{where}: the frames of the cell array differ in size, expected all H x W x 3 alike")
         arr = np.stack(frames)
     elif arr.ndim == 4 and arr.shape[2] == 3:
         arr = np.transpose(arr, (3, 0, 1, 2))  # H x W x 3 x N -> N x H x W x 3
     elif arr.ndim == 3 and arr.shape[2] == 3:
         arr = arr[None]  # a single frame
     elif not (arr.ndim == 4 and arr.shape[3] == 3):
-        raise DatasetError(f"{path}: images have shape {raw.shape}, expected H x W x 3 x N (e.g. 45 x 80 x 3 x N)")
+        raise DatasetError(f"{where} has shape {raw.shape}, expected {_EXPECTED['images']}")
+    if len(arr) == 0:
+        raise DatasetError(f"{where} holds no frames, expected {_EXPECTED['images']}")
     if arr.dtype.kind == "f":
-        scale = 255.0 if float(np.nanmax(arr, initial=0.0)) <= 1.0 else 1.0
+        _check_finite(np.moveaxis(arr, 0, -1), path, name)
+        scale = 255.0 if float(np.max(arr, initial=0.0)) <= 1.0 else 1.0
         arr = np.clip(np.rint(arr * scale), 0, 255)
     elif arr.dtype.kind not in "ui":
-        raise DatasetError(f"{path}: images have dtype {arr.dtype}, expected uint8 or float")
+        raise DatasetError(f"{where} has dtype {arr.dtype}, expected uint8 or float in [0, 1]")
+    elif arr.min(initial=0) < 0 or arr.max(initial=0) > 255:
+        raise DatasetError(f"{where} has values outside 0..255, expected uint8 or float in [0, 1]")
     return np.ascontiguousarray(arr, dtype=np.uint8)
 
 
@@ -114,32 +210,19 @@ def import_mat(directory: str | os.PathLike, name: str | None = None) -> Run:
     folder = Path(directory)
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder with images.mat, theta.mat, xy.mat and poses.mat")
-    images = _images(load_mat_variable(folder / "images.mat", "images"), folder / "images.mat")
+    images_name, raw = _load(folder / "images.mat", "images")
+    images = _images(raw, folder / "images.mat", images_name)
     n = images.shape[0]
+    theta = _numeric(folder / "theta.mat", "theta")
+    xy = _numeric(folder / "xy.mat", "xy")
+    poses_path, poses = _poses(folder)
 
-    theta = np.asarray(load_mat_variable(folder / "theta.mat", "theta"), dtype=np.float64)
-    if theta.ndim == 2 and theta.shape[:2] == (4, 6):
-        theta = theta[..., None]
-    if theta.ndim != 3 or theta.shape[:2] != (4, 6):
-        raise DatasetError(f"{folder / 'theta.mat'}: theta has shape {theta.shape}, expected 4 x 6 x N")
-    xy = np.asarray(load_mat_variable(folder / "xy.mat", "xy"), dtype=np.float64)
-    if xy.ndim == 3 and xy.shape[:3] == (2, 4, 6):
-        xy = xy[..., None]
-    if xy.ndim != 4 or xy.shape[:3] != (2, 4, 6):
-        raise DatasetError(f"{folder / 'xy.mat'}: xy has shape {xy.shape}, expected 2 x 4 x 6 x N")
-    poses = np.asarray(load_mat_variable(folder / "poses.mat", "poses"), dtype=np.float64)
-    if poses.ndim == 1 and poses.shape[0] == 3:
-        poses = poses[None]
-    if poses.ndim == 2 and poses.shape[1] != 3 and poses.shape[0] == 3:
-        poses = poses.T
-    if poses.ndim != 2 or poses.shape[1] != 3:
-        raise DatasetError(f"{folder / 'poses.mat'}: poses have shape {poses.shape}, expected N x 3 (x, y, yaw)")
-
-    counts = {"images.mat": n, "theta.mat": theta.shape[2], "xy.mat": xy.shape[3], "poses.mat": poses.shape[0]}
+    counts = {"images.mat": n, "theta.mat": theta.shape[2], "xy.mat": xy.shape[3], poses_path.name: poses.shape[0]}
     if len(set(counts.values())) != 1:
         raise DatasetError(
             f"{folder}: the files hold different numbers of samples: "
             + ", ".join(f"{k} {v}" for k, v in counts.items())
+            + "; expected the same N in every file"
         )
     # (col, board, N) -> (N, board, col) -> (N, 24) with index board * 4 + col
     theta_run = np.transpose(theta, (2, 1, 0)).reshape(n, 24)

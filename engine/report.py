@@ -54,7 +54,7 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         "",
     ]
     for e in scenario.evaluations:
-        arena = load_environment(e.environment).top_view()
+        arena = load_environment(e.environment).top_view() if e.environment is not None else None
         curves = {}
         sections += [f"## {e.name}", "", f"![PR curves](figures/pr-{e.name}.png)", ""]
         for method in scenario.methods:

@@ -19,6 +19,10 @@ Example::
       - {name: L, plugin: mupnet, params: {epochs: 5}}
       - {name: H, plugin: handcrafted}
     evaluation: {tau: 0.3}
+
+A run can be a recorded run file instead (`vitaplace import`; docs/DATA.md): ``train:
+{dataset: train.h5}`` and ``datasets: {query: q.h5, reference: r.h5}`` in an evaluation,
+relative to the scenario file; the pipeline then reads the file instead of simulating.
 """
 
 from __future__ import annotations
@@ -52,13 +56,51 @@ class Strict(pydantic.BaseModel):
     model_config = pydantic.ConfigDict(extra="forbid")
 
 
-class SimulatedRun(Strict):
-    """One recorded run: an environment file and how the robot moves in it."""
+class _RunSource(Strict):
+    """Where a run comes from: simulated (environment and run) or recorded (subclasses add the file keys)."""
 
-    #: environment YAML, relative to the scenario file (or a shipped name)
-    environment: Path
-    #: how the robot moves and how many samples are recorded
-    run: RunSpec
+    #: environment YAML, relative to the scenario file (or a shipped name); required for simulated runs
+    environment: Path | None = None
+    #: how the robot moves and how many samples are recorded (simulated runs only)
+    run: RunSpec | None = None
+
+    def _check_source(self, key: str, recorded: bool, environment_allowed: bool) -> None:
+        """A run is simulated (``environment`` and ``run``) or recorded (``key``), never both."""
+        if recorded:
+            extra = [k for k in ("run",) + (() if environment_allowed else ("environment",)) if getattr(self, k) is not None]
+            if extra:
+                raise ValueError(
+                    f"give either '{key}' (recorded runs) or 'environment' and 'run' (simulated), not both: remove "
+                    f"{' and '.join(repr(k) for k in extra)} (or set to null what 'extends' brings)"
+                )
+            return
+        missing = [k for k in ("environment", "run") if getattr(self, k) is None]
+        if missing:
+            raise ValueError(
+                f"{' and '.join(repr(k) for k in missing)} missing: a run is simulated ('environment' and 'run') "
+                f"or recorded ('{key}': a run file from `vitaplace import`)"
+            )
+
+
+class TrainingRun(_RunSource):
+    """Simulated (an environment file and how the robot moves in it) or recorded (a run file)."""
+
+    #: a recorded run file (HDF5, e.g. from `vitaplace import`), relative to the scenario file; instead of environment and run
+    dataset: Path | None = None
+
+    @pydantic.model_validator(mode="after")
+    def _simulated_or_recorded(self) -> TrainingRun:
+        self._check_source("dataset", self.dataset is not None, environment_allowed=False)
+        return self
+
+
+class RecordedRuns(Strict):
+    """Run files (HDF5, e.g. from `vitaplace import`), relative to the scenario file."""
+
+    #: the run whose samples query the reference run
+    query: Path
+    #: the run that is searched for each query
+    reference: Path
 
 
 def _not_only_dots(name: str) -> str:
@@ -73,18 +115,30 @@ SafeName = Annotated[str, pydantic.StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1
 MIN_EVALUATION_SAMPLES = 5
 
 
-class EvaluationRuns(SimulatedRun):
-    """An evaluation environment: two noisy runs along the same route (query and reference)."""
+class EvaluationRuns(_RunSource):
+    """An evaluation: two noisy simulated runs along the same route, or two recorded runs
+    (query and reference)."""
 
     @pydantic.field_validator("run")
     @classmethod
-    def _enough_samples(cls, run: RunSpec) -> RunSpec:
-        if run.n_samples < MIN_EVALUATION_SAMPLES:
+    def _enough_samples(cls, run: RunSpec | None) -> RunSpec | None:
+        if run is not None and run.n_samples < MIN_EVALUATION_SAMPLES:
             raise ValueError(f"an evaluation run needs at least {MIN_EVALUATION_SAMPLES} samples, got {run.n_samples}")
         return run
 
     #: label of the evaluation (E1, E2, ...), letters, digits, _ . -
     name: SafeName
+    #: recorded query and reference runs instead of simulated ones (no run key then; environment optional: it only draws the arena in the report and bounds tau)
+    datasets: RecordedRuns | None = None
+
+    @pydantic.model_validator(mode="after")
+    def _simulated_or_recorded(self) -> EvaluationRuns:
+        self._check_source("datasets", self.datasets is not None, environment_allowed=True)
+        return self
+
+    def recorded(self) -> dict[str, Path]:
+        """``{"query": file, "reference": file}`` for recorded runs, else empty."""
+        return {} if self.datasets is None else {"query": self.datasets.query, "reference": self.datasets.reference}
 
 
 class Method(Strict):
@@ -124,7 +178,7 @@ class Scenario(Strict):
     #: robot, sensors and physics for every run of the scenario
     robot: RobotSpec = RobotSpec()
     #: the run the methods are fitted on
-    train: SimulatedRun
+    train: TrainingRun
     #: evaluation environments, each with a query and a reference run
     evaluations: list[EvaluationRuns] = pydantic.Field(min_length=1)
     #: the feature extractors compared
@@ -147,16 +201,19 @@ def _load_raw(path: Path) -> dict[str, Any]:
 
 
 def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
-    """Environment paths are relative to the file that names them."""
+    """Environment and run-file paths are relative to the file that names them."""
 
-    def fix(entry: Any) -> None:
-        if isinstance(entry, dict) and isinstance(entry.get("environment"), str):
-            entry["environment"] = str((folder / entry["environment"]).resolve())
+    def fix(entry: Any, keys: tuple[str, ...] = ("environment", "dataset")) -> None:
+        for key in keys if isinstance(entry, dict) else ():
+            if isinstance(entry.get(key), str):
+                entry[key] = str((folder / entry[key]).resolve())
+        if isinstance(entry, dict) and "datasets" in keys:
+            fix(entry.get("datasets"), ("query", "reference"))
 
     fix(data.get("train"))
     evaluations = data.get("evaluations")
     for entry in evaluations if isinstance(evaluations, list) else []:  # anything else: the schema says why
-        fix(entry)
+        fix(entry, ("environment", "datasets"))
     return data
 
 
@@ -213,9 +270,17 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
         scenario = Scenario.model_validate(raw)
     except pydantic.ValidationError as exc:
         raise ScenarioError(format_validation_error(path, exc, Scenario)) from None
+    train_samples = scenario.train.run.n_samples if scenario.train.run else 0
+    if scenario.train.dataset is not None:
+        train_samples = _recorded_samples(path, "train.dataset", scenario.train.dataset, 1)
+    for i, e in enumerate(scenario.evaluations):
+        for side, file in e.recorded().items():
+            _recorded_samples(path, f"evaluations.{i}.datasets.{side}", file, MIN_EVALUATION_SAMPLES)
     for where, entry in [("train", scenario.train)] + [
         (f"evaluations.{i}", e) for i, e in enumerate(scenario.evaluations)
     ]:
+        if entry.environment is None:
+            continue
         if not entry.environment.is_file():
             raise ScenarioError(f"{path}: {where}.environment: no such file {str(entry.environment)!r}")
         env = load_environment(entry.environment)
@@ -226,8 +291,23 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
                 f"{env.name}: every pair of poses would count as a revisit"
             )
     params = _check_methods(path, scenario)
-    _check_memory(path, scenario, params, physical_memory())
+    _check_memory(path, scenario, params, physical_memory(), train_samples)
     return scenario, raw
+
+
+def _recorded_samples(path: Path, where: str, file: Path, minimum: int) -> int:
+    """The number of samples of the recorded run ``file`` (its format and shapes checked)."""
+    from vitaplace.engine.dataset import DatasetError, open_run
+
+    if not file.is_file():
+        raise ScenarioError(f"{path}: {where}: no such file {str(file)!r} (make one with `vitaplace import`)")
+    try:
+        samples = len(open_run(file))
+    except DatasetError as exc:
+        raise ScenarioError(f"{path}: {where}: {exc}") from None
+    if samples < minimum:
+        raise ScenarioError(f"{path}: {where}: an evaluation run needs at least {minimum} samples, {file} has {samples}")
+    return samples
 
 
 def physical_memory() -> int | None:
@@ -245,12 +325,16 @@ def run_bytes(run: RunSpec, robot: RobotSpec) -> int:
     return run.n_samples * (frame + series + 24 * 3 * 4 + 64)
 
 
-def _check_memory(path: Path, scenario: Scenario, methods: list[tuple[Any, Any]], limit: int | None) -> None:
+def _check_memory(
+    path: Path, scenario: Scenario, methods: list[tuple[Any, Any]], limit: int | None, train_samples: int
+) -> None:
     """Refuse, before any compute, runs and networks that cannot fit in this machine's memory."""
     if limit is None:
         return
     runs = [("train.run", scenario.train.run)] + [(f"evaluations.{i}.run", e.run) for i, e in enumerate(scenario.evaluations)]
     for where, run in runs:
+        if run is None:  # a recorded run: it fits, it was recorded
+            continue
         need = run_bytes(run, scenario.robot)
         if need > limit:
             raise ScenarioError(
@@ -259,7 +343,7 @@ def _check_memory(path: Path, scenario: Scenario, methods: list[tuple[Any, Any]]
                 f"{limit / 1e9:.3g} GB"
             )
     for i, (extractor, params) in enumerate(methods):
-        need, key, what = extractor.memory_bytes(params, scenario.train.run.n_samples)
+        need, key, what = extractor.memory_bytes(params, train_samples)
         if need > limit:
             raise ScenarioError(
                 f"{path}: methods.{i}.params.{key}: {what} need {need / 1e9:.3g} GB of memory for the method; "

@@ -49,6 +49,7 @@ SIM = ("tests/test_sim.py",)
 WORLDS = ("tests/test_worlds.py",)
 CLI = ("tests/test_cli.py",)
 MUPNET = ("tests/test_mupnet_plugin.py",)
+MATIMPORT = ("tests/test_matimport.py",)
 
 PFH_NORMALISE = "    return (counts * (100.0 / counts.sum())).astype(np.float32)"
 
@@ -126,6 +127,30 @@ MUTANTS = [
     m("sda: magnitude slope inverted", "plugins/handcrafted/sda.py",
       "        return _slope(delta[..., 1], delta[..., 0]).astype(np.float32)\n    if mode",
       "        return _slope(delta[..., 0], delta[..., 1]).astype(np.float32)\n    if mode", *HAND),
+    # --- recorded runs: `vitaplace import` and `dataset:` in scenarios
+    m("matimport: v7.3 arrays not transposed back", "engine/matimport.py",
+      "        return data.T\n", "        return data\n", *MATIMPORT),
+    m("matimport: boards and columns swapped in the whisker index", "engine/matimport.py",
+      "theta_run = np.transpose(theta, (2, 1, 0)).reshape(n, 24)",
+      "theta_run = np.transpose(theta, (2, 0, 1)).reshape(n, 24)", *MATIMPORT),
+    m("matimport: pose_return.mat not looked for", "engine/matimport.py",
+      "for f in POSE_FILES if (folder / f).is_file()", "for f in POSE_FILES[:1] if (folder / f).is_file()", *MATIMPORT),
+    m("matimport: NaN in theta or xy not named by file and variable", "engine/matimport.py",
+      "        raise DatasetError(f\"{path}: variable '{name}' has shape {arr.shape}, expected {_EXPECTED[kind]}\")\n"
+      "    _check_finite(arr, path, name)",
+      "        raise DatasetError(f\"{path}: variable '{name}' has shape {arr.shape}, expected {_EXPECTED[kind]}\")",
+      *MATIMPORT),
+    m("runner: a recorded run's key ignores its content", "engine/runner.py",
+      'content_hash("recorded", STAGE_VERSION["simulate"], checksum.digest(path))',
+      'content_hash("recorded", STAGE_VERSION["simulate"], str(path))', *MATIMPORT),
+    m("runner: recorded runs not checked before the stages", "engine/runner.py",
+      "        run.validate()\n", "", *MATIMPORT),
+    m("scenario: recorded evaluation runs not relative to the scenario file", "engine/scenario.py",
+      '            fix(entry.get("datasets"), ("query", "reference"))', "            pass", *MATIMPORT),
+    m("features: unusable-data warning repeated for every method", "engine/features.py",
+      "    if feature in run.warnings:\n        return\n", "", *MATIMPORT),
+    m("handcrafted: no warning for a run without contacts", "plugins/handcrafted/extractor.py",
+      "if n and int(run.contact_offsets[-1]) == 0:", "if n and int(run.contact_offsets[-1]) < 0:", *MATIMPORT),
     # --- the simulator
     m("sim: stored xy taken at the start of the cycle", "engine/sim/simulate.py",
       "            xy[k] = series[-1]", "            xy[k] = series[0]", *SIM),

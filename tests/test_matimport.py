@@ -72,7 +72,7 @@ def test_missing_file(tmp_path):
 def test_misshaped_theta(tmp_path):
     write_layout(tmp_path)
     scipy.io.savemat(tmp_path / "theta.mat", {"theta": np.zeros((6, 4, 7))})
-    with pytest.raises(DatasetError, match=r"theta\.mat: theta has shape \(6, 4, 7\), expected 4 x 6 x N"):
+    with pytest.raises(DatasetError, match=r"theta\.mat: variable 'theta' has shape \(6, 4, 7\), expected 4 x 6 x N"):
         import_mat(tmp_path)
 
 
@@ -93,3 +93,291 @@ def test_ambiguous_and_garbage_files(tmp_path):
         import_mat(tmp_path)
     with pytest.raises(DatasetError, match="not a folder"):
         import_mat(tmp_path / "nowhere")
+
+
+# --------------------------------------------------------------------------- `vitaplace import`
+# Every accepted layout is written here the way MATLAB writes it and imported through the CLI;
+# the expected arrays are the ones written, indexed by hand (whisker (column c, board r) -> r * 4 + c).
+
+import json  # noqa: E402
+
+import h5py  # noqa: E402
+import yaml  # noqa: E402
+
+from vitaplace.engine.cli import main  # noqa: E402
+
+N = 7
+#: MATLAB's class names of the numpy dtypes written below.
+MATLAB_CLASS = {np.dtype(np.uint8): "uint8", np.dtype(np.float64): "double"}
+
+
+def recording(seed=0, n=N):
+    """Arrays as MATLAB holds them: images 45 x 80 x 3 x N, theta 4 x 6 x N, xy 2 x 4 x 6 x N,
+    poses N x 3. Floats are float32-exact, so the float32 run file stores them unchanged."""
+    rng = np.random.default_rng(seed)
+    f32 = lambda shape: rng.normal(size=shape).astype(np.float32).astype(np.float64)  # noqa: E731
+    images = rng.integers(0, 256, size=(45, 80, 3, n), dtype=np.uint8)
+    return images, f32((4, 6, n)), f32((2, 4, 6, n)), rng.normal(size=(n, 3))
+
+
+def as_cell(images):
+    """A 1 x N MATLAB cell array of the 45 x 80 x 3 frames."""
+    cell = np.empty((1, images.shape[-1]), dtype=object)
+    for i in range(images.shape[-1]):
+        cell[0, i] = images[..., i]
+    return cell
+
+
+def savemat73(path, name, value):
+    """A MATLAB v7.3 file as MATLAB writes one: HDF5 after a 512-byte MAT header, every array
+    stored with its dimensions reversed and a ``MATLAB_class`` attribute, a cell array as an
+    array of object references to its elements under ``#refs#``."""
+    with h5py.File(path, "w", userblock_size=512) as f:
+        if value.dtype == object:
+            refs = f.create_group("#refs#")
+            table = np.empty(value.shape[::-1], dtype=h5py.ref_dtype)
+            for index, element in np.ndenumerate(value):
+                element = np.asarray(element)
+                target = refs.create_dataset(f"r{len(refs)}", data=element.T)
+                target.attrs["MATLAB_class"] = np.bytes_(MATLAB_CLASS[element.dtype])
+                table[index[::-1]] = target.ref
+            f.create_dataset(name, data=table).attrs["MATLAB_class"] = np.bytes_("cell")
+        else:
+            f.create_dataset(name, data=value.T).attrs["MATLAB_class"] = np.bytes_(MATLAB_CLASS[value.dtype])
+    header = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Jan  1 00:00:00 2024 HDF5 schema 1.00 ."
+    with open(path, "r+b") as f:
+        f.write(header.ljust(116) + b"\0" * 8 + b"\x00\x02IM")
+
+
+def save(folder, file, name, value, version):
+    if version == "v7.3":
+        savemat73(folder / file, name, value)
+    else:
+        scipy.io.savemat(folder / file, {name: value})
+
+
+def write_recording(folder, version="v5", cell=False, pose_return=False, seed=0, n=N):
+    folder.mkdir(parents=True, exist_ok=True)
+    images, theta, xy, poses = recording(seed, n)
+    save(folder, "images.mat", "images", as_cell(images) if cell else images, version)
+    save(folder, "theta.mat", "theta", theta, version)
+    save(folder, "xy.mat", "xy", xy, version)
+    if pose_return:  # extract_poses.m's output saved as it is named
+        save(folder, "pose_return.mat", "pose_return", poses, version)
+    else:
+        save(folder, "poses.mat", "poses", poses, version)
+    return images, theta, xy, poses
+
+
+LAYOUTS = [(v, cell, pose_return) for v in ("v5", "v7.3") for cell in (False, True) for pose_return in (False, True)]
+
+
+@pytest.mark.parametrize("version,cell,pose_return", LAYOUTS)
+def test_import_every_layout_through_the_cli(tmp_path, capsys, version, cell, pose_return):
+    images, theta, xy, poses = write_recording(tmp_path / "rec", version, cell, pose_return)
+    out = tmp_path / "runs" / "real.h5"
+    assert main(["import", str(tmp_path / "rec"), "--out", str(out)]) == 0
+    assert f"imported {N} samples" in capsys.readouterr().out
+    assert [p.name for p in out.parent.iterdir()] == ["real.h5"]  # no temporary left behind
+    run = open_run(out)
+    assert len(run) == N and run.name == "rec"
+    for i in range(N):
+        assert np.array_equal(run.images[i], images[:, :, :, i])
+        for r in range(6):
+            for c in range(4):
+                assert run.theta[i, r * 4 + c] == theta[c, r, i]
+                assert run.xy[i, r * 4 + c, 0] == xy[0, c, r, i] and run.xy[i, r * 4 + c, 1] == xy[1, c, r, i]
+    assert np.array_equal(run.poses, poses)
+    assert run.deflection.shape == (N, 1, 24, 2) and np.array_equal(run.deflection[:, 0], run.xy)
+    assert run.contact_offsets.tolist() == [0] * (N + 1)
+
+
+def test_v73_single_frame_and_float_images(tmp_path):
+    """MATLAB drops a trailing singleton dimension (N = 1); double images in [0, 1] scale to 0..255."""
+    folder = tmp_path / "one"
+    images, theta, xy, poses = write_recording(folder, "v7.3", n=1)
+    savemat73(folder / "images.mat", "images", images[..., 0] / 255.0)
+    savemat73(folder / "theta.mat", "theta", theta[..., 0])
+    savemat73(folder / "xy.mat", "xy", xy[..., 0])
+    run = import_mat(folder)
+    assert np.array_equal(run.images[0], images[..., 0])
+    assert run.theta[0, 5 * 4 + 3] == theta[3, 5, 0] and run.xy[0, 1 * 4 + 2, 1] == xy[1, 2, 1, 0]
+
+
+def _nan_theta(folder):
+    _, theta, _, _ = recording()
+    theta[1, 2, 4] = np.nan
+    scipy.io.savemat(folder / "theta.mat", {"theta": theta})
+
+
+def _cell_of_wrong_frames(folder):
+    cell = as_cell(recording()[0])
+    cell[0, 3] = np.zeros((45, 80), dtype=np.uint8)
+    savemat73(folder / "images.mat", "images", cell)
+
+
+def _nan_in_float_images(folder):
+    images = recording()[0] / 255.0
+    images[0, 0, 0, 5] = np.inf
+    savemat73(folder / "images.mat", "images", images)
+
+
+BAD_RECORDINGS = {
+    "missing theta": (lambda f: (f / "theta.mat").unlink(), r"theta\.mat: missing MATLAB file; expected variable 'theta' \(4 x 6 x N\)"),
+    "no poses file": (lambda f: (f / "poses.mat").unlink(), r"poses\.mat: missing MATLAB file \(nor is there pose_return\.mat\)"),
+    "xy boards and columns swapped": (
+        lambda f: scipy.io.savemat(f / "xy.mat", {"xy": np.zeros((2, 6, 4, N))}),
+        r"xy\.mat: variable 'xy' has shape \(2, 6, 4, 7\), expected 2 x 4 x 6 x N",
+    ),
+    "theta as a cell": (
+        lambda f: savemat73(f / "theta.mat", "theta", as_cell(np.zeros((4, 6, 1, 2)))),
+        r"theta\.mat: variable 'theta' is not a numeric array; expected 4 x 6 x N",
+    ),
+    "pose_return N x 2": (
+        lambda f: ((f / "poses.mat").unlink(), scipy.io.savemat(f / "pose_return.mat", {"pose_return": np.zeros((N, 2))})),
+        r"pose_return\.mat: variable 'pose_return' has shape \(7, 2\), expected N x 3",
+    ),
+    "fewer poses": (
+        lambda f: scipy.io.savemat(f / "poses.mat", {"poses": np.zeros((5, 3))}),
+        r"different numbers of samples: images\.mat 7, theta\.mat 7, xy\.mat 7, poses\.mat 5",
+    ),
+    "NaN in theta": (_nan_theta, r"theta\.mat: variable 'theta' has NaN or infinite values in 1 sample\(s\) \(first: sample 4"),
+    "inf in images": (_nan_in_float_images, r"images\.mat: variable 'images' has NaN or infinite values .*first: sample 5"),
+    "v7.3 cell with a 2-D frame": (_cell_of_wrong_frames, r"images\.mat: variable 'images' is a cell array of frames of shape"),
+    "garbage": (lambda f: (f / "xy.mat").write_bytes(b"\x89HDF\r\n\x1a\nnot really"), r"xy\.mat: not a readable MATLAB"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_RECORDINGS))
+def test_bad_recordings_are_one_line_exit_2(tmp_path, capsys, case):
+    folder = tmp_path / "rec"
+    write_recording(folder)
+    BAD_RECORDINGS[case][0](folder)
+    out = tmp_path / "out" / "run.h5"
+    assert main(["import", str(folder), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    import re
+
+    assert lines[0].startswith(f"vitaplace: error: {folder}") and re.search(BAD_RECORDINGS[case][1], lines[0]), lines[0]
+    assert not out.exists()
+
+
+def test_import_into_a_folder_is_one_line(tmp_path, capsys):
+    write_recording(tmp_path / "rec")
+    assert main(["import", str(tmp_path / "rec"), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"vitaplace: error: --out {tmp_path}: is a folder") and "\n" not in err
+
+
+# --------------------------------------------------------------------------- scenarios with recorded runs
+
+
+def import_run(tmp_path, name, poses, seed):
+    """Import a v5 recording with the given poses into ``tmp_path/<name>.h5``."""
+    folder = tmp_path / "mat" / name
+    write_recording(folder, seed=seed, n=len(poses))
+    scipy.io.savemat(folder / "poses.mat", {"poses": poses})
+    assert main(["import", str(folder), "--out", str(tmp_path / f"{name}.h5")]) == 0
+    return tmp_path / f"{name}.h5"
+
+
+def recorded_scenario(tmp_path):
+    """Train, query and reference all imported; two hand-crafted methods read the same runs."""
+    route = np.stack([np.linspace(0, 2, 8), np.zeros(8), np.zeros(8)], axis=1)
+    import_run(tmp_path, "train", route, 1)
+    import_run(tmp_path, "ref", route, 2)
+    import_run(tmp_path, "query", route + [0.05, 0.0, 0.0], 3)
+    small = {"grid": [6, 8], "max_shift": 1}
+    data = {
+        "name": "recorded",
+        "train": {"dataset": "train.h5"},
+        "evaluations": [{"name": "E1", "datasets": {"query": "query.h5", "reference": "ref.h5"}}],
+        "methods": [{"name": "H", "plugin": "handcrafted", "params": small},
+                    {"name": "H2", "plugin": "handcrafted", "params": {**small, "use_visual": False}}],
+    }
+    path = tmp_path / "scenario.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def test_a_scenario_runs_end_to_end_on_imported_runs(tmp_path, capsys):
+    scenario = recorded_scenario(tmp_path)
+    out = tmp_path / "out"
+    assert main(["run", str(scenario), "--out", str(out), "--no-progress"]) == 0
+    rows = json.loads((out / "results.json").read_text())
+    assert {(r["environment"], r["method"]) for r in rows} == {("E1", "H"), ("E1", "H2")}
+    assert all(r["n_queries"] == 8 for r in rows)
+    manifest = json.loads((out / "manifest.json").read_text())
+    simulate = {r["item"]: r for r in manifest["stages"] if r["stage"] == "simulate"}
+    assert {item: r["status"] for item, r in simulate.items()} == dict.fromkeys(("train", "E1/query", "E1/reference"), "recorded")
+    assert simulate["E1/query"]["output"] == str(tmp_path / "query.h5")
+    assert not (out / "cache" / "datasets").exists()  # nothing simulated
+    assert manifest["recorded"]["E1/reference"] == str(tmp_path / "ref.h5") and manifest["run_seeds"] == {}
+    # each run without contacts and with one deflection sample warns once per feature, whatever the methods
+    log_text = (out / "log.txt").read_text()
+    for label in ("train", "E1/query", "E1/reference"):
+        assert log_text.count(f"run {label} has no contacts: PFH features are all zero") == 1, log_text
+        assert log_text.count(f"run {label} has a single deflection sample per whisk cycle: SDA features") == 1
+    assert manifest["warnings"]["E1/query"]["PFH"] == "run E1/query has no contacts: PFH features are all zero"
+    assert "H" in (out / "report.md").read_text()
+
+
+def test_a_changed_run_file_reruns_what_depends_on_it(tmp_path):
+    scenario = recorded_scenario(tmp_path)
+    out = tmp_path / "out"
+
+    def statuses() -> dict:
+        assert main(["evaluate", str(scenario), "--out", str(out), "--no-progress"]) == 0
+        return {(r["stage"], r["item"]): r["status"] for r in json.loads((out / "manifest.json").read_text())["stages"]}
+
+    statuses()
+    assert {s for (stage, _), s in statuses().items() if stage != "simulate"} == {"cached"}
+    route = np.stack([np.linspace(0, 2, 8), np.zeros(8), np.zeros(8)], axis=1)
+    import_run(tmp_path, "query", route + [0.05, 0.0, 0.0], 4)  # same path, other content
+    ran = {key for key, s in statuses().items() if s == "ran"}
+    assert ran == {("transform", "H E1/query"), ("transform", "H2 E1/query"),
+                   ("evaluate", "E1 H query-to-reference"), ("evaluate", "E1 H2 query-to-reference")}, ran
+
+
+def _nan_in_run_file(tmp_path, data):
+    with h5py.File(tmp_path / "query.h5", "r+") as f:
+        f["poses"][2, 0] = np.nan
+
+
+BAD_RECORDED_SCENARIOS = {
+    "missing dataset": (lambda t, d: d["train"].update(dataset="nope.h5"), r"train\.dataset: no such file .*nope\.h5.*vitaplace import"),
+    "dataset and run": (
+        lambda t, d: d["train"].update(run={"kind": "foraging", "n_samples": 5}),
+        r"train: give either 'dataset' \(recorded runs\) or 'environment' and 'run' \(simulated\), not both: remove 'run'",
+    ),
+    "neither": (lambda t, d: d["evaluations"][0].pop("datasets"), r"evaluations\.0: 'environment' and 'run' missing"),
+    "a v7.3 .mat file, not a run file": (
+        lambda t, d: (savemat73(t / "theta.mat", "theta", np.zeros((4, 6, 7))),
+                      d["evaluations"][0]["datasets"].update(query="theta.mat")),
+        r"evaluations\.0\.datasets\.query: .*theta\.mat: not a vitaplace dataset",
+    ),
+    "too few samples": (
+        lambda t, d: d["evaluations"][0]["datasets"].update(reference=str(import_run(t, "short", np.zeros((4, 3)), 5))),
+        r"evaluations\.0\.datasets\.reference: an evaluation run needs at least 5 samples, .*short\.h5 has 4",
+    ),
+    "NaN in a run file": (_nan_in_run_file, r"query\.h5: field 'poses' has NaN or infinite values \(1 rows, first at index 2\)"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_RECORDED_SCENARIOS))
+def test_bad_recorded_runs_in_a_scenario_are_one_line(tmp_path, capsys, case):
+    path = recorded_scenario(tmp_path)
+    data = yaml.safe_load(path.read_text())
+    BAD_RECORDED_SCENARIOS[case][0](tmp_path, data)
+    path.write_text(yaml.safe_dump(data))
+    capsys.readouterr()
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert "Traceback" not in err and last.startswith("vitaplace: error: "), err
+    import re
+
+    assert re.search(BAD_RECORDED_SCENARIOS[case][1], last), last
+    assert not (tmp_path / "out" / "cache" / "models").exists()  # refused before any method was fitted

@@ -25,7 +25,7 @@ from scipy.spatial.distance import cdist
 
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.dataset import Run
-from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
+from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features, warn_once
 
 from .pfh import pfh_batch
 from .profile import TemplateMaker, template_distance
@@ -130,6 +130,11 @@ class HandcraftedExtractor(FeatureExtractor):
                 profile[start:stop] = maker(run.image_batch(start, stop))
             features["profile"] = profile
         if p.use_tactile:
+            if n and int(run.contact_offsets[-1]) == 0:
+                warn_once(run, "PFH", f"run {run.name} has no contacts: PFH features are all zero")
+            if n and run.deflection.shape[1] < 2:
+                warn_once(run, "SDA", f"run {run.name} has a single deflection sample per whisk cycle: "
+                          "SDA features are all zero")
             features["pfh"] = pfh_batch(run, p.pfh_bins, p.max_points)
             features["sda"] = sda(run.deflection, p.sda_threshold, p.sda_mode)
         return features
