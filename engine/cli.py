@@ -1,7 +1,8 @@
-"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|plugins|sweep|import``.
+"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|plugins|sweep|aggregate|import``.
 
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
+A sweep in which some seeds failed writes the summary of the others and exits with 1.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from vitaplace.engine.errors import UserError
 from vitaplace.engine.outdir import OutputLock, remove_stale_temporaries, writable_dir
 
 EXIT_USER_ERROR = 2
+EXIT_SEEDS_FAILED = 1
 
 
 def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True) -> None:
@@ -63,8 +65,23 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("sweep", help="run a scenario over several seeds (local process pool, or Ray)")
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
-    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
-    p.add_argument("--ray", metavar="ADDRESS", help="run on a Ray cluster at ADDRESS ('auto' for a local one)")
+    p.add_argument(
+        "--workers", type=int, default=None, help="local worker processes (default: CPU count / --cpus-per-job)"
+    )
+    p.add_argument(
+        "--ray", metavar="ADDRESS",
+        help="run on Ray: 'auto' joins a running cluster or starts a local one; else the cluster's address",
+    )
+    p.add_argument("--cpus-per-job", type=float, default=1, metavar="N", help="CPUs each seed reserves (default 1)")
+    p.add_argument(
+        "--gpus-per-job", type=float, default=0, metavar="N",
+        help="GPUs each seed reserves on Ray (default 0); > 0 also selects the GPU backend of methods that have one",
+    )
+    p = sub.add_parser(
+        "aggregate", help="summarise run folders of one scenario made by independent jobs (e.g. a SLURM array)"
+    )
+    p.add_argument("folders", nargs="+", type=Path, metavar="DIR", help="run folders (vitaplace run --set seed=N --out DIR)")
+    p.add_argument("--out", type=Path, help="where the summary goes (default: the folders' common parent)")
     return parser
 
 
@@ -176,9 +193,38 @@ def _import(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from vitaplace.engine.sweep import run_sweep
+    from vitaplace.engine.summary import cell
+    from vitaplace.engine.sweep import load_sweep_scenario, run_sweep
 
-    run_sweep(args.scenario, args.overrides, args.seeds, args.out, args.workers, args.ray, not args.no_progress)
+    if args.cpus_per_job <= 0 or args.gpus_per_job < 0:
+        raise UserError("--cpus-per-job must be > 0 and --gpus-per-job >= 0")
+    scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
+    out = writable_dir(args.out or Path("runs") / f"{scenario.name}-sweep")
+    log = logging.getLogger("vitaplace")
+    with OutputLock(out):
+        _setup_logging(out)
+        for path in remove_stale_temporaries(out):
+            log.info("removed %s, left by an interrupted run", path)
+        outcome = run_sweep(
+            scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress, args.force,
+            args.cpus_per_job, args.gpus_per_job,
+        )
+    for row in outcome.summary:
+        if row["metric"] == "max_f1":
+            log.info("%-6s %-12s %-20s max F1 %s", row["environment"], row["method"], row["direction"], cell(row))
+    if outcome.failed:
+        log.error("%d of %d seeds failed (%s); summary of the others in %s", len(outcome.failed), len(args.seeds),
+                  " ".join(map(str, sorted(outcome.failed))), out / "sweep.md")
+        return EXIT_SEEDS_FAILED
+    log.info("summary of %d seeds in %s", len(args.seeds), out / "sweep.md")
+    return 0
+
+
+def _aggregate(args: argparse.Namespace) -> int:
+    from vitaplace.engine.aggregate import aggregate_runs
+
+    out, record = aggregate_runs(args.folders, args.out)
+    print(f"summary of {len(record['seeds'])} seeds in {out / 'sweep.md'}")
     return 0
 
 
@@ -191,6 +237,8 @@ def main(argv: list[str] | None = None) -> int:
             return _validate(args)
         if args.command == "sweep":
             return _sweep(args)
+        if args.command == "aggregate":
+            return _aggregate(args)
         if args.command == "import":
             return _import(args)
         if args.command == "simulate" and _is_environment_file(args.scenario):

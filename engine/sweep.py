@@ -1,101 +1,362 @@
 """Sweeps: one scenario over many seeds, on a local process pool or a Ray cluster.
 
-Each seed is one job running the whole pipeline into ``OUT/seed-<s>``; all jobs share the
-stage cache ``OUT/cache`` (keys are content hashes, writes are atomic renames), so stages
-common to several jobs are computed once when jobs run one after another and resumed
-after an interruption. ``sweep.csv`` aggregates max-F1 and AUC (mean and standard
-deviation over seeds) per environment x method x direction.
+The driver validates the scenario once and sends each job everything it needs as data: the
+resolved scenario with the job's seed set, the resolved content of every environment file
+it names, and absolute paths. A job writes its environments into ``OUT/seed-<s>/environments``
+and runs the whole pipeline into ``OUT/seed-<s>``; all jobs share the stage cache
+``OUT/cache`` (content-hash keys, atomic renames). A job that fails leaves its traceback in
+``OUT/seed-<s>/error.txt``; the driver reports it in one line and goes on with the others.
+
+When every job has ended, the summary of the seeds that succeeded is written
+(`vitaplace.engine.summary`). `run_sweep` returns which seeds failed; the CLI exits 1 when
+any did (2 stays for user errors found before any job starts).
+
+``OUT`` must be storage every worker shares for the seed folders and the cache to land in
+one place: each job reports its host name and whether it sees a marker file the driver
+wrote into ``OUT``; the driver warns once when one does not.
 """
 
 from __future__ import annotations
 
-import csv
-import io
-import json
+import copy
 import logging
 import multiprocessing
-from collections import defaultdict
-from collections.abc import Sequence
-from concurrent.futures import ProcessPoolExecutor
+import os
+import re
+import socket
+import time
+import traceback
+import typing
+import uuid
+from collections.abc import Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+import yaml
 
 from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.errors import UserError
+from vitaplace.engine.scenario import Scenario, ScenarioError, load_scenario
 
 log = logging.getLogger("vitaplace")
 
+ANSI = re.compile(r"\x1b\[[0-9;?]*[ -/]*[@-~]")
+#: the longest failure message a one-line report quotes
+MAX_MESSAGE = 300
 
-def run_seed(scenario: str, overrides: Sequence[str], seed: int, out: str, progress: bool) -> list[dict[str, Any]]:
-    """One sweep job: the full pipeline for ``seed``; returns its result rows tagged with the seed."""
+
+@dataclass(frozen=True)
+class SeedJob:
+    """Everything one seed needs, as data: no path in it is relative or read from the driver."""
+
+    #: the validated, resolved scenario mapping with this job's seed
+    scenario: dict[str, Any]
+    #: environment as named in ``scenario`` -> its resolved specification (extends merged)
+    environments: dict[str, dict[str, Any]]
+    seed: int
+    #: the sweep's output folder, absolute
+    out: str
+    force: tuple[str, ...] = ()
+    progress: bool = False
+    #: a file the driver wrote into ``out``; a job that cannot see it is on other storage
+    marker: str = ""
+
+
+class SeedFailed(Exception):
+    """A job's exception, reduced to its type name and message (always picklable)."""
+
+    def __init__(self, kind: str, message: str) -> None:
+        super().__init__(kind, message)
+        self.kind, self.message = kind, message
+
+    def __str__(self) -> str:
+        return f"{self.kind}: {self.message}"
+
+
+@dataclass
+class SweepOutcome:
+    """What a sweep did: result rows of the seeds that succeeded, one line per failed seed."""
+
+    out: Path
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    failed: dict[int, str] = field(default_factory=dict)
+    #: hosts whose jobs could not see the driver's ``OUT``
+    unshared: list[str] = field(default_factory=list)
+    #: the summary rows written to sweep.csv
+    summary: list[dict[str, Any]] = field(default_factory=list)
+
+
+def one_line(text: str) -> str:
+    """``text`` without ANSI colour codes, its whitespace collapsed, capped at `MAX_MESSAGE`."""
+    text = " ".join(ANSI.sub("", text).split())
+    return text if len(text) <= MAX_MESSAGE else text[: MAX_MESSAGE - 3] + "..."
+
+
+def describe_failure(exc: BaseException) -> str:
+    """``Type: message`` of a job's failure, without any remote traceback."""
+    cause = getattr(exc, "cause", None)  # Ray wraps the task's exception in a RayTaskError
+    if isinstance(cause, BaseException):
+        exc = cause
+    if isinstance(exc, SeedFailed):
+        return one_line(str(exc))
+    lines = [line for line in ANSI.sub("", str(exc)).splitlines() if line.strip()]
+    return one_line(f"{type(exc).__name__}: {lines[0] if lines else ''}")
+
+
+def _localise(job: SeedJob, folder: Path) -> dict[str, Any]:
+    """The job's scenario with each environment written into ``folder/environments``."""
+    resolved = copy.deepcopy(job.scenario)
+    files: dict[str, Path] = {}
+    for named, spec in job.environments.items():
+        stem = base = Path(named).stem or "environment"
+        k = 2
+        while any(p.stem == stem for p in files.values()):
+            stem, k = f"{base}-{k}", k + 1
+        files[named] = folder / "environments" / f"{stem}.yaml"
+        write_text_atomic(files[named], yaml.safe_dump(spec, sort_keys=False))
+    for entry in _runs(resolved):
+        if isinstance(entry.get("environment"), str):
+            entry["environment"] = str(files[entry["environment"]])
+    return resolved
+
+
+def _runs(resolved: dict[str, Any]) -> list[dict[str, Any]]:
+    """The train and evaluation entries of a resolved scenario mapping."""
+    return [entry for entry in [resolved.get("train"), *resolved.get("evaluations", [])] if isinstance(entry, dict)]
+
+
+def _absolute_files(resolved: dict[str, Any]) -> dict[str, Any]:
+    """``resolved`` with recorded-run file paths (``dataset``, ``datasets``) made absolute:
+    workers read those files where they are, so they must be on storage the workers share."""
+    resolved = copy.deepcopy(resolved)
+    for entry in _runs(resolved):
+        holders = [(entry, "dataset")]
+        if isinstance(entry.get("datasets"), dict):
+            holders += [(entry["datasets"], "query"), (entry["datasets"], "reference")]
+        for holder, key in holders:
+            if isinstance(holder.get(key), str):
+                holder[key] = os.path.abspath(holder[key])
+    return resolved
+
+
+def run_seed(job: SeedJob) -> dict[str, Any]:
+    """One sweep job (runs in a worker): the whole pipeline for ``job.seed``. Returns its
+    result rows tagged with the seed, the host and whether it saw the driver's marker;
+    raises SeedFailed, with the traceback in ``OUT/seed-<s>/error.txt``."""
     from vitaplace.engine.runner import Pipeline
-    from vitaplace.engine.scenario import load_scenario
 
-    loaded, resolved = load_scenario(scenario, [*overrides, f"seed={seed}"])
-    pipeline = Pipeline(loaded, resolved, Path(out) / f"seed-{seed}", progress=progress, workers=1,
-                        cache=Path(out) / "cache")
-    return [{"seed": seed, **row} for row in pipeline.run()]
+    host, sees_out = socket.gethostname(), not job.marker or Path(job.marker).exists()
+    if not sees_out:
+        log.warning("seed %d on %s: %s is not visible here: --out is not on shared storage", job.seed, host, job.out)
+    folder = Path(job.out) / f"seed-{job.seed}"
+    handler = None
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "error.txt").unlink(missing_ok=True)  # from an earlier attempt
+        handler = logging.FileHandler(folder / "log.txt")
+        handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
+        resolved = _localise(job, folder)
+        scenario = Scenario.model_validate(resolved)
+        pipeline = Pipeline(scenario, resolved, folder, force=job.force, progress=job.progress, workers=1,
+                            cache=Path(job.out) / "cache")
+        rows = [{"seed": job.seed, **row} for row in pipeline.run()]
+    except Exception as exc:
+        try:
+            write_text_atomic(folder / "error.txt", traceback.format_exc())
+        except OSError:
+            pass
+        raise SeedFailed(type(exc).__name__, one_line(str(exc))) from None
+    finally:
+        if handler is not None:
+            log.removeHandler(handler)
+            handler.close()
+    return {"seed": job.seed, "rows": rows, "host": host, "sees_out": sees_out}
 
 
-def aggregate(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Mean and standard deviation of max-F1 and AUC over seeds, per environment x method x direction."""
-    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = defaultdict(list)
-    for row in rows:
-        groups[(row["environment"], row["method"], row["direction"])].append(row)
-    table = []
-    for (env, method, direction), items in sorted(groups.items()):
-        f1 = np.array([r["max_f1"] for r in items])
-        auc = np.array([r["auc"] for r in items])
-        table.append({
-            "environment": env, "method": method, "direction": direction, "seeds": len(items),
-            "max_f1_mean": float(f1.mean()), "max_f1_std": float(f1.std(ddof=1)) if len(f1) > 1 else 0.0,
-            "auc_mean": float(auc.mean()), "auc_std": float(auc.std(ddof=1)) if len(auc) > 1 else 0.0,
-        })
-    return table
+def gpu_overrides(scenario: Scenario) -> list[str]:
+    """``--set`` assignments giving every method whose extractor has a ``backend`` parameter
+    its GPU backend (``cuda``, else ``warp``), unless the scenario chose one other than auto."""
+    from vitaplace.engine.plugins import discover
+
+    registry = discover()
+    overrides = []
+    for i, method in enumerate(scenario.methods):
+        backend = registry.get(method.plugin).Params.model_fields.get("backend")
+        choices = typing.get_args(backend.annotation) if backend is not None else ()
+        gpu = next((c for c in ("cuda", "warp") if c in choices), None)
+        if gpu is None:
+            continue
+        if method.params.get("backend", "auto") != "auto":
+            log.info("method %s keeps its backend %s (--gpus-per-job)", method.name, method.params["backend"])
+            continue
+        overrides.append(f"methods.{i}.params.backend={gpu}")
+    return overrides
+
+
+def load_sweep_scenario(name: str, overrides: Sequence[str], gpus_per_job: float = 0) -> tuple[Scenario, dict[str, Any]]:
+    """The validated scenario and its resolved mapping; with GPUs per job, methods that have
+    a backend parameter are set to their GPU backend (`gpu_overrides`)."""
+    scenario, resolved = load_scenario(name, overrides)
+    if gpus_per_job > 0:
+        extra = gpu_overrides(scenario)
+        if extra:
+            log.info("GPU jobs: %s", " ".join(f"--set {e}" for e in extra))
+            scenario, resolved = load_scenario(name, [*overrides, *extra])
+    return scenario, resolved
+
+
+def seed_jobs(
+    scenario: Scenario, resolved: dict[str, Any], seeds: Sequence[int], out: Path, force: Sequence[str] = (),
+    progress: bool = False, marker: str = "",
+) -> list[SeedJob]:
+    """One job per seed; each seed is validated here, so a bad one is a user error up front."""
+    from vitaplace.engine.runner import STAGES
+    from vitaplace.engine.sim.environment import load_environment
+
+    unknown = set(force) - set(STAGES)
+    if unknown:
+        raise ScenarioError(f"--force: unknown stage(s) {', '.join(sorted(unknown))}; stages: {', '.join(STAGES)}")
+    if len(set(seeds)) != len(seeds):
+        raise ScenarioError(f"--seeds: each seed once, got {' '.join(map(str, seeds))}")
+    named = [entry["environment"] for entry in _runs(resolved) if isinstance(entry.get("environment"), str)]
+    environments = {n: load_environment(n).model_dump(mode="json") for n in named}
+    resolved = _absolute_files(resolved)
+    jobs = []
+    for seed in seeds:
+        data = {**copy.deepcopy(resolved), "seed": seed}
+        try:
+            Scenario.model_validate(data)
+        except Exception:
+            raise ScenarioError(f"--seeds: {seed} is not a valid scenario seed (0 <= seed < 2**32)") from None
+        jobs.append(SeedJob(data, environments, seed, str(out), tuple(force), progress, marker))
+    return jobs
+
+
+def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
+    """Run ``jobs`` on a process pool; yield (job, result, failure) as each one ends."""
+    from vitaplace.engine.runner import die_with_parent
+
+    context = multiprocessing.get_context("spawn")  # no fork: GL and Warp state are not fork-safe
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=die_with_parent)
+    try:
+        pending = {pool.submit(run_seed, job): job for job in jobs}
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                job = pending.pop(future)
+                try:
+                    yield job, future.result(), None
+                except Exception as exc:
+                    yield job, None, describe_failure(exc)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)  # interrupted: do not wait for running seeds
+        raise
+    pool.shutdown()
+
+
+def connect_ray(address: str) -> Any:
+    """The ``ray`` module, connected: ``auto`` joins a running cluster or starts a local
+    one; anything else is a cluster address. A runtime this process started is reused."""
+    try:
+        import ray
+    except ImportError:
+        raise UserError("--ray needs the optional dependency: pip install 'vitaplace[ray]'") from None
+    if ray.is_initialized():
+        log.info("Ray: using the runtime this process already started")
+    elif address == "auto":
+        try:
+            ray.init(address="auto")
+            log.info("Ray: connected to the running cluster")
+        except ConnectionError:
+            ray.init()
+            log.info("Ray: no running cluster found; started a local one")
+    else:
+        try:
+            ray.init(address=address)
+        except ConnectionError as exc:
+            raise UserError(f"--ray {address}: {one_line(str(exc))}") from None
+        log.info("Ray: connected to %s", address)
+    return ray
+
+
+def _ray(
+    jobs: Sequence[SeedJob], name: str, address: str, cpus: float, gpus: float
+) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
+    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>"; yield as each one ends."""
+    ray = connect_ray(address)
+    remote = ray.remote(run_seed)
+    pending = {
+        remote.options(name=f"{name} seed {job.seed}", num_cpus=cpus, num_gpus=gpus).remote(job): job for job in jobs
+    }
+    try:
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                job = pending.pop(ref)
+                try:
+                    yield job, ray.get(ref), None
+                except Exception as exc:
+                    yield job, None, describe_failure(exc)
+    finally:
+        for ref in pending:
+            ray.cancel(ref)
 
 
 def run_sweep(
-    scenario: str,
-    overrides: Sequence[str],
+    scenario: Scenario,
+    resolved: dict[str, Any],
     seeds: Sequence[int],
-    out: Path | None,
+    out: Path,
     workers: int | None = None,
     ray_address: str | None = None,
     progress: bool = True,
-) -> list[dict[str, Any]]:
-    """Run every seed, locally (process pool) or on Ray, and write sweep.json / sweep.csv."""
-    from vitaplace.engine.scenario import load_scenario
+    force: Sequence[str] = (),
+    cpus_per_job: float = 1,
+    gpus_per_job: float = 0,
+) -> SweepOutcome:
+    """Run every seed, locally (process pool) or on Ray, and write the summary of those that
+    succeeded into ``out`` (`vitaplace.engine.summary`). A failed seed does not stop the others."""
+    from tqdm import tqdm
+    from tqdm.contrib.logging import logging_redirect_tqdm
 
-    scenario_model, _ = load_scenario(scenario, overrides)  # validate once before fanning out
-    out = Path(out or Path("runs") / f"{scenario_model.name}-sweep")
+    from vitaplace.engine.summary import write_summary
+
+    out = Path(os.path.abspath(out))
     out.mkdir(parents=True, exist_ok=True)
+    marker = out / f".sweep-marker-{uuid.uuid4().hex}"
+    jobs = seed_jobs(scenario, resolved, seeds, out, force, progress and len(seeds) == 1 and not ray_address, str(marker))
+    marker.write_text("")
+    outcome = SweepOutcome(out)
+    started = time.perf_counter()
     if ray_address:
-        try:
-            import ray
-        except ImportError:
-            from vitaplace.engine.scenario import ScenarioError
-
-            raise ScenarioError("--ray needs the optional dependency: pip install 'vitaplace[ray]'") from None
-        ray.init(address=ray_address)
-        remote = ray.remote(run_seed)
-        results = ray.get([remote.remote(scenario, overrides, s, str(out), False) for s in seeds])
+        ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
     else:
-        context = multiprocessing.get_context("spawn")  # no fork: GL and Warp state are not fork-safe
-        with ProcessPoolExecutor(max_workers=workers, mp_context=context) as pool:
-            futures = [pool.submit(run_seed, scenario, overrides, s, str(out), progress and len(seeds) == 1) for s in seeds]
-            results = [f.result() for f in futures]
-    rows = [row for result in results for row in result]
-    table = aggregate(rows)
-    write_text_atomic(out / "sweep.json", json.dumps({"runs": rows, "summary": table}, indent=2))
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(table[0]) if table else ["environment"])
-    writer.writeheader()
-    writer.writerows(table)
-    write_text_atomic(out / "sweep.csv", buffer.getvalue())
-    for row in table:
-        log.info(
-            "%-6s %-12s max F1 %.2f ± %.2f %%  (%d seeds)",
-            row["environment"], row["method"], 100 * row["max_f1_mean"], 100 * row["max_f1_std"], row["seeds"],
-        )
-    return table
+        cpus = os.cpu_count() or 1
+        ended = _local(jobs, workers or max(1, min(len(jobs), cpus // max(1, int(cpus_per_job)))))
+    try:
+        with logging_redirect_tqdm([log]), tqdm(total=len(jobs), desc="seeds", unit="seed", disable=not progress) as bar:
+            for job, result, failure in ended:
+                bar.update()
+                if failure is not None:
+                    outcome.failed[job.seed] = failure
+                    log.error("seed %d failed: %s (traceback in %s)", job.seed, failure, out / f"seed-{job.seed}" / "error.txt")
+                    continue
+                outcome.rows += result["rows"]
+                if not result["sees_out"] and not outcome.unshared:
+                    log.warning(
+                        "--out %s is not on storage the workers share: node %s cannot see it, so its seed folders "
+                        "and cache stay on that node (the summary is still complete)", out, result["host"],
+                    )
+                if not result["sees_out"]:
+                    outcome.unshared.append(result["host"])
+                log.info("seed %d done on %s (%.0f s into the sweep)", job.seed, result["host"], time.perf_counter() - started)
+    finally:
+        marker.unlink(missing_ok=True)
+    ok = sorted({row["seed"] for row in outcome.rows})
+    info = {"scenario": scenario.name, "seeds": ok, "failed": {str(s): m for s, m in sorted(outcome.failed.items())}}
+    outcome.summary = write_summary(out, outcome.rows, f"{scenario.name}: {len(ok)} seed(s)", info)["summary"]
+    return outcome

@@ -49,6 +49,7 @@ SIM = ("tests/test_sim.py",)
 WORLDS = ("tests/test_worlds.py",)
 CLI = ("tests/test_cli.py",)
 MUPNET = ("tests/test_mupnet_plugin.py",)
+SWEEP = ("tests/test_sweep.py",)
 MATIMPORT = ("tests/test_matimport.py",)
 
 PFH_NORMALISE = "    return (counts * (100.0 / counts.sum())).astype(np.float32)"
@@ -174,6 +175,53 @@ MUTANTS = [
     m("worlds: obstacle map ignores the arena depth", "engine/sim/environment.py",
       "        self.half = np.array([env.arena.half_x, env.arena.half_y])",
       "        self.half = np.array([env.arena.half_x, env.arena.half_x])", *SIM),
+    # --- sweeps and their summary
+    m("summary: standard deviation with ddof=0", "engine/summary.py",
+      "    std = float(x.std(ddof=1))", "    std = float(x.std(ddof=0))", *SWEEP),
+    m("summary: normal quantile instead of Student's t", "engine/summary.py",
+      "float(stats.t.ppf(0.5 + LEVEL / 2, n - 1))", "float(stats.norm.ppf(0.5 + LEVEL / 2))", *SWEEP),
+    m("summary: t with n degrees of freedom", "engine/summary.py",
+      "stats.t.ppf(0.5 + LEVEL / 2, n - 1)", "stats.t.ppf(0.5 + LEVEL / 2, n)", *SWEEP),
+    m("summary: interval from the std instead of the standard error", "engine/summary.py",
+      "* std / math.sqrt(n)", "* std", *SWEEP),
+    m("summary: an interval made up for one seed", "engine/summary.py", "    if n < 2:", "    if n < 1:", *SWEEP),
+    m("summary: differences b - a", "engine/summary.py",
+      "diffs = [va[s] - vb[s] for s in seeds]", "diffs = [vb[s] - va[s] for s in seeds]", *SWEEP),
+    m("summary: differences over seeds only one method has", "engine/summary.py",
+      "seeds = [s for s in va if s in vb]", "seeds = list(va)", *SWEEP),
+    m("summary: settings summarised as metrics", "engine/summary.py",
+      "        if key in IDENTITY or key in SETTINGS:", "        if key in IDENTITY:", *SWEEP),
+    m("sweep: a failed local seed stops the sweep", "engine/sweep.py",
+      "                    yield job, None, describe_failure(exc)\n    except BaseException:",
+      "                    raise\n    except BaseException:", *SWEEP),
+    m("sweep: a failed Ray seed stops the sweep", "engine/sweep.py",
+      "                    yield job, None, describe_failure(exc)\n    finally:",
+      "                    raise\n    finally:", *SWEEP),
+    m("sweep: colour codes kept in the failure line", "engine/sweep.py",
+      'text = " ".join(ANSI.sub("", text).split())', 'text = " ".join(text.split())', *SWEEP),
+    m("sweep: Ray's wrapped exception not unwrapped", "engine/sweep.py",
+      "    if isinstance(cause, BaseException):\n        exc = cause", "    if False:\n        exc = cause", *SWEEP),
+    m("sweep: jobs read environments from the driver's paths", "engine/sweep.py",
+      '            entry["environment"] = str(files[entry["environment"]])', "            pass", *SWEEP),
+    m("sweep: unshared storage never noticed", "engine/sweep.py",
+      "socket.gethostname(), not job.marker or Path(job.marker).exists()", "socket.gethostname(), True", *SWEEP),
+    m("sweep: unshared storage warned for every job", "engine/sweep.py",
+      'if not result["sees_out"] and not outcome.unshared:', 'if not result["sees_out"]:', *SWEEP),
+    m("sweep: --force not passed to the jobs", "engine/sweep.py",
+      "SeedJob(data, environments, seed, str(out), tuple(force), progress, marker)",
+      "SeedJob(data, environments, seed, str(out), (), progress, marker)", *SWEEP),
+    m("sweep: GPU jobs keep the CPU backend", "engine/sweep.py", "    if gpus_per_job > 0:", "    if gpus_per_job > 1:", *SWEEP),
+    m("sweep: failed seeds exit 0", "engine/cli.py", "        return EXIT_SEEDS_FAILED", "        return 0", *SWEEP),
+    m("aggregate: other scenarios accepted", "engine/aggregate.py",
+      'if manifest.get("scenario") != first_manifest.get("scenario") or identity != first_identity:',
+      'if manifest.get("scenario") != first_manifest.get("scenario"):', *SWEEP),
+    m("aggregate: the seed counted in the scenario's identity", "engine/aggregate.py",
+      'resolved.items() if k != "seed"', 'resolved.items() if k != "name"', *SWEEP),
+    m("aggregate: unfinished runs not recognised", "engine/aggregate.py",
+      'REQUIRED = ("manifest.json", "results.json", "scenario.resolved.yaml")', 'REQUIRED = ("scenario.resolved.yaml",)',
+      *SWEEP),
+    m("aggregate: a seed given twice accepted", "engine/aggregate.py",
+      '        if manifest["seed"] in seen:', "        if False:", *SWEEP),
 ]
 
 #: Mutants that cannot change a result, kept to document why they survive.
