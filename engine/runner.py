@@ -249,10 +249,13 @@ class Pipeline:
                 continue
             assert entry.environment is not None and entry.run is not None  # validated: simulated
             environment = load_environment(entry.environment)
-            spec = [environment.model_dump(mode="json"), entry.run.model_dump(mode="json")]
+            run = entry.run
+            if isinstance(entry, EvaluationRuns) and label.endswith("/query") and entry.query_off_route:
+                run = run.model_copy(update={"off_route_fraction": entry.query_off_route})
+            spec = [environment.model_dump(mode="json"), run.model_dump(mode="json")]
             key = content_hash("simulate", STAGE_VERSION["simulate"], spec, self.scenario.robot.model_dump(mode="json"), seed)
             self.state.datasets[label] = key
-            args = (str(entry.environment), entry.run.model_dump(), self.scenario.robot.model_dump(), seed, label, key)
+            args = (str(entry.environment), run.model_dump(), self.scenario.robot.model_dump(), seed, label, key)
             jobs[label] = (args, self.dataset_path(label))
         pending = [
             label for label, (job_args, path) in jobs.items()

@@ -128,6 +128,9 @@ class EvaluationRuns(_RunSource):
 
     #: label of the evaluation (E1, E2, ...), letters, digits, _ . -
     name: SafeName
+    #: partial revisits: the final fraction of the query run is driven off the route (the run's
+    #: off_route_offset across it), so some queries have no true match
+    query_off_route: float = pydantic.Field(0.0, ge=0, le=0.9, allow_inf_nan=False)
     #: recorded query and reference runs instead of simulated ones (no run key then; environment optional: it only draws the arena in the report and bounds tau)
     datasets: RecordedRuns | None = None
 

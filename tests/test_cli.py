@@ -260,33 +260,6 @@ def test_plugins_command_lists_the_builtins(capsys):
     assert "handcrafted" in out and "mupnet" in out
 
 
-def test_sweep_aggregate_mean_and_sample_std():
-    from vitaplace.engine.sweep import aggregate
-
-    rows = [
-        {"environment": "E1", "method": "L", "direction": "q", "max_f1": f1, "auc": auc}
-        for f1, auc in ((0.5, 0.4), (0.7, 0.6), (0.9, 0.8))
-    ]
-    (row,) = aggregate(rows)
-    assert row["seeds"] == 3
-    assert row["max_f1_mean"] == pytest.approx(0.7) and row["max_f1_std"] == pytest.approx(0.2)
-    assert row["auc_mean"] == pytest.approx(0.6) and row["auc_std"] == pytest.approx(0.2)
-
-
-def test_sweep_runs_each_seed_into_its_folder(tmp_path):
-    args = ["sweep", "quickstart", "--seeds", "0", "1", "--workers", "2", "--out", str(tmp_path), "--no-progress"]
-    for override in TINY:
-        args += ["--set", override]
-    result = run_cli(args)
-    assert result.returncode == 0, result.stderr
-    summary = json.loads((tmp_path / "sweep.json").read_text())
-    assert {r["seed"] for r in summary["runs"]} == {0, 1}
-    assert {(r["method"], r["seeds"]) for r in summary["summary"]} == {("L", 2), ("H", 2)}
-    for seed in (0, 1):
-        assert (tmp_path / f"seed-{seed}" / "report.md").is_file()
-    assert (tmp_path / "sweep.csv").read_text().startswith("environment,method,direction,seeds")
-
-
 def test_non_finite_features_stop_the_pipeline_with_a_clear_error():
     import numpy as np
 
@@ -555,3 +528,24 @@ def test_kill_9_during_a_stage_then_resume_gives_identical_results(tmp_path):
     assert (out / "results.json").read_bytes() == (clean / "results.json").read_bytes()
     statuses = {(r["stage"], r["item"]): r["status"] for r in json.loads((out / "manifest.json").read_text())["stages"]}
     assert statuses[("simulate", "train")] == "cached" and statuses[("fit", "L")] == "ran"
+
+
+def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_path):
+    """Partial revisits: with query_off_route 0.5 the last half of the query run (and only
+    that, and never the reference run) runs off_route_offset (0.6 m, facing outward: towards
+    the centre) away from E1's route, farther than tau = 0.3, so those queries have no match."""
+    from vitaplace.engine.dataset import open_run
+    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.sim.controllers import Route
+    from vitaplace.engine.sim.environment import load_environment
+
+    overrides = ["train.run.n_samples=3", "evaluations.0.run.n_samples=40", "evaluations.0.query_off_route=0.5"]
+    scenario, resolved = load_scenario("quickstart", overrides)
+    pipeline = Pipeline(scenario, resolved, tmp_path, progress=False, workers=1)
+    pipeline.run(until="simulate")
+    route = Route(load_environment("e1").route)
+    query = route.distance(open_run(pipeline.dataset_path("E1/query")).poses[:, :2])
+    reference = route.distance(open_run(pipeline.dataset_path("E1/reference")).poses[:, :2])
+    assert query[:20].max() < 0.1 and reference.max() < 0.1
+    assert query[-12:].min() > 0.4  # the detour starts at sample 20; ~8 samples to get there
