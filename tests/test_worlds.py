@@ -151,3 +151,27 @@ def test_validate_does_not_load_mujoco():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout + out.stderr
+
+
+def test_schema_modules_do_not_import_mujoco():
+    """The environment and robot schemas are pure data: only the model builder loads MuJoCo."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import vitaplace.engine.sim.environment, vitaplace.engine.sim.robot\n"
+        "print('mujoco' in sys.modules)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False", out.stdout + out.stderr
+
+
+def test_model_xml_compiles_to_the_same_model():
+    """`SimModel.xml` (the MjSpec written as MJCF, for debugging) compiles to the built model
+    (rock meshes included, to the printed precision; actuator gains there are placeholders)."""
+    sim = build_model(load_environment("e3"), RobotSpec())
+    m, x = sim.model, mujoco.MjModel.from_xml_string(sim.xml)
+    assert (x.nbody, x.ngeom, x.njnt, x.nu, x.nmesh) == (m.nbody, m.ngeom, m.njnt, m.nu, m.nmesh)
+    for key in ("geom_size", "geom_pos", "geom_quat", "geom_contype", "geom_conaffinity", "body_mass", "jnt_range"):
+        np.testing.assert_allclose(getattr(x, key), getattr(m, key), rtol=1e-5, atol=1e-6, err_msg=key)

@@ -1,16 +1,8 @@
-"""Assemble environment + robot into one MuJoCo model and read the robot's sensors.
+"""Compile environment + robot into one MuJoCo model and read the robot's sensors.
 
-Physics settings (stated here once, quoted in docs/SIMULATION.md):
-
-* ``timestep`` = `RobotSpec.timestep` (default 2 ms = 250 steps per 2 Hz whisk cycle);
-* ``integrator="implicitfast"`` - damping of the follicle springs, servo and base drives
-  is integrated implicitly, so the stiff-ish whisker dynamics (spring natural frequency
-  ~23 Hz, servo ~35 Hz) are stable and accurate at 2 ms;
-* ``solver="Newton"``, ``iterations=50``, ``ls_iterations=20``, ``tolerance=1e-8``,
-  pyramidal friction cones, default soft-contact parameters (``solref`` 0.02 s time
-  constant, i.e. 10 timesteps);
-* gravity off: the base is planar (x, y, yaw) and never leaves the floor, and the whisker
-  readings are zero-offset like calibrated Hall sensors (no sag of the shafts).
+The model is built as a `mujoco.MjSpec` by `vitaplace.engine.sim.build` (physics settings
+stated there); `build_model` compiles it and sets the actuator gains from the compiled
+inertias.
 """
 
 from __future__ import annotations
@@ -21,46 +13,11 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from vitaplace.engine.sim.environment import EnvironmentSpec, _fmt, lighting_mjcf
-from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec, robot_mjcf, whisker_layout
+from vitaplace.engine.sim.build import model_spec
+from vitaplace.engine.sim.environment import EnvironmentSpec
+from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec, whisker_layout
 
-__all__ = ["SimModel", "build_model", "model_xml"]
-
-
-def model_xml(env: EnvironmentSpec, robot: RobotSpec, offscreen: tuple[int, int] = (0, 0)) -> str:
-    """The complete MJCF text of ``env`` with the robot in it (base at the origin)."""
-    assets, world = env.mjcf()
-    body, actuators = robot_mjcf(robot)
-    offw = max(robot.camera_width, offscreen[0], 64)
-    offh = max(robot.camera_height, offscreen[1], 64)
-    extent = 2 * max(env.arena.half_x, env.arena.half_y)
-    headlight, lights = lighting_mjcf(env.lighting)
-    shadowsize = 2048 if env.lighting.shadows else 0
-    return f"""<mujoco model="vitaplace_{env.name}">
-  <compiler angle="degree" autolimits="true"/>
-  <option timestep="{_fmt(robot.timestep)}" integrator="implicitfast" solver="Newton" iterations="50"
-          ls_iterations="20" tolerance="1e-8" cone="pyramidal" gravity="0 0 0"/>
-  <statistic extent="{_fmt(extent)}" center="0 0 0.5"/>
-  <visual>
-    <global offwidth="{offw}" offheight="{offh}"/>
-    <quality shadowsize="{shadowsize}" offsamples="0"/>
-    <map znear="0.002" zfar="3"/>
-    {headlight}
-  </visual>
-  <asset>
-    <texture name="sky" type="skybox" builtin="flat" rgb1="{_fmt(env.background_rgb)}" rgb2="{_fmt(env.background_rgb)}" width="8" height="8"/>
-{assets}
-  </asset>
-  <worldbody>
-{lights}
-{world}
-{body}
-  </worldbody>
-  <actuator>
-{actuators}
-  </actuator>
-</mujoco>
-"""
+__all__ = ["SimModel", "build_model"]
 
 
 @dataclass
@@ -70,7 +27,7 @@ class SimModel:
     env: EnvironmentSpec
     robot: RobotSpec
     model: mujoco.MjModel
-    xml: str
+    spec: mujoco.MjSpec = field(repr=False)  #: the uncompiled model (actuator gains: placeholders)
     base_qadr: np.ndarray  #: (3,) qpos addresses of x, y, yaw
     base_dofadr: np.ndarray  #: (3,)
     theta_qadr: np.ndarray  #: (24,)
@@ -88,6 +45,11 @@ class SimModel:
     servo_phase_lag: float = 0.0
     servo_gain: float = 1.0
     layout: list[dict] = field(repr=False, default_factory=list)
+
+    @property
+    def xml(self) -> str:
+        """MJCF text of the model (for debugging; actuator gains are the placeholders)."""
+        return self.spec.to_xml()
 
     # ------------------------------------------------------------ state access
     def new_data(self, pose: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> mujoco.MjData:
@@ -196,9 +158,9 @@ class SimModel:
 def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen: tuple[int, int] = (0, 0)) -> SimModel:
     """Compile ``env`` + robot and derive actuator gains from the compiled inertias."""
     robot = robot or RobotSpec()
-    xml = model_xml(env, robot, offscreen)
     try:
-        m = mujoco.MjModel.from_xml_string(xml)
+        spec = model_spec(env, robot, offscreen)
+        m = spec.compile()
     except ValueError as exc:
         raise ValueError(f"environment {env.name!r}: MuJoCo could not compile the model: {exc}") from None
 
@@ -221,7 +183,7 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
         env=env,
         robot=robot,
         model=m,
-        xml=xml,
+        spec=spec,
         base_qadr=m.jnt_qposadr[base_j].copy(),
         base_dofadr=m.jnt_dofadr[base_j].copy(),
         theta_qadr=m.jnt_qposadr[theta_j].copy(),

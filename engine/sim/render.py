@@ -1,6 +1,6 @@
 """The robot's camera: fast headless rendering through `mujoco.Renderer`.
 
-Speed settings: the model is compiled with ``<quality shadowsize="0" offsamples="0"/>``
+Speed settings: the model is built with ``visual.quality`` ``shadowsize=0, offsamples=0``
 (no shadow map, no multisampling), materials have zero reflectance, lights cast no
 shadows, and the scene flags for shadows and reflections are switched off here. The
 offscreen buffer is only as large as the largest image requested. The robot's own geoms
@@ -20,9 +20,9 @@ select_gl_backend()
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["Camera", "GLUnavailableError", "gl_help"]
+from vitaplace.engine.sim.robot import ROBOT_GROUP  # noqa: E402
 
-ROBOT_GROUP = 3
+__all__ = ["Camera", "GLUnavailableError", "gl_help"]
 
 
 def gl_help(cause: BaseException | str | None = None) -> str:

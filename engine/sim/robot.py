@@ -1,4 +1,4 @@
-"""The WhiskEye robot, generated as MJCF by code, with the original robot's geometry.
+"""The WhiskEye robot as data: its parameters (`RobotSpec`) and the original robot's geometry.
 
 Geometry from the public Gazebo model of WhiskEye (repository
 aalto-intelligent-robotics/ViTa-SLAM, branch ``whiskeye_robot``: ``whiskeye_robot.sdf``
@@ -49,9 +49,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from vitaplace.engine.sim.environment import BIT_BODY, BIT_WHISKER, _fmt, _tag
-
-__all__ = ["RobotSpec", "robot_mjcf", "whisker_layout", "camera_fovy_deg", "N_WHISKERS", "N_BOARDS", "N_COLUMNS"]
+__all__ = ["RobotSpec", "whisker_layout", "camera_fovy_deg", "N_WHISKERS", "N_BOARDS", "N_COLUMNS"]
 
 N_BOARDS = 6
 N_COLUMNS = 4
@@ -91,6 +89,7 @@ WHISKER_BASES = (
     ((0.5412, 0.1029, 0.1821), (0.7045, 0.6820, -0.1964), (-0.0529, -0.2252, -0.9729)),
 )
 WHISKER_DENSITY = 1200.0  #: shaft material density [kg/m^3] (plastic)
+ROBOT_GROUP = 3  #: geom group of the robot's own geoms (hidden from its camera)
 
 
 def camera_fovy_deg(hfov_deg: float, width: int, height: int) -> float:
@@ -209,125 +208,3 @@ def whisker_layout(robot: RobotSpec) -> list[dict]:
             }
         )
     return out
-
-
-def robot_mjcf(robot: RobotSpec) -> tuple[str, str]:
-    """MJCF fragments ``(body_xml, actuator_xml)`` of the robot (base body at the origin)."""
-    lo = math.radians(-robot.spring_range_deg)
-    hi = math.radians(robot.spring_range_deg)
-    r = robot.whisker_radius_mm / 1000.0
-    body_geom = {"contype": str(BIT_BODY), "conaffinity": "0", "group": "3"}
-    whisker_geom = {
-        "contype": str(BIT_WHISKER),
-        "conaffinity": "0",
-        "group": "3",
-        "density": _fmt(WHISKER_DENSITY),
-        "friction": f"{robot.whisker_friction:g} 0.005 0.0001",
-        "rgba": "0.85 0.85 0.8 1",
-    }
-    if robot.tactile_model == "penetration":
-        # contacts are still detected (depth, normal) but nearly forceless: a 1000 s time
-        # constant and ~0 impedance, dominating the mix with the world geom's parameters
-        whisker_geom.update(solref="1000 1", solimp="0.0001 0.0001 0.001", solmix="1e9", friction="0 0 0")
-    lines = [
-        '<body name="base" pos="0 0 0">',
-        '  <joint name="base_x" type="slide" axis="1 0 0"/>',
-        '  <joint name="base_y" type="slide" axis="0 1 0"/>',
-        '  <joint name="base_yaw" type="hinge" axis="0 0 1"/>',
-        "  "
-        + _tag(
-            "geom",
-            {
-                "name": "chassis",
-                "type": "cylinder",
-                "size": _fmt((BODY_RADIUS, BODY_HEIGHT / 2)),
-                "pos": _fmt((0.0, 0.0, BODY_HEIGHT / 2)),
-                "mass": _fmt(robot.base_mass),
-                "rgba": "0.25 0.25 0.3 1",
-                **body_geom,
-            },
-        ),
-        "  "
-        + _tag(
-            "geom",
-            {
-                "name": "neck",
-                "type": "capsule",
-                "fromto": _fmt((0.1, 0.0, BODY_HEIGHT, HEAD_POS[0] - HEAD_HALF[0], 0.0, HEAD_POS[2])),
-                "size": "0.03",
-                "mass": "0.2",
-                "rgba": "0.3 0.3 0.35 1",
-                "contype": "0",
-                "conaffinity": "0",
-                "group": "3",
-            },
-        ),
-        f'  <body name="head" pos="{_fmt(HEAD_POS)}">',
-        "    "
-        + _tag(
-            "geom",
-            {
-                "name": "head",
-                "type": "box",
-                "size": _fmt(HEAD_HALF),
-                "mass": "0.4",
-                "rgba": "0.9 0.9 0.92 1",
-                **body_geom,
-            },
-        ),
-    ]
-    # camera: looks along the base's +x, image right = -y, tilted by camera_pitch_deg
-    p = math.radians(robot.camera_pitch_deg)
-    d = np.array([math.cos(p), 0.0, math.sin(p)])
-    right = np.array([0.0, -1.0, 0.0])
-    up = np.cross(right, d)
-    lines.append(
-        "    "
-        + _tag(
-            "camera",
-            {
-                "name": "eye",
-                "pos": _fmt(np.subtract(CAMERA_POS, HEAD_POS)),
-                "xyaxes": _fmt((*right, *up)),
-                "fovy": _fmt(robot.camera_fovy_deg),
-            },
-        )
-    )
-    for w in whisker_layout(robot):
-        n = w["name"]
-        lines += [
-            f'    <body name="{n}" pos="{_fmt(np.subtract(w["pos"], HEAD_POS))}" quat="{_fmt(w["quat"])}">',
-            f'      <joint name="{n}_theta" type="hinge" axis="0 0 1" armature="{_fmt(robot.servo_armature)}"/>',
-            f'      <joint name="{n}_dx" type="hinge" axis="0 0 1" stiffness="{_fmt(robot.spring_stiffness)}" '
-            f'damping="{_fmt(robot.spring_damping)}" armature="{_fmt(robot.spring_armature)}" '
-            f'limited="true" range="{_fmt((lo, hi))}"/>',
-            f'      <joint name="{n}_dy" type="hinge" axis="0 -1 0" stiffness="{_fmt(robot.spring_stiffness)}" '
-            f'damping="{_fmt(robot.spring_damping)}" armature="{_fmt(robot.spring_armature)}" '
-            f'limited="true" range="{_fmt((lo, hi))}"/>',
-            "      "
-            + _tag(
-                "geom",
-                {"name": n, "type": "capsule", "fromto": _fmt((0, 0, 0, w["length"], 0, 0)), "size": _fmt(r), **whisker_geom},
-            ),
-            "    </body>",
-        ]
-    lines += ["  </body>", "</body>"]
-
-    # actuators: the base is a kinematic-style servo: each drive integrates its control (a
-    # commanded velocity: world vx, vy and yaw rate) into a reference position (actuator
-    # activation) and tracks it with a stiff PD law, so contacts cannot push the robot away.
-    # Each protraction hinge has a position servo. Gains (kp, kv) are set in model.py from the
-    # compiled inertias; the values written here are placeholders.
-    acts = [
-        f'<general name="drive_{n}" joint="base_{n}" dyntype="integrator" gaintype="fixed" biastype="affine" '
-        f'gainprm="1" biasprm="0 -1 0" actlimited="false"/>'
-        for n in ("x", "y", "yaw")
-    ]
-    for w in whisker_layout(robot):
-        n = w["name"]
-        acts.append(
-            f'<general name="{n}_servo" joint="{n}_theta" gaintype="fixed" biastype="affine" '
-            f'gainprm="{_fmt(robot.servo_kp)}" biasprm="0 {_fmt(-robot.servo_kp)} 0" '
-            f'forcelimited="true" forcerange="{_fmt((-robot.servo_max_torque, robot.servo_max_torque))}"/>'
-        )
-    return "\n".join(lines), "\n".join(acts)
