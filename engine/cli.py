@@ -3,14 +3,22 @@
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
 A sweep in which some seeds failed writes the summary of the others and exits with 1.
+
+Every command takes ``-v`` (debug messages too) or ``-q`` (warnings and errors only, no
+progress bars), before or after its name; messages go to stderr (and ``OUT/log.txt``, which
+keeps every info line), so ``run --json`` leaves only the results' JSON on stdout. With
+shtab installed (``pip install "vitaplace[completion]"``), ``vitaplace --print-completion
+bash`` prints a shell completion script.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import sys
 from pathlib import Path
+from typing import TextIO
 
 from vitaplace.engine import __version__
 from vitaplace.engine.errors import UserError
@@ -20,25 +28,41 @@ EXIT_USER_ERROR = 2
 EXIT_SEEDS_FAILED = 1
 
 
+def _verbosity() -> argparse.ArgumentParser:
+    """-v/-q, for the main parser and every command (no default here: see `main`)."""
+    parent = argparse.ArgumentParser(add_help=False)
+    group = parent.add_mutually_exclusive_group()
+    group.add_argument("-v", "--verbose", dest="log_level", action="store_const", const=logging.DEBUG,
+                       default=argparse.SUPPRESS, help="debug messages too")
+    group.add_argument("-q", "--quiet", dest="log_level", action="store_const", const=logging.WARNING,
+                       default=argparse.SUPPRESS,
+                       help="only warnings and errors on stderr, no progress bars (OUT/log.txt keeps everything)")
+    return parent
+
+
 def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True) -> None:
     parser.add_argument("scenario", help="scenario YAML file, or the name of a built-in one (e.g. quickstart)")
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
-        help="override a scenario value, e.g. --set methods.0.params.epochs=2 (repeatable)",
+        help="override a scenario value, e.g. --set methods.0.params.epochs=2; KEY.PATH+=VALUE appends to a "
+        "list, e.g. --set 'methods+={name: L2, plugin: mupnet}' (VALUE is YAML; repeatable)",
     )
     if out:
         parser.add_argument("--out", type=Path, help="output directory (default: runs/<scenario name>)")
         parser.add_argument(
-            "--force", action="append", default=[], metavar="STAGE",
-            help="redo a stage even if cached: simulate, fit, transform, evaluate, report (repeatable)",
+            "--force", action="append", nargs="?", const="all", default=[], metavar="STAGE",
+            help="redo a stage even if cached: simulate, fit, transform, evaluate, report (repeatable); "
+            "--force alone (or --force all) redoes every stage the command runs",
         )
         parser.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def build_parser() -> argparse.ArgumentParser:
+    common = _verbosity()
     parser = argparse.ArgumentParser(
         prog="vitaplace",
         description="Visuo-tactile place recognition with a simulated whiskered robot (MuPNet vs ViTa-SLAM).",
+        parents=[common],
     )
     parser.add_argument("--version", action="version", version=f"vitaplace {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -50,19 +74,26 @@ def build_parser() -> argparse.ArgumentParser:
         "report": "everything, then (re)write the report (cached stages are reused)",
     }
     for name, help_text in stages.items():
-        p = sub.add_parser(name, help=help_text, description=help_text)
+        p = sub.add_parser(name, help=help_text, description=help_text, parents=[common])
         _add_scenario_args(p)
+        if name in ("run", "evaluate", "report"):
+            p.add_argument("--json", action="store_true", help="print the results rows as JSON on stdout")
         if name == "simulate":
             p.add_argument("--samples", type=int, help="environment file only: number of samples (default 200)")
             p.add_argument("--seed", type=int, default=0, help="environment file only: run seed")
-    p = sub.add_parser("validate", help="check a scenario file without running anything")
+    p = sub.add_parser(
+        "validate", parents=[common],
+        help="check a scenario or an environment file (or a shipped one by name) without running anything",
+    )
     _add_scenario_args(p, out=False)
-    sub.add_parser("plugins", help="list the feature-extractor plugins and any that failed to load")
-    p = sub.add_parser("import", help="convert a MultiPredNet/WhiskEye MATLAB folder into a run file (HDF5)")
+    sub.add_parser("plugins", parents=[common], help="list the feature-extractor plugins and any that failed to load")
+    p = sub.add_parser(
+        "import", parents=[common], help="convert a MultiPredNet/WhiskEye MATLAB folder into a run file (HDF5)"
+    )
     p.add_argument("source", type=Path, help="folder with images.mat, theta.mat, xy.mat and poses.mat")
     p.add_argument("--out", type=Path, required=True, help="the run file to write (e.g. runs/real/query.h5)")
     p.add_argument("--name", help="name of the run (default: the folder's name)")
-    p = sub.add_parser("sweep", help="run a scenario over several seeds (local process pool, or Ray)")
+    p = sub.add_parser("sweep", parents=[common], help="run a scenario over several seeds (local process pool, or Ray)")
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
     p.add_argument(
@@ -78,31 +109,77 @@ def build_parser() -> argparse.ArgumentParser:
         help="GPUs each seed reserves on Ray (default 0); > 0 also selects the GPU backend of methods that have one",
     )
     p = sub.add_parser(
-        "aggregate", help="summarise run folders of one scenario made by independent jobs (e.g. a SLURM array)"
+        "aggregate", parents=[common],
+        help="summarise run folders of one scenario made by independent jobs (e.g. a SLURM array)",
     )
     p.add_argument("folders", nargs="+", type=Path, metavar="DIR", help="run folders (vitaplace run --set seed=N --out DIR)")
     p.add_argument("--out", type=Path, help="where the summary goes (default: the folders' common parent)")
+    _add_completion(parser)
     return parser
 
 
-def _setup_logging(out: Path | None) -> None:
+def _add_completion(parser: argparse.ArgumentParser) -> None:
+    """``--print-completion bash|zsh|tcsh`` where the optional shtab is installed."""
+    try:
+        import shtab
+    except ImportError:
+        return
+    shtab.add_argument_to(parser, ["--print-completion"], help="print a shell completion script")
+
+
+class _StderrHandler(logging.StreamHandler):
+    """A handler that writes to ``sys.stderr`` as it is when a message comes (redirections work)."""
+
+    @property  # type: ignore[override]
+    def stream(self) -> TextIO:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: TextIO) -> None:
+        pass
+
+
+def _console_logging(level: int) -> None:
+    """Messages of ``level`` and above on stderr; the logger passes info lines at least (for log.txt)."""
     logger = logging.getLogger("vitaplace")
-    logger.setLevel(logging.INFO)
+    logger.setLevel(min(level, logging.INFO))
+    for handler in logger.handlers:
+        handler.close()
     logger.handlers.clear()
-    console = logging.StreamHandler(sys.stderr)
+    console = _StderrHandler()
+    console.setLevel(level)
     console.setFormatter(logging.Formatter("%(message)s"))
     logger.addHandler(console)
-    if out is not None:
-        writable_dir(out)
-        file_handler = logging.FileHandler(out / "log.txt")
-        file_handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
-        logger.addHandler(file_handler)
+
+
+def _setup_logging(out: Path) -> None:
+    """Also log to ``out/log.txt`` (every message the logger passes, whatever -q says)."""
+    writable_dir(out)
+    file_handler = logging.FileHandler(out / "log.txt")
+    file_handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
+    logging.getLogger("vitaplace").addHandler(file_handler)
+
+
+def _forced(force: list[str], until: str, command: str) -> list[str]:
+    """The stages ``--force`` names, ``all`` being every stage up to ``until``; a stage the
+    command does not reach is refused (it would be ignored)."""
+    from vitaplace.engine.runner import STAGES
+
+    reached = STAGES[: STAGES.index(until) + 1]
+    late = [s for s in force if s in STAGES and s not in reached]
+    if late:
+        raise UserError(
+            f"--force {' '.join(late)}: `vitaplace {command}` stops after the {until} stage and would not run it; "
+            "use a command that gets there (e.g. `vitaplace run`)"
+        )
+    return list(dict.fromkeys(stage for s in force for stage in (reached if s == "all" else (s,))))
 
 
 def _run_stages(args: argparse.Namespace, until: str) -> int:
     from vitaplace.engine.runner import Pipeline
     from vitaplace.engine.scenario import load_scenario
 
+    args.force = _forced(args.force, until, args.command)
     scenario, resolved = load_scenario(args.scenario, args.overrides)
     out = writable_dir(args.out or Path("runs") / scenario.name)
     log = logging.getLogger("vitaplace")
@@ -118,6 +195,8 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
         )
     if until in ("report", "evaluate"):
         log.info("results in %s", out / ("report.md" if until == "report" else "results.csv"))
+    if getattr(args, "json", False):
+        print(json.dumps(rows, indent=2))
     return 0
 
 
@@ -127,6 +206,11 @@ def _simulate_environment(args: argparse.Namespace) -> int:
     from vitaplace.engine.sim.environment import load_environment
     from vitaplace.engine.sim.simulate import RunSpec, simulate_run
 
+    if args.force or args.overrides:
+        raise UserError(
+            f"{'--force' if args.force else '--set'} applies to scenarios; `vitaplace simulate ENV.yaml` always "
+            "records its run anew (its settings: --samples, --seed)"
+        )
     environment = load_environment(args.scenario)
     spec = RunSpec(kind="foraging", n_samples=args.samples or 200)
     run = simulate_run(environment, spec, seed=args.seed, progress=not args.no_progress, name=Path(args.scenario).stem)
@@ -136,17 +220,29 @@ def _simulate_environment(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Top-level keys only environment files have, and only scenario files have.
+ENVIRONMENT_KEYS = {"arena", "materials", "landmarks", "route", "route_facing", "start", "background_rgb", "lighting",
+                    "boards"}
+SCENARIO_KEYS = {"seed", "robot", "train", "evaluations", "methods", "evaluation"}
+
+
 def _is_environment_file(name: str) -> bool:
-    from vitaplace.engine.configfile import ConfigError, load_yaml
+    """Whether ``name`` is an environment file (or a shipped environment's name), not a scenario."""
+    from vitaplace.engine.configfile import SHIPPED_DIRS, ConfigError, load_yaml, read_yaml
 
     path = Path(name)
+    if not path.exists() and not path.suffix and (SHIPPED_DIRS[1] / f"{name}.yaml").is_file():
+        return not (SHIPPED_DIRS[0] / f"{name}.yaml").is_file()
     if path.suffix not in (".yaml", ".yml") or not path.is_file():
         return False
     try:
         data = load_yaml(path)
     except ConfigError:
-        return False  # reported by the scenario loader
-    return "route" in data or "landmarks" in data or "arena" in data
+        try:
+            data = read_yaml(path)  # its own keys; load_environment then says what is wrong with 'extends'
+        except ConfigError:
+            return False  # reported by the scenario loader
+    return bool(ENVIRONMENT_KEYS & data.keys()) and not SCENARIO_KEYS & data.keys()
 
 
 def _plugins() -> int:
@@ -165,9 +261,25 @@ def _plugins() -> int:
     return 0
 
 
+def _validate_environment(args: argparse.Namespace) -> int:
+    """`vitaplace validate ENV.yaml`: load and check an environment file, one line."""
+    from vitaplace.engine.sim.environment import load_environment
+
+    if args.overrides:
+        raise UserError("--set applies to scenarios, not to environment files")
+    env = load_environment(args.scenario)
+    print(
+        f"{args.scenario}: valid environment '{env.name}': arena {2 * env.arena.half_x:g} x {2 * env.arena.half_y:g} m, "
+        f"{len(env.landmarks)} landmark(s), route of {len(env.route)} waypoint(s)"
+    )
+    return 0
+
+
 def _validate(args: argparse.Namespace) -> int:
     from vitaplace.engine.scenario import load_scenario
 
+    if _is_environment_file(args.scenario):
+        return _validate_environment(args)
     scenario, _ = load_scenario(args.scenario, args.overrides)
     print(
         f"{args.scenario}: valid scenario '{scenario.name}': {len(scenario.evaluations)} evaluation environment(s), "
@@ -206,7 +318,8 @@ def _sweep(args: argparse.Namespace) -> int:
         for path in remove_stale_temporaries(out):
             log.info("removed %s, left by an interrupted run", path)
         outcome = run_sweep(
-            scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress, args.force,
+            scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress,
+            _forced(args.force, "report", "sweep"),
             args.cpus_per_job, args.gpus_per_job,
         )
     for row in outcome.summary:
@@ -230,6 +343,11 @@ def _aggregate(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    level = getattr(args, "log_level", logging.INFO)
+    _console_logging(level)
+    if level > logging.INFO and hasattr(args, "no_progress"):
+        args.no_progress = True
+    logging.getLogger("vitaplace").debug("vitaplace %s, Python %s", __version__, sys.version.split()[0])
     try:
         if args.command == "plugins":
             return _plugins()

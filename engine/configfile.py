@@ -1,7 +1,8 @@
 """YAML configuration files shared by scenarios and environments.
 
 * `load_yaml` reads a mapping, resolving ``extends: other.yaml`` (relative to the file,
-  cycles detected): mappings are deep-merged, anything else (lists too) is replaced.
+  cycles detected; a name with no such file next to it is a shipped scenario or environment,
+  `shipped_file`): mappings are deep-merged, anything else (lists too) is replaced.
 * `format_validation_error` turns a pydantic error into lines ``FILE: key.path: message``,
   with the nearest valid key suggested for an unknown one.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import logging
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -20,6 +22,13 @@ import pydantic
 import yaml
 
 from vitaplace.engine.errors import UserError
+
+#: Folders of the files shipped with vitaplace: scenarios, then environments.
+SHIPPED_DIRS = (
+    Path(__file__).resolve().parent.parent / "scenarios",
+    Path(__file__).resolve().parent.parent / "scenarios" / "environments",
+)
+log = logging.getLogger("vitaplace")
 
 
 class ConfigError(UserError, ValueError):
@@ -149,9 +158,33 @@ def load_yaml(
         return data
     if not isinstance(parent, str):
         raise error(f"{path}: extends: expected a file name, got {parent!r}")
-    base = load_yaml(path.parent / parent, error, localise, (*_chain, path))
+    base = load_yaml(local_or_shipped(path.parent, parent, f"{path.name}: extends"), error, localise, (*_chain, path))
     base.pop("name", None)  # a name belongs to the file that states it
     return deep_merge(base, data)
+
+
+def shipped_file(name: str) -> Path | None:
+    """The shipped scenario or environment ``name`` (``e1``, ``e1.yaml``, ``quickstart``,
+    ``environments/e1.yaml``), or None when vitaplace ships no such file."""
+    for folder in SHIPPED_DIRS:
+        for candidate in (folder / name, folder / f"{name}.yaml"):
+            candidate = candidate.resolve()
+            if candidate.is_file() and candidate.is_relative_to(folder):
+                return candidate
+    return None
+
+
+def local_or_shipped(folder: Path, name: str, what: str = "") -> Path:
+    """``folder / name`` when that file exists, else the shipped file of that name
+    (`shipped_file`), else ``folder / name`` (whose absence the caller reports)."""
+    local = folder / name
+    if local.exists():
+        return local
+    shipped = shipped_file(name)
+    if shipped is None:
+        return local
+    log.debug("%s: no file %s, using the shipped %s", what or name, local, shipped)
+    return shipped
 
 
 def _unwrap(tp: Any) -> list[Any]:

@@ -3,7 +3,8 @@
 
 Every function draws on its own ``matplotlib.figure.Figure`` with an Agg canvas (no pyplot,
 no global backend switch), saves ``<out_stem>.png`` and ``<out_stem>.pdf`` atomically and
-returns the two paths.
+returns the two paths. Legends sit outside the axes (they never hide data) and colour bars
+name the quantity they show.
 """
 
 from __future__ import annotations
@@ -65,11 +66,13 @@ def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> 
     outcome = _primary_outcome(decisions)
     rows = np.arange(n_q)
     size = float(np.clip(2000.0 / max(n_q, 1), 2.0, 30.0))
-    for ax, mat, name, cmap in ((axes[0], gtm, "GTM (ground-truth distance)", "viridis"),
-                                (axes[1], tme, "TME (feature distance)", "magma")):
+    for ax, mat, name, cmap, quantity in (
+        (axes[0], gtm, "GTM (ground-truth distance)", "viridis", "ground-truth distance [m]"),
+        (axes[1], tme, "TME (feature distance)", "magma", "feature distance"),
+    ):
         shown = np.where(np.isfinite(mat), mat, np.nan)
         im = ax.imshow(shown, cmap=cmap, aspect="auto", interpolation="nearest", origin="upper")
-        fig.colorbar(im, ax=ax, shrink=0.85)
+        fig.colorbar(im, ax=ax, shrink=0.85, label=quantity)
         for label, colour in OUTCOME_COLOURS.items():
             sel = outcome == label
             if sel.any():
@@ -82,7 +85,8 @@ def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> 
         ax.set_title(name)
     handles = [Line2D([], [], marker="o", linestyle="", color=c, label=f"{k} ({int((outcome == k).sum())})")
                for k, c in OUTCOME_COLOURS.items()]
-    axes[1].legend(handles=handles, loc="upper right", fontsize="small", framealpha=0.8)
+    fig.legend(handles=handles, loc="outside lower center", ncols=len(handles), fontsize="small",
+               title="decision of each query at its best match")
     sup = f"tau={decisions.tau:g}, delta={decisions.delta:g}"
     fig.suptitle(f"{title} ({sup})" if title else sup)
     return _save(fig, out_stem)
@@ -108,7 +112,7 @@ def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> 
     ax.set_ylabel("precision")
     ax.grid(True, alpha=0.3)
     if curves:
-        ax.legend(loc="lower left", fontsize="small")
+        fig.legend(loc="outside lower center", fontsize="small", ncols=1 if len(curves) > 2 else len(curves))
     ax.set_title(title or "Precision-recall (★ = max F1)")
     return _save(fig, out_stem)
 
@@ -164,7 +168,7 @@ def plot_trajectories(out_stem, query_poses, reference_poses, decisions: Decisio
     ax.autoscale_view()
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.legend(loc="upper right", fontsize="small", framealpha=0.8)
+    fig.legend(loc="outside lower center", ncols=2, fontsize="small")
     ax.set_title(title or "Trajectories and accepted matches")
     return _save(fig, out_stem)
 
@@ -184,7 +188,7 @@ def plot_energy(out_stem, energy: Mapping[str, Sequence[float]], title: str = ""
         plotted = True
     if plotted and np.any([np.any(np.asarray(v, dtype=float) > 0) for v in energy.values() if len(v)]):
         ax.set_yscale("log")
-        ax.legend(fontsize="small")
+        fig.legend(loc="outside right upper", fontsize="small", title="layer")
     else:
         ax.text(0.5, 0.5, "no positive energy values", transform=ax.transAxes, ha="center", va="center")
     ax.set_xlabel("epoch")

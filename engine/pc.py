@@ -372,13 +372,15 @@ class Network:
         max_steps: int = 3000,
         thresholds: Mapping[str, float] | None = None,
         batch_size: int = 500,
+        on_progress: Callable[[int], None] | None = None,
     ) -> InferenceResult:
         """Latents for (scaled) inputs with frozen weights, from 0.1, batch by batch.
 
         Each sample stops on its own, as soon as every active edge's mean squared error
         for that sample is below its threshold, or after ``max_steps`` steps; the others
         in its batch go on. Missing modalities are left out (their errors do not reach
-        the joint layer).
+        the joint layer). ``on_progress(k)`` is called whenever k more samples are done
+        (checked every `STEPS_PER_CHECK` steps), for progress bars.
         """
         present, n = self._check_inputs(inputs)
         edges = self.active_edges(present)
@@ -401,14 +403,23 @@ class Network:
                 chunks[len(index)] = be.capture(functools.partial(state.inference_steps, self.STEPS_PER_CHECK))
             be.upload(index.astype(np.int32), state.index)
             state.start_inference(resident_x)
-            done = 0
-            while done < max_steps and be.download(state.active).any():
+            done = reported = 0
+            while done < max_steps:
+                active = be.download(state.active)
+                finished = len(index) - int(np.count_nonzero(active))
+                if on_progress is not None and finished > reported:
+                    on_progress(finished - reported)
+                    reported = finished
+                if finished == len(index):
+                    break
                 todo = min(self.STEPS_PER_CHECK, max_steps - done)
                 if todo == self.STEPS_PER_CHECK:
                     chunks[len(index)]()
                 else:
                     state.inference_steps(todo)
                 done += todo
+            if on_progress is not None and len(index) > reported:
+                on_progress(len(index) - reported)  # the rest stopped at the step cap
             steps[index] = be.download(state.steps)
             row_energy = be.download(state.R)
             energy = {e.name: float(total) for e, total in zip(edges, row_energy.sum(axis=1))}

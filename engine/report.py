@@ -1,7 +1,9 @@
-"""The Markdown report of a scenario run, with the paper's figures (paper Fig. 4-5)."""
+"""The Markdown report of a scenario run, with the paper's figures (paper Fig. 4-5): results,
+sample counts, every method's parameters, figures per evaluation, training, provenance."""
 
 from __future__ import annotations
 
+import json
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -37,6 +39,42 @@ def results_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def samples_table(rows: list[dict[str, Any]]) -> str:
+    """Markdown table of the sample counts per environment x direction: queries, references,
+    revisits (queries with a reference pose within τ)."""
+    lines = ["| environment | direction | queries | references | revisits |", "|---|---|---|---|---|"]
+    seen = set()
+    for row in rows:
+        key = (row["environment"], row["direction"])
+        if key not in seen:
+            seen.add(key)
+            lines.append(f"| {key[0]} | {key[1]} | {row['n_queries']} | {row.get('n_references', '–')} | {row['n_revisit']} |")
+    return "\n".join(lines)
+
+
+def method_parameters(pipeline: Pipeline) -> dict[str, tuple[str, dict[str, Any], dict[str, Any]]]:
+    """Per method: its plugin, the parameters the scenario sets (with the derived seed) and
+    the plugin's defaults for the others."""
+    out = {}
+    for method in pipeline.scenario.methods:
+        given = pipeline.method_params(method)
+        full = pipeline.registry.get(method.plugin).validate_params(given).model_dump(mode="json")
+        out[method.name] = (method.plugin, {k: full[k] for k in full if k in given},
+                            {k: v for k, v in full.items() if k not in given})
+    return out
+
+
+def _params_text(params: dict[str, Any]) -> str:
+    return ", ".join(f"{k}={json.dumps(v)}" for k, v in params.items()) or "none"
+
+
+def _methods_section(pipeline: Pipeline) -> list[str]:
+    lines = ["## Methods", ""]
+    for name, (plugin, given, defaults) in method_parameters(pipeline).items():
+        lines += [f"- **{name}** (`{plugin}`): {_params_text(given)}; defaults: {_params_text(defaults)}"]
+    return lines + [""]
+
+
 def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
     """figures/ (PNG + PDF) and report.md for the evaluated scenario."""
     out, scenario = pipeline.out, pipeline.scenario
@@ -52,6 +90,14 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         "",
         results_table(rows),
         "",
+        "## Samples",
+        "",
+        f"Training run: {len(pipeline.open('train'))} samples. A revisit is a query with a reference pose within "
+        f"τ = {tau} m (only revisits can be recalled).",
+        "",
+        samples_table(rows),
+        "",
+        *_methods_section(pipeline),
     ]
     for e in scenario.evaluations:
         arena = load_environment(e.environment).top_view() if e.environment is not None else None

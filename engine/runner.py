@@ -40,7 +40,7 @@ from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 1, "evaluate": 1, "report": 1}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 1, "evaluate": 1, "report": 2}
 
 log = logging.getLogger("vitaplace")
 
@@ -125,16 +125,37 @@ class RunnerState:
 def record_run(
     environment: str, run: dict[str, Any], robot: dict[str, Any], seed: int, label: str, key: str, path: Path,
     progress: bool,
-) -> None:
-    """Simulate one run and write its dataset (a top-level function: runs in worker processes)."""
+) -> tuple[int, float]:
+    """Simulate one run and write its dataset (a top-level function: runs in worker processes);
+    returns its number of samples and the seconds it took."""
     from vitaplace.engine.sim.robot import RobotSpec
     from vitaplace.engine.sim.simulate import RunSpec, simulate_run
 
+    start = time.perf_counter()
     recorded = simulate_run(
         load_environment(environment), RunSpec(**run), seed=seed, robot=RobotSpec(**robot), progress=progress, name=label
     )
     recorded.attrs["scenario_hash"] = key
     write_run(path, recorded)
+    return len(recorded), time.perf_counter() - start
+
+
+def log_recorded(label: str, samples: int, seconds: float, where: str = "") -> None:
+    """The line a finished simulation logs: run, samples, seconds (and where it ran)."""
+    log.info("%-9s %-28s recorded %d samples in %.1f s%s", "simulate", label, samples, seconds, where)
+
+
+def _log_finished(label: str, future: Any) -> None:
+    """Done-callback of a simulation in a worker process: log it as soon as it finishes."""
+    if not future.cancelled() and future.exception() is None:
+        log_recorded(label, *future.result(), " (worker process)")
+
+
+def _record_and_log(*args: Any) -> tuple[int, float]:
+    """`record_run` in this process, then its log line."""
+    result = record_run(*args)
+    log_recorded(args[4], *result)
+    return result
 
 
 def seed_for(scenario_seed: int, *path: int) -> int:
@@ -207,6 +228,7 @@ class Pipeline:
             checksum.seal(output, key)
         seconds = time.perf_counter() - start
         where = output.relative_to(self.out) if output.is_relative_to(self.out) else output
+        log.debug("%-9s %-28s %s in %.2f s: %s", stage, item, status, seconds, where)
         self.state.records.append(StageRecord(stage, item, key, status, round(seconds, 3), list(inputs), str(where)))
         return result
 
@@ -269,8 +291,13 @@ class Pipeline:
         )
         try:
             futures = {label: pool.submit(record_run, *jobs[label][0], jobs[label][1], False) for label in pending} if pool else {}
+            for label, future in futures.items():
+                future.add_done_callback(partial(_log_finished, label))
+            if futures:
+                log.info("%-9s %d runs on %d worker processes (no progress bars there; a line as each finishes)",
+                         "simulate", len(futures), workers)
             for label, (args, path) in jobs.items():
-                work = futures[label].result if label in futures else partial(record_run, *args, path, self.progress)
+                work = futures[label].result if label in futures else partial(_record_and_log, *args, path, self.progress)
                 self._stage("simulate", label, args[-1], path, work, done=label not in pending)
         finally:
             if pool is not None:
@@ -415,7 +442,8 @@ class Pipeline:
         if stop >= STAGES.index("report"):
             from vitaplace.engine.report import write_report
 
-            key = content_hash("report", STAGE_VERSION["report"], rows)
+            params = [self.method_params(m) for m in self.scenario.methods]
+            key = content_hash("report", STAGE_VERSION["report"], rows, params)
             self._stage("report", "report", key, self.out / "report.md", lambda: write_report(self, rows))
         self.write_manifest(time.perf_counter() - started)
         return rows
@@ -438,12 +466,22 @@ class Pipeline:
 
 RESULT_COLUMNS = (
     "environment", "method", "direction", "max_f1", "precision_at_max_f1", "recall_at_max_f1",
-    "delta_at_max_f1", "auc", "precision", "recall", "f1", "n_queries", "n_revisit",
+    "delta_at_max_f1", "auc", "delta", "precision", "recall", "f1", "n_queries", "n_references", "n_revisit",
 )
 
 
+def csv_row(row: dict[str, Any]) -> dict[str, Any]:
+    """A results row for results.csv: without a fixed ``evaluation.delta``, delta, precision,
+    recall and F1 are those at the max-F1 threshold (instead of empty)."""
+    if row.get("f1") is not None:
+        return row
+    return {**row, "delta": row["delta_at_max_f1"], "precision": row["precision_at_max_f1"],
+            "recall": row["recall_at_max_f1"], "f1": row["max_f1"]}
+
+
 def write_results(out: Path, rows: list[dict[str, Any]]) -> None:
-    """results.json (everything) and results.csv (one row per environment x method x direction)."""
+    """results.json (everything) and results.csv (one row per environment x method x direction;
+    `csv_row`: delta, precision, recall, F1 at the fixed delta, else at the max-F1 one)."""
     import csv
     import io
 
@@ -453,6 +491,7 @@ def write_results(out: Path, rows: list[dict[str, Any]]) -> None:
     writer = csv.writer(buffer)
     writer.writerow([*RESULT_COLUMNS, *(f"recall@{k}" for k in ks)])
     for row in rows:
-        writer.writerow([row.get(c, "") for c in RESULT_COLUMNS] + [row["recall_at_k"].get(k, "") for k in ks])
+        filled = csv_row(row)
+        writer.writerow([filled.get(c, "") for c in RESULT_COLUMNS] + [row["recall_at_k"].get(k, "") for k in ks])
     write_text_atomic(out / "results.csv", buffer.getvalue())
 

@@ -1,7 +1,9 @@
 """Scenario files: what to simulate, which methods to compare, how to evaluate.
 
 A scenario is YAML validated by pydantic before anything runs. ``extends: other.yaml``
-(relative to the file) deep-merges the file over another scenario. Errors name the file,
+(relative to the file, or a shipped scenario's name) deep-merges the file over another
+scenario; ``environment: e1`` names a shipped environment when no such file is next to the
+scenario. Errors name the file,
 the key path and what was expected, and suggest the nearest valid key for a typo.
 
 Example::
@@ -32,6 +34,7 @@ import hashlib
 import math
 import os
 import json
+import logging
 import typing
 from collections.abc import Sequence
 from pathlib import Path
@@ -40,12 +43,13 @@ from typing import Annotated, Any
 import pydantic
 import yaml
 
-from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml
+from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml, local_or_shipped
 from vitaplace.engine.sim.environment import load_environment
 from vitaplace.engine.sim.robot import RobotSpec
 from vitaplace.engine.sim.controllers import RunSpec
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
+log = logging.getLogger("vitaplace")
 
 
 class ScenarioError(ConfigError):
@@ -209,7 +213,10 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
     def fix(entry: Any, keys: tuple[str, ...] = ("environment", "dataset")) -> None:
         for key in keys if isinstance(entry, dict) else ():
             if isinstance(entry.get(key), str):
-                entry[key] = str((folder / entry[key]).resolve())
+                where = folder / entry[key]
+                if key == "environment":  # a shipped name (e1) when no such file is next to the scenario
+                    where = local_or_shipped(folder, entry[key], key)
+                entry[key] = str(where.resolve())
         if isinstance(entry, dict) and "datasets" in keys:
             fix(entry.get("datasets"), ("query", "reference"))
 
@@ -221,12 +228,15 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
 
 
 def apply_overrides(data: dict[str, Any], assignments: Sequence[str], source: str = "--set") -> dict[str, Any]:
-    """Apply ``key.path=value`` assignments (value parsed as YAML; list items by index)."""
+    """Apply ``key.path=value`` assignments (value parsed as YAML; list items by index) and
+    ``key.path+=value`` appends (to a list the scenario sets; anything else is an error)."""
     data = copy.deepcopy(data)
     for assignment in assignments:
         key, sep, raw = assignment.partition("=")
+        append = key.endswith("+")
+        key = key.removesuffix("+")
         if not sep or not key:
-            raise ScenarioError(f"{source} '{assignment}': expected key.path=value")
+            raise ScenarioError(f"{source} '{assignment}': expected key.path=value or key.path+=value")
         value = yaml.safe_load(raw) if raw else ""
         node: Any = data
         parts = key.split(".")
@@ -238,7 +248,13 @@ def apply_overrides(data: dict[str, Any], assignments: Sequence[str], source: st
                 index: Any = int(part)
             else:
                 index = part
-            if last:
+            if last and append:
+                target = node[index] if isinstance(node, list) or index in node else None
+                if not isinstance(target, list):
+                    what = "not set in the scenario" if target is None else f"a {type(target).__name__}, not a list"
+                    raise ScenarioError(f"{source} '{assignment}': '{key}' is {what}; += appends to a list")
+                target.append(value)
+            elif last:
                 node[index] = value
             else:
                 if not isinstance(node, list) and not isinstance(node.get(index), (dict, list)):
@@ -268,6 +284,7 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
     Environment files and method plugins are checked too, so every error surfaces here.
     """
     path = resolve_path(name)
+    log.debug("scenario %s: file %s, %d override(s)", name, path.resolve(), len(overrides))
     raw = apply_overrides(_load_raw(path), overrides)
     try:
         scenario = Scenario.model_validate(raw)

@@ -47,9 +47,9 @@ def valid_scenario() -> dict:
     }
 
 
-def run_cli(args: list[str]) -> subprocess.CompletedProcess:
+def run_cli(args: list[str], cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "vitaplace.engine.cli", *args], capture_output=True, text=True, timeout=600
+        [sys.executable, "-m", "vitaplace.engine.cli", *args], capture_output=True, text=True, timeout=600, cwd=cwd
     )
 
 
@@ -549,3 +549,220 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     reference = route.distance(open_run(pipeline.dataset_path("E1/reference")).poses[:, :2])
     assert query[:20].max() < 0.1 and reference.max() < 0.1
     assert query[-12:].min() > 0.4  # the detour starts at sample 20; ~8 samples to get there
+
+
+# --------------------------------------------------------------------------- CLI habits
+
+
+#: A scenario that names the shipped environment, with the tiny MuPNet of TINY and ViTa-SLAM.
+BY_NAME = """\
+name: t
+train: {environment: e1, run: {kind: foraging, n_samples: 12}}
+evaluations: [{name: E1, environment: e1, run: {kind: route, n_samples: 10}}]
+methods:
+  - name: L
+    plugin: mupnet
+    params: {image_size: [9, 16], visual_layers: [12], tactile_layers: [8], joint_size: 6, epochs: 2,
+             batch_size: 6, max_steps: 20}
+  - {name: H, plugin: handcrafted}
+"""
+
+
+@pytest.fixture(scope="module")
+def quiet_json_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """`vitaplace -q run s.yaml --json` in a folder that holds nothing but that scenario."""
+    folder = tmp_path_factory.mktemp("elsewhere")
+    (folder / "s.yaml").write_text(BY_NAME)
+    proc = run_cli(["-q", "run", "s.yaml", "--json", "--out", "out"], cwd=folder)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    return folder / "out", proc
+
+
+def test_shipped_environment_by_name_from_any_folder(quiet_json_run):
+    out, _ = quiet_json_run
+    resolved = yaml.safe_load((out / "scenario.resolved.yaml").read_text())
+    shipped = (SCENARIOS / "environments" / "e1.yaml").resolve()
+    assert Path(resolved["train"]["environment"]) == shipped
+    assert Path(resolved["evaluations"][0]["environment"]) == shipped
+
+
+def test_json_puts_the_results_rows_alone_on_stdout(quiet_json_run):
+    out, proc = quiet_json_run
+    rows = json.loads(proc.stdout)  # the whole of stdout is the JSON document
+    assert rows == json.loads((out / "results.json").read_text())
+    assert {(r["environment"], r["method"]) for r in rows} == {("E1", "L"), ("E1", "H")}
+
+
+def test_quiet_leaves_warnings_only_on_stderr_and_everything_in_the_log(quiet_json_run):
+    out, proc = quiet_json_run
+    log_text = (out / "log.txt").read_text()
+    for info in ("running", "max F1", "results in"):
+        assert info in log_text and info not in proc.stderr, info
+    assert "%|" not in proc.stderr  # -q: no progress bars either
+
+
+def test_verbose_and_quiet_are_accepted_by_every_command(tmp_path, capsys):
+    import argparse
+
+    from vitaplace.engine.cli import build_parser
+
+    parser = build_parser()
+    (commands,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    for name, sub in commands.choices.items():
+        assert {"-v", "--verbose", "-q", "--quiet"} <= set(sub._option_string_actions), name
+    path = str(write_scenario(tmp_path, valid_scenario()))
+    for argv in (["-v", "validate", path], ["validate", path, "--verbose"], ["plugins", "-v"]):
+        assert main(argv) == 0
+        assert "vitaplace 0.1.0, Python" in capsys.readouterr().err, argv  # a debug line
+    assert main(["validate", path]) == 0
+    assert "Python" not in capsys.readouterr().err  # INFO by default
+    assert main(["-q", "validate", path]) == 0 and "valid scenario 't'" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv", [
+    ["simulate", "SCENARIO", "--force", "fit"],
+    ["train", "SCENARIO", "--force", "transform"],
+    ["evaluate", "SCENARIO", "--force", "report"],
+    ["simulate", ENV_E1, "--force", "simulate"],
+])
+def test_force_of_a_stage_the_command_does_not_reach_is_refused(tmp_path, capsys, argv):
+    path = str(write_scenario(tmp_path, valid_scenario()))
+    out = tmp_path / "out"
+    argv = [path if a == "SCENARIO" else a for a in argv]
+    assert main([*argv, "--out", str(out), "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vitaplace: error: --force"), lines
+    assert not out.exists() or not any(out.iterdir())
+
+
+def test_set_appends_to_a_list_and_refuses_anything_else(capsys):
+    from vitaplace.engine.scenario import ScenarioError, apply_overrides
+
+    data = {"methods": [{"name": "L"}], "evaluation": {"tau": 0.3}}
+    appended = apply_overrides(data, ["methods+={name: L2, plugin: mupnet, params: {epochs: 1}}"])
+    assert appended["methods"] == [{"name": "L"}, {"name": "L2", "plugin": "mupnet", "params": {"epochs": 1}}]
+    assert data["methods"] == [{"name": "L"}]
+    assert main(["validate", "quickstart", "--set", "methods+={name: L2, plugin: handcrafted}"]) == 0
+    assert "methods L, H, L2" in capsys.readouterr().out
+    for bad in ("evaluation.tau+=1", "evaluation.recall_k+=20", "methods.0.name+=x"):
+        with pytest.raises(ScenarioError, match=r"\+= appends to a list"):
+            apply_overrides(data, [bad])
+    assert main(["validate", "quickstart", "--set", "evaluation.tau+=1"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "'evaluation.tau' is a float, not a list" in lines[0], lines
+
+
+def test_validate_checks_environment_files(tmp_path, capsys):
+    assert main(["validate", ENV_E1]) == 0
+    assert "valid environment 'e1': arena 6.05 x 6.05 m, 3 landmark(s)" in capsys.readouterr().out
+    assert main(["validate", "e2"]) == 0 and "valid environment 'e2'" in capsys.readouterr().out
+    own = tmp_path / "mine.yaml"
+    own.write_text("extends: e1\nlandmarks: []\n")  # a shipped environment by name, from another folder
+    assert main(["validate", str(own)]) == 0
+    printed = capsys.readouterr().out
+    assert "valid environment 'mine'" in printed and "0 landmark(s)" in printed
+    broken = tmp_path / "broken.yaml"
+    broken.write_text("extends: e1\narena: {size: -1}\n")
+    assert main(["validate", str(broken)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"vitaplace: error: {broken}: arena.size"), lines
+
+
+def test_shell_completion_when_shtab_is_installed():
+    pytest.importorskip("shtab")
+    result = run_cli(["--print-completion", "bash"])
+    assert result.returncode == 0 and "sweep" in result.stdout and "validate" in result.stdout
+
+
+def test_mupnet_inference_shows_a_bar_and_logs_samples_cap_and_time(quiet_json_run, capsys):
+    import re
+
+    from vitaplace.engine.dataset import open_run
+    from vitaplace.plugins.mupnet.extractor import MupnetExtractor
+
+    out, _ = quiet_json_run
+    log_text = (out / "log.txt").read_text()
+    assert re.search(r"test-time inference of 10 samples of run 'E1/query' \(step cap 20, .*\) in \d+\.\d s", log_text)
+    model = next(p for p in (out / "cache" / "models").iterdir() if p.is_dir() and p.name.startswith("L-"))
+    run = open_run(next((out / "cache" / "datasets").glob("E1-query-*.h5")))
+    extractor = MupnetExtractor.load(model)
+    for progress in (True, False):
+        extractor.progress = progress
+        extractor.transform(run)
+        assert ("sample/s" in capsys.readouterr().err) == progress
+
+
+def test_every_simulated_run_logs_its_samples_and_seconds(quiet_json_run):
+    import re
+
+    log_text = (quiet_json_run[0] / "log.txt").read_text()
+    for label, samples in (("train", 12), ("E1/query", 10), ("E1/reference", 10)):
+        assert re.search(rf"simulate\s+{label}\s+recorded {samples} samples in \d+\.\d s", log_text), label
+
+
+def test_report_states_sample_counts_and_method_parameters(quiet_json_run):
+    out, _ = quiet_json_run
+    report = (out / "report.md").read_text()
+    (row, _) = json.loads((out / "results.json").read_text())
+    assert "Training run: 12 samples" in report
+    assert f"| E1 | query-to-reference | 10 | 10 | {row['n_revisit']} |" in report
+    assert "**L** (`mupnet`): image_size=[9, 16]" in report and "max_steps=20" in report
+    assert "**H** (`handcrafted`): none; defaults: grid=" in report
+
+
+def test_results_csv_has_precision_recall_f1_at_max_f1_without_fixed_delta(quiet_json_run):
+    import csv
+
+    out, _ = quiet_json_run
+    rows = {r["method"]: r for r in json.loads((out / "results.json").read_text())}
+    with open(out / "results.csv", newline="") as f:
+        for line in csv.DictReader(f):
+            row = rows[line["method"]]
+            assert "f1" not in row  # no evaluation.delta in the scenario
+            assert float(line["f1"]) == pytest.approx(row["max_f1"])
+            assert float(line["precision"]) == pytest.approx(row["precision_at_max_f1"])
+            assert float(line["recall"]) == pytest.approx(row["recall_at_max_f1"])
+            assert float(line["delta"]) == pytest.approx(row["delta_at_max_f1"])
+
+
+def test_figures_label_colour_bars_and_keep_legends_off_the_data(tmp_path, monkeypatch):
+    from vitaplace.engine import evaluate as ev
+    from vitaplace.engine import figures
+
+    drawn = []
+    monkeypatch.setattr(figures, "_save", lambda fig, stem: drawn.append(fig) or [])
+    t = np.linspace(0, 2 * np.pi, 30)
+    poses = np.c_[np.cos(t), np.sin(t), t]
+    gtm = ev.ground_truth_matrix(poses, poses[::-1])
+    tme = gtm + np.random.default_rng(0).random(gtm.shape)
+    curve = ev.pr_curve(tme, gtm, 0.3)
+    decisions = ev.decide(tme, gtm, 0.3, curve.delta_at_max_f1)
+    figures.plot_matrices(tmp_path / "m", tme, gtm, decisions)
+    figures.plot_pr_curves(tmp_path / "p", {"L": curve, "H": curve})
+    figures.plot_trajectories(tmp_path / "t", poses, poses[::-1], decisions, arena={"width": 3, "depth": 3})
+    figures.plot_energy(tmp_path / "e", {"visual.0": [3.0, 2.0], "joint": [1.0, 0.5]})
+    for fig in drawn:
+        fig.draw_without_rendering()
+        renderer = fig.canvas.get_renderer()
+        colour_bars = [ax for ax in fig.axes if hasattr(ax, "_colorbar")]
+        data = [ax for ax in fig.axes if ax not in colour_bars]
+        assert all(ax.get_ylabel() for ax in colour_bars)
+        assert fig.legends and not any(ax.get_legend() for ax in data)
+        for legend in fig.legends:
+            box = legend.get_window_extent(renderer)
+            assert not any(box.overlaps(ax.get_window_extent(renderer)) for ax in fig.axes)
+    assert sum(hasattr(ax, "_colorbar") for ax in drawn[0].axes) == 2
+
+
+def test_force_alone_redoes_every_stage_the_command_runs(tmp_path):
+    path = str(write_scenario(tmp_path, valid_scenario()))
+    out = tmp_path / "out"
+
+    def statuses(*extra: str) -> set[str]:
+        assert main(["-q", "simulate", path, "--out", str(out), *extra]) == 0
+        return {r["status"] for r in json.loads((out / "manifest.json").read_text())["stages"]}
+
+    assert statuses() == {"ran"}
+    assert statuses() == {"cached"}
+    assert statuses("--force") == {"ran"}
+    assert statuses("--force", "all") == {"ran"}

@@ -2,7 +2,9 @@
 
 ``fit`` scales the inputs (images to [0, 1] after resampling to the network's image size,
 theta + xy min-max fitted on the training run), trains the network, and ``transform``
-infers the joint latent of every sample with frozen weights. Distance: L2.
+infers the joint latent of every sample with frozen weights (a progress bar over the
+samples unless ``progress`` is off, then one log line: samples, step cap, seconds).
+Distance: L2.
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import time
 from pathlib import Path
 from typing import Literal
 
@@ -17,6 +20,7 @@ import numpy as np
 import pydantic
 from scipy.ndimage import zoom
 from scipy.spatial.distance import cdist
+from tqdm.auto import tqdm
 
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.dataset import Run
@@ -199,7 +203,15 @@ class MupnetExtractor(FeatureExtractor):
     def transform(self, run: Run) -> Features:
         if self.network is None:
             raise RuntimeError("mupnet: fit() or load() before transform()")
-        result = self.network.infer(self.scaled_inputs(run), max_steps=self.params.max_steps)
+        inputs = self.scaled_inputs(run)
+        start = time.perf_counter()
+        with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress, leave=False) as bar:
+            result = self.network.infer(inputs, max_steps=self.params.max_steps, on_progress=bar.update)
+        log.info(
+            "mupnet: test-time inference of %d samples of run %r (step cap %d, %d reached it, at most %d steps) "
+            "in %.1f s", len(run), run.name, self.params.max_steps, int((~result.stopped).sum()),
+            int(result.steps_per_sample.max(initial=0)), time.perf_counter() - start,
+        )
         latent = result.latents["joint"]
         diverged = np.linalg.norm(latent, axis=1) > DIVERGED_FACTOR * self.train_norm_max
         if diverged.any():
