@@ -165,9 +165,15 @@ class Route:
 
     def at(self, s: np.ndarray) -> np.ndarray:
         """Positions (n, 2) at arc lengths ``s`` (n,), wrapped around the loop."""
+        return self.offset_at(s, 0.0)
+
+    def offset_at(self, s: np.ndarray, offset: float) -> np.ndarray:
+        """Positions (n, 2) at arc lengths ``s``, moved ``offset`` metres to the left of the
+        direction of travel (the segment's normal)."""
         s = np.asarray(s, dtype=float) % self.length
         i = np.clip(np.searchsorted(self.cum, s, side="right") - 1, 0, len(self.seg_len) - 1)
-        return self.seg_a[i] + (s - self.cum[i])[:, None] * self.seg_dir[i]
+        normal = np.stack([-self.seg_dir[i, 1], self.seg_dir[i, 0]], axis=1)
+        return self.seg_a[i] + (s - self.cum[i])[:, None] * self.seg_dir[i] + offset * normal
 
     def point(self, s: float) -> tuple[np.ndarray, np.ndarray]:
         """Position and unit tangent at arc length ``s`` (wrapped around the loop)."""
@@ -414,16 +420,15 @@ class RouteFollower:
             self._speed.step(dt)
         x, y, yaw = obs.pose
         pos = np.array([x, y])
-        # progress: closest route point, searched only slightly ahead of the last one
+        lateral = float(np.clip(self._lateral.x, -2 * spec.lateral_noise, 2 * spec.lateral_noise))
+        detour = spec.off_route_offset if obs.time >= self.off_route_from else 0.0
+        # progress: closest point of the (detoured) path, searched only slightly ahead of the last one
         cand = self.s + np.linspace(-0.1, 0.5, 25)
-        d = np.linalg.norm(self.route.at(cand) - pos[None], axis=1)
+        d = np.linalg.norm(self.route.offset_at(cand, detour) - pos[None], axis=1)
         self.s = max(self.s, float(cand[int(np.argmin(d))]))
         target, tangent = self.route.point(self.s + spec.lookahead)
         normal = np.array([-tangent[1], tangent[0]])
-        lateral = float(np.clip(self._lateral.x, -2 * spec.lateral_noise, 2 * spec.lateral_noise))
-        if obs.time >= self.off_route_from:
-            lateral += spec.off_route_offset
-        target = target + lateral * normal
+        target = target + (lateral + detour) * normal
         course = math.atan2(target[1] - y, target[0] - x)
         # keep the body clear of obstacles (the route passes close to landmarks)
         dist, grad = self.obstacles.query(pos[None])
