@@ -19,6 +19,7 @@ import yaml
 
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.scenario import content_hash
+from vitaplace.engine.figures import write_pr_bands
 from vitaplace.engine.summary import write_summary
 
 REQUIRED = ("manifest.json", "results.json", "scenario.resolved.yaml")
@@ -81,4 +82,6 @@ def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Pa
     rows = [row for *_, run_rows in runs for row in run_rows]
     name = first_manifest.get("scenario", "scenario")
     info = {"scenario": name, "seeds": sorted(seen), "failed": {}, "folders": {str(s): str(f) for s, f in sorted(seen.items())}}
-    return out, write_summary(out, rows, f"{name}: {len(seen)} seed(s)", info)
+    record = write_summary(out, rows, f"{name}: {len(seen)} seed(s)", info)
+    write_pr_bands(out, seen, rows)
+    return out, record

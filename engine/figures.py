@@ -106,15 +106,64 @@ def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> 
         k = curve.index_at_max_f1
         ax.plot([curve.recall[k]], [curve.precision[k]], marker="*", markersize=12, color=colour,
                 markeredgecolor="black", linestyle="")
+    _finish_pr_axes(fig, ax, "precision", len(curves), title or "Precision-recall (★ = max F1)")
+    return _save(fig, out_stem)
+
+
+def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str) -> None:
+    """Limits, labels, grid, a legend below the axes (covering no data) and the title."""
     ax.set_xlim(-0.02, 1.02)
     ax.set_ylim(-0.02, 1.05)
     ax.set_xlabel("recall")
-    ax.set_ylabel("precision")
+    ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.3)
-    if curves:
-        fig.legend(loc="outside lower center", fontsize="small", ncols=1 if len(curves) > 2 else len(curves))
-    ax.set_title(title or "Precision-recall (★ = max F1)")
+    if n_curves:
+        fig.legend(loc="outside lower center", fontsize="small", ncols=1 if n_curves > 2 else n_curves)
+    ax.set_title(title)
+
+
+def interpolated_precision(curve: PRCurve, recall_grid: np.ndarray) -> np.ndarray:
+    """Precision at each recall of ``recall_grid``: the best precision the curve reaches at
+    that recall or above (0 where it never gets there) - the usual interpolated PR curve."""
+    order = np.argsort(curve.recall, kind="stable")[::-1]
+    best = np.maximum.accumulate(curve.precision[order])  # best precision at recall >= recall[order]
+    recall_desc = curve.recall[order]
+    idx = np.searchsorted(-recall_desc, -recall_grid, side="right") - 1  # last point with recall >= r
+    return np.where(idx >= 0, best[np.clip(idx, 0, None)], 0.0)
+
+
+def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str = "") -> list[Path]:
+    """Per method, the mean interpolated precision-recall curve over seeds with the band
+    from the lowest to the highest seed; the legend gives the seeds and max F1 mean +- std."""
+    grid = np.linspace(0.0, 1.0, 201)
+    fig = _new_figure((6, 5))
+    ax = fig.subplots()
+    for i, (name, seeds) in enumerate(curves.items()):
+        colour = f"C{i % 10}"
+        prec = np.array([interpolated_precision(c, grid) for c in seeds])
+        f1 = np.array([c.max_f1 for c in seeds])
+        spread = f" ± {f1.std(ddof=1):.3f}" if len(f1) > 1 else ""
+        ax.plot(grid, prec.mean(axis=0), color=colour, label=f"{name} ({len(seeds)} seeds, max F1 {f1.mean():.3f}{spread})")
+        ax.fill_between(grid, prec.min(axis=0), prec.max(axis=0), color=colour, alpha=0.2, linewidth=0)
+    _finish_pr_axes(fig, ax, "interpolated precision", len(curves),
+                    title or "Precision-recall over seeds (band: lowest to highest seed)")
     return _save(fig, out_stem)
+
+
+def write_pr_bands(out: Path, folders: Mapping[int, Path], rows: Sequence[Mapping]) -> list[Path]:
+    """``pr-bands-<environment>-<direction>`` figures in ``out`` from the seed run folders'
+    saved curves (``evaluations/ENV/METHOD/DIRECTION/pr_curve.npz``)."""
+    from vitaplace.engine.evaluate import load_curve
+
+    groups: dict[tuple[str, str], dict[str, list[PRCurve]]] = {}
+    for row in sorted(rows, key=lambda r: r["seed"]):
+        path = Path(folders[row["seed"]]) / "evaluations" / row["environment"] / row["method"] / row["direction"] / "pr_curve.npz"
+        if path.is_file():
+            groups.setdefault((row["environment"], row["direction"]), {}).setdefault(row["method"], []).append(load_curve(path))
+    written = []
+    for (env, direction), curves in groups.items():
+        written += plot_pr_bands(Path(out) / f"pr-bands-{env}-{direction}", curves, f"{env}: precision-recall over seeds ({direction})")
+    return written
 
 
 def _arena_bounds(arena: Mapping) -> tuple[float, float, float, float] | None:

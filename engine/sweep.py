@@ -323,6 +323,7 @@ def run_sweep(
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
+    from vitaplace.engine.figures import write_pr_bands
     from vitaplace.engine.summary import write_summary
 
     out = Path(os.path.abspath(out))
@@ -359,4 +360,5 @@ def run_sweep(
     ok = sorted({row["seed"] for row in outcome.rows})
     info = {"scenario": scenario.name, "seeds": ok, "failed": {str(s): m for s, m in sorted(outcome.failed.items())}}
     outcome.summary = write_summary(out, outcome.rows, f"{scenario.name}: {len(ok)} seed(s)", info)["summary"]
+    write_pr_bands(out, {seed: out / f"seed-{seed}" for seed in ok}, outcome.rows)
     return outcome

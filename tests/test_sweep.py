@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -347,3 +348,41 @@ def test_gpu_jobs_select_the_gpu_backend_where_a_method_has_one(tmp_path):
     gpu, resolved = sweep.load_sweep_scenario(str(tmp_path / "s.yaml"), [], gpus_per_job=1)
     assert gpu.methods[0].params["backend"] == "warp" and resolved["methods"][0]["params"]["backend"] == "warp"
     assert "backend" not in sweep.load_sweep_scenario(str(tmp_path / "s.yaml"), [], 0)[0].methods[0].params
+
+
+def _curve(recall, precision):
+    from vitaplace.engine.evaluate import PRCurve
+
+    r, p = np.asarray(recall, float), np.asarray(precision, float)
+    f1 = np.where(p + r > 0, 2 * p * r / np.maximum(p + r, 1e-12), 0.0)
+    z = np.zeros(len(r))
+    return PRCurve(np.arange(len(r), dtype=float), p, r, f1, z, z, z, 10, 10)
+
+
+def test_interpolated_precision_is_the_best_precision_at_or_beyond_each_recall():
+    from vitaplace.engine.figures import interpolated_precision
+
+    # points (recall, precision): (0.2, 1.0), (0.5, 0.8), (0.5, 0.9), (1.0, 0.5), in threshold order
+    curve = _curve([0.5, 0.2, 1.0, 0.5], [0.8, 1.0, 0.5, 0.9])
+    got = interpolated_precision(curve, np.array([0.0, 0.2, 0.3, 0.5, 0.6, 1.0]))
+    np.testing.assert_allclose(got, [1.0, 1.0, 0.9, 0.9, 0.5, 0.5])
+    short = _curve([0.1, 0.4], [1.0, 0.7])  # never reaches recall 0.5: precision 0 there
+    np.testing.assert_allclose(interpolated_precision(short, np.array([0.4, 0.5])), [0.7, 0.0])
+
+
+def test_pr_band_figures_are_written_per_environment_from_the_seed_folders(tmp_path):
+    import dataclasses
+
+    from vitaplace.engine.figures import write_pr_bands
+
+    rows = []
+    for seed in (0, 1):
+        for method in ("L", "H"):
+            folder = tmp_path / f"seed-{seed}" / "evaluations" / "E1" / method / "query-to-reference"
+            folder.mkdir(parents=True)
+            c = _curve([0.2, 0.6, 1.0], [1.0, 0.9 - 0.1 * seed, 0.5])
+            np.savez(folder / "pr_curve.npz", **{k: np.asarray(v) for k, v in dataclasses.asdict(c).items()})
+            rows.append({"seed": seed, "environment": "E1", "method": method, "direction": "query-to-reference"})
+    written = write_pr_bands(tmp_path, {0: tmp_path / "seed-0", 1: tmp_path / "seed-1"}, rows)
+    assert {p.name for p in written} == {"pr-bands-E1-query-to-reference.png", "pr-bands-E1-query-to-reference.pdf"}
+    assert all(p.stat().st_size > 1000 for p in written)

@@ -131,7 +131,7 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, route_samp
     # the robot next to a landmark, seen from outside (whiskers visible)
     env = load_environment("e2")
     sim = Simulator(env, camera=False)
-    sim.reset((0.0, -0.93, 0.0))
+    sim.reset((0.0, -1.0, -math.pi / 2))  # facing the southern cylinder, its whiskers on it
     sim.cycle()
     big = build_model(env, sim.robot, offscreen=(640, 480))
     d = mujoco.MjData(big.model)
@@ -140,8 +140,8 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, route_samp
     cam = Camera(big.model, 640, 480, camera=0, show_robot=True)
     free = mujoco.MjvCamera()
     free.type = mujoco.mjtCamera.mjCAMERA_FREE
-    free.lookat[:] = (0.1, -0.95, 0.12)
-    free.distance, free.azimuth, free.elevation = 0.9, 235.0, -35.0
+    free.lookat[:] = (0.0, -1.3, 0.2)
+    free.distance, free.azimuth, free.elevation = 1.6, 20.0, -30.0
     cam.camera = free
     shot = cam.render(d).copy()
     free.lookat[:] = (0.0, 0.0, 0.0)
@@ -162,11 +162,12 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, route_samp
     sim = Simulator(env, camera=False)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharey=True)
     t = (sim.robot.series_steps() + 1) * sim.robot.timestep
-    for ax, (label, pose) in zip(axes, (("open floor", (0.0, 0.0, 0.0)), ("east wall on the right", (2.85, 0.0, math.pi / 2)))):
+    east_wall = (2.58, 0.0, math.radians(60))  # the east wall ahead and to the right
+    for ax, (label, pose) in zip(axes, (("open floor", (0.0, 0.0, 0.0)), ("east wall ahead right", east_wall))):
         sim.reset(pose)
         sim.cycle()
         series, _, _ = sim.cycle()
-        for i, colour in ((15, "tab:red"), (19, "tab:orange"), (23, "tab:purple"), (3, "tab:gray")):
+        for i, colour in ((3, "tab:red"), (7, "tab:orange"), (1, "tab:purple"), (23, "tab:gray")):
             ax.plot(t, np.degrees(series[:, i, 0]), color=colour, label=f"w{i:02d} x")
             ax.plot(t, np.degrees(series[:, i, 1]), color=colour, ls=":", label=f"w{i:02d} y")
         ax.set_title(label)
