@@ -157,7 +157,27 @@ class RobotSpec(BaseModel):
             raise ValueError(
                 f"deflection_samples ({self.deflection_samples}) exceeds the physics steps per whisk cycle ({round(steps)})"
             )
+        for name, stiffness, limit in (
+            ("spring_stiffness", self.spring_stiffness, self.max_stable_stiffness(self.spring_armature)),
+            ("servo_kp", self.servo_kp, self.max_stable_stiffness(self.servo_armature)),
+        ):
+            if stiffness > limit:
+                raise ValueError(
+                    f"{name} = {stiffness:g} N m/rad is beyond the stable range at timestep {self.timestep:g} s: "
+                    f"at most {limit:.4g} (natural frequency sqrt(k / I) below 2 / timestep for the shortest whisker)"
+                )
         return self
+
+    def max_stable_stiffness(self, armature: float) -> float:
+        """The largest angular stiffness [N m/rad] a whisker hinge with ``armature`` can have at
+        this timestep: MuJoCo's implicitfast integrator treats damping implicitly but stiffness
+        explicitly, so the spring's natural frequency sqrt(k / I) must stay below 2 / timestep,
+        I being the hinge's rotor inertia plus the lightest shaft's (a rod of length L and mass
+        m turning about its end: m L^2 / 3)."""
+        length = min(self.whisker_lengths_mm) / 1000.0
+        mass = WHISKER_DENSITY * math.pi * (self.whisker_radius_mm / 1000.0) ** 2 * length
+        inertia = armature + mass * length**2 / 3.0
+        return inertia * (2.0 / self.timestep) ** 2
 
     @property
     def whisk_period(self) -> float:
