@@ -75,6 +75,30 @@ def _methods_section(pipeline: Pipeline) -> list[str]:
     return lines + [""]
 
 
+def inference_table(pipeline: Pipeline) -> str:
+    """Markdown table of the test-time inference steps per method and evaluation run, for
+    methods whose features record them (``inference_steps``, ``inference_stopped``): median,
+    90th percentile and largest step count, and the share of samples that hit the step cap."""
+    from vitaplace.engine.features import load_features
+
+    lines = []
+    for method in pipeline.scenario.methods:
+        for label in pipeline.runs():
+            if label == "train":
+                continue
+            features = load_features(pipeline.features_path(method, label))
+            if "inference_steps" not in features:
+                break
+            steps, stopped = features["inference_steps"], features["inference_stopped"].astype(bool)
+            lines.append(
+                f"| {method.name} | {label} | {np.median(steps):.0f} | {np.percentile(steps, 90):.0f} | "
+                f"{steps.max()} | {100 * (~stopped).mean():.1f} |"
+            )
+    if not lines:
+        return ""
+    return "\n".join(["| method | run | median steps | 90th percentile | most | % at the cap |", "|---|---|---|---|---|---|", *lines])
+
+
 def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
     """figures/ (PNG + PDF) and report.md for the evaluated scenario."""
     out, scenario = pipeline.out, pipeline.scenario
@@ -99,6 +123,17 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         "",
         *_methods_section(pipeline),
     ]
+    inference = inference_table(pipeline)
+    if inference:
+        sections += [
+            "## Test-time inference",
+            "",
+            "Each sample's latents are inferred until its prediction errors fall under their "
+            "thresholds, or up to the method's step cap (`max_steps`).",
+            "",
+            inference,
+            "",
+        ]
     for e in scenario.evaluations:
         arena = load_environment(e.environment).top_view() if e.environment is not None else None
         curves = {}

@@ -766,3 +766,23 @@ def test_force_alone_redoes_every_stage_the_command_runs(tmp_path):
     assert statuses() == {"cached"}
     assert statuses("--force") == {"ran"}
     assert statuses("--force", "all") == {"ran"}
+
+
+def test_report_gives_the_distribution_of_test_time_inference_steps(quickstart_run):
+    """MuPNet's features record each sample's inference steps and whether it stopped before
+    the cap; the report's table is their median, 90th percentile, maximum and share at the cap
+    (TINY: max_steps 20), recomputed here from the saved features."""
+    from vitaplace.engine.features import load_features
+
+    out, _, _ = quickstart_run
+    report = (out / "report.md").read_text()
+    assert "## Test-time inference" in report
+    for label in ("E1-query", "E1-reference"):
+        (path,) = (out / "cache" / "features").glob(f"L-{label}-*.npz")
+        features = load_features(path)
+        steps, stopped = features["inference_steps"], features["inference_stopped"].astype(bool)
+        assert steps.shape == (10,) and 1 <= steps.min() and steps.max() <= 20
+        assert np.all(stopped | (steps == 20))  # a sample that did not stop ran to the cap
+        row = (f"| L | {label.replace('-', '/')} | {np.median(steps):.0f} | {np.percentile(steps, 90):.0f} | "
+               f"{steps.max()} | {100 * (~stopped).mean():.1f} |")
+        assert row in report, row

@@ -222,7 +222,10 @@ class MupnetExtractor(FeatureExtractor):
                 len(where), len(latent), run.name, DIVERGED_FACTOR, self.train_norm_max,
                 ", ".join(map(str, where[:10])),
             )
-        return {"latent": latent, "diverged": diverged}
+        # per sample: inference steps taken, and whether its errors fell under their thresholds
+        # before the cap (the report gives their distribution)
+        return {"latent": latent, "diverged": diverged, "inference_steps": result.steps_per_sample,
+                "inference_stopped": result.stopped}
 
     def distance(self, query: Features, reference: Features) -> np.ndarray:
         return cdist(query["latent"], reference["latent"])
