@@ -142,6 +142,8 @@ def _numeric(path: Path, kind: str) -> np.ndarray:
         arr = arr[..., None]
     if arr.ndim != len(lead) + 1 or arr.shape[: len(lead)] != lead:
         raise DatasetError(f"{path}: variable '{name}' has shape {arr.shape}, expected {_EXPECTED[kind]}")
+    if arr.shape[-1] == 0:
+        raise DatasetError(f"{path}: variable '{name}' holds no samples; expected {_EXPECTED[kind]}")
     _check_finite(arr, path, name)
     return arr
 

@@ -36,6 +36,7 @@ from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features
 from vitaplace.engine.plugins import Registry, discover
 from vitaplace.engine.scenario import EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, content_hash
+from vitaplace.engine.sim import SIMULATOR_VERSION
 from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
@@ -275,7 +276,8 @@ class Pipeline:
             if isinstance(entry, EvaluationRuns) and label.endswith("/query") and entry.query_off_route:
                 run = run.model_copy(update={"off_route_fraction": entry.query_off_route})
             spec = [environment.model_dump(mode="json"), run.model_dump(mode="json")]
-            key = content_hash("simulate", STAGE_VERSION["simulate"], spec, self.scenario.robot.model_dump(mode="json"), seed)
+            key = content_hash("simulate", STAGE_VERSION["simulate"], SIMULATOR_VERSION, spec,
+                               self.scenario.robot.model_dump(mode="json"), seed)
             self.state.datasets[label] = key
             args = (str(entry.environment), run.model_dump(), self.scenario.robot.model_dump(), seed, label, key)
             jobs[label] = (args, self.dataset_path(label))

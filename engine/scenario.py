@@ -141,6 +141,8 @@ class EvaluationRuns(_RunSource):
     @pydantic.model_validator(mode="after")
     def _simulated_or_recorded(self) -> EvaluationRuns:
         self._check_source("datasets", self.datasets is not None, environment_allowed=True)
+        if self.query_off_route and (self.run is None or self.run.kind == "foraging"):
+            raise ValueError("query_off_route needs a simulated route or orbit run (not recorded runs, not foraging)")
         return self
 
     def recorded(self) -> dict[str, Path]:
@@ -326,7 +328,8 @@ def _recorded_samples(path: Path, where: str, file: Path, minimum: int) -> int:
     except DatasetError as exc:
         raise ScenarioError(f"{path}: {where}: {exc}") from None
     if samples < minimum:
-        raise ScenarioError(f"{path}: {where}: an evaluation run needs at least {minimum} samples, {file} has {samples}")
+        role = "a training" if where.startswith("train") else "an evaluation"
+        raise ScenarioError(f"{path}: {where}: {role} run needs at least {minimum} samples, {file} has {samples}")
     return samples
 
 

@@ -374,15 +374,15 @@ def test_unusable_output_directory_is_one_line_before_any_work(tmp_path, kind):
     assert f"--out {out}" in lines[0]
 
 
-def test_an_unstable_simulation_stops_the_run_with_one_clear_error(tmp_path):
+def test_an_unstable_stiffness_is_refused_before_any_compute_with_one_clear_error(tmp_path):
     data = valid_scenario()
     data["robot"] = {"spring_stiffness": 1e30}
     path = write_scenario(tmp_path, data)
     result = run_cli(["run", str(path), "--out", str(tmp_path / "out"), "--no-progress"])
     assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr[-800:]
-    last = result.stderr.strip().splitlines()[-1]
-    assert last.startswith("vitaplace: error:") and "simulation was unstable" in last, last
-    assert not (tmp_path / "out" / "results.json").exists()
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and "robot: spring_stiffness" in lines[0] and "stable range" in lines[0], lines
+    assert not (tmp_path / "out" / "cache").exists()
 
 
 def test_extractor_outputs_are_checked_with_one_line():

@@ -18,6 +18,11 @@ from vitaplace.engine.sim.glsetup import select_gl_backend
 
 select_gl_backend()
 
+#: Version of the simulated behaviour (robot model, controllers, sensors): part of every
+#: simulate stage's cache key, so raise it whenever the same specs would record other data.
+#: 2: WhiskEye geometry, routes for its footprint, detours that follow the offset path.
+SIMULATOR_VERSION = 2
+
 _EXPORTS = {
     "EnvironmentSpecError": "environment",
     "EnvironmentSpec": "environment",
@@ -29,7 +34,7 @@ _EXPORTS = {
     "GLUnavailableError": "render",
 }
 
-__all__ = sorted(_EXPORTS)
+__all__ = sorted([*_EXPORTS, "SIMULATOR_VERSION"])
 
 
 def __getattr__(name: str) -> Any:

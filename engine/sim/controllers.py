@@ -11,7 +11,7 @@ Foraging (inspired by rodent exploration; Mitchinson & Prescott's "orient" behav
 
 * ``wander``  - drive forward with a smoothly random turn rate (Ornstein-Uhlenbeck);
 * ``orient``  - on whisker contact, turn toward the contact (the attended point);
-* ``explore`` - keep the attended object at ~60 deg to one side and move slowly along it,
+* ``explore`` - keep the attended object 25 deg to one side, at the whiskers' reach, and move slowly along it,
   re-attending to the newest contacts (contour following), for a random 3-8 s;
 * ``leave``   - turn away from the explored object, ignore contacts for a refractory period;
 * ``avoid``   - whenever the chassis or the head gets close to a wall or landmark (from
@@ -352,18 +352,17 @@ class ForagingController:
         dist = self.obstacles.distance_many(np.stack([pos, head]))
         return float(min(dist[0] - BODY_RADIUS, dist[1] - HEAD_RADIUS))
 
-    def _out(self, v: float, w: float, dt: float, pose: np.ndarray | None = None) -> tuple[float, float]:
-        """Rate-limited command; with ``pose``, a command that would swing the head or drive the
-        body into an obstacle within 0.5 s is replaced by the first safe one of: backing off
-        while turning, backing off straight, not turning, standing still."""
-        if pose is not None:
-            floor = min(self._clearance(pose, 0.0, 0.0, 0.0), 0.25 * self.spec.avoid_margin)
-            for cand in ((v, w), (-0.05, w), (-0.05, 0.0), (v, 0.0), (0.0, 0.0)):
-                if self._clearance(pose, *cand, horizon=0.5) >= floor:
-                    v, w = cand
-                    break
-            else:
-                v, w = 0.0, 0.0
+    def _out(self, v: float, w: float, dt: float, pose: np.ndarray) -> tuple[float, float]:
+        """Rate-limited command; one that would swing the head or drive the body into an
+        obstacle within 0.5 s is replaced by the first safe one of: backing off while turning,
+        backing off straight, not turning, standing still (always safe: nothing moves)."""
+        floor = min(self._clearance(pose, 0.0, 0.0, 0.0), 0.25 * self.spec.avoid_margin)
+        for cand in ((v, w), (-0.05, w), (-0.05, 0.0), (v, 0.0)):
+            if self._clearance(pose, *cand, horizon=0.5) >= floor:
+                v, w = cand
+                break
+        else:
+            v, w = 0.0, 0.0
         return self._limit(v, w, dt=dt)
 
 
@@ -452,7 +451,9 @@ class RouteFollower:
         return self._limit(v, w, side, dt=dt)
 
 
-def make_controller(env: EnvironmentSpec, spec: RunSpec, rng: np.random.Generator, sample_period: float = 0.5):
+def make_controller(
+    env: EnvironmentSpec, spec: RunSpec, rng: np.random.Generator, sample_period: float = 0.5
+) -> tuple[ForagingController | RouteFollower, tuple[float, float, float]]:
     """The controller for ``spec.kind`` and its start pose ``(x, y, yaw_rad)``; ``sample_period``
     [s] (one whisk cycle) places the off-route part at the end of the run."""
     if spec.kind == "foraging":

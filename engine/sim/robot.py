@@ -58,7 +58,7 @@ N_WHISKERS = N_BOARDS * N_COLUMNS
 BODY_RADIUS = 0.23  #: chassis radius [m]
 BODY_HEIGHT = 0.295  #: chassis height [m]
 HEAD_POS = (0.50, 0.0, 0.245)  #: head box centre in the base frame [m]
-HEAD_HALF = (0.08, 0.08, 0.065)  #: head box half-extents [m] (encloses the whisker bases' mounts)
+HEAD_HALF = (0.08, 0.08, 0.065)  #: head box half-extents [m]; the whisker bases sit on and just beyond its front
 CAMERA_POS = (0.5166, 0.0573, 0.315)  #: the model's cam0 in the base frame [m]
 #: Per whisker at theta = 0, in the base frame: base position [m], shaft direction and
 #: protraction axis (unit vectors), from the model's whisker_pose.h (rounded to 0.1 mm).
