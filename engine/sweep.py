@@ -30,6 +30,7 @@ import typing
 import uuid
 from collections.abc import Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -237,11 +238,32 @@ def seed_jobs(
 
 
 def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
-    """Run ``jobs`` on a process pool; yield (job, result, failure) as each one ends."""
+    """Run ``jobs`` on a process pool; yield (job, result, failure) as each one ends.
+
+    A worker process that dies (killed, out of memory, a crash in native code) breaks the
+    pool and every job still in it; those jobs run again, each in a pool of its own, so the
+    one that kills its process fails alone (its finished stages are cached and resume)."""
+    rounds = [(list(jobs), workers)]
+    retried: set[int] = set()
+    while rounds:
+        batch, width = rounds.pop(0)
+        broken = yield from _pool_round(batch, width)
+        for job in broken:
+            if job.seed in retried:
+                yield job, None, "its worker process died (killed, out of memory or crashed in native code)"
+            else:
+                retried.add(job.seed)
+                rounds.append(([job], 1))
+
+
+def _pool_round(jobs: Sequence[SeedJob], workers: int):
+    """One process pool over ``jobs``: yields (job, result, failure) for the jobs that ended,
+    returns those lost to a broken pool."""
     from vitaplace.engine.runner import die_with_parent
 
     context = multiprocessing.get_context("spawn")  # no fork: GL and Warp state are not fork-safe
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=die_with_parent)
+    broken: list[SeedJob] = []
     try:
         pending = {pool.submit(run_seed, job): job for job in jobs}
         while pending:
@@ -250,12 +272,15 @@ def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dic
                 job = pending.pop(future)
                 try:
                     yield job, future.result(), None
+                except BrokenProcessPool:
+                    broken.append(job)
                 except Exception as exc:
                     yield job, None, describe_failure(exc)
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)  # interrupted: do not wait for running seeds
         raise
     pool.shutdown()
+    return broken
 
 
 def connect_ray(address: str) -> Any:
@@ -344,7 +369,9 @@ def run_sweep(
                 bar.update()
                 if failure is not None:
                     outcome.failed[job.seed] = failure
-                    log.error("seed %d failed: %s (traceback in %s)", job.seed, failure, out / f"seed-{job.seed}" / "error.txt")
+                    trace = out / f"seed-{job.seed}" / "error.txt"
+                    where = f" (traceback in {trace})" if trace.is_file() else ""
+                    log.error("seed %d failed: %s%s", job.seed, failure, where)
                     continue
                 outcome.rows += result["rows"]
                 if not result["sees_out"] and not outcome.unshared:

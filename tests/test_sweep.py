@@ -37,6 +37,7 @@ from vitaplace.engine.hookspecs import hookimpl
 class Params(ExtractorParams):
     seed: int = 0
     fail_for: int = -1
+    exit_for: int = -1
 
 
 class FailsForOneSeed(FeatureExtractor):
@@ -44,6 +45,9 @@ class FailsForOneSeed(FeatureExtractor):
     name = "fails-for-one-seed"
     Params = Params
     def fit(self, train):
+        if self.params.seed == self.params.exit_for:
+            import os
+            os._exit(3)  # the worker process dies, as when the OOM killer strikes
         if self.params.seed == self.params.fail_for:
             raise ValueError("\\x1b[31minjected failure\\x1b[0m\\nsecond line of the message")
     def transform(self, run): return {"xy": np.asarray(run.poses[:, :2], dtype=np.float64)}
@@ -386,3 +390,22 @@ def test_pr_band_figures_are_written_per_environment_from_the_seed_folders(tmp_p
     written = write_pr_bands(tmp_path, {0: tmp_path / "seed-0", 1: tmp_path / "seed-1"}, rows)
     assert {p.name for p in written} == {"pr-bands-E1-query-to-reference.png", "pr-bands-E1-query-to-reference.pdf"}
     assert all(p.stat().st_size > 1000 for p in written)
+
+
+def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
+    """A worker killed mid-job breaks the process pool and the jobs beside it; those run again,
+    each in its own pool: the dying seed fails in one line, the others finish."""
+    from vitaplace.engine.runner import seed_for
+
+    data = tiny_scenario()
+    data["methods"][0]["params"] = {"exit_for": seed_for(1, 1000)}
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    result = vitaplace(["sweep", str(path), "--seeds", "0", "1", "2", "--workers", "2", "--out", str(out),
+                        "--no-progress"], plugin_env)
+    assert result.returncode == 1, result.stderr[-3000:]
+    lines = [line for line in result.stderr.splitlines() if "seed 1 failed" in line]
+    assert len(lines) == 1 and "worker process died" in lines[0] and "traceback in" not in lines[0], result.stderr[-3000:]
+    record = json.loads((out / "sweep.json").read_text())
+    assert record["seeds"] == [0, 2] and list(record["failed"]) == ["1"]
