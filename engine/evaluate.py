@@ -261,6 +261,13 @@ class PRCurve:
         return float(self.deltas[self.index_at_max_f1])
 
     @property
+    def recall_at_full_precision(self) -> float:
+        """The largest recall at a threshold where every accepted match is correct
+        (VPR_Tutorial's recall at 100 % precision); 0 when no such threshold recalls anything."""
+        full = self.precision >= 1.0
+        return float(self.recall[full].max()) if full.any() else 0.0
+
+    @property
     def auc(self) -> float:
         """Step-wise average precision ``sum_n (R_n - R_{n-1}) P_n`` (delta ascending, R_{-1} = 0)."""
         r = self.recall[self._order]
@@ -354,7 +361,7 @@ def evaluate(
 
     Keys: n_queries, n_references, n_revisit, tau, max_f1, precision_at_max_f1,
     recall_at_max_f1, delta_at_max_f1, auc,
-    auc_method, recall_at_k ({"1": ..., ...}, string keys so JSON round-trips), and when
+    auc_method, recall_at_100_precision, recall_at_k ({"1": ..., ...}, string keys so JSON round-trips), and when
     ``delta`` is given: delta, precision, recall, f1, tp, fp, fn, tn, n_accepted.
     ``curve``: the default-sweep `pr_curve` of the same matrices, when already computed.
     """
@@ -374,6 +381,7 @@ def evaluate(
         "delta_at_max_f1": _json_float(curve.delta_at_max_f1),
         "auc": float(curve.auc),
         "auc_method": "average_precision_stepwise",
+        "recall_at_100_precision": curve.recall_at_full_precision,
         "recall_at_k": {str(k): float(v) for k, v in rk.items()},
     }
     if delta is not None:

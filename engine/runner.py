@@ -41,7 +41,7 @@ from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 1, "report": 3}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 2, "report": 3}
 
 log = logging.getLogger("vitaplace")
 
@@ -468,7 +468,8 @@ class Pipeline:
 
 RESULT_COLUMNS = (
     "environment", "method", "direction", "max_f1", "precision_at_max_f1", "recall_at_max_f1",
-    "delta_at_max_f1", "auc", "delta", "precision", "recall", "f1", "n_queries", "n_references", "n_revisit",
+    "delta_at_max_f1", "auc", "recall_at_100_precision", "delta", "precision", "recall", "f1", "n_queries",
+    "n_references", "n_revisit",
 )
 
 

@@ -112,6 +112,18 @@ def test_pr_curve_hand_case():
     assert c.max_f1 == pytest.approx(0.5)
     assert c.delta_at_max_f1 == pytest.approx(0.1)
     assert c.auc == pytest.approx(7 / 15)
+    # precision is 1 up to delta 0.1, where recall is 1/3; beyond it a wrong match is accepted
+    assert c.recall_at_full_precision == pytest.approx(1 / 3)
+    assert ev.evaluate(HAND_TME, HAND_GTM, HAND_TAU)["recall_at_100_precision"] == pytest.approx(1 / 3)
+
+
+def test_recall_at_full_precision_is_zero_when_the_most_confident_match_is_wrong():
+    # one revisit query whose best match is wrong and more confident than the correct one
+    tme = np.array([[0.1, 0.5], [0.9, 0.2]])
+    gtm = np.array([[5.0, 0.1], [5.0, 0.1]])  # both queries revisit reference 1 only
+    c = ev.pr_curve(tme, gtm, tau=0.3)
+    assert c.precision[1] == 0.0  # delta 0.1: q0's wrong match accepted first
+    assert c.recall_at_full_precision == 0.0
 
 
 def test_pr_curve_given_deltas_hand_case():
