@@ -136,8 +136,11 @@ def test_training_lowers_every_prediction_error(fitted):
 def test_joint_latents_recognise_revisits(fitted, runs):
     a, b = runs
     features = fitted.transform(b)
-    assert set(features) == {"latent", "diverged"}
+    assert set(features) == {"latent", "diverged", "inference_steps", "inference_stopped"}
     assert not features["diverged"].any()
+    steps, stopped = features["inference_steps"], features["inference_stopped"]
+    assert steps.shape == stopped.shape == (N,) and steps.min() >= 1
+    assert np.all(stopped | (steps == fitted.params.max_steps))  # unstopped samples ran to the cap
     assert features["latent"].shape == (N, 8)
     assert np.all(np.isfinite(features["latent"]))
     assert features["latent"].std(axis=0).min() > 1e-3  # not a constant code
