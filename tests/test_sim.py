@@ -582,3 +582,20 @@ def test_spring_stiffness_stable_range_is_the_explicit_stability_limit():
             assert (not sim.sim.warnings(sim.data)) == stable, factor
         finally:
             sim.close()
+
+
+def test_compiled_robot_has_whiskeyes_body_and_whisker_poses(bare_sim):
+    """The compiled model puts the WhiskEye parts where the original model has them
+    (whiskeye_robot.sdf, whisker_pose.h; head frame x down, y left, z forward, lifted 0.393 m):
+    chassis r 0.23 m, h 0.295 m; board 1 whisker 1 (w00) based at (0.5796, -0.0666,
+    0.393 - 0.2046) with its shaft along (0.7050, -0.6823, -0.1936) at theta = 0; board 6
+    whisker 4 (w23) at (0.5412, 0.1029, 0.393 - 0.2109) along (0.7045, 0.6820, -0.1964)."""
+    m, d = bare_sim.model, mujoco.MjData(bare_sim.model)
+    mujoco.mj_forward(m, d)  # base at the origin, every hinge at 0
+    chassis = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, "chassis")
+    np.testing.assert_allclose(m.geom_size[chassis][:2], [0.23, 0.295 / 2])
+    for name, base, shaft in (("w00", (0.5796, -0.0666, 0.393 - 0.2046), (0.7050, -0.6823, -0.1936)),
+                              ("w23", (0.5412, 0.1029, 0.393 - 0.2109), (0.7045, 0.6820, -0.1964))):
+        body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
+        np.testing.assert_allclose(d.xpos[body], base, atol=2e-4)
+        np.testing.assert_allclose(d.xmat[body].reshape(3, 3)[:, 0], shaft, atol=5e-3)
