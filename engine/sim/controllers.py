@@ -46,7 +46,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS, HEAD_HALF, HEAD_POS
 
-__all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "make_controller", "Route"]
+__all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "make_controller", "Route",
+           "footprint_clearance"]
 
 HEAD_REACH = HEAD_POS[0] + HEAD_HALF[0]  #: distance from the base centre to the snout [m]
 HEAD_CENTRE = HEAD_POS[0]  #: the head is modelled as a disc at this distance ahead of the base centre
@@ -55,6 +56,16 @@ HEAD_RADIUS = math.hypot(HEAD_HALF[0], HEAD_HALF[1])  #: ... with this radius (c
 #: begins at the head (bases 0.54-0.60 m ahead) and ends ~0.16 m beyond
 TOUCH_DISTANCE = HEAD_CENTRE + 0.12
 TOUCH_BEARING_DEG = 25.0
+
+
+def footprint_clearance(obstacles: ObstacleMap, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
+    """Smallest clearance (n,) of the body and the head of the robot at positions ``xy``
+    (n, 2) facing ``heading`` (n,) [rad]: obstacle distance minus the disc's radius [m]."""
+    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+    heading = np.asarray(heading, dtype=float).reshape(-1)
+    head = xy + HEAD_CENTRE * np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    dist = obstacles.distance_many(np.concatenate([xy, head]))
+    return np.minimum(dist[: len(xy)] - BODY_RADIUS, dist[len(xy):] - HEAD_RADIUS)
 
 
 class RunSpec(BaseModel):
@@ -345,12 +356,9 @@ class ForagingController:
     def _clearance(self, pose: np.ndarray, v: float, w: float, horizon: float) -> float:
         """Smallest clearance of the body and the head after driving (v, w) for ``horizon`` s."""
         x, y, yaw = pose
-        yaw_end = yaw + w * horizon
         mid = yaw + 0.5 * w * horizon
         pos = np.array([x + v * horizon * math.cos(mid), y + v * horizon * math.sin(mid)])
-        head = pos + HEAD_CENTRE * np.array([math.cos(yaw_end), math.sin(yaw_end)])
-        dist = self.obstacles.distance_many(np.stack([pos, head]))
-        return float(min(dist[0] - BODY_RADIUS, dist[1] - HEAD_RADIUS))
+        return float(footprint_clearance(self.obstacles, pos, np.array([yaw + w * horizon]))[0])
 
     def _out(self, v: float, w: float, dt: float, pose: np.ndarray) -> tuple[float, float]:
         """Rate-limited command; one that would swing the head or drive the body into an

@@ -22,20 +22,10 @@ import sys
 
 import numpy as np
 
-from vitaplace.engine.sim.controllers import BODY_RADIUS, HEAD_CENTRE, HEAD_RADIUS
+from vitaplace.engine.sim.controllers import footprint_clearance
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 
-__all__ = ["inner_loop", "pose_clearance"]
-
-
-def pose_clearance(env: EnvironmentSpec, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
-    """Smallest clearance (n,) of the body and the head at positions ``xy`` (n, 2) facing
-    ``heading`` (n,) [rad]: obstacle distance minus the disc's radius [m]."""
-    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-    ahead = np.stack([np.cos(heading), np.sin(heading)], axis=1)
-    body = env.obstacles.distance_many(xy) - BODY_RADIUS
-    head = env.obstacles.distance_many(xy + HEAD_CENTRE * ahead) - HEAD_RADIUS
-    return np.minimum(body, head)
+__all__ = ["inner_loop"]
 
 
 def inner_loop(
@@ -47,7 +37,7 @@ def inner_loop(
     for phi in np.radians(np.arange(0.0, 360.0, step_deg)):
         xy = radii[:, None] * np.array([math.cos(phi), math.sin(phi)])
         heading = phi + (math.pi / 2 if facing == "travel" else 0.0)
-        clearance = pose_clearance(env, xy, np.full(len(radii), heading))
+        clearance = footprint_clearance(env.obstacles, xy, np.full(len(radii), heading))
         # the margin is relaxed in steps to 40 % on rays where a narrow passage needs it
         for m in margin * np.array([1.0, 0.8, 0.6, 0.4]):
             ok = clearance >= m
