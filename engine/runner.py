@@ -272,9 +272,7 @@ class Pipeline:
                 continue
             assert entry.environment is not None and entry.run is not None  # validated: simulated
             environment = load_environment(entry.environment)
-            run = entry.run
-            if isinstance(entry, EvaluationRuns) and label.endswith("/query") and entry.query_off_route:
-                run = run.model_copy(update={"off_route_fraction": entry.query_off_route})
+            run = entry.run_for(label.rsplit("/", 1)[1]) if isinstance(entry, EvaluationRuns) else entry.run
             spec = [environment.model_dump(mode="json"), run.model_dump(mode="json")]
             key = content_hash("simulate", STAGE_VERSION["simulate"], SIMULATOR_VERSION, spec,
                                self.scenario.robot.model_dump(mode="json"), seed)

@@ -145,6 +145,14 @@ class EvaluationRuns(_RunSource):
             raise ValueError("query_off_route needs a simulated route or orbit run (not recorded runs, not foraging)")
         return self
 
+    def run_for(self, role: str) -> RunSpec:
+        """The simulated run of ``role`` ("query" or "reference"): the query's carries the
+        partial-revisit detour (``query_off_route``)."""
+        assert self.run is not None  # validated: simulated
+        if role == "query" and self.query_off_route:
+            return self.run.model_copy(update={"off_route_fraction": self.query_off_route})
+        return self.run
+
     def recorded(self) -> dict[str, Path]:
         """``{"query": file, "reference": file}`` for recorded runs, else empty."""
         return {} if self.datasets is None else {"query": self.datasets.query, "reference": self.datasets.reference}
