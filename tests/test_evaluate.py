@@ -124,6 +124,10 @@ def test_recall_at_full_precision_is_zero_when_the_most_confident_match_is_wrong
     c = ev.pr_curve(tme, gtm, tau=0.3)
     assert c.precision[1] == 0.0  # delta 0.1: q0's wrong match accepted first
     assert c.recall_at_full_precision == 0.0
+    # precision 0.95 is not full precision: the recall there does not count
+    almost = ev.PRCurve(np.arange(3.0), np.array([1.0, 1.0, 0.95]), np.array([0.0, 0.3, 0.6]),
+                        np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3), 10, 10)
+    assert almost.recall_at_full_precision == pytest.approx(0.3)
 
 
 def test_pr_curve_given_deltas_hand_case():

@@ -599,3 +599,13 @@ def test_compiled_robot_has_whiskeyes_body_and_whisker_poses(bare_sim):
         body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, name)
         np.testing.assert_allclose(d.xpos[body], base, atol=2e-4)
         np.testing.assert_allclose(d.xmat[body].reshape(3, 3)[:, 0], shaft, atol=5e-3)
+
+
+@pytest.mark.parametrize("name", ["e1", "e2", "e3", "e1-coloured"])
+def test_shipped_routes_are_what_the_route_generator_makes(name):
+    """Each shipped loop is `routegen`'s output for its world and facing (the YAML comments
+    say so), so a change to the generator or the robot's footprint shows up here."""
+    from vitaplace.engine.sim.routegen import inner_loop
+
+    env = load_environment(name)
+    np.testing.assert_allclose(inner_loop(env, env.route_facing), np.array(env.route), atol=1e-9)
