@@ -50,6 +50,11 @@ FIELDS: dict[str, np.dtype] = {
 }
 
 
+#: a whisker deflection |xy| above this counts as touch at the sampling instant (the same
+#: threshold for both touch models and for imported recordings)
+TOUCH_THRESHOLD = 0.01
+
+
 class DatasetError(UserError, ValueError):
     """A dataset file or array set that cannot be used; the message names the file and the problem."""
 
@@ -155,6 +160,12 @@ class Run:
     @property
     def image_shape(self) -> tuple[int, int, int]:
         return tuple(self._source["images"].shape[1:])  # type: ignore[return-value]
+
+    def touch_mask(self, threshold: float = TOUCH_THRESHOLD) -> np.ndarray:
+        """(N,) bool: samples in which some whisker touches something at the sampling instant,
+        i.e. its deflection ``|xy|`` then exceeds ``threshold``. Works for simulated and
+        imported runs alike (both touch models and real whiskers record ``xy``)."""
+        return np.linalg.norm(self.xy, axis=2).max(axis=1) > threshold
 
     def validate(self) -> None:
         """Read every numeric field once (images excepted): NaN or infinite values raise
