@@ -60,12 +60,13 @@ def block_draws(n_queries: int, seed: int, resamples: int | None = None) -> list
 def compact_matrices(tme: np.ndarray, gtm: np.ndarray, kmax: int) -> tuple[np.ndarray, np.ndarray]:
     """Per query, the few references that decide its scores, so that replicates are cheap.
 
-    Each row keeps its ``kmax`` nearest references in TME (stable order, as `recall_at_k`
-    ranks them), its nearest reference in ground truth (when not among those, else the next
-    in TME order) — ``min(kmax + 1, R)`` columns, in their original order. `evaluate` of any
-    set of rows of the compact matrices equals `evaluate` of the same rows of the full ones
-    for K <= ``kmax``: the best match and its tie-break, whether a revisit exists and the
-    K nearest references are unchanged."""
+    Each row keeps its ``kmax`` nearest references in TME, in stable order (ties by
+    reference index, as `recall_at_k` ranks them), then its nearest reference in ground
+    truth when not among those, else the next in TME order: ``min(kmax + 1, R)`` columns.
+    Any later column ranks after the first ``kmax`` (larger TME, or equal TME and a larger
+    index), so `evaluate` of any set of rows of the compact matrices equals that of the same
+    rows of the full ones for K <= ``kmax`` (``n_references`` aside): the best match and its
+    tie-break, whether a revisit exists and the K nearest references are unchanged."""
     n_ref = tme.shape[1]
     width = min(kmax + 1, n_ref)
     if width == n_ref:
@@ -74,7 +75,6 @@ def compact_matrices(tme: np.ndarray, gtm: np.ndarray, kmax: int) -> tuple[np.nd
     nearest = np.argmin(gtm, axis=1)
     absent = ~(keep[:, :kmax] == nearest[:, None]).any(axis=1)
     keep[absent, kmax] = nearest[absent]
-    keep.sort(axis=1)
     return np.take_along_axis(tme, keep, axis=1), np.take_along_axis(gtm, keep, axis=1)
 
 

@@ -266,6 +266,10 @@ def few_replicates(monkeypatch):
     monkeypatch.setattr(resample, "RESAMPLES", 300)
 
 
+#: a fixed acceptance threshold: the rows also have F1, precision and recall there
+DELTA = 0.3
+
+
 def evaluation(folder: Path, seed: int, method: str, noise: float, n: int = 40) -> dict:
     """A query run along the reference run, features = positions plus noise; the matrices
     saved where a run folder keeps them; its results row."""
@@ -276,7 +280,7 @@ def evaluation(folder: Path, seed: int, method: str, noise: float, n: int = 40) 
     tme = ev.ground_truth_matrix(query, ref) + rng.normal(0.0, noise, (n, n)) ** 2
     path = folder / f"seed-{seed}" / "evaluations" / "E1" / method / "q"
     path.mkdir(parents=True)
-    row = ev.evaluate_pair(path, tme, query, ref, 0.3, ks=(1, 5))
+    row = ev.evaluate_pair(path, tme, query, ref, 0.3, delta=DELTA, ks=(1, 5))
     return {"seed": seed, "environment": "E1", "method": method, "direction": "q", **row}
 
 
@@ -285,7 +289,7 @@ def full_replicates(folder: Path, row: dict, metric: str) -> np.ndarray:
     path = folder / f"seed-{row['seed']}" / "evaluations" / "E1" / row["method"] / "q" / "matrices.npz"
     with np.load(path) as m:
         tme, gtm = m["tme"], m["gtm"]
-    return np.array([summary.metrics(ev.evaluate(tme[r], gtm[r], 0.3, ks=(1, 5)))[metric]
+    return np.array([summary.metrics(ev.evaluate(tme[r], gtm[r], 0.3, DELTA, ks=(1, 5)))[metric]
                      for r in resample.block_draws(len(tme), row["seed"])])
 
 
@@ -293,13 +297,15 @@ def test_a_single_seed_gets_a_block_bootstrap_interval(tmp_path, few_replicates)
     rows = [evaluation(tmp_path, 5, "L", 0.6), evaluation(tmp_path, 5, "H", 0.9)]
     summary.write_summary(tmp_path, rows, "t", {}, {5: tmp_path / "seed-5"})
     table = {(r["method"], r["metric"]): r for r in read_csv(tmp_path / "sweep.csv")}
-    for method, row in (("L", rows[0]), ("H", rows[1])):
-        expected = np.quantile(full_replicates(tmp_path, row, "max_f1"), [0.025, 0.975])
-        got = table[(method, "max_f1")]
-        assert (float(got["block_low"]), float(got["block_high"])) == pytest.approx(tuple(expected), abs=1e-12)
-        assert got["t_low"] == "nan" and got["n"] == "1"
-    assert float(table[("H", "max_f1")]["block_low"]) < float(table[("H", "max_f1")]["block_high"])  # not degenerate
     seeds = {(r["method"], r["metric"]): r for r in read_csv(tmp_path / "sweep-seeds.csv")}
+    for (method, row), metric in itertools.product((("L", rows[0]), ("H", rows[1])), ("max_f1", "f1")):
+        expected = pytest.approx(tuple(np.quantile(full_replicates(tmp_path, row, metric), [0.025, 0.975])), abs=1e-12)
+        got, seed = table[(method, metric)], seeds[(method, metric)]
+        assert (float(got["block_low"]), float(got["block_high"])) == expected
+        assert (float(seed["block_low"]), float(seed["block_high"])) == expected
+        assert got["t_low"] == "nan" and got["n"] == "1"
+    for metric in ("max_f1", "f1"):  # not degenerate
+        assert float(table[("H", metric)]["block_low"]) < float(table[("H", metric)]["block_high"])
     assert seeds[("H", "auc")]["block_length"] == "7"  # ceil(sqrt(40))
     assert seeds[("H", "n_queries")]["block_low"] == "nan"  # descriptors get no interval
     # paired: the same segments for both methods, differenced replicate by replicate

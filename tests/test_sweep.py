@@ -112,6 +112,8 @@ def check_partial_sweep(out: Path, result: subprocess.CompletedProcess, ok: list
     assert {r["seed"] for r in record["runs"]} == set(ok)
     rows = read_csv(out / "sweep.csv")
     assert {(r["method"], r["n"]) for r in rows if r["metric"] == "max_f1"} == {("O", str(len(ok))), ("H", str(len(ok)))}
+    # the within-seed block bootstrap found every seed's saved matrices
+    assert all(r["block_low"] != "nan" for r in rows if r["kind"] == "metric")
     # oracle features: a perfect score on every seed that ran
     assert all(float(r["mean"]) == 1.0 for r in rows if r["method"] == "O" and r["metric"] in ("max_f1", "auc"))
 
