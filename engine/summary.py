@@ -62,9 +62,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine import resample
-from vitaplace.engine.resample import block_length, evaluation_replicates
+from vitaplace.engine.atomic import write_text_atomic
 
 #: columns naming what a result row is about, not values
 IDENTITY = ("seed", "environment", "method", "direction")
@@ -107,6 +106,7 @@ DEFINITIONS = {
                    + ", " + ", ".join(f"{g}.*" for g in DESCRIPTOR_GROUPS),
 }
 
+#: ``{(seed, environment, method, direction): {metric: block-bootstrap replicates}}``
 Replicates = dict[tuple, dict[str, np.ndarray]]
 
 
@@ -126,7 +126,7 @@ def _flatten(name: str, value: Any) -> Iterator[tuple[str, float]]:
         yield name, number
 
 
-def metrics(row: Mapping[str, Any]) -> dict[str, float]:
+def row_values(row: Mapping[str, Any]) -> dict[str, float]:
     """The finite numeric values of one result row, nested mappings flattened with dots
     (``recall_at_k: {"1": r}`` becomes ``recall@1``)."""
     found: dict[str, float] = {}
@@ -156,7 +156,8 @@ def _clip(low: float, high: float, limits: tuple[float, float]) -> tuple[float, 
     return float(np.clip(low, *limits)), float(np.clip(high, *limits))
 
 
-def percentile_interval(replicates: np.ndarray, limits: tuple[float, float] = (-math.inf, math.inf)) -> tuple[float, float]:
+def percentile_interval(replicates: np.ndarray,
+                        limits: tuple[float, float] = (-math.inf, math.inf)) -> tuple[float, float]:
     """The (1 - LEVEL)/2 and (1 + LEVEL)/2 quantiles of bootstrap replicates, inside ``limits``."""
     low, high = np.quantile(replicates, [(1 - LEVEL) / 2, (1 + LEVEL) / 2])
     return _clip(low, high, limits)
@@ -212,10 +213,10 @@ def block_replicates(rows: Sequence[Mapping[str, Any]], folders: Mapping[int, Pa
     for row in rows:
         if row["seed"] not in folders:
             continue
-        replicates = evaluation_replicates(folders[row["seed"]], row)
+        replicates = resample.evaluation_replicates(folders[row["seed"]], row)
         if replicates is None:
             continue
-        values = [metrics(r) for r in replicates]
+        values = [row_values(r) for r in replicates]
         found[tuple(row[k] for k in IDENTITY)] = {
             name: np.array([v[name] for v in values]) for name in values[0] if kind(name) == "metric"
         }
@@ -230,11 +231,12 @@ def seed_rows(rows: Sequence[Mapping[str, Any]], replicates: Replicates | None =
     long = []
     for row in sorted(rows, key=lambda r: r["seed"]):
         identity = {k: row[k] for k in IDENTITY}
-        for name, value in metrics(row).items():
+        for name, value in row_values(row).items():
             block = replicates.get(tuple(identity.values()), {}).get(name)
             low, high, length = math.nan, math.nan, math.nan
             if block is not None:
-                (low, high), length = percentile_interval(block, bounds(name)), block_length(row["n_queries"])
+                low, high = percentile_interval(block, bounds(name))
+                length = resample.block_length(row["n_queries"])
             long.append({**identity, "metric": name, "kind": kind(name), "value": value,
                          "block_low": low, "block_high": high, "block_length": length})
     return long
@@ -294,7 +296,8 @@ def paired_differences(long: Sequence[Mapping[str, Any]], replicates: Replicates
                 rb = _mean_replicates(replicates, [(s, env, b, direction) for s in seeds], metric)
                 block = ra - rb if ra is not None and rb is not None else None
                 table.append({"environment": env, "direction": direction, "metric": metric, "method_a": a,
-                              "method_b": b, **describe(diffs, difference_bounds(metric), block), "p_sign_flip": sign_flip_p(diffs)})
+                              "method_b": b, **describe(diffs, difference_bounds(metric), block),
+                              "p_sign_flip": sign_flip_p(diffs)})
     return table
 
 

@@ -289,7 +289,7 @@ def full_replicates(folder: Path, row: dict, metric: str) -> np.ndarray:
     path = folder / f"seed-{row['seed']}" / "evaluations" / "E1" / row["method"] / "q" / "matrices.npz"
     with np.load(path) as m:
         tme, gtm = m["tme"], m["gtm"]
-    return np.array([summary.metrics(ev.evaluate(tme[r], gtm[r], 0.3, DELTA, ks=(1, 5)))[metric]
+    return np.array([summary.row_values(ev.evaluate(tme[r], gtm[r], 0.3, DELTA, ks=(1, 5)))[metric]
                      for r in resample.block_draws(len(tme), row["seed"])])
 
 
