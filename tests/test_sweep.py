@@ -190,6 +190,14 @@ def test_ray_sweep_keeps_going_past_a_failed_seed(tmp_path, plugin_env):
     assert not list(out.glob(".sweep-marker-*"))
 
 
+def rows_for(values: dict[str, list[float]], seeds: list[int]) -> list[dict]:
+    return [
+        {"seed": s, "environment": "E1", "method": m, "direction": "q", "max_f1": v[i], "tau": 0.3,
+         "auc_method": "average_precision_stepwise", "recall_at_k": {"1": v[i] / 2}, "delta_at_max_f1": None}
+        for m, v in values.items() for i, s in enumerate(seeds)
+    ]
+
+
 # ---------------------------------------------------------------------- jobs and the driver
 
 
