@@ -211,6 +211,47 @@ def test_minibatch_updates_on_emulated_tensor_cores_match_float64(precision):
         assert err > 50 * UNIT_ROUNDOFF["float32"], f"{precision}: {err:.2e} is float32 accuracy"
 
 
+def low_to_float(arr) -> np.ndarray:
+    return (arr.numpy().view(np.uint16).astype(np.uint32) << 16).view(np.float32)
+
+
+def test_bf16_weight_copies_follow_every_weight_step():
+    """After a minibatch the bfloat16 weights the next one multiplies with are the updated
+    float32 weights rounded, bit for bit."""
+    start = start_state(SMALL, 40)
+    backend = CublasBackend("bf16", "cpu", blas=HostBlas())
+    net = Network(SMALL, seed=0, backend=backend)
+    state = net.batch_state(40)
+    net.set_weights(start[2])
+    state.load(start[0], start[1])
+    backend.capture(lambda: state.train_steps(2))()
+    for name, handle in state.weights.items():
+        assert not np.array_equal(handle.W.numpy(), start[2][name]), "the weights moved"
+        np.testing.assert_array_equal(low_to_float(handle.low), bf16(handle.W.numpy()), err_msg=name)
+
+
+def test_nothing_runs_while_kernels_are_planned():
+    """Recording which kernels a minibatch needs must not run it: no cuBLAS call either
+    (a weight step would otherwise be applied once more)."""
+    from vitaplace.kernels import warp_kernels as wk
+
+    rng = np.random.default_rng(4)
+    backend = CublasBackend("bf16", "cpu", blas=HostBlas())
+    W0 = rng.standard_normal((6, 5)).astype(np.float32)
+    W = backend.weights(W0)
+    Y, G = rng.standard_normal((3, 6)).astype(np.float32), rng.standard_normal((3, 5)).astype(np.float32)
+    Y_dev, G_dev = to_wp(Y), to_wp(G)
+    wk.to_bfloat16(G_dev, backend._low_buffer("gain", G_dev))  # the bf16 gains a prediction writes
+    backend._operand(Y_dev)  # bf16 Y ready too: a GEMM run while planning would change W
+    with wk.planned_kernels() as plan:
+        backend.weight_update(W, Y_dev, G_dev, 0.5)
+    assert plan, "the kernels were recorded"
+    np.testing.assert_array_equal(W.W.numpy(), W0)
+    backend.weight_update(W, Y_dev, G_dev, 0.5)
+    expected = W0 + bf16(Y).T.astype(np.float64) @ bf16(G)
+    np.testing.assert_allclose(W.W.numpy(), expected, rtol=1e-5, atol=1e-6)
+
+
 def test_tensor_core_precisions_need_cuda_and_not_numpy():
     """One-line BackendErrors at validation: tf32/bf16 with the numpy backend, or without a
     CUDA device; float32 runs everywhere."""
