@@ -591,16 +591,12 @@ def predict(
     cfg = tiles or tile_config(device, "predict", b)
     with_energy = row_energy is not None
     _check_energy_buffers(row_partial, row_energy, slot, b, n_below, cfg, device)
-    _launch_tiled(
-        _predict_kernel(cfg, activation, store, with_energy),
-        (_cdiv(b, cfg.tm), _cdiv(n_below, cfg.tn)),
+    _launch_predict(
+        _predict_kernel(cfg, activation, store, with_energy), cfg, b, n_below, row_partial, row_energy, slot,
         [Y, W, X, wp.float32(slope), A if store else E, P if store else E, E, G, row_partial if with_energy else E,
          _placeholder(device, wp.bfloat16)],
-        cfg.block_dim,
         device,
     )
-    if with_energy:
-        _simt_launch(_row_energy_kernel, b, [row_partial, row_energy, slot], device)
 
 
 def predict_epilogue(
@@ -632,15 +628,21 @@ def predict_epilogue(
     with_energy = row_energy is not None
     _check_energy_buffers(row_partial, row_energy, slot, b, n_below, cfg, device)
     low = G_low is not None
-    _launch_tiled(
-        _predict_kernel(cfg, activation, False, with_energy, gemm=False, low_gain=low),
-        (_cdiv(b, cfg.tm), _cdiv(n_below, cfg.tn)),
+    _launch_predict(
+        _predict_kernel(cfg, activation, False, with_energy, gemm=False, low_gain=low), cfg, b, n_below, row_partial,
+        row_energy, slot,
         [E, E, X, wp.float32(slope), A, E, E, G, row_partial if with_energy else E,
          G_low if low else _placeholder(device, wp.bfloat16)],
-        cfg.block_dim,
         device,
     )
-    if with_energy:
+
+
+def _launch_predict(kernel, cfg: TileConfig, b: int, n_below: int, row_partial, row_energy, slot: int, inputs,
+                    device) -> None:
+    """One configuration of kernel (a) over the (B x n_below) output tiles, then the
+    in-order sum of the per-row energies when asked."""
+    _launch_tiled(kernel, (_cdiv(b, cfg.tm), _cdiv(n_below, cfg.tn)), inputs, cfg.block_dim, device)
+    if row_energy is not None:
         _simt_launch(_row_energy_kernel, b, [row_partial, row_energy, slot], device)
 
 
