@@ -37,8 +37,10 @@ def _bench_section(bench: dict) -> list[str]:
                    f"{r['tflops']:.1f} | {r['ratio']:.2f} |")
     out += ["", "Agreement with the numpy backend (one small minibatch, max |diff| / max |numpy| of the updates): "
             + ", ".join(f"{k}: latents {v[0]:.1e}, weights {v[1]:.1e}" for k, v in bench["smoke"].items()), ""]
-    for precision, ops in bench.get("breakdown_ms", {}).items():
-        out += [f"Warp {precision}, per operation (ms): " + ", ".join(f"{k} {v:.3f}" for k, v in ops.items()), ""]
+    for name, ops in bench.get("breakdown_ms", {}).items():
+        out += [f"{name}, per operation (ms): " + ", ".join(f"{k} {v:.3f}" for k, v in ops.items()), ""]
+    for name, why in bench.get("failed", {}).items():
+        out += [f"{name}: failed, left out ({why})", ""]
     out += ["## Targets", ""]
     for precision, t in bench["targets"].items():
         out += [f"- {precision}: Warp step >= 0.8 x cuBLAS GEMMs of the same precision: {t['ratio']:.2f} x -> "

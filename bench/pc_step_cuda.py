@@ -120,6 +120,41 @@ def op_breakdown(impl, repeat: int, sync: Callable[[], None]) -> dict[str, float
     return out
 
 
+def _warm_up(impls: dict) -> None:
+    for name, impl in impls.items():
+        print(f"  warm-up / compile: {name} ...", flush=True)
+        impl.reset()
+        for _ in range(3):
+            impl.run()
+
+
+def _interleaved(impls: dict, repeat: int, minibatches: int, sync: Callable[[], None]) -> dict[str, list[float]]:
+    """Seconds per minibatch of each implementation, ``repeat`` rounds, the order rotated
+    round by round."""
+    times = {name: [] for name in impls}
+    names = list(impls)
+    for r in range(repeat):
+        for name in names[r % len(names):] + names[: r % len(names)]:
+            impls[name].reset()
+            times[name].append(time_minibatches(impls[name], minibatches, sync))
+    return times
+
+
+def _print_results(results: dict, args, pc) -> None:
+    rows = [[name, f"{r['median_s'] * 1e3:.2f}", f"{r['best_s'] * 1e3:.2f}", f"{r['tflops']:.1f}", f"{r['ratio']:.2f}"]
+            for name, r in results.items()]
+    print(f"\nper minibatch, median of {args.repeat} rounds x {args.minibatches} minibatches; "
+          "'x cuBLAS' = rate / the cuBLAS GEMM rate in the same precision:")
+    print(pc.fmt_table(rows, ["implementation", "median ms", "best ms", "TFLOP/s", "x cuBLAS"]))
+
+
+def _breakdown(name: str, impl, prob, repeat: int, sync: Callable[[], None]) -> dict[str, float]:
+    ops = op_breakdown(impl, repeat, sync)
+    print(f"{name}, per operation (ms): " + ", ".join(f"{k} {v:.3f}" for k, v in ops.items())
+          + f"; minibatch = {prob.steps + 1} predict_all + {prob.steps} latent_step + 1 weight_step", flush=True)
+    return ops
+
+
 def warp_backend(precision: str):
     """The project's CUDA backend in ``precision``: Warp's tile GEMMs for float32 (the
     default path), cuBLAS GEMMs with fused Warp epilogues for tf32 and bf16."""
@@ -229,27 +264,15 @@ def cuda_main(args, pc) -> dict:
     context = "warp float32, cuBLAS GEMMs (context)"
     impls[context] = pc.BatchStateImpl(prob, CublasBackend("float32", "cuda"))
     precision_of[context], baseline[context] = "float32", "cuBLAS GEMMs float32"
-    for name, impl in impls.items():
-        print(f"  warm-up / compile: {name} ...", flush=True)
-        impl.reset()
-        for _ in range(3):
-            impl.run()
-    times = {name: [] for name in impls}
-    names = list(impls)
-    for r in range(args.repeat):
-        for name in names[r % len(names):] + names[: r % len(names)]:
-            impls[name].reset()
-            times[name].append(time_minibatches(impls[name], args.minibatches, sync))
-    rows, results = [], {}
-    for name in names:
-        base = statistics.median(times[baseline[name]])
-        med, best = statistics.median(times[name]), min(times[name])
-        results[name] = {"precision": precision_of[name], "median_s": med, "best_s": best,
-                         "tflops": flops / med / 1e12, "ratio": base / med}
-        rows.append([name, f"{med * 1e3:.2f}", f"{best * 1e3:.2f}", f"{flops / med / 1e12:.1f}", f"{base / med:.2f}"])
-    print(f"\nper minibatch, median of {args.repeat} rounds x {args.minibatches} minibatches; "
-          "'x cuBLAS' = rate / the cuBLAS GEMM rate in the same precision:")
-    print(pc.fmt_table(rows, ["implementation", "median ms", "best ms", "TFLOP/s", "x cuBLAS"]))
+    _warm_up(impls)
+    times = _interleaved(impls, args.repeat, args.minibatches, sync)
+    medians = {name: statistics.median(t) for name, t in times.items()}
+    results = {}
+    for name, t in times.items():
+        med = medians[name]
+        results[name] = {"precision": precision_of[name], "median_s": med, "best_s": min(t),
+                         "tflops": flops / med / 1e12, "ratio": medians[baseline[name]] / med}
+    _print_results(results, args, pc)
     targets = {}
     for precision in PRECISIONS:
         w, t = results[f"warp {precision}"], results[f"torch step {precision}"]
@@ -257,14 +280,31 @@ def cuda_main(args, pc) -> dict:
         print(f"target ({precision}): warp step >= 0.8 x cuBLAS GEMM rate: {w['ratio']:.2f} x -> "
               f"{'met' if w['ratio'] >= 0.8 else 'NOT met'}; ahead of the torch step: torch takes "
               f"{t['median_s'] / w['median_s']:.2f} x the warp time -> {'met' if w['median_s'] < t['median_s'] else 'NOT met'}")
-    breakdown = {}
-    for precision in PRECISIONS:
-        breakdown[precision] = op_breakdown(impls[f"warp {precision}"], args.repeat, sync)
-        print(f"warp {precision}, per operation (ms): " + ", ".join(f"{k} {v:.3f}" for k, v in breakdown[precision].items())
-              + f"; minibatch = {prob.steps + 1} predict_all + {prob.steps} latent_step + 1 weight_step")
-
-    out = {"device": info, "gflop": flops / 1e9, "smoke": agree, "results": results, "targets": targets,
+    breakdown = {name: _breakdown(name, impls[name], prob, args.repeat, sync)
+                 for name in [f"warp {precision}" for precision in PRECISIONS]}
+    out = {"device": info, "gflop": flops / 1e9, "smoke": agree, "results": results, "targets": targets, "failed": {},
            "times": times, "breakdown_ms": breakdown, "training": {}, "s_per_epoch": {}, "energy_band": {}}
+    _save(args.json, out)
+
+    # experimental, after the record above is safe: the small edges on a second stream
+    print("\nexperimental: the small edges on a second stream beside the big one", flush=True)
+    beside = {}
+    for precision in PRECISIONS:
+        name = f"warp {precision}, small edges beside"
+        try:
+            beside[name] = pc.BatchStateImpl(prob, CublasBackend(precision, "cuda", small_edges_beside=1 << 20))
+            _warm_up({name: beside[name]})
+            t = _interleaved({name: beside[name]}, args.repeat, args.minibatches, sync)[name]
+            med = statistics.median(t)
+            base = medians[f"cuBLAS GEMMs {precision}"]
+            results[name] = {"precision": precision, "median_s": med, "best_s": min(t), "tflops": flops / med / 1e12,
+                             "ratio": base / med}
+            times[name] = t
+            breakdown[name] = _breakdown(name, beside[name], prob, args.repeat, sync)
+        except Exception as exc:  # noqa: BLE001 - an experiment must not stop the benchmark
+            out["failed"][name] = f"{type(exc).__name__}: {exc}"
+            print(f"  {name}: failed: {out['failed'][name]}", flush=True)
+    _print_results({k: v for k, v in results.items() if k in beside}, args, pc)
     _save(args.json, out)  # the comparison survives a time limit hit during the training
     if not args.quick:
         print(f"\ntimed training at the paper's shapes ({PAPER_SAMPLES} random samples), per precision:", flush=True)

@@ -31,11 +31,12 @@ with PyTorch or the ``nvidia-cublas`` wheel): nothing of it is needed on the CPU
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import glob
 import site
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
@@ -351,7 +352,7 @@ class Cublas:
         handle = ctypes.c_void_p()
         self._check(self._lib.cublasCreate_v2(ctypes.byref(handle)), "cublasCreate")
         self._handle = handle
-        self._workspace = wp.empty(_WORKSPACE_BYTES, dtype=wp.uint8, device=device)
+        self._workspaces: dict[int, Any] = {}  # one per stream: streams may run GEMMs at once
         self._stream = None
 
     def _check(self, status: int, what: str) -> None:
@@ -362,8 +363,10 @@ class Cublas:
         """Follow Warp's current stream of the device (setting a stream resets the workspace)."""
         stream = self._wp.get_stream(self._device).cuda_stream
         if stream != self._stream:
+            if stream not in self._workspaces:
+                self._workspaces[stream] = self._wp.empty(_WORKSPACE_BYTES, dtype=self._wp.uint8, device=self._device)
             self._check(self._lib.cublasSetStream_v2(self._handle, ctypes.c_void_p(stream)), "cublasSetStream")
-            self._check(self._lib.cublasSetWorkspace_v2(self._handle, ctypes.c_void_p(self._workspace.ptr),
+            self._check(self._lib.cublasSetWorkspace_v2(self._handle, ctypes.c_void_p(self._workspaces[stream].ptr),
                                                         ctypes.c_size_t(_WORKSPACE_BYTES)), "cublasSetWorkspace")
             self._stream = stream
 
@@ -394,15 +397,62 @@ def row_major_gemm(blas, precision: str, C, A, B, trans_a: bool = False, trans_b
                  beta, C.ptr, _CUDA_R_32F, n, _COMPUTE[precision])
 
 
+class StreamOrder:
+    """Program order of buffer accesses across streams (a hazard tracker over buffer keys).
+
+    :meth:`waits` names the streams an operation about to run on ``stream`` must wait for:
+    the last writer of every buffer it reads or writes, and every stream that read a buffer
+    it writes since that buffer was last written. :meth:`joined` records that ``into``
+    waited for everything issued on ``other`` so far."""
+
+    def __init__(self) -> None:
+        self._writer: dict[Any, Any] = {}
+        self._readers: dict[Any, list[Any]] = {}
+
+    def waits(self, stream: Any, reads: tuple, writes: tuple) -> list[Any]:
+        deps: list[Any] = []
+
+        def need(other: Any) -> None:
+            if other is not None and other is not stream and not any(other is d for d in deps):
+                deps.append(other)
+
+        for key in (*reads, *writes):
+            need(self._writer.get(key))
+        for key in writes:
+            for reader in self._readers.get(key, ()):
+                need(reader)
+        for key in reads:
+            readers = self._readers.setdefault(key, [])
+            if not any(r is stream for r in readers):
+                readers.append(stream)
+        for key in writes:
+            self._writer[key], self._readers[key] = stream, []
+        return deps
+
+    def joined(self, into: Any, other: Any) -> None:
+        for key, writer in self._writer.items():
+            if writer is other:
+                self._writer[key] = into
+        for key, readers in self._readers.items():
+            if any(r is other for r in readers):
+                self._readers[key] = [r for r in readers if r is not other and r is not into] + [into]
+
+
 class CublasBackend(WarpBackend):
     """The Warp backend with its GEMMs in cuBLAS at ``precision`` (module docstring).
 
     ``blas`` replaces cuBLAS (an object with :meth:`Cublas.gemm_ex`): with a host
-    implementation the whole path runs on Warp's CPU device, for tests."""
+    implementation the whole path runs on Warp's CPU device, for tests.
+
+    ``small_edges_beside`` (CUDA): the operations of edges whose weights have fewer
+    elements run on a second stream, beside the big edge's, ordered against everything
+    else by the buffers they read and write (`StreamOrder`); the captured minibatch forks
+    to that stream at its start and joins it at its end (0: one stream)."""
 
     name = "warp"
 
-    def __init__(self, precision: str = "bf16", device: str | None = None, blas: Any = None) -> None:
+    def __init__(self, precision: str = "bf16", device: str | None = None, blas: Any = None,
+                 small_edges_beside: int = 0) -> None:
         if precision not in PRECISIONS:
             raise BackendError(f"unknown precision '{precision}'; valid: {', '.join(PRECISIONS)}")
         super().__init__(device)
@@ -410,17 +460,95 @@ class CublasBackend(WarpBackend):
             if not self._device.is_cuda:
                 raise BackendError(f"precision '{precision}' needs a CUDA device, not '{self.device}'")
             blas = Cublas(self._device)
+        if small_edges_beside and not self._device.is_cuda:
+            raise BackendError("small_edges_beside needs a CUDA device (streams)")
         self.precision = precision
         self._blas = blas
         self._low: dict[tuple[str, int, tuple[int, ...]], Any] = {}
+        self._beside = small_edges_beside
+        self._lane = ""  # scratch buffers are per stream ("" main, "@side")
+        if small_edges_beside:
+            self._main, self._side = self._wp.get_stream(self._device), self._wp.Stream(self._device)
+            self._order = StreamOrder()
 
+    # ---------------------------------------------------------------- streams
+    @staticmethod
+    def _key(x: Any) -> Any:
+        return x if isinstance(x, tuple) else x.W.ptr if isinstance(x, _LowWeights) else x.ptr
+
+    @contextlib.contextmanager
+    def _stream_for(self, W: _LowWeights | None, reads: tuple, writes: tuple) -> Iterator[None]:
+        """Run the block on the stream of edge ``W`` (None: the main stream), after the waits
+        that keep its reads and writes in order."""
+        if not self._beside:
+            yield
+            return
+        side = W is not None and W.W.size < self._beside
+        stream = self._side if side else self._main
+        keys = lambda xs: tuple(self._key(x) for x in xs if x is not None)  # noqa: E731
+        for other in self._order.waits(stream, keys(reads), keys(writes)):
+            stream.wait_stream(other)
+        self._lane = "@side" if side else ""
+        try:
+            with self._wp.ScopedStream(stream, sync_enter=False):
+                yield
+        finally:
+            self._lane = ""
+
+    def empty(self, shape: tuple[int, ...], dtype: type = np.float32) -> Any:
+        return self._made_on_main(super().empty(shape, dtype))
+
+    def to_device(self, host: np.ndarray) -> Any:
+        return self._made_on_main(super().to_device(host))
+
+    def _made_on_main(self, arr: Any) -> Any:
+        """A new array filled on the main stream: later reads on the side stream wait for it."""
+        if self._beside:
+            self._order.waits(self._main, (), (self._key(arr),))
+        return arr
+
+    def _join(self) -> None:
+        """The main stream waits for everything issued on the side stream."""
+        if self._beside:
+            self._main.wait_stream(self._side)
+            self._order.joined(self._main, self._side)
+
+    def capture(self, fn: Callable[[], None]) -> Callable[[], None]:
+        if not self._beside:
+            return super().capture(fn)
+
+        def forked() -> None:
+            self._side.wait_stream(self._main)
+            fn()
+            self._join()
+
+        return super().capture(forked)
+
+    def _buffer(self, use: str, shape: tuple[int, ...]) -> Any:
+        return super()._buffer(use + self._lane, shape)
+
+    # ---------------------------------------------------------------- host transfers
+    def upload(self, host: np.ndarray, dst: Any) -> None:
+        self._join()
+        with self._stream_for(None, (), (dst,)):
+            super().upload(host, dst)
+
+    def download(self, src: Any) -> np.ndarray:
+        self._join()
+        return super().download(src)
+
+    def weights_to_host(self, handle: _LowWeights) -> np.ndarray:
+        self._join()
+        return super().weights_to_host(handle)
+
+    # ---------------------------------------------------------------- precision
     def _gemm(self, C, A, B, trans_a: bool = False, trans_b: bool = False, alpha: float = 1.0, beta: float = 0.0) -> None:
         if not self._kernels.planning():  # a planning pass only records the Warp kernels
             row_major_gemm(self._blas, self.precision, C, A, B, trans_a, trans_b, alpha, beta)
 
     def _low_buffer(self, use: str, of: Any) -> Any:
-        """A bfloat16 array shaped like ``of``, one per (use, array)."""
-        key = (use, of.ptr, tuple(of.shape))
+        """A bfloat16 array shaped like ``of``, one per (use, array, stream)."""
+        key = (use + self._lane, of.ptr, tuple(of.shape))
         buf = self._low.get(key)
         if buf is None:
             buf = self._low[key] = self._wp.zeros(of.shape, dtype=self._wp.bfloat16, device=self.device)
@@ -437,7 +565,7 @@ class CublasBackend(WarpBackend):
     def weights(self, host: np.ndarray) -> _LowWeights:
         W = self.to_device(host)
         handle = _LowWeights(W, self._low_buffer("weights", W) if self.precision == "bf16" else None)
-        self._round_weights(handle)
+        self._round_weights(handle)  # on the main stream, after W's upload there
         return handle
 
     def _round_weights(self, handle: _LowWeights) -> None:
@@ -446,30 +574,55 @@ class CublasBackend(WarpBackend):
 
     def upload_weights(self, host: np.ndarray, handle: _LowWeights) -> None:
         self.upload(host, handle.W)
-        self._round_weights(handle)
+        with self._stream_for(None, (handle,), (handle,)):
+            self._round_weights(handle)
 
+    # ---------------------------------------------------------------- the step
     def predict(self, Y, W: _LowWeights, X, E, G, R, slot: int, activation: str, slope: float) -> None:
-        k = self._kernels
-        A = self._buffer("product", tuple(E.shape))
-        self._gemm(A, self._operand(Y), W.W if W.low is None else W.low)
-        tiles = self._tiles("predict", Y.shape[0])
-        partial = None if R is None else self._buffer("row_partial", k.row_partial_shape(Y.shape[0], W.W.shape[1], tiles))
-        G_low = self._low_buffer("gain", G) if self.precision == "bf16" else None
-        k.predict_epilogue(A, X, E, G, partial, R, slot, activation=activation, slope=slope, G_low=G_low, tiles=tiles)
+        with self._stream_for(W, (Y, W, X), (E, G, None if R is None else (R.ptr, slot))):
+            k = self._kernels
+            A = self._buffer("product", tuple(E.shape))
+            self._gemm(A, self._operand(Y), W.W if W.low is None else W.low)
+            tiles = self._tiles("predict", Y.shape[0])
+            shape = k.row_partial_shape(Y.shape[0], W.W.shape[1], tiles)
+            partial = None if R is None else self._buffer("row_partial", shape)
+            G_low = self._low_buffer("gain", G) if self.precision == "bf16" else None
+            k.predict_epilogue(A, X, E, G, partial, R, slot, activation=activation, slope=slope, G_low=G_low,
+                               tiles=tiles)
 
     def _gain(self, G) -> Any:
         """G at the working precision: its bfloat16 copy, written by the last predict."""
         return self._low_buffer("gain", G) if self.precision == "bf16" else G
 
     def latent_update(self, Y, G, W: _LowWeights, eta: float, E_above, mask) -> None:
-        D = self._buffer("latent", tuple(Y.shape))
-        self._gemm(D, self._gain(G), W.W if W.low is None else W.low, trans_b=True)
-        self._kernels.latent_apply(Y, D, eta, E_above=E_above, mask=mask)
+        with self._stream_for(W, (G, W, E_above, mask), (Y,)):
+            D = self._buffer("latent", tuple(Y.shape))
+            self._gemm(D, self._gain(G), W.W if W.low is None else W.low, trans_b=True)
+            self._kernels.latent_apply(Y, D, eta, E_above=E_above, mask=mask)
 
     def weight_update(self, W: _LowWeights, Y, G, eta: float) -> None:
         # W <- W + 2 eta Y^T G accumulated by cuBLAS in float32 into the float32 master copy
-        self._gemm(W.W, self._operand(Y), self._gain(G), trans_a=True, alpha=2.0 * eta, beta=1.0)
-        self._round_weights(W)
+        with self._stream_for(W, (Y, G), (W,)):
+            self._gemm(W.W, self._operand(Y), self._gain(G), trans_a=True, alpha=2.0 * eta, beta=1.0)
+            self._round_weights(W)
+
+    # ---------------------------------------------------------------- rows, stopping
+    def fill(self, dst: Any, value: float) -> None:
+        with self._stream_for(None, (), (dst,)):
+            super().fill(dst, value)
+
+    def gather_rows(self, src, index, dst) -> None:
+        with self._stream_for(None, (src, index), (dst,)):
+            super().gather_rows(src, index, dst)
+
+    def scatter_rows(self, src, index, dst) -> None:
+        with self._stream_for(None, (src, index), (dst,)):
+            super().scatter_rows(src, index, dst)
+
+    def stop_converged(self, R, limits, active, steps) -> None:
+        self._join()  # reads every edge's row energies
+        with self._stream_for(None, (limits,), (active, steps)):
+            super().stop_converged(R, limits, active, steps)
 
 
 def _cuda_driver_loads() -> bool:

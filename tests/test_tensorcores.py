@@ -252,6 +252,27 @@ def test_nothing_runs_while_kernels_are_planned():
     np.testing.assert_allclose(W.W.numpy(), expected, rtol=1e-5, atol=1e-6)
 
 
+def test_stream_order_waits_for_writers_and_for_readers_of_what_it_writes():
+    """Hand-traced hazards: read-after-write and write-after-read across streams wait,
+    reads after reads and anything on one stream do not; a join moves the other stream's
+    accesses to the joining one."""
+    from vitaplace.engine.backends import StreamOrder
+
+    main, side = object(), object()
+    order = StreamOrder()
+    assert order.waits(main, (), ("Y1",)) == []  # gather writes Y1 on main
+    assert order.waits(main, ("Y1", "W1"), ("E1",)) == []  # big predict: same stream
+    assert order.waits(side, ("Y2", "W2", "Y1"), ("E2",)) == [main]  # small predict reads Y1 (main wrote it)
+    assert order.waits(side, ("Y2",), ("E3",)) == []  # reads after reads: no wait
+    assert order.waits(main, ("E2",), ("Y1",)) == [side]  # big latent step: E2 from side; rewrites Y1 side read
+    assert order.waits(side, ("E3",), ("Y2",)) == []  # small latent step: nothing of main's
+    assert order.waits(main, (), ("W2",)) == [side]  # a write after the side's read of W2
+    assert order.waits(main, (), ("Y2",)) == [side]  # scatter after the side wrote Y2
+    order.joined(main, side)
+    assert order.waits(main, ("E2", "E3"), ()) == []  # the join covered the side's writes
+    assert order.waits(side, ("E1",), ()) == [main]  # but the side still waits for main
+
+
 def test_tensor_core_precisions_need_cuda_and_not_numpy():
     """One-line BackendErrors at validation: tf32/bf16 with the numpy backend, or without a
     CUDA device; float32 runs everywhere."""
@@ -294,6 +315,19 @@ def test_minibatch_updates_through_cublas_match_float64(cuda, precision):
     dy, dw = minibatch_updates(SMALL, CublasBackend(precision, cuda), start, 5, replays=3)
     err = max(update_error(dy, ref[0]), update_error(dw, ref[1]))
     assert err < UPDATE_GATE[precision], f"{precision}: {err:.2e}"
+
+
+@pytest.mark.cuda
+@pytest.mark.parametrize("precision", ["float32", "bf16"])
+def test_small_edges_on_a_second_stream_give_the_same_updates(cuda, precision):
+    """The small edges on their own stream (every edge but visual.1 here), the minibatch
+    captured with the fork and join and replayed: the same updates as on one stream."""
+    start = start_state(SMALL, 40)
+    serial = minibatch_updates(SMALL, CublasBackend(precision, cuda), start, 5, replays=3)
+    beside = minibatch_updates(SMALL, CublasBackend(precision, cuda, small_edges_beside=1000), start, 5, replays=3)
+    for one, other in zip(serial, beside):
+        for name in one:
+            np.testing.assert_allclose(other[name], one[name], rtol=1e-6, atol=1e-9, err_msg=name)
 
 
 PAPER = {
