@@ -71,7 +71,7 @@ if ! "$python" -c "import sys; from vitaplace.engine.backends import cuda_availa
 fi
 stage tests 180 "$python" -m pytest -q -p no:cacheprovider -m cuda -n "$jobs" \
     tests/test_kernels.py tests/test_pc.py tests/test_tensorcores.py
-stage bench 330 "$python" bench/pc_step.py --device cuda --repeat 5 --epochs 50 --json "$dir/bench.json"
+stage bench 300 "$python" bench/pc_step.py --device cuda --repeat 5 --epochs 50 --json "$dir/bench.json"
 "$python" bench/gpu_summary.py "$dir" > "$dir/SUMMARY.md" || status=1
 cat "$dir/SUMMARY.md"
 exit "$status"
