@@ -146,3 +146,14 @@ def discover(eps: Iterable[EntryPoint] | None = None, only: str | None = None) -
             continue
         registry.add_plugin(plugin, source)
     return registry
+
+
+def plugin_distributions(registry: Registry) -> dict[str, dict[str, str]]:
+    """Per extractor: the plugin (entry point) that provides it and that plugin's distribution
+    name and version ("unknown" when not installed as a distribution), for manifests and reports."""
+    out = {}
+    for name in registry.names():
+        source = registry.sources[name]
+        distribution, _, installed = registry.distributions.get(source, "unknown").partition("==")
+        out[name] = {"plugin": source, "distribution": distribution, "version": installed or "unknown"}
+    return out
