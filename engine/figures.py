@@ -28,7 +28,7 @@ __all__ = ["plot_energy", "plot_matrices", "plot_pr_curves", "plot_trajectories"
 OUTCOME_COLOURS = {"TP": "tab:green", "FP": "tab:red", "FN": "tab:orange", "TN": "tab:grey"}
 #: percentiles of the feature distances that span the TME colour scale: a few far-off samples
 #: (e.g. touch outliers) would otherwise stretch it until the matches are all one colour
-TME_PERCENTILES = (1.0, 95.0)
+TME_PERCENTILES = (1.0, 90.0)
 #: line style per curve of a PR figure (curves drawn later are thinner and on top, so a
 #: curve that another one covers still shows around it)
 PR_STYLES = ("-", "--", ":", "-.")
