@@ -11,11 +11,13 @@ which plugins load.
 from __future__ import annotations
 
 import inspect
+import logging
 import os
 import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
 from typing import Any
 
 import pluggy
@@ -157,3 +159,15 @@ def plugin_distributions(registry: Registry) -> dict[str, dict[str, str]]:
         distribution, _, installed = registry.distributions.get(source, "unknown").partition("==")
         out[name] = {"plugin": source, "distribution": distribution, "version": installed or "unknown"}
     return out
+
+
+def announce_run_finished(registry: Registry, out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
+    """Call every plugin's `vitaplace_run_finished` hook; one that raises is reported as a
+    warning naming it (the run's outputs are written already) and the others still run."""
+    log = logging.getLogger("vitaplace")
+    for impl in registry.manager.hook.vitaplace_run_finished.get_hookimpls():
+        try:
+            impl.function(out=out, scenario=scenario, rows=rows, stage=stage)
+        except Exception as exc:  # noqa: BLE001 - a tracker's failure must not fail a finished run
+            log.warning("plugin '%s': its run-finished hook raised %s: %s", impl.plugin_name, type(exc).__name__,
+                        str(exc).splitlines()[0] if str(exc) else "")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import sys
 from importlib.metadata import version
 from pathlib import Path
 from types import SimpleNamespace
@@ -168,21 +169,27 @@ def test_git_dirty_tells_a_changed_checkout_from_a_clean_one(tmp_path):
     assert git_dirty(tmp_path) is True
 
 
+def _recorded_scenario(tmp_path: Path) -> tuple[Path, dict[str, Path]]:
+    """A scenario of three recorded runs (12 samples each, no contacts) and method H alone."""
+    rng = np.random.default_rng(2)
+    files = {name: _recorded(tmp_path / f"{name}.h5", 12, rng) for name in ("train", "query", "reference")}
+    scenario = {
+        "name": "recorded", "train": {"dataset": str(files["train"])},
+        "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]), "reference": str(files["reference"])}}],
+        "methods": [{"name": "H", "plugin": "handcrafted", "params": {"grid": [4, 8]}}], "evaluation": {"tau": 0.5},
+    }
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    return path, files
+
+
 def test_recorded_run_report_and_manifest_end_to_end(tmp_path):
     """A scenario on recorded files (no contacts, as imported data): the report defines AUC,
     names the files and says H matched on vision alone; the manifest names the plugins'
     distributions and the dirty flag."""
     from vitaplace.engine.cli import main
 
-    rng = np.random.default_rng(2)
-    files = {name: _recorded(tmp_path / f"{name}.h5", 12, rng) for name in ("train", "query", "reference")}
-    scenario = {
-        "name": "recorded", "train": {"dataset": str(files["train"])},
-        "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]), "reference": str(files["reference"])}}],
-        "methods": [{"name": "H", "plugin": "handcrafted"}], "evaluation": {"tau": 0.5},
-    }
-    path = tmp_path / "s.yaml"
-    path.write_text(yaml.safe_dump(scenario))
+    path, files = _recorded_scenario(tmp_path)
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
     report = (tmp_path / "out" / "report.md").read_text()
     assert "AUC is the step-wise average precision" in report
@@ -193,3 +200,89 @@ def test_recorded_run_report_and_manifest_end_to_end(tmp_path):
     assert manifest["plugins"]["handcrafted"] == {
         "plugin": "handcrafted (vitaplace)", "distribution": "vitaplace", "version": version("vitaplace")}
     assert manifest["git_dirty"] in (True, False)
+
+
+# --------------------------------------------------------------------------- experiment tracking
+
+
+class FakeMlflow:
+    """Records what the MLflow plugin calls, in the order it calls it."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple] = []
+        self.params: dict = {}
+        self.metrics: dict = {}
+        self.artifacts: list[tuple[str, str | None]] = []
+
+    def set_experiment(self, name):
+        self.calls.append(("set_experiment", name))
+
+    def start_run(self, run_name=None, tags=None):
+        self.calls.append(("start_run", run_name, tags))
+        fake = self
+
+        class Active:
+            info = SimpleNamespace(run_id="r1")
+
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                fake.calls.append(("end_run",))
+
+        return Active()
+
+    def log_params(self, params):
+        self.params.update(params)
+
+    def log_metrics(self, metrics):
+        self.metrics.update(metrics)
+
+    def log_artifact(self, path):
+        self.artifacts.append((Path(path).name, None))
+
+    def log_artifacts(self, folder, artifact_path=None):
+        self.artifacts.append((Path(folder).name, artifact_path))
+
+
+def test_a_finished_run_is_logged_to_mlflow_when_asked(tmp_path, monkeypatch):
+    from vitaplace.engine.cli import main
+
+    fake = FakeMlflow()
+    monkeypatch.setitem(sys.modules, "mlflow", fake)
+    monkeypatch.setenv("VITAPLACE_MLFLOW", "vitaplace-test")
+    path, _ = _recorded_scenario(tmp_path)
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert fake.calls[0] == ("set_experiment", "vitaplace-test")
+    assert fake.calls[1][:2] == ("start_run", "recorded seed 0") and fake.calls[-1] == ("end_run",)
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert fake.calls[1][2]["git.commit"] == str(manifest["git_commit"]) and fake.calls[1][2]["vitaplace.stage"] == "report"
+    assert fake.params["seed"] == "0" and fake.params["evaluation.tau"] == "0.5"
+    assert fake.params["methods.H.plugin"] == "handcrafted" and fake.params["methods.H.grid"] == "[4, 8]"
+    rows = json.loads((tmp_path / "out" / "results.json").read_text())
+    for row in rows:
+        key = f"E1/H/{row['direction']}"
+        assert fake.metrics[f"{key}/max_f1"] == row["max_f1"] and fake.metrics[f"{key}/auc"] == row["auc"]
+    assert len(fake.metrics) == 5 * len(rows)
+    assert set(fake.artifacts) == {("report.md", None), ("results.json", None), ("results.csv", None),
+                                   ("manifest.json", None), ("scenario.resolved.yaml", None), ("figures", "figures")}
+
+
+def test_tracking_is_off_unless_asked_and_never_fails_a_run(tmp_path, monkeypatch, caplog):
+    from vitaplace.engine.cli import main
+
+    fake = FakeMlflow()
+    monkeypatch.setitem(sys.modules, "mlflow", fake)
+    monkeypatch.delenv("VITAPLACE_MLFLOW", raising=False)
+    path, _ = _recorded_scenario(tmp_path)
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert fake.calls == []
+    monkeypatch.setenv("VITAPLACE_MLFLOW", "x")
+    monkeypatch.setitem(sys.modules, "mlflow", None)  # not installed: import fails
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert "MLflow is not installed" in caplog.text
+    broken = FakeMlflow()
+    broken.log_params = lambda params: (_ for _ in ()).throw(ConnectionError("tracking server down"))
+    monkeypatch.setitem(sys.modules, "mlflow", broken)
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert "plugin 'mlflow (vitaplace)': its run-finished hook raised ConnectionError: tracking server down" in caplog.text
