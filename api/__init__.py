@@ -23,15 +23,31 @@ import json
 import logging
 import sys
 from collections.abc import Iterable, Mapping, Sequence
+from importlib import import_module
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from vitaplace.engine import __version__
-from vitaplace.engine.dataset import Run, open_run
 from vitaplace.engine.errors import UserError
-from vitaplace.engine.features import FeatureExtractor, Features
-from vitaplace.engine.runner import STAGES
-from vitaplace.engine.scenario import Scenario
+
+if TYPE_CHECKING:
+    from vitaplace.engine.dataset import Run
+    from vitaplace.engine.features import FeatureExtractor
+    from vitaplace.engine.scenario import Scenario
+
+#: names imported on first use, so that ``import vitaplace`` (and every ``vitaplace.engine``
+#: import, the command line's included) stays cheap
+_LAZY = {
+    "Run": "vitaplace.engine.dataset", "open_run": "vitaplace.engine.dataset",
+    "FeatureExtractor": "vitaplace.engine.features", "Features": "vitaplace.engine.features",
+    "Scenario": "vitaplace.engine.scenario", "STAGES": "vitaplace.engine.runner",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'vitaplace' has no attribute {name!r}")
 
 __all__ = [
     "__version__", "STAGES", "FeatureExtractor", "Features", "Run", "Scenario", "UserError", "extractors",
@@ -81,7 +97,7 @@ def run(
     Stage messages go to the ``vitaplace`` logger (``logging.basicConfig(level="INFO")``
     shows them)."""
     from vitaplace.engine.outdir import OutputLock, remove_stale_temporaries, writable_dir
-    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.runner import STAGES, Pipeline
     from vitaplace.engine.scenario import load_scenario as load
 
     if until not in STAGES:
