@@ -33,7 +33,8 @@ TME_PERCENTILES = (1.0, 90.0)
 #: curve that another one covers still shows around it)
 PR_STYLES = ("-", "--", ":", "-.")
 #: what the lines and bands of `plot_pr_bands` show (written into the figure)
-BAND_NOTE = "line: mean over seeds; band: lowest to highest seed\n(interpolated precision: best precision at that recall or above)"
+BAND_NOTE = ("line: mean over seeds; band: lowest to highest seed\n"
+             "(interpolated precision: the best precision at that recall or above)")
 
 
 def _new_figure(figsize) -> Figure:
@@ -80,8 +81,8 @@ def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> 
     for ax, mat, name, cmap, quantity, limits in (
         (axes[0], gtm, "GTM (ground-truth distance)", "viridis", "ground-truth distance [m]", (None, None)),
         (axes[1], tme, "TME (feature distance)", "magma",
-         f"feature distance, colours span its {low:g}th-{high:g}th percentile\n"
-         f"[{tme_range[0]:.3g}, {tme_range[1]:.3g}] (range {np.nanmin(tme):.3g}-{np.nanmax(tme):.3g})", tme_range),
+         f"feature distance; colours: percentiles {low:g}-{high:g}\n= [{tme_range[0]:.3g}, {tme_range[1]:.3g}] "
+         f"(all values {np.nanmin(tme):.3g}-{np.nanmax(tme):.3g})", tme_range),
     ):
         shown = np.where(np.isfinite(mat), mat, np.nan)
         im = ax.imshow(shown, cmap=cmap, aspect="auto", interpolation="nearest", origin="upper",
@@ -120,9 +121,8 @@ def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> 
         k = curve.index_at_max_f1
         ax.plot([curve.recall[k]], [curve.precision[k]], marker="*", markersize=12, color=colour,
                 markeredgecolor="black", linestyle="", zorder=10 + i)
-    _finish_pr_axes(fig, ax, "precision", len(curves), title or "Precision-recall (★ = max F1)")
-    ax.text(0.01, 0.01, "AUC: step-wise average precision", transform=ax.transAxes, fontsize="x-small",
-            color="0.35", va="bottom")
+    _finish_pr_axes(fig, ax, "precision", len(curves), title or "Precision-recall (★ = max F1)",
+                    "AUC: step-wise average precision")
     return _save(fig, out_stem)
 
 
@@ -133,15 +133,17 @@ def _pr_style(i: int, n_curves: int) -> dict:
     return {"linestyle": PR_STYLES[i % len(PR_STYLES)], "linewidth": 1.2 + 1.0 * (n_curves - 1 - i), "zorder": 2 + i}
 
 
-def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str) -> None:
-    """Limits, labels, grid, a legend below the axes (covering no data) and the title."""
+def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str, legend_title: str) -> None:
+    """Limits, labels, grid, a legend below the axes (covering no data) with ``legend_title``
+    (what the curves show) and the title."""
     ax.set_xlim(-0.02, 1.02)
     ax.set_ylim(-0.02, 1.05)
     ax.set_xlabel("recall")
     ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.3)
     if n_curves:
-        fig.legend(loc="outside lower center", fontsize="small", ncols=1 if n_curves > 2 else n_curves)
+        fig.legend(loc="outside lower center", fontsize="small", ncols=1 if n_curves > 2 else n_curves,
+                   title=legend_title, title_fontsize="small")
     ax.set_title(title)
 
 
@@ -170,8 +172,7 @@ def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str 
         ax.plot(grid, prec.mean(axis=0), color=colour, label=f"{name} ({len(seeds)} seeds, max F1 {f1.mean():.3f}{spread})",
                 **_pr_style(i, len(curves)))
         ax.fill_between(grid, prec.min(axis=0), prec.max(axis=0), color=colour, alpha=0.2, linewidth=0)
-    _finish_pr_axes(fig, ax, "interpolated precision", len(curves), title or "Precision-recall over seeds")
-    ax.text(0.01, 0.01, BAND_NOTE, transform=ax.transAxes, fontsize="x-small", color="0.35", va="bottom")
+    _finish_pr_axes(fig, ax, "interpolated precision", len(curves), title or "Precision-recall over seeds", BAND_NOTE)
     return _save(fig, out_stem)
 
 
