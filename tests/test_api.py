@@ -40,6 +40,11 @@ def test_every_public_name_is_documented():
     assert not undocumented, undocumented
 
 
+def test_read_results_of_a_folder_without_results_is_one_line(tmp_path):
+    with pytest.raises(vitaplace.UserError, match=r"results\.json: no results here"):
+        vitaplace.read_results(tmp_path)
+
+
 def test_overrides_as_a_mapping_or_as_set_strings_mean_the_same():
     as_mapping = vitaplace.load_scenario("quickstart", {"seed": 7, "methods.1.params": {"grid": [4, 8]}})
     as_strings = vitaplace.load_scenario("quickstart", ["seed=7", "methods.1.params={grid: [4, 8]}"])
