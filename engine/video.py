@@ -68,7 +68,7 @@ def write_video(run: Run, path: str | os.PathLike, fps: float = 5.0, step: int |
     FigureCanvasAgg(fig)
     camera_ax, top_ax, whisker_ax = fig.subplots(1, 3, width_ratios=[1.2, 1, 1.1])
 
-    camera = camera_ax.imshow(run.images[0])
+    camera = camera_ax.imshow(run.image_batch(0, 1)[0])
     camera_ax.set_axis_off()
     camera_ax.set_title("camera")
 
@@ -99,7 +99,7 @@ def write_video(run: Run, path: str | os.PathLike, fps: float = 5.0, step: int |
     whisker_ax.legend(loc="upper right", fontsize=7)
 
     def draw(i: int) -> None:
-        camera.set_data(run.images[i])
+        camera.set_data(run.image_batch(i, i + 1)[0])  # one frame at a time: no whole image stack in memory
         travelled.set_data(poses[: i + 1, 0], poses[: i + 1, 1])
         heading.set_offsets([poses[i, :2]])
         heading.set_UVC([math.cos(poses[i, 2])], [math.sin(poses[i, 2])])
