@@ -1,4 +1,4 @@
-"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|plugins|sweep|aggregate|import``.
+"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|plugins|sweep|aggregate|import|view|video``.
 
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
@@ -114,8 +114,40 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("folders", nargs="+", type=Path, metavar="DIR", help="run folders (vitaplace run --set seed=N --out DIR)")
     p.add_argument("--out", type=Path, help="where the summary goes (default: the folders' common parent)")
+    _add_viewing_commands(sub, common)
     _add_completion(parser)
     return parser
+
+
+def _add_viewing_commands(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``view ENV`` (MuJoCo's interactive viewer) and ``video RUN.h5`` (an animation of a run)."""
+    p = sub.add_parser("view", parents=[common],
+                       help="open MuJoCo's interactive viewer on an environment with the robot (needs a display)")
+    p.add_argument("environment", help="environment YAML file, or the name of a shipped one (e.g. e1)")
+    p = sub.add_parser("video", parents=[common],
+                       help="animate a recorded run: camera frames, top view with trajectory, whisker contacts")
+    p.add_argument("run", type=Path, help="run file (HDF5), e.g. from `vitaplace simulate ENV.yaml`")
+    p.add_argument("--out", type=Path, help="the video to write, .gif (always) or .mp4 (needs ffmpeg); default RUN.gif")
+    p.add_argument("--fps", type=float, default=5.0, help="frames per second (default 5; one sample per 0.5 s whisk cycle)")
+    p.add_argument("--step", type=int, help="draw every STEP-th sample (default 1, or larger to keep to 300 frames)")
+
+
+def _view(args: argparse.Namespace) -> int:
+    from vitaplace.engine.sim.viewer import view
+
+    view(args.environment)
+    return 0
+
+
+def _video(args: argparse.Namespace) -> int:
+    from vitaplace.engine.dataset import open_run
+    from vitaplace.engine.video import write_video
+
+    if args.fps <= 0 or (args.step is not None and args.step < 1):
+        raise UserError("--fps must be > 0 and --step >= 1")
+    path, frames = write_video(open_run(args.run), args.out or args.run.with_suffix(".gif"), args.fps, args.step)
+    print(f"wrote {frames} frames to {path}")
+    return 0
 
 
 def _add_completion(parser: argparse.ArgumentParser) -> None:
@@ -359,6 +391,8 @@ def main(argv: list[str] | None = None) -> int:
             return _aggregate(args)
         if args.command == "import":
             return _import(args)
+        if args.command in ("view", "video"):
+            return _view(args) if args.command == "view" else _video(args)
         if args.command == "simulate" and _is_environment_file(args.scenario):
             return _simulate_environment(args)
         until = {"simulate": "simulate", "train": "fit", "evaluate": "evaluate"}.get(args.command, "report")

@@ -26,6 +26,15 @@ from vitaplace.engine.evaluate import Decisions, PRCurve
 __all__ = ["plot_energy", "plot_matrices", "plot_pr_curves", "plot_trajectories", "OUTCOME_COLOURS"]
 
 OUTCOME_COLOURS = {"TP": "tab:green", "FP": "tab:red", "FN": "tab:orange", "TN": "tab:grey"}
+#: percentiles of the feature distances that span the TME colour scale: a few far-off samples
+#: (e.g. touch outliers) would otherwise stretch it until the matches are all one colour
+TME_PERCENTILES = (1.0, 90.0)
+#: line style per curve of a PR figure (curves drawn later are thinner and on top, so a
+#: curve that another one covers still shows around it)
+PR_STYLES = ("-", "--", ":", "-.")
+#: what the lines and bands of `plot_pr_bands` show (written into the figure)
+BAND_NOTE = ("line: mean interpolated precision over seeds; band: lowest to highest seed\n"
+             "(interpolated precision: the best precision at that recall or above)")
 
 
 def _new_figure(figsize) -> Figure:
@@ -57,7 +66,8 @@ def _primary_outcome(decisions: Decisions) -> np.ndarray:
 def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> list[Path]:
     """GTM and TME heat maps side by side (rows = queries, columns = references) with the
     decision of each query drawn as a dot at (query, best match): green TP, red FP
-    (accepted and wrong), orange FN (rejected although a revisit existed), grey TN."""
+    (accepted and wrong), orange FN (rejected although a revisit existed), grey TN.
+    The TME colours span the `TME_PERCENTILES` of its values (its colour bar says so)."""
     tme = np.asarray(tme, dtype=float)
     gtm = np.asarray(gtm, dtype=float)
     n_q, n_r = tme.shape
@@ -66,13 +76,18 @@ def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> 
     outcome = _primary_outcome(decisions)
     rows = np.arange(n_q)
     size = float(np.clip(2000.0 / max(n_q, 1), 2.0, 30.0))
-    for ax, mat, name, cmap, quantity in (
-        (axes[0], gtm, "GTM (ground-truth distance)", "viridis", "ground-truth distance [m]"),
-        (axes[1], tme, "TME (feature distance)", "magma", "feature distance"),
+    low, high = TME_PERCENTILES
+    tme_range = tuple(float(v) for v in np.nanpercentile(np.where(np.isfinite(tme), tme, np.nan), TME_PERCENTILES))
+    for ax, mat, name, cmap, quantity, limits in (
+        (axes[0], gtm, "GTM (ground-truth distance)", "viridis", "ground-truth distance [m]", (None, None)),
+        (axes[1], tme, "TME (feature distance)", "magma",
+         f"feature distance; colours: percentiles {low:g}-{high:g}\n= [{tme_range[0]:.3g}, {tme_range[1]:.3g}] "
+         f"(all values {np.nanmin(tme):.3g}-{np.nanmax(tme):.3g})", tme_range),
     ):
         shown = np.where(np.isfinite(mat), mat, np.nan)
-        im = ax.imshow(shown, cmap=cmap, aspect="auto", interpolation="nearest", origin="upper")
-        fig.colorbar(im, ax=ax, shrink=0.85, label=quantity)
+        im = ax.imshow(shown, cmap=cmap, aspect="auto", interpolation="nearest", origin="upper",
+                       vmin=limits[0], vmax=limits[1])
+        fig.colorbar(im, ax=ax, shrink=0.85, label=quantity, extend="neither" if limits[0] is None else "both")
         for label, colour in OUTCOME_COLOURS.items():
             sel = outcome == label
             if sel.any():
@@ -102,16 +117,25 @@ def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> 
         colour = f"C{i % 10}"
         order = np.argsort(curve.deltas, kind="stable")
         ax.plot(curve.recall[order], curve.precision[order], drawstyle="steps-pre", color=colour,
-                label=f"{name} (max F1={curve.max_f1:.3f}, AUC={curve.auc:.3f})")
+                label=f"{name} (max F1={curve.max_f1:.3f}, AUC={curve.auc:.3f})", **_pr_style(i, len(curves)))
         k = curve.index_at_max_f1
         ax.plot([curve.recall[k]], [curve.precision[k]], marker="*", markersize=12, color=colour,
-                markeredgecolor="black", linestyle="")
-    _finish_pr_axes(fig, ax, "precision", len(curves), title or "Precision-recall (★ = max F1)")
+                markeredgecolor="black", linestyle="", zorder=10 + i)
+    _finish_pr_axes(fig, ax, "precision", len(curves), title or "Precision-recall (★ = max F1)",
+                    "AUC: step-wise average precision")
     return _save(fig, out_stem)
 
 
-def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str, legend_title: str | None = None) -> None:
-    """Limits, labels, grid, a legend below the axes (covering no data) and the title."""
+def _pr_style(i: int, n_curves: int) -> dict:
+    """Line style, width and z-order of the ``i``-th of ``n_curves`` PR curves: each curve its
+    own dash pattern, the later ones thinner and above, so coinciding stretches (e.g. two
+    methods at precision 1) show both curves."""
+    return {"linestyle": PR_STYLES[i % len(PR_STYLES)], "linewidth": 1.2 + 1.0 * (n_curves - 1 - i), "zorder": 2 + i}
+
+
+def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str, legend_title: str) -> None:
+    """Limits, labels, grid, a legend below the axes (covering no data) with ``legend_title``
+    (what the curves show) and the title."""
     ax.set_xlim(-0.02, 1.02)
     ax.set_ylim(-0.02, 1.05)
     ax.set_xlabel("recall")
@@ -133,14 +157,10 @@ def interpolated_precision(curve: PRCurve, recall_grid: np.ndarray) -> np.ndarra
     return np.where(idx >= 0, best[np.clip(idx, 0, None)], 0.0)
 
 
-#: what the lines and bands of `plot_pr_bands` show: the title of their legend
-BAND_LEGEND = "line: mean interpolated precision over seeds\nband: lowest to highest seed"
-
-
 def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str = "") -> list[Path]:
     """Per method, the mean interpolated precision-recall curve over seeds with the band
-    from the lowest to the highest seed; the legend, titled with that (`BAND_LEGEND`), gives
-    the seeds and max F1 mean +- std."""
+    from the lowest to the highest seed (the figure says so, whatever the title); the legend
+    gives the seeds and max F1 mean +- std."""
     grid = np.linspace(0.0, 1.0, 201)
     fig = _new_figure((6, 5))
     ax = fig.subplots()
@@ -149,10 +169,12 @@ def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str 
         prec = np.array([interpolated_precision(c, grid) for c in seeds])
         f1 = np.array([c.max_f1 for c in seeds])
         spread = f" ± {f1.std(ddof=1):.3f}" if len(f1) > 1 else ""
-        ax.plot(grid, prec.mean(axis=0), color=colour, label=f"{name} ({len(seeds)} seeds, max F1 {f1.mean():.3f}{spread})")
+        ax.plot(grid, prec.mean(axis=0), color=colour, label=f"{name} ({len(seeds)} seeds, max F1 {f1.mean():.3f}{spread})",
+                **_pr_style(i, len(curves)))
         ax.fill_between(grid, prec.min(axis=0), prec.max(axis=0), color=colour, alpha=0.2, linewidth=0)
-    _finish_pr_axes(fig, ax, "interpolated precision", len(curves), title or "Precision-recall over seeds", BAND_LEGEND)
+    _finish_pr_axes(fig, ax, "interpolated precision", len(curves), title or "Precision-recall over seeds", BAND_NOTE)
     return _save(fig, out_stem)
+
 
 
 def write_pr_bands(out: Path, folders: Mapping[int, Path], rows: Sequence[Mapping]) -> list[Path]:

@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pluggy
 
 from vitaplace.engine.features import FeatureExtractor
+
+if TYPE_CHECKING:
+    from vitaplace.engine.scenario import Scenario
 
 PROJECT = "vitaplace"
 #: Entry-point group through which packages (built-in ones included) contribute plugins.
@@ -21,4 +26,16 @@ def vitaplace_register_features(register: Callable[[type[FeatureExtractor]], Non
     """Contribute feature extractors: call ``register(ExtractorClass)`` once per extractor.
 
     One plugin module may register several extractors. Each class needs a unique ``name``.
+    """
+
+
+@hookspec
+def vitaplace_run_finished(out: Path, scenario: Scenario, rows: list[dict[str, Any]], stage: str) -> None:
+    """A scenario's pipeline finished: every stage up to ``stage`` is done and ``out`` holds
+    its outputs (manifest.json, scenario.resolved.yaml; from the evaluate stage on
+    results.json/.csv with ``rows``, their rows; after the report stage report.md and
+    figures/). For trackers and notifications (e.g. `vitaplace.plugins.mlflow_tracking`).
+
+    Called in the process that ran the pipeline (for a sweep: once per seed, in its worker).
+    An exception is logged as a warning naming the plugin and does not fail the run.
     """

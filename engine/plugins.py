@@ -11,11 +11,13 @@ which plugins load.
 from __future__ import annotations
 
 import inspect
+import logging
 import os
 import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
 from typing import Any
 
 import pluggy
@@ -146,3 +148,26 @@ def discover(eps: Iterable[EntryPoint] | None = None, only: str | None = None) -
             continue
         registry.add_plugin(plugin, source)
     return registry
+
+
+def plugin_distributions(registry: Registry) -> dict[str, dict[str, str]]:
+    """Per extractor: the plugin (entry point) that provides it and that plugin's distribution
+    name and version ("unknown" when not installed as a distribution), for manifests and reports."""
+    out = {}
+    for name in registry.names():
+        source = registry.sources[name]
+        distribution, _, installed = registry.distributions.get(source, "unknown").partition("==")
+        out[name] = {"plugin": source, "distribution": distribution, "version": installed or "unknown"}
+    return out
+
+
+def announce_run_finished(registry: Registry, out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
+    """Call every plugin's `vitaplace_run_finished` hook; one that raises is reported as a
+    warning naming it (the run's outputs are written already) and the others still run."""
+    log = logging.getLogger("vitaplace")
+    for impl in registry.manager.hook.vitaplace_run_finished.get_hookimpls():
+        try:
+            impl.function(out=out, scenario=scenario, rows=rows, stage=stage)
+        except Exception as exc:  # noqa: BLE001 - a tracker's failure must not fail a finished run
+            log.warning("plugin '%s': its run-finished hook raised %s: %s", impl.plugin_name, type(exc).__name__,
+                        str(exc).splitlines()[0] if str(exc) else "")

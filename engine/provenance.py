@@ -14,17 +14,31 @@ from vitaplace.engine import __version__
 
 #: distributions whose version can change a result
 PACKAGES = ("numpy", "scipy", "scikit-learn", "mujoco", "warp-lang", "pluggy", "h5py", "pydantic")
+#: the source tree vitaplace runs from
+SOURCE = Path(__file__).parent
+
+
+def _git(where: Path, *args: str) -> subprocess.CompletedProcess | None:
+    """``git ARGS`` in folder ``where`` (None when git cannot run)."""
+    try:
+        return subprocess.run(["git", *args], cwd=where, capture_output=True, text=True, timeout=5)
+    except (OSError, subprocess.SubprocessError):
+        return None
 
 
 def git_commit() -> str | None:
     """The commit of the source tree vitaplace runs from, when it is a git checkout."""
-    try:
-        result = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True, text=True, timeout=5
-        )
-    except (OSError, subprocess.SubprocessError):
+    result = _git(SOURCE, "rev-parse", "HEAD")
+    return (result.stdout.strip() or None) if result is not None else None
+
+
+def git_dirty(where: Path = SOURCE) -> bool | None:
+    """Whether the checkout holding ``where`` (default: vitaplace's source) has tracked files
+    that differ from its commit; None when it is no git checkout."""
+    result = _git(where, "status", "--porcelain", "--untracked-files=no")
+    if result is None or result.returncode != 0:
         return None
-    return result.stdout.strip() or None
+    return bool(result.stdout.strip())
 
 
 def package_versions() -> dict[str, str | None]:
@@ -39,10 +53,12 @@ def package_versions() -> dict[str, str | None]:
 
 
 def provenance() -> dict[str, Any]:
-    """vitaplace version and commit, package versions and the machine, as plain data."""
+    """vitaplace version, commit and whether the checkout has uncommitted changes, package
+    versions and the machine, as plain data."""
     return {
         "vitaplace_version": __version__,
         "git_commit": git_commit(),
+        "git_dirty": git_dirty(),
         "packages": package_versions(),
         "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count()},
     }

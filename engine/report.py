@@ -11,6 +11,7 @@ import numpy as np
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine import figures
 from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.plugins import plugin_distributions
 from vitaplace.engine.provenance import provenance
 from vitaplace.engine.sim.environment import load_environment
 
@@ -96,7 +97,68 @@ def inference_table(pipeline: Pipeline) -> str:
             )
     if not lines:
         return ""
-    return "\n".join(["| method | run | median steps | 90th percentile | most | % at the cap |", "|---|---|---|---|---|---|", *lines])
+    table = ["| method | run | median steps | 90th percentile | most | % at the cap |", "|---|---|---|---|---|---|", *lines]
+    return "\n".join(table + _cap_warnings(pipeline))
+
+
+#: a share of test-time inferences at the step cap from which the report warns
+CAP_WARNING_SHARE = 0.5
+
+
+def _cap_warnings(pipeline: Pipeline) -> list[str]:
+    """A warning line per method whose test-time inference hit the step cap in every, or in
+    most (`CAP_WARNING_SHARE`), samples of the evaluation runs: its latents did not settle."""
+    from vitaplace.engine.features import load_features
+
+    lines = []
+    for method in pipeline.scenario.methods:
+        stopped = [load_features(pipeline.features_path(method, label)).get("inference_stopped")
+                   for label in pipeline.runs() if label != "train"]
+        if not stopped or any(s is None for s in stopped):
+            continue
+        capped = ~np.concatenate(stopped).astype(bool)
+        if capped.mean() >= CAP_WARNING_SHARE:
+            share = "every" if capped.all() else f"{100 * capped.mean():.0f} % of the"
+            lines.append(
+                f"**Warning: {share} test-time inference{'' if capped.all() else 's'} of {method.name} hit the step "
+                f"cap** ({capped.sum()} of {capped.size} samples): the latents had not settled when they were read; "
+                "raise the method's `max_steps` (or its inference rate) before reading much into its numbers."
+            )
+    return ["", *lines] if lines else []
+
+
+def _inputs_section(pipeline: Pipeline) -> list[str]:
+    """Which runs were read from recorded files (with the file and what data it holds), and
+    every method x evaluation run whose feature arrays were all zero, i.e. which features
+    carried no information there (e.g. ViTa-SLAM's tactile ones on a run without contacts)."""
+    from vitaplace.engine.features import load_features
+
+    lines = []
+    for label, path in pipeline.recorded.items():
+        run = pipeline.open(label)
+        contacts = int(run.contact_offsets[-1])
+        lines.append(
+            f"- `{label}` read from `{path}`: {len(run)} samples, {contacts or 'no'} whisker contacts, "
+            f"{run.deflection.shape[1]} deflection sample(s) per whisk cycle"
+        )
+    for method in pipeline.scenario.methods:
+        for label in pipeline.runs():
+            if label == "train":
+                continue
+            features = load_features(pipeline.features_path(method, label))
+            arrays = {k: v for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2}
+            zero = sorted(k for k, v in arrays.items() if not v.any())
+            if zero:
+                used = ", ".join(f"`{k}`" for k in sorted(arrays) if k not in zero) or "nothing"
+                lines.append(
+                    f"- **{method.name}** on `{label}`: features {', '.join(f'`{k}`' for k in zero)} are all zero "
+                    f"(no data for them in this run), so it matched on {used} alone there"
+                )
+    if not lines:
+        return []
+    head = "Runs read from recorded files, and features that carried no information:" if pipeline.recorded else \
+        "Features that carried no information:"
+    return ["## Inputs", "", head, "", *lines, ""]
 
 
 def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
@@ -110,7 +172,9 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
     sections += [
         f"Place recognition, single best match per query, revisit tolerance τ = {tau} m"
         + (f", heading weight {scenario.evaluation.heading_weight} m/rad" if scenario.evaluation.heading_weight else "")
-        + ". P and R are at the δ that maximises F1.",
+        + ". P and R are at the δ that maximises F1. AUC is the step-wise average precision: the sum over "
+        "acceptance thresholds δ, in increasing order, of the recall gained times the precision there (the area "
+        "under the drawn step curve; 1 is perfect).",
         "",
         results_table(rows),
         "",
@@ -172,14 +236,17 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         for name, history in training:
             figures.plot_energy(fig_dir / f"training-{name}", history, title=f"{name}: training energy per layer")
             sections += [f"![training {name}](figures/training-{name}.png)", ""]
+    sections += _inputs_section(pipeline)
     origin = provenance()
     packages = ", ".join(f"{name} {v}" for name, v in origin["packages"].items() if v)
+    plugins = ", ".join(sorted({f"{p['distribution']} {p['version']}" for p in plugin_distributions(pipeline.registry).values()}))
+    dirty = " with uncommitted changes" if origin["git_dirty"] else ""
     sections += [
         "## Provenance",
         "",
-        f"vitaplace {origin['vitaplace_version']}, commit {origin['git_commit'] or 'unknown'}, scenario seed "
-        f"{scenario.seed}; {packages}. Seeds, timings and machine in manifest.json, resolved configuration in "
-        "scenario.resolved.yaml.",
+        f"vitaplace {origin['vitaplace_version']}, commit {origin['git_commit'] or 'unknown'}{dirty}, scenario seed "
+        f"{scenario.seed}; {packages}; feature plugins from {plugins or 'no distribution'}. Seeds, timings and "
+        "machine in manifest.json, resolved configuration in scenario.resolved.yaml.",
         "",
     ]
     write_text_atomic(out / "report.md", "\n".join(sections))

@@ -34,14 +34,14 @@ from vitaplace.engine import evaluate as ev
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features
-from vitaplace.engine.plugins import Registry, discover
+from vitaplace.engine.plugins import Registry, announce_run_finished, discover, plugin_distributions
 from vitaplace.engine.scenario import EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, content_hash
 from vitaplace.engine.sim import SIMULATOR_VERSION
 from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 2, "report": 3}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 2, "report": 4}
 
 log = logging.getLogger("vitaplace")
 
@@ -446,12 +446,14 @@ class Pipeline:
             key = content_hash("report", STAGE_VERSION["report"], rows, params)
             self._stage("report", "report", key, self.out / "report.md", lambda: write_report(self, rows))
         self.write_manifest(time.perf_counter() - started)
+        announce_run_finished(self.registry, self.out, self.scenario, rows, until)
         return rows
 
     def write_manifest(self, seconds: float) -> None:
         manifest = {
             "scenario": self.scenario.name,
             **provenance(),
+            "plugins": plugin_distributions(self.registry),
             "seed": self.scenario.seed,
             "run_seeds": {label: seed for label, (_, seed) in self.runs().items() if label not in self.recorded},
             "datasets": self.state.datasets,

@@ -1,0 +1,194 @@
+"""vitaplace's Python API for notebooks and scripts (docs/API.md): a thin layer over the
+functions the command line uses.
+
+    import vitaplace
+
+    scenario = vitaplace.load_scenario("quickstart", {"methods.0.params.epochs": 2})
+    rows = vitaplace.run("quickstart", {"methods.0.params.epochs": 2}, out="runs/q", until="evaluate")
+    rows = vitaplace.read_results("runs/q")
+    run = vitaplace.simulate("e1", kind="route", n_samples=20, seed=1)
+    h = vitaplace.fit_extractor("handcrafted", run)
+    distances = h.distance(h.transform(run), h.transform(run))
+
+Simulations run in spawned worker processes, which re-import the script that started them:
+a script that calls `run` outside an ``if __name__ == "__main__":`` block would start them
+again and again. `run` notices that case and simulates in its own process instead (one log
+line says so); notebooks and guarded scripts keep the parallel workers.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import logging
+import sys
+from collections.abc import Iterable, Mapping, Sequence
+from importlib import import_module
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from vitaplace.engine import __version__
+from vitaplace.engine.errors import UserError
+
+if TYPE_CHECKING:
+    from vitaplace.engine.dataset import Run
+    from vitaplace.engine.features import FeatureExtractor
+    from vitaplace.engine.scenario import Scenario
+
+#: names imported on first use, so that ``import vitaplace`` (and every ``vitaplace.engine``
+#: import, the command line's included) stays cheap
+_LAZY = {
+    "Run": "vitaplace.engine.dataset", "open_run": "vitaplace.engine.dataset",
+    "FeatureExtractor": "vitaplace.engine.features", "Features": "vitaplace.engine.features",
+    "Scenario": "vitaplace.engine.scenario", "STAGES": "vitaplace.engine.runner",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'vitaplace' has no attribute {name!r}")
+
+__all__ = [
+    "__version__", "STAGES", "FeatureExtractor", "Features", "Run", "Scenario", "UserError", "extractors",
+    "fit_extractor", "load_scenario", "open_run", "read_results", "run", "simulate", "unguarded_script",
+]
+
+#: ``{"key.path": value}`` (values as Python objects) or ``["key.path=YAML", ...]`` as ``--set`` takes them
+Overrides = Mapping[str, Any] | Sequence[str] | None
+
+log = logging.getLogger("vitaplace")
+
+
+def _assignments(overrides: Overrides) -> list[str]:
+    """``--set`` assignments from a mapping of key paths to values (JSON is YAML) or a list of them."""
+    if overrides is None:
+        return []
+    if isinstance(overrides, Mapping):
+        return [f"{key}={json.dumps(value)}" for key, value in overrides.items()]
+    if isinstance(overrides, str):
+        return [overrides]
+    return list(overrides)
+
+
+def load_scenario(scenario: str | Path, overrides: Overrides = None) -> Scenario:
+    """The validated scenario ``scenario`` (a YAML file or a shipped scenario's name) with
+    ``overrides`` applied, e.g. ``{"methods.0.params.epochs": 2, "seed": 3}``. Raises
+    `UserError` (one line naming file, key path and problem) for anything invalid."""
+    from vitaplace.engine.scenario import load_scenario as load
+
+    return load(scenario, _assignments(overrides))[0]
+
+
+def run(
+    scenario: str | Path,
+    overrides: Overrides = None,
+    out: str | Path | None = None,
+    until: str = "report",
+    force: Iterable[str] = (),
+    progress: bool = False,
+    workers: int | None = None,
+) -> list[dict[str, Any]]:
+    """Run ``scenario`` (as `load_scenario` reads it) into ``out`` (default
+    ``runs/<scenario name>``) up to and including stage ``until`` (one of `STAGES`), reusing
+    every cached stage unless named in ``force``; returns the result rows (as in
+    results.json; empty before the evaluate stage). ``workers``: processes that simulate
+    runs in parallel (default: one per core; 1 in a script without a ``__main__`` guard).
+    Stage messages go to the ``vitaplace`` logger (``logging.basicConfig(level="INFO")``
+    shows them)."""
+    from vitaplace.engine.outdir import OutputLock, remove_stale_temporaries, writable_dir
+    from vitaplace.engine.runner import STAGES, Pipeline
+    from vitaplace.engine.scenario import load_scenario as load
+
+    if until not in STAGES:
+        raise UserError(f"until={until!r}: expected one of {', '.join(STAGES)}")
+    loaded, resolved = load(scenario, _assignments(overrides))
+    script = unguarded_script() if workers is None else None
+    if script is not None:
+        log.info("%s calls vitaplace.run outside `if __name__ == \"__main__\":`; simulating in this process "
+                 "(guard the call for parallel simulation workers)", script)
+        workers = 1
+    folder = writable_dir(Path(out) if out is not None else Path("runs") / loaded.name)
+    with OutputLock(folder):
+        for path in remove_stale_temporaries(folder):
+            log.info("removed %s, left by an interrupted run", path)
+        return Pipeline(loaded, resolved, folder, force=force, progress=progress, workers=workers).run(until=until)
+
+
+def unguarded_script() -> str | None:
+    """The path of the script being run when the call to this function comes from its top
+    level outside an ``if __name__ == "__main__":`` block (spawned workers would run that
+    code again); None in notebooks, the REPL, ``python -c`` and guarded scripts."""
+    main = sys.modules.get("__main__")
+    path = getattr(main, "__file__", None)
+    if path is None or not Path(path).is_file():
+        return None
+    frame = sys._getframe(1)
+    while frame is not None and frame.f_globals.get("__name__") != "__main__":
+        frame = frame.f_back
+    while frame is not None and frame.f_back is not None and frame.f_back.f_globals.get("__name__") == "__main__":
+        frame = frame.f_back  # the outermost frame of the script: the statement at its top level
+    if frame is None or frame.f_code.co_name != "<module>":
+        return None
+    line = frame.f_lineno
+    try:
+        tree = ast.parse(Path(path).read_text())
+    except (OSError, SyntaxError, ValueError):
+        return None
+    for node in tree.body:
+        if isinstance(node, ast.If) and node.lineno <= line <= (node.end_lineno or node.lineno) and _is_main_guard(node.test):
+            return None
+    return path
+
+
+def _is_main_guard(test: ast.expr) -> bool:
+    """Whether ``test`` is ``__name__ == "__main__"`` (either way round)."""
+    if not (isinstance(test, ast.Compare) and len(test.ops) == 1 and isinstance(test.ops[0], ast.Eq)):
+        return False
+    sides = [test.left, test.comparators[0]]
+    return any(isinstance(s, ast.Name) and s.id == "__name__" for s in sides) and any(
+        isinstance(s, ast.Constant) and s.value == "__main__" for s in sides)
+
+
+def read_results(out: str | Path) -> list[dict[str, Any]]:
+    """The result rows of the run in folder ``out`` (its results.json): one per environment x
+    method x direction, with ``max_f1``, ``auc``, ``recall_at_k``, ... (docs/RESULTS.md)."""
+    path = Path(out) / "results.json"
+    if not path.is_file():
+        raise UserError(f"{path}: no results here; run the scenario up to the evaluate stage first")
+    return json.loads(path.read_text())
+
+
+def simulate(
+    environment: str | Path, kind: str = "foraging", n_samples: int = 200, seed: int = 0, progress: bool = False,
+    **run_settings: Any,
+) -> Run:
+    """Simulate one run of the WhiskEye in ``environment`` (a YAML file or a shipped name such
+    as ``"e1"``) and return it in memory (``vitaplace.engine.dataset.write_run`` saves it).
+    ``kind``: foraging, route or orbit; ``run_settings``: any other run key
+    (docs/SCENARIOS.md), e.g. ``lateral_noise=0.05``. Runs in this process."""
+    from vitaplace.engine.sim.controllers import RunSpec
+    from vitaplace.engine.sim.environment import load_environment
+    from vitaplace.engine.sim.simulate import simulate_run
+
+    spec = RunSpec(kind=kind, n_samples=n_samples, **run_settings)
+    return simulate_run(load_environment(environment), spec, seed=seed, progress=progress, name=f"{Path(environment).stem}-{kind}")
+
+
+def extractors() -> list[str]:
+    """The names of the installed feature extractors (``vitaplace plugins`` lists them too)."""
+    from vitaplace.engine.plugins import discover
+
+    return discover().names()
+
+
+def fit_extractor(plugin: str, train: Run, params: Mapping[str, Any] | None = None, progress: bool = False) -> FeatureExtractor:
+    """A new extractor of ``plugin`` (e.g. ``"handcrafted"``, ``"mupnet"``) with ``params``
+    (the scenario's ``methods.N.params``), fitted on the run ``train``. Its ``transform(run)``
+    gives features and ``distance(query, reference)`` the distance matrix."""
+    from vitaplace.engine.plugins import discover
+
+    extractor = discover().create(plugin, params)
+    extractor.progress = progress
+    extractor.fit(train)
+    return extractor

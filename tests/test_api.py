@@ -1,0 +1,120 @@
+"""The Python API: `import vitaplace` has a version, docs/API.md's example runs as written,
+and a script without a `__main__` guard still runs (in one process) instead of breaking the pool."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+import textwrap
+from importlib.metadata import version
+from pathlib import Path
+
+import pytest
+
+import vitaplace
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _python(script: Path, cwd: Path) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    return subprocess.run([sys.executable, str(script)], cwd=cwd, capture_output=True, text=True, timeout=600, env=env)
+
+
+def test_version_is_the_installed_distributions():
+    assert vitaplace.__version__ == version("vitaplace")
+    result = subprocess.run([sys.executable, "-c", "import vitaplace; print(vitaplace.__version__)"],
+                            capture_output=True, text=True, cwd="/")
+    assert result.returncode == 0 and result.stdout.strip() == version("vitaplace")
+
+
+def test_every_public_name_is_documented():
+    doc = (ROOT / "docs" / "API.md").read_text()
+    missing = [name for name in vitaplace.__all__ if not re.search(rf"`(vitaplace\.)?{name}\b", doc)]
+    assert not missing, missing
+    own = [getattr(vitaplace, name) for name in vitaplace.__all__ if getattr(getattr(vitaplace, name), "__module__", "") == "vitaplace"]
+    undocumented = [f.__name__ for f in own if not f.__doc__]
+    assert len(own) == 7  # extractors, fit_extractor, load_scenario, read_results, run, simulate, unguarded_script
+    assert not undocumented, undocumented
+
+
+def test_read_results_of_a_folder_without_results_is_one_line(tmp_path):
+    with pytest.raises(vitaplace.UserError, match=r"results\.json: no results here"):
+        vitaplace.read_results(tmp_path)
+
+
+def test_overrides_as_a_mapping_or_as_set_strings_mean_the_same():
+    as_mapping = vitaplace.load_scenario("quickstart", {"seed": 7, "methods.1.params": {"grid": [4, 8]}})
+    as_strings = vitaplace.load_scenario("quickstart", ["seed=7", "methods.1.params={grid: [4, 8]}"])
+    assert as_mapping == as_strings and as_mapping.seed == 7 and as_mapping.methods[1].params == {"grid": [4, 8]}
+    assert vitaplace.load_scenario("quickstart", {"evaluation.delta": 0.5, "seed": 1}).evaluation.delta == 0.5
+    assert vitaplace.load_scenario("quickstart", {"evaluation.delta": None}).evaluation.delta is None  # not "None"
+    with pytest.raises(vitaplace.UserError, match=r"evaluation\.tau"):
+        vitaplace.load_scenario("quickstart", {"evaluation.tau": -1})
+    with pytest.raises(vitaplace.UserError, match="until='plot'"):
+        vitaplace.run("quickstart", until="plot")
+
+
+@pytest.mark.slow
+def test_the_documented_example_runs_as_written(tmp_path):
+    doc = (ROOT / "docs" / "API.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", doc, flags=re.S)
+    script = tmp_path / "example.py"
+    script.write_text(blocks[0])
+    result = _python(script, tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert f"vitaplace {version('vitaplace')} extractors: handcrafted, mupnet" in result.stdout
+    assert re.search(r"^E1 H max F1 [01]\.\d{3} AUC [01]\.\d{3}$", result.stdout, flags=re.M), result.stdout
+    assert re.search(r"train-\w+\.h5: 12 samples", result.stdout)
+    assert "outside `if __name__" not in result.stderr
+
+
+def _detect(tmp_path: Path, body: str) -> str:
+    """What `unguarded_script` says when called as ``body`` places it."""
+    script = tmp_path / "probe.py"
+    script.write_text("import vitaplace\n\ndef where():\n    return vitaplace.unguarded_script()\n\n" + textwrap.dedent(body))
+    result = _python(script, tmp_path)
+    assert result.returncode == 0, result.stderr
+    return result.stdout.strip()
+
+
+@pytest.mark.parametrize(
+    "body, unguarded",
+    [
+        ("print(where())\n", True),
+        ("def main():\n    print(where())\n\nmain()\n", True),
+        ("if __name__ == '__main__':\n    print(where())\n", False),
+        ("if '__main__' == __name__:\n    def main():\n        print(where())\n    main()\n", False),
+        ("if True:\n    print(where())\n", True),
+    ],
+)
+def test_a_call_from_a_scripts_top_level_outside_the_guard_is_detected(tmp_path, body, unguarded):
+    assert _detect(tmp_path, body) == (str(tmp_path / "probe.py") if unguarded else "None")
+
+
+def test_no_script_means_no_guard_needed():
+    result = subprocess.run([sys.executable, "-c", "import vitaplace; print(vitaplace.unguarded_script())"],
+                            capture_output=True, text=True)
+    assert result.stdout.strip() == "None"
+
+
+@pytest.mark.slow
+def test_a_script_without_a_guard_runs_in_one_process_instead_of_breaking_the_pool(tmp_path):
+    script = tmp_path / "unguarded.py"
+    script.write_text(textwrap.dedent("""
+        import logging
+        import vitaplace
+
+        logging.basicConfig(level="INFO", format="%(message)s")
+        small = {"train.run.n_samples": 5, "evaluations.0.run.n_samples": 5,
+                 "methods": [{"name": "H", "plugin": "handcrafted"}]}
+        vitaplace.run("quickstart", small, out="out", until="simulate", workers=None)
+        print("done")
+    """))
+    result = _python(script, tmp_path)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "done" in result.stdout and "BrokenProcessPool" not in result.stderr
+    assert "calls vitaplace.run outside `if __name__" in result.stderr
+    assert len(list((tmp_path / "out" / "cache" / "datasets").glob("*.h5"))) == 3

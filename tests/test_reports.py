@@ -1,0 +1,288 @@
+"""Reports and figures say what they show: colour scales, bands, overlapping PR curves, AUC,
+the test-time inference cap, recorded inputs and features that carried nothing, provenance."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from importlib.metadata import version
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import yaml
+
+from vitaplace.engine import evaluate as ev
+from vitaplace.engine import figures
+from vitaplace.engine.dataset import Run, write_run
+from vitaplace.engine.features import save_features
+
+
+@pytest.fixture
+def drawn(monkeypatch) -> list:
+    """The figures the plot functions draw, instead of saving them."""
+    figs: list = []
+    monkeypatch.setattr(figures, "_save", lambda fig, stem: figs.append(fig) or [])
+    return figs
+
+
+def _circle_case(n: int = 40):
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    poses = np.c_[np.cos(t), np.sin(t), t]
+    gtm = ev.ground_truth_matrix(poses, poses)
+    return poses, gtm
+
+
+def test_tme_colours_span_its_bulk_not_its_outliers_and_the_colour_bar_says_so(tmp_path, drawn):
+    _, gtm = _circle_case(100)
+    rng = np.random.default_rng(0)
+    tme = rng.uniform(0.0, 0.01, gtm.shape)
+    tme[[5, 50, 77]] = 0.5  # three far-off queries: 3 % of the entries
+    decisions = ev.decide(tme, gtm, 0.3, 0.005)
+    figures.plot_matrices(tmp_path / "m", tme, gtm, decisions)
+    gtm_ax, tme_ax = [ax for ax in drawn[0].axes if not hasattr(ax, "_colorbar")]
+    low, high = tme_ax.images[0].get_clim()
+    # the bulk is uniform on [0, 0.01]: its 1st percentile is near 0, the 90th near 0.009
+    assert 0.0 <= low < 0.0005 and 0.008 < high < 0.0101
+    assert gtm_ax.images[0].get_clim() == pytest.approx((gtm.min(), gtm.max()))  # ground truth: full range
+    labels = [ax.get_ylabel() for ax in drawn[0].axes if hasattr(ax, "_colorbar")]
+    assert "percentile" in labels[1] and "percentile" not in labels[0]
+
+
+def test_pr_curves_that_coincide_both_show(tmp_path, drawn):
+    _, gtm = _circle_case()
+    perfect = ev.pr_curve(gtm, gtm, 0.3)
+    figures.plot_pr_curves(tmp_path / "p", {"L": perfect, "H": perfect, "X": perfect})
+    ax = drawn[0].axes[0]
+    curves = [line for line in ax.get_lines() if line.get_label()[:1] in "LHX" and line.get_linestyle() != "None"]
+    assert len(curves) == 3
+    assert len({line.get_linestyle() for line in curves}) == 3  # each its own dash pattern
+    widths = [line.get_linewidth() for line in curves]
+    assert widths[0] > widths[1] > widths[2]  # the first drawn is widest ...
+    orders = [line.get_zorder() for line in curves]
+    assert orders[0] < orders[1] < orders[2]  # ... and lowest, so the later ones stay visible on it
+    assert "AUC: step-wise average precision" in drawn[0].legends[0].get_title().get_text()
+
+
+def test_the_pr_band_figure_says_what_its_band_is_whatever_its_title(tmp_path, drawn):
+    _, gtm = _circle_case()
+    rng = np.random.default_rng(1)
+    seeds = [ev.pr_curve(gtm + rng.random(gtm.shape), gtm, 0.3) for _ in range(3)]
+    figures.plot_pr_bands(tmp_path / "b", {"L": seeds}, title="E1: precision-recall over seeds (query-to-reference)")
+    texts = drawn[0].legends[0].get_title().get_text()
+    assert "band: lowest to highest seed" in texts and "mean interpolated precision over seeds" in texts
+
+
+# --------------------------------------------------------------------------- report sections
+
+
+def _features(tmp_path: Path, method: str, label: str, features: dict) -> Path:
+    path = tmp_path / f"{method}-{label.replace('/', '-')}.npz"
+    save_features(path, features)
+    return path
+
+
+def _stub_pipeline(tmp_path: Path, features: dict[str, dict[str, dict]], recorded: dict | None = None):
+    """Just what the report sections read: methods, run labels, feature files, recorded runs."""
+    from vitaplace.engine.dataset import open_run
+
+    paths = {(m, label): _features(tmp_path, m, label, f) for m, by_label in features.items() for label, f in by_label.items()}
+    return SimpleNamespace(
+        scenario=SimpleNamespace(methods=[SimpleNamespace(name=m) for m in features]),
+        runs=lambda: {"train": None, "E1/query": None, "E1/reference": None},
+        features_path=lambda method, label: paths[(method.name, label)],
+        recorded=recorded or {},
+        open=lambda label: open_run(recorded[label]),
+    )
+
+
+@pytest.mark.parametrize(
+    "capped_per_run, expected",
+    [
+        ((10, 10), "every test-time inference of L hit the step cap"),
+        ((6, 6), "60 % of the test-time inferences of L hit the step cap"),
+        ((10, 0), "50 % of the test-time inferences of L hit the step cap"),
+        ((4, 5), None),  # 45 %: under half, no warning
+        ((0, 0), None),
+    ],
+)
+def test_the_report_warns_when_most_test_time_inferences_hit_the_cap(tmp_path, capped_per_run, expected):
+    from vitaplace.engine.report import _cap_warnings
+
+    def run(capped: int) -> dict:
+        stopped = np.ones(10, dtype=bool)
+        stopped[:capped] = False
+        return {"latent": np.ones((10, 3)), "inference_stopped": stopped, "inference_steps": np.full(10, 7)}
+
+    pipeline = _stub_pipeline(tmp_path, {
+        "L": {"E1/query": run(capped_per_run[0]), "E1/reference": run(capped_per_run[1])},
+        "H": {"E1/query": {"profile": np.ones((10, 2))}, "E1/reference": {"profile": np.ones((10, 2))}},
+    })
+    text = " ".join(_cap_warnings(pipeline)).replace("*", "")
+    if expected is None:
+        assert text == ""
+    else:
+        assert expected in text and f"({sum(capped_per_run)} of 20 samples)" in text
+        assert "of H" not in text
+
+
+def _recorded(path: Path, n: int = 10, rng=None) -> Path:
+    """A recorded run as imported data has it: images, one deflection sample, no contacts."""
+    rng = rng or np.random.default_rng(0)
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    return write_run(path, Run.from_arrays(
+        images=rng.integers(0, 255, (n, 24, 32, 3), dtype=np.uint8), theta=np.zeros((n, 24)),
+        xy=rng.normal(0, 0.02, (n, 24, 2)), poses=np.c_[np.cos(t), np.sin(t), t], name=path.stem,
+    ))
+
+
+def test_inputs_name_recorded_files_and_features_that_carried_nothing(tmp_path):
+    from vitaplace.engine.report import _inputs_section
+
+    query = _recorded(tmp_path / "query.h5")
+    h = {"profile": np.ones((10, 4, 4)), "pfh": np.zeros((10, 8)), "sda": np.zeros((10, 24))}
+    latent = {"latent": np.ones((10, 3)), "diverged": np.zeros(10, dtype=bool), "inference_steps": np.zeros(10)}
+    pipeline = _stub_pipeline(tmp_path, {"H": {"E1/query": h, "E1/reference": {**h, "pfh": np.ones((10, 8))}},
+                                         "L": {"E1/query": latent, "E1/reference": latent}}, {"E1/query": query})
+    text = "\n".join(_inputs_section(pipeline))
+    assert f"`E1/query` read from `{query}`: 10 samples, no whisker contacts, 1 deflection sample(s)" in text
+    assert "**H** on `E1/query`: features `pfh`, `sda` are all zero" in text and "on `profile` alone" in text
+    assert "**H** on `E1/reference`: features `sda` are all zero" in text
+    assert "**L**" not in text  # its per-sample records (diverged, step counts) are no features
+
+
+def test_git_dirty_tells_a_changed_checkout_from_a_clean_one(tmp_path):
+    from vitaplace.engine.provenance import git_dirty
+
+    assert git_dirty(tmp_path) is None  # no checkout
+    git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path)]
+    subprocess.run([*git, "init", "-q"], check=True)
+    (tmp_path / "a.txt").write_text("1")
+    subprocess.run([*git, "add", "a.txt"], check=True)
+    subprocess.run([*git, "commit", "-qm", "a"], check=True)
+    assert git_dirty(tmp_path) is False
+    (tmp_path / "new.txt").write_text("untracked files do not count")
+    assert git_dirty(tmp_path) is False
+    (tmp_path / "a.txt").write_text("2")
+    assert git_dirty(tmp_path) is True
+
+
+def _recorded_scenario(tmp_path: Path) -> tuple[Path, dict[str, Path]]:
+    """A scenario of three recorded runs (12 samples each, no contacts) and method H alone."""
+    rng = np.random.default_rng(2)
+    files = {name: _recorded(tmp_path / f"{name}.h5", 12, rng) for name in ("train", "query", "reference")}
+    scenario = {
+        "name": "recorded", "train": {"dataset": str(files["train"])},
+        "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]), "reference": str(files["reference"])}}],
+        "methods": [{"name": "H", "plugin": "handcrafted", "params": {"grid": [4, 8]}}], "evaluation": {"tau": 0.5},
+    }
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    return path, files
+
+
+def test_recorded_run_report_and_manifest_end_to_end(tmp_path):
+    """A scenario on recorded files (no contacts, as imported data): the report defines AUC,
+    names the files and says H matched on vision alone; the manifest names the plugins'
+    distributions and the dirty flag."""
+    from vitaplace.engine.cli import main
+
+    path, files = _recorded_scenario(tmp_path)
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "AUC is the step-wise average precision" in report
+    for name in ("query", "reference"):
+        assert f"`E1/{name}` read from `{files[name]}`" in report
+        assert f"**H** on `E1/{name}`: features `pfh`, `sda` are all zero" in report
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["plugins"]["handcrafted"] == {
+        "plugin": "handcrafted (vitaplace)", "distribution": "vitaplace", "version": version("vitaplace")}
+    assert manifest["git_dirty"] in (True, False)
+
+
+# --------------------------------------------------------------------------- experiment tracking
+
+
+class FakeMlflow:
+    """Records what the MLflow plugin calls, in the order it calls it."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple] = []
+        self.params: dict = {}
+        self.metrics: dict = {}
+        self.artifacts: list[tuple[str, str | None]] = []
+
+    def set_experiment(self, name):
+        self.calls.append(("set_experiment", name))
+
+    def start_run(self, run_name=None, tags=None):
+        self.calls.append(("start_run", run_name, tags))
+        fake = self
+
+        class Active:
+            info = SimpleNamespace(run_id="r1")
+
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                fake.calls.append(("end_run",))
+
+        return Active()
+
+    def log_params(self, params):
+        self.params.update(params)
+
+    def log_metrics(self, metrics):
+        self.metrics.update(metrics)
+
+    def log_artifact(self, path):
+        self.artifacts.append((Path(path).name, None))
+
+    def log_artifacts(self, folder, artifact_path=None):
+        self.artifacts.append((Path(folder).name, artifact_path))
+
+
+def test_a_finished_run_is_logged_to_mlflow_when_asked(tmp_path, monkeypatch):
+    from vitaplace.engine.cli import main
+
+    fake = FakeMlflow()
+    monkeypatch.setitem(sys.modules, "mlflow", fake)
+    monkeypatch.setenv("VITAPLACE_MLFLOW", "vitaplace-test")
+    path, _ = _recorded_scenario(tmp_path)
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert fake.calls[0] == ("set_experiment", "vitaplace-test")
+    assert fake.calls[1][:2] == ("start_run", "recorded seed 0") and fake.calls[-1] == ("end_run",)
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert fake.calls[1][2]["git.commit"] == str(manifest["git_commit"]) and fake.calls[1][2]["vitaplace.stage"] == "report"
+    assert fake.params["seed"] == "0" and fake.params["evaluation.tau"] == "0.5"
+    assert fake.params["methods.H.plugin"] == "handcrafted" and fake.params["methods.H.grid"] == "[4, 8]"
+    rows = json.loads((tmp_path / "out" / "results.json").read_text())
+    for row in rows:
+        key = f"E1/H/{row['direction']}"
+        assert fake.metrics[f"{key}/max_f1"] == row["max_f1"] and fake.metrics[f"{key}/auc"] == row["auc"]
+    assert len(fake.metrics) == 5 * len(rows)
+    assert set(fake.artifacts) == {("report.md", None), ("results.json", None), ("results.csv", None),
+                                   ("manifest.json", None), ("scenario.resolved.yaml", None), ("figures", "figures")}
+
+
+def test_tracking_is_off_unless_asked_and_never_fails_a_run(tmp_path, monkeypatch, caplog):
+    from vitaplace.engine.cli import main
+
+    fake = FakeMlflow()
+    monkeypatch.setitem(sys.modules, "mlflow", fake)
+    monkeypatch.delenv("VITAPLACE_MLFLOW", raising=False)
+    path, _ = _recorded_scenario(tmp_path)
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert fake.calls == []
+    monkeypatch.setenv("VITAPLACE_MLFLOW", "x")
+    monkeypatch.setitem(sys.modules, "mlflow", None)  # not installed: import fails
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert "MLflow is not installed" in caplog.text
+    broken = FakeMlflow()
+    broken.log_params = lambda params: (_ for _ in ()).throw(ConnectionError("tracking server down"))
+    monkeypatch.setitem(sys.modules, "mlflow", broken)
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert "plugin 'mlflow (vitaplace)': its run-finished hook raised ConnectionError: tracking server down" in caplog.text

@@ -1,0 +1,99 @@
+"""Looking at the robot: `vitaplace video RUN.h5` animates a run; `vitaplace view ENV` says in one
+line when there is no display, and puts the robot where the environment starts."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+import pytest
+from PIL import Image
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from vitaplace.engine.cli import main  # noqa: E402
+from vitaplace.engine.dataset import Run, write_run  # noqa: E402
+from vitaplace.engine.video import MAX_FRAMES, frame_indices  # noqa: E402
+
+#: matplotlib's tab:red, which marks touching whiskers and contacts
+RED = np.array([214, 39, 40])
+
+
+def _run(tmp_path, n: int = 5):
+    """A small recorded run; at sample 2 whisker 3 touches and three contacts are recorded."""
+    rng = np.random.default_rng(0)
+    xy = np.zeros((n, 24, 2))
+    xy[2, 3] = (0.05, 0.0)
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    offsets[3:] = 3  # sample 2 owns contacts 0..2
+    t = np.linspace(0, 1, n)
+    return write_run(tmp_path / "run.h5", Run.from_arrays(
+        images=rng.integers(0, 255, (n, 12, 16, 3), dtype=np.uint8), theta=np.zeros((n, 24)), xy=xy,
+        poses=np.c_[t, t, np.zeros(n)], contact_points=np.array([[0.5, 0.4, 0.1], [0.55, 0.45, 0.1], [0.6, 0.4, 0.1]]),
+        contact_normals=np.tile([1.0, 0.0, 0.0], (3, 1)), contact_offsets=offsets, name="tiny",
+    ))
+
+
+def _red_pixels(frame: Image.Image, third: int) -> int:
+    rgb = np.asarray(frame.convert("RGB")).astype(int)
+    width = rgb.shape[1] // 3
+    part = rgb[:, third * width:(third + 1) * width]
+    return int((np.abs(part - RED).sum(axis=2) < 60).sum())
+
+
+def test_video_has_a_frame_per_sample_and_shows_touch_and_contacts(tmp_path, capsys):
+    path = _run(tmp_path)
+    assert main(["-q", "video", str(path)]) == 0
+    assert capsys.readouterr().out.strip() == f"wrote 5 frames to {tmp_path / 'run.gif'}"
+    gif = Image.open(tmp_path / "run.gif")
+    assert gif.n_frames == 5
+    frames = []
+    for k in range(5):
+        gif.seek(k)
+        frames.append(gif.copy())
+    # sample 2: the touching whisker's bar (right panel) and the contacts (top view) turn red
+    assert _red_pixels(frames[2], 2) > _red_pixels(frames[0], 2) + 50
+    assert _red_pixels(frames[2], 1) > _red_pixels(frames[0], 1) + 10
+    assert _red_pixels(frames[3], 1) == pytest.approx(_red_pixels(frames[0], 1), abs=10)  # contacts of one cycle only
+
+
+def test_video_step_and_an_mp4_without_ffmpeg(tmp_path, capsys, monkeypatch):
+    path = _run(tmp_path)
+    assert main(["-q", "video", str(path), "--step", "2", "--out", str(tmp_path / "v" / "every-2nd.gif")]) == 0
+    assert Image.open(tmp_path / "v" / "every-2nd.gif").n_frames == 3  # samples 0, 2, 4
+    from matplotlib import animation
+
+    monkeypatch.setattr(animation.writers, "is_available", lambda name: False)
+    capsys.readouterr()
+    assert main(["video", str(path), "--out", str(tmp_path / "v.mp4")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "ffmpeg" in err[0] and not (tmp_path / "v.mp4").exists()
+
+
+@pytest.mark.parametrize("n, step, expected", [(5, None, 5), (MAX_FRAMES, None, MAX_FRAMES), (MAX_FRAMES + 1, None, 151),
+                                               (1000, None, 250), (1000, 1, 1000), (7, 3, 3)])
+def test_frame_indices(n, step, expected):
+    frames = frame_indices(n, step)
+    assert len(frames) == expected and frames[0] == 0 and len(set(np.diff(frames))) <= 1
+
+
+def test_view_without_a_display_is_one_line_and_exit_2(monkeypatch, capsys):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    assert main(["view", "e1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("vitaplace: error: vitaplace view needs a display")
+    assert "DISPLAY" in err[0] and "vitaplace video" in err[0]
+
+
+def test_the_viewer_shows_the_robot_at_the_environments_start():
+    from vitaplace.engine.sim.environment import load_environment
+    from vitaplace.engine.sim.viewer import viewer_scene
+
+    env = load_environment("e2")
+    sim, data = viewer_scene(env)
+    x, y, yaw_deg = env.start
+    np.testing.assert_allclose(sim.pose(data), [x, y, math.radians(yaw_deg)], atol=1e-9)
+    assert sim.model.ngeom > 24 and (sim.whisker_of_geom >= 0).sum() >= 24  # the world and the whiskered robot
