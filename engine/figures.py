@@ -57,7 +57,8 @@ def _primary_outcome(decisions: Decisions) -> np.ndarray:
 def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> list[Path]:
     """GTM and TME heat maps side by side (rows = queries, columns = references) with the
     decision of each query drawn as a dot at (query, best match): green TP, red FP
-    (accepted and wrong), orange FN (rejected although a revisit existed), grey TN."""
+    (accepted and wrong), orange FN (rejected although a revisit existed), grey TN. GTM cells
+    that are infinite (headings further apart than the tolerance) stay blank."""
     tme = np.asarray(tme, dtype=float)
     gtm = np.asarray(gtm, dtype=float)
     n_q, n_r = tme.shape
@@ -67,7 +68,8 @@ def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> 
     rows = np.arange(n_q)
     size = float(np.clip(2000.0 / max(n_q, 1), 2.0, 30.0))
     for ax, mat, name, cmap, quantity in (
-        (axes[0], gtm, "GTM (ground-truth distance)", "viridis", "ground-truth distance [m]"),
+        (axes[0], gtm, "GTM (ground-truth distance" + ("; blank: facing apart)" if np.isinf(gtm).any() else ")"),
+         "viridis", "ground-truth distance [m]"),
         (axes[1], tme, "TME (feature distance)", "magma", "feature distance"),
     ):
         shown = np.where(np.isfinite(mat), mat, np.nan)
