@@ -425,10 +425,10 @@ class Pipeline:
                         shape = (len(self.open(f"{e.name}/{q}")), len(self.open(f"{e.name}/{r}")))
                         tme = check_distance(self.extractor(method).distance(load_features(qpath), load_features(rpath)),
                                              shape, f"evaluate {e.name} {method.name}")
-                        query, reference = self.open(f"{e.name}/{q}"), self.open(f"{e.name}/{r}")
                         summary = ev.evaluate_pair(
-                            folder, tme, query.poses, reference.poses, settings.tau,
-                            query_touch=query.touch_mask(), reference_touch=reference.touch_mask(),
+                            folder, tme, self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses,
+                            settings.tau, query_touch=self.open(f"{e.name}/{q}").touch_mask(),
+                            reference_touch=self.open(f"{e.name}/{r}").touch_mask(),
                             delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg,
                             ks=tuple(settings.recall_k),
                         )
