@@ -73,6 +73,9 @@ BAD = {
     # the faithful E1 is 6.05 m square: its diagonal is 8.56 m
     "tau over the diagonal": (lambda d: d["evaluation"].update(tau=9.0), r"evaluation\.tau: 9\.0 m is not below the 8\.56 m"),
     "nan delta": (lambda d: d["evaluation"].update(delta=float("nan")), r"evaluation\.delta: .*finite"),
+    "heading tolerance past 180": (
+        lambda d: d["evaluation"].update(heading_tolerance_deg=200), r"evaluation\.heading_tolerance_deg: .*180"
+    ),
     "one evaluation sample": (
         lambda d: d["evaluations"][0]["run"].update(n_samples=1), r"evaluations\.0\.run: .*at least 5 samples"
     ),
