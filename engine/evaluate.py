@@ -151,7 +151,9 @@ DIFFICULTY_KEYS = (
 )
 
 
-def difficulty(query_poses, reference_poses, gtm, tau: float, query_touch, reference_touch) -> dict[str, float | None]:
+def difficulty(
+    query_poses, reference_poses, gtm, tau: float, query_touch=None, reference_touch=None
+) -> dict[str, float | None]:
     """How hard an evaluation pair is, whatever the method (`DIFFICULTY_KEYS`, plain floats).
 
     Over the queries with a true match (``min_j gtm[i, j] <= tau``): each query's nearest
@@ -161,7 +163,7 @@ def difficulty(query_poses, reference_poses, gtm, tau: float, query_touch, refer
     share of references that are true matches (recall@1 of a uniformly random guess).
     These four are None when no query has a true match. ``query_touch_share`` and
     ``reference_touch_share``: the share of samples with touch (the boolean masks given, one
-    value per sample, e.g. `Run.touch_mask`).
+    value per sample, e.g. `Run.touch_mask`; None when no mask is given).
     """
     tau = _check_tau(tau)
     q = _check_poses(query_poses, "query_poses", need_yaw=True)
@@ -171,6 +173,9 @@ def difficulty(query_poses, reference_poses, gtm, tau: float, query_touch, refer
         raise ValueError(f"gtm must be a NaN-free queries x references ({len(q)}, {len(r)}) matrix, got shape {gtm_a.shape}")
     touch = {}
     for role, mask, n in (("query", query_touch, len(q)), ("reference", reference_touch, len(r))):
+        if mask is None:
+            touch[f"{role}_touch_share"] = None
+            continue
         mask = np.asarray(mask, dtype=bool)
         if mask.shape != (n,):
             raise ValueError(f"{role}_touch must hold one value per {role} sample ({n}), got shape {mask.shape}")
@@ -552,18 +557,19 @@ def evaluate_pair(
     query_poses: np.ndarray,
     reference_poses: np.ndarray,
     tau: float,
-    *,
-    query_touch: np.ndarray,
-    reference_touch: np.ndarray,
     delta: float | None = None,
-    heading_tolerance_deg: float | None = None,
     ks: Sequence[int] = (1, 5, 10),
+    *,
+    heading_tolerance_deg: float | None = None,
+    query_touch: np.ndarray | None = None,
+    reference_touch: np.ndarray | None = None,
 ) -> dict:
     """Everything about one query run against one reference run, written to ``folder``:
     the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM), the
     decisions at the F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR
     curve (``pr_curve.npz``); returns the summary (`evaluate`) with ``heading_tolerance_deg``
-    and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks) added."""
+    and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks, when given)
+    added."""
     folder = Path(folder)
     gtm = ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg)
     curve = pr_curve(tme, gtm, tau)

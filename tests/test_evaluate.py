@@ -264,7 +264,12 @@ def test_evaluate_pair_writes_difficulty_and_tolerance_into_the_summary(tmp_path
     assert summary["heading_tolerance_deg"] == 30
     assert summary["n_revisit"] == 3  # q0, q1, q2 (see the hand case above)
     assert summary["difficulty"]["chance_r1"] == pytest.approx(5 / 12)
+    assert summary["difficulty"]["query_touch_share"] == pytest.approx(0.4)
     json.dumps(summary)
+    # without touch masks (and without a tolerance: q4 counts, see the position-only case) touch is not measured
+    summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY, DIFF_REF, 0.3)
+    assert summary["heading_tolerance_deg"] is None and summary["n_revisit"] == 4
+    assert summary["difficulty"]["query_touch_share"] is None and summary["difficulty"]["reference_touch_share"] is None
 
 
 # --------------------------------------------------------------------------- transferred threshold
