@@ -161,13 +161,14 @@ def difficulty(
     and 90th percentile ``nearest_ref_p90_m``, numpy's linear interpolation) and its wrapped
     heading difference (median ``nearest_ref_heading_median_deg``); ``chance_r1`` the mean
     share of references that are true matches (recall@1 of a uniformly random guess).
-    These four are None when no query has a true match. ``query_touch_share`` and
+    These four are None when no query has a true match (the heading median also when the
+    poses are (N, 2), without yaw). ``query_touch_share`` and
     ``reference_touch_share``: the share of samples with touch (the boolean masks given, one
     value per sample, e.g. `Run.touch_mask`; None when no mask is given).
     """
     tau = _check_tau(tau)
-    q = _check_poses(query_poses, "query_poses", need_yaw=True)
-    r = _check_poses(reference_poses, "reference_poses", need_yaw=True)
+    q = _check_poses(query_poses, "query_poses", need_yaw=False)
+    r = _check_poses(reference_poses, "reference_poses", need_yaw=False)
     gtm_a = np.asarray(gtm, dtype=float)
     if gtm_a.shape != (len(q), len(r)) or np.isnan(gtm_a).any():
         raise ValueError(f"gtm must be a NaN-free queries x references ({len(q)}, {len(r)}) matrix, got shape {gtm_a.shape}")
@@ -187,11 +188,12 @@ def difficulty(
     position = cdist(q[matched, :2], r[:, :2], metric="euclidean")
     nearest = np.argmin(position, axis=1)
     distance = position[np.arange(len(nearest)), nearest]
-    heading = _heading_difference_deg(q[matched, 2], r[nearest, 2])
+    with_yaw = min(q.shape[1], r.shape[1]) >= 3
+    heading = _heading_difference_deg(q[matched, 2], r[nearest, 2]) if with_yaw else None
     return {
         "nearest_ref_median_m": float(np.median(distance)),
         "nearest_ref_p90_m": float(np.percentile(distance, 90)),
-        "nearest_ref_heading_median_deg": float(np.median(heading)),
+        "nearest_ref_heading_median_deg": None if heading is None else float(np.median(heading)),
         "chance_r1": float(true_match[matched].mean(axis=1).mean()),
         **touch,
     }

@@ -270,6 +270,10 @@ def test_evaluate_pair_writes_difficulty_and_tolerance_into_the_summary(tmp_path
     summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY, DIFF_REF, 0.3)
     assert summary["heading_tolerance_deg"] is None and summary["n_revisit"] == 4
     assert summary["difficulty"]["query_touch_share"] is None and summary["difficulty"]["reference_touch_share"] is None
+    # positions only, (N, 2): no heading to measure
+    summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY[:, :2], DIFF_REF[:, :2], 0.3)
+    assert summary["difficulty"]["nearest_ref_median_m"] == pytest.approx(0.05)  # as the position-only case
+    assert summary["difficulty"]["nearest_ref_heading_median_deg"] is None
 
 
 # --------------------------------------------------------------------------- transferred threshold
