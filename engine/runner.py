@@ -444,15 +444,17 @@ class Pipeline:
     def add_f1_at_training_threshold(self, rows: list[dict[str, Any]]) -> None:
         """``f1_at_e1_threshold`` in every row: F1 at the threshold that maximised the same
         method's F1 (same direction) on the training world's evaluation
-        (`training_world_evaluation`), applied unchanged; None when there is no such evaluation."""
+        (`training_world_evaluation`), applied unchanged, and that threshold, ``e1_threshold``
+        (None when it is -inf: accept nothing); both None when there is no such evaluation."""
         source, _ = training_world_evaluation(self.scenario)
         for row in rows:
-            row["f1_at_e1_threshold"] = None
+            row["f1_at_e1_threshold"] = row["e1_threshold"] = None
             if source is None:
                 continue
             curve = ev.load_curve(self.evaluation_dir(source, row["method"], row["direction"]) / "pr_curve.npz")
             with np.load(self.evaluation_dir(row["environment"], row["method"], row["direction"]) / "matrices.npz") as m:
                 row["f1_at_e1_threshold"] = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row["tau"])
+            row["e1_threshold"] = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None
 
     # ------------------------------------------------------------------ everything
     def run(self, until: str = "report") -> list[dict[str, Any]]:
@@ -497,9 +499,8 @@ class Pipeline:
 
 RESULT_COLUMNS = (
     "environment", "method", "direction", "max_f1", "precision_at_max_f1", "recall_at_max_f1",
-    "delta_at_max_f1", "auc", "recall_at_100_precision", "f1_at_e1_threshold", "delta", "precision", "recall", "f1",
-    "n_queries",
-    "n_references", "n_revisit",
+    "delta_at_max_f1", "auc", "recall_at_100_precision", "f1_at_e1_threshold", "e1_threshold", "delta", "precision",
+    "recall", "f1", "n_queries", "n_references", "n_revisit",
 )
 
 

@@ -180,6 +180,7 @@ def test_quickstart_writes_every_output(quickstart_run):
         assert row["heading_tolerance_deg"] == 30.0  # the documented default
         # E1 is the training world: its own max-F1 threshold gives its max F1
         assert row["f1_at_e1_threshold"] == pytest.approx(row["max_f1"])
+        assert row["e1_threshold"] == pytest.approx(row["delta_at_max_f1"])
     difficulties = [row["difficulty"] for row in rows]
     assert list(difficulties[0]) == ["nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg",
                                      "chance_r1", "query_touch_share", "reference_touch_share"]

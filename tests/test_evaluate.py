@@ -700,3 +700,4 @@ def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp
         rows.append({"environment": env, "method": "H", "direction": "query-to-reference", "tau": 1.0})
     pipeline.add_f1_at_training_threshold(rows)
     assert [row["f1_at_e1_threshold"] for row in rows] == [pytest.approx(1 / 2), pytest.approx(2 / 3)]
+    assert [row["e1_threshold"] for row in rows] == [pytest.approx(0.3)] * 2

@@ -412,7 +412,7 @@ def test_collisions_and_a_training_run_in_no_world_reach_the_user(tmp_path):
     assert message in report.split("## Warnings", 1)[1]
     assert "none: the training run is a recorded file" in report
     for row in json.loads((out / "results.json").read_text()):
-        assert row["f1_at_e1_threshold"] is None
+        assert row["f1_at_e1_threshold"] is None and row["e1_threshold"] is None
         assert row["difficulty"]["nearest_ref_median_m"] == pytest.approx(0.05)
         assert row["difficulty"]["nearest_ref_heading_median_deg"] == pytest.approx(0.0)
         assert (row["difficulty"]["query_touch_share"], row["difficulty"]["reference_touch_share"]) == (0.25, 0.0)
