@@ -3,8 +3,9 @@
 Conventions (single-best-match VPR, as VPR_Tutorial's ``createPR(..., matching='single')``):
 
 * ``tme[i, j]`` is the extractor's *distance* between query ``i`` and reference ``j``
-  (lower = more similar); ``gtm[i, j]`` the ground-truth distance (metres, plus an optional
-  heading term).  Rows are queries, columns references.
+  (lower = more similar); ``gtm[i, j]`` the ground-truth distance (metres; ``+inf`` where
+  the two headings differ by more than the heading tolerance, `ground_truth_matrix`).  Rows
+  are queries, columns references.
 * For query ``i``: best match ``j* = argmin_j tme[i, j]`` (ties -> lowest ``j``);
   a true revisit exists when ``min_j gtm[i, j] <= tau``; the match is accepted when
   ``tme[i, j*] <= delta``.
@@ -23,6 +24,10 @@ Conventions (single-best-match VPR, as VPR_Tutorial's ``createPR(..., matching='
   sweep it equals scikit-learn's average precision of the scores ``-best_tme`` against the
   labels "best match correct", times ``#correct best matches / #queries with a revisit``
   (our recall denominator counts all queries with a revisit).
+* A threshold that must transfer: `f1_at_threshold_of` scores a pair at the threshold that
+  maximised F1 on another pair (the runner: the training world's evaluation), unchanged.
+* `difficulty` measures the pair itself (nearest reference pose, chance level, touch),
+  whatever the method.
 """
 
 from __future__ import annotations
@@ -40,12 +45,15 @@ from scipy.spatial.distance import cdist
 from vitaplace.engine.atomic import atomic_path
 
 __all__ = [
+    "DIFFICULTY_KEYS",
     "Decisions",
     "PRCurve",
     "decide",
+    "difficulty",
     "evaluate",
     "export_decisions_csv",
     "export_matrices_npz",
+    "f1_at_threshold_of",
     "ground_truth_matrix",
     "pr_curve",
     "recall_at_k",
@@ -108,24 +116,87 @@ def _check_matrices(tme, gtm) -> tuple[np.ndarray, np.ndarray]:
 # --------------------------------------------------------------------------- ground truth
 
 
-def ground_truth_matrix(query_poses, reference_poses, heading_weight: float = 0.0) -> np.ndarray:
+def _heading_difference_deg(yaw_a: np.ndarray, yaw_b: np.ndarray) -> np.ndarray:
+    """``|wrap(yaw_a - yaw_b)|`` in degrees, in ``[0, 180]`` (yaws in radians, broadcast)."""
+    diff = yaw_a - yaw_b
+    return np.degrees(np.abs(np.arctan2(np.sin(diff), np.cos(diff))))
+
+
+def ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg: float | None = None) -> np.ndarray:
     """Ground-truth matrix ``GTM[i, j]`` between query and reference poses ``(N, 3)`` (x, y, yaw).
 
-    ``GTM[i, j] = ||xy_i - xy_j||_2 + heading_weight * |wrap(yaw_i - yaw_j)|`` with the yaw
-    difference wrapped to ``[-pi, pi]`` (radians); the heading term is only used when
-    ``heading_weight > 0`` (then the poses must have a yaw column).
+    ``GTM[i, j] = ||xy_i - xy_j||_2`` (metres) where the two headings differ by at most
+    ``heading_tolerance_deg`` (the yaw difference wrapped to ``[-180, 180]`` degrees, bound
+    included), and ``+inf`` where they differ by more: a reference facing elsewhere is no
+    match at any distance, so ``GTM[i, j] <= tau`` is "position within tau and heading within
+    the tolerance". ``None``: position only ((N, 2) poses accepted then).
     """
-    heading_weight = float(heading_weight)
-    if np.isnan(heading_weight) or heading_weight < 0:
-        raise ValueError(f"heading_weight must be >= 0, got {heading_weight!r}")
-    need_yaw = heading_weight > 0
+    need_yaw = heading_tolerance_deg is not None
+    if need_yaw:
+        heading_tolerance_deg = float(heading_tolerance_deg)
+        if np.isnan(heading_tolerance_deg) or heading_tolerance_deg < 0:
+            raise ValueError(f"heading_tolerance_deg must be >= 0 degrees or None, got {heading_tolerance_deg!r}")
     q = _check_poses(query_poses, "query_poses", need_yaw)
     r = _check_poses(reference_poses, "reference_poses", need_yaw)
     gtm = cdist(q[:, :2], r[:, :2], metric="euclidean")
     if need_yaw:
-        dyaw = q[:, 2][:, None] - r[:, 2][None, :]
-        gtm = gtm + heading_weight * np.abs(np.arctan2(np.sin(dyaw), np.cos(dyaw)))
+        gtm[_heading_difference_deg(q[:, 2][:, None], r[:, 2][None, :]) > heading_tolerance_deg] = np.inf
     return gtm
+
+
+#: the keys of `difficulty`'s result, in order
+DIFFICULTY_KEYS = (
+    "nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg", "chance_r1",
+    "query_touch_share", "reference_touch_share",
+)
+
+
+def difficulty(
+    query_poses, reference_poses, gtm, tau: float, query_touch=None, reference_touch=None
+) -> dict[str, float | None]:
+    """How hard an evaluation pair is, whatever the method (`DIFFICULTY_KEYS`, plain floats).
+
+    Over the queries with a true match (``min_j gtm[i, j] <= tau``): each query's nearest
+    reference *by position* (ties -> lowest index), its distance (median ``nearest_ref_median_m``
+    and 90th percentile ``nearest_ref_p90_m``, numpy's linear interpolation) and its wrapped
+    heading difference (median ``nearest_ref_heading_median_deg``); ``chance_r1`` the mean
+    share of references that are true matches (recall@1 of a uniformly random guess).
+    These four are None when no query has a true match (the heading median also when the
+    poses are (N, 2), without yaw). ``query_touch_share`` and
+    ``reference_touch_share``: the share of samples with touch (the boolean masks given, one
+    value per sample, e.g. `Run.touch_mask`; None when no mask is given).
+    """
+    tau = _check_tau(tau)
+    q = _check_poses(query_poses, "query_poses", need_yaw=False)
+    r = _check_poses(reference_poses, "reference_poses", need_yaw=False)
+    gtm_a = np.asarray(gtm, dtype=float)
+    if gtm_a.shape != (len(q), len(r)) or np.isnan(gtm_a).any():
+        raise ValueError(f"gtm must be a NaN-free queries x references ({len(q)}, {len(r)}) matrix, got shape {gtm_a.shape}")
+    touch = {}
+    for role, mask, n in (("query", query_touch, len(q)), ("reference", reference_touch, len(r))):
+        if mask is None:
+            touch[f"{role}_touch_share"] = None
+            continue
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != (n,):
+            raise ValueError(f"{role}_touch must hold one value per {role} sample ({n}), got shape {mask.shape}")
+        touch[f"{role}_touch_share"] = float(mask.mean())
+    true_match = gtm_a <= tau
+    matched = true_match.any(axis=1)
+    if not matched.any():
+        return {**dict.fromkeys(DIFFICULTY_KEYS[:4]), **touch}
+    position = cdist(q[matched, :2], r[:, :2], metric="euclidean")
+    nearest = np.argmin(position, axis=1)
+    distance = position[np.arange(len(nearest)), nearest]
+    with_yaw = min(q.shape[1], r.shape[1]) >= 3
+    heading = _heading_difference_deg(q[matched, 2], r[nearest, 2]) if with_yaw else None
+    return {
+        "nearest_ref_median_m": float(np.median(distance)),
+        "nearest_ref_p90_m": float(np.percentile(distance, 90)),
+        "nearest_ref_heading_median_deg": None if heading is None else float(np.median(heading)),
+        "chance_r1": float(true_match[matched].mean(axis=1).mean()),
+        **touch,
+    }
 
 
 # --------------------------------------------------------------------------- decisions
@@ -489,19 +560,34 @@ def evaluate_pair(
     reference_poses: np.ndarray,
     tau: float,
     delta: float | None = None,
-    heading_weight: float = 0.0,
     ks: Sequence[int] = (1, 5, 10),
+    *,
+    heading_tolerance_deg: float | None = None,
+    query_touch: np.ndarray | None = None,
+    reference_touch: np.ndarray | None = None,
 ) -> dict:
     """Everything about one query run against one reference run, written to ``folder``:
-    the ground truth from the poses, ``matrices.npz`` (TME, GTM), the decisions at the
-    F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR curve
-    (``pr_curve.npz``); returns the summary (`evaluate`)."""
+    the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM), the
+    decisions at the F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR
+    curve (``pr_curve.npz``); returns the summary (`evaluate`) with ``heading_tolerance_deg``
+    and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks, when given)
+    added."""
     folder = Path(folder)
-    gtm = ground_truth_matrix(query_poses, reference_poses, heading_weight)
+    gtm = ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg)
     curve = pr_curve(tme, gtm, tau)
     summary = evaluate(tme, gtm, tau, delta, tuple(ks), curve=curve)
+    summary["heading_tolerance_deg"] = heading_tolerance_deg
+    summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
     decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
     export_matrices_npz(folder / "matrices.npz", tme, gtm)
     export_decisions_csv(folder / "decisions.csv", decisions)
     save_curve_and_decisions(folder, curve, decisions)
     return summary
+
+
+def f1_at_threshold_of(source: PRCurve, tme, gtm, tau: float) -> float:
+    """F1 of ``(tme, gtm)`` at the threshold that maximised F1 on ``source`` (another
+    evaluation's PR curve: the training world's), applied unchanged. The threshold is
+    ``source.delta_at_max_f1`` (the smallest among tied maxima); ``-inf`` (the source's best
+    was to accept nothing) accepts nothing here either, F1 0."""
+    return float(pr_curve(tme, gtm, tau, [source.delta_at_max_f1]).f1[0])

@@ -67,7 +67,8 @@ def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> 
     """GTM and TME heat maps side by side (rows = queries, columns = references) with the
     decision of each query drawn as a dot at (query, best match): green TP, red FP
     (accepted and wrong), orange FN (rejected although a revisit existed), grey TN.
-    The TME colours span the `TME_PERCENTILES` of its values (its colour bar says so)."""
+    The TME colours span the `TME_PERCENTILES` of its values (its colour bar says so); GTM
+    cells that are infinite (headings further apart than the tolerance) stay blank."""
     tme = np.asarray(tme, dtype=float)
     gtm = np.asarray(gtm, dtype=float)
     n_q, n_r = tme.shape
@@ -79,7 +80,8 @@ def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> 
     low, high = TME_PERCENTILES
     tme_range = tuple(float(v) for v in np.nanpercentile(np.where(np.isfinite(tme), tme, np.nan), TME_PERCENTILES))
     for ax, mat, name, cmap, quantity, limits in (
-        (axes[0], gtm, "GTM (ground-truth distance)", "viridis", "ground-truth distance [m]", (None, None)),
+        (axes[0], gtm, "GTM (ground-truth distance" + ("; blank: facing apart)" if np.isinf(gtm).any() else ")"),
+         "viridis", "ground-truth distance [m]", (None, None)),
         (axes[1], tme, "TME (feature distance)", "magma",
          f"feature distance; colours: percentiles {low:g}-{high:g}\n= [{tme_range[0]:.3g}, {tme_range[1]:.3g}] "
          f"(all values {np.nanmin(tme):.3g}-{np.nanmax(tme):.3g})", tme_range),

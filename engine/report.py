@@ -13,6 +13,7 @@ from vitaplace.engine import figures
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.plugins import plugin_distributions
 from vitaplace.engine.provenance import provenance
+from vitaplace.engine.scenario import training_world_evaluation
 from vitaplace.engine.sim.environment import load_environment
 
 if TYPE_CHECKING:
@@ -24,9 +25,11 @@ def _pct(value: Any) -> str:
 
 
 def results_table(rows: list[dict[str, Any]]) -> str:
-    """Markdown table: one row per environment x method x direction (F1, P, R in %)."""
+    """Markdown table: one row per environment x method x direction (F1, P, R in %; F1 at
+    the training world's threshold, ``f1_at_e1_threshold``)."""
     ks = sorted({k for row in rows for k in row.get("recall_at_k", {})}, key=int)
-    header = ["environment", "method", "direction", "max F1 %", "P %", "R %", "AUC", "δ at max F1"]
+    header = ["environment", "method", "direction", "max F1 %", "P %", "R %", "AUC", "δ at max F1",
+              "F1 % at training δ"]
     header += [f"R@{k} %" for k in ks]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
@@ -34,22 +37,51 @@ def results_table(rows: list[dict[str, Any]]) -> str:
             row["environment"], row["method"], row["direction"], _pct(row["max_f1"]),
             _pct(row.get("precision_at_max_f1")), _pct(row.get("recall_at_max_f1")),
             f"{row['auc']:.3f}", "–" if row["delta_at_max_f1"] is None else f"{row['delta_at_max_f1']:.4g}",
+            _pct(row.get("f1_at_e1_threshold")),
         ]
         cells += [_pct(row["recall_at_k"].get(k)) for k in ks]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines)
 
 
+def _per_pair(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The first row of each environment x direction: what the evaluation pair itself has,
+    the same for every method."""
+    first: dict[tuple[str, str], dict[str, Any]] = {}
+    for row in rows:
+        first.setdefault((row["environment"], row["direction"]), row)
+    return list(first.values())
+
+
 def samples_table(rows: list[dict[str, Any]]) -> str:
     """Markdown table of the sample counts per environment x direction: queries, references,
-    revisits (queries with a reference pose within τ)."""
+    revisits (queries with a true match)."""
     lines = ["| environment | direction | queries | references | revisits |", "|---|---|---|---|---|"]
-    seen = set()
-    for row in rows:
-        key = (row["environment"], row["direction"])
-        if key not in seen:
-            seen.add(key)
-            lines.append(f"| {key[0]} | {key[1]} | {row['n_queries']} | {row.get('n_references', '–')} | {row['n_revisit']} |")
+    for row in _per_pair(rows):
+        lines.append(f"| {row['environment']} | {row['direction']} | {row['n_queries']} | "
+                     f"{row.get('n_references', '–')} | {row['n_revisit']} |")
+    return "\n".join(lines)
+
+
+def _number(value: Any, digits: int) -> str:
+    return "–" if value is None else f"{float(value):.{digits}f}"
+
+
+def difficulty_table(rows: list[dict[str, Any]]) -> str:
+    """Markdown table of each evaluation pair's ``difficulty`` (per environment x direction)."""
+    lines = [
+        "| environment | direction | nearest ref. median m | nearest ref. 90th pct. m | nearest ref. heading median ° "
+        "| chance R@1 % | query touch % | reference touch % |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for row in _per_pair(rows):
+        d = row["difficulty"]
+        cells = [
+            row["environment"], row["direction"], _number(d["nearest_ref_median_m"], 3),
+            _number(d["nearest_ref_p90_m"], 3), _number(d["nearest_ref_heading_median_deg"], 1),
+            _pct(d["chance_r1"]), _pct(d["query_touch_share"]), _pct(d["reference_touch_share"]),
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -161,29 +193,48 @@ def _inputs_section(pipeline: Pipeline) -> list[str]:
     return ["## Inputs", "", head, "", *lines, ""]
 
 
+def _warnings_section(pipeline: Pipeline) -> list[str]:
+    """Every run's warnings (robot collisions, data a method could not use), as in manifest.json."""
+    lines = [f"- {message}" for run in pipeline.opened.values() for message in run.warnings.values()]
+    return ["## Warnings", "", *lines, ""] if lines else []
+
+
 def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
     """figures/ (PNG + PDF) and report.md for the evaluated scenario."""
     out, scenario = pipeline.out, pipeline.scenario
     fig_dir = out / "figures"
-    tau = scenario.evaluation.tau
+    tau, heading = scenario.evaluation.tau, scenario.evaluation.heading_tolerance_deg
+    true_match = f"a reference pose within τ = {tau} m" + ("" if heading is None else f" facing within {heading:g}°")
+    _, source = training_world_evaluation(scenario)
     sections = [f"# vitaplace report — {scenario.name}", ""]
     if scenario.description:
         sections += [scenario.description.strip(), ""]
     sections += [
-        f"Place recognition, single best match per query, revisit tolerance τ = {tau} m"
-        + (f", heading weight {scenario.evaluation.heading_weight} m/rad" if scenario.evaluation.heading_weight else "")
-        + ". P and R are at the δ that maximises F1. AUC is the step-wise average precision: the sum over "
-        "acceptance thresholds δ, in increasing order, of the recall gained times the precision there (the area "
-        "under the drawn step curve; 1 is perfect).",
+        f"Place recognition, single best match per query; a true match is {true_match}"
+        + (" (position only)" if heading is None else "")
+        + ". P and R are at the δ that maximises F1 in each evaluation; F1 at training δ is the F1 at the δ that "
+        f"maximised the method's F1 in the training world's evaluation, applied unchanged. Training world: {source}. "
+        "AUC is the step-wise average precision: the sum over acceptance thresholds δ, in increasing order, of the "
+        "recall gained times the precision there (the area under the drawn step curve; 1 is perfect).",
         "",
         results_table(rows),
         "",
+        *_warnings_section(pipeline),
         "## Samples",
         "",
-        f"Training run: {len(pipeline.open('train'))} samples. A revisit is a query with a reference pose within "
-        f"τ = {tau} m (only revisits can be recalled).",
+        f"Training run: {len(pipeline.open('train'))} samples. A revisit is a query with {true_match} (only "
+        "revisits can be recalled).",
         "",
         samples_table(rows),
+        "",
+        "## Difficulty",
+        "",
+        "Properties of each evaluation pair, the same for every method. Over the queries with a true match: the "
+        "distance from each query to its nearest reference pose by position (median, 90th percentile) and the "
+        "heading difference to it (median); chance R@1 is the mean share of references that are true matches (a "
+        "random guess's recall@1). Touch: the share of samples with a whisker deflected at the sampling instant.",
+        "",
+        difficulty_table(rows),
         "",
         *_methods_section(pipeline),
     ]

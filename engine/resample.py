@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from vitaplace.engine.evaluate import evaluate
+from vitaplace.engine.evaluate import evaluate, pr_curve
 
 #: replicates per evaluation
 RESAMPLES = 1000
@@ -81,12 +81,21 @@ def compact_matrices(tme: np.ndarray, gtm: np.ndarray, kmax: int) -> tuple[np.nd
 def replicate_rows(tme: np.ndarray, gtm: np.ndarray, row: Mapping[str, Any], seed: int,
                    resamples: int | None = None) -> list[dict[str, Any]]:
     """`evaluate` of each block-bootstrap replicate of one evaluation, with the ``tau``,
-    fixed ``delta`` and recall@K of its results row ``row``."""
+    fixed ``delta`` and recall@K of its results row ``row``; where the row has an
+    ``f1_at_e1_threshold``, each replicate's F1 at the row's ``e1_threshold`` too (null: the
+    training world's best was to accept nothing, so nothing is accepted)."""
     ks = tuple(sorted(int(k) for k in row.get("recall_at_k", {}))) or (1,)
     tme_c, gtm_c = compact_matrices(np.asarray(tme, dtype=float), np.asarray(gtm, dtype=float), max(ks))
-    delta = row.get("delta")
-    return [evaluate(tme_c[rows], gtm_c[rows], row["tau"], delta, ks)
-            for rows in block_draws(tme_c.shape[0], seed, resamples)]
+    delta, tau = row.get("delta"), row["tau"]
+    transferred = row.get("f1_at_e1_threshold") is not None
+    threshold = -math.inf if row.get("e1_threshold") is None else float(row["e1_threshold"])
+    replicates = []
+    for rows in block_draws(tme_c.shape[0], seed, resamples):
+        replicate = evaluate(tme_c[rows], gtm_c[rows], tau, delta, ks)
+        if transferred:
+            replicate["f1_at_e1_threshold"] = float(pr_curve(tme_c[rows], gtm_c[rows], tau, [threshold]).f1[0])
+        replicates.append(replicate)
+    return replicates
 
 
 def evaluation_replicates(run_folder: Path, row: Mapping[str, Any],

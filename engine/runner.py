@@ -33,15 +33,17 @@ from vitaplace.engine import checksum
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
-from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features
+from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features, warn_once
 from vitaplace.engine.plugins import Registry, announce_run_finished, discover, plugin_distributions
-from vitaplace.engine.scenario import EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, content_hash
+from vitaplace.engine.scenario import (
+    EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, content_hash, training_world_evaluation,
+)
 from vitaplace.engine.sim import SIMULATOR_VERSION
 from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 2, "report": 4}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 3, "report": 5}
 
 log = logging.getLogger("vitaplace")
 
@@ -302,6 +304,18 @@ class Pipeline:
         finally:
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
+        self.warn_collisions()
+
+    def warn_collisions(self) -> None:
+        """Warn (log, manifest.json, report.md) about every run in which the robot's body or
+        head touched the world (``body_collision_instants`` > 0 in its attributes)."""
+        for label in self.runs():
+            run = self.open(label)
+            instants = int(run.attrs.get("body_collision_instants", 0))
+            if instants > 0:
+                warn_once(run, "body_collision_instants",
+                          f"run {label}: the robot's body or head touched a landmark or wall at {instants} "
+                          f"whisk-series instant(s) (body_collision_instants): it was not driven clear of the world")
 
     def open(self, label: str) -> Run:
         """The recorded run ``label``, opened once per pipeline (its fields load lazily, once)."""
@@ -413,7 +427,10 @@ class Pipeline:
                                              shape, f"evaluate {e.name} {method.name}")
                         summary = ev.evaluate_pair(
                             folder, tme, self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses,
-                            settings.tau, settings.delta, settings.heading_weight, tuple(settings.recall_k),
+                            settings.tau, query_touch=self.open(f"{e.name}/{q}").touch_mask(),
+                            reference_touch=self.open(f"{e.name}/{r}").touch_mask(),
+                            delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg,
+                            ks=tuple(settings.recall_k),
                         )
                         write_text_atomic(folder / "summary.json", json.dumps(summary, indent=2))
 
@@ -421,7 +438,23 @@ class Pipeline:
                     self._stage("evaluate", item, key, folder, work, [qpath.stem, rpath.stem])
                     summary = json.loads(summary_path.read_text())
                     rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
+        self.add_f1_at_training_threshold(rows)
         return rows
+
+    def add_f1_at_training_threshold(self, rows: list[dict[str, Any]]) -> None:
+        """``f1_at_e1_threshold`` in every row: F1 at the threshold that maximised the same
+        method's F1 (same direction) on the training world's evaluation
+        (`training_world_evaluation`), applied unchanged, and that threshold, ``e1_threshold``
+        (None when it is -inf: accept nothing); both None when there is no such evaluation."""
+        source, _ = training_world_evaluation(self.scenario)
+        for row in rows:
+            row["f1_at_e1_threshold"] = row["e1_threshold"] = None
+            if source is None:
+                continue
+            curve = ev.load_curve(self.evaluation_dir(source, row["method"], row["direction"]) / "pr_curve.npz")
+            with np.load(self.evaluation_dir(row["environment"], row["method"], row["direction"]) / "matrices.npz") as m:
+                row["f1_at_e1_threshold"] = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row["tau"])
+            row["e1_threshold"] = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None
 
     # ------------------------------------------------------------------ everything
     def run(self, until: str = "report") -> list[dict[str, Any]]:
@@ -468,8 +501,8 @@ class Pipeline:
 
 RESULT_COLUMNS = (
     "environment", "method", "direction", "max_f1", "precision_at_max_f1", "recall_at_max_f1",
-    "delta_at_max_f1", "auc", "recall_at_100_precision", "delta", "precision", "recall", "f1", "n_queries",
-    "n_references", "n_revisit",
+    "delta_at_max_f1", "auc", "recall_at_100_precision", "f1_at_e1_threshold", "e1_threshold", "delta", "precision",
+    "recall", "f1", "n_queries", "n_references", "n_revisit",
 )
 
 

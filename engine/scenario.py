@@ -44,7 +44,7 @@ import pydantic
 import yaml
 
 from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml, local_or_shipped
-from vitaplace.engine.sim.environment import load_environment
+from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.robot import RobotSpec
 from vitaplace.engine.sim.controllers import RunSpec
 
@@ -173,8 +173,10 @@ class EvaluationSettings(Strict):
     tau: float = pydantic.Field(
         0.3, gt=0, allow_inf_nan=False, description="ground-truth revisit tolerance [m], below the arena's diagonal"
     )
-    heading_weight: float = pydantic.Field(
-        0.0, ge=0, allow_inf_nan=False, description="GTM += weight * |yaw difference| [m/rad]"
+    heading_tolerance_deg: float | None = pydantic.Field(
+        30.0, ge=0, le=180, allow_inf_nan=False,
+        description="a true match also faces within this many degrees of the query (wrapped yaw difference); "
+        "null: position only",
     )
     delta: float | None = pydantic.Field(
         None, allow_inf_nan=False, description="fixed acceptance threshold for the F1 at delta"
@@ -210,6 +212,32 @@ class Scenario(Strict):
             if len(set(names)) != len(names):
                 raise ValueError(f"{what}: names must be unique, got {names}")
         return self
+
+
+def training_world_evaluation(scenario: Scenario) -> tuple[str | None, str]:
+    """The evaluation in the training run's world, whose max-F1 threshold every evaluation is
+    also scored at (``f1_at_e1_threshold``), and a sentence for the report saying which, or
+    why there is none.
+
+    It is the one evaluation whose environment is the training run's environment (the same
+    environment specification once loaded, whatever the file and its name). None when the
+    training run is a recorded file (no environment), when no evaluation is in that
+    environment, or when several are (no single threshold to transfer).
+    """
+    if scenario.train.environment is None:
+        return None, "none: the training run is a recorded file, in no known environment"
+    world = load_environment(scenario.train.environment)
+
+    def spec(env: EnvironmentSpec) -> dict[str, Any]:
+        return env.model_dump(mode="json", exclude={"name"})
+
+    same = [e.name for e in scenario.evaluations
+            if e.environment is not None and spec(load_environment(e.environment)) == spec(world)]
+    if len(same) == 1:
+        return same[0], f"{same[0]}, the evaluation in the training run's environment {world.name}"
+    if not same:
+        return None, f"none: no evaluation is in the training run's environment {world.name}"
+    return None, f"none: several evaluations are in the training run's environment {world.name}: {', '.join(same)}"
 
 
 def _load_raw(path: Path) -> dict[str, Any]:

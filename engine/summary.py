@@ -68,13 +68,13 @@ from vitaplace.engine.atomic import write_text_atomic
 #: columns naming what a result row is about, not values
 IDENTITY = ("seed", "environment", "method", "direction")
 #: settings of the evaluation copied into every row: inputs, not outcomes
-SETTINGS = frozenset({"tau", "delta"})
+SETTINGS = frozenset({"tau", "delta", "heading_tolerance_deg"})
 #: metrics that are proportions in [0, 1] (and every ``recall@K``)
 UNIT_METRICS = frozenset({"max_f1", "precision_at_max_f1", "recall_at_max_f1", "auc", "recall_at_100_precision",
                           "precision", "recall", "f1", "f1_at_e1_threshold"})
 #: values that describe the evaluation, not the method's score: sample counts and thresholds
 DESCRIPTORS = frozenset({"n_queries", "n_references", "n_revisit", "n_accepted", "tp", "fp", "fn", "tn",
-                         "delta_at_max_f1"})
+                         "delta_at_max_f1", "e1_threshold"})
 #: nested objects whose every value is a descriptor (``difficulty.<measure>``)
 DESCRIPTOR_GROUPS = ("difficulty",)
 #: confidence level of the intervals

@@ -73,6 +73,9 @@ BAD = {
     # the faithful E1 is 6.05 m square: its diagonal is 8.56 m
     "tau over the diagonal": (lambda d: d["evaluation"].update(tau=9.0), r"evaluation\.tau: 9\.0 m is not below the 8\.56 m"),
     "nan delta": (lambda d: d["evaluation"].update(delta=float("nan")), r"evaluation\.delta: .*finite"),
+    "heading tolerance past 180": (
+        lambda d: d["evaluation"].update(heading_tolerance_deg=200), r"evaluation\.heading_tolerance_deg: .*180"
+    ),
     "one evaluation sample": (
         lambda d: d["evaluations"][0]["run"].update(n_samples=1), r"evaluations\.0\.run: .*at least 5 samples"
     ),
@@ -174,6 +177,14 @@ def test_quickstart_writes_every_output(quickstart_run):
     assert {(r["environment"], r["method"]) for r in rows} == {("E1", "L"), ("E1", "H")}
     for row in rows:
         assert 0.0 <= row["max_f1"] <= 1.0 and row["n_queries"] == 10
+        assert row["heading_tolerance_deg"] == 30.0  # the documented default
+        # E1 is the training world: its own max-F1 threshold gives its max F1
+        assert row["f1_at_e1_threshold"] == pytest.approx(row["max_f1"])
+        assert row["e1_threshold"] == pytest.approx(row["delta_at_max_f1"])
+    difficulties = [row["difficulty"] for row in rows]
+    assert list(difficulties[0]) == ["nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg",
+                                     "chance_r1", "query_touch_share", "reference_touch_share"]
+    assert difficulties[0] == difficulties[1]  # a property of the evaluation pair, not of the method
     for method in ("L", "H"):
         folder = out / "evaluations" / "E1" / method / "query-to-reference"
         assert (folder / "decisions.csv").is_file() and (folder / "matrices.npz").is_file()
@@ -299,7 +310,8 @@ def vitaplace_register_features(register):
 def test_oracle_features_score_perfectly_end_to_end(tmp_path):
     """Features that are the true positions must give max F1 = 1 and recall@1 = 1 through the
     whole CLI, and matrices.npz must hold TME and GTM index-aligned (query rows, reference
-    columns): GTM is the Euclidean distance of the two runs' poses, which here is the TME."""
+    columns): GTM is the Euclidean distance of the two runs' poses, which here is the TME,
+    where they face alike."""
     pkg = tmp_path / "site"
     pkg.mkdir()
     (pkg / "vitaplace_oracle_plugin.py").write_text(ORACLE_PLUGIN)
@@ -320,8 +332,15 @@ def test_oracle_features_score_perfectly_end_to_end(tmp_path):
     assert row["max_f1"] == pytest.approx(1.0)
     assert row["recall_at_k"]["1"] == pytest.approx(1.0)
     (npz,) = list(out.glob("evaluations/E1/O/**/matrices.npz"))
+    # and +inf where the two runs face more than the default 30 degrees apart
+    from vitaplace.engine.dataset import open_run
+
+    yaw = [open_run(next((out / "cache" / "datasets").glob(f"E1-{role}-*.h5"))).poses[:, 2] for role in ("query", "reference")]
+    facing_apart = np.degrees(np.abs(np.angle(np.exp(1j * (yaw[0][:, None] - yaw[1][None, :]))))) > 30
+    assert facing_apart.any() and not facing_apart.all()
     with np.load(npz) as m:
-        np.testing.assert_allclose(m["gtm"], m["tme"], atol=1e-9)
+        np.testing.assert_array_equal(np.isinf(m["gtm"]), facing_apart)
+        np.testing.assert_allclose(m["gtm"][~facing_apart], m["tme"][~facing_apart], atol=1e-9)
 
 
 def _alias_bomb() -> str:

@@ -11,6 +11,7 @@ import csv
 import json
 import math
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -162,10 +163,151 @@ def test_ground_truth_matrix_heading_hand_case():
     xy = np.array([[5.0, math.sqrt(2)], [math.sqrt(13), 0.0]])
     np.testing.assert_allclose(ev.ground_truth_matrix(q, r), xy)
     np.testing.assert_allclose(ev.ground_truth_matrix(q[:, :2], r[:, :2]), xy)  # (N, 2) accepted
-    # yaw differences: q0-r0 0.2, q0-r1 3.2 -> wrapped 2*pi - 3.2, q1-r0 3.2 -> 2*pi - 3.2,
-    # q1-r1 6.2 -> wrapped 2*pi - 6.2 (about 0.083)
-    dyaw = np.array([[0.2, 2 * math.pi - 3.2], [2 * math.pi - 3.2, 2 * math.pi - 6.2]])
-    np.testing.assert_allclose(ev.ground_truth_matrix(q, r, heading_weight=2.0), xy + 2.0 * dyaw)
+    # yaw differences: q0-r0 0.2 rad = 11.5 deg; q0-r1 and q1-r0 3.2 rad -> wrapped 2 pi - 3.2 =
+    # 176.6 deg; q1-r1 6.2 rad -> wrapped 2 pi - 6.2 = 4.8 deg (unwrapped it would be 355 deg).
+    inf = np.inf
+    np.testing.assert_array_equal(ev.ground_truth_matrix(q, r, heading_tolerance_deg=30), [[5.0, inf], [inf, 0.0]])
+    np.testing.assert_array_equal(ev.ground_truth_matrix(q, r, heading_tolerance_deg=10), [[inf, inf], [inf, 0.0]])
+    np.testing.assert_allclose(ev.ground_truth_matrix(q, r, heading_tolerance_deg=180), xy)
+    np.testing.assert_allclose(ev.ground_truth_matrix(q, r, heading_tolerance_deg=None), xy)
+
+
+def test_heading_tolerance_includes_its_bound():
+    q = np.array([[0.0, 0.0, 0.0]])
+    r = np.array([[0.1, 0.0, math.pi / 2], [0.1, 0.0, -math.pi / 2]])  # 90 deg either way
+    np.testing.assert_allclose(ev.ground_truth_matrix(q, r, heading_tolerance_deg=90), [[0.1, 0.1]])
+    np.testing.assert_array_equal(ev.ground_truth_matrix(q, r, heading_tolerance_deg=89.9), [[np.inf, np.inf]])
+
+
+def test_a_reference_facing_away_is_no_true_match_for_every_metric():
+    """At the same place but facing the other way: a miss without the tolerance, no revisit
+    (so no FN) with it: runs that face differently are not scored as vision failures."""
+    q = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    r = np.array([[0.0, 0.0, math.pi], [2.0, 0.0, 0.1]])
+    # best matches: q0 -> r1 at 0.1 (2 m away: wrong), q1 -> r1 at 0.2 (correct)
+    tme = np.array([[0.5, 0.1], [0.9, 0.2]])
+    # position only, 2 revisits: delta 0.1 TP 0 FP 1 -> F1 0; delta 0.2 TP 1 FP 1 -> P 1/2, R 1/2
+    position_only = ev.evaluate(tme, ev.ground_truth_matrix(q, r), 0.3)
+    assert (position_only["n_revisit"], position_only["max_f1"]) == (2, pytest.approx(1 / 2))
+    # with the tolerance q0 has no revisit: delta 0.2 TP 1 FP 1 -> P 1/2, R 1 -> F1 2/3
+    with_heading = ev.evaluate(tme, ev.ground_truth_matrix(q, r, heading_tolerance_deg=30), 0.3)
+    assert (with_heading["n_revisit"], with_heading["max_f1"]) == (1, pytest.approx(2 / 3))
+
+
+# --------------------------------------------------------------------------- difficulty
+# References (x, y, yaw deg): r0 (0, 0, 0), r1 (0.1, 0, 0), r2 (0, 0.2, 90), r3 (5, 0, 0).
+# tau 0.3 m, heading tolerance 30 deg. Queries:
+#   q0 (0.02, 0, 0):     r0 0.02, r1 0.08, r2 0.201 (faces 90 deg off), r3 far -> true r0, r1
+#                        (2 of 4); nearest r0: 0.02 m, 0 deg
+#   q1 (0, 0.08, 100):   r0 0.08 and r1 0.128 (100 deg off), r2 0.12 (10 deg off) -> true r2
+#                        (1 of 4); nearest by position r0 (not the true match): 0.08 m, 100 deg
+#   q2 (0.1, -0.1, 20):  r0 0.141, r1 0.1 (both 20 deg off), r2 0.316 > tau -> true r0, r1
+#                        (2 of 4); nearest r1: 0.1 m, 20 deg
+#   q3 (3, 3, 0):        nothing within tau -> left out
+#   q4 (0, 0, 180):      on r0 but facing back, r1 likewise, r2 90 deg off -> left out
+# Over q0-q2: distances 0.02, 0.08, 0.1 -> median 0.08, 90th percentile (linear: position
+# 0.9 * 2 = 1.8) 0.08 + 0.8 * 0.02 = 0.096; headings 0, 100, 20 -> median 20;
+# chance_r1 = mean(2/4, 1/4, 2/4) = 5/12. Touch: queries 2 of 5, references 1 of 4.
+DEG = math.pi / 180
+DIFF_REF = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.2, 90 * DEG], [5.0, 0.0, 0.0]])
+DIFF_QRY = np.array(
+    [[0.02, 0.0, 0.0], [0.0, 0.08, 100 * DEG], [0.1, -0.1, 20 * DEG], [3.0, 3.0, 0.0], [0.0, 0.0, 180 * DEG]]
+)
+DIFF_QTOUCH = np.array([True, False, False, False, True])
+DIFF_RTOUCH = np.array([False, False, False, True])
+
+
+def test_difficulty_hand_case():
+    gtm = ev.ground_truth_matrix(DIFF_QRY, DIFF_REF, heading_tolerance_deg=30)
+    d = ev.difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, DIFF_QTOUCH, DIFF_RTOUCH)
+    assert list(d) == [
+        "nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg", "chance_r1",
+        "query_touch_share", "reference_touch_share",
+    ]
+    assert d == {
+        "nearest_ref_median_m": pytest.approx(0.08),
+        "nearest_ref_p90_m": pytest.approx(0.096),
+        "nearest_ref_heading_median_deg": pytest.approx(20.0),
+        "chance_r1": pytest.approx(5 / 12),
+        "query_touch_share": pytest.approx(0.4),
+        "reference_touch_share": pytest.approx(0.25),
+    }
+    assert all(type(v) is float for v in d.values())  # JSON-ready
+
+
+def test_difficulty_position_only_counts_the_query_that_faces_back():
+    # Without a heading tolerance q4 (on r0, facing back) has a true match: nearest r0 at 0 m,
+    # 180 deg; r0, r1 (0.1 m), r2 (0.2 m) within tau (3 of 4); q0 gains r2 (0.201 m, 3 of 4),
+    # q1 gains r0 and r1 (3 of 4), q2 unchanged (2 of 4).
+    # Distances 0.02, 0.08, 0.1, 0 -> median 0.05; headings 0, 100, 20, 180 -> median 60;
+    # chance mean(3/4, 3/4, 2/4, 3/4) = 11/16.
+    gtm = ev.ground_truth_matrix(DIFF_QRY, DIFF_REF)
+    d = ev.difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, DIFF_QTOUCH, DIFF_RTOUCH)
+    assert d["nearest_ref_median_m"] == pytest.approx(0.05)
+    assert d["nearest_ref_heading_median_deg"] == pytest.approx(60.0)
+    assert d["chance_r1"] == pytest.approx(11 / 16)
+
+
+def test_difficulty_without_any_true_match_is_none_but_touch_is_measured():
+    gtm = ev.ground_truth_matrix(DIFF_QRY, DIFF_REF, heading_tolerance_deg=30)
+    d = ev.difficulty(DIFF_QRY, DIFF_REF, gtm, 0.01, DIFF_QTOUCH, DIFF_RTOUCH)
+    assert d == {
+        "nearest_ref_median_m": None, "nearest_ref_p90_m": None, "nearest_ref_heading_median_deg": None,
+        "chance_r1": None, "query_touch_share": pytest.approx(0.4), "reference_touch_share": pytest.approx(0.25),
+    }
+
+
+def test_evaluate_pair_writes_difficulty_and_tolerance_into_the_summary(tmp_path):
+    tme = np.ones((len(DIFF_QRY), len(DIFF_REF)))
+    summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY, DIFF_REF, 0.3, query_touch=DIFF_QTOUCH,
+                               reference_touch=DIFF_RTOUCH, heading_tolerance_deg=30)
+    assert summary["heading_tolerance_deg"] == 30
+    assert summary["n_revisit"] == 3  # q0, q1, q2 (see the hand case above)
+    assert summary["difficulty"]["chance_r1"] == pytest.approx(5 / 12)
+    assert summary["difficulty"]["query_touch_share"] == pytest.approx(0.4)
+    json.dumps(summary)
+    # without touch masks (and without a tolerance: q4 counts, see the position-only case) touch is not measured
+    summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY, DIFF_REF, 0.3)
+    assert summary["heading_tolerance_deg"] is None and summary["n_revisit"] == 4
+    assert summary["difficulty"]["query_touch_share"] is None and summary["difficulty"]["reference_touch_share"] is None
+    # positions only, (N, 2): no heading to measure
+    summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY[:, :2], DIFF_REF[:, :2], 0.3)
+    assert summary["difficulty"]["nearest_ref_median_m"] == pytest.approx(0.05)  # as the position-only case
+    assert summary["difficulty"]["nearest_ref_heading_median_deg"] is None
+
+
+# --------------------------------------------------------------------------- transferred threshold
+# Training world: 4 queries x 3 references, tau 1; GTM 0 on the diagonal, 5 elsewhere (q3 has
+# no true match). Best matches: q0 -> r0 at 0.1 (correct), q1 -> r1 at 0.3 (correct),
+# q2 -> r0 at 0.2 (wrong), q3 -> r1 at 0.6 (wrong); 3 revisits.
+#   delta 0.1: TP 1 FP 0 -> P 1, R 1/3, F1 1/2;   delta 0.2: TP 1 FP 1 -> F1 2/5
+#   delta 0.3: TP 2 FP 1 -> P 2/3, R 2/3, F1 2/3 (the max);  delta 0.6: TP 2 FP 2 -> F1 4/7
+TRAIN_GTM = np.array([[0, 5, 5], [5, 0, 5], [5, 5, 0], [5, 5, 5]], dtype=float)
+TRAIN_TME = np.array([[0.1, 0.9, 0.9], [0.8, 0.3, 0.9], [0.2, 0.9, 0.5], [0.9, 0.6, 0.9]])
+# Other world: 3 queries x 2 references; q0 -> r0 at 0.25 (correct), q1 -> r1 at 0.35
+# (correct), q2 -> r0 at 0.28 (wrong, no revisit); 2 revisits.
+#   its own max: delta 0.35: TP 2 FP 1 -> P 2/3, R 1, F1 4/5
+#   at the training delta 0.3: q0 and q2 accepted: TP 1 FP 1 FN 1 -> P 1/2, R 1/2, F1 1/2
+OTHER_GTM = np.array([[0, 5], [5, 0], [5, 5]], dtype=float)
+OTHER_TME = np.array([[0.25, 0.7], [0.9, 0.35], [0.28, 0.8]])
+
+
+def test_f1_at_the_training_threshold_hand_case():
+    train = ev.pr_curve(TRAIN_TME, TRAIN_GTM, 1.0)
+    assert train.delta_at_max_f1 == pytest.approx(0.3) and train.max_f1 == pytest.approx(2 / 3)
+    assert ev.f1_at_threshold_of(train, OTHER_TME, OTHER_GTM, 1.0) == pytest.approx(1 / 2)
+    assert ev.pr_curve(OTHER_TME, OTHER_GTM, 1.0).max_f1 == pytest.approx(4 / 5)
+    # in the training world itself it is the max F1
+    assert ev.f1_at_threshold_of(train, TRAIN_TME, TRAIN_GTM, 1.0) == pytest.approx(2 / 3)
+
+
+def test_f1_at_the_training_threshold_when_the_training_world_accepts_nothing():
+    # q0-q2's true match is r2, never their best match (r0 or r1); q3 has none: every best
+    # match is wrong, the max F1 is 0, first reached at delta -inf (accept nothing)
+    gtm = np.array([[5, 5, 0], [5, 5, 0], [5, 5, 0], [5, 5, 5]], dtype=float)
+    train = ev.pr_curve(TRAIN_TME, gtm, 1.0)
+    assert train.max_f1 == 0.0 and train.delta_at_max_f1 == -np.inf
+    assert ev.f1_at_threshold_of(train, OTHER_TME, OTHER_GTM, 1.0) == 0.0
 
 
 @pytest.mark.parametrize(
@@ -181,8 +323,11 @@ def test_ground_truth_matrix_heading_hand_case():
         (lambda: ev.evaluate(np.zeros((2, 2)), np.zeros((2, 2)), -1.0), "tau"),
         (lambda: ev.decide(np.zeros(4), np.zeros(4), 1.0, 0.5), "2-D"),
         (lambda: ev.recall_at_k(np.zeros((2, 2)), np.zeros((2, 2)), 1.0, ks=(0,)), "K"),
-        (lambda: ev.ground_truth_matrix(np.zeros((2, 2)), np.zeros((2, 2)), heading_weight=1.0), "yaw"),
-        (lambda: ev.ground_truth_matrix(np.zeros((2, 3)), np.zeros((2, 3)), heading_weight=-1.0), "heading_weight"),
+        (lambda: ev.ground_truth_matrix(np.zeros((2, 2)), np.zeros((2, 2)), heading_tolerance_deg=30), "yaw"),
+        (lambda: ev.ground_truth_matrix(np.zeros((2, 3)), np.zeros((2, 3)), heading_tolerance_deg=-1), "heading_tol"),
+        (lambda: ev.difficulty(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 2)), 1.0, [True], [True, True]),
+         "query_touch"),
+        (lambda: ev.difficulty(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 3)), 1.0, [1, 1], [1, 1]), "gtm"),
     ],
 )
 def test_bad_inputs(call, match):
@@ -498,3 +643,61 @@ def test_curve_and_decisions_round_trip_through_files(tmp_path):
     assert (back.max_f1, back.delta_at_max_f1, back.auc, back.n_revisit) == (curve.max_f1, curve.delta_at_max_f1,
                                                                             curve.auc, 3)
     assert list(back_d.outcome) == list(decisions.outcome) and back_d.tau == HAND_TAU
+
+
+
+ENVIRONMENTS = Path(__file__).resolve().parent.parent / "scenarios" / "environments"
+
+
+def _scenario(train: dict, evaluations: list[tuple[str, str]]):
+    """A scenario training as ``train`` with (name, shipped environment or file) evaluations."""
+    from vitaplace.engine.scenario import Scenario
+
+    return Scenario.model_validate({
+        "name": "t",
+        "train": train,
+        "evaluations": [{"name": name, "environment": str(ENVIRONMENTS / f"{env}.yaml") if "/" not in env else env,
+                         "run": {"kind": "route", "n_samples": 5}} for name, env in evaluations],
+        "methods": [{"name": "H", "plugin": "handcrafted"}],
+    })
+
+
+def _train_in(env: str) -> dict:
+    return {"environment": str(ENVIRONMENTS / f"{env}.yaml"), "run": {"kind": "foraging", "n_samples": 5}}
+
+
+def test_the_training_world_is_the_one_evaluation_in_the_training_environment(tmp_path):
+    from vitaplace.engine.scenario import training_world_evaluation
+
+    # the one in e1, wherever it is listed and whatever its name
+    assert training_world_evaluation(_scenario(_train_in("e1"), [("X", "e2"), ("Mine", "e1")]))[0] == "Mine"
+    # a file of another name holding e1 is the same world; e1-coloured is another one
+    copy = tmp_path / "copy.yaml"
+    copy.write_text(f"extends: {ENVIRONMENTS / 'e1.yaml'}\n")
+    assert training_world_evaluation(_scenario(_train_in("e1"), [("C", str(copy)), ("E1c", "e1-coloured")]))[0] == "C"
+    none, why = training_world_evaluation(_scenario(_train_in("e1"), [("E2", "e2"), ("E3", "e3")]))
+    assert none is None and "no evaluation is in the training run's environment" in why
+    none, why = training_world_evaluation(_scenario(_train_in("e1"), [("A", "e1"), ("B", "e1"), ("E2", "e2")]))
+    assert none is None and "several evaluations" in why and "A, B" in why
+    none, why = training_world_evaluation(_scenario({"dataset": "train.h5"}, [("E1", "e1")]))
+    assert none is None and "recorded" in why
+
+
+def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp_path):
+    """E1 (in the training run's world, e1) holds the training matrices above, E2 the other
+    ones: every row of a method gets the F1 at E1's max-F1 threshold (0.3), per direction."""
+    from vitaplace.engine.runner import Pipeline
+
+    scenario = _scenario(_train_in("e1"), [("E2", "e2"), ("E1", "e1")])
+    pipeline = Pipeline(scenario, {}, tmp_path)
+    rows = []
+    for env, tme, gtm in (("E2", OTHER_TME, OTHER_GTM), ("E1", TRAIN_TME, TRAIN_GTM)):
+        folder = pipeline.evaluation_dir(env, "H", "query-to-reference")
+        folder.mkdir(parents=True)
+        curve = ev.pr_curve(tme, gtm, 1.0)
+        ev.save_curve_and_decisions(folder, curve, ev.decide(tme, gtm, 1.0, curve.delta_at_max_f1))
+        ev.export_matrices_npz(folder / "matrices.npz", tme, gtm)
+        rows.append({"environment": env, "method": "H", "direction": "query-to-reference", "tau": 1.0})
+    pipeline.add_f1_at_training_threshold(rows)
+    assert [row["f1_at_e1_threshold"] for row in rows] == [pytest.approx(1 / 2), pytest.approx(2 / 3)]
+    assert [row["e1_threshold"] for row in rows] == [pytest.approx(0.3)] * 2

@@ -381,3 +381,38 @@ def test_bad_recorded_runs_in_a_scenario_are_one_line(tmp_path, capsys, case):
 
     assert re.search(BAD_RECORDED_SCENARIOS[case][1], last), last
     assert not (tmp_path / "out" / "cache" / "models").exists()  # refused before any method was fitted
+
+
+def test_collisions_and_a_training_run_in_no_world_reach_the_user(tmp_path):
+    """A run whose robot touched the world (``body_collision_instants`` > 0) warns in the log,
+    manifest.json and report.md; a recorded training run is in no known world, so no
+    threshold transfers (``f1_at_e1_threshold`` null, the report says why). The query run is
+    the reference route shifted 5 cm sideways, facing the same way: each query's nearest
+    reference is 5 cm and 0 degrees away. Touch: whisker 0 of query samples 0 and 1 deflected,
+    nothing in the reference run (touch shares 2/8 and 0)."""
+    from vitaplace.engine.dataset import Run
+
+    scenario = recorded_scenario(tmp_path)
+    for name, touched, collisions in (("query", [0, 1], 3), ("ref", [], 0)):
+        run = open_run(tmp_path / f"{name}.h5")
+        xy = np.zeros_like(run.xy)
+        xy[touched, 0, 0] = 0.5
+        write_run(tmp_path / f"{name}.h5", Run.from_arrays(
+            images=run.images, theta=run.theta, xy=xy, poses=run.poses, times=run.times, deflection=run.deflection,
+            name=run.name, attrs={**run.attrs, "body_collision_instants": collisions}))
+    out = tmp_path / "out"
+    assert main(["run", str(scenario), "--out", str(out), "--no-progress"]) == 0
+    message = ("run E1/query: the robot's body or head touched a landmark or wall at 3 whisk-series instant(s) "
+               "(body_collision_instants)")
+    assert message in (out / "log.txt").read_text()
+    warnings = json.loads((out / "manifest.json").read_text())["warnings"]
+    assert warnings["E1/query"]["body_collision_instants"].startswith(message)
+    assert "body_collision_instants" not in warnings.get("E1/reference", {})
+    report = (out / "report.md").read_text()
+    assert message in report.split("## Warnings", 1)[1]
+    assert "none: the training run is a recorded file" in report
+    for row in json.loads((out / "results.json").read_text()):
+        assert row["f1_at_e1_threshold"] is None and row["e1_threshold"] is None
+        assert row["difficulty"]["nearest_ref_median_m"] == pytest.approx(0.05)
+        assert row["difficulty"]["nearest_ref_heading_median_deg"] == pytest.approx(0.0)
+        assert (row["difficulty"]["query_touch_share"], row["difficulty"]["reference_touch_share"]) == (0.25, 0.0)
