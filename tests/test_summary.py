@@ -346,3 +346,18 @@ def test_the_pr_band_figure_says_what_its_line_and_band_are(monkeypatch, tmp_pat
     assert len(legends) == 2
     for legend in legends:
         assert "line: mean interpolated precision over seeds" in legend and "band: lowest to highest seed" in legend
+
+
+@pytest.mark.parametrize("threshold", [0.4, None])
+def test_block_replicates_carry_f1_at_the_training_world_s_threshold(threshold):
+    """Each replicate's ``f1_at_e1_threshold`` is the F1 of its rows at the row's
+    ``e1_threshold`` (None: nothing accepted, F1 0), as a direct pr_curve on the full matrices."""
+    rng = np.random.default_rng(7)
+    tme, gtm = rng.random((30, 12)), rng.random((30, 12))
+    row = {"tau": 0.3, "delta": None, "recall_at_k": {"1": 0.0}, "f1_at_e1_threshold": 0.5, "e1_threshold": threshold}
+    replicates = resample.replicate_rows(tme, gtm, row, seed=2, resamples=25)
+    expected = [ev.pr_curve(tme[r], gtm[r], 0.3, [-math.inf if threshold is None else threshold]).f1[0]
+                for r in resample.block_draws(30, 2, 25)]
+    assert [r["f1_at_e1_threshold"] for r in replicates] == pytest.approx(expected)
+    assert (threshold is None) == all(v == 0 for v in expected)
+    assert "f1_at_e1_threshold" not in resample.replicate_rows(tme, gtm, {**row, "f1_at_e1_threshold": None}, 2, 5)[0]
