@@ -163,6 +163,71 @@ def test_aggregate_refuses_other_scenarios_and_unfinished_runs(local_sweep, tmp_
     assert not (tmp_path / "summary" / "sweep.csv").exists()
 
 
+def test_slurm_sweep_is_one_array_whose_failed_seed_is_one_line(tmp_path, plugin_env):
+    """`--slurm local`: the same array through submitit's local executor; seed 1 fails in one
+    line, the others are summarised, scripts and logs are under OUT/slurm."""
+    pytest.importorskip("submitit", reason="submitit is not installed (pip install 'vitaplace[slurm]')")
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(tiny_scenario(fail_seed=1)))
+    out = tmp_path / "out"
+    args = ["sweep", str(path), "--seeds", "0", "1", "2", "--out", str(out), "--no-progress",
+            "--slurm", "local", "--time", "0:10:00"]
+    result = vitaplace(args, plugin_env)
+    check_partial_sweep(out, result, [0, 2], 1)
+    assert "missing from the summary: 1;" in result.stderr
+    assert re.search(rf"SLURM \(local\): job .*3 task\(s\); scripts and logs in {re.escape(str(out / 'slurm'))}", result.stderr)
+    logs = sorted((out / "slurm").glob("*_log.err"))
+    assert len(logs) == 3, logs
+
+
+def test_slurm_options_are_checked_before_anything_runs(tmp_path, capsys):
+    from vitaplace.engine import slurm
+
+    assert [slurm.parse_time(t) for t in ("90", "1:30", "04:00:00", "1-0", "0-01:00:01", "2-03:04")] == [
+        90, 2, 240, 1440, 61, 2 * 1440 + 3 * 60 + 4]
+    assert slurm.parse_sbatch(["account=proj", "--exclusive", "mail-type=END,FAIL"]) == {
+        "account": "proj", "exclusive": True, "mail-type": "END,FAIL"}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(tiny_scenario()))
+    base = ["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out")]
+    cases = {
+        "--slurm needs --time": ["--slurm"],
+        "--time 4h: expected a time limit": ["--slurm", "--time", "4h"],
+        "--partition --mem: only with --slurm": ["--partition", "gpu", "--mem", "4G"],
+        "--sbatch time=5: use --time instead": ["--slurm", "--time", "5", "--sbatch", "time=5"],
+        "--cpus-per-job 1.5: SLURM allots whole CPUs": ["--slurm", "--time", "5", "--cpus-per-job", "1.5"],
+        "--slurm and --ray: choose one": ["--slurm", "--time", "5", "--ray", "auto"],
+        "--gpus-per-job: applies to --ray and --slurm": ["--gpus-per-job", "1"],
+        "--workers: applies to sweeps on this machine": ["--slurm", "local", "--time", "5", "--workers", "2"],
+    }
+    for message, extra in cases.items():
+        assert main([*base, *extra]) == 2, extra
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], (extra, lines)
+    assert not (tmp_path / "out").exists()
+
+
+def test_slurm_settings_reach_the_sbatch_script(tmp_path, monkeypatch):
+    """What sbatch would read: the array of seeds, the time in minutes, CPUs, GPUs, partition,
+    memory and the passed-through options (submitit's own script text, nothing submitted)."""
+    submitit = pytest.importorskip("submitit")
+    from submitit.slurm.slurm import _make_sbatch_string
+
+    from vitaplace.engine import slurm
+    from vitaplace.engine.errors import UserError
+
+    settings = slurm.SlurmSettings("slurm", 240, cpus=4, gpus=1, partition="gpu", mem="16G",
+                                   sbatch={"account": "proj", "exclusive": True})
+    if shutil.which("srun") is None:
+        with pytest.raises(UserError, match="--slurm: Could not detect \"srun\".*--slurm local runs"):
+            slurm.executor(settings, tmp_path, "vitaplace-tiny")
+    monkeypatch.setattr(submitit.SlurmExecutor, "affinity", classmethod(lambda cls: 2))  # as if srun were here
+    executor = slurm.executor(settings, tmp_path, "vitaplace-tiny")
+    script = _make_sbatch_string(command="run", folder=tmp_path, map_count=3, **executor._executor.parameters)
+    for line in ("--array=0-2%3", "--time=240", "--cpus-per-task=4", "--gpus-per-node=1", "--partition=gpu",
+                 "--mem=16G", "--account=proj", "--exclusive", "--job-name=vitaplace-tiny"):
+        assert f"#SBATCH {line}\n" in script, (line, script)
+
+
 LIST_TASKS = """
 import time
 from ray.util.state import list_tasks
