@@ -121,20 +121,25 @@ def executor(settings: SlurmSettings, folder: Path, name: str) -> Any:
 
 
 def run_array(jobs: Sequence[Any], settings: SlurmSettings, folder: Path, name: str) -> Iterator[tuple[Any, Any, str | None]]:
-    """Submit ``jobs`` (sweep `SeedJob`s) as one array and yield (job, result, failure) as each
-    task ends; an interrupted driver cancels the tasks still queued or running."""
-    import submitit
-
+    """Submit ``jobs`` (sweep `SeedJob`s) as one array now; the iterator returned yields (job,
+    result, failure) as each task ends (`_wait`)."""
     from vitaplace.engine.sweep import run_seed_reported
 
-    ex = executor(settings, folder, name)
-    tasks = ex.map_array(run_seed_reported, jobs)
-    by_id = {task.job_id: job for task, job in zip(tasks, jobs)}
-    array = tasks[0].job_id.split("_")[0] if settings.cluster == "slurm" else " ".join(by_id)
+    tasks = executor(settings, folder, name).map_array(run_seed_reported, jobs)
+    array = tasks[0].job_id.split("_")[0] if settings.cluster == "slurm" else " ".join(t.job_id for t in tasks)
     log.info("SLURM (%s): job %s, %d task(s); scripts and logs in %s", settings.cluster, array, len(tasks), folder)
+    return _wait(tasks, jobs, POLL_S[settings.cluster])
+
+
+def _wait(tasks: Sequence[Any], jobs: Sequence[Any], poll_s: float) -> Iterator[tuple[Any, Any, str | None]]:
+    """Yield (job, result, failure) as each submitit task ends; an interrupted driver cancels
+    the tasks still queued or running."""
+    import submitit
+
+    by_id = {task.job_id: job for task, job in zip(tasks, jobs)}
     ended: set[str] = set()
     try:
-        for task in submitit.helpers.as_completed(tasks, poll_frequency=POLL_S[settings.cluster]):
+        for task in submitit.helpers.as_completed(tasks, poll_frequency=poll_s):
             ended.add(task.job_id)
             job = by_id[task.job_id]
             try:

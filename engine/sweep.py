@@ -418,9 +418,17 @@ def check_ray_cluster(ray: Any, where: str, cpus: float, gpus: float) -> None:
 def _ray(
     jobs: Sequence[SeedJob], name: str, address: str, cpus: float, gpus: float
 ) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
-    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>"; yield as each one ends."""
+    """Connect to the cluster and check it (now, before any seed runs), then run ``jobs`` as
+    Ray tasks (`_ray_tasks`)."""
     ray, where = connect_ray(address)
     check_ray_cluster(ray, where, cpus, gpus)
+    return _ray_tasks(ray, jobs, name, cpus, gpus)
+
+
+def _ray_tasks(
+    ray: Any, jobs: Sequence[SeedJob], name: str, cpus: float, gpus: float
+) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
+    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>"; yield as each one ends."""
     remote = ray.remote(run_seed)
     pending = {
         remote.options(name=f"{name} seed {job.seed}", num_cpus=cpus, num_gpus=gpus).remote(job): job for job in jobs
