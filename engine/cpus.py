@@ -47,15 +47,15 @@ THREAD_ENVS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 def limit_blas_threads(threads: int) -> int:
     """Size the BLAS and OpenMP thread pools of this process (and of processes it starts) to
-    ``threads``, or fewer where the user set one of `THREAD_ENVS` lower. Libraries loaded
-    already are capped through threadpoolctl, later ones read the variables, which are set
-    where unset. Returns the thread count applied."""
+    ``threads``, or fewer where one of `THREAD_ENVS` is set lower (by the user, or by an
+    earlier call: a cap only ever goes down). Libraries loaded already are capped through
+    threadpoolctl, later ones read the variables, which are set to the cap. Returns the cap."""
     import numpy  # noqa: F401 - loads numpy's BLAS, so that the cap reaches it
     from threadpoolctl import threadpool_limits
 
     user = [_positive(name) for name in THREAD_ENVS]
     threads = max(1, min([threads, *[n for n in user if n is not None]]))
     for name in THREAD_ENVS:
-        os.environ.setdefault(name, str(threads))
+        os.environ[name] = str(threads)
     threadpool_limits(limits=threads)
     return threads

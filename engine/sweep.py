@@ -342,7 +342,7 @@ def connect_ray(address: str) -> tuple[Any, str]:
         try:
             ray.init(address="auto")
         except ConnectionError:
-            ray.init()
+            ray.init(address="local")
             how = "no running cluster found; started a local one,"
     else:
         _check_reachable(address)

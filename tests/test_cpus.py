@@ -73,3 +73,14 @@ def test_the_cli_sizes_blas_threads_to_the_allocation(variables, expected):
     result = subprocess.run([sys.executable, "-c", code], env={**env, **variables}, capture_output=True, text=True,
                             timeout=120)
     assert expected in result.stdout, result.stdout + result.stderr
+
+
+def test_a_pool_worker_keeps_its_share_when_its_seed_asks_for_the_allocation():
+    """The driver set 2 BLAS threads; a worker's initializer caps it at 1, and the seed's own
+    call for every usable CPU (2) must not raise it again: a cap only goes down."""
+    env = {k: v for k, v in os.environ.items() if k not in (*cpus.THREAD_ENVS, cpus.OVERRIDE_ENV)}
+    code = (f"import os\nfrom vitaplace.engine.cpus import limit_blas_threads\n"
+            f"print('CAPS', limit_blas_threads(1), limit_blas_threads(2))\n{BLAS_THREADS}")
+    result = subprocess.run([sys.executable, "-c", code], env={**env, "OPENBLAS_NUM_THREADS": "2"},
+                            capture_output=True, text=True, timeout=120)
+    assert "CAPS 1 1" in result.stdout and "BLAS [1] 1" in result.stdout, result.stdout + result.stderr
