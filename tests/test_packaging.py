@@ -40,7 +40,7 @@ def pinned() -> dict[str, tuple[int, ...]]:
     pins = {}
     for line in (ROOT / ".ci" / "minimum-versions.txt").read_text().splitlines():
         line = line.split("#", 1)[0].strip()
-        if line:
+        if "==" in line:  # a pinned lower bound (other lines constrain dependencies of dependencies)
             name, _, version = line.partition("==")
             pins[_normal(name)] = _release(version)
     return pins

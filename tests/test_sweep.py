@@ -540,6 +540,7 @@ def test_pr_band_figures_are_written_per_environment_from_the_seed_folders(tmp_p
     assert all(p.stat().st_size > 1000 for p in written)
 
 
+@pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
 def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
     """A worker killed mid-job breaks the process pool and the jobs beside it; those run again,
     each in its own pool: the dying seed fails in one line, the others finish."""
