@@ -251,6 +251,43 @@ def test_slurm_settings_reach_the_sbatch_script(tmp_path, monkeypatch):
         assert f"#SBATCH {line}\n" in script, (line, script)
 
 
+class FakeTask:
+    """Stands in for a submitit job: ended or not, with a result or not."""
+
+    def __init__(self, job_id, result=None, ended=True):
+        self.job_id, self._result, self.ended, self.cancelled = job_id, result, ended, False
+        self.state = "FAILED" if result is None else "COMPLETED"
+        self.paths = type("Paths", (), {"stderr": Path(f"/out/slurm/{job_id}_0_log.err")})()
+
+    def done(self, force_check=False):
+        return self.ended
+
+    def result(self):
+        if self._result is None:
+            raise RuntimeError("Job 12_1 has not produced any output (state: FAILED)")
+        return self._result
+
+    def cancel(self, check=True):
+        self.cancelled = True
+
+
+def test_a_slurm_task_without_a_result_is_one_line_and_an_interrupt_cancels_the_rest():
+    pytest.importorskip("submitit")
+    from vitaplace.engine import slurm
+
+    tasks = [FakeTask("12_0", {"seed": 0, "rows": []}), FakeTask("12_1"), FakeTask("12_2", {"seed": 2, "failure": "E: x"})]
+    ended = list(slurm._wait(tasks, ["job0", "job1", "job2"], 0.01))
+    assert ended == [("job0", {"seed": 0, "rows": []}, None),
+                     ("job1", None, "its task 12_1 ended without a result (FAILED); log: /out/slurm/12_1_0_log.err"),
+                     ("job2", None, "E: x")]
+    assert not any(t.cancelled for t in tasks)
+    tasks = [FakeTask("13_0", {"seed": 0, "rows": []}), FakeTask("13_1", ended=False)]
+    waiting = slurm._wait(tasks, ["job0", "job1"], 0.01)
+    next(waiting)
+    waiting.close()  # what Ctrl-C in the driver's loop does to the iterator
+    assert [t.cancelled for t in tasks] == [False, True]
+
+
 @pytest.fixture
 def own_ray(tmp_path_factory, plugin_env):
     """A prelude that starts a Ray of the test's own (``address="local"``: never a running
