@@ -305,15 +305,19 @@ class GemmImpl:
 
 class TorchImpl:
     """The same step in PyTorch: float32, no_grad, in-place ops, fused leaky-ReLU kernels.
-    On CUDA the minibatch is captured once as a CUDA graph and replayed (TF32 GEMMs only
-    with ``tf32``); the energies are checked once per minibatch, as in the project's step."""
+    On CUDA the minibatch is captured once as a CUDA graph and replayed; the energies are
+    checked once per minibatch, as in the project's step. ``precision`` (CUDA): ``tf32``
+    GEMMs on tensor cores, or ``bf16`` GEMM operands (bfloat16 copies of the weights kept by
+    the weight step, of Y and G made per GEMM; bfloat16 products added into the float32
+    arrays): the weights, latents and errors stay float32 as in the CublasBackend."""
 
-    def __init__(self, prob: Problem, threads: int, device: str = "cpu", tf32: bool = False) -> None:
+    def __init__(self, prob: Problem, threads: int, device: str = "cpu", precision: str = "float32") -> None:
         import torch
 
         if device == "cpu":
             torch.set_num_threads(threads)
-        self.torch, self.prob, self.device, self.tf32 = torch, prob, device, tf32
+        self.torch, self.prob, self.device = torch, prob, device
+        self.tf32, self.low = precision == "tf32", torch.bfloat16 if precision == "bf16" else None
         b, sz = prob.batch, prob.sizes
         t = lambda a: torch.from_numpy(np.array(a, np.float32)).to(device)  # noqa: E731
         self.X = {n: t(x) for n, x in prob.inputs.items()}
@@ -325,6 +329,7 @@ class TorchImpl:
         self.E = {e.name: z(e) for e in prob.edges}
         self.G = {e.name: z(e) for e in prob.edges}
         self.energy = torch.zeros(len(prob.edges), dtype=torch.float32, device=device)
+        self.W_low = {n: w.to(self.low) for n, w in self.W.items()} if self.low else None
         self.aten = torch.ops.aten
         self.graph = None
         self.calls = 0
@@ -334,6 +339,8 @@ class TorchImpl:
             self.Y[n].copy_(self.torch.from_numpy(y))
         for n, w in self.prob.weights.items():
             self.W[n].copy_(self.torch.from_numpy(w))
+            if self.low:
+                self.W_low[n].copy_(self.W[n])
 
     def _node(self, n):
         return self.Y[n] if n in self.Y else self.X[n]
@@ -343,7 +350,10 @@ class TorchImpl:
         for i, e in enumerate(self.prob.edges):
             n = e.name
             A, P, E, G = self.A[n], self.P[n], self.E[n], self.G[n]
-            torch.matmul(self.Y[e.upper], self.W[n], out=A)
+            if self.low:
+                A.copy_(torch.matmul(self.Y[e.upper].to(self.low), self.W_low[n]))
+            else:
+                torch.matmul(self.Y[e.upper], self.W[n], out=A)
             aten.leaky_relu.out(A, slope, out=P)
             torch.sub(self._node(e.lower), P, out=E)
             aten.leaky_relu_backward.grad_input(E, A, slope, False, grad_input=G)  # G = phi'(A) * E
@@ -355,11 +365,20 @@ class TorchImpl:
             y, two_eta = self.Y[e.upper], 2.0 * e.eta_y
             if e.above is not None:
                 y.sub_(self.E[e.above], alpha=two_eta)
-            y.addmm_(self.G[e.name], self.W[e.name].t(), alpha=two_eta)
+            if self.low:
+                y.add_(self.torch.matmul(self.G[e.name].to(self.low), self.W_low[e.name].t()), alpha=two_eta)
+            else:
+                y.addmm_(self.G[e.name], self.W[e.name].t(), alpha=two_eta)
 
     def weight_step(self) -> None:
         for e in self.prob.edges:
-            self.W[e.name].addmm_(self.Y[e.upper].t(), self.G[e.name], alpha=2.0 * e.eta_w)
+            w, alpha = self.W[e.name], 2.0 * e.eta_w
+            if self.low:
+                y, g = self.Y[e.upper].to(self.low), self.G[e.name].to(self.low)
+                w.add_(self.torch.matmul(y.t(), g), alpha=alpha)
+                self.W_low[e.name].copy_(w)
+            else:
+                w.addmm_(self.Y[e.upper].t(), self.G[e.name], alpha=alpha)
 
     def _body(self) -> None:
         with self.torch.no_grad():

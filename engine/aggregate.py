@@ -82,6 +82,6 @@ def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Pa
     rows = [row for *_, run_rows in runs for row in run_rows]
     name = first_manifest.get("scenario", "scenario")
     info = {"scenario": name, "seeds": sorted(seen), "failed": {}, "folders": {str(s): str(f) for s, f in sorted(seen.items())}}
-    record = write_summary(out, rows, f"{name}: {len(seen)} seed(s)", info)
+    record = write_summary(out, rows, f"{name}: {len(seen)} seed(s)", info, seen)
     write_pr_bands(out, seen, rows)
     return out, record

@@ -110,7 +110,7 @@ def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> 
     return _save(fig, out_stem)
 
 
-def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str) -> None:
+def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str, legend_title: str | None = None) -> None:
     """Limits, labels, grid, a legend below the axes (covering no data) and the title."""
     ax.set_xlim(-0.02, 1.02)
     ax.set_ylim(-0.02, 1.05)
@@ -118,7 +118,8 @@ def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str) -> 
     ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.3)
     if n_curves:
-        fig.legend(loc="outside lower center", fontsize="small", ncols=1 if n_curves > 2 else n_curves)
+        fig.legend(loc="outside lower center", fontsize="small", ncols=1 if n_curves > 2 else n_curves,
+                   title=legend_title, title_fontsize="small")
     ax.set_title(title)
 
 
@@ -132,9 +133,14 @@ def interpolated_precision(curve: PRCurve, recall_grid: np.ndarray) -> np.ndarra
     return np.where(idx >= 0, best[np.clip(idx, 0, None)], 0.0)
 
 
+#: what the lines and bands of `plot_pr_bands` show: the title of their legend
+BAND_LEGEND = "line: mean interpolated precision over seeds\nband: lowest to highest seed"
+
+
 def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str = "") -> list[Path]:
     """Per method, the mean interpolated precision-recall curve over seeds with the band
-    from the lowest to the highest seed; the legend gives the seeds and max F1 mean +- std."""
+    from the lowest to the highest seed; the legend, titled with that (`BAND_LEGEND`), gives
+    the seeds and max F1 mean +- std."""
     grid = np.linspace(0.0, 1.0, 201)
     fig = _new_figure((6, 5))
     ax = fig.subplots()
@@ -145,8 +151,7 @@ def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str 
         spread = f" ± {f1.std(ddof=1):.3f}" if len(f1) > 1 else ""
         ax.plot(grid, prec.mean(axis=0), color=colour, label=f"{name} ({len(seeds)} seeds, max F1 {f1.mean():.3f}{spread})")
         ax.fill_between(grid, prec.min(axis=0), prec.max(axis=0), color=colour, alpha=0.2, linewidth=0)
-    _finish_pr_axes(fig, ax, "interpolated precision", len(curves),
-                    title or "Precision-recall over seeds (band: lowest to highest seed)")
+    _finish_pr_axes(fig, ax, "interpolated precision", len(curves), title or "Precision-recall over seeds", BAND_LEGEND)
     return _save(fig, out_stem)
 
 

@@ -1,21 +1,52 @@
 """The summary of several seeds of one scenario, as a paper needs it.
 
-Input: result rows (``results.json`` rows, each tagged with its ``seed``). Every numeric
-value of a row is a metric (``recall_at_k`` becomes ``recall@K``); the identity columns, the
-evaluation's own settings (``tau``, ``delta``) and values that are missing or not finite (a
-``delta_at_max_f1`` of ``None``) are left out, so ``n`` counts the seeds that have the value.
+Input: result rows (``results.json`` rows, each tagged with its ``seed``) and, where they
+exist, the run folders whose ``evaluations/ENV/METHOD/DIRECTION/matrices.npz`` they came
+from. Each numeric value of a row is one of two kinds (`kind`):
 
-For each environment x method x direction x metric: ``n``, the mean, the sample standard
-deviation (``ddof=1``) and the 95 % confidence interval of the mean from Student's t,
-``mean ± t(0.975, n-1) * std / sqrt(n)``. For each pair of methods (in scenario order,
-``a - b``) per environment x direction x metric: the same statistics of the per-seed
-differences over the seeds both methods have (a paired comparison). With ``n = 1`` the
-standard deviation and the interval are NaN, written ``n=1`` in the tables.
+* a **metric** scores a method: max F1, precision and recall there, AUC,
+  ``recall_at_100_precision``, recall@K (``recall_at_k: {"1": r}`` becomes ``recall@1``),
+  F1/precision/recall at a fixed ``delta``, ``f1_at_e1_threshold``, and any numeric key not
+  listed below. The metrics in `UNIT_METRICS` (and every ``recall@K``) are proportions in
+  [0, 1]; their intervals are kept inside [0, 1] and those of their differences inside
+  [-1, 1] (`bounds`); other metrics are unbounded;
+* a **descriptor** says what a method was evaluated on or where it operated: the sample
+  counts, the threshold ``delta_at_max_f1`` and the drive's ``difficulty.*`` measures
+  (`DESCRIPTORS`). Descriptors are summarised per method (n, mean, std, min, max over
+  seeds), never given intervals and never differenced between methods.
 
-Files (written atomically): ``sweep-seeds.csv`` (long: one row per seed x environment x
-method x direction x metric), ``sweep.csv`` (the summary), ``sweep-diff.csv`` (paired
-differences), ``sweep.md`` and ``sweep.tex`` (tables of mean ± std [CI low, CI high]) and
-``sweep.json`` (all of it, NaN as null).
+Nested mappings are flattened with dots (``difficulty: {"a": {"b": x}}`` becomes
+``difficulty.a.b``); text, lists, booleans, nulls and non-finite numbers are skipped, so
+``n`` counts the seeds that have a finite value. The identity columns and the evaluation's
+settings (``tau``, ``delta``) are not values.
+
+Per environment x method x direction x metric, over the seeds (`describe`):
+
+* ``n``, ``mean``, ``std`` (sample, ``ddof=1``), ``min``, ``max``;
+* ``t_low``/``t_high``: Student's t interval of the mean, ``mean ± t(0.975, n-1) std/√n``,
+  cut to the metric's bounds;
+* ``boot_low``/``boot_high``: the percentile bootstrap interval of the mean over seeds
+  (`scipy.stats.bootstrap`, `SEED_RESAMPLES` resamples, generator seed `BOOT_SEED`),
+  inside the range of the values and so inside the bounds;
+* ``block_low``/``block_high``: the within-seed block bootstrap over contiguous query
+  segments (`vitaplace.engine.resample`): replicate r of the mean is the mean over seeds of
+  each seed's replicate r; its 2.5 and 97.5 percentiles. With one seed it is that seed's
+  interval. Only for metrics `evaluate` recomputes from the saved matrices and only where
+  every seed's matrices are there (NaN otherwise).
+
+Per pair of methods ``a - b`` (scenario order) x environment x direction x metric, over the
+seeds both have (a paired comparison, `paired_differences`): the same statistics of the
+per-seed differences (block replicates differenced replicate by replicate: both methods
+draw the same query segments) and ``p_sign_flip``, the exact two-sided sign-flip
+permutation p-value of the mean difference: all 2**n sign patterns of the n differences
+(`scipy.stats.permutation_test`, ``permutation_type="samples"``), p = the share of patterns
+whose mean is at least as far from 0 as the observed one.
+
+With n = 1 the standard deviation, t and bootstrap intervals are NaN and the tables say
+``n=1``. Files (written atomically): ``sweep-seeds.csv`` (long: one row per seed x
+environment x method x direction x value, with its block interval), ``sweep.csv`` (the
+summary, both kinds), ``sweep-diff.csv`` (paired differences of metrics), ``sweep.md`` and
+``sweep.tex`` (the tables), ``sweep.json`` (all of it and the definitions, NaN as null).
 """
 
 from __future__ import annotations
@@ -24,26 +55,59 @@ import csv
 import io
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from scipy import stats
 
+from vitaplace.engine import resample
 from vitaplace.engine.atomic import write_text_atomic
 
-#: columns naming what a result row is about, not metrics
+#: columns naming what a result row is about, not values
 IDENTITY = ("seed", "environment", "method", "direction")
 #: settings of the evaluation copied into every row: inputs, not outcomes
 SETTINGS = frozenset({"tau", "delta"})
+#: metrics that are proportions in [0, 1] (and every ``recall@K``)
+UNIT_METRICS = frozenset({"max_f1", "precision_at_max_f1", "recall_at_max_f1", "auc", "recall_at_100_precision",
+                          "precision", "recall", "f1", "f1_at_e1_threshold"})
+#: values that describe the evaluation, not the method's score: sample counts and thresholds
+DESCRIPTORS = frozenset({"n_queries", "n_references", "n_revisit", "n_accepted", "tp", "fp", "fn", "tn",
+                         "delta_at_max_f1"})
+#: nested objects whose every value is a descriptor (``difficulty.<measure>``)
+DESCRIPTOR_GROUPS = ("difficulty",)
 #: confidence level of the intervals
 LEVEL = 0.95
+#: resamples of the bootstrap over seeds, and the seed of its generator
+SEED_RESAMPLES = 9999
+BOOT_SEED = 0
 
-SEED_COLUMNS = ("seed", "environment", "method", "direction", "metric", "value")
-STAT_COLUMNS = ("n", "mean", "std", "ci_low", "ci_high")
-SUMMARY_COLUMNS = ("environment", "method", "direction", "metric", *STAT_COLUMNS)
-DIFF_COLUMNS = ("environment", "direction", "metric", "method_a", "method_b", *STAT_COLUMNS)
+SEED_COLUMNS = ("seed", "environment", "method", "direction", "metric", "kind", "value", "block_low", "block_high",
+                "block_length")
+INTERVAL_COLUMNS = ("t_low", "t_high", "boot_low", "boot_high", "block_low", "block_high")
+STAT_COLUMNS = ("n", "mean", "std", "min", "max", *INTERVAL_COLUMNS)
+SUMMARY_COLUMNS = ("environment", "method", "direction", "metric", "kind", *STAT_COLUMNS)
+DIFF_COLUMNS = ("environment", "direction", "metric", "method_a", "method_b", *STAT_COLUMNS, "p_sign_flip")
+
+#: what sweep.json says about how its numbers were made
+DEFINITIONS = {
+    "level": LEVEL,
+    "std": "sample standard deviation over seeds (ddof=1)",
+    "t": "Student's t interval of the mean over seeds, cut to the metric's bounds",
+    "boot": f"percentile bootstrap of the mean over seeds (scipy.stats.bootstrap, {SEED_RESAMPLES} resamples, "
+            f"seed {BOOT_SEED})",
+    "block": "percentile interval of the mean over seeds of a within-seed block bootstrap: ceil(n_queries / L) "
+             "contiguous query segments of L = ceil(sqrt(n_queries)) queries drawn with replacement",
+    "p_sign_flip": "exact two-sided sign-flip permutation p-value of the mean paired difference (all 2**n sign "
+                   "patterns, scipy.stats.permutation_test)",
+    "bounds": "metrics in [0, 1]: " + ", ".join(sorted(UNIT_METRICS)) + ", recall@K; their differences in [-1, 1]",
+    "descriptors": "per method only, never differenced: " + ", ".join(sorted(DESCRIPTORS))
+                   + ", " + ", ".join(f"{g}.*" for g in DESCRIPTOR_GROUPS),
+}
+
+#: ``{(seed, environment, method, direction): {metric: block-bootstrap replicates}}``
+Replicates = dict[tuple, dict[str, np.ndarray]]
 
 
 def _number(value: Any) -> float | None:
@@ -54,45 +118,128 @@ def _number(value: Any) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def metrics(row: Mapping[str, Any]) -> dict[str, float]:
-    """The finite numeric metrics of one result row, nested mappings flattened
-    (``recall_at_k: {"1": r}`` becomes ``recall@1``, any other ``key: {sub: v}`` ``key.sub``)."""
+def _flatten(name: str, value: Any) -> Iterator[tuple[str, float]]:
+    if isinstance(value, Mapping):
+        for sub, item in value.items():
+            yield from _flatten(f"{name}.{sub}", item)
+    elif (number := _number(value)) is not None:
+        yield name, number
+
+
+def row_values(row: Mapping[str, Any]) -> dict[str, float]:
+    """The finite numeric values of one result row, nested mappings flattened with dots
+    (``recall_at_k: {"1": r}`` becomes ``recall@1``)."""
     found: dict[str, float] = {}
     for key, value in row.items():
         if key in IDENTITY or key in SETTINGS:
             continue
-        if isinstance(value, Mapping):
-            stem = f"{key[: -len('_at_k')]}@" if key.endswith("_at_k") else f"{key}."
-            items = [(f"{stem}{sub}", v) for sub, v in value.items()]
+        if key == "recall_at_k" and isinstance(value, Mapping):
+            found.update(pair for sub, v in value.items() for pair in _flatten(f"recall@{sub}", v))
         else:
-            items = [(key, value)]
-        for name, item in items:
-            number = _number(item)
-            if number is not None:
-                found[name] = number
+            found.update(_flatten(key, value))
     return found
 
 
-def seed_rows(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """Long format: one row per seed x environment x method x direction x metric, in seed
-    order, then in the order of the result rows."""
-    long = []
-    for row in sorted(rows, key=lambda r: r["seed"]):
-        for metric, value in metrics(row).items():
-            long.append({**{k: row[k] for k in IDENTITY}, "metric": metric, "value": value})
-    return long
+def kind(name: str) -> str:
+    """``descriptor`` for sample counts, thresholds and ``difficulty.*``; else ``metric``."""
+    if name in DESCRIPTORS or name.split(".", 1)[0] in DESCRIPTOR_GROUPS:
+        return "descriptor"
+    return "metric"
 
 
-def describe(values: Sequence[float]) -> dict[str, float]:
-    """n, mean, sample std (ddof=1) and the Student-t 95 % interval of the mean (NaN for n < 2)."""
+def bounds(metric: str) -> tuple[float, float]:
+    """The range a metric's values lie in: [0, 1] for proportions, else unbounded."""
+    return (0.0, 1.0) if metric in UNIT_METRICS or metric.startswith("recall@") else (-math.inf, math.inf)
+
+
+def _clip(low: float, high: float, limits: tuple[float, float]) -> tuple[float, float]:
+    return float(np.clip(low, *limits)), float(np.clip(high, *limits))
+
+
+def percentile_interval(replicates: np.ndarray,
+                        limits: tuple[float, float] = (-math.inf, math.inf)) -> tuple[float, float]:
+    """The (1 - LEVEL)/2 and (1 + LEVEL)/2 quantiles of bootstrap replicates, inside ``limits``."""
+    low, high = np.quantile(replicates, [(1 - LEVEL) / 2, (1 + LEVEL) / 2])
+    return _clip(low, high, limits)
+
+
+def difference_bounds(metric: str) -> tuple[float, float]:
+    """The range of a difference of two values of ``metric``: [-1, 1] for proportions."""
+    low, high = bounds(metric)
+    return low - high, high - low
+
+
+def spread(values: Sequence[float]) -> dict[str, float]:
+    """n, mean, std (ddof=1; NaN for n < 2), min and max of ``values``."""
     x = np.asarray(values, dtype=float)
     n = len(x)
-    mean = float(x.mean()) if n else math.nan
-    if n < 2:
-        return {"n": n, "mean": mean, "std": math.nan, "ci_low": math.nan, "ci_high": math.nan}
-    std = float(x.std(ddof=1))
-    half = float(stats.t.ppf(0.5 + LEVEL / 2, n - 1)) * std / math.sqrt(n)
-    return {"n": n, "mean": mean, "std": std, "ci_low": mean - half, "ci_high": mean + half}
+    return {"n": n, "mean": float(x.mean()), "std": float(x.std(ddof=1)) if n >= 2 else math.nan,
+            "min": float(x.min()), "max": float(x.max())}
+
+
+def describe(values: Sequence[float], limits: tuple[float, float] = (-math.inf, math.inf),
+             block: np.ndarray | None = None) -> dict[str, float]:
+    """`spread`, then the Student-t and percentile-bootstrap intervals of the mean inside
+    ``limits`` (NaN for n < 2) and the percentile interval of the block replicates of the
+    mean ``block`` (NaN when None)."""
+    out = {**spread(values), **dict.fromkeys(INTERVAL_COLUMNS, math.nan)}
+    n, x = out["n"], np.asarray(values, dtype=float)
+    if n >= 2:
+        half = float(stats.t.ppf(0.5 + LEVEL / 2, n - 1)) * out["std"] / math.sqrt(n)
+        out["t_low"], out["t_high"] = _clip(out["mean"] - half, out["mean"] + half, limits)
+        boot = stats.bootstrap((x,), np.mean, n_resamples=SEED_RESAMPLES, confidence_level=LEVEL,
+                               method="percentile", random_state=np.random.default_rng(BOOT_SEED))
+        out["boot_low"], out["boot_high"] = _clip(*boot.confidence_interval, limits)
+    if block is not None:
+        out["block_low"], out["block_high"] = percentile_interval(block, limits)
+    return out
+
+
+def sign_flip_p(differences: Sequence[float]) -> float:
+    """Exact two-sided sign-flip permutation p-value of the mean of paired differences: every
+    one of the 2**n sign patterns is enumerated."""
+    d = np.asarray(differences, dtype=float)
+    if len(d) < 2:  # scipy needs two; with one, both signs are as extreme as the observed
+        return 1.0
+    test = stats.permutation_test((d,), np.mean, permutation_type="samples", n_resamples=np.inf,
+                                  alternative="two-sided")
+    return float(test.pvalue)
+
+
+def block_replicates(rows: Sequence[Mapping[str, Any]], folders: Mapping[int, Path]) -> Replicates:
+    """``{(seed, environment, method, direction): {metric: replicates}}`` of the within-seed
+    block bootstrap, for the rows whose run folder has the evaluation's saved matrices."""
+    found: Replicates = {}
+    for row in rows:
+        if row["seed"] not in folders:
+            continue
+        replicates = resample.evaluation_replicates(folders[row["seed"]], row)
+        if replicates is None:
+            continue
+        values = [row_values(r) for r in replicates]
+        found[tuple(row[k] for k in IDENTITY)] = {
+            name: np.array([v[name] for v in values]) for name in values[0] if kind(name) == "metric"
+        }
+    return found
+
+
+def seed_rows(rows: Sequence[Mapping[str, Any]], replicates: Replicates | None = None) -> list[dict[str, Any]]:
+    """Long format: one row per seed x environment x method x direction x value, in seed
+    order, then in the order of the result rows, with the seed's block interval and the
+    block length it used (NaN where the evaluation's matrices are not there)."""
+    replicates = replicates or {}
+    long = []
+    for row in sorted(rows, key=lambda r: r["seed"]):
+        identity = {k: row[k] for k in IDENTITY}
+        for name, value in row_values(row).items():
+            block = replicates.get(tuple(identity.values()), {}).get(name)
+            low, high, length = math.nan, math.nan, math.nan
+            if block is not None:
+                low, high = percentile_interval(block, bounds(name))
+                length = resample.block_length(row["n_queries"])
+            long.append({**identity, "metric": name, "kind": kind(name), "value": value,
+                         "block_low": low, "block_high": high, "block_length": length})
+    return long
 
 
 def _grouped(long: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> dict[tuple, dict[int, float]]:
@@ -103,17 +250,36 @@ def _grouped(long: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> dict[tup
     return groups
 
 
-def summarise(long: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """Statistics over seeds per environment x method x direction x metric."""
+def _mean_replicates(replicates: Replicates, cells: Sequence[tuple], metric: str) -> np.ndarray | None:
+    """Replicate by replicate, the mean over ``cells`` (seed, environment, method, direction)
+    of their block replicates of ``metric``; None unless every cell has them."""
+    arrays = [replicates.get(cell, {}).get(metric) for cell in cells]
+    return None if not arrays or any(a is None for a in arrays) else np.mean(arrays, axis=0)
+
+
+def summarise(long: Sequence[Mapping[str, Any]], replicates: Replicates | None = None) -> list[dict[str, Any]]:
+    """Statistics over seeds per environment x method x direction x value (`describe`);
+    descriptors get n, mean, std, min and max only."""
+    replicates = replicates or {}
     keys = ("environment", "method", "direction", "metric")
-    return [
-        {**dict(zip(keys, key)), **describe(list(by_seed.values()))} for key, by_seed in _grouped(long, keys).items()
-    ]
+    table = []
+    for key, by_seed in _grouped(long, keys).items():
+        env, method, direction, name = key
+        if kind(name) == "metric":
+            block = _mean_replicates(replicates, [(s, env, method, direction) for s in by_seed], name)
+            described = describe(list(by_seed.values()), bounds(name), block)
+        else:
+            described = {**dict.fromkeys(STAT_COLUMNS, math.nan), **spread(list(by_seed.values()))}
+        table.append({**dict(zip(keys, key)), "kind": kind(name), **described})
+    return table
 
 
-def paired_differences(long: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+def paired_differences(long: Sequence[Mapping[str, Any]], replicates: Replicates | None = None) -> list[dict[str, Any]]:
     """Statistics of ``a - b`` per seed for every pair of methods (a before b in the rows'
-    order), per environment x direction x metric, over the seeds where both have the value."""
+    order), per environment x direction x metric, over the seeds where both have the value,
+    with the exact sign-flip p-value. Descriptors are not compared."""
+    replicates = replicates or {}
+    long = [row for row in long if row["kind"] == "metric"]
     groups = _grouped(long, ("environment", "direction", "metric", "method"))
     methods = list(dict.fromkeys(row["method"] for row in long))
     cells = list(dict.fromkeys((row["environment"], row["direction"], row["metric"]) for row in long))
@@ -123,10 +289,15 @@ def paired_differences(long: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]
             for b in methods[i + 1 :]:
                 va, vb = groups.get((env, direction, metric, a), {}), groups.get((env, direction, metric, b), {})
                 seeds = [s for s in va if s in vb]
-                if seeds:
-                    diffs = [va[s] - vb[s] for s in seeds]
-                    table.append({"environment": env, "direction": direction, "metric": metric,
-                                  "method_a": a, "method_b": b, **describe(diffs)})
+                if not seeds:
+                    continue
+                diffs = [va[s] - vb[s] for s in seeds]
+                ra = _mean_replicates(replicates, [(s, env, a, direction) for s in seeds], metric)
+                rb = _mean_replicates(replicates, [(s, env, b, direction) for s in seeds], metric)
+                block = ra - rb if ra is not None and rb is not None else None
+                table.append({"environment": env, "direction": direction, "metric": metric, "method_a": a,
+                              "method_b": b, **describe(diffs, difference_bounds(metric), block),
+                              "p_sign_flip": sign_flip_p(diffs)})
     return table
 
 
@@ -139,51 +310,82 @@ def _csv(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
 
 
 def cell(row: Mapping[str, Any]) -> str:
-    """``mean ± std [low, high]``, or ``mean (n=1)`` where there is no interval."""
+    """``mean ± std``, or ``mean (n=1)`` where there is no spread."""
     if row["n"] < 2:
         return f"{row['mean']:.3f} (n={row['n']})"
-    return f"{row['mean']:.3f} ± {row['std']:.3f} [{row['ci_low']:.3f}, {row['ci_high']:.3f}]"
+    return f"{row['mean']:.3f} ± {row['std']:.3f}"
 
 
-def _tables(summary: Sequence[Mapping], diffs: Sequence[Mapping]) -> list[tuple[list[str], list[list[str]]]]:
-    """(header, body) of the summary table and of the paired-differences table, as text cells."""
-    stat = ["n", "mean ± std [95 % CI]"]
+def interval(row: Mapping[str, Any], name: str) -> str:
+    """``[low, high]`` of the interval ``name`` (t, boot, block), ``–`` where there is none."""
+    low, high = row[f"{name}_low"], row[f"{name}_high"]
+    return "–" if math.isnan(low) else f"[{low:.3f}, {high:.3f}]"
+
+
+def _tables(summary: Sequence[Mapping], diffs: Sequence[Mapping]) -> list[tuple[str, list[str], list[list[str]]]]:
+    """(caption, header, body) of the metrics, the paired differences and the descriptors
+    tables, as text cells."""
+    stat = ["n", "mean ± std", "t 95 %", "bootstrap 95 %", "block 95 %"]
+
+    def stats_cells(r: Mapping) -> list[str]:
+        return [str(r["n"]), cell(r), interval(r, "t"), interval(r, "boot"), interval(r, "block")]
+
+    metric_rows = [r for r in summary if r["kind"] == "metric"]
+    descriptor_rows = [r for r in summary if r["kind"] == "descriptor"]
     return [
-        (["environment", "method", "direction", "metric", *stat],
-         [[r["environment"], r["method"], r["direction"], r["metric"], str(r["n"]), cell(r)] for r in summary]),
-        (["environment", "direction", "metric", "difference", *stat],
-         [[r["environment"], r["direction"], r["metric"], f"{r['method_a']} - {r['method_b']}", str(r["n"]), cell(r)]
-          for r in diffs]),
+        ("Metrics over seeds",
+         ["environment", "method", "direction", "metric", *stat],
+         [[r["environment"], r["method"], r["direction"], r["metric"], *stats_cells(r)] for r in metric_rows]),
+        ("Paired differences between methods (per seed, a - b)",
+         ["environment", "direction", "metric", "difference", *stat, "p (sign flip)"],
+         [[r["environment"], r["direction"], r["metric"], f"{r['method_a']} - {r['method_b']}", *stats_cells(r),
+           f"{r['p_sign_flip']:.3g}"] for r in diffs]),
+        ("Per method, not compared: sample counts, thresholds, drive difficulty",
+         ["environment", "method", "direction", "value", "n", "mean", "min", "max"],
+         [[r["environment"], r["method"], r["direction"], r["metric"], str(r["n"]),
+           *(f"{r[k]:.4g}" for k in ("mean", "min", "max"))] for r in descriptor_rows]),
     ]
 
 
+LEGEND = (
+    "Mean ± sample standard deviation over seeds; 95 % intervals of the mean: Student's t (cut to the metric's "
+    "range), percentile bootstrap over seeds, and block bootstrap over contiguous query segments within each seed "
+    "(the query drive's share of the uncertainty; the only interval a single seed has). Proportions (F1, precision, "
+    "recall, AUC) stay in [0, 1], their differences in [-1, 1]. p: exact two-sided sign-flip permutation test of "
+    "the mean paired difference (all 2^n sign patterns of n seeds; its smallest value is 2/2^n). n=1: one seed; "
+    "–: no such interval. Definitions: docs/SCALE.md, \"The summary\"."
+)
+
+
 def markdown(summary: Sequence[Mapping], diffs: Sequence[Mapping], title: str) -> str:
-    """sweep.md: the summary table, then the paired differences between methods."""
-    lines = [f"# {title}", "", "Mean ± sample standard deviation over seeds [95 % confidence interval of the mean, "
-             "Student's t]; n=1: one seed, no interval.", ""]
-    for caption, (head, body) in zip(("", "## Paired differences between methods (per seed)"), _tables(summary, diffs)):
+    """sweep.md: the metrics, the paired differences between methods, the descriptors."""
+    lines = [f"# {title}", "", LEGEND, ""]
+    for caption, head, body in _tables(summary, diffs):
         if body:
-            lines += [caption, ""] if caption else []
-            lines += ["| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
+            lines += [f"## {caption}", "", "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
             lines += ["| " + " | ".join(row) + " |" for row in body] + [""]
     return "\n".join(lines)
 
 
 _TEX = {c: "\\" + c for c in "&%$#_{}"} | {"\\": r"\textbackslash{}", "~": r"\textasciitilde{}", "^": r"\^{}",
-                                          "±": r"$\pm$"}
+                                          "±": r"$\pm$", "–": "--"}
+
+
+def _tex(text: str) -> str:
+    return "".join(_TEX.get(ch, ch) for ch in text)
 
 
 def _tex_row(cells: Sequence[str]) -> str:
-    return " & ".join("".join(_TEX.get(ch, ch) for ch in text) for text in cells) + r" \\"
+    return " & ".join(map(_tex, cells)) + r" \\"
 
 
 def latex(summary: Sequence[Mapping], diffs: Sequence[Mapping]) -> str:
-    """sweep.tex: the same tables as LaTeX tabulars (no package needed)."""
-    out = []
-    for head, body in _tables(summary, diffs):
+    """sweep.tex: the same tables as LaTeX tabulars (no package needed), each under its caption."""
+    out = [f"% {_tex(LEGEND)}", ""]
+    for caption, head, body in _tables(summary, diffs):
         if body:
-            out += [r"\begin{tabular}{llllrl}", r"\hline", _tex_row(head), r"\hline", *map(_tex_row, body),
-                    r"\hline", r"\end{tabular}", ""]
+            out += [f"% {_tex(caption)}", rf"\begin{{tabular}}{{{'l' * len(head)}}}", r"\hline", _tex_row(head),
+                    r"\hline", *map(_tex_row, body), r"\hline", r"\end{tabular}", ""]
     return "\n".join(out)
 
 
@@ -198,17 +400,22 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
-def write_summary(out: Path, rows: Sequence[Mapping[str, Any]], title: str, info: Mapping[str, Any]) -> dict[str, Any]:
+def write_summary(out: Path, rows: Sequence[Mapping[str, Any]], title: str, info: Mapping[str, Any],
+                  folders: Mapping[int, Path] | None = None) -> dict[str, Any]:
     """Write the six summary files for ``rows`` (seed-tagged result rows) into ``out``;
+    ``folders`` (seed -> run folder) give the saved matrices for the block bootstrap;
     ``info`` goes into sweep.json beside them. Returns what sweep.json holds."""
     rows = sorted(rows, key=lambda r: r["seed"])
-    long = seed_rows(rows)
-    summary, diffs = summarise(long), paired_differences(long)
+    replicates = block_replicates(rows, folders or {})
+    long = seed_rows(rows, replicates)
+    summary, diffs = summarise(long, replicates), paired_differences(long, replicates)
     write_text_atomic(out / "sweep-seeds.csv", _csv(long, SEED_COLUMNS))
     write_text_atomic(out / "sweep.csv", _csv(summary, SUMMARY_COLUMNS))
     write_text_atomic(out / "sweep-diff.csv", _csv(diffs, DIFF_COLUMNS))
     write_text_atomic(out / "sweep.md", markdown(summary, diffs, title))
     write_text_atomic(out / "sweep.tex", latex(summary, diffs))
-    record = {**info, "runs": list(rows), "summary": summary, "differences": diffs}
+    definitions = {**DEFINITIONS, "block_resamples": resample.RESAMPLES}
+    record = {**info, "statistics": definitions, "runs": list(rows), "values": long, "summary": summary,
+              "differences": diffs}
     write_text_atomic(out / "sweep.json", json.dumps(_json_safe(record), indent=2))
     return record

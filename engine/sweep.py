@@ -517,6 +517,7 @@ def run_sweep(
         marker.unlink(missing_ok=True)
     ok = sorted({row["seed"] for row in outcome.rows})
     info = {"scenario": scenario.name, "seeds": ok, "failed": {str(s): m for s, m in sorted(outcome.failed.items())}}
-    outcome.summary = write_summary(out, outcome.rows, f"{scenario.name}: {len(ok)} seed(s)", info)["summary"]
-    write_pr_bands(out, {seed: out / f"seed-{seed}" for seed in ok}, outcome.rows)
+    folders = {seed: out / f"seed-{seed}" for seed in ok}
+    outcome.summary = write_summary(out, outcome.rows, f"{scenario.name}: {len(ok)} seed(s)", info, folders)["summary"]
+    write_pr_bands(out, folders, outcome.rows)
     return outcome

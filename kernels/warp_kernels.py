@@ -57,8 +57,12 @@ __all__ = [
     "planned_kernels",
     "preload",
     "predict",
+    "predict_epilogue",
     "latent_update",
+    "latent_apply",
     "weight_update",
+    "to_bfloat16",
+    "planning",
     "gather_rows",
     "scatter_rows",
     "stop_converged",
@@ -261,6 +265,7 @@ def latent_splits(device, tiles: TileConfig, batch: int, n_l: int, n_below: int)
 _F32_2D = wp.array2d(dtype=wp.float32)
 _F32_3D = wp.array3d(dtype=wp.float32)
 _F64_2D = wp.array2d(dtype=wp.float64)
+_BF16_2D = wp.array2d(dtype=wp.bfloat16)
 
 
 def _tiled_kernel(fn, name: str, tiles: TileConfig | None = None):
@@ -275,11 +280,18 @@ def _tiled_kernel(fn, name: str, tiles: TileConfig | None = None):
 
 
 @functools.cache
-def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, with_energy: bool):
+def _predict_kernel(
+    tiles: TileConfig, activation: str, store_prediction: bool, with_energy: bool, gemm: bool = True, low_gain: bool = False
+):
     """(a) GEMM M=B, N=n_below, K=n_l, then the epilogue; ``row_partial[j, r]`` receives
-    row r's sum of squared errors over column tile j (when ``with_energy``)."""
+    row r's sum of squared errors over column tile j (when ``with_energy``).
+
+    Without ``gemm`` only the epilogue runs, on the product read from ``A`` (computed
+    elsewhere, e.g. by cuBLAS); with ``low_gain`` G is also written in bfloat16 to ``G_low``
+    (an operand of the next GEMMs)."""
     tm, tn, tk = tiles.tm, tiles.tn, tiles.tk
     phi, gain = _PHI[activation]
+    assert gemm or not store_prediction, "without the GEMM, A is the input"
 
     def predict_kernel(
         Y: _F32_2D,
@@ -291,14 +303,18 @@ def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, 
         E: _F32_2D,
         G: _F32_2D,
         row_partial: _F32_2D,
+        G_low: _BF16_2D,
     ):
         i, j = wp.tid()
         row, col = i * tm, j * tn
-        a = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
-        for k in range((Y.shape[1] + tk - 1) // tk):
-            y = wp.tile_load(Y, shape=(tm, tk), offset=(row, k * tk))
-            w = wp.tile_load(W, shape=(tk, tn), offset=(k * tk, col))
-            wp.tile_matmul(y, w, a)
+        if wp.static(gemm):
+            a = wp.tile_zeros(shape=(tm, tn), dtype=wp.float32)
+            for k in range((Y.shape[1] + tk - 1) // tk):
+                y = wp.tile_load(Y, shape=(tm, tk), offset=(row, k * tk))
+                w = wp.tile_load(W, shape=(tk, tn), offset=(k * tk, col))
+                wp.tile_matmul(y, w, a)
+        else:
+            a = wp.tile_load(A, shape=(tm, tn), offset=(row, col))
         p = wp.tile_map(phi, a, slope)
         e = wp.tile_load(X, shape=(tm, tn), offset=(row, col)) - p
         g = wp.tile_map(gain, a, e, slope)
@@ -307,6 +323,8 @@ def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, 
             wp.tile_store(P, p, offset=(row, col))
         wp.tile_store(E, e, offset=(row, col))
         wp.tile_store(G, g, offset=(row, col))
+        if wp.static(low_gain):
+            wp.tile_store(G_low, wp.tile_astype(g, wp.bfloat16), offset=(row, col))
         if wp.static(with_energy):
             if wp.static(activation == "sigmoid"):
                 # padded columns read X = A = 0, so e = -phi(0) there: zero them for the sums
@@ -316,7 +334,9 @@ def _predict_kernel(tiles: TileConfig, activation: str, store_prediction: bool, 
             wp.tile_store(row_partial[j], wp.tile_sum(wp.tile_map(_square, e), axis=1), offset=row)
 
     tag = ("AP" if store_prediction else "EG") + ("R" if with_energy else "")
-    return _tiled_kernel(predict_kernel, f"pc_predict_{activation}_{tag}_{tm}x{tn}x{tk}", tiles)
+    kind = "predict" if gemm else "epilogue"
+    tag += "_Glow" if low_gain else ""
+    return _tiled_kernel(predict_kernel, f"pc_{kind}_{activation}_{tag}_{tm}x{tn}x{tk}", tiles)
 
 
 @wp.func
@@ -570,21 +590,82 @@ def predict(
         _check(name, arr, (b, n_below), device)
     cfg = tiles or tile_config(device, "predict", b)
     with_energy = row_energy is not None
-    if with_energy:
-        _check("row_partial", row_partial, row_partial_shape(b, n_below, cfg), device)
-        _check_type("row_energy", row_energy, wp.float64)
-        _check("row_energy", row_energy, (row_energy.shape[0], b), device, wp.float64)
-        if not 0 <= slot < row_energy.shape[0]:
-            raise ValueError(f"slot {slot} outside row_energy's {row_energy.shape[0]} rows")
-    _launch_tiled(
-        _predict_kernel(cfg, activation, store, with_energy),
-        (_cdiv(b, cfg.tm), _cdiv(n_below, cfg.tn)),
-        [Y, W, X, wp.float32(slope), A if store else E, P if store else E, E, G, row_partial if with_energy else E],
-        cfg.block_dim,
+    _check_energy_buffers(row_partial, row_energy, slot, b, n_below, cfg, device)
+    _launch_predict(
+        _predict_kernel(cfg, activation, store, with_energy), cfg, b, n_below, row_partial, row_energy, slot,
+        [Y, W, X, wp.float32(slope), A if store else E, P if store else E, E, G, row_partial if with_energy else E,
+         _placeholder(device, wp.bfloat16)],
         device,
     )
-    if with_energy:
+
+
+def predict_epilogue(
+    A,
+    X,
+    E,
+    G,
+    row_partial=None,
+    row_energy=None,
+    slot: int = 0,
+    activation: str = "leaky_relu",
+    slope: float = 0.2,
+    G_low=None,
+    tiles: TileConfig | None = None,
+) -> None:
+    """Kernel (a) without its GEMM: ``E = X - phi(A)``, ``G = phi'(A) * E`` from a product
+    ``A = Y @ W`` computed elsewhere (cuBLAS), the row energies as in :func:`predict`, and
+    with ``G_low`` (bfloat16, B x n_below) G rounded to bfloat16 as well."""
+    _check_activation(activation)
+    _ensure_init()
+    _check_type("A", A)
+    b, n_below = A.shape
+    device = A.device
+    for name, arr in (("X", X), ("E", E), ("G", G)):
+        _check(name, arr, (b, n_below), device)
+    if G_low is not None:
+        _check("G_low", G_low, (b, n_below), device, wp.bfloat16)
+    cfg = tiles or tile_config(device, "predict", b)
+    with_energy = row_energy is not None
+    _check_energy_buffers(row_partial, row_energy, slot, b, n_below, cfg, device)
+    low = G_low is not None
+    _launch_predict(
+        _predict_kernel(cfg, activation, False, with_energy, gemm=False, low_gain=low), cfg, b, n_below, row_partial,
+        row_energy, slot,
+        [E, E, X, wp.float32(slope), A, E, E, G, row_partial if with_energy else E,
+         G_low if low else _placeholder(device, wp.bfloat16)],
+        device,
+    )
+
+
+def _launch_predict(kernel, cfg: TileConfig, b: int, n_below: int, row_partial, row_energy, slot: int, inputs,
+                    device) -> None:
+    """One configuration of kernel (a) over the (B x n_below) output tiles, then the
+    in-order sum of the per-row energies when asked."""
+    _launch_tiled(kernel, (_cdiv(b, cfg.tm), _cdiv(n_below, cfg.tn)), inputs, cfg.block_dim, device)
+    if row_energy is not None:
         _simt_launch(_row_energy_kernel, b, [row_partial, row_energy, slot], device)
+
+
+def _check_energy_buffers(row_partial, row_energy, slot: int, b: int, n_below: int, cfg: TileConfig, device) -> None:
+    if row_energy is None:
+        return
+    _check("row_partial", row_partial, row_partial_shape(b, n_below, cfg), device)
+    _check_type("row_energy", row_energy, wp.float64)
+    _check("row_energy", row_energy, (row_energy.shape[0], b), device, wp.float64)
+    if not 0 <= slot < row_energy.shape[0]:
+        raise ValueError(f"slot {slot} outside row_energy's {row_energy.shape[0]} rows")
+
+
+_placeholders: dict[tuple[str, type, int], wp.array] = {}
+
+
+def _placeholder(device, dtype, ndim: int = 2):
+    """An empty array standing in for an argument a kernel configuration never reads (one
+    per device, made once: nothing is allocated while a CUDA graph is captured)."""
+    key = (str(device), dtype, ndim)
+    if key not in _placeholders:
+        _placeholders[key] = wp.empty((0,) * ndim, dtype=dtype, device=device)
+    return _placeholders[key]
 
 
 def latent_scratch_shape(batch: int, n_l: int, n_below: int, device, tiles: TileConfig | None = None) -> tuple[int, int, int]:
@@ -627,7 +708,7 @@ def latent_update(Y, G, Wt, eta: float, scratch=None, E_above=None, mask=None, t
     cfg = tiles or tile_config(device, "latent", b)
     has_above, has_mask = E_above is not None, mask is not None
     placeholder = E_above if has_above else Y
-    mask_arg = mask if has_mask else wp.empty(0, dtype=wp.int32, device=device)
+    mask_arg = mask if has_mask else _placeholder(device, wp.int32, 1)
     splits = 0 if scratch is None else scratch.shape[0]
     if splits <= 1:
         _launch_tiled(
@@ -647,12 +728,55 @@ def latent_update(Y, G, Wt, eta: float, scratch=None, E_above=None, mask=None, t
         cfg.block_dim,
         device,
     )
+    _launch_latent_step(Y, scratch, eta, E_above, mask)
+
+
+def latent_apply(Y, D, eta: float, E_above=None, mask=None) -> None:
+    """The step of kernel (b) from a product ``D = G @ W.T`` computed elsewhere (cuBLAS),
+    in place: ``Y <- Y + 2 eta * mask * (D - E_above)``; ``D`` (B x n_l) float32, the
+    rest as in :func:`latent_update`."""
+    _ensure_init()
+    _check_type("Y", Y)
+    b, n_l = Y.shape
+    device = Y.device
+    _check("D", D, (b, n_l), device)
+    if E_above is not None:
+        _check("E_above", E_above, (b, n_l), device)
+    if mask is not None:
+        _check("mask", mask, (b,), device, wp.int32)
+    _launch_latent_step(Y, D.reshape((1, b, n_l)), eta, E_above, mask)
+
+
+def _launch_latent_step(Y, D, eta: float, E_above, mask) -> None:
+    """``Y += 2 eta * mask * (sum_s D[s] - E_above)`` (D: splits x B x n_l)."""
+    device = Y.device
+    has_above, has_mask = E_above is not None, mask is not None
     _simt_launch(
         _latent_step_kernel(has_above, has_mask),
-        (b, n_l),
-        [Y, scratch, placeholder, mask_arg, wp.float32(2.0 * eta)],
+        tuple(Y.shape),
+        [Y, D, E_above if has_above else Y, mask if has_mask else _placeholder(device, wp.int32, 1), wp.float32(2.0 * eta)],
         device,
     )
+
+
+@wp.kernel(enable_backward=False, module="unique")
+def _bfloat16_kernel(src: _F32_2D, dst: _BF16_2D):
+    r, c = wp.tid()
+    dst[r, c] = wp.bfloat16(src[r, c])
+
+
+def to_bfloat16(src, dst) -> None:
+    """``dst = src`` rounded to bfloat16 (to nearest, ties to even); both 2-d, one shape."""
+    _ensure_init()
+    _check_type("src", src)
+    _check("dst", dst, tuple(src.shape), src.device, wp.bfloat16)
+    _simt_launch(_bfloat16_kernel, tuple(src.shape), [src, dst], src.device)
+
+
+def planning() -> bool:
+    """True while :func:`planned_kernels` records launches instead of running them: work
+    that is not a Warp kernel (a cuBLAS call) must then be skipped as well."""
+    return _plan is not None
 
 
 def weight_update(W, Y, G, eta: float, Wt=None, tiles: TileConfig | None = None) -> None:

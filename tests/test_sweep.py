@@ -1,10 +1,9 @@
-"""Sweeps and their summary: statistics against hand-computed values, a failing seed that
+"""Sweeps and their summary (its statistics: tests/test_summary.py): a failing seed that
 leaves the others and a partial summary (process pool and Ray), jobs that read nothing from
 the driver's files, and `vitaplace aggregate` reproducing a sweep from its seed folders."""
 
 import csv
 import json
-import math
 import os
 import re
 import shlex
@@ -21,12 +20,10 @@ import yaml
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vitaplace.engine import summary, sweep  # noqa: E402
+from vitaplace.engine import sweep  # noqa: E402
 from vitaplace.engine.cli import main  # noqa: E402
 
 ENV_E1 = Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml"
-#: t(0.975, 2) and t(0.975, 1) from a printed table of Student's t quantiles
-T_2, T_1 = 4.302653, 12.706205
 
 #: Test-only extractor: features are the true positions (fast, exact); ``fit`` fails when the
 #: method's seed is ``fail_for``, so one scenario seed of a sweep fails and the others do not.
@@ -118,6 +115,8 @@ def check_partial_sweep(out: Path, result: subprocess.CompletedProcess, ok: list
     assert {r["seed"] for r in record["runs"]} == set(ok)
     rows = read_csv(out / "sweep.csv")
     assert {(r["method"], r["n"]) for r in rows if r["metric"] == "max_f1"} == {("O", str(len(ok))), ("H", str(len(ok)))}
+    # the within-seed block bootstrap found every seed's saved matrices
+    assert all(r["block_low"] != "nan" for r in rows if r["kind"] == "metric")
     # oracle features: a perfect score on every seed that ran
     assert all(float(r["mean"]) == 1.0 for r in rows if r["method"] == "O" and r["metric"] in ("max_f1", "auc"))
 
@@ -376,67 +375,12 @@ def test_an_unreachable_ray_address_fails_at_once_in_one_line(tmp_path, capsys):
     assert len(lines) == 1 and f"--ray 127.0.0.1:{port}: nothing answers at 127.0.0.1:{port}" in lines[0], lines
 
 
-# ---------------------------------------------------------------------- statistics
-
-
-def test_describe_matches_hand_computed_statistics():
-    # 0.5, 0.7, 0.9: mean 0.7; deviations -0.2, 0, 0.2: s^2 = 0.08 / 2, s = 0.2;
-    # half-width t(0.975, 2) * 0.2 / sqrt(3)
-    stats = summary.describe([0.5, 0.7, 0.9])
-    half = T_2 * 0.2 / math.sqrt(3)
-    assert stats["n"] == 3
-    assert stats["mean"] == pytest.approx(0.7) and stats["std"] == pytest.approx(0.2)
-    assert stats["ci_low"] == pytest.approx(0.7 - half, abs=1e-6) and stats["ci_high"] == pytest.approx(0.7 + half, abs=1e-6)
-    # two values 1 and 3: mean 2, s = sqrt(2), half-width t(0.975, 1) * sqrt(2) / sqrt(2)
-    two = summary.describe([1.0, 3.0])
-    assert two["std"] == pytest.approx(math.sqrt(2)) and two["ci_high"] == pytest.approx(2 + T_1, abs=1e-5)
-
-
-def test_one_seed_has_no_interval_and_says_so():
-    stats = summary.describe([0.6])
-    assert stats["n"] == 1 and stats["mean"] == 0.6
-    assert all(math.isnan(stats[k]) for k in ("std", "ci_low", "ci_high"))
-    row = {"environment": "E1", "method": "L", "direction": "q", "metric": "max_f1", **stats}
-    assert summary.cell(row) == "0.600 (n=1)"
-    assert "0.600 (n=1)" in summary.markdown([row], [], "t") and "0.600 (n=1)" in summary.latex([row], [])
-
-
 def rows_for(values: dict[str, list[float]], seeds: list[int]) -> list[dict]:
     return [
         {"seed": s, "environment": "E1", "method": m, "direction": "q", "max_f1": v[i], "tau": 0.3,
          "auc_method": "average_precision_stepwise", "recall_at_k": {"1": v[i] / 2}, "delta_at_max_f1": None}
         for m, v in values.items() for i, s in enumerate(seeds)
     ]
-
-
-def test_paired_differences_are_per_seed():
-    # seeds 1, 2, 3: L = 0.8, 0.7, 0.9 and H = 0.6, 0.2, 0.5, so L - H = 0.2, 0.5, 0.4 (seed 4: L only)
-    # mean 11/30, deviations -5/30, 4/30, 1/30: s^2 = (25 + 16 + 1) / 900 / 2 = 7/300
-    rows = rows_for({"L": [0.9, 0.8, 0.7, 0.1]}, [3, 1, 2, 4]) + rows_for({"H": [0.6, 0.2, 0.5]}, [1, 2, 3])
-    diffs = summary.paired_differences(summary.seed_rows(rows))
-    (f1,) = [d for d in diffs if d["metric"] == "max_f1"]
-    assert (f1["method_a"], f1["method_b"], f1["n"]) == ("L", "H", 3)
-    std = math.sqrt(7 / 300)
-    assert f1["mean"] == pytest.approx(11 / 30) and f1["std"] == pytest.approx(std)
-    assert f1["ci_low"] == pytest.approx(11 / 30 - T_2 * std / math.sqrt(3), abs=1e-6)
-
-
-def test_every_numeric_metric_is_summarised_and_settings_are_not():
-    rows = rows_for({"L": [0.9, 0.8, 0.7]}, [0, 1, 2])
-    rows[0]["delta_at_max_f1"] = 2.0  # finite on one seed only
-    table = {r["metric"]: r for r in summary.summarise(summary.seed_rows(rows))}
-    assert set(table) == {"max_f1", "recall@1", "delta_at_max_f1"}  # not tau, not the text, not the None
-    assert table["recall@1"]["mean"] == pytest.approx(0.4) and table["recall@1"]["std"] == pytest.approx(0.05)
-    assert table["delta_at_max_f1"]["n"] == 1
-
-
-def test_summary_files_are_written_with_nan_as_null(tmp_path):
-    rows = rows_for({"L": [0.9], "H": [0.5]}, [7])
-    summary.write_summary(tmp_path, rows, "t", {"scenario": "t"})
-    record = json.loads((tmp_path / "sweep.json").read_text())  # strict JSON: no NaN
-    assert record["summary"][0]["std"] is None
-    assert [r["value"] for r in read_csv(tmp_path / "sweep-seeds.csv") if r["metric"] == "max_f1"] == ["0.9", "0.5"]
-    assert read_csv(tmp_path / "sweep-diff.csv")[0]["mean"] == str(0.9 - 0.5)
 
 
 # ---------------------------------------------------------------------- jobs and the driver

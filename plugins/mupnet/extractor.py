@@ -23,6 +23,7 @@ from scipy.spatial.distance import cdist
 from tqdm.auto import tqdm
 
 from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.backends import BackendError, check_precision, get_backend
 from vitaplace.engine.dataset import Run
 from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
 from vitaplace.engine.pc import Network, NetworkConfig, TrainingConfig
@@ -86,8 +87,19 @@ class MupnetParams(ExtractorParams):
     )
     #: auto (warp on CUDA, numpy otherwise), numpy or warp
     backend: Literal["auto", "numpy", "warp"] = "auto"
+    #: GEMM precision: float32, or on CUDA tensor cores tf32 or bf16 operands (float32 accumulation, weights and latents)
+    precision: Literal["float32", "tf32", "bf16"] = "float32"
     #: network initialisation and minibatch order
     seed: int = 0
+
+    @pydantic.field_validator("precision")
+    @classmethod
+    def _precision_runs_here(cls, value: str, info: pydantic.ValidationInfo) -> str:
+        try:
+            check_precision(value, info.data.get("backend", "auto"))
+        except BackendError as exc:
+            raise ValueError(str(exc)) from None
+        return value
 
     @pydantic.field_validator("modalities")
     @classmethod
@@ -129,6 +141,11 @@ class MupnetExtractor(FeatureExtractor):
         inputs = h * w * 3 if "visual" in params.modalities else 0
         need = inputs * params.visual_layers[0] * 4 * 2 + train_samples * inputs * 4
         return need, "image_size", f"{h}x{w} images"
+
+    def _backend(self):
+        """The backend name, or for tf32 / bf16 the tensor-core backend itself."""
+        p = self.params
+        return p.backend if p.precision == "float32" else get_backend(p.backend, precision=p.precision)
 
     def network_config(self, tactile_size: int) -> NetworkConfig:
         p = self.params
@@ -176,7 +193,7 @@ class MupnetExtractor(FeatureExtractor):
     def fit(self, train: Run) -> None:
         p = self.params
         raw = self.raw_inputs(train)
-        self.network = Network(self.network_config(train.n_whiskers * 3), seed=p.seed, backend=p.backend)
+        self.network = Network(self.network_config(train.n_whiskers * 3), seed=p.seed, backend=self._backend())
         if "visual" in raw:
             self.network.set_scaler("visual", np.zeros(1, np.float32), np.full(1, 1 / 255, np.float32))
         if "tactile" in raw:
@@ -239,7 +256,7 @@ class MupnetExtractor(FeatureExtractor):
         write_text_atomic(directory / "training.json", json.dumps({"converged": self.converged}))
 
     def load_state(self, directory: Path) -> None:
-        self.network = Network.load(directory / "network", backend=self.params.backend)
+        self.network = Network.load(directory / "network", backend=self._backend())
         energy = directory / "energy.json"
         self.energy = json.loads(energy.read_text()) if energy.exists() else {}
         training = directory / "training.json"

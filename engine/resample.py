@@ -1,0 +1,101 @@
+"""Within-seed intervals: a block bootstrap over contiguous segments of the query run.
+
+One evaluation (one seed x environment x method x direction) scores the Q samples of a
+query run against a reference run. Neighbouring queries are correlated (the robot sees one
+place for several samples), so queries are resampled in contiguous segments, not one by
+one (the non-overlapping block bootstrap of Carlstein, 1986):
+
+* block length ``L = ceil(sqrt(Q))`` (`block_length`: 18 for Q = 300); the queries, in the
+  order of the run, are cut into ``b = ceil(Q / L)`` segments ``[kL, min((k+1)L, Q))``, the
+  last one possibly shorter;
+* a replicate draws ``b`` segments uniformly with replacement and concatenates their
+  queries; every metric is recomputed by `vitaplace.engine.evaluate.evaluate` on those rows
+  of the saved distance and ground-truth matrices (``matrices.npz``), the reference run
+  fixed;
+* `RESAMPLES` replicates from a generator seeded with ``(BLOCK_SEED, run seed)``: all
+  methods of one seed and environment draw the same segments (the replicates pair across
+  methods), different seeds draw independently.
+
+The percentile interval of these replicates is conditional on the reference run, the
+training run and the network's initialisation: it measures how much a score depends on
+which stretch of the query drive was tested, not how it varies between seeds. It is what a
+single-seed run can have instead of an interval over seeds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vitaplace.engine.evaluate import evaluate
+
+#: replicates per evaluation
+RESAMPLES = 1000
+#: first word of every replicate generator's seed (the second is the run's seed)
+BLOCK_SEED = 20260
+#: name of the saved matrices in an evaluation folder (`vitaplace.engine.evaluate.evaluate_pair`)
+MATRICES = "matrices.npz"
+
+
+def block_length(n_queries: int) -> int:
+    """Queries per contiguous segment: ``ceil(sqrt(n_queries))``."""
+    return max(1, math.ceil(math.sqrt(n_queries)))
+
+
+def block_draws(n_queries: int, seed: int, resamples: int | None = None) -> list[np.ndarray]:
+    """Query row indices of each of ``resamples`` (default `RESAMPLES`) replicates:
+    ``ceil(Q / L)`` segments of `block_length` drawn with replacement from the generator
+    seeded with ``(BLOCK_SEED, seed)``."""
+    resamples = RESAMPLES if resamples is None else resamples
+    length = block_length(n_queries)
+    starts = np.arange(0, n_queries, length)
+    chosen = np.random.default_rng((BLOCK_SEED, seed)).integers(0, len(starts), size=(resamples, len(starts)))
+    return [np.concatenate([np.arange(s, min(s + length, n_queries)) for s in starts[row]]) for row in chosen]
+
+
+def compact_matrices(tme: np.ndarray, gtm: np.ndarray, kmax: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per query, the few references that decide its scores, so that replicates are cheap.
+
+    Each row keeps its ``kmax`` nearest references in TME, in stable order (ties by
+    reference index, as `recall_at_k` ranks them), then its nearest reference in ground
+    truth when not among those, else the next in TME order: ``min(kmax + 1, R)`` columns.
+    Any later column ranks after the first ``kmax`` (larger TME, or equal TME and a larger
+    index), so `evaluate` of any set of rows of the compact matrices equals that of the same
+    rows of the full ones for K <= ``kmax`` (``n_references`` aside): the best match and its
+    tie-break, whether a revisit exists and the K nearest references are unchanged."""
+    n_ref = tme.shape[1]
+    width = min(kmax + 1, n_ref)
+    if width == n_ref:
+        return tme, gtm
+    keep = np.argsort(tme, axis=1, kind="stable")[:, :width]
+    nearest = np.argmin(gtm, axis=1)
+    absent = ~(keep[:, :kmax] == nearest[:, None]).any(axis=1)
+    keep[absent, kmax] = nearest[absent]
+    return np.take_along_axis(tme, keep, axis=1), np.take_along_axis(gtm, keep, axis=1)
+
+
+def replicate_rows(tme: np.ndarray, gtm: np.ndarray, row: Mapping[str, Any], seed: int,
+                   resamples: int | None = None) -> list[dict[str, Any]]:
+    """`evaluate` of each block-bootstrap replicate of one evaluation, with the ``tau``,
+    fixed ``delta`` and recall@K of its results row ``row``."""
+    ks = tuple(sorted(int(k) for k in row.get("recall_at_k", {}))) or (1,)
+    tme_c, gtm_c = compact_matrices(np.asarray(tme, dtype=float), np.asarray(gtm, dtype=float), max(ks))
+    delta = row.get("delta")
+    return [evaluate(tme_c[rows], gtm_c[rows], row["tau"], delta, ks)
+            for rows in block_draws(tme_c.shape[0], seed, resamples)]
+
+
+def evaluation_replicates(run_folder: Path, row: Mapping[str, Any],
+                          resamples: int | None = None) -> list[dict[str, Any]] | None:
+    """`replicate_rows` of the evaluation that made ``row`` (a results row with its ``seed``)
+    in the run folder ``run_folder``; None when its matrices were not saved there."""
+    path = Path(run_folder) / "evaluations" / row["environment"] / row["method"] / row["direction"] / MATRICES
+    if not path.is_file():
+        return None
+    with np.load(path) as saved:
+        tme, gtm = saved["tme"], saved["gtm"]
+    return replicate_rows(tme, gtm, row, row["seed"], resamples)
