@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import TextIO
 
 from vitaplace.engine import __version__
+from vitaplace.engine.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.outdir import OutputLock, remove_stale_temporaries, writable_dir
 
@@ -93,20 +94,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("source", type=Path, help="folder with images.mat, theta.mat, xy.mat and poses.mat")
     p.add_argument("--out", type=Path, required=True, help="the run file to write (e.g. runs/real/query.h5)")
     p.add_argument("--name", help="name of the run (default: the folder's name)")
-    p = sub.add_parser("sweep", parents=[common], help="run a scenario over several seeds (local process pool, or Ray)")
+    p = sub.add_parser("sweep", parents=[common], help="run a scenario over several seeds (local process pool, Ray or SLURM)")
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
     p.add_argument(
-        "--workers", type=int, default=None, help="local worker processes (default: CPU count / --cpus-per-job)"
+        "--workers", type=int, default=None,
+        help="local worker processes (default: the CPUs this process may use / --cpus-per-job)",
     )
     p.add_argument(
         "--ray", metavar="ADDRESS",
         help="run on Ray: 'auto' joins a running cluster or starts a local one; else the cluster's address",
     )
+    p.add_argument(
+        "--slurm", nargs="?", const="slurm", choices=("slurm", "local"), metavar="local",
+        help="run as one SLURM array job through submitit (logs in OUT/slurm); '--slurm local' runs its tasks "
+        "on this machine through submitit's local executor",
+    )
     p.add_argument("--cpus-per-job", type=float, default=1, metavar="N", help="CPUs each seed reserves (default 1)")
     p.add_argument(
         "--gpus-per-job", type=float, default=0, metavar="N",
-        help="GPUs each seed reserves on Ray (default 0); > 0 also selects the GPU backend of methods that have one",
+        help="GPUs each seed reserves on Ray or SLURM (default 0); > 0 also selects the GPU backend of methods that "
+        "have one",
+    )
+    slurm = p.add_argument_group("SLURM (with --slurm)")
+    slurm.add_argument("--partition", help="the partition to submit to (default: the cluster's)")
+    slurm.add_argument("--time", help="time limit of one seed's task, as sbatch reads it (e.g. 04:00:00 or 90)")
+    slurm.add_argument("--mem", help="memory of one seed's task, as sbatch reads it (e.g. 16G)")
+    slurm.add_argument(
+        "--sbatch", action="append", default=[], metavar="NAME=VALUE",
+        help="any other sbatch option, e.g. --sbatch account=myproject --sbatch qos=high (NAME alone: a flag; "
+        "repeatable)",
     )
     p = sub.add_parser(
         "aggregate", parents=[common],
@@ -337,11 +354,14 @@ def _import(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
+    from vitaplace.engine.slurm import settings_from_args
     from vitaplace.engine.summary import cell
-    from vitaplace.engine.sweep import load_sweep_scenario, run_sweep
+    from vitaplace.engine.sweep import check_placement, load_sweep_scenario, run_sweep
 
     if args.cpus_per_job <= 0 or args.gpus_per_job < 0:
         raise UserError("--cpus-per-job must be > 0 and --gpus-per-job >= 0")
+    slurm = settings_from_args(args)
+    check_placement(args.workers, args.ray, slurm, args.gpus_per_job)
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
     out = writable_dir(args.out or Path("runs") / f"{scenario.name}-sweep")
     log = logging.getLogger("vitaplace")
@@ -352,14 +372,14 @@ def _sweep(args: argparse.Namespace) -> int:
         outcome = run_sweep(
             scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress,
             _forced(args.force, "report", "sweep"),
-            args.cpus_per_job, args.gpus_per_job,
+            args.cpus_per_job, args.gpus_per_job, slurm,
         )
     for row in outcome.summary:
         if row["metric"] == "max_f1":
             log.info("%-6s %-12s %-20s max F1 %s", row["environment"], row["method"], row["direction"], cell(row))
     if outcome.failed:
-        log.error("%d of %d seeds failed (%s); summary of the others in %s", len(outcome.failed), len(args.seeds),
-                  " ".join(map(str, sorted(outcome.failed))), out / "sweep.md")
+        log.error("%d of %d seeds failed, missing from the summary: %s; summary of the others in %s",
+                  len(outcome.failed), len(args.seeds), " ".join(map(str, sorted(outcome.failed))), out / "sweep.md")
         return EXIT_SEEDS_FAILED
     log.info("summary of %d seeds in %s", len(args.seeds), out / "sweep.md")
     return 0
@@ -381,6 +401,7 @@ def main(argv: list[str] | None = None) -> int:
         args.no_progress = True
     logging.getLogger("vitaplace").debug("vitaplace %s, Python %s", __version__, sys.version.split()[0])
     try:
+        limit_blas_threads(usable_cpus())
         if args.command == "plugins":
             return _plugins()
         if args.command == "validate":

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from vitaplace.engine import __version__
+from vitaplace.engine.cpus import usable_cpus
 
 #: distributions whose version can change a result
 PACKAGES = ("numpy", "scipy", "scikit-learn", "mujoco", "warp-lang", "pluggy", "h5py", "pydantic")
@@ -60,5 +61,6 @@ def provenance() -> dict[str, Any]:
         "git_commit": git_commit(),
         "git_dirty": git_dirty(),
         "packages": package_versions(),
-        "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count()},
+        "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
+                    "cpus_usable": usable_cpus()},
     }

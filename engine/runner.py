@@ -32,6 +32,7 @@ from vitaplace.engine.provenance import provenance
 from vitaplace.engine import checksum
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.cpus import usable_cpus
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features, warn_once
 from vitaplace.engine.plugins import Registry, announce_run_finished, discover, plugin_distributions
@@ -186,8 +187,8 @@ class Pipeline:
         if unknown:
             raise ScenarioError(f"--force: unknown stage(s) {', '.join(sorted(unknown))}; stages: {', '.join(STAGES)}")
         self.progress = progress
-        #: processes recording runs in parallel (default: one per core)
-        self.workers = workers or os.cpu_count() or 1
+        #: processes recording runs in parallel (default: one per CPU this process may use)
+        self.workers = workers or usable_cpus()
         self.registry = registry or discover()
         #: where stage outputs are cached (default OUT/cache; sweeps share one across seeds)
         self.cache = Path(cache) if cache is not None else self.out / "cache"

@@ -1,4 +1,4 @@
-"""Sweeps: one scenario over many seeds, on a local process pool or a Ray cluster.
+"""Sweeps: one scenario over many seeds, on a local process pool, a Ray cluster or SLURM.
 
 The driver validates the scenario once and sends each job everything it needs as data: the
 resolved scenario with the job's seed set, the resolved content of every environment file
@@ -14,6 +14,11 @@ any did (2 stays for user errors found before any job starts).
 ``OUT`` must be storage every worker shares for the seed folders and the cache to land in
 one place: each job reports its host name and whether it sees a marker file the driver
 wrote into ``OUT``; the driver warns once when one does not.
+
+Before submitting to Ray, the driver names the cluster's address, runs a probe task on every
+node and refuses a node whose vitaplace version, git commit or installed feature plugins
+differ from its own (`installation`), and refuses resources no node has. SLURM arrays go
+through submitit (`vitaplace.engine.slurm`).
 """
 
 from __future__ import annotations
@@ -38,8 +43,10 @@ from typing import Any
 import yaml
 
 from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.scenario import Scenario, ScenarioError, load_scenario
+from vitaplace.engine.slurm import SlurmSettings, run_array
 
 log = logging.getLogger("vitaplace")
 
@@ -148,6 +155,7 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
     raises SeedFailed, with the traceback in ``OUT/seed-<s>/error.txt``."""
     from vitaplace.engine.runner import Pipeline
 
+    limit_blas_threads(usable_cpus())  # a Ray task's or SLURM task's CPUs, a pool worker's share
     host, sees_out = socket.gethostname(), not job.marker or Path(job.marker).exists()
     if not sees_out:
         log.warning("seed %d on %s: %s is not visible here: --out is not on shared storage", job.seed, host, job.out)
@@ -176,6 +184,23 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
             log.removeHandler(handler)
             handler.close()
     return {"seed": job.seed, "rows": rows, "host": host, "sees_out": sees_out}
+
+
+def run_seed_reported(job: SeedJob) -> dict[str, Any]:
+    """`run_seed` for schedulers that hand back only a traceback of a job's exception
+    (submitit): a seed's failure comes back as ``{"seed": s, "failure": "Type: message"}``."""
+    try:
+        return run_seed(job)
+    except SeedFailed as exc:
+        return {"seed": job.seed, "failure": str(exc)}
+
+
+def _init_worker(threads: int) -> None:
+    """Local pool worker: dies with the driver; BLAS threads sized to its share of the CPUs."""
+    from vitaplace.engine.runner import die_with_parent
+
+    die_with_parent()
+    limit_blas_threads(threads)
 
 
 def gpu_overrides(scenario: Scenario) -> list[str]:
@@ -259,10 +284,9 @@ def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dic
 def _pool_round(jobs: Sequence[SeedJob], workers: int):
     """One process pool over ``jobs``: yields (job, result, failure) for the jobs that ended,
     returns those lost to a broken pool."""
-    from vitaplace.engine.runner import die_with_parent
-
     context = multiprocessing.get_context("spawn")  # no fork: GL and Warp state are not fork-safe
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=die_with_parent)
+    threads = max(1, usable_cpus() // workers)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(threads,))
     broken: list[SeedJob] = []
     try:
         pending = {pool.submit(run_seed, job): job for job in jobs}
@@ -283,36 +307,128 @@ def _pool_round(jobs: Sequence[SeedJob], workers: int):
     return broken
 
 
-def connect_ray(address: str) -> Any:
-    """The ``ray`` module, connected: ``auto`` joins a running cluster or starts a local
-    one; anything else is a cluster address. A runtime this process started is reused."""
+#: seconds to wait for a Ray address to accept a connection, and for the probe tasks
+CONNECT_TIMEOUT_S = 5.0
+PROBE_TIMEOUT_S = 120.0
+
+
+def _check_reachable(address: str) -> None:
+    """Refuse, within seconds, a Ray address nothing listens on (Ray itself retries for minutes)."""
+    target = address.split("://", 1)[-1].rstrip("/")
+    host, colon, port = target.rpartition(":")
+    if not colon or not host or not port.isdigit():
+        raise UserError(f"--ray {address}: expected auto, HOST:PORT or ray://HOST:PORT")
+    try:
+        with socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        raise UserError(f"--ray {address}: nothing answers at {host}:{port} ({exc.strerror or exc}); is the cluster up?") from None
+
+
+def connect_ray(address: str) -> tuple[Any, str]:
+    """The ``ray`` module, connected, and the cluster's address: ``auto`` joins the cluster
+    ``RAY_ADDRESS`` or a ``ray start`` on this machine names, or starts a local one; anything
+    else is a cluster address. A runtime this process started is reused."""
     try:
         import ray
     except ImportError:
         raise UserError("--ray needs the optional dependency: pip install 'vitaplace[ray]'") from None
+    how = "connected to"
     if ray.is_initialized():
-        log.info("Ray: using the runtime this process already started")
+        how = "using the runtime this process already started,"
     elif address == "auto":
+        if os.environ.get("RAY_ADDRESS", "auto") != "auto":
+            _check_reachable(os.environ["RAY_ADDRESS"])
         try:
             ray.init(address="auto")
-            log.info("Ray: connected to the running cluster")
         except ConnectionError:
-            ray.init()
-            log.info("Ray: no running cluster found; started a local one")
+            ray.init(address="local")
+            how = "no running cluster found; started a local one,"
     else:
+        _check_reachable(address)
         try:
             ray.init(address=address)
         except ConnectionError as exc:
             raise UserError(f"--ray {address}: {one_line(str(exc))}") from None
-        log.info("Ray: connected to %s", address)
-    return ray
+    try:
+        where = ray.get_runtime_context().gcs_address
+    except Exception:  # noqa: BLE001 - a Ray Client connection does not know the GCS address
+        where = address
+    log.info("Ray: %s cluster %s", how, where)
+    return ray, where
+
+
+def installation() -> dict[str, Any]:
+    """What every process of a sweep must share: vitaplace's version and git commit, and the
+    installed feature plugins (entry point = distribution==version)."""
+    from importlib.metadata import entry_points
+
+    import vitaplace.engine
+    from vitaplace.engine.hookspecs import ENTRY_POINT_GROUP
+    from vitaplace.engine.provenance import git_commit
+
+    plugins = sorted(
+        f"{ep.name}={ep.dist.name}=={ep.dist.version}" if getattr(ep, "dist", None) else f"{ep.name}=unknown"
+        for ep in entry_points(group=ENTRY_POINT_GROUP)
+    )
+    return {"version": vitaplace.engine.__version__, "commit": git_commit(), "plugins": plugins}
+
+
+def _describe_installation(found: dict[str, Any]) -> str:
+    return f"vitaplace {found['version']} (commit {found['commit'] or 'unknown'}; plugins {', '.join(found['plugins']) or 'none'})"
+
+
+def _probe() -> dict[str, Any]:
+    """Probe task: this worker's host and `installation`."""
+    return {"host": socket.gethostname(), **installation()}
+
+
+def check_ray_cluster(ray: Any, where: str, cpus: float, gpus: float) -> None:
+    """Refuse, before any seed is submitted, a cluster that cannot run the sweep right: a node
+    whose `installation` differs from the driver's, or no node with ``cpus`` CPUs and ``gpus``
+    GPUs (the seeds would wait forever)."""
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    nodes = [node for node in ray.nodes() if node.get("Alive")]
+    sizes = [(node["Resources"].get("CPU", 0), node["Resources"].get("GPU", 0)) for node in nodes]
+    if not any(c >= cpus and g >= gpus for c, g in sizes):
+        have = ", ".join(f"{c:g} CPUs/{g:g} GPUs" for c, g in sizes) or "no nodes"
+        raise UserError(f"--cpus-per-job {cpus:g} --gpus-per-job {gpus:g}: no node of the Ray cluster {where} has "
+                        f"that many (its nodes: {have}); the seeds would wait forever")
+    probe = ray.remote(_probe)
+    refs = [
+        probe.options(name="vitaplace probe", num_cpus=0, max_retries=0,
+                      scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote()
+        for node in nodes
+    ]
+    mine = installation()
+    try:
+        found = ray.get(refs, timeout=PROBE_TIMEOUT_S)
+    except Exception as exc:  # noqa: BLE001 - e.g. vitaplace cannot be imported on a node
+        raise UserError(f"--ray {where}: the probe task failed on the cluster: {describe_failure(exc)}") from None
+    for theirs in found:
+        if {k: theirs[k] for k in mine} != mine:
+            raise UserError(
+                f"--ray {where}: node {theirs['host']} runs {_describe_installation(theirs)} but this driver runs "
+                f"{_describe_installation(mine)}; install the same vitaplace and plugins on every node"
+            )
+    log.info("Ray: %d node(s) run %s", len(found), _describe_installation(mine))
 
 
 def _ray(
     jobs: Sequence[SeedJob], name: str, address: str, cpus: float, gpus: float
 ) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
+    """Connect to the cluster and check it (now, before any seed runs), then run ``jobs`` as
+    Ray tasks (`_ray_tasks`)."""
+    ray, where = connect_ray(address)
+    check_ray_cluster(ray, where, cpus, gpus)
+    return _ray_tasks(ray, jobs, name, cpus, gpus)
+
+
+def _ray_tasks(
+    ray: Any, jobs: Sequence[SeedJob], name: str, cpus: float, gpus: float
+) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
     """Run ``jobs`` as Ray tasks named "<scenario> seed <s>"; yield as each one ends."""
-    ray = connect_ray(address)
     remote = ray.remote(run_seed)
     pending = {
         remote.options(name=f"{name} seed {job.seed}", num_cpus=cpus, num_gpus=gpus).remote(job): job for job in jobs
@@ -331,6 +447,16 @@ def _ray(
             ray.cancel(ref)
 
 
+def check_placement(workers: int | None, ray_address: str | None, slurm: SlurmSettings | None, gpus_per_job: float) -> None:
+    """Refuse options that do not apply where the seeds run (they would be ignored, or worse)."""
+    if gpus_per_job and not (ray_address or slurm):
+        raise UserError("--gpus-per-job: applies to --ray and --slurm jobs; on this machine every seed uses the "
+                        "methods' own backend (e.g. --set methods.0.params.backend=warp)")
+    if workers and (ray_address or slurm):
+        raise UserError("--workers: applies to sweeps on this machine; --ray and --slurm place seeds by "
+                        "--cpus-per-job and --gpus-per-job")
+
+
 def run_sweep(
     scenario: Scenario,
     resolved: dict[str, Any],
@@ -342,27 +468,32 @@ def run_sweep(
     force: Sequence[str] = (),
     cpus_per_job: float = 1,
     gpus_per_job: float = 0,
+    slurm: SlurmSettings | None = None,
 ) -> SweepOutcome:
-    """Run every seed, locally (process pool) or on Ray, and write the summary of those that
-    succeeded into ``out`` (`vitaplace.engine.summary`). A failed seed does not stop the others."""
+    """Run every seed, locally (process pool), on Ray or as a SLURM array (``slurm``; its
+    settings then give the CPUs and GPUs), and write the summary of those that succeeded into
+    ``out`` (`vitaplace.engine.summary`). A failed seed does not stop the others."""
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
     from vitaplace.engine.figures import write_pr_bands
     from vitaplace.engine.summary import write_summary
 
+    check_placement(workers, ray_address, slurm, gpus_per_job)
     out = Path(os.path.abspath(out))
     out.mkdir(parents=True, exist_ok=True)
     marker = out / f".sweep-marker-{uuid.uuid4().hex}"
-    jobs = seed_jobs(scenario, resolved, seeds, out, force, progress and len(seeds) == 1 and not ray_address, str(marker))
+    local = not (ray_address or slurm)
+    jobs = seed_jobs(scenario, resolved, seeds, out, force, progress and len(seeds) == 1 and local, str(marker))
     marker.write_text("")
     outcome = SweepOutcome(out)
     started = time.perf_counter()
     if ray_address:
         ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
+    elif slurm:
+        ended = run_array(jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
     else:
-        cpus = os.cpu_count() or 1
-        ended = _local(jobs, workers or max(1, min(len(jobs), cpus // max(1, int(cpus_per_job)))))
+        ended = _local(jobs, workers or max(1, min(len(jobs), usable_cpus() // max(1, int(cpus_per_job)))))
     try:
         with logging_redirect_tqdm([log]), tqdm(total=len(jobs), desc="seeds", unit="seed", disable=not progress) as bar:
             for job, result, failure in ended:

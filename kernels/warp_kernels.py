@@ -39,13 +39,13 @@ Design notes
 
 import contextlib
 import functools
-import os
 import threading
 from collections.abc import Iterator
 from typing import NamedTuple
 
 import warp as wp
 
+from vitaplace.engine.cpus import usable_cpus
 from vitaplace.kernels.reference import ACTIVATIONS
 
 __all__ = [
@@ -534,7 +534,7 @@ def planned_kernels() -> Iterator[list[tuple[wp.Kernel, int]]]:
 
 
 def preload(device, kernels: list[tuple[wp.Kernel, int]], workers: int | None = None) -> None:
-    """Compile and load ``kernels`` on ``device`` in parallel threads (one per core by
+    """Compile and load ``kernels`` on ``device`` in parallel threads (one per usable CPU by
     default). A cuBLASDx tile GEMM takes tens of seconds to compile on CUDA; compiled
     modules are cached on disk by Warp, so this costs nothing the second time."""
     _ensure_init()
@@ -544,7 +544,7 @@ def preload(device, kernels: list[tuple[wp.Kernel, int]], workers: int | None = 
         if kernel.module not in modules:
             modules.append(kernel.module)
     for block_dim, modules in by_block.items():
-        wp.force_load(device=device, modules=modules, block_dim=block_dim, max_workers=workers or os.cpu_count() or 1)
+        wp.force_load(device=device, modules=modules, block_dim=block_dim, max_workers=workers or usable_cpus())
 
 
 def row_partial_shape(batch: int, n_below: int, tiles: TileConfig) -> tuple[int, int]:

@@ -227,6 +227,7 @@ def _rerun(out: Path, *extra: str) -> dict[tuple[str, str], str]:
     return {(r["stage"], r["item"]): r["status"] for r in json.loads((out / "manifest.json").read_text())["stages"]}
 
 
+@pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
 def test_cache_redoes_exactly_what_a_change_touches(tmp_path):
     """A method parameter re-runs that method's fit, transforms and evaluations and the report,
     never the simulation nor the other method; the revisit tolerance re-runs only the
@@ -493,6 +494,7 @@ def test_simulation_workers_die_with_their_parent(tmp_path):
     assert not alive(worker), f"worker {worker} outlived its parent"
 
 
+@pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
 def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
     """Flip a byte of a recorded dataset, truncate a feature file, delete a file of a trained
     model and one of an evaluation: the next run recomputes exactly those (and what depends
@@ -518,6 +520,7 @@ def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
     assert json.loads((out / "results.json").read_text()) == first
 
 
+@pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
 def test_kill_9_during_a_stage_then_resume_gives_identical_results(tmp_path):
     """SIGKILL the run while the learned method trains; running again resumes from the cached
     stages and ends with results byte-identical to an uninterrupted run."""
@@ -773,6 +776,7 @@ def test_figures_label_colour_bars_and_keep_legends_off_the_data(tmp_path, monke
     assert sum(hasattr(ax, "_colorbar") for ax in drawn[0].axes) == 2
 
 
+@pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
 def test_force_alone_redoes_every_stage_the_command_runs(tmp_path):
     path = str(write_scenario(tmp_path, valid_scenario()))
     out = tmp_path / "out"

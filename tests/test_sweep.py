@@ -6,9 +6,12 @@ import csv
 import json
 import os
 import re
+import shlex
 import shutil
+import socket
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -162,11 +165,151 @@ def test_aggregate_refuses_other_scenarios_and_unfinished_runs(local_sweep, tmp_
     assert not (tmp_path / "summary" / "sweep.csv").exists()
 
 
+def documented_slurm_command() -> list[str]:
+    """The arguments of the `vitaplace sweep --slurm` command docs/SCALE.md shows, after
+    checking that the rest of its shell block only sets MUJOCO_GL."""
+    text = (Path(__file__).resolve().parent.parent / "docs" / "SCALE.md").read_text()
+    (block,) = [b for b in re.findall(r"```bash\n(.*?)```", text, re.S) if "--slurm" in b]
+    lines = [line for line in block.replace("\\\n", " ").splitlines() if line.strip()]
+    assert lines[:-1] == ["export MUJOCO_GL=egl"], lines
+    args = shlex.split(lines[-1])
+    assert args[:2] == ["vitaplace", "sweep"], args
+    return args[2:]
+
+
+def test_the_documented_slurm_command_runs_and_reports_a_failed_seed_in_one_line(tmp_path, plugin_env):
+    """docs/SCALE.md's command, every option as written, on submitit's local executor
+    (``--slurm local``) with a test scenario and seeds 0 1 of which 1 fails: one line for
+    seed 1, seed 0 summarised, scripts and logs under OUT/slurm."""
+    pytest.importorskip("submitit", reason="submitit is not installed (pip install 'vitaplace[slurm]')")
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(tiny_scenario(fail_seed=1)))
+    out = tmp_path / "out"
+    args = documented_slurm_command()
+    args[0] = str(path)
+    seeds = args.index("--seeds")
+    end = next(i for i in range(seeds + 1, len(args)) if args[i].startswith("--"))
+    args[seeds + 1:end] = ["0", "1"]
+    args[args.index("--out") + 1] = str(out)
+    args.insert(args.index("--slurm") + 1, "local")
+    result = vitaplace(["sweep", *args], plugin_env)
+    check_partial_sweep(out, result, [0], 1)
+    assert "missing from the summary: 1;" in result.stderr
+    assert re.search(rf"SLURM \(local\): job .*2 task\(s\); scripts and logs in {re.escape(str(out / 'slurm'))}", result.stderr)
+    assert len(list((out / "slurm").glob("*_log.err"))) == 2
+
+
+def test_slurm_options_are_checked_before_anything_runs(tmp_path, capsys):
+    from vitaplace.engine import slurm
+
+    assert [slurm.parse_time(t) for t in ("90", "1:30", "04:00:00", "1-0", "0-01:00:01", "2-03:04")] == [
+        90, 2, 240, 1440, 61, 2 * 1440 + 3 * 60 + 4]
+    assert slurm.parse_sbatch(["account=proj", "--exclusive", "mail-type=END,FAIL"]) == {
+        "account": "proj", "exclusive": True, "mail-type": "END,FAIL"}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(tiny_scenario()))
+    base = ["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out")]
+    cases = {
+        "--slurm needs --time": ["--slurm"],
+        "--time 4h: expected a time limit": ["--slurm", "--time", "4h"],
+        "--partition --mem: only with --slurm": ["--partition", "gpu", "--mem", "4G"],
+        "--sbatch time=5: use --time instead": ["--slurm", "--time", "5", "--sbatch", "time=5"],
+        "--cpus-per-job 1.5: SLURM allots whole CPUs": ["--slurm", "--time", "5", "--cpus-per-job", "1.5"],
+        "--slurm and --ray: choose one": ["--slurm", "--time", "5", "--ray", "auto"],
+        "--gpus-per-job: applies to --ray and --slurm": ["--gpus-per-job", "1"],
+        "--workers: applies to sweeps on this machine": ["--slurm", "local", "--time", "5", "--workers", "2"],
+    }
+    for message, extra in cases.items():
+        assert main([*base, *extra]) == 2, extra
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], (extra, lines)
+    assert not (tmp_path / "out").exists()
+
+
+def test_slurm_settings_reach_the_sbatch_script(tmp_path, monkeypatch):
+    """What sbatch would read for docs/SCALE.md's command: the array of seeds, the time in
+    minutes, CPUs, GPUs, partition, memory and the passed-through options (submitit's own
+    script text, nothing submitted)."""
+    submitit = pytest.importorskip("submitit")
+    from submitit.slurm.slurm import _make_sbatch_string
+
+    from vitaplace.engine import slurm
+    from vitaplace.engine.errors import UserError
+
+    from vitaplace.engine.cli import build_parser
+
+    settings = slurm.settings_from_args(build_parser().parse_args(["sweep", *documented_slurm_command(),
+                                                                    "--sbatch", "exclusive"]))
+    if shutil.which("srun") is None:
+        with pytest.raises(UserError, match="--slurm: Could not detect \"srun\".*--slurm local runs"):
+            slurm.executor(settings, tmp_path, "vitaplace-tiny")
+    monkeypatch.setattr(submitit.SlurmExecutor, "affinity", classmethod(lambda cls: 2))  # as if srun were here
+    executor = slurm.executor(settings, tmp_path, "vitaplace-tiny")
+    script = _make_sbatch_string(command="run", folder=tmp_path, map_count=3, **executor._executor.parameters)
+    for line in ("--array=0-2%3", "--time=240", "--cpus-per-task=4", "--gpus-per-node=1", "--partition=gpu",
+                 "--mem=16G", "--account=myproject", "--exclusive", "--job-name=vitaplace-tiny"):
+        assert f"#SBATCH {line}\n" in script, (line, script)
+
+
+class FakeTask:
+    """Stands in for a submitit job: ended or not, with a result or not."""
+
+    def __init__(self, job_id, result=None, ended=True):
+        self.job_id, self._result, self.ended, self.cancelled = job_id, result, ended, False
+        self.state = "FAILED" if result is None else "COMPLETED"
+        self.paths = type("Paths", (), {"stderr": Path(f"/out/slurm/{job_id}_0_log.err")})()
+
+    def done(self, force_check=False):
+        return self.ended
+
+    def result(self):
+        if self._result is None:
+            raise RuntimeError("Job 12_1 has not produced any output (state: FAILED)")
+        return self._result
+
+    def cancel(self, check=True):
+        self.cancelled = True
+
+
+def test_a_slurm_task_without_a_result_is_one_line_and_an_interrupt_cancels_the_rest():
+    pytest.importorskip("submitit")
+    from vitaplace.engine import slurm
+
+    tasks = [FakeTask("12_0", {"seed": 0, "rows": []}), FakeTask("12_1"), FakeTask("12_2", {"seed": 2, "failure": "E: x"})]
+    ended = list(slurm._wait(tasks, ["job0", "job1", "job2"], 0.01))
+    assert ended == [("job0", {"seed": 0, "rows": []}, None),
+                     ("job1", None, "its task 12_1 ended without a result (FAILED); log: /out/slurm/12_1_0_log.err"),
+                     ("job2", None, "E: x")]
+    assert not any(t.cancelled for t in tasks)
+    tasks = [FakeTask("13_0", {"seed": 0, "rows": []}), FakeTask("13_1", ended=False)]
+    waiting = slurm._wait(tasks, ["job0", "job1"], 0.01)
+    next(waiting)
+    waiting.close()  # what Ctrl-C in the driver's loop does to the iterator
+    assert [t.cancelled for t in tasks] == [False, True]
+
+
+@pytest.fixture
+def own_ray(tmp_path_factory, plugin_env):
+    """A prelude that starts a Ray of the test's own (``address="local"``: never a running
+    cluster), with its own short temp dir (socket paths) and namespace, and the env without
+    RAY_ADDRESS; the temp dir is removed afterwards."""
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'vitaplace[ray]')")
+    temp = tempfile.mkdtemp(prefix="vp-ray-", dir="/tmp")
+    prelude = ("import ray, uuid\n"
+               f"ray.init(address='local', num_cpus=2, num_gpus=0, log_to_driver=False, _temp_dir={temp!r}, "
+               "namespace='vitaplace-test-' + uuid.uuid4().hex)")
+    env = {k: v for k, v in plugin_env.items() if k != "RAY_ADDRESS"}
+    yield prelude, env
+    shutil.rmtree(temp, ignore_errors=True)
+
+
+#: what `ray list tasks` shows of this process's own cluster (its address given: with another
+#: cluster on the machine, Ray's auto-detection may pick that one); a task appears once per
+#: attempt, so names are deduplicated
 LIST_TASKS = """
 import time
 from ray.util.state import list_tasks
 for _ in range(40):  # task events reach the state API within a second or two
-    names = sorted(task.name for task in list_tasks())
+    names = sorted({t.name for t in list_tasks(address=ray.get_runtime_context().gcs_address) if " seed " in t.name})
     if len(names) >= 2:
         break
     time.sleep(0.25)
@@ -174,20 +317,62 @@ print("TASKS", names)
 """
 
 
-def test_ray_sweep_keeps_going_past_a_failed_seed(tmp_path, plugin_env):
-    pytest.importorskip("ray", reason="Ray is not installed (pip install 'vitaplace[ray]')")
+def test_ray_sweep_keeps_going_past_a_failed_seed(tmp_path, own_ray):
+    prelude, env = own_ray
     path = tmp_path / "tiny.yaml"
     path.write_text(yaml.safe_dump(tiny_scenario(fail_seed=1)))
     out = tmp_path / "out"
-    prelude = "import ray\nray.init(num_cpus=2, log_to_driver=False)"
-    postlude = LIST_TASKS  # what `ray list tasks` shows
     args = ["sweep", str(path), "--seeds", "0", "1", "--out", str(out), "--ray", "auto", "--no-progress"]
-    result = vitaplace(args, plugin_env, prelude, postlude)
+    result = vitaplace(args, env, prelude, LIST_TASKS)
     check_partial_sweep(out, result, [0], 1)
     assert "TASKS ['tiny seed 0', 'tiny seed 1']" in result.stdout, result.stdout
-    assert "Ray: using the runtime this process already started" in result.stderr
+    assert re.search(r"Ray: using the runtime this process already started, cluster [\w.-]+:\d+\n", result.stderr)
+    assert "Ray: 1 node(s) run vitaplace " in result.stderr
     assert "(n=1)" in (out / "sweep.md").read_text()
     assert not list(out.glob(".sweep-marker-*"))
+
+
+#: the driver claims another vitaplace version than its workers have; then, with its own
+#: version back, asks for a GPU
+CLAIM_OTHER_VERSION = """
+import vitaplace.engine
+real, vitaplace.engine.__version__ = vitaplace.engine.__version__, "0.0.0+driver"
+"""
+ASK_FOR_A_GPU = """
+print("RC", rc, file=sys.stderr)
+vitaplace.engine.__version__ = real
+rc = main([*sys.argv[1:], "--gpus-per-job", "1"])
+"""
+
+
+def test_ray_refuses_workers_with_other_code_and_resources_no_node_has(tmp_path, own_ray):
+    from vitaplace.engine import __version__
+
+    prelude, env = own_ray
+    path = tmp_path / "tiny.yaml"
+    path.write_text(yaml.safe_dump(tiny_scenario()))
+    out = tmp_path / "out"
+    args = ["sweep", str(path), "--seeds", "0", "--out", str(out), "--ray", "auto", "--no-progress"]
+    result = vitaplace(args, env, prelude + CLAIM_OTHER_VERSION, ASK_FOR_A_GPU)
+    assert "RC 2" in result.stderr and result.returncode == 2, result.stderr[-3000:]
+    errors = [line for line in result.stderr.splitlines() if line.startswith("vitaplace: error:")]
+    assert len(errors) == 2 and "Traceback" not in result.stderr, result.stderr[-3000:]
+    version, gpus = errors
+    assert re.search(rf"node \S+ runs vitaplace {re.escape(__version__)} \(commit .*\) but this driver runs "
+                     r"vitaplace 0\.0\.0\+driver \(commit .*fails-for-one-seed=vitaplace-failing-plugin==0\.0\.1", version)
+    assert "--gpus-per-job 1: no node of the Ray cluster" in gpus and "2 CPUs/0 GPUs" in gpus
+    assert not list(out.glob("seed-*"))
+
+
+def test_an_unreachable_ray_address_fails_at_once_in_one_line(tmp_path, capsys):
+    pytest.importorskip("ray")
+    with socket.socket() as s:  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}))
+    assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--ray", f"127.0.0.1:{port}"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"--ray 127.0.0.1:{port}: nothing answers at 127.0.0.1:{port}" in lines[0], lines
 
 
 def rows_for(values: dict[str, list[float]], seeds: list[int]) -> list[dict]:
@@ -336,6 +521,7 @@ def test_pr_band_figures_are_written_per_environment_from_the_seed_folders(tmp_p
     assert all(p.stat().st_size > 1000 for p in written)
 
 
+@pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
 def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
     """A worker killed mid-job breaks the process pool and the jobs beside it; those run again,
     each in its own pool: the dying seed fails in one line, the others finish."""

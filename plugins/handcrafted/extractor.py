@@ -66,7 +66,7 @@ class HandcraftedParams(ExtractorParams):
     batch_size: int = pydantic.Field(256, ge=1)
     """Images converted to profiles per batch (a run is never loaded whole)."""
     threads: int = pydantic.Field(0, ge=0)
-    """Threads for the profile distance; 0 = all cores."""
+    """Threads for the profile distance; 0 = every CPU this process may use."""
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> HandcraftedParams:

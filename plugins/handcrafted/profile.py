@@ -28,11 +28,12 @@ Choices (and how they differ from the C++ code):
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from scipy.spatial.distance import cdist
+
+from vitaplace.engine.cpus import usable_cpus
 
 #: Mean of a normalised template (OpenRatSLAM ``vt_normalisation``).
 TARGET_MEAN = 0.4
@@ -125,7 +126,7 @@ def template_distance(
 
     For each shift the mean absolute difference over the overlapping columns is a batched L1
     distance between the flattened overlapping slices (``cdist(..., 'cityblock')``), computed
-    in cache-sized blocks on ``threads`` threads (default: all cores; SciPy releases the GIL).
+    in cache-sized blocks on ``threads`` threads (default: the CPUs this process may use, `usable_cpus`; SciPy releases the GIL).
     """
     q = np.asarray(query, dtype=np.float64)
     r = np.asarray(reference, dtype=np.float64)
@@ -137,7 +138,7 @@ def template_distance(
     if nq == 0 or nr == 0:
         return best
     m = max(0, min(int(max_shift), w - 1))
-    threads = threads or os.cpu_count() or 1
+    threads = threads or usable_cpus()
     bq, br = block
     q_blocks = [(i, min(i + bq, nq)) for i in range(0, nq, bq)]
 
