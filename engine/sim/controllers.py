@@ -1,5 +1,6 @@
-"""Trajectories: a tactile-attention foraging controller (training runs), a noisy route
-follower and a noisy orbit (evaluation runs).
+"""Trajectories: a tactile-attention foraging controller (training runs), an emulated
+keyboard teleoperator (evaluation runs: independent drives), a noisy route follower and a
+noisy orbit (near-duplicate evaluation runs, kept for regression).
 
 Every controller is called at each control tick (``control_hz``, rounded to
 deflection-series samples) with an `Observation` and returns a command ``(v, w)`` or
@@ -16,6 +17,11 @@ Foraging (inspired by rodent exploration; Mitchinson & Prescott's "orient" behav
 * ``leave``   - turn away from the explored object, ignore contacts for a refractory period;
 * ``avoid``   - whenever the chassis or the head gets close to a wall or landmark (from
   the environment's 2-D obstacle map, a stand-in for a proximity sensor), turn away.
+
+Teleoperation (``teleop``, `TeleopDriver`): ViTa-SLAM's keyboard teleoperation emulated -
+one key at a time from its key set, stop-and-go, along the run's own jittered copy of the
+environment's loop from a random start, exploring the tactile landmarks it passes. Foraging
+and teleop share one look-ahead `SafetyGuard` that keeps the body and the head off obstacles.
 
 Route following (``route``): pure pursuit along the environment's closed waypoint loop,
 facing the direction of travel.
@@ -43,6 +49,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from vitaplace.engine.dataset import TOUCH_THRESHOLD
 from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS, HEAD_HALF, HEAD_POS
 
@@ -56,9 +63,6 @@ HEAD_RADIUS = math.hypot(HEAD_HALF[0], HEAD_HALF[1])  #: ... with this radius (c
 #: begins at the head (bases 0.54-0.60 m ahead) and ends ~0.16 m beyond
 TOUCH_DISTANCE = HEAD_CENTRE + 0.12
 TOUCH_BEARING_DEG = 25.0
-#: how far beyond the head's outline (the disc of `HEAD_RADIUS`) the protracted whiskers reach:
-#: ~0.16 m beyond the snout ahead, less to the sides [m]
-WHISKER_REACH = 0.12
 
 #: ViTa-SLAM's keyboard teleoperation (whiskeye_controller/src/teleop.py): each key sets the
 #: multipliers of the forward speed, the leftward (strafe) speed and the turn rate; "k", like
@@ -89,31 +93,59 @@ class SafetyGuard:
     """The look-ahead safety guard shared by the controllers that drive near obstacles: a
     command (v, w, lateral) is safe when, driven for ``horizon`` seconds, it leaves the body
     and the head at least ``floor`` clear of every obstacle - or, where the robot is already
-    closer than that, no closer than it is now (so it can always back away)."""
+    closer than that, no closer than it is now (so it can always back away).
+
+    With ``braking`` [m/s^2] (the base's rate limit) the look-ahead follows the base's
+    speed: from its ``current`` (v, lateral) it ramps to the command, holds it to the end of
+    the horizon and then brakes to a stop; without, the command is driven for the horizon."""
 
     HORIZON = 0.5  #: default look-ahead [s]
 
-    def __init__(self, obstacles: ObstacleMap, floor: float) -> None:
-        self.obstacles, self.floor = obstacles, floor
+    def __init__(self, obstacles: ObstacleMap, floor: float, braking: float | None = None) -> None:
+        self.obstacles, self.floor, self.braking = obstacles, floor, braking
 
-    def clearance(self, pose: np.ndarray, v: float, w: float, lateral: float = 0.0, horizon: float = HORIZON) -> float:
-        """Smallest clearance of the body and the head after driving (v, w, lateral) for ``horizon`` s."""
+    def _travel(self, start: float, command: float, horizon: float) -> np.ndarray:
+        """Distances [m] along one axis at a quarter, half, three quarters and the end of
+        ``horizon`` (ramp from ``start`` to ``command`` at ``braking``, then hold) and after
+        braking to a stop from there (5,)."""
+        a = self.braking
+        tau = horizon * np.array([0.25, 0.5, 0.75, 1.0])
+        ramp = np.minimum(abs(command - start) / a, tau)
+        reached = start + np.copysign(a * ramp, command - start)
+        travel = 0.5 * (start + reached) * ramp + reached * (tau - ramp)
+        return np.append(travel, travel[-1] + reached[-1] * abs(reached[-1]) / (2 * a))
+
+    def clearance(
+        self, pose: np.ndarray, v: float, w: float, lateral: float = 0.0, horizon: float = HORIZON,
+        current: tuple[float, float] = (0.0, 0.0),
+    ) -> float:
+        """Smallest clearance of the body and the head at the end of the look-ahead (with
+        ``braking``: anywhere along it)."""
         x, y, yaw = pose
-        mid = yaw + 0.5 * w * horizon
-        c, s = math.cos(mid), math.sin(mid)
-        pos = np.array([x + (v * c - lateral * s) * horizon, y + (v * s + lateral * c) * horizon])
-        return float(footprint_clearance(self.obstacles, pos, np.array([yaw + w * horizon]))[0])
+        if self.braking:
+            forward, left = self._travel(current[0], v, horizon), self._travel(current[1], lateral, horizon)
+            turned = w * horizon * np.array([0.25, 0.5, 0.75, 1.0, 1.0])
+        else:
+            forward, left, turned = np.array([v * horizon]), np.array([lateral * horizon]), np.array([w * horizon])
+        mid = yaw + 0.5 * turned
+        c, s = np.cos(mid), np.sin(mid)
+        pos = np.stack([x + forward * c - left * s, y + forward * s + left * c], axis=1)
+        return float(footprint_clearance(self.obstacles, pos, yaw + turned).min())
 
-    def safe(self, pose: np.ndarray, v: float, w: float, lateral: float = 0.0, horizon: float = HORIZON) -> bool:
-        return self.first_safe(pose, [(v, w, lateral)], horizon) == (v, w, lateral)
+    def safe(
+        self, pose: np.ndarray, v: float, w: float, lateral: float = 0.0, horizon: float = HORIZON,
+        current: tuple[float, float] = (0.0, 0.0),
+    ) -> bool:
+        return self.first_safe(pose, [(v, w, lateral)], horizon, current) == (v, w, lateral)
 
     def first_safe(
-        self, pose: np.ndarray, candidates: list[tuple[float, float, float]], horizon: float = HORIZON
+        self, pose: np.ndarray, candidates: list[tuple[float, float, float]], horizon: float = HORIZON,
+        current: tuple[float, float] = (0.0, 0.0),
     ) -> tuple[float, float, float]:
-        """The first safe command of ``candidates``, else standing still (always safe: nothing moves)."""
+        """The first safe command of ``candidates``, else standing still (the last resort)."""
         floor = min(self.clearance(pose, 0.0, 0.0, 0.0, 0.0), self.floor)
         for cand in candidates:
-            if self.clearance(pose, *cand, horizon=horizon) >= floor:
+            if self.clearance(pose, *cand, horizon=horizon, current=current) >= floor:
                 return cand
         return (0.0, 0.0, 0.0)
 
@@ -174,7 +206,7 @@ class RunSpec(BaseModel):
         90.0, ge=0, le=180, description="... when its centre lies at most this far from the heading [deg]"
     )
     touch_gap: float = Field(
-        0.04, gt=0, le=0.2, description="head clearance at which an explored landmark is within whisker reach [m]"
+        0.06, gt=0, le=0.2, description="an explored landmark is approached until the whiskers touch it and the head is this close [m]"
     )
     hold_cycles: tuple[int, int] = Field((2, 5), description="whisk cycles held at an explored landmark [min, max]")
     detour_count: int = Field(3, ge=1, le=50, description="detours that the off-route share is split into (teleop)")
@@ -599,7 +631,8 @@ _TRANSLATION_KEYS = {"i": 0.0, "U": 45.0, "J": 90.0, "M": 135.0, ",": 180.0, ">"
 _TAP = 0.2  #: a key tapped where holding it would be unsafe: pressed this long [s]
 _LEAVE_GAP = 0.15  #: after a hold, back off until the head is this far from the landmark [m]
 _APPROACH_TIMEOUT = 30.0  #: an exploration that has not reached its landmark by then is given up [s]
-_TURN_CLEARANCE = 0.05  #: the driver turns towards a landmark only as far as the head stays this clear [m]
+_TURN_CLEARANCE = 0.02  #: the driver turns towards a landmark only as far as the head stays this clear [m]
+_MAKE_ROOM = 0.3  #: where the head cannot swing round to face a landmark, back away up to this far first [m]
 
 
 class TeleopDriver:
@@ -614,8 +647,10 @@ class TeleopDriver:
     by smooth random offsets, ``path_jitter``), from a random start point, facing as the
     environment's ``route_facing`` says, with a constant heading bias and a heading
     tolerance before it turns. A tactile landmark it passes (``visit_range``,
-    ``visit_bearing_deg``; once per lap) is explored: turn to face it, approach to
-    ``touch_gap``, hold still for ``hold_cycles`` whisk cycles, back off, go on. With
+    ``visit_bearing_deg``; once per lap) is explored: turn to face it, drive up until the
+    whiskers bend at full protraction with the head within ``touch_gap``, hold still for
+    ``hold_cycles`` whisk cycles, back off, go on (at once where it cannot get the whiskers
+    onto it). With
     ``off_route_fraction`` the run makes ``detour_count`` detours at random times, together
     that share of the run, along the loop moved ``off_route_offset`` to the left of travel
     (less where that would not be clear). A key that would bring the body or the head
@@ -624,7 +659,7 @@ class TeleopDriver:
 
     def __init__(self, spec: RunSpec, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
         self.spec, self.rng, self.obstacles = spec, rng, env.obstacles
-        self.guard = SafetyGuard(env.obstacles, 0.25 * spec.avoid_margin)
+        self.guard = SafetyGuard(env.obstacles, 0.25 * spec.avoid_margin, braking=spec.max_accel)
         self.centre = np.mean(env.route, axis=0)
         self.outward = self.centre if env.route_facing == "outward" else None
         k = int(rng.integers(-spec.speed_steps, spec.speed_steps + 1))
@@ -642,7 +677,9 @@ class TeleopDriver:
         self.tactile = [i for i, lm in enumerate(env.landmarks) if lm.tactile]
         self.visited: dict[int, float] = {}  #: landmark -> lap count when it was explored
         self.mode, self.turning = "drive", False
-        self.target_landmark, self.until = -1, 0.0
+        self.target_landmark, self.until, self.approach_from = -1, 0.0, np.zeros(2)
+        self.touched = False  #: whisker deflection at full protraction seen since the last decision
+        self.released = ""  #: the key the guard released since the last decision
         self.sample_period = sample_period
         self.key, self.press_from, self.press_until, self.next_decision = "k", 0.0, 0.0, 0.0
         self._limit = _Limiter(spec.max_accel, 4.0, spec.max_accel)
@@ -719,11 +756,17 @@ class TeleopDriver:
     def _turn_key(self, err: float) -> str:
         return "j" if err > 0 else "l"
 
+    def _current(self) -> tuple[float, float]:
+        """The base's commanded forward and leftward speed now (after the rate limit)."""
+        return (float(self._limit.state[0]), float(self._limit.state[2]))
+
     def _pick(self, pose: np.ndarray, ranked: list[str]) -> tuple[str, float]:
-        """The first of ``ranked`` that is safe to hold, else the first safe to tap, else stop."""
-        for horizon, duration in ((SafetyGuard.HORIZON, math.inf), (_TAP + 0.1, _TAP)):
-            for key in ranked:
-                if self.guard.safe(pose, *self._command(key), horizon=horizon):
+        """The first of ``ranked`` that is safe to hold, else the first safe to tap, else stop
+        (a key the guard has just released is not pressed again at once)."""
+        delay = self.spec.reaction_delay
+        for horizon, duration in ((delay + SafetyGuard.HORIZON, math.inf), (delay + _TAP, _TAP)):
+            for key in (k for k in ranked if k != self.released):
+                if self.guard.safe(pose, *self._command(key), horizon=horizon, current=self._current()):
                     return key, duration
         return "k", math.inf
 
@@ -771,17 +814,25 @@ class TeleopDriver:
             if t >= self.until:  # could not get there: give up
                 self.mode, self.until = "leave", t + 6.0
                 return "k", math.inf
-            turn = self._room_to_turn(pose, bearing)
-            if abs(turn) > 0.5 * self.tolerance:  # face it, as far as the head can swing round here
-                key, duration = self._pick(pose, [self._turn_key(turn)])
-                if key != "k":
-                    return key, duration
             gap = self._landmark_gaps(pose)[i]
-            if gap > self.spec.touch_gap:  # then drive up to whisker reach
+            whisking = self.touched and gap <= self.spec.touch_gap
+            if abs(bearing) > 0.5 * self.tolerance and not whisking:  # face it
+                room = self._room_to_turn(pose, bearing)
+                cramped = abs(room) < abs(bearing) - 0.5 * self.tolerance
+                if cramped and np.linalg.norm(pos - self.approach_from) < _MAKE_ROOM:  # back away first
+                    key, duration = self._pick(pose, self._translation_keys(bearing + math.pi)[:3])
+                    if key != "k":
+                        return key, duration
+                if abs(room) > 0.5 * self.tolerance:  # as far as the head can swing round here
+                    key, duration = self._pick(pose, [self._turn_key(room)])
+                    if key != "k":
+                        return key, duration
+            if not whisking:
+                # then drive up to it until the whiskers touch it, and as close as touch_gap
                 key, duration = self._pick(pose, self._translation_keys(bearing)[:3])
                 if key != "k":
                     return key, duration
-                if gap > WHISKER_REACH:  # out of reach and no way closer: go on
+                if not self.touched:  # no closer, and the whiskers do not reach it: go on
                     self.mode, self.until = "leave", t + 6.0
                     return "k", math.inf
             lo, hi = self.spec.hold_cycles
@@ -835,6 +886,7 @@ class TeleopDriver:
             if passing and abs(self._bearing(pose, i)) <= math.radians(self.spec.visit_bearing_deg):
                 self.visited[i] = laps
                 self.mode, self.target_landmark, self.until = "approach", i, t + _APPROACH_TIMEOUT
+                self.approach_from = pose[:2].copy()
                 return True
         return False
 
@@ -842,9 +894,15 @@ class TeleopDriver:
         t = obs.time
         dt = 0.0 if self._last_t is None else t - self._last_t
         self._last_t = t
+        # what the driver sees between decisions: are the whiskers bent by something at full
+        # protraction (the end of a whisk cycle, when a sample is taken)?
+        cycles = t / self.sample_period
+        if abs(cycles - round(cycles)) < 1e-6:
+            self.touched |= float(np.max(obs.deflection, initial=0.0)) > TOUCH_THRESHOLD
         if t >= self.next_decision - 1e-9:
             self.next_decision = t + self.spec.decision_interval
             key, duration = self._decide(t, obs.pose)
+            self.touched, self.released = False, ""
             if key != self.key or math.isfinite(duration) or t >= self.press_until:
                 # release, then press the new key after the reaction delay (a tap is a new press)
                 self.key, self.press_from = key, t + self.spec.reaction_delay
@@ -852,9 +910,9 @@ class TeleopDriver:
         command = (0.0, 0.0, 0.0)
         if self.press_from <= t + 1e-9 < self.press_until:
             command = self._command(self.key)
-            horizon = min(SafetyGuard.HORIZON, self.press_until - t + 0.1)
-            if not self.guard.safe(obs.pose, *command, horizon=horizon):
-                command, self.press_until = (0.0, 0.0, 0.0), t  # released: it would hit something
+            horizon = min(SafetyGuard.HORIZON, self.press_until - t)
+            if not self.guard.safe(obs.pose, *command, horizon=horizon, current=self._current()):
+                command, self.press_until, self.released = (0.0, 0.0, 0.0), t, self.key  # it would hit something
         return self._limit(*command, dt=dt)
 
 
