@@ -7,6 +7,8 @@ independent seeds (reference, query), and for each
 * ``near_m``    median (and 90th percentile) distance from a query pose to its nearest
   reference pose [m];
 * ``near_deg``  median heading difference to that nearest reference pose [deg];
+* ``matched``   share of queries with a reference pose within 0.3 m (the default tau), and
+  the median distance and heading difference over those;
 * ``coll``      body collision instants (run attrs), both runs.
 
     MUJOCO_GL=egl python bench/drives.py [--worlds e1,e2,e3] [--kinds teleop,route]
@@ -48,9 +50,11 @@ def main() -> None:
             spec = RunSpec(kind=kind, n_samples=args.samples)
             ref, query = (simulate_run(env, spec, seed, robot, progress=False) for seed in (ref_seed, query_seed))
             dist, dyaw = nearest(query.poses, ref.poses)
+            matched = dist < 0.3
             print(
                 f"{world} {kind:7s} touch {ref.touch_mask().mean():.2f}/{query.touch_mask().mean():.2f}  "
                 f"near_m {np.median(dist):.3f} (p90 {np.percentile(dist, 90):.3f})  near_deg {np.median(dyaw):.1f}  "
+                f"matched {matched.mean():.2f}: {np.median(dist[matched]):.3f} m {np.median(dyaw[matched]):.1f} deg  "
                 f"coll {ref.attrs['body_collision_instants']}/{query.attrs['body_collision_instants']}",
                 flush=True,
             )
