@@ -203,7 +203,7 @@ class RunSpec(BaseModel):
         0.5, ge=0, le=2, description="a tactile landmark this close to the head [m] is explored (turn, approach, hold)"
     )
     visit_bearing_deg: float = Field(
-        90.0, ge=0, le=180, description="... when its centre lies at most this far from the heading [deg]"
+        90.0, ge=0, le=180, description="... and its nearest point lies at most this far from the heading [deg]"
     )
     touch_gap: float = Field(
         0.06, gt=0, le=0.2, description="an explored landmark is approached until the whiskers touch it and the head is this close [m]"
