@@ -132,8 +132,9 @@ class EvaluationRuns(_RunSource):
 
     #: label of the evaluation (E1, E2, ...), letters, digits, _ . -
     name: SafeName
-    #: partial revisits: the final fraction of the query run is driven off the route (the run's
-    #: off_route_offset across it), so some queries have no true match
+    #: partial revisits: this fraction of the query run is driven off the route (the run's
+    #: off_route_offset across it; route, orbit: the final part; teleop: detours spread along
+    #: the run), so some queries have no true match
     query_off_route: float = pydantic.Field(0.0, ge=0, le=0.9, allow_inf_nan=False)
     #: recorded query and reference runs instead of simulated ones (no run key then; environment optional: it only draws the arena in the report and bounds tau)
     datasets: RecordedRuns | None = None
@@ -142,7 +143,9 @@ class EvaluationRuns(_RunSource):
     def _simulated_or_recorded(self) -> EvaluationRuns:
         self._check_source("datasets", self.datasets is not None, environment_allowed=True)
         if self.query_off_route and (self.run is None or self.run.kind == "foraging"):
-            raise ValueError("query_off_route needs a simulated route or orbit run (not recorded runs, not foraging)")
+            raise ValueError(
+                "query_off_route needs a simulated teleop, route or orbit run (not recorded runs, not foraging)"
+            )
         return self
 
     def run_for(self, role: str) -> RunSpec:

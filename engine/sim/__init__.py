@@ -21,7 +21,8 @@ select_gl_backend()
 #: Version of the simulated behaviour (robot model, controllers, sensors): part of every
 #: simulate stage's cache key, so raise it whenever the same specs would record other data.
 #: 2: WhiskEye geometry, routes for its footprint, detours that follow the offset path.
-SIMULATOR_VERSION = 2
+#: 3: the teleop run kind, the touch_share run attribute, the shared look-ahead guard.
+SIMULATOR_VERSION = 3
 
 _EXPORTS = {
     "EnvironmentSpecError": "environment",

@@ -1,5 +1,6 @@
-"""Trajectories: a tactile-attention foraging controller (training runs), a noisy route
-follower and a noisy orbit (evaluation runs).
+"""Trajectories: a tactile-attention foraging controller (training runs), an emulated
+keyboard teleoperator (evaluation runs: independent drives), a noisy route follower and a
+noisy orbit (near-duplicate evaluation runs, kept for regression).
 
 Every controller is called at each control tick (``control_hz``, rounded to
 deflection-series samples) with an `Observation` and returns a command ``(v, w)`` or
@@ -16,6 +17,11 @@ Foraging (inspired by rodent exploration; Mitchinson & Prescott's "orient" behav
 * ``leave``   - turn away from the explored object, ignore contacts for a refractory period;
 * ``avoid``   - whenever the chassis or the head gets close to a wall or landmark (from
   the environment's 2-D obstacle map, a stand-in for a proximity sensor), turn away.
+
+Teleoperation (``teleop``, `TeleopDriver`): ViTa-SLAM's keyboard teleoperation emulated -
+one key at a time from its key set, stop-and-go, along the run's own jittered copy of the
+environment's loop from a random start, exploring the tactile landmarks it passes. Foraging
+and teleop share one look-ahead `SafetyGuard` that keeps the body and the head off obstacles.
 
 Route following (``route``): pure pursuit along the environment's closed waypoint loop,
 facing the direction of travel.
@@ -38,11 +44,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from vitaplace.engine.dataset import TOUCH_THRESHOLD
 from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS, HEAD_HALF, HEAD_POS
 
@@ -57,6 +64,20 @@ HEAD_RADIUS = math.hypot(HEAD_HALF[0], HEAD_HALF[1])  #: ... with this radius (c
 TOUCH_DISTANCE = HEAD_CENTRE + 0.12
 TOUCH_BEARING_DEG = 25.0
 
+#: ViTa-SLAM's keyboard teleoperation (whiskeye_controller/src/teleop.py): each key sets the
+#: multipliers of the forward speed, the leftward (strafe) speed and the turn rate; "k", like
+#: any key not bound, stops the robot.
+TELEOP_KEYS: dict[str, tuple[int, int, int]] = {
+    "i": (1, 0, 0), "o": (1, 0, -1), "j": (0, 0, 1), "l": (0, 0, -1), "u": (1, 0, 1),
+    ",": (-1, 0, 0), ".": (-1, 0, 1), "m": (-1, 0, -1),
+    "O": (1, -1, 0), "J": (0, 1, 0), "L": (0, -1, 0), "U": (1, 1, 0), ">": (-1, -1, 0), "M": (-1, 1, 0),
+    "k": (0, 0, 0),
+}  # (I and < repeat i and ,)
+#: teleop.launch: speed 1 m/s, turn 0.25 rad/s - the turn rate per unit of speed [rad/m]
+TELEOP_TURN_PER_SPEED = 0.25
+#: the keys' nominal speed [m/s] for the WhiskEye (see docs/SIMULATION.md)
+TELEOP_SPEED = 0.3
+
 
 def footprint_clearance(obstacles: ObstacleMap, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
     """Smallest clearance (n,) of the body and the head of the robot at positions ``xy``
@@ -68,16 +89,82 @@ def footprint_clearance(obstacles: ObstacleMap, xy: np.ndarray, heading: np.ndar
     return np.minimum(dist[: len(xy)] - BODY_RADIUS, dist[len(xy):] - HEAD_RADIUS)
 
 
+class SafetyGuard:
+    """The look-ahead safety guard shared by the controllers that drive near obstacles: a
+    command (v, w, lateral) is safe when, driven for ``horizon`` seconds, it leaves the body
+    and the head at least ``floor`` clear of every obstacle - or, where the robot is already
+    closer than that, no closer than it is now (so it can always back away).
+
+    With ``braking`` [m/s^2] (the base's rate limit) the look-ahead follows the base's
+    speed: from its ``current`` (v, lateral) it ramps to the command, holds it to the end of
+    the horizon and then brakes to a stop; without, the command is driven for the horizon."""
+
+    HORIZON = 0.5  #: default look-ahead [s]
+
+    def __init__(self, obstacles: ObstacleMap, floor: float, braking: float | None = None) -> None:
+        self.obstacles, self.floor, self.braking = obstacles, floor, braking
+
+    def _travel(self, start: float, command: float, horizon: float) -> np.ndarray:
+        """Distances [m] along one axis at a quarter, half, three quarters and the end of
+        ``horizon`` (ramp from ``start`` to ``command`` at ``braking``, then hold) and after
+        braking to a stop from there (5,)."""
+        a = self.braking
+        tau = horizon * np.array([0.25, 0.5, 0.75, 1.0])
+        ramp = np.minimum(abs(command - start) / a, tau)
+        reached = start + np.copysign(a * ramp, command - start)
+        travel = 0.5 * (start + reached) * ramp + reached * (tau - ramp)
+        return np.append(travel, travel[-1] + reached[-1] * abs(reached[-1]) / (2 * a))
+
+    def clearance(
+        self, pose: np.ndarray, v: float, w: float, lateral: float = 0.0, horizon: float = HORIZON,
+        current: tuple[float, float] = (0.0, 0.0),
+    ) -> float:
+        """Smallest clearance of the body and the head at the end of the look-ahead (with
+        ``braking``: anywhere along it)."""
+        x, y, yaw = pose
+        if self.braking:
+            forward, left = self._travel(current[0], v, horizon), self._travel(current[1], lateral, horizon)
+            turned = w * horizon * np.array([0.25, 0.5, 0.75, 1.0, 1.0])
+        else:
+            forward, left, turned = np.array([v * horizon]), np.array([lateral * horizon]), np.array([w * horizon])
+        mid = yaw + 0.5 * turned
+        c, s = np.cos(mid), np.sin(mid)
+        pos = np.stack([x + forward * c - left * s, y + forward * s + left * c], axis=1)
+        return float(footprint_clearance(self.obstacles, pos, yaw + turned).min())
+
+    def safe(
+        self, pose: np.ndarray, v: float, w: float, lateral: float = 0.0, horizon: float = HORIZON,
+        current: tuple[float, float] = (0.0, 0.0),
+    ) -> bool:
+        return self.first_safe(pose, [(v, w, lateral)], horizon, current) == (v, w, lateral)
+
+    def first_safe(
+        self, pose: np.ndarray, candidates: list[tuple[float, float, float]], horizon: float = HORIZON,
+        current: tuple[float, float] = (0.0, 0.0),
+    ) -> tuple[float, float, float]:
+        """The first safe command of ``candidates``, else standing still (the last resort)."""
+        floor = min(self.clearance(pose, 0.0, 0.0, 0.0, 0.0), self.floor)
+        for cand in candidates:
+            if self.clearance(pose, *cand, horizon=horizon, current=current) >= floor:
+                return cand
+        return (0.0, 0.0, 0.0)
+
+
 class RunSpec(BaseModel):
     """What one recorded run does. Only ``kind`` and ``n_samples`` are required."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    #: foraging (tactile-attention exploration, training), route (noisy laps of the environment's
-    #: route) or orbit (noisy laps of a circle, driven sideways with the camera facing outward)
-    kind: Literal["foraging", "route", "orbit"]
+    #: foraging (tactile-attention exploration, training), teleop (an emulated keyboard
+    #: teleoperator driving its own copy of the environment's route and whisking its landmarks),
+    #: route (noisy laps of the environment's route) or orbit (noisy laps of a circle, driven
+    #: sideways with the camera facing outward); route and orbit runs with different seeds are
+    #: near-duplicates (kept for regression), teleop runs are independent drives
+    kind: Literal["foraging", "teleop", "route", "orbit"]
     n_samples: int = Field(gt=0, description="samples (whisk cycles) to record")
-    speed: float = Field(0.15, gt=0, le=1.0, description="nominal forward speed [m/s]")
+    speed: float = Field(
+        0.15, gt=0, le=1.0, description=f"nominal forward speed [m/s] (teleop: the keys' speed, default {TELEOP_SPEED})"
+    )
     max_turn_rate_deg: float = Field(90.0, gt=0, le=720, description="turn-rate limit [deg/s]")
     max_accel: float = Field(0.5, gt=0, description="linear acceleration limit [m/s^2]")
     warmup_cycles: int = Field(1, ge=0, le=100, description="whisk cycles simulated before the first sample")
@@ -97,6 +184,32 @@ class RunSpec(BaseModel):
     off_route_offset: float = Field(
         0.6, ge=-3, le=3, description="how far off the path that part runs: left of travel, or towards the orbit's centre [m]"
     )
+    # teleoperation (kind teleop, see TeleopDriver)
+    decision_interval: float = Field(0.5, gt=0, le=5, description="how often the teleoperator reconsiders its key [s]")
+    reaction_delay: float = Field(
+        0.25, ge=0, le=2, description="from a decision to the new key's press; the robot stands meanwhile [s]"
+    )
+    heading_tolerance_deg: float = Field(
+        10.0, gt=0, le=90, description="heading error the teleoperator lets pass before it turns [deg]"
+    )
+    heading_bias_deg: float = Field(5.0, ge=0, le=45, description="std of the run's constant heading bias [deg]")
+    path_jitter: float = Field(
+        0.08, ge=0, le=0.5, description="std of the smooth offsets of the run's own copy of the route loop [m]"
+    )
+    speed_steps: int = Field(
+        2, ge=0, le=5, description="the run's speed is the keys' speed after k presses of q (x1.1) or z (x0.9), |k| <= this"
+    )
+    visit_range: float = Field(
+        0.5, ge=0, le=2, description="a tactile landmark this close to the head [m] is explored (turn, approach, hold)"
+    )
+    visit_bearing_deg: float = Field(
+        90.0, ge=0, le=180, description="... and its nearest point lies at most this far from the heading [deg]"
+    )
+    touch_gap: float = Field(
+        0.06, gt=0, le=0.2, description="an explored landmark is approached until the whiskers touch it and the head is this close [m]"
+    )
+    hold_cycles: tuple[int, int] = Field((2, 5), description="whisk cycles held at an explored landmark [min, max]")
+    detour_count: int = Field(3, ge=1, le=50, description="detours that the off-route share is split into (teleop)")
     # orbit
     orbit_radius: float = Field(1.0, gt=0.1, le=20, description="orbit radius [m] (ViTa-SLAM: 1 m)")
     orbit_centre: tuple[float, float] = Field((0.0, 0.0), description="orbit centre [x, y] [m]")
@@ -107,11 +220,22 @@ class RunSpec(BaseModel):
     avoid_margin: float = Field(0.06, ge=0, description="clearance kept between the body and obstacles [m]")
     control_hz: float = Field(10.0, gt=0, le=500, description="controller update rate (rounded to deflection samples) [Hz]")
 
+    @model_validator(mode="before")
+    @classmethod
+    def _teleop_speed(cls, data: Any) -> Any:
+        """A teleop run's default speed is the keys' nominal speed."""
+        if isinstance(data, dict) and data.get("kind") == "teleop" and "speed" not in data:
+            return {**data, "speed": TELEOP_SPEED}
+        return data
+
     @model_validator(mode="after")
     def _check(self) -> RunSpec:
         lo, hi = self.explore_time
         if not 0 < lo <= hi:
             raise ValueError("explore_time must be [min, max] with 0 < min <= max")
+        lo, hi = self.hold_cycles
+        if not 1 <= lo <= hi:
+            raise ValueError("hold_cycles must be [min, max] with 1 <= min <= max")
         return self
 
 
@@ -214,6 +338,60 @@ class Route:
         """Points every ``step`` metres along the loop, (n, 2)."""
         return np.array([self.point(s)[0] for s in np.arange(0.0, self.length, step)])
 
+    def segment_of(self, s: np.ndarray) -> np.ndarray:
+        """Index (n,) of the segment (from waypoint i to i + 1) holding arc lengths ``s``."""
+        s = np.asarray(s, dtype=float) % self.length
+        return np.clip(np.searchsorted(self.cum, s, side="right") - 1, 0, len(self.seg_len) - 1)
+
+    def waypoint_normals(self) -> np.ndarray:
+        """Unit normals (n, 2) at the waypoints, to the left of travel: the bisectors of the
+        adjacent segments' normals."""
+        seg_normal = np.stack([-self.seg_dir[:, 1], self.seg_dir[:, 0]], axis=1)
+        n = seg_normal + np.roll(seg_normal, 1, axis=0)
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+
+#: Clearance [m] that the body and the head must keep along a route loop, driven as the route
+#: kinds drive it: the followers cut corners and wander by a few cm.
+ROUTE_MIN_CLEARANCE = 0.03
+#: Pure-pursuit look-ahead [m] that sets the heading of a loop driven facing the direction of travel.
+ROUTE_LOOKAHEAD = 0.3
+
+
+def loop_clearance(
+    obstacles: ObstacleMap, route: Route, outward: np.ndarray | None, step: float = 0.02
+) -> tuple[np.ndarray, np.ndarray]:
+    """Arc lengths (n,) every ``step`` metres along ``route`` and the robot's footprint
+    clearance (n,) there, facing away from ``outward`` or, when that is None, towards the
+    loop point `ROUTE_LOOKAHEAD` further on (pure pursuit)."""
+    s = np.arange(0.0, route.length, step)
+    points = route.at(s)
+    rel = points - outward if outward is not None else route.at(s + ROUTE_LOOKAHEAD) - points
+    return s, footprint_clearance(obstacles, points, np.arctan2(rel[:, 1], rel[:, 0]))
+
+
+def route_collision(env: EnvironmentSpec) -> str | None:
+    """Why the WhiskEye cannot drive ``env``'s route clear of the walls and landmarks (one
+    line naming the waypoint), or None when it can."""
+    route = Route(env.route)
+    outward = np.mean(env.route, axis=0) if env.route_facing == "outward" else None
+    s, clearance = loop_clearance(env.obstacles, route, outward)
+    bad = np.flatnonzero(clearance < ROUTE_MIN_CLEARANCE)
+    if not len(bad):
+        return None
+    k = int(bad[0])
+    i = int(route.segment_of(s[k]))
+    if s[k] - route.cum[i] > 0.5 * route.seg_len[i]:  # name the nearer end of the segment
+        i = (i + 1) % len(route.points)
+    x, y = env.route[i]
+    how = "sideways facing outward" if outward is not None else "facing the direction of travel"
+    where = f"{-clearance[k]:.2f} m inside" if clearance[k] < 0 else f"{clearance[k]:.2f} m from"
+    return (
+        f"route.{i}: the WhiskEye cannot drive this loop clear of the walls and landmarks: near waypoint {i} "
+        f"({x:g}, {y:g}), driven {how}, its body or head comes {where} an obstacle "
+        f"(it needs {ROUTE_MIN_CLEARANCE:g} m all along the loop)"
+    )
+
 
 @dataclass
 class ForagingController:
@@ -229,11 +407,13 @@ class ForagingController:
     side: float = 1.0
     _wander: _OU | None = None
     _limit: _Limiter | None = None
+    _guard: SafetyGuard | None = None
     _last_t: float | None = None
 
     def __post_init__(self) -> None:
         self._wander = _OU(self.rng, math.radians(self.spec.wander_turn_deg), 2.0, x0=0.0)
         self._limit = _Limiter(self.spec.max_accel, 4.0)
+        self._guard = SafetyGuard(self.obstacles, 0.25 * self.spec.avoid_margin)
 
     def start_pose(self, default: tuple[float, float, float]) -> tuple[float, float, float]:
         x, y, yaw = self.spec.start if self.spec.start is not None else default
@@ -353,24 +533,11 @@ class ForagingController:
         v = spec.speed
         return self._out(v, float(np.clip(w, -wmax, wmax)), dt, obs.pose)
 
-    def _clearance(self, pose: np.ndarray, v: float, w: float, horizon: float) -> float:
-        """Smallest clearance of the body and the head after driving (v, w) for ``horizon`` s."""
-        x, y, yaw = pose
-        mid = yaw + 0.5 * w * horizon
-        pos = np.array([x + v * horizon * math.cos(mid), y + v * horizon * math.sin(mid)])
-        return float(footprint_clearance(self.obstacles, pos, np.array([yaw + w * horizon]))[0])
-
     def _out(self, v: float, w: float, dt: float, pose: np.ndarray) -> tuple[float, float]:
         """Rate-limited command; one that would swing the head or drive the body into an
-        obstacle within 0.5 s is replaced by the first safe one of: backing off while turning,
-        backing off straight, not turning, standing still (always safe: nothing moves)."""
-        floor = min(self._clearance(pose, 0.0, 0.0, 0.0), 0.25 * self.spec.avoid_margin)
-        for cand in ((v, w), (-0.05, w), (-0.05, 0.0), (v, 0.0)):
-            if self._clearance(pose, *cand, horizon=0.5) >= floor:
-                v, w = cand
-                break
-        else:
-            v, w = 0.0, 0.0
+        obstacle within the guard's horizon is replaced by the first safe one of: backing off
+        while turning, backing off straight, not turning, standing still (always safe)."""
+        v, w, _ = self._guard.first_safe(pose, [(v, w, 0.0), (-0.05, w, 0.0), (-0.05, 0.0, 0.0), (v, 0.0, 0.0)])
         return self._limit(v, w, dt=dt)
 
 
@@ -459,14 +626,310 @@ class RouteFollower:
         return self._limit(v, w, side, dt=dt)
 
 
+#: directions [deg] of the translation keys in the robot frame (0: forward, 90: left)
+_TRANSLATION_KEYS = {"i": 0.0, "U": 45.0, "J": 90.0, "M": 135.0, ",": 180.0, ">": -135.0, "L": -90.0, "O": -45.0}
+_TAP = 0.2  #: a key tapped where holding it would be unsafe: pressed this long [s]
+_LEAVE_GAP = 0.15  #: after a hold, back off until the head is this far from the landmark [m]
+_APPROACH_TIMEOUT = 30.0  #: an exploration that has not reached its landmark by then is given up [s]
+_TURN_CLEARANCE = 0.02  #: the driver turns towards a landmark only as far as the head stays this clear [m]
+_MAKE_ROOM = 0.3  #: where the head cannot swing round to face a landmark, back away up to this far first [m]
+
+
+class TeleopDriver:
+    """An emulated keyboard teleoperator (ViTa-SLAM's ``teleop.py``, see docs/SIMULATION.md).
+
+    Every ``decision_interval`` it looks at the robot and picks one key of `TELEOP_KEYS`:
+    the key's speeds are the run's speed (the nominal speed after a few q/z presses) and
+    `TELEOP_TURN_PER_SPEED` times that as the turn rate. A new key is pressed
+    ``reaction_delay`` after the decision; the old one is released at once, so the robot
+    stops in between (the Gazebo plugin zeroes every command after one update: no key, no
+    motion). The driver follows its own copy of the environment's loop (waypoints moved
+    by smooth random offsets, ``path_jitter``), from a random start point, facing as the
+    environment's ``route_facing`` says, with a constant heading bias and a heading
+    tolerance before it turns. A tactile landmark it passes (``visit_range``,
+    ``visit_bearing_deg``; once per lap) is explored: turn to face it, drive up until the
+    whiskers bend at full protraction with the head within ``touch_gap``, hold still for
+    ``hold_cycles`` whisk cycles, back off, go on (at once where it cannot get the whiskers
+    onto it). With
+    ``off_route_fraction`` the run makes ``detour_count`` detours at random times, together
+    that share of the run, along the loop moved ``off_route_offset`` to the left of travel
+    (less where that would not be clear). A key that would bring the body or the head
+    closer than the `SafetyGuard` allows is not pressed (a tap is tried), or released.
+    """
+
+    def __init__(self, spec: RunSpec, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
+        self.spec, self.rng, self.obstacles = spec, rng, env.obstacles
+        self.guard = SafetyGuard(env.obstacles, 0.25 * spec.avoid_margin, braking=spec.max_accel)
+        self.centre = np.mean(env.route, axis=0)
+        self.outward = self.centre if env.route_facing == "outward" else None
+        k = int(rng.integers(-spec.speed_steps, spec.speed_steps + 1))
+        self.speed = spec.speed * (1.1**k if k >= 0 else 0.9**-k)  # q/z scale speed and turn alike
+        self.turn = TELEOP_TURN_PER_SPEED * self.speed
+        self.bias = math.radians(spec.heading_bias_deg) * float(np.clip(rng.normal(), -2.0, 2.0))
+        self.tolerance = math.radians(spec.heading_tolerance_deg)
+        base = Route(env.route)
+        jitter = self._smooth_offsets(base)
+        self.loop = self._clear_offset_route(base, jitter)
+        self.detour = self._clear_offset_route(base, jitter + spec.off_route_offset) if spec.off_route_fraction else None
+        self.detours = self._plan_detours(sample_period)
+        self.path = self.loop
+        self.s = float(rng.uniform(0.0, self.loop.length))
+        self.tactile = [i for i, lm in enumerate(env.landmarks) if lm.tactile]
+        self.visited: dict[int, float] = {}  #: landmark -> lap count when it was explored
+        self.mode, self.turning = "drive", False
+        self.target_landmark, self.until, self.approach_from = -1, 0.0, np.zeros(2)
+        self.touched = False  #: whisker deflection at full protraction seen since the last decision
+        self.released = ""  #: the key the guard released since the last decision
+        self.sample_period = sample_period
+        self.key, self.press_from, self.press_until, self.next_decision = "k", 0.0, 0.0, 0.0
+        self._limit = _Limiter(spec.max_accel, 4.0, spec.max_accel)
+        self._last_t: float | None = None
+
+    # ------------------------------------------------------------------ the run's own loop
+    def _smooth_offsets(self, base: Route) -> np.ndarray:
+        """Offsets (n,) of the waypoints across the loop: white noise smoothed along the loop
+        (Gaussian, 0.5 m), scaled to std ``path_jitter``."""
+        raw = self.rng.normal(size=len(base.points))
+        along = np.abs(base.cum[:-1, None] - base.cum[None, :-1])
+        along = np.minimum(along, base.length - along)
+        smooth = np.exp(-0.5 * (along / 0.5) ** 2) @ raw
+        return self.spec.path_jitter * smooth / max(float(np.std(smooth)), 1e-9)
+
+    def _clear_offset_route(self, base: Route, offsets: np.ndarray) -> Route:
+        """``base`` with its waypoints moved ``offsets`` to the left; where the robot would come
+        closer than `ROUTE_MIN_CLEARANCE` to something, the offsets of the segment's waypoints
+        shrink (the base loop itself is clear: `route_collision`)."""
+        normals = base.waypoint_normals()
+        offsets = np.array(offsets, dtype=float)
+        for _ in range(30):
+            route = Route(base.points + offsets[:, None] * normals)
+            s, clearance = loop_clearance(self.obstacles, route, self.outward)
+            bad = np.unique(route.segment_of(s[clearance < ROUTE_MIN_CLEARANCE]))
+            if not len(bad):
+                return route
+            offsets[np.concatenate([bad, (bad + 1) % len(offsets)])] *= 0.7
+        return base
+
+    def _plan_detours(self, sample_period: float) -> list[tuple[float, float]]:
+        """``detour_count`` windows [t0, t1) of simulation time, together ``off_route_fraction``
+        of the recorded run, at random places (uniform gaps between them)."""
+        spec = self.spec
+        if not spec.off_route_fraction:
+            return []
+        duration = spec.n_samples * sample_period
+        piece = spec.off_route_fraction * duration / spec.detour_count
+        gaps = self.rng.dirichlet(np.ones(spec.detour_count + 1)) * (duration - piece * spec.detour_count)
+        starts = spec.warmup_cycles * sample_period + np.cumsum(gaps[:-1]) + piece * np.arange(spec.detour_count)
+        return [(float(t0), float(t0 + piece)) for t0 in starts]
+
+    def in_detour(self, t: float) -> bool:
+        return any(t0 <= t < t1 for t0, t1 in self.detours)
+
+    def start_pose(self) -> tuple[float, float, float]:
+        if self.spec.start is not None:
+            x, y, yaw = self.spec.start
+            self.s, _ = self.loop.project(np.array([x, y]))
+            return (x, y, math.radians(yaw))
+        p, _ = self.loop.point(self.s)
+        yaw = self._facing(p) + float(self.rng.uniform(-1.0, 1.0)) * self.tolerance
+        return (float(p[0]), float(p[1]), yaw)
+
+    def _facing(self, pos: np.ndarray) -> float:
+        """The heading the driver wants at ``pos`` on its path: away from the loop's centre, or
+        towards the path ahead; plus the run's bias."""
+        if self.outward is not None:
+            rel = pos - self.outward
+        else:
+            rel = self.path.point(self.s + self.spec.lookahead)[0] - pos
+        return math.atan2(rel[1], rel[0]) + self.bias
+
+    # ------------------------------------------------------------------ keys
+    def _command(self, key: str) -> tuple[float, float, float]:
+        x, y, th = TELEOP_KEYS[key]
+        return (x * self.speed, th * self.turn, y * self.speed)
+
+    def _translation_keys(self, direction: float) -> list[str]:
+        """Translation keys moving within 90 deg of ``direction`` [rad, robot frame], best first."""
+        off = {k: abs(_wrap(math.radians(a) - direction)) for k, a in _TRANSLATION_KEYS.items()}
+        return [k for k in sorted(off, key=off.get) if off[k] < math.pi / 2]
+
+    def _turn_key(self, err: float) -> str:
+        return "j" if err > 0 else "l"
+
+    def _current(self) -> tuple[float, float]:
+        """The base's commanded forward and leftward speed now (after the rate limit)."""
+        return (float(self._limit.state[0]), float(self._limit.state[2]))
+
+    def _pick(self, pose: np.ndarray, ranked: list[str]) -> tuple[str, float]:
+        """The first of ``ranked`` that is safe to hold, else the first safe to tap, else stop
+        (a key the guard has just released is not pressed again at once)."""
+        delay = self.spec.reaction_delay
+        for horizon, duration in ((delay + SafetyGuard.HORIZON, math.inf), (delay + _TAP, _TAP)):
+            for key in (k for k in ranked if k != self.released):
+                if self.guard.safe(pose, *self._command(key), horizon=horizon, current=self._current()):
+                    return key, duration
+        return "k", math.inf
+
+    # ------------------------------------------------------------------ decisions
+    def _progress(self, pos: np.ndarray) -> None:
+        cand = self.s + np.linspace(-0.1, 0.6, 29)
+        d = np.linalg.norm(self.path.at(cand) - pos[None], axis=1)
+        self.s = max(self.s, float(cand[int(np.argmin(d))]))
+
+    def _switch_path(self, path: Route) -> None:
+        """Follow ``path`` from the same place along the loop (same waypoint, same fraction of its segment)."""
+        i = int(self.path.segment_of(self.s))
+        frac = (self.s % self.path.length - self.path.cum[i]) / self.path.seg_len[i]
+        laps = math.floor(self.s / self.path.length)
+        self.s = laps * path.length + path.cum[i] + frac * path.seg_len[i]
+        self.path = path
+
+    def _landmark_gaps(self, pose: np.ndarray) -> np.ndarray:
+        """Clearance (L,) of the head from each landmark [m]."""
+        head = pose[:2] + HEAD_CENTRE * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        return self.obstacles.landmark_distance_many(head[None])[0] - HEAD_RADIUS
+
+    def _bearing(self, pose: np.ndarray, i: int) -> float:
+        """Direction [rad, robot frame] from the base to the point of landmark ``i`` nearest the head."""
+        head = pose[:2] + HEAD_CENTRE * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        dist, grad = self.obstacles.query(head[None], landmark=i)
+        rel = head - dist[0] * grad[0] - pose[:2]
+        return _wrap(math.atan2(rel[1], rel[0]) - pose[2])
+
+    def _decide(self, t: float, pose: np.ndarray) -> tuple[str, float]:
+        """The key to press next and how long (inf: until the next decision)."""
+        pos, yaw = pose[:2], float(pose[2])
+        if self.mode == "hold":
+            if t < self.until:
+                return "k", math.inf
+            self.mode, self.until = "leave", t + 6.0
+        if self.mode == "leave":
+            if self._landmark_gaps(pose)[self.target_landmark] < _LEAVE_GAP and t < self.until:
+                away = self._bearing(pose, self.target_landmark) + math.pi
+                return self._pick(pose, self._translation_keys(away))
+            self.mode = "drive"
+        if self.mode == "approach":
+            i = self.target_landmark
+            bearing = self._bearing(pose, i)
+            if t >= self.until:  # could not get there: give up
+                self.mode, self.until = "leave", t + 6.0
+                return "k", math.inf
+            gap = self._landmark_gaps(pose)[i]
+            whisking = self.touched and gap <= self.spec.touch_gap
+            if abs(bearing) > 0.5 * self.tolerance and not whisking:  # face it
+                room = self._room_to_turn(pose, bearing)
+                cramped = abs(room) < abs(bearing) - 0.5 * self.tolerance
+                if cramped and np.linalg.norm(pos - self.approach_from) < _MAKE_ROOM:  # back away first
+                    key, duration = self._pick(pose, self._translation_keys(bearing + math.pi)[:3])
+                    if key != "k":
+                        return key, duration
+                if abs(room) > 0.5 * self.tolerance:  # as far as the head can swing round here
+                    key, duration = self._pick(pose, [self._turn_key(room)])
+                    if key != "k":
+                        return key, duration
+            if not whisking:
+                # then drive up to it until the whiskers touch it, and as close as touch_gap
+                key, duration = self._pick(pose, self._translation_keys(bearing)[:3])
+                if key != "k":
+                    return key, duration
+                if not self.touched:  # no closer, and the whiskers do not reach it: go on
+                    self.mode, self.until = "leave", t + 6.0
+                    return "k", math.inf
+            lo, hi = self.spec.hold_cycles
+            self.mode, self.until = "hold", t + int(self.rng.integers(lo, hi + 1)) * self.sample_period
+            return "k", math.inf
+        # ---- drive along the path (the loop or, in a detour window, the offset loop)
+        path = self.detour if self.detour is not None and self.in_detour(t) else self.loop
+        if path is not self.path:
+            self._switch_path(path)
+        self._progress(pos)
+        if path is self.loop and self._start_visit(t, pose):
+            return self._decide(t, pose)
+        target = self.path.point(self.s + self.spec.lookahead)[0]
+        rel = target - pos
+        direction = _wrap(math.atan2(rel[1], rel[0]) - yaw)  # of the path ahead, robot frame
+        err = _wrap(self._facing(pos) - yaw)
+        self.turning = abs(err) > (0.5 if self.turning else 1.0) * self.tolerance
+        translation = self._translation_keys(direction)
+        if not self.turning:
+            return self._pick(pose, translation)
+        turn = self._turn_key(err)
+        if self.outward is None and abs(err) < 3 * self.tolerance and translation[:1] == ["i"]:
+            return self._pick(pose, ["u" if err > 0 else "o", turn, *translation])  # forward and turn
+        return self._pick(pose, [turn, *translation])
+
+    def _room_to_turn(self, pose: np.ndarray, bearing: float) -> float:
+        """How far [rad] the robot can turn in place towards ``bearing`` (robot frame) with the
+        body and the head `_TURN_CLEARANCE` clear all the way."""
+        steps = np.arange(1, int(abs(bearing) / math.radians(5.0)) + 1) * math.radians(5.0) * np.sign(bearing)
+        if not len(steps):
+            return 0.0
+        clear = footprint_clearance(self.obstacles, np.repeat(pose[None, :2], len(steps), axis=0), pose[2] + steps)
+        blocked = np.flatnonzero(clear < _TURN_CLEARANCE)
+        return float(steps[blocked[0] - 1]) if len(blocked) and blocked[0] > 0 else (0.0 if len(blocked) else bearing)
+
+    def _start_visit(self, t: float, pose: np.ndarray) -> bool:
+        """Explore the tactile landmark that the robot is passing: the head is within
+        ``visit_range`` of it, as close as the path ahead will bring it (0.3 m further on the
+        head would be no closer), and it lies ahead or to the side (``visit_bearing_deg``);
+        not again within half a lap."""
+        if not self.tactile:
+            return False
+        gaps = self._landmark_gaps(pose)
+        ahead = self.path.point(self.s + ROUTE_LOOKAHEAD)[0]
+        gaps_ahead = self._landmark_gaps(np.array([*ahead, self._facing(ahead)]))
+        laps = self.s / self.path.length
+        for i in sorted(self.tactile, key=lambda j: gaps[j]):
+            if gaps[i] > self.spec.visit_range:
+                break
+            passing = gaps_ahead[i] >= gaps[i] and laps - self.visited.get(i, -math.inf) >= 0.5
+            if passing and abs(self._bearing(pose, i)) <= math.radians(self.spec.visit_bearing_deg):
+                self.visited[i] = laps
+                self.mode, self.target_landmark, self.until = "approach", i, t + _APPROACH_TIMEOUT
+                self.approach_from = pose[:2].copy()
+                return True
+        return False
+
+    def __call__(self, obs: Observation) -> tuple[float, float, float]:
+        t = obs.time
+        dt = 0.0 if self._last_t is None else t - self._last_t
+        self._last_t = t
+        # what the driver sees between decisions: are the whiskers bent by something at full
+        # protraction (the end of a whisk cycle, when a sample is taken)?
+        cycles = t / self.sample_period
+        if abs(cycles - round(cycles)) < 1e-6:
+            self.touched |= float(np.max(obs.deflection, initial=0.0)) > TOUCH_THRESHOLD
+        if t >= self.next_decision - 1e-9:
+            self.next_decision = t + self.spec.decision_interval
+            key, duration = self._decide(t, obs.pose)
+            self.touched, self.released = False, ""
+            if key != self.key or math.isfinite(duration) or t >= self.press_until:
+                # release, then press the new key after the reaction delay (a tap is a new press)
+                self.key, self.press_from = key, t + self.spec.reaction_delay
+            self.press_until = self.press_from + duration
+        command = (0.0, 0.0, 0.0)
+        if self.press_from <= t + 1e-9 < self.press_until:
+            command = self._command(self.key)
+            horizon = min(SafetyGuard.HORIZON, self.press_until - t)
+            if not self.guard.safe(obs.pose, *command, horizon=horizon, current=self._current()):
+                command, self.press_until, self.released = (0.0, 0.0, 0.0), t, self.key  # it would hit something
+        return self._limit(*command, dt=dt)
+
+
 def make_controller(
     env: EnvironmentSpec, spec: RunSpec, rng: np.random.Generator, sample_period: float = 0.5
-) -> tuple[ForagingController | RouteFollower, tuple[float, float, float]]:
+) -> tuple[ForagingController | TeleopDriver | RouteFollower, tuple[float, float, float]]:
     """The controller for ``spec.kind`` and its start pose ``(x, y, yaw_rad)``; ``sample_period``
-    [s] (one whisk cycle) places the off-route part at the end of the run."""
+    [s] (one whisk cycle) places the off-route part (route, orbit: at the end of the run;
+    teleop: its detours) and sets the teleoperator's hold times."""
     if spec.kind == "foraging":
         ctrl = ForagingController(spec, env.obstacles, rng)
         return ctrl, ctrl.start_pose(env.start)
+    if spec.kind in ("teleop", "route") and not env.route:
+        raise ValueError(f"environment {env.name!r} has no route: a {spec.kind!r} run needs route waypoints")
+    if spec.kind == "teleop":
+        driver = TeleopDriver(spec, env, rng, sample_period)
+        return driver, driver.start_pose()
     off_from = (spec.warmup_cycles + (1.0 - spec.off_route_fraction) * spec.n_samples) * sample_period
     off_from = off_from if spec.off_route_fraction > 0 else math.inf
     if spec.kind == "orbit":
@@ -475,8 +938,6 @@ def make_controller(
         circle = centre + spec.orbit_radius * np.stack([np.cos(phi), np.sin(phi)], axis=1)
         ctrl = RouteFollower(spec, Route(circle), env.obstacles, rng, off_from, outward=centre)
         return ctrl, ctrl.start_pose()
-    if not env.route:
-        raise ValueError(f"environment {env.name!r} has no route: a 'route' run needs route waypoints")
     outward = np.mean(env.route, axis=0) if env.route_facing == "outward" else None
     ctrl = RouteFollower(spec, Route(env.route), env.obstacles, rng, off_from, outward)
     return ctrl, ctrl.start_pose()

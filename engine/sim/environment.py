@@ -404,6 +404,13 @@ class EnvironmentSpec(_Model):
                 raise ValueError(f"route.{i}: waypoint ({x}, {y}) is outside the arena")
         if len(self.route) == 1:
             raise ValueError("route: a route needs at least 2 waypoints")
+        if self.route:
+            # imported here: the controllers (robot footprint, routes) import this module
+            from vitaplace.engine.sim.controllers import route_collision
+
+            problem = route_collision(self)
+            if problem is not None:
+                raise ValueError(problem)
         if abs(self.start[0]) >= hx or abs(self.start[1]) >= hy:
             raise ValueError("start: start position is outside the arena")
         return self
@@ -483,6 +490,9 @@ class ObstacleMap:
 
     def __init__(self, env: EnvironmentSpec) -> None:
         self.half = np.array([env.arena.half_x, env.arena.half_y])
+        is_circle = [isinstance(lm, CylinderLandmark) for lm in env.landmarks]
+        #: landmark index of each circle, then of each polygon (the order of `landmark_distance_many`)
+        self._order = np.argsort(np.concatenate([np.flatnonzero(is_circle), np.flatnonzero(np.logical_not(is_circle))]))
         circles = [(lm.pos[0], lm.pos[1], lm.radius) for lm in env.landmarks if isinstance(lm, CylinderLandmark)]
         self.circles = np.array(circles, dtype=float).reshape(-1, 3)
         a_list, b_list, pid = [], [], []
@@ -503,10 +513,18 @@ class ObstacleMap:
     def distance_many(self, points: np.ndarray) -> np.ndarray:
         """Signed distances (n,) of ``points`` (n, 2) to the closest obstacle surface [m]."""
         p = np.asarray(points, dtype=float).reshape(-1, 2)
-        d = (self.half[None] - np.abs(p)).min(axis=1)
+        walls = (self.half[None] - np.abs(p)).min(axis=1)
+        landmarks = self.landmark_distance_many(p)
+        return np.minimum(walls, landmarks.min(axis=1)) if landmarks.shape[1] else walls
+
+    def landmark_distance_many(self, points: np.ndarray) -> np.ndarray:
+        """Signed distances (n, L) of ``points`` (n, 2) to each landmark's outline, in the
+        environment's landmark order [m]."""
+        p = np.asarray(points, dtype=float).reshape(-1, 2)
+        parts = []
         if len(self.circles):
             dc = np.hypot(p[:, None, 0] - self.circles[None, :, 0], p[:, None, 1] - self.circles[None, :, 1])
-            d = np.minimum(d, (dc - self.circles[None, :, 2]).min(axis=1))
+            parts.append(dc - self.circles[None, :, 2])
         if self.n_polygons:
             w = p[:, None, :] - self.edge_a[None]  # (n, E, 2)
             t = np.clip(np.einsum("nij,ij->ni", w, self.edge_e) / self.edge_ee, 0, 1)
@@ -516,19 +534,24 @@ class ObstacleMap:
             # edges are stored polygon by polygon: reduce each contiguous block
             outside_count = np.add.reduceat((cross < 0).astype(np.int32), self.edge_start, axis=1)
             dmin = np.minimum.reduceat(dist, self.edge_start, axis=1)
-            signed = np.where(outside_count > 0, dmin, -dmin)
-            d = np.minimum(d, signed.min(axis=1))
-        return d
+            parts.append(np.where(outside_count > 0, dmin, -dmin))
+        if not parts:
+            return np.zeros((len(p), 0))
+        return np.concatenate(parts, axis=1)[:, self._order]
 
     def distance(self, p: np.ndarray) -> float:
         """Signed distance [m] from point ``p`` (x, y) to the closest obstacle surface."""
         return float(self.distance_many(np.asarray(p, dtype=float)[None])[0])
 
-    def query(self, points: np.ndarray, eps: float = 1e-3) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distances (n,) and unit gradients (n, 2) of ``points`` (n, 2) in one batch."""
+    def query(
+        self, points: np.ndarray, eps: float = 1e-3, landmark: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (n,) and unit gradients (n, 2) of ``points`` (n, 2) in one batch:
+        to the closest obstacle, or to landmark number ``landmark`` alone."""
         p = np.asarray(points, dtype=float).reshape(-1, 2)
         offsets = np.array([[0, 0], [eps, 0], [-eps, 0], [0, eps], [0, -eps]])
-        d = self.distance_many((p[:, None, :] + offsets[None]).reshape(-1, 2)).reshape(len(p), 5)
+        q = (p[:, None, :] + offsets[None]).reshape(-1, 2)
+        d = (self.distance_many(q) if landmark is None else self.landmark_distance_many(q)[:, landmark]).reshape(len(p), 5)
         g = np.stack([d[:, 1] - d[:, 2], d[:, 3] - d[:, 4]], axis=1)
         norm = np.linalg.norm(g, axis=1, keepdims=True)
         return d[:, 0], np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)

@@ -182,8 +182,10 @@ def simulate_run(
     """Simulate one run and return it as an in-memory `Run`.
 
     ``run.kind == "foraging"`` drives the tactile-attention foraging controller from the
-    environment's ``start`` (or ``run.start``); ``"route"`` follows the environment's route
-    with the run's noise settings. ``stats``, if given, receives timing figures
+    environment's ``start`` (or ``run.start``); ``"teleop"`` drives the emulated keyboard
+    teleoperator along its own copy of the environment's route; ``"route"`` follows the
+    route with the run's noise settings. ``attrs["touch_share"]`` is the share of samples
+    with whisker contact at the sampling instant (`Run.touch_mask`). ``stats``, if given, receives timing figures
     (``physics_s`` - stepping and sensor readout, ``control_s`` - the controller,
     ``render_s``, ``wall_s`` - everything including model build, ``samples_per_s``) - kept
     out of ``attrs`` so the recorded data stay reproducible.
@@ -302,6 +304,8 @@ def simulate_run(
         name=name,
         attrs=attrs,
     )
+    #: share of samples with whisker contact at the sampling instant
+    run_out.attrs["touch_share"] = float(run_out.touch_mask().mean())
     if stats is not None:
         wall = time.perf_counter() - wall0
         stats.update(

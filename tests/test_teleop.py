@@ -1,0 +1,223 @@
+"""Tests of the emulated keyboard teleoperator (``kind: teleop``), the shared safety guard and
+the route-clearance check that environments pass before any compute."""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the mujoco import
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
+from vitaplace.engine.sim.controllers import (  # noqa: E402
+    ROUTE_MIN_CLEARANCE,
+    TELEOP_TURN_PER_SPEED,
+    Route,
+    SafetyGuard,
+    loop_clearance,
+    make_controller,
+)
+from vitaplace.engine.sim.environment import EnvironmentSpec, environment_files, load_environment  # noqa: E402
+from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
+from vitaplace.engine.sim.simulate import RunSpec, simulate_run  # noqa: E402
+
+ENVS = sorted(environment_files())
+#: images are not looked at here: a tiny camera saves rendering time
+ROBOT = RobotSpec(camera_width=16, camera_height=12)
+N = 200  #: samples per simulated run (100 s)
+
+
+@pytest.fixture(scope="module")
+def drives() -> dict[str, object]:
+    """One teleop run per shipped world (seed 1), physical whiskers (the default touch model)."""
+    return {name: simulate_run(load_environment(name), RunSpec(kind="teleop", n_samples=N), 1, ROBOT, progress=False)
+            for name in ENVS}
+
+
+def _nearest_m(query: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    return cKDTree(reference[:, :2]).query(query[:, :2])[0]
+
+
+# ---------------------------------------------------------------------- the shared guard
+def test_safety_guard_hand_cases():
+    """In a bare 6 m arena (east wall's face at x = 3), the robot at (2.2, 0) facing east has
+    its head disc (centre 0.5 m ahead, radius hypot(0.08, 0.08) = 0.113 m) 0.187 m from the
+    wall. Driving 0.4 m/s for the 0.5 s horizon brings it to -0.013 m (refused: the floor is
+    0.015 m); 0.3 m/s to 0.037 m (allowed); strafing or backing away is allowed; the first
+    safe of a list wins and standing still is the last resort."""
+    env = EnvironmentSpec.model_validate({"name": "bare", "arena": {"size": 6.0}})
+    guard = SafetyGuard(env.obstacles, 0.015)
+    pose = np.array([2.2, 0.0, 0.0])
+    head_radius = math.hypot(0.08, 0.08)
+    assert guard.clearance(pose, 0.0, 0.0) == pytest.approx(0.3 - head_radius, abs=1e-9)
+    assert guard.clearance(pose, 0.4, 0.0) == pytest.approx(0.1 - head_radius, abs=1e-9)
+    assert not guard.safe(pose, 0.4, 0.0)
+    assert guard.safe(pose, 0.3, 0.0)
+    assert guard.safe(pose, 0.0, 0.0, 0.4) and guard.safe(pose, -0.4, 0.0)
+    assert guard.first_safe(pose, [(0.4, 0.0, 0.0), (0.0, 0.0, 0.4)]) == (0.0, 0.0, 0.4)
+    assert guard.first_safe(pose, [(0.4, 0.0, 0.0), (0.5, 0.0, 0.0)]) == (0.0, 0.0, 0.0)
+
+
+def test_safety_guard_with_braking_follows_the_base_to_a_stop():
+    """With braking 0.5 m/s^2 from rest, 0.3 m/s forward over 0.5 s: the base ramps to 0.25 m/s
+    (0.0625 m), then brakes to a stop (0.25^2 / 1 = 0.0625 m): 0.125 m in all, so the head
+    ends 0.3 - 0.125 m from the wall minus its radius. Already moving at 0.3 m/s, the same
+    command goes 0.15 m + 0.09 m of braking."""
+    env = EnvironmentSpec.model_validate({"name": "bare", "arena": {"size": 6.0}})
+    guard = SafetyGuard(env.obstacles, 0.015, braking=0.5)
+    pose = np.array([2.2, 0.0, 0.0])
+    head_radius = math.hypot(0.08, 0.08)
+    assert guard.clearance(pose, 0.3, 0.0) == pytest.approx(0.3 - 0.125 - head_radius, abs=1e-9)
+    assert guard.clearance(pose, 0.3, 0.0, current=(0.3, 0.0)) == pytest.approx(0.3 - 0.24 - head_radius, abs=1e-9)
+    assert guard.clearance(pose, 0.0, 0.0, 0.3) == pytest.approx(0.3 - head_radius, abs=1e-9)  # sideways
+
+
+def test_both_controllers_use_the_one_guard():
+    e1 = load_environment("e1")
+    foraging, _ = make_controller(e1, RunSpec(kind="foraging", n_samples=2), np.random.default_rng(0))
+    driver, _ = make_controller(e1, RunSpec(kind="teleop", n_samples=2), np.random.default_rng(0))
+    assert type(foraging._guard) is SafetyGuard and type(driver.guard) is SafetyGuard
+
+
+# ---------------------------------------------------------------------- each run its own drive
+def test_each_seed_draws_its_own_start_speed_loop_and_bias():
+    """Start points spread along the loop, speeds are the keys' speed after -2..2 presses of q
+    (x1.1) or z (x0.9), the turn rate keeps teleop.launch's 0.25 rad/s per m/s, and every
+    jittered loop differs from the shipped one yet keeps the footprint clear."""
+    e1 = load_environment("e1")
+    spec = RunSpec(kind="teleop", n_samples=2)
+    allowed = {round(0.3 * f, 9) for f in (0.81, 0.9, 1.0, 1.1, 1.21)}
+    base = Route(e1.route)
+    starts, speeds = [], set()
+    for seed in range(8):
+        driver, start = make_controller(e1, spec, np.random.default_rng(seed))
+        starts.append(base.project(np.array(start[:2]))[0])
+        speeds.add(round(driver.speed, 9))
+        assert driver.turn == pytest.approx(TELEOP_TURN_PER_SPEED * driver.speed)
+        moved = np.linalg.norm(driver.loop.points - base.points, axis=1)
+        assert 0.02 < moved.max() < 0.4
+        _, clearance = loop_clearance(e1.obstacles, driver.loop, np.mean(e1.route, axis=0))
+        assert clearance.min() >= ROUTE_MIN_CLEARANCE
+    assert speeds <= allowed and len(speeds) >= 3
+    gaps = np.diff(np.sort(starts))
+    assert np.ptp(starts) > 0.5 * base.length and gaps.min() > 0.01  # spread, all different
+
+
+def test_two_teleop_seeds_are_independent_drives_unlike_two_route_runs():
+    """Query -> nearest reference pose: two route runs (same start, loop, speed) are ~2 cm
+    apart; two teleop drives are clearly further apart (each its own start, loop and speed)."""
+    e1 = load_environment("e1")
+    medians = {}
+    for kind in ("route", "teleop"):
+        ref, query = (simulate_run(e1, RunSpec(kind=kind, n_samples=150), seed, ROBOT, progress=False) for seed in (1, 2))
+        medians[kind] = float(np.median(_nearest_m(query.poses, ref.poses)))
+        if kind == "teleop":
+            assert np.linalg.norm(ref.poses[0, :2] - query.poses[0, :2]) > 0.5
+    assert medians["route"] < 0.04
+    assert medians["teleop"] > max(0.06, 2.5 * medians["route"]), medians
+
+
+# ---------------------------------------------------------------------- collisions, touch
+@pytest.mark.parametrize("name", ENVS)
+def test_teleop_never_drives_the_body_into_anything(drives, name):
+    assert drives[name].attrs["body_collision_instants"] == 0
+
+
+def test_touch_share_follows_the_paper_e3_above_e2_above_e1(drives):
+    """The paper: E3 had the most tactile data, E2 more landmarks than E1. The teleoperator,
+    whisking each landmark it passes, touches in at least 5 % of E1's samples, 15 % of E2's
+    and 20 % of E3's (ten times the route kind's 1-2 % there). touch_share is
+    Run.touch_mask's mean."""
+    share = {name: drives[name].attrs["touch_share"] for name in ("e1", "e2", "e3")}
+    for name in share:
+        assert share[name] == pytest.approx(float(drives[name].touch_mask().mean()))
+    assert share["e3"] > share["e2"] > share["e1"], share
+    assert share["e1"] >= 0.05 and share["e2"] >= 0.15 and share["e3"] >= 0.20, share
+    for name in ("e1", "e2", "e3"):
+        assert drives[name].attrs["controller_modes"].get("hold", 0) > 0  # it stopped to whisk
+
+
+# ---------------------------------------------------------------------- detours
+def test_detours_are_spread_along_the_run_with_the_requested_share():
+    """off_route_fraction 0.3 in 3 detours: three disjoint windows of equal length whose
+    samples are 30 % of the run (to one sample per window), not all at its end; in them the
+    robot drives the loop moved up to 0.6 m inward, clearly further from the shipped loop than
+    elsewhere."""
+    e1 = load_environment("e1")
+    spec = RunSpec(kind="teleop", n_samples=N, off_route_fraction=0.3, detour_count=3)
+    driver, _ = make_controller(e1, spec, np.random.default_rng(3), 0.5)
+    windows = driver.detours
+    assert len(windows) == 3
+    lengths = [t1 - t0 for t0, t1 in windows]
+    assert lengths == pytest.approx([0.3 * N * 0.5 / 3] * 3)
+    assert all(b[0] >= a[1] for a, b in zip(windows, windows[1:]))
+    times = (spec.warmup_cycles + 1 + np.arange(N)) * 0.5
+    inside = np.array([driver.in_detour(t) for t in times])
+    assert abs(inside.mean() - 0.3) <= 3 / N
+    assert windows[0][0] < 0.6 * times[-1]  # not only the final part
+    _, clearance = loop_clearance(e1.obstacles, driver.detour, np.mean(e1.route, axis=0))
+    assert clearance.min() >= ROUTE_MIN_CLEARANCE
+
+    run = simulate_run(e1, spec, 3, ROBOT, progress=False)
+    off = Route(e1.route).distance(run.poses[:, :2])
+    settled = np.zeros(N, dtype=bool)
+    for t0, t1 in windows:
+        settled |= (times >= 0.5 * (t0 + t1)) & (times < t1)  # second half: the robot got there
+    assert np.median(off[settled]) > 0.3
+    assert np.median(off[settled]) > np.median(off[~inside]) + 0.1  # (outside: explorations, returns)
+
+
+# ---------------------------------------------------------------------- routes checked before compute
+def test_a_route_the_whiskeye_cannot_drive_clear_is_refused_by_validate(tmp_path):
+    path = tmp_path / "narrow.yaml"
+    path.write_text("extends: e1\nroute: [[2.1, 0], [0, 1.5], [-2.1, 0], [0, -1.5]]\n")
+    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli", "validate", str(path)],
+                            capture_output=True, text=True, timeout=120)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-500:]
+    assert str(path) in lines[0] and "route.0" in lines[0] and "(2.1, 0)" in lines[0], lines[0]
+
+
+def test_route_check_names_the_waypoint_near_the_obstacle():
+    """A triangle in E1 driven facing the direction of travel whose third corner, (0, -1.75),
+    lies inside the cylinder (radius 0.5 at (0, -2.138)). On the way there (2.6 m from
+    (-0.5, 0.8)) the head disc (0.5 m ahead, radius 0.113) first comes within 0.03 m of the
+    cylinder 0.76 m before that corner - the segment's second half: waypoint 2 is named."""
+    data = load_environment("e1").model_dump()
+    data["route"] = [[0.5, 0.8], [-0.5, 0.8], [0.0, -1.75]]
+    data["route_facing"] = "travel"
+    with pytest.raises(ValueError, match=r"route\.2: .*near waypoint 2 \(0, -1\.75\)"):
+        EnvironmentSpec.model_validate(data)
+
+
+@pytest.mark.parametrize("name", ENVS)
+def test_shipped_routes_pass_the_route_check(name):
+    from vitaplace.engine.sim.controllers import route_collision
+
+    assert route_collision(load_environment(name)) is None
+
+
+def test_first_key_waits_for_the_reaction_delay_and_is_one_of_the_keys():
+    """The driver decides at its first tick and presses the key 0.25 s later (the robot
+    stands until then); the command is then one key's: forward/strafe components of 0 or the
+    run's speed, a turn rate of 0 or 0.25 rad/s per m/s of it."""
+    from vitaplace.engine.sim.controllers import Observation
+
+    e1 = load_environment("e1")
+    driver, start = make_controller(e1, RunSpec(kind="teleop", n_samples=2, max_accel=100.0), np.random.default_rng(5))
+    seen = []
+    for k in range(5):  # ticks at 0.5 (decision), 0.6, 0.7 (waiting), 0.8, 0.9 (pressed)
+        obs = Observation(time=0.5 + 0.1 * k, pose=np.array(start), contacts=np.zeros((0, 3)), deflection=np.zeros(24))
+        seen.append(driver(obs))
+    assert seen[1] == seen[2] == (0.0, 0.0, 0.0)
+    v, w, lateral = seen[4]
+    assert driver.key != "k" and (v, w, lateral) != (0.0, 0.0, 0.0)
+    assert {round(abs(v), 9), round(abs(lateral), 9)} <= {0.0, round(driver.speed, 9)}
+    assert abs(w) == pytest.approx(0.0) or abs(w) == pytest.approx(TELEOP_TURN_PER_SPEED * driver.speed)
