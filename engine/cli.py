@@ -93,6 +93,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("source", type=Path, help="folder with images.mat, theta.mat, xy.mat and poses.mat")
     p.add_argument("--out", type=Path, required=True, help="the run file to write (e.g. runs/real/query.h5)")
     p.add_argument("--name", help="name of the run (default: the folder's name)")
+    p.add_argument("--image-range", choices=("0-1", "0-255"),
+                   help="range of float images when the data cannot tell (0-1 saturates values above 1)")
+    p.add_argument("--pose-layout", choices=("Nx3", "3xN"), help="layout of a 3 x 3 pose array (three samples)")
     p = sub.add_parser("sweep", parents=[common], help="run a scenario over several seeds (local process pool, or Ray)")
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
@@ -280,10 +283,15 @@ def _validate(args: argparse.Namespace) -> int:
 
     if _is_environment_file(args.scenario):
         return _validate_environment(args)
+    from vitaplace.engine.plausibility import LONG_SECONDS, duration, estimated_seconds
+
     scenario, _ = load_scenario(args.scenario, args.overrides)
+    runs = [scenario.train.run] + [e.run for e in scenario.evaluations for _ in ("query", "reference")]
+    seconds = sum(estimated_seconds(run, scenario.robot) for run in runs if run is not None)
+    long = f"; simulating its runs takes about {duration(seconds)} on one core (estimate)" if seconds > LONG_SECONDS else ""
     print(
         f"{args.scenario}: valid scenario '{scenario.name}': {len(scenario.evaluations)} evaluation environment(s), "
-        f"methods {', '.join(m.name for m in scenario.methods)}"
+        f"methods {', '.join(m.name for m in scenario.methods)}{long}"
     )
     return 0
 
@@ -295,7 +303,7 @@ def _import(args: argparse.Namespace) -> int:
 
     if args.out.is_dir():
         raise DatasetError(f"--out {args.out}: is a folder; expected the run file to write (e.g. {args.out / 'run.h5'})")
-    run = import_mat(args.source, name=args.name)
+    run = import_mat(args.source, name=args.name, image_range=args.image_range, pose_layout=args.pose_layout)
     try:
         path = write_run(args.out, run)
     except OSError as exc:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import copy
 import logging
-import multiprocessing
 import os
 import re
 import socket
@@ -29,7 +28,7 @@ import traceback
 import typing
 import uuid
 from collections.abc import Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -259,13 +258,13 @@ def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dic
 def _pool_round(jobs: Sequence[SeedJob], workers: int):
     """One process pool over ``jobs``: yields (job, result, failure) for the jobs that ended,
     returns those lost to a broken pool."""
-    from vitaplace.engine.runner import die_with_parent
+    from vitaplace.engine.runner import interrupts_to_this_process, stop_pool, worker_pool
 
-    context = multiprocessing.get_context("spawn")  # no fork: GL and Warp state are not fork-safe
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=die_with_parent)
+    pool = worker_pool(workers)  # spawned, not forked: GL and Warp state are not fork-safe
     broken: list[SeedJob] = []
     try:
-        pending = {pool.submit(run_seed, job): job for job in jobs}
+        with interrupts_to_this_process():
+            pending = {pool.submit(run_seed, job): job for job in jobs}
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
@@ -277,7 +276,7 @@ def _pool_round(jobs: Sequence[SeedJob], workers: int):
                 except Exception as exc:
                     yield job, None, describe_failure(exc)
     except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)  # interrupted: do not wait for running seeds
+        stop_pool(pool)  # interrupted: do not wait for running seeds
         raise
     pool.shutdown()
     return broken
