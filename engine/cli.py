@@ -318,6 +318,8 @@ def _sweep(args: argparse.Namespace) -> int:
 
     if args.cpus_per_job <= 0 or args.gpus_per_job < 0:
         raise UserError("--cpus-per-job must be > 0 and --gpus-per-job >= 0")
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers {args.workers}: expected a number of worker processes, at least 1")
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
     out = writable_dir(args.out or Path("runs") / f"{scenario.name}-sweep")
     log = logging.getLogger("vitaplace")
@@ -350,6 +352,15 @@ def _aggregate(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line; a Ctrl-C at any moment (even while parsing or importing) ends it with one line."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("vitaplace: interrupted; finished stages are cached, run again to resume", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     level = getattr(args, "log_level", logging.INFO)
     _console_logging(level)
@@ -374,9 +385,6 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"vitaplace: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("vitaplace: interrupted; finished stages are cached, run again to resume", file=sys.stderr)
-        return 130
 
 
 if __name__ == "__main__":

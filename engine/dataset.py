@@ -260,7 +260,7 @@ def write_run(path: str | os.PathLike, run: Run) -> Path:
         for key in FIELDS:
             data = run._get(key)
             chunks = (1, *data.shape[1:]) if key == "images" and len(data) else None
-            f.create_dataset(key, data=data, chunks=chunks, track_times=False)  # same data, same bytes
+            f.create_dataset(key, data=data, chunks=chunks)
         f.attrs["schema_version"] = SCHEMA_VERSION
         f.attrs["name"] = run.name
         f.attrs["vitaplace_version"] = __version__

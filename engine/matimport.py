@@ -103,8 +103,14 @@ def _read_mat(path: Path) -> dict[str, Any]:
 
     if h5py.is_hdf5(path):  # MATLAB v7.3
         return _read_mat73(path)
-    data = scipy.io.loadmat(path, mat_dtype=True)  # the declared class, not the smaller storage type
-    return {k: v for k, v in data.items() if not k.startswith("__")}
+    data = {k: v for k, v in scipy.io.loadmat(path).items() if not k.startswith("__")}
+    # each variable as its declared class, not the smaller type MATLAB may have stored it in
+    # (complex arrays are left as they are, for `_check_real` to refuse)
+    for name, _, declared in scipy.io.whosmat(path):
+        value = data.get(name)
+        if declared in _CLASSES and isinstance(value, np.ndarray) and not np.iscomplexobj(value):
+            data[name] = value.astype(_CLASSES[declared], copy=False)
+    return data
 
 
 def _read_mat73(path: Path) -> dict[str, Any]:
