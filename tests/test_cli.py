@@ -786,3 +786,69 @@ def test_report_gives_the_distribution_of_test_time_inference_steps(quickstart_r
         row = (f"| L | {label.replace('-', '/')} | {np.median(steps):.0f} | {np.percentile(steps, 90):.0f} | "
                f"{steps.max()} | {100 * (~stopped).mean():.1f} |")
         assert row in report, row
+
+
+# --------------------------------------------------------------------------- physical plausibility at validate
+
+IMPLAUSIBLE = {
+    "an infinite tactile range": (["methods.0.params.tactile_min_range=.inf"],
+                                  "methods.0.params: extractor 'mupnet': tactile_min_range: Input should be a finite number"),
+    "a negative whisker length": (["robot.whisker_lengths_mm=[50, -70, 100, 160]"], "robot.whisker_lengths_mm.1: Input should be greater than 0"),
+    "a detour outside the arena": (["evaluations.0.query_off_route=0.3", "evaluations.0.run.off_route_offset=-3"],
+                                   "evaluations.0.run.off_route_offset: -3 m off the path takes the robot"),
+    "a 0.1 us timestep": (["robot.timestep=1e-7"], "robot.timestep: Input should be greater than or equal to 0.0001"),
+    "an orbit beyond the arena": (["evaluations.0.run={kind: orbit, n_samples: 10, orbit_radius: 5}"],
+                                  "evaluations.0.run.orbit_radius: an orbit of 5 m around (0, 0)"),
+    "an orbit centre outside": (["evaluations.0.run={kind: orbit, n_samples: 10, orbit_centre: [9, 0]}"],
+                                "evaluations.0.run.orbit_centre: (9, 0) is outside the 6.05 x 6.05 m arena"),
+    "a start outside": (["train.run.start=[10, 0, 0]"], "train.run.start: (10, 0) puts the robot"),
+    "a start in the wall": (["train.run.start=[2.9, 0, 0]"], "train.run.start: (2.9, 0) puts the robot"),
+    "a 0.001 Hz controller": (["train.run.control_hz=0.001"], "train.run.control_hz: 0.001 Hz is below the whisking rate"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(IMPLAUSIBLE))
+def test_implausible_settings_are_refused_at_validate_naming_the_key(capsys, case):
+    overrides, message = IMPLAUSIBLE[case]
+    argv = ["validate", "quickstart"] + [a for o in overrides for a in ("--set", o)]
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vitaplace: error: ") and message in lines[0], lines
+
+
+def test_settings_just_inside_the_arena_are_valid(capsys):
+    """The arena of e1 is 6.05 m wide, the body's radius 0.23 m: 3.025 - 0.23 = 2.795 m is the
+    farthest the base's centre can be from the middle."""
+    ok = ["train.run.start=[2.79, 0, 0]", "evaluations.0.run={kind: orbit, n_samples: 10, orbit_radius: 2.79}",
+          "train.run.control_hz=2"]
+    assert main(["validate", "quickstart"] + [a for o in ok for a in ("--set", o)]) == 0
+    assert main(["validate", "quickstart", "--set", "train.run.start=[2.8, 0, 0]"]) == 2
+
+
+def test_a_long_simulation_is_announced_with_an_estimate(capsys):
+    """0.1 ms steps at 2 Hz whisking: 5000 steps per sample. Estimate: (samples + warm-up
+    cycle) x steps x 25 us + samples x 1 ms; train 5000 samples, two evaluation runs of 150."""
+    from vitaplace.engine.plausibility import duration
+
+    seconds = (5001 * 5000 * 25e-6 + 5000 * 1e-3) + 2 * (151 * 5000 * 25e-6 + 150 * 1e-3)
+    assert duration(seconds) == "11 min"  # 668.2 s
+    assert main(["validate", "quickstart", "--set", "robot.timestep=1e-4", "--set", "train.run.n_samples=5000"]) == 0
+    assert "simulating its runs takes about 11 min on one core (estimate)" in capsys.readouterr().out
+    assert main(["validate", "quickstart"]) == 0
+    assert "estimate" not in capsys.readouterr().out
+
+
+def test_a_long_simulation_in_a_worker_logs_its_progress(monkeypatch, caplog):
+    """While a worker simulates a run estimated to take long, a line each tenth of the estimate."""
+    import threading
+    from concurrent.futures import Future
+
+    from vitaplace.engine import runner
+
+    monkeypatch.setattr(runner, "LONG_SECONDS", 0.1)
+    future: Future = Future()
+    threading.Timer(0.35, future.set_result, ((10, 1.0),)).start()
+    with caplog.at_level("INFO", logger="vitaplace"):
+        assert runner._await(future, "train", estimate=1.0) == (10, 1.0)
+    lines = [r.getMessage() for r in caplog.records if "of an estimated 1 s" in r.getMessage()]
+    assert 2 <= len(lines) <= 4, lines
