@@ -6,18 +6,12 @@ output was made for and the SHA-256 of its content. A stage counts as done only 
 output is there and its seal holds the same key and a matching digest; a missing seal, a
 different key, a truncated file, a flipped byte or a file missing from a folder means the
 stage runs again, with one log line saying why.
-
-The digest of an ``.npz`` file is that of its members' names and contents (zip metadata
-such as write times left out), so identical arrays saved twice have one digest: a forced
-stage that reproduces its output leaves the keys downstream (`vitaplace.engine.runner`)
-unchanged. A damaged archive (its members fail their CRC) falls back to the raw bytes.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import zipfile
 from pathlib import Path
 
 from vitaplace.engine.atomic import write_text_atomic
@@ -32,28 +26,10 @@ def digest(path: Path) -> str:
     for file in files:
         if file != path:
             h.update(str(file.relative_to(path)).encode() + b"\0")
-        if not (file.suffix == ".npz" and _update_with_members(h, file)):
-            with open(file, "rb") as f:
-                while chunk := f.read(_CHUNK):
-                    h.update(chunk)
+        with open(file, "rb") as f:
+            while chunk := f.read(_CHUNK):
+                h.update(chunk)
     return h.hexdigest()
-
-
-def _update_with_members(h: "hashlib._Hash", file: Path) -> bool:
-    """Feed the member names and contents of the zip archive ``file`` to ``h``; False (and
-    ``h`` untouched) when it is not a readable archive."""
-    member = hashlib.sha256()
-    try:
-        with zipfile.ZipFile(file) as archive:
-            for name in sorted(archive.namelist()):
-                member.update(name.encode() + b"\0")
-                with archive.open(name) as f:  # checks the member's CRC when fully read
-                    while chunk := f.read(_CHUNK):
-                        member.update(chunk)
-    except (zipfile.BadZipFile, OSError, EOFError, ValueError):
-        return False
-    h.update(b"npz\0" + member.digest())
-    return True
 
 
 def seal_path(path: Path) -> Path:

@@ -441,37 +441,68 @@ def test_temporaries_left_by_an_interrupted_run_are_removed(tmp_path):
     assert set(removed) == {part, model_tmp} and keep.exists() and not part.exists() and not model_tmp.exists()
 
 
-def test_simulation_workers_die_with_their_parent(tmp_path):
-    """kill -9 of the process that started a worker pool takes the workers with it."""
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _worker_outlives_a_killed_parent(tmp_path: Path, main_body: str) -> bool:
+    """Run a parent whose ``__main__`` body (making ``pool = worker_pool(1)``) prints a worker's
+    pid, kill -9 the parent at once, and say whether the worker is still alive 20 s later."""
     import signal
     import time
 
     script = tmp_path / "parent.py"
-    script.write_text(
-        "import multiprocessing, os, time\n"
-        "from concurrent.futures import ProcessPoolExecutor\n"
-        "from vitaplace.engine.runner import die_with_parent\n"
-        "if __name__ == '__main__':\n"
-        "    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context('spawn'), initializer=die_with_parent)\n"
-        "    print(pool.submit(os.getpid).result(), flush=True)\n"
-        "    time.sleep(60)\n"
-    )
+    script.write_text("import os, time\nfrom vitaplace.engine.runner import worker_pool\nif __name__ == '__main__':\n"
+                      "    pool = worker_pool(1)\n" + main_body + "    time.sleep(60)\n")
     parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
     worker = int(parent.stdout.readline())
     os.kill(parent.pid, signal.SIGKILL)
     parent.wait()
-
-    def alive(pid: int) -> bool:
-        try:
-            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            return False
-        return state != "Z"
-
-    deadline = time.monotonic() + 10
-    while alive(worker) and time.monotonic() < deadline:
+    deadline = time.monotonic() + 20
+    while _alive(worker) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not alive(worker), f"worker {worker} outlived its parent"
+    return _alive(worker)
+
+
+def test_simulation_workers_die_with_their_parent(tmp_path):
+    """kill -9 of the process that started a worker pool takes the workers with it."""
+    assert not _worker_outlives_a_killed_parent(tmp_path, "    print(pool.submit(os.getpid).result(), flush=True)\n")
+
+
+def test_a_worker_that_starts_after_its_parent_died_exits_at_once(tmp_path):
+    """kill -9 of the parent while its spawned worker is still importing: the worker, finding
+    another process as its parent, exits instead of running its task (a minute's sleep)."""
+    body = "    pool.submit(time.sleep, 60)\n    print(*pool._processes, flush=True)\n"
+    assert not _worker_outlives_a_killed_parent(tmp_path, body)
+
+
+def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) right after the
+    simulation workers were started: one line, exit 130, no worker left behind."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    args = ["run", "quickstart", "--out", str(out), "-q"] + [a for o in TINY for a in ("--set", o)]
+    proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if (out / "log.txt").exists() and "worker processes" in (out / "log.txt").read_text():
+            break
+        time.sleep(0.02)
+    assert proc.poll() is None, "the run ended before it could be interrupted"
+    children = [int(p) for p in Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()]
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-3000:]
+    assert err.strip().splitlines() == ["vitaplace: interrupted; finished stages are cached, run again to resume"], err[-3000:]
+    time.sleep(1)
+    assert children and not any(_alive(c) for c in children)
 
 
 def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
