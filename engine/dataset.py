@@ -230,15 +230,17 @@ def _check_finite(data: np.ndarray, key: str, where: str) -> None:
 
 def _check_shapes(arrays: Mapping[str, Any], where: str) -> None:
     """Raise DatasetError unless the arrays have the shapes of the schema."""
-    n = arrays["poses"].shape[0]
+    poses = arrays["poses"].shape
+    n = poses[0] if poses else None
+    points = arrays["contact_points"].shape
     expected = {
+        "poses": (n, 3),
         "images": (n, None, None, 3),
         "theta": (n, None),
-        "poses": (n, 3),
         "times": (n,),
         "contact_points": (None, 3),
-        "contact_normals": (arrays["contact_points"].shape[0], 3),
-        "contact_offsets": (n + 1,),
+        "contact_normals": (points[0] if points else None, 3),
+        "contact_offsets": (n + 1 if n is not None else None,),
     }
     n_whiskers = arrays["theta"].shape[1] if arrays["theta"].ndim == 2 else None
     expected["xy"] = (n, n_whiskers, 2)

@@ -151,6 +151,7 @@ def test_aggregate_refuses_other_scenarios_and_unfinished_runs(local_sweep, tmp_
     resolved = yaml.safe_load((other / "scenario.resolved.yaml").read_text())
     resolved["evaluation"]["tau"] = 0.4
     (other / "scenario.resolved.yaml").write_text(yaml.safe_dump(resolved))
+    reseal(other)  # a finished run of another scenario
     cases = {
         "differs from": [str(out / "seed-0"), str(other)],
         "incomplete run folder": [str(out / "seed-0"), str(out / "seed-1")],  # the seed that failed
