@@ -520,6 +520,7 @@ class Pipeline:
     def run(self, until: str = "report") -> list[dict[str, Any]]:
         """Run the stages up to and including ``until``; return the result rows (if evaluated)."""
         self.out.mkdir(parents=True, exist_ok=True)
+        completion.clear(self.out)  # first: until the new record, the folder holds no finished run
         write_text_atomic(self.out / completion.SCENARIO, yaml.safe_dump(self.resolved, sort_keys=False))
         started = time.perf_counter()
         rows: list[dict[str, Any]] = []
