@@ -91,7 +91,7 @@ def interrupts_to_this_process() -> Iterator[None]:
     """Processes started inside ignore Ctrl-C from their first instant (an ignored SIGINT
     survives exec, and Python keeps it ignored), so a Ctrl-C stops this process alone, with
     one line, instead of a traceback from every worker still importing; `stop_pool` then
-    ends them."""
+    ends them. A Ctrl-C during the few milliseconds it takes to start them is ignored."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -106,7 +106,7 @@ def stop_pool(pool: ProcessPoolExecutor) -> None:
     """End ``pool`` now, killing its workers mid-task (after Ctrl-C: nothing they do is kept)."""
     for process in list((getattr(pool, "_processes", None) or {}).values()):  # the executor's own record
         process.kill()
-    pool.shutdown(wait=False, cancel_futures=True)
+    pool.shutdown(cancel_futures=True)  # quick once they are dead; frees the pool's queues and semaphores
 
 
 def die_with_parent(parent: str) -> None:

@@ -480,9 +480,25 @@ def test_a_worker_that_starts_after_its_parent_died_exits_at_once(tmp_path):
     assert not _worker_outlives_a_killed_parent(tmp_path, body)
 
 
+def _sigint(pid: int) -> str | None:
+    """How process ``pid`` treats SIGINT: "ignored", "caught" (a Python that has begun to start
+    up sets its handler before importing anything) or None (default, or no such process)."""
+    import signal
+
+    try:
+        status = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines())
+    except OSError:
+        return None
+    bit = 1 << (signal.SIGINT - 1)
+    return "ignored" if int(status["SigIgn"], 16) & bit else "caught" if int(status["SigCgt"], 16) & bit else None
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2 or not Path("/proc/self/status").exists(),
+                    reason="needs simulation worker processes (2+ CPUs) and /proc")
 def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
-    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) right after the
-    simulation workers were started: one line, exit 130, no worker left behind."""
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while the spawned
+    simulation workers are still importing: one line, exit 130, no worker left behind, none
+    that went on to record its run."""
     import signal
     import time
 
@@ -491,18 +507,26 @@ def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.monotonic() + 120
+    workers: list[int] = []
     while time.monotonic() < deadline and proc.poll() is None:
-        if (out / "log.txt").exists() and "worker processes" in (out / "log.txt").read_text():
+        try:  # the spawned workers (not multiprocessing's resource tracker)
+            children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()
+            workers = [int(c) for c in children if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+        except OSError:
+            workers = []
+        started = (out / "log.txt").exists() and "worker processes" in (out / "log.txt").read_text()
+        if started and len(workers) >= 2 and all(_sigint(c) for c in workers):
             break
-        time.sleep(0.02)
+        time.sleep(0.005)
     assert proc.poll() is None, "the run ended before it could be interrupted"
-    children = [int(p) for p in Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()]
+    assert {_sigint(c) for c in workers} == {"ignored"}  # from their first instant
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err[-3000:]
     assert err.strip().splitlines() == ["vitaplace: interrupted; finished stages are cached, run again to resume"], err[-3000:]
     time.sleep(1)
-    assert children and not any(_alive(c) for c in children)
+    assert not any(_alive(c) for c in workers)
+    assert not list((out / "cache").rglob("*.h5")), "workers went on simulating after the interrupt"
 
 
 def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
