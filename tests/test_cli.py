@@ -907,3 +907,23 @@ def test_a_long_simulation_in_a_worker_logs_its_progress(monkeypatch, caplog):
         assert runner._await(future, "train", estimate=1.0) == (10, 1.0)
     lines = [r.getMessage() for r in caplog.records if "of an estimated 1 s" in r.getMessage()]
     assert 2 <= len(lines) <= 4, lines
+
+
+@pytest.mark.parametrize("workers", ["-1", "0"])
+def test_bad_worker_counts_are_one_line(tmp_path, capsys, workers):
+    assert main(["sweep", "quickstart", "--workers", workers, "--out", str(tmp_path / "out")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [f"vitaplace: error: --workers {workers}: expected a number of worker processes, at least 1"]
+
+
+def test_ctrl_c_before_the_command_starts_is_one_line(capsys, monkeypatch):
+    """A Ctrl-C while the arguments are parsed (or anything before the command runs)."""
+    from vitaplace.engine import cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert main(["validate", "quickstart"]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "vitaplace: interrupted; finished stages are cached, run again to resume"]
