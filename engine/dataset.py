@@ -295,7 +295,7 @@ def open_run(path: str | os.PathLike) -> Run:
         if version is None:
             raise DatasetError(f"{path}: not a vitaplace dataset (no 'schema_version' attribute)")
         if _integer(version) != SCHEMA_VERSION:
-            shown = _integer(version) if _integer(version) is not None else f"{version!r:.40} (not an integer)"
+            shown = _integer(version) if _integer(version) is not None else f"{_shown(version)} (not an integer)"
             raise DatasetError(
                 f"{path}: dataset schema version {shown}, this vitaplace reads version {SCHEMA_VERSION}; "
                 "re-generate it with `vitaplace simulate`"
@@ -314,6 +314,12 @@ def open_run(path: str | os.PathLike) -> Run:
         f.close()
         raise DatasetError(f"{path}: unreadable HDF5 structure ({type(exc).__name__}: {exc})".splitlines()[0]) from None
     return Run(name=attrs.pop("name", path.stem), attrs=attrs, _source=f, path=path)
+
+
+def _shown(value: Any) -> str:
+    """An attribute's value for a one-line message: its repr, whitespace collapsed, capped."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _integer(value: Any) -> int | None:
@@ -338,7 +344,7 @@ def _attributes(f: Any, where: str) -> dict[str, Any]:
         if key in f.attrs:
             found[key] = read(f.attrs[key])
             if found[key] is None:
-                raise DatasetError(f"{where}: attribute '{key}' is {f.attrs[key]!r:.40}, expected {kind}")
+                raise DatasetError(f"{where}: attribute '{key}' is {_shown(f.attrs[key])}, expected {kind}")
     try:
         attrs = json.loads(found.get("params", "{}"))
     except ValueError as exc:
