@@ -1,32 +1,56 @@
 """`vitaplace aggregate`: the sweep summary from run folders made by independent jobs.
 
 Each folder is the output of one ``vitaplace run --set seed=N --out DIR`` (or a sweep's
-``seed-N``): ``manifest.json`` (written last, so its presence means the run finished),
-``results.json`` and ``scenario.resolved.yaml``. Folders must hold one scenario: the same
+``seed-N``). `validate_run_folder` accepts a folder only when its completion record
+(``completed.json``, written last by the run) matches its ``scenario.resolved.yaml`` and
+every file read (``manifest.json``, ``results.json``, each row's ``pr_curve.npz``), and
+every result row is well formed (`check_row`). Folders must hold one scenario: the same
 name in the manifest and the same resolved scenario apart from its seed (environment files
-compared by file name, since a sweep job keeps its own copies), and each seed once.
+compared by file name, since a sweep job keeps its own copies), and each seed once. Nothing
+is written before every folder passed.
 """
 
 from __future__ import annotations
 
 import copy
 import json
+import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
+from vitaplace.engine import completion
 from vitaplace.engine.errors import UserError
+from vitaplace.engine.evaluate import load_curve
 from vitaplace.engine.scenario import content_hash
 from vitaplace.engine.figures import write_pr_bands
 from vitaplace.engine.summary import write_summary
 
-REQUIRED = ("manifest.json", "results.json", "scenario.resolved.yaml")
+REQUIRED = (completion.RECORD, "manifest.json", "results.json", completion.SCENARIO)
+#: identity columns of a result row: non-empty text
+IDENTITY = ("environment", "method", "direction")
+#: the metric every result row has (a row without it contributes nothing)
+HEADLINE = "max_f1"
+#: result fields that are text by design (how a metric was computed), not metrics
+TEXT_FIELDS = frozenset({"auc_method"})
 
 
 class AggregateError(UserError):
-    """Run folders that cannot be summarised together; the message names the folder."""
+    """Run folders that cannot be summarised together; the message names the folder or file."""
+
+
+@dataclass
+class RunFolder:
+    """The validated content of one finished run folder."""
+
+    folder: Path
+    seed: int
+    scenario: str  #: the scenario's name in the manifest
+    identity: str  #: `scenario_identity` of its resolved scenario
+    rows: list[dict[str, Any]]  #: its result rows, each tagged with the seed
 
 
 def scenario_identity(resolved: dict[str, Any]) -> str:
@@ -41,47 +65,105 @@ def scenario_identity(resolved: dict[str, Any]) -> str:
     return content_hash(data)
 
 
-def read_run(folder: Path) -> tuple[dict[str, Any], str, list[dict[str, Any]]]:
-    """(manifest, scenario identity, result rows tagged with the seed) of a finished run folder."""
+def _finite(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_row(row: Any, where: str) -> dict[str, Any]:
+    """``row`` if it is a result row: text identity columns, a finite ``max_f1``, and every
+    other field a finite number, null, a mapping of those (``recall_at_k``) or one of
+    `TEXT_FIELDS`; else AggregateError naming ``where`` and the field."""
+    if not isinstance(row, dict):
+        raise AggregateError(f"{where}: a {type(row).__name__}, expected a result row (a JSON object)")
+    for key in IDENTITY:
+        if not isinstance(row.get(key), str) or not row[key]:
+            raise AggregateError(f"{where}: field '{key}' is {row.get(key)!r}, expected a non-empty name")
+    if not _finite(row.get(HEADLINE)):
+        raise AggregateError(f"{where}: field '{HEADLINE}' is {row.get(HEADLINE)!r}, expected a finite number")
+    for key, value in row.items():
+        if key in IDENTITY or (key in TEXT_FIELDS and isinstance(value, str)):
+            continue
+        items = value.items() if isinstance(value, dict) else [(None, value)]
+        for sub, item in items:
+            if item is not None and not _finite(item):
+                name = key if sub is None else f"{key}.{sub}"
+                raise AggregateError(f"{where}: field '{name}' is {item!r:.60}, expected a finite number or null")
+    return row
+
+
+def _read(folder: Path, name: str, parse) -> Any:
+    try:
+        return parse((folder / name).read_text())
+    except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as exc:
+        raise AggregateError(f"{folder / name}: unreadable ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+
+
+def curve_path(row: dict[str, Any]) -> str:
+    """Where a run folder keeps the PR curve of a result row (relative to the folder)."""
+    return f"evaluations/{row['environment']}/{row['method']}/{row['direction']}/pr_curve.npz"
+
+
+def validate_run_folder(folder: Path) -> RunFolder:
+    """Everything `vitaplace aggregate` reads from one run folder, validated: a completion
+    record (`vitaplace.engine.completion`) that matches the resolved scenario, the manifest,
+    the results and every row's PR curve; each result row checked (`check_row`). Raises
+    AggregateError, one line naming the folder or the file (and field) at fault."""
+    folder = Path(folder)
     missing = [name for name in REQUIRED if not (folder / name).is_file()]
     if missing:
         raise AggregateError(f"{folder}: incomplete run folder (no {', '.join(missing)}); did its run finish?")
-    try:
-        manifest = json.loads((folder / "manifest.json").read_text())
-        rows = json.loads((folder / "results.json").read_text())
-        resolved = yaml.safe_load((folder / "scenario.resolved.yaml").read_text())
-    except (OSError, ValueError, yaml.YAMLError) as exc:
-        raise AggregateError(f"{folder}: unreadable run files ({type(exc).__name__}: {exc})".splitlines()[0]) from None
-    if not (isinstance(manifest, dict) and isinstance(rows, list) and isinstance(resolved, dict)
-            and isinstance(manifest.get("seed"), int) and all(isinstance(r, dict) for r in rows)):
-        raise AggregateError(f"{folder}: manifest.json, results.json or scenario.resolved.yaml is not a vitaplace run's")
-    return manifest, scenario_identity(resolved), [{"seed": manifest["seed"], **row} for row in rows]
+    wrong = completion.problem(folder, ["manifest.json", "results.json"])
+    if wrong:
+        raise AggregateError(f"{folder}: not a finished run: {wrong}")
+    manifest = _read(folder, "manifest.json", json.loads)
+    rows = _read(folder, "results.json", json.loads)
+    resolved = _read(folder, completion.SCENARIO, yaml.safe_load)
+    if not isinstance(manifest, dict) or not isinstance(manifest.get("seed"), int) or isinstance(manifest["seed"], bool):
+        raise AggregateError(f"{folder / 'manifest.json'}: field 'seed' missing or not an integer; not a vitaplace run's")
+    if not isinstance(manifest.get("scenario"), str):
+        raise AggregateError(f"{folder / 'manifest.json'}: field 'scenario' missing or not text; not a vitaplace run's")
+    if not isinstance(resolved, dict):
+        raise AggregateError(f"{folder / completion.SCENARIO}: not a scenario mapping")
+    if not isinstance(rows, list) or not rows:
+        raise AggregateError(f"{folder / 'results.json'}: holds no result rows, expected a non-empty list")
+    rows = [check_row(row, f"{folder / 'results.json'}: row {i}") for i, row in enumerate(rows)]
+    curves = [curve_path(row) for row in rows]
+    wrong = completion.problem(folder, curves)
+    if wrong:
+        raise AggregateError(f"{folder}: not a finished run: {wrong}")
+    for name in curves:
+        try:
+            load_curve(folder / name)
+        except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many kinds on a damaged file
+            raise AggregateError(f"{folder / name}: unreadable PR curve ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+    seed = manifest["seed"]
+    return RunFolder(folder, seed, manifest["scenario"], scenario_identity(resolved), [{"seed": seed, **r} for r in rows])
 
 
 def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Path, dict[str, Any]]:
-    """Check that ``folders`` are finished runs of one scenario with distinct seeds and write
-    their summary into ``out`` (default: their common parent folder). Returns (out, sweep.json)."""
-    folders = [Path(f) for f in folders]
-    runs = [(folder, *read_run(folder)) for folder in folders]
-    first_folder, first_manifest, first_identity, _ = runs[0]
+    """Check that ``folders`` are finished runs of one scenario with distinct seeds
+    (`validate_run_folder`, every folder before anything is written) and write their summary
+    into ``out`` (default: their common parent folder). Returns (out, sweep.json)."""
+    runs = [validate_run_folder(Path(f)) for f in folders]
+    first = runs[0]
     seen: dict[int, Path] = {}
-    for folder, manifest, identity, _ in runs:
-        if manifest.get("scenario") != first_manifest.get("scenario") or identity != first_identity:
+    for run in runs:
+        if run.scenario != first.scenario or run.identity != first.identity:
             raise AggregateError(
-                f"{folder}: scenario '{manifest.get('scenario')}' differs from {first_folder}'s "
-                f"'{first_manifest.get('scenario')}' (beyond the seed); aggregate runs of one scenario only"
+                f"{run.folder}: scenario '{run.scenario}' differs from {first.folder}'s '{first.scenario}' "
+                "(beyond the seed); aggregate runs of one scenario only"
             )
-        if manifest["seed"] in seen:
-            raise AggregateError(f"{folder}: seed {manifest['seed']} again (also {seen[manifest['seed']]})")
-        seen[manifest["seed"]] = folder
+        if run.seed in seen:
+            raise AggregateError(f"{run.folder}: seed {run.seed} again (also {seen[run.seed]})")
+        seen[run.seed] = run.folder
     if out is None:
-        parents = {folder.resolve().parent for folder in folders}
+        parents = {run.folder.resolve().parent for run in runs}
         if len(parents) != 1:
             raise AggregateError("the run folders are in different parent folders: give --out")
         out = parents.pop()
-    rows = [row for *_, run_rows in runs for row in run_rows]
-    name = first_manifest.get("scenario", "scenario")
-    info = {"scenario": name, "seeds": sorted(seen), "failed": {}, "folders": {str(s): str(f) for s, f in sorted(seen.items())}}
-    record = write_summary(out, rows, f"{name}: {len(seen)} seed(s)", info, seen)
+    rows = [row for run in runs for row in run.rows]
+    info = {"scenario": first.scenario, "seeds": sorted(seen), "failed": {},
+            "folders": {str(s): str(f) for s, f in sorted(seen.items())}}
+    record = write_summary(out, rows, f"{first.scenario}: {len(seen)} seed(s)", info, seen)
     write_pr_bands(out, seen, rows)
     return out, record

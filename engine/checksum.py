@@ -41,6 +41,12 @@ def seal(path: Path, key: str) -> None:
     write_text_atomic(seal_path(path), json.dumps({"key": key, "sha256": digest(path)}))
 
 
+def sealed_digest(path: Path) -> str:
+    """The digest recorded in ``path``'s seal (call once the stage is done, i.e. `check` passed
+    or `seal` was just written)."""
+    return str(json.loads(seal_path(path).read_text())["sha256"])
+
+
 def check(path: Path, key: str) -> str | None:
     """None when ``path`` is the intact output for ``key``; else why it cannot be used
     ("absent" when neither output nor seal exists: simply not made yet)."""

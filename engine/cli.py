@@ -94,6 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("source", type=Path, help="folder with images.mat, theta.mat, xy.mat and poses.mat")
     p.add_argument("--out", type=Path, required=True, help="the run file to write (e.g. runs/real/query.h5)")
     p.add_argument("--name", help="name of the run (default: the folder's name)")
+    p.add_argument("--image-range", choices=("0-1", "0-255"),
+                   help="range of float images when the data cannot tell (0-1 saturates values above 1)")
+    p.add_argument("--pose-layout", choices=("Nx3", "3xN"), help="layout of a 3 x 3 pose array (three samples)")
     p = sub.add_parser("sweep", parents=[common], help="run a scenario over several seeds (local process pool, Ray or SLURM)")
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
@@ -329,10 +332,15 @@ def _validate(args: argparse.Namespace) -> int:
 
     if _is_environment_file(args.scenario):
         return _validate_environment(args)
+    from vitaplace.engine.plausibility import LONG_SECONDS, duration, estimated_seconds
+
     scenario, _ = load_scenario(args.scenario, args.overrides)
+    runs = [scenario.train.run] + [e.run for e in scenario.evaluations for _ in ("query", "reference")]
+    seconds = sum(estimated_seconds(run, scenario.robot) for run in runs if run is not None)
+    long = f"; simulating its runs takes about {duration(seconds)} on one core (estimate)" if seconds > LONG_SECONDS else ""
     print(
         f"{args.scenario}: valid scenario '{scenario.name}': {len(scenario.evaluations)} evaluation environment(s), "
-        f"methods {', '.join(m.name for m in scenario.methods)}"
+        f"methods {', '.join(m.name for m in scenario.methods)}{long}"
     )
     return 0
 
@@ -344,7 +352,7 @@ def _import(args: argparse.Namespace) -> int:
 
     if args.out.is_dir():
         raise DatasetError(f"--out {args.out}: is a folder; expected the run file to write (e.g. {args.out / 'run.h5'})")
-    run = import_mat(args.source, name=args.name)
+    run = import_mat(args.source, name=args.name, image_range=args.image_range, pose_layout=args.pose_layout)
     try:
         path = write_run(args.out, run)
     except OSError as exc:
@@ -360,6 +368,8 @@ def _sweep(args: argparse.Namespace) -> int:
 
     if args.cpus_per_job <= 0 or args.gpus_per_job < 0:
         raise UserError("--cpus-per-job must be > 0 and --gpus-per-job >= 0")
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers {args.workers}: expected a number of worker processes, at least 1")
     slurm = settings_from_args(args)
     check_placement(args.workers, args.ray, slurm, args.gpus_per_job)
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
@@ -394,6 +404,15 @@ def _aggregate(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The command line; a Ctrl-C at any moment (even while parsing or importing) ends it with one line."""
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        print("vitaplace: interrupted; finished stages are cached, run again to resume", file=sys.stderr)
+        return 130
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
     level = getattr(args, "log_level", logging.INFO)
     _console_logging(level)
@@ -421,9 +440,6 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"vitaplace: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print("vitaplace: interrupted; finished stages are cached, run again to resume", file=sys.stderr)
-        return 130
 
 
 if __name__ == "__main__":

@@ -13,9 +13,15 @@ W whiskers, M contacts in total):
     poses            (N, 3) float64           ground-truth x [m], y [m], yaw [rad]
     times            (N,) float64             simulation time of the sample [s]
 
-Root attributes: ``schema_version``, ``scenario_hash``, ``seed``, ``name``,
-``vitaplace_version`` and ``params`` (a JSON object: robot, camera, environment, ...).
-Files are written under a temporary name and renamed when complete.
+Root attributes: ``schema_version`` (integer), ``scenario_hash`` (text), ``seed``
+(integer), ``name`` (text), ``vitaplace_version`` (text) and ``params`` (text: a JSON
+object: robot, camera, environment, ...). Files are written under a temporary name and
+renamed when complete.
+
+`open_run` checks a file as thoroughly as the pipeline checks a simulated run before it
+reads any array: every attribute's type, every field a dataset (not a group) of the
+schema's kind of numbers and shape, and every field's storage actually in the file (a small
+file declaring 10^7 samples would otherwise be read as gigabytes of fill values).
 """
 
 from __future__ import annotations
@@ -224,15 +230,17 @@ def _check_finite(data: np.ndarray, key: str, where: str) -> None:
 
 def _check_shapes(arrays: Mapping[str, Any], where: str) -> None:
     """Raise DatasetError unless the arrays have the shapes of the schema."""
-    n = arrays["poses"].shape[0]
+    poses = arrays["poses"].shape
+    n = poses[0] if poses else None
+    points = arrays["contact_points"].shape
     expected = {
+        "poses": (n, 3),
         "images": (n, None, None, 3),
         "theta": (n, None),
-        "poses": (n, 3),
         "times": (n,),
         "contact_points": (None, 3),
-        "contact_normals": (arrays["contact_points"].shape[0], 3),
-        "contact_offsets": (n + 1,),
+        "contact_normals": (points[0] if points else None, 3),
+        "contact_offsets": (n + 1 if n is not None else None,),
     }
     n_whiskers = arrays["theta"].shape[1] if arrays["theta"].ndim == 2 else None
     expected["xy"] = (n, n_whiskers, 2)
@@ -282,26 +290,92 @@ def open_run(path: str | os.PathLike) -> Run:
         f = h5py.File(path, "r")
     except OSError as exc:
         raise DatasetError(f"{path}: not a readable HDF5 file (truncated or foreign?): {exc}") from None
-    version = f.attrs.get("schema_version")
-    if version is None:
-        f.close()
-        raise DatasetError(f"{path}: not a vitaplace dataset (no 'schema_version' attribute)")
-    if int(version) != SCHEMA_VERSION:
-        f.close()
-        raise DatasetError(
-            f"{path}: dataset schema version {int(version)}, this vitaplace reads version {SCHEMA_VERSION}; "
-            "re-generate it with `vitaplace simulate`"
-        )
-    missing = [key for key in FIELDS if key not in f]
-    if missing:
-        f.close()
-        raise DatasetError(f"{path}: dataset lacks field(s) {', '.join(missing)}")
     try:
+        version = f.attrs.get("schema_version")
+        if version is None:
+            raise DatasetError(f"{path}: not a vitaplace dataset (no 'schema_version' attribute)")
+        if _integer(version) != SCHEMA_VERSION:
+            shown = _integer(version) if _integer(version) is not None else f"{_shown(version)} (not an integer)"
+            raise DatasetError(
+                f"{path}: dataset schema version {shown}, this vitaplace reads version {SCHEMA_VERSION}; "
+                "re-generate it with `vitaplace simulate`"
+            )
+        missing = [key for key in FIELDS if key not in f]
+        if missing:
+            raise DatasetError(f"{path}: dataset lacks field(s) {', '.join(missing)}")
+        for key in FIELDS:
+            _check_field(f, key, str(path))
         _check_shapes(f, where=str(path))
+        attrs = _attributes(f, str(path))
     except DatasetError:
         f.close()
         raise
-    attrs = json.loads(f.attrs.get("params", "{}"))
-    attrs["scenario_hash"] = str(f.attrs.get("scenario_hash", ""))
-    attrs["seed"] = int(f.attrs.get("seed", -1))
-    return Run(name=str(f.attrs.get("name", path.stem)), attrs=attrs, _source=f, path=path)
+    except (OSError, KeyError, ValueError, TypeError) as exc:  # h5py on a damaged object header or attribute
+        f.close()
+        raise DatasetError(f"{path}: unreadable HDF5 structure ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+    return Run(name=attrs.pop("name", path.stem), attrs=attrs, _source=f, path=path)
+
+
+def _shown(value: Any) -> str:
+    """An attribute's value for a one-line message: its repr, whitespace collapsed, capped."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _integer(value: Any) -> int | None:
+    """An HDF5 attribute as an integer, or None when it is not a single integer."""
+    value = np.asarray(value)
+    return int(value) if value.shape == () and value.dtype.kind in "iu" else None
+
+
+def _text(value: Any) -> str | None:
+    """An HDF5 attribute as text, or None when it is not text."""
+    if isinstance(value, bytes):
+        return value.decode("utf-8", errors="replace")
+    return value if isinstance(value, str) else None
+
+
+def _attributes(f: Any, where: str) -> dict[str, Any]:
+    """The run's attributes, each of its schema type (module docstring): ``params``' object
+    with ``scenario_hash``, ``seed`` and ``name`` added."""
+    found: dict[str, Any] = {}
+    for key, kind, read in (("scenario_hash", "text", _text), ("name", "text", _text), ("seed", "an integer", _integer),
+                            ("params", "text", _text), ("vitaplace_version", "text", _text)):
+        if key in f.attrs:
+            found[key] = read(f.attrs[key])
+            if found[key] is None:
+                raise DatasetError(f"{where}: attribute '{key}' is {_shown(f.attrs[key])}, expected {kind}")
+    try:
+        attrs = json.loads(found.get("params", "{}"))
+    except ValueError as exc:
+        raise DatasetError(f"{where}: attribute 'params' is not valid JSON ({exc})") from None
+    if not isinstance(attrs, dict):
+        raise DatasetError(f"{where}: attribute 'params' is {type(attrs).__name__} JSON, expected a JSON object")
+    attrs["scenario_hash"] = found.get("scenario_hash", "")
+    attrs["seed"] = found.get("seed", -1)
+    if "name" in found:
+        attrs["name"] = found["name"]
+    return attrs
+
+
+def _check_field(f: Any, key: str, where: str) -> None:
+    """Field ``key`` is a dataset of the schema's kind of numbers whose storage is all in the file."""
+    item = f.get(key, getlink=False)
+    if not isinstance(item, h5py.Dataset):
+        raise DatasetError(f"{where}: field '{key}' is a {type(item).__name__.lower()}, expected a dataset")
+    wanted = FIELDS[key]
+    kinds = "u" if wanted.kind == "u" else ("iu" if wanted.kind == "i" else "f")
+    if item.dtype.kind not in kinds or (key == "images" and item.dtype != wanted):
+        raise DatasetError(f"{where}: field '{key}' has dtype {item.dtype}, expected {wanted}")
+    if item.nbytes == 0:
+        return
+    if item.chunks is None:
+        stored = item.id.get_storage_size() == item.nbytes
+    else:
+        chunks = int(np.prod([-(-n // c) for n, c in zip(item.shape, item.chunks)]))
+        stored = item.id.get_num_chunks() == chunks
+    if not stored:
+        raise DatasetError(
+            f"{where}: field '{key}' declares shape {item.shape} but the file does not hold its data "
+            "(truncated or forged); re-record or re-import the run"
+        )

@@ -31,9 +31,10 @@ class ExtractorParamsError(UserError, ValueError):
 
 
 class ExtractorParams(pydantic.BaseModel):
-    """Base of every extractor's parameter schema: unknown keys are errors."""
+    """Base of every extractor's parameter schema: unknown keys are errors, and so are
+    infinite or NaN numbers (an infinite range or rate voids a run without failing it)."""
 
-    model_config = pydantic.ConfigDict(extra="forbid", frozen=True)
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class FeatureExtractor(ABC):

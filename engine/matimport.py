@@ -9,7 +9,17 @@ The layout read by the MultiPredNet scripts (github.com/TomKnowles1994/MultiPred
     theta.mat    variable ``theta``: 4 x 6 x N  (column x row-board x sample) [rad]
     xy.mat       variable ``xy``:    2 x 4 x 6 x N  (axis x column x row-board x sample)
     poses.mat    N x 3 (or 3 x N) x, y, yaw - e.g. ``pose_return`` of ``extract_poses.m``;
-                 without poses.mat, ``pose_return.mat`` (``save pose_return.mat pose_return``)
+                 without poses.mat, ``pose_return.mat`` (``save pose_return.mat pose_return``);
+                 a 3 x 3 array (N = 3) fits both layouts and is refused unless
+                 ``pose_layout`` ("Nx3" or "3xN") says which
+
+Images are never guessed at. Arrays are read as the MATLAB class they declare (a v5 file may
+store a double array in a smaller integer type; a v7.3 file names the class in an attribute).
+An integer class holds 0..255. A double or single class holds [0, 1] when every value lies
+there, 0..255 when every value is a whole number of 0..255 (``double(uint8_image)``); any
+other float array (e.g. [0, 1] frames that bicubic resizing overshot to 1.004) is refused
+unless ``image_range`` ("0-1": saturated like ``im2uint8``, or "0-255") says which. Values
+outside both [0, 1] and [0, 255] are refused always, with their count; complex arrays too.
 
 When a file does not hold the expected variable name (``images``, ``theta``, ``xy``,
 ``poses``/``pose``/``pose_return``), its single non-``__dunder__`` variable is used. MATLAB
@@ -31,7 +41,15 @@ import numpy as np
 
 from vitaplace.engine.dataset import DatasetError, Run
 
-__all__ = ["import_mat", "load_mat_variable"]
+__all__ = ["import_mat", "load_mat_variable", "IMAGE_RANGES", "POSE_LAYOUTS"]
+
+#: how ``image_range`` states the range of float frames
+IMAGE_RANGES = ("0-1", "0-255")
+#: how ``pose_layout`` states the layout of a 3 x 3 pose array
+POSE_LAYOUTS = ("Nx3", "3xN")
+#: numpy dtypes of the MATLAB numeric classes (a v7.3 file names its variables' class)
+_CLASSES = {"double": np.float64, "single": np.float32, "uint8": np.uint8, "int8": np.int8, "uint16": np.uint16,
+            "int16": np.int16, "uint32": np.uint32, "int32": np.int32, "uint64": np.uint64, "int64": np.int64}
 
 _NAMES = {
     "images": ("images", "image", "imgs"),
@@ -67,11 +85,12 @@ def _load(path: Path, kind: str) -> tuple[str, np.ndarray]:
         raise
     except Exception as exc:  # scipy and h5py raise ValueError/TypeError/OSError/... on garbage
         raise DatasetError(f"{path}: not a readable MATLAB .mat file: {exc}") from None
-    for name in _NAMES[kind]:
-        if name in variables:
-            return name, variables[name]
-    if len(variables) == 1:
-        return next(iter(variables.items()))
+    found = next(((name, variables[name]) for name in _NAMES[kind] if name in variables), None)
+    if found is None and len(variables) == 1:
+        found = next(iter(variables.items()))
+    if found is not None:
+        _check_real(found[1], f"{path}: variable '{found[0]}'")
+        return found
     raise DatasetError(
         f"{path}: cannot tell which variable holds {kind}: expected one named "
         f"{' or '.join(repr(n) for n in _NAMES[kind])} or a single variable, found {sorted(variables)}"
@@ -84,8 +103,14 @@ def _read_mat(path: Path) -> dict[str, Any]:
 
     if h5py.is_hdf5(path):  # MATLAB v7.3
         return _read_mat73(path)
-    data = scipy.io.loadmat(path)
-    return {k: v for k, v in data.items() if not k.startswith("__")}
+    data = {k: v for k, v in scipy.io.loadmat(path).items() if not k.startswith("__")}
+    # each variable as its declared class, not the smaller type MATLAB may have stored it in
+    # (complex arrays are left as they are, for `_check_real` to refuse)
+    for name, _, declared in scipy.io.whosmat(path):
+        value = data.get(name)
+        if declared in _CLASSES and isinstance(value, np.ndarray) and not np.iscomplexobj(value):
+            data[name] = value.astype(_CLASSES[declared], copy=False)
+    return data
 
 
 def _read_mat73(path: Path) -> dict[str, Any]:
@@ -107,9 +132,13 @@ def _mat73_value(f: Any, item: Any, where: str, depth: int) -> np.ndarray:
 
     if item.attrs.get("MATLAB_empty", 0):  # an empty array stores its dimensions as data
         return np.zeros((0,))
+    if item.dtype.names is not None and {"real", "imag"} <= set(item.dtype.names):
+        raise DatasetError(f"{where} is complex; expected real values")
     data = np.asarray(item[()])
     if h5py.check_dtype(ref=item.dtype) is None:
-        return data.T
+        declared = item.attrs.get("MATLAB_class", b"")
+        declared = declared.decode(errors="replace") if isinstance(declared, bytes) else str(declared)
+        return data.T.astype(_CLASSES[declared], copy=False) if declared in _CLASSES else data.T
     if depth >= _MAX_CELL_DEPTH:
         raise DatasetError(f"{where}: cell arrays nested more than {_MAX_CELL_DEPTH} deep")
     cells = np.empty(data.shape, dtype=object)
@@ -118,6 +147,13 @@ def _mat73_value(f: Any, item: Any, where: str, depth: int) -> np.ndarray:
             raise DatasetError(f"{where}: cell {index[::-1]} holds a null reference")
         cells[index] = _mat73_value(f, f[ref], where, depth + 1)
     return cells.T
+
+
+def _check_real(arr: Any, where: str) -> None:
+    """DatasetError when ``arr`` (or a cell of it) is complex: its imaginary part would be dropped."""
+    cells = arr.ravel() if isinstance(arr, np.ndarray) and arr.dtype == object else [arr]
+    if any(np.iscomplexobj(cell) for cell in cells):
+        raise DatasetError(f"{where} is complex; expected real values")
 
 
 def _check_finite(arr: np.ndarray, path: Path, name: str) -> None:
@@ -148,8 +184,9 @@ def _numeric(path: Path, kind: str) -> np.ndarray:
     return arr
 
 
-def _poses(folder: Path) -> tuple[Path, np.ndarray]:
-    """(file, N x 3 poses) from poses.mat, or pose_return.mat when there is no poses.mat."""
+def _poses(folder: Path, layout: str | None = None) -> tuple[Path, np.ndarray]:
+    """(file, N x 3 poses) from poses.mat, or pose_return.mat when there is no poses.mat;
+    ``layout`` ("Nx3" or "3xN") states which a 3 x 3 array is."""
     path = next((folder / f for f in POSE_FILES if (folder / f).is_file()), folder / POSE_FILES[0])
     if not path.is_file():
         raise DatasetError(
@@ -163,7 +200,12 @@ def _poses(folder: Path) -> tuple[Path, np.ndarray]:
         raise DatasetError(f"{path}: variable '{name}' is not a numeric array; expected {_EXPECTED['poses']}") from None
     if poses.ndim == 1 and poses.shape[0] == 3:
         poses = poses[None]
-    if poses.ndim == 2 and poses.shape[1] != 3 and poses.shape[0] == 3:
+    if poses.shape == (3, 3) and layout is None:
+        raise DatasetError(
+            f"{path}: variable '{name}' is 3 x 3: three poses as rows (N x 3) or as columns (3 x N)? "
+            "state it with --pose-layout Nx3 or --pose-layout 3xN"
+        )
+    if poses.ndim == 2 and poses.shape[0] == 3 and (layout == "3xN" or (layout is None and poses.shape[1] != 3)):
         poses = poses.T
     if poses.ndim != 2 or poses.shape[1] != 3:
         raise DatasetError(f"{path}: variable '{name}' has shape {poses.shape}, expected {_EXPECTED['poses']}")
@@ -171,8 +213,8 @@ def _poses(folder: Path) -> tuple[Path, np.ndarray]:
     return path, poses
 
 
-def _images(raw: np.ndarray, path: Path, name: str = "images") -> np.ndarray:
-    """N x H x W x 3 uint8 frames from the variable ``name`` of ``path``."""
+def _images(raw: np.ndarray, path: Path, name: str = "images", image_range: str | None = None) -> np.ndarray:
+    """N x H x W x 3 uint8 frames from the variable ``name`` of ``path`` (range: module docstring)."""
     where = f"{path}: variable '{name}'"
     arr = raw
     if arr.dtype == object:  # cell array of frames
@@ -191,19 +233,38 @@ def _images(raw: np.ndarray, path: Path, name: str = "images") -> np.ndarray:
         raise DatasetError(f"{where} has shape {raw.shape}, expected {_EXPECTED['images']}")
     if len(arr) == 0:
         raise DatasetError(f"{where} holds no frames, expected {_EXPECTED['images']}")
+    if arr.dtype.kind not in "uif":
+        raise DatasetError(f"{where} has dtype {arr.dtype}, expected uint8 or float in [0, 1]")
     if arr.dtype.kind == "f":
         _check_finite(np.moveaxis(arr, 0, -1), path, name)
-        scale = 255.0 if float(np.max(arr, initial=0.0)) <= 1.0 else 1.0
-        arr = np.clip(np.rint(arr * scale), 0, 255)
-    elif arr.dtype.kind not in "ui":
-        raise DatasetError(f"{where} has dtype {arr.dtype}, expected uint8 or float in [0, 1]")
-    elif arr.min(initial=0) < 0 or arr.max(initial=0) > 255:
-        raise DatasetError(f"{where} has values outside 0..255, expected uint8 or float in [0, 1]")
-    return np.ascontiguousarray(arr, dtype=np.uint8)
+    outside = int(np.count_nonzero((arr < 0) | (arr > 255)))
+    if outside:
+        raise DatasetError(f"{where} has {outside} value(s) outside both [0, 1] and [0, 255]; expected uint8 or float in [0, 1]")
+    if image_range is None:
+        image_range = _image_range(arr, where)
+    if image_range == "0-1":
+        arr = np.clip(arr.astype(np.float64) * 255.0, 0, 255)  # saturates what overshot 1, as im2uint8 does
+    return np.ascontiguousarray(np.rint(arr), dtype=np.uint8)
 
 
-def import_mat(directory: str | os.PathLike, name: str | None = None) -> Run:
-    """Read a MultiPredNet/WhiskEye recording folder into an in-memory `Run`.
+def _image_range(arr: np.ndarray, where: str) -> str:
+    """"0-1" or "0-255" as the class and the whole array say; DatasetError when they do not."""
+    if arr.dtype.kind in "ui" or np.all(arr <= 1.0):
+        return "0-255" if arr.dtype.kind in "ui" else "0-1"
+    if np.all(arr == np.rint(arr)):
+        return "0-255"
+    above = int(np.count_nonzero(arr > 1.0))
+    raise DatasetError(
+        f"{where} is {arr.dtype} with {above} value(s) above 1 (largest {float(arr.max()):.6g}) that are not whole "
+        "numbers of 0..255: cannot tell its range; state it with --image-range 0-1 (values above 1 saturate) or 0-255"
+    )
+
+
+def import_mat(
+    directory: str | os.PathLike, name: str | None = None, image_range: str | None = None, pose_layout: str | None = None
+) -> Run:
+    """Read a MultiPredNet/WhiskEye recording folder into an in-memory `Run`; ``image_range``
+    and ``pose_layout`` state what the arrays cannot say (module docstring).
 
     Raises `DatasetError` naming the file when one is missing, unreadable or misshaped.
     Deflection series and contacts are not part of this layout: the run gets the single
@@ -213,11 +274,11 @@ def import_mat(directory: str | os.PathLike, name: str | None = None) -> Run:
     if not folder.is_dir():
         raise DatasetError(f"{folder}: not a folder with images.mat, theta.mat, xy.mat and poses.mat")
     images_name, raw = _load(folder / "images.mat", "images")
-    images = _images(raw, folder / "images.mat", images_name)
+    images = _images(raw, folder / "images.mat", images_name, image_range)
     n = images.shape[0]
     theta = _numeric(folder / "theta.mat", "theta")
     xy = _numeric(folder / "xy.mat", "xy")
-    poses_path, poses = _poses(folder)
+    poses_path, poses = _poses(folder, pose_layout)
 
     counts = {"images.mat": n, "theta.mat": theta.shape[2], "xy.mat": xy.shape[3], poses_path.name: poses.shape[0]}
     if len(set(counts.values())) != 1:

@@ -6,18 +6,26 @@ Every package (the built-in ``handcrafted`` and ``mupnet`` included) exposes a m
 and skipped; two extractors with the same name are an error naming both packages. The
 environment variable ``VITAPLACE_PLUGINS`` (comma-separated entry-point names) restricts
 which plugins load.
+
+`Registry.code_digest` is a SHA-256 over a plugin's code: the source files of its entry-point
+module (every ``.py`` file of its package folder) and of the extractor's own module, plus the
+files its distribution installed (bytecode and ``.dist-info`` records left out). It is part
+of the cache key of the stages that run the plugin, so an edited plugin is never served
+from the cache, whether or not its version changed.
 """
 
 from __future__ import annotations
 
+import hashlib
 import inspect
 import logging
 import os
 import sys
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from importlib.metadata import EntryPoint, entry_points
+from importlib.metadata import Distribution, EntryPoint, entry_points
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import pluggy
@@ -43,6 +51,10 @@ class Registry:
     failed: dict[str, str] = field(default_factory=dict)
     #: "distribution==version" of each plugin source (part of the cache keys of its stages)
     distributions: dict[str, str] = field(default_factory=dict)
+    #: the loaded entry-point module and the distribution of each plugin source (for `code_digest`)
+    modules: dict[str, object] = field(default_factory=dict)
+    dists: dict[str, Distribution | None] = field(default_factory=dict)
+    _digests: dict[str, str] = field(default_factory=dict)
 
     def names(self) -> list[str]:
         return sorted(self.extractors)
@@ -50,6 +62,18 @@ class Registry:
     def version_of(self, name: str) -> str:
         """The distribution and version that provide extractor ``name`` ("unknown" if not installed as one)."""
         return self.distributions.get(self.sources.get(name, ""), "unknown")
+
+    def code_digest(self, name: str) -> str:
+        """SHA-256 of the code behind extractor ``name`` (see the module docstring), computed once."""
+        if name not in self._digests:
+            source = self.sources.get(name, "")
+            files = _module_files(self.modules.get(source)) | _module_files(sys.modules.get(self.get(name).__module__))
+            files |= _installed_files(self.dists.get(source))
+            # file names and contents, not where they are installed: the same code has one
+            # digest on every machine (sweep jobs share one cache)
+            entries = sorted(f"{file.name}:{hashlib.sha256(file.read_bytes()).hexdigest()}" for file in files)
+            self._digests[name] = hashlib.sha256("\n".join(entries).encode()).hexdigest()
+        return self._digests[name]
 
     def get(self, name: str) -> type[FeatureExtractor]:
         try:
@@ -70,6 +94,7 @@ class Registry:
                     f"remove one of the two entry points or restrict plugins with {ONLY_ENV}"
                 )
         self.manager.register(plugin, name=source)
+        self.modules[source] = plugin
         hook_impls = [i for i in self.manager.hook.vitaplace_register_features.get_hookimpls() if i.plugin is plugin]
         for impl in hook_impls:
             try:
@@ -108,6 +133,29 @@ class Registry:
         print(f"vitaplace: skipping plugin '{source}': {why}", file=sys.stderr)
 
 
+def _module_files(module: object) -> set[Path]:
+    """The source files of ``module``: every ``.py`` file of a package's folders, a module's file."""
+    if not isinstance(module, ModuleType):
+        return set()
+    folders = [Path(p) for p in getattr(module, "__path__", [])]
+    if folders:
+        return {f.resolve() for folder in folders for f in folder.rglob("*.py")}
+    file = getattr(module, "__file__", None)
+    return {Path(file).resolve()} if file and Path(file).is_file() else set()
+
+
+def _installed_files(dist: Distribution | None) -> set[Path]:
+    """What ``dist`` installed, without bytecode and its own ``.dist-info`` records."""
+    found = set()
+    for item in (dist.files or []) if dist is not None else []:
+        if item.suffix == ".pyc" or any(part.endswith(".dist-info") for part in item.parts):
+            continue
+        path = Path(dist.locate_file(item))
+        if path.is_file():
+            found.add(path.resolve())
+    return found
+
+
 def _source_label(ep: EntryPoint) -> str:
     dist = getattr(ep, "dist", None)
     package = dist.name if dist is not None else ep.value.split(":")[0]
@@ -139,6 +187,7 @@ def discover(eps: Iterable[EntryPoint] | None = None, only: str | None = None) -
         source = _source_label(ep)
         dist = getattr(ep, "dist", None)
         registry.distributions[source] = f"{dist.name}=={dist.version}" if dist is not None else "unknown"
+        registry.dists[source] = dist
         try:
             plugin = ep.load()
         except (KeyboardInterrupt, GeneratorExit):

@@ -1,8 +1,12 @@
 """The scenario pipeline: simulate -> fit -> transform -> evaluate -> report, cached per stage.
 
 Every stage's output lives under ``OUT/cache`` named by a hash of everything it depends on
-(config, upstream keys, format versions), so a re-run skips finished stages and an
-interrupted run resumes with the first missing output. ``force`` redoes named stages.
+(config, upstream keys, format versions, the code digest of the plugin that runs it) and of
+the digests of the upstream outputs it reads, as DVC does: a re-run skips finished stages,
+an interrupted run resumes with the first missing output, and ``force`` redoes named stages
+and, when their output changed, every stage downstream that reads it (an identical output
+leaves the downstream keys, and so their cached work, as they were). A run ends by writing
+its completion record (`vitaplace.engine.completion`).
 """
 
 from __future__ import annotations
@@ -17,8 +21,10 @@ import signal
 import tempfile
 import threading
 import time
-from collections.abc import Iterable
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Iterable, Iterator
+from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import TimeoutError as FutureTimeout
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -29,12 +35,13 @@ import yaml
 
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.provenance import provenance
-from vitaplace.engine import checksum
+from vitaplace.engine import checksum, completion
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.cpus import usable_cpus
+from vitaplace.engine.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features, warn_once
+from vitaplace.engine.plausibility import LONG_SECONDS, duration, estimated_seconds
 from vitaplace.engine.plugins import Registry, announce_run_finished, discover, plugin_distributions
 from vitaplace.engine.scenario import (
     EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, content_hash, training_world_evaluation,
@@ -66,20 +73,71 @@ def check_finite(features: Features, what: str) -> Features:
     return features
 
 
-def die_with_parent() -> None:
+def process_identity(pid: int) -> str:
+    """``pid`` with its start time where the OS says it (Linux ``/proc``), so a reused pid
+    does not pass for the process that had it before."""
+    try:
+        start = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
+    except (OSError, IndexError):
+        start = "?"
+    return f"{pid}:{start}"
+
+
+def worker_pool(workers: int, blas_threads: int | None = None) -> ProcessPoolExecutor:
+    """A pool of spawned worker processes that end with the process that made it
+    (`die_with_parent`), each limited to ``blas_threads`` BLAS threads when given."""
+    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
+                               initargs=(process_identity(os.getpid()), blas_threads))
+
+
+def _start_worker(parent: str, blas_threads: int | None) -> None:
+    """Worker-process initializer: `die_with_parent`, then the BLAS thread limit."""
+    die_with_parent(parent)
+    if blas_threads is not None:
+        limit_blas_threads(blas_threads)
+
+
+@contextmanager
+def interrupts_to_this_process() -> Iterator[None]:
+    """Processes started inside ignore Ctrl-C from their first instant (an ignored SIGINT
+    survives exec, and Python keeps it ignored), so a Ctrl-C stops this process alone, with
+    one line, instead of a traceback from every worker still importing; `stop_pool` then
+    ends them. A Ctrl-C during the few milliseconds it takes to start them is ignored."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def stop_pool(pool: ProcessPoolExecutor) -> None:
+    """End ``pool`` now, killing its workers mid-task (after Ctrl-C: nothing they do is kept)."""
+    for process in list((getattr(pool, "_processes", None) or {}).values()):  # the executor's own record
+        process.kill()
+    pool.shutdown(cancel_futures=True)  # quick once they are dead; frees the pool's queues and semaphores
+
+
+def die_with_parent(parent: str) -> None:
     """Worker-process initializer: end this worker when the process that started it dies
-    (even by kill -9), so no simulation keeps running orphaned. Linux: the kernel's parent-
-    death signal; elsewhere a daemon thread that notices the parent is gone."""
-    parent = os.getppid()
+    (even by kill -9), so no simulation keeps running orphaned. ``parent`` is that process's
+    `process_identity`: a worker whose parent died while it was starting (its parent is now
+    another process) exits at once. Linux: then the kernel's parent-death signal; elsewhere a
+    daemon thread that notices the parent is gone."""
+    parent_pid = os.getppid()
+    if process_identity(parent_pid) != parent:
+        os._exit(1)
     try:
         libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(1, signal.SIGTERM) == 0 and os.getppid() == parent:  # PR_SET_PDEATHSIG
+        if libc.prctl(1, signal.SIGTERM) == 0 and os.getppid() == parent_pid:  # PR_SET_PDEATHSIG
             return
     except (OSError, AttributeError):
         pass
 
     def watch() -> None:
-        while os.getppid() == parent:
+        while os.getppid() == parent_pid:
             time.sleep(1.0)
         os._exit(1)
 
@@ -124,6 +182,8 @@ class StageRecord:
 class RunnerState:
     records: list[StageRecord] = field(default_factory=list)
     datasets: dict[str, str] = field(default_factory=dict)  # run label -> dataset key
+    #: output path -> SHA-256 of its content, for each output done in this run (`checksum`)
+    digests: dict[str, str] = field(default_factory=dict)
 
 
 def record_run(
@@ -160,6 +220,20 @@ def _record_and_log(*args: Any) -> tuple[int, float]:
     result = record_run(*args)
     log_recorded(args[4], *result)
     return result
+
+
+def _await(future: Future, label: str, estimate: float) -> tuple[int, float]:
+    """The result of a simulation in a worker process; for a long one (`LONG_SECONDS`), a log
+    line each tenth of its estimated time while it runs."""
+    if estimate <= LONG_SECONDS:
+        return future.result()
+    started = time.perf_counter()
+    while True:
+        try:
+            return future.result(timeout=estimate / 10)
+        except FutureTimeout:
+            log.info("%-9s %-28s running for %s of an estimated %s", "simulate", label,
+                     duration(time.perf_counter() - started), duration(estimate))
 
 
 def seed_for(scenario_seed: int, *path: int) -> int:
@@ -230,6 +304,7 @@ class Pipeline:
             log.info("%-9s %-28s running (%s)", stage, item, key)
             result = work()
             checksum.seal(output, key)
+        self.state.digests[str(output)] = checksum.sealed_digest(output)
         seconds = time.perf_counter() - start
         where = output.relative_to(self.out) if output.is_relative_to(self.out) else output
         log.debug("%-9s %-28s %s in %.2f s: %s", stage, item, status, seconds, where)
@@ -246,6 +321,14 @@ class Pipeline:
             runs[f"{e.name}/reference"] = (e, seed_for(s.seed, i + 1, 2))
         return runs
 
+    def output_digest(self, path: Path) -> str:
+        """SHA-256 of the content of an output this run has made or verified (or of a recorded
+        run file): the part of a downstream key that follows what the stage actually read."""
+        return self.state.digests[str(path)]
+
+    def dataset_digest(self, label: str) -> str:
+        return self.output_digest(self.dataset_path(label))
+
     def dataset_path(self, label: str) -> Path:
         if label in self.recorded:
             return self.recorded[label]
@@ -260,15 +343,17 @@ class Pipeline:
         run.validate()
         run.name = label  # warnings and errors name the run as the scenario does
         self.opened[label] = run
-        key = content_hash("recorded", STAGE_VERSION["simulate"], checksum.digest(path))
+        digest = checksum.digest(path)
+        key = content_hash("recorded", STAGE_VERSION["simulate"], digest)
         self.state.datasets[label] = key
+        self.state.digests[str(path)] = digest
         log.info("%-9s %-28s recorded run %s (%s)", "simulate", label, path, key)
         seconds = round(time.perf_counter() - start, 3)
         self.state.records.append(StageRecord("simulate", label, key, "recorded", seconds, [], str(path)))
 
     def simulate(self) -> None:
         """Record every run not cached yet; several runs are recorded by parallel processes."""
-        jobs = {}
+        jobs, estimates = {}, {}
         for label, (entry, seed) in self.runs().items():
             if label in self.recorded:
                 self.use_recorded(label)
@@ -280,28 +365,36 @@ class Pipeline:
             key = content_hash("simulate", STAGE_VERSION["simulate"], SIMULATOR_VERSION, spec,
                                self.scenario.robot.model_dump(mode="json"), seed)
             self.state.datasets[label] = key
+            estimates[label] = estimated_seconds(run, self.scenario.robot)
             args = (str(entry.environment), run.model_dump(), self.scenario.robot.model_dump(), seed, label, key)
             jobs[label] = (args, self.dataset_path(label))
         pending = [
             label for label, (job_args, path) in jobs.items()
             if "simulate" in self.force or not self._done("simulate", label, path, job_args[-1])
         ]
+        for label in pending:
+            if estimates[label] > LONG_SECONDS:
+                log.warning("%-9s %-28s a long simulation: about %s on one core (estimate)", "simulate", label,
+                            duration(estimates[label]))
         workers = min(self.workers, len(pending))
-        pool = (
-            ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=die_with_parent)
-            if workers > 1
-            else None
-        )
+        pool = worker_pool(workers) if workers > 1 else None
         try:
-            futures = {label: pool.submit(record_run, *jobs[label][0], jobs[label][1], False) for label in pending} if pool else {}
+            with interrupts_to_this_process():
+                futures = {label: pool.submit(record_run, *jobs[label][0], jobs[label][1], False)
+                           for label in pending} if pool else {}
             for label, future in futures.items():
                 future.add_done_callback(partial(_log_finished, label))
             if futures:
                 log.info("%-9s %d runs on %d worker processes (no progress bars there; a line as each finishes)",
                          "simulate", len(futures), workers)
             for label, (args, path) in jobs.items():
-                work = futures[label].result if label in futures else partial(_record_and_log, *args, path, self.progress)
+                work = (partial(_await, futures[label], label, estimates[label]) if label in futures
+                        else partial(_record_and_log, *args, path, self.progress))
                 self._stage("simulate", label, args[-1], path, work, done=label not in pending)
+        except KeyboardInterrupt:
+            if pool is not None:
+                stop_pool(pool)
+            raise
         finally:
             if pool is not None:
                 pool.shutdown(cancel_futures=True)
@@ -337,14 +430,18 @@ class Pipeline:
 
     def model_key(self, method: Method) -> str:
         return content_hash(
-            "fit", STAGE_VERSION["fit"], method.plugin, self.registry.version_of(method.plugin), self.method_params(method),
-            self.state.datasets["train"],
+            "fit", STAGE_VERSION["fit"], method.plugin, self.registry.version_of(method.plugin),
+            self.registry.code_digest(method.plugin), self.method_params(method), self.state.datasets["train"],
+            self.dataset_digest("train"),
         )
+
+    def model_dir(self, method: Method) -> Path:
+        return self.cache / "models" / f"{method.name}-{self.model_key(method)}"
 
     def fit(self) -> None:
         for method in self.scenario.methods:
             key = self.model_key(method)
-            directory = self.cache / "models" / f"{method.name}-{key}"
+            directory = self.model_dir(method)
 
             def work(method=method, directory=directory) -> None:
                 extractor = self.registry.create(method.plugin, self.method_params(method))
@@ -368,7 +465,7 @@ class Pipeline:
 
     def training_path(self, method: Method) -> Path:
         """Where the fit stage records how training went (read by the report and the manifest)."""
-        return self.cache / "models" / f"{method.name}-{self.model_key(method)}.training.json"
+        return self.model_dir(method).with_name(self.model_dir(method).name + ".training.json")
 
     def training_record(self, method: Method) -> dict[str, Any]:
         """``{"history": per-epoch curves, "summary": how training ended}`` saved by the fit stage."""
@@ -377,13 +474,13 @@ class Pipeline:
 
     def extractor(self, method: Method) -> FeatureExtractor:
         if method.name not in self.extractors:
-            directory = self.cache / "models" / f"{method.name}-{self.model_key(method)}"
-            self.extractors[method.name] = self.registry.get(method.plugin).load(directory)
+            self.extractors[method.name] = self.registry.get(method.plugin).load(self.model_dir(method))
             self.extractors[method.name].progress = self.progress
         return self.extractors[method.name]
 
     def features_path(self, method: Method, label: str) -> Path:
-        key = content_hash("transform", STAGE_VERSION["transform"], self.model_key(method), self.state.datasets[label])
+        key = content_hash("transform", STAGE_VERSION["transform"], self.model_key(method),
+                           self.output_digest(self.model_dir(method)), self.state.datasets[label], self.dataset_digest(label))
         return self.cache / "features" / f"{method.name}-{label.replace('/', '-')}-{key}.npz"
 
     def transform(self) -> None:
@@ -417,7 +514,11 @@ class Pipeline:
                 for direction, q, r in self.directions():
                     qpath = self.features_path(method, f"{e.name}/{q}")
                     rpath = self.features_path(method, f"{e.name}/{r}")
-                    key = content_hash("evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name, settings.model_dump())
+                    key = content_hash(
+                        "evaluate", STAGE_VERSION["evaluate"], self.model_key(method), qpath.name, rpath.name,
+                        [self.output_digest(p) for p in (qpath, rpath)],
+                        [self.dataset_digest(f"{e.name}/{side}") for side in (q, r)], settings.model_dump(),
+                    )
                     folder = self.evaluation_dir(e.name, method.name, direction)
                     summary_path = folder / "summary.json"
 
@@ -461,7 +562,8 @@ class Pipeline:
     def run(self, until: str = "report") -> list[dict[str, Any]]:
         """Run the stages up to and including ``until``; return the result rows (if evaluated)."""
         self.out.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(self.out / "scenario.resolved.yaml", yaml.safe_dump(self.resolved, sort_keys=False))
+        completion.clear(self.out)  # first: until the new record, the folder holds no finished run
+        write_text_atomic(self.out / completion.SCENARIO, yaml.safe_dump(self.resolved, sort_keys=False))
         started = time.perf_counter()
         rows: list[dict[str, Any]] = []
         stop = STAGES.index(until)
@@ -477,11 +579,26 @@ class Pipeline:
             from vitaplace.engine.report import write_report
 
             params = [self.method_params(m) for m in self.scenario.methods]
-            key = content_hash("report", STAGE_VERSION["report"], rows, params)
+            key = content_hash("report", STAGE_VERSION["report"], rows, params,
+                               [self.model_key(m) for m in self.scenario.methods])
             self._stage("report", "report", key, self.out / "report.md", lambda: write_report(self, rows))
         self.write_manifest(time.perf_counter() - started)
         announce_run_finished(self.registry, self.out, self.scenario, rows, until)
+        completion.write(self.out, self.finished_files(until))
         return rows
+
+    def finished_files(self, until: str) -> list[Path]:
+        """What this run wrote for readers outside the pipeline (the completion record covers
+        them): the manifest, results and report, each evaluation's summary and PR curve."""
+        names = ["manifest.json"]
+        if STAGES.index(until) >= STAGES.index("evaluate"):
+            names += ["results.json", "results.csv"]
+            names += [str(self.evaluation_dir(e.name, m.name, d).relative_to(self.out) / f)
+                      for e in self.scenario.evaluations for m in self.scenario.methods for d, *_ in self.directions()
+                      for f in ("summary.json", "pr_curve.npz")]
+        if until == "report":
+            names.append("report.md")
+        return [self.out / name for name in names]
 
     def write_manifest(self, seconds: float) -> None:
         manifest = {

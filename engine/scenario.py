@@ -44,8 +44,10 @@ import pydantic
 import yaml
 
 from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml, local_or_shipped
+from vitaplace.engine.dataset import Run
+from vitaplace.engine.plausibility import ImplausibleRun, check_run
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
-from vitaplace.engine.sim.robot import RobotSpec
+from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec
 from vitaplace.engine.sim.controllers import RunSpec
 
 BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
@@ -257,7 +259,7 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
                 where = folder / entry[key]
                 if key == "environment":  # a shipped name (e1) when no such file is next to the scenario
                     where = local_or_shipped(folder, entry[key], key)
-                entry[key] = str(where.resolve())
+                entry[key] = str(_resolved(where))
         if isinstance(entry, dict) and "datasets" in keys:
             fix(entry.get("datasets"), ("query", "reference"))
 
@@ -266,6 +268,15 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
     for entry in evaluations if isinstance(evaluations, list) else []:  # anything else: the schema says why
         fix(entry, ("environment", "datasets"))
     return data
+
+
+def _resolved(path: Path) -> Path:
+    """``path`` absolute with its links followed; a link loop stays as it is (the file check
+    then reports it as missing instead of Python raising)."""
+    try:
+        return path.resolve()
+    except (RuntimeError, OSError):
+        return path.absolute()
 
 
 def apply_overrides(data: dict[str, Any], assignments: Sequence[str], source: str = "--set") -> dict[str, Any]:
@@ -332,11 +343,18 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
     except pydantic.ValidationError as exc:
         raise ScenarioError(format_validation_error(path, exc, Scenario)) from None
     train_samples = scenario.train.run.n_samples if scenario.train.run else 0
+    robot = scenario.robot
+    # what every run must share with the training run: whiskers and image size
+    train_shape = (N_WHISKERS, (robot.camera_height, robot.camera_width, 3))
     if scenario.train.dataset is not None:
-        train_samples = _recorded_samples(path, "train.dataset", scenario.train.dataset, 1)
+        train = _recorded(path, "train.dataset", scenario.train.dataset, 1)
+        train_samples, train_shape = len(train), (train.n_whiskers, train.image_shape)
     for i, e in enumerate(scenario.evaluations):
         for side, file in e.recorded().items():
-            _recorded_samples(path, f"evaluations.{i}.datasets.{side}", file, MIN_EVALUATION_SAMPLES)
+            run = _recorded(path, f"evaluations.{i}.datasets.{side}", file, MIN_EVALUATION_SAMPLES)
+            _check_like_training(path, f"evaluations.{i}.datasets.{side}", run, train_shape)
+        if e.datasets is not None:
+            _check_distinct(path, f"evaluations.{i}.datasets", e.datasets)
     for where, entry in [("train", scenario.train)] + [
         (f"evaluations.{i}", e) for i, e in enumerate(scenario.evaluations)
     ]:
@@ -345,6 +363,13 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
         if not entry.environment.is_file():
             raise ScenarioError(f"{path}: {where}.environment: no such file {str(entry.environment)!r}")
         env = load_environment(entry.environment)
+        if entry.run is not None:
+            runs = [entry.run_for(role) for role in ("query", "reference")] if where != "train" else [entry.run]
+            for run in runs:
+                try:
+                    check_run(env, run, robot)
+                except ImplausibleRun as exc:
+                    raise ScenarioError(f"{path}: {where}.run.{exc.key}: {exc}") from None
         diagonal = 2 * math.hypot(env.arena.half_x, env.arena.half_y)
         if where != "train" and scenario.evaluation.tau >= diagonal:
             raise ScenarioError(
@@ -356,20 +381,46 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
     return scenario, raw
 
 
-def _recorded_samples(path: Path, where: str, file: Path, minimum: int) -> int:
-    """The number of samples of the recorded run ``file`` (its format and shapes checked)."""
+def _recorded(path: Path, where: str, file: Path, minimum: int) -> Run:
+    """The recorded run ``file``, opened (its attributes, fields, storage and shapes checked)
+    and with at least ``minimum`` samples."""
     from vitaplace.engine.dataset import DatasetError, open_run
 
     if not file.is_file():
         raise ScenarioError(f"{path}: {where}: no such file {str(file)!r} (make one with `vitaplace import`)")
     try:
-        samples = len(open_run(file))
+        run = open_run(file)
     except DatasetError as exc:
         raise ScenarioError(f"{path}: {where}: {exc}") from None
-    if samples < minimum:
+    if len(run) < minimum:
         role = "a training" if where.startswith("train") else "an evaluation"
-        raise ScenarioError(f"{path}: {where}: {role} run needs at least {minimum} samples, {file} has {samples}")
-    return samples
+        raise ScenarioError(f"{path}: {where}: {role} run needs at least {minimum} samples, {file} has {len(run)}")
+    return run
+
+
+def _check_like_training(path: Path, where: str, run: Run, train: tuple[int, tuple[int, ...]]) -> None:
+    """An evaluation run has the training run's whiskers and image size (methods fitted on
+    one cannot read the other)."""
+    whiskers, image = train
+    if run.n_whiskers != whiskers:
+        raise ScenarioError(f"{path}: {where}: {run.path} has {run.n_whiskers} whiskers, the training run {whiskers}")
+    if run.image_shape != tuple(image):
+        shown = lambda shape: "x".join(map(str, shape))  # noqa: E731
+        raise ScenarioError(
+            f"{path}: {where}: {run.path} has {shown(run.image_shape)} images, the training run {shown(image)}"
+        )
+
+
+def _check_distinct(path: Path, where: str, datasets: RecordedRuns) -> None:
+    """Query and reference are two recordings: the same file (or the same content) would
+    match every query to itself and score 100 %."""
+    from vitaplace.engine.checksum import digest
+
+    if digest(datasets.query) == digest(datasets.reference):
+        raise ScenarioError(
+            f"{path}: {where}: query {datasets.query} and reference {datasets.reference} are the same recording; "
+            "an evaluation needs two separate runs"
+        )
 
 
 def physical_memory() -> int | None:

@@ -161,6 +161,15 @@ def markdown() -> str:
         "`tests/test_docs.py` fails when this file is out of date. Unknown keys are errors everywhere.",
         "Units: metres, seconds, degrees in files (radians inside), colours in [0, 1].",
         "",
+        "Beyond each key's own range, `vitaplace validate` checks what needs the arena and the robot",
+        "together (`engine/plausibility.py`), each refusal naming its key: a run's `start` and its",
+        "`orbit_centre` inside the arena; the orbit (`orbit_radius`) and the off-route detour",
+        "(`off_route_offset`, when `off_route_fraction` or `query_off_route` is set) keep the robot's",
+        "body (radius 0.23 m) inside the walls; `control_hz` at least `robot.whisk_hz`; a `route` run",
+        "needs an environment with a route. Infinite or NaN numbers are refused everywhere, method",
+        "parameters included. A scenario whose simulation is estimated to take more than 10 minutes",
+        "on one core says so (`validate`, and `run` before it starts; progress lines while it runs).",
+        "",
     ]
     for heading, model, what in SECTIONS:
         doc = _first_line(model.__doc__)

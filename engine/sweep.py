@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import copy
 import logging
-import multiprocessing
 import os
 import re
 import socket
@@ -34,7 +33,7 @@ import traceback
 import typing
 import uuid
 from collections.abc import Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -195,14 +194,6 @@ def run_seed_reported(job: SeedJob) -> dict[str, Any]:
         return {"seed": job.seed, "failure": str(exc)}
 
 
-def _init_worker(threads: int) -> None:
-    """Local pool worker: dies with the driver; BLAS threads sized to its share of the CPUs."""
-    from vitaplace.engine.runner import die_with_parent
-
-    die_with_parent()
-    limit_blas_threads(threads)
-
-
 def gpu_overrides(scenario: Scenario) -> list[str]:
     """``--set`` assignments giving every method whose extractor has a ``backend`` parameter
     its GPU backend (``cuda``, else ``warp``), unless the scenario chose one other than auto."""
@@ -284,12 +275,14 @@ def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dic
 def _pool_round(jobs: Sequence[SeedJob], workers: int):
     """One process pool over ``jobs``: yields (job, result, failure) for the jobs that ended,
     returns those lost to a broken pool."""
-    context = multiprocessing.get_context("spawn")  # no fork: GL and Warp state are not fork-safe
-    threads = max(1, usable_cpus() // workers)
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker, initargs=(threads,))
+    from vitaplace.engine.runner import interrupts_to_this_process, stop_pool, worker_pool
+
+    # spawned, not forked (GL and Warp state are not fork-safe); BLAS threads: each worker its share
+    pool = worker_pool(workers, blas_threads=max(1, usable_cpus() // workers))
     broken: list[SeedJob] = []
     try:
-        pending = {pool.submit(run_seed, job): job for job in jobs}
+        with interrupts_to_this_process():
+            pending = {pool.submit(run_seed, job): job for job in jobs}
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
@@ -301,7 +294,7 @@ def _pool_round(jobs: Sequence[SeedJob], workers: int):
                 except Exception as exc:
                     yield job, None, describe_failure(exc)
     except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)  # interrupted: do not wait for running seeds
+        stop_pool(pool)  # interrupted: do not wait for running seeds
         raise
     pool.shutdown()
     return broken

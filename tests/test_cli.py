@@ -461,37 +461,92 @@ def test_temporaries_left_by_an_interrupted_run_are_removed(tmp_path):
     assert set(removed) == {part, model_tmp} and keep.exists() and not part.exists() and not model_tmp.exists()
 
 
-def test_simulation_workers_die_with_their_parent(tmp_path):
-    """kill -9 of the process that started a worker pool takes the workers with it."""
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _worker_outlives_a_killed_parent(tmp_path: Path, main_body: str) -> bool:
+    """Run a parent whose ``__main__`` body (making ``pool = worker_pool(1)``) prints a worker's
+    pid, kill -9 the parent at once, and say whether the worker is still alive 20 s later."""
     import signal
     import time
 
     script = tmp_path / "parent.py"
-    script.write_text(
-        "import multiprocessing, os, time\n"
-        "from concurrent.futures import ProcessPoolExecutor\n"
-        "from vitaplace.engine.runner import die_with_parent\n"
-        "if __name__ == '__main__':\n"
-        "    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context('spawn'), initializer=die_with_parent)\n"
-        "    print(pool.submit(os.getpid).result(), flush=True)\n"
-        "    time.sleep(60)\n"
-    )
+    script.write_text("import os, time\nfrom vitaplace.engine.runner import worker_pool\nif __name__ == '__main__':\n"
+                      "    pool = worker_pool(1)\n" + main_body + "    time.sleep(60)\n")
     parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
     worker = int(parent.stdout.readline())
     os.kill(parent.pid, signal.SIGKILL)
     parent.wait()
-
-    def alive(pid: int) -> bool:
-        try:
-            state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            return False
-        return state != "Z"
-
-    deadline = time.monotonic() + 10
-    while alive(worker) and time.monotonic() < deadline:
+    deadline = time.monotonic() + 20
+    while _alive(worker) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not alive(worker), f"worker {worker} outlived its parent"
+    return _alive(worker)
+
+
+def test_simulation_workers_die_with_their_parent(tmp_path):
+    """kill -9 of the process that started a worker pool takes the workers with it."""
+    assert not _worker_outlives_a_killed_parent(tmp_path, "    print(pool.submit(os.getpid).result(), flush=True)\n")
+
+
+def test_a_worker_that_starts_after_its_parent_died_exits_at_once(tmp_path):
+    """kill -9 of the parent while its spawned worker is still importing: the worker, finding
+    another process as its parent, exits instead of running its task (a minute's sleep)."""
+    body = "    pool.submit(time.sleep, 60)\n    print(*pool._processes, flush=True)\n"
+    assert not _worker_outlives_a_killed_parent(tmp_path, body)
+
+
+def _sigint(pid: int) -> str | None:
+    """How process ``pid`` treats SIGINT: "ignored", "caught" (a Python that has begun to start
+    up sets its handler before importing anything) or None (default, or no such process)."""
+    import signal
+
+    try:
+        status = dict(line.split(":", 1) for line in Path(f"/proc/{pid}/status").read_text().splitlines())
+    except OSError:
+        return None
+    bit = 1 << (signal.SIGINT - 1)
+    return "ignored" if int(status["SigIgn"], 16) & bit else "caught" if int(status["SigCgt"], 16) & bit else None
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2 or not Path("/proc/self/status").exists(),
+                    reason="needs simulation worker processes (2+ CPUs) and /proc")
+def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
+    """Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while the spawned
+    simulation workers are still importing: one line, exit 130, no worker left behind, none
+    that went on to record its run."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    args = ["run", "quickstart", "--out", str(out), "-q"] + [a for o in TINY for a in ("--set", o)]
+    proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    workers: list[int] = []
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:  # the spawned workers (not multiprocessing's resource tracker)
+            children = Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()
+            workers = [int(c) for c in children if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+        except OSError:
+            workers = []
+        started = (out / "log.txt").exists() and "worker processes" in (out / "log.txt").read_text()
+        if started and len(workers) >= 2 and all(_sigint(c) for c in workers):
+            break
+        time.sleep(0.005)
+    assert proc.poll() is None, "the run ended before it could be interrupted"
+    assert {_sigint(c) for c in workers} == {"ignored"}  # from their first instant
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err[-3000:]
+    assert err.strip().splitlines() == ["vitaplace: interrupted; finished stages are cached, run again to resume"], err[-3000:]
+    time.sleep(1)
+    assert not any(_alive(c) for c in workers)
+    assert not list((out / "cache").rglob("*.h5")), "workers went on simulating after the interrupt"
 
 
 @pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
@@ -809,3 +864,89 @@ def test_report_gives_the_distribution_of_test_time_inference_steps(quickstart_r
         row = (f"| L | {label.replace('-', '/')} | {np.median(steps):.0f} | {np.percentile(steps, 90):.0f} | "
                f"{steps.max()} | {100 * (~stopped).mean():.1f} |")
         assert row in report, row
+
+
+# --------------------------------------------------------------------------- physical plausibility at validate
+
+IMPLAUSIBLE = {
+    "an infinite tactile range": (["methods.0.params.tactile_min_range=.inf"],
+                                  "methods.0.params: extractor 'mupnet': tactile_min_range: Input should be a finite number"),
+    "a negative whisker length": (["robot.whisker_lengths_mm=[50, -70, 100, 160]"], "robot.whisker_lengths_mm.1: Input should be greater than 0"),
+    "a detour outside the arena": (["evaluations.0.query_off_route=0.3", "evaluations.0.run.off_route_offset=-3"],
+                                   "evaluations.0.run.off_route_offset: -3 m off the path takes the robot"),
+    "a 0.1 us timestep": (["robot.timestep=1e-7"], "robot.timestep: Input should be greater than or equal to 0.0001"),
+    "an orbit beyond the arena": (["evaluations.0.run={kind: orbit, n_samples: 10, orbit_radius: 5}"],
+                                  "evaluations.0.run.orbit_radius: an orbit of 5 m around (0, 0)"),
+    "an orbit centre outside": (["evaluations.0.run={kind: orbit, n_samples: 10, orbit_centre: [9, 0]}"],
+                                "evaluations.0.run.orbit_centre: (9, 0) is outside the 6.05 x 6.05 m arena"),
+    "a start outside": (["train.run.start=[10, 0, 0]"], "train.run.start: (10, 0) puts the robot"),
+    "a start in the wall": (["train.run.start=[2.9, 0, 0]"], "train.run.start: (2.9, 0) puts the robot"),
+    "a 0.001 Hz controller": (["train.run.control_hz=0.001"], "train.run.control_hz: 0.001 Hz is below the whisking rate"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(IMPLAUSIBLE))
+def test_implausible_settings_are_refused_at_validate_naming_the_key(capsys, case):
+    overrides, message = IMPLAUSIBLE[case]
+    argv = ["validate", "quickstart"] + [a for o in overrides for a in ("--set", o)]
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vitaplace: error: ") and message in lines[0], lines
+
+
+def test_settings_just_inside_the_arena_are_valid(capsys):
+    """The arena of e1 is 6.05 m wide, the body's radius 0.23 m: 3.025 - 0.23 = 2.795 m is the
+    farthest the base's centre can be from the middle."""
+    ok = ["train.run.start=[2.79, 0, 0]", "evaluations.0.run={kind: orbit, n_samples: 10, orbit_radius: 2.79}",
+          "train.run.control_hz=2"]
+    assert main(["validate", "quickstart"] + [a for o in ok for a in ("--set", o)]) == 0
+    assert main(["validate", "quickstart", "--set", "train.run.start=[2.8, 0, 0]"]) == 2
+
+
+def test_a_long_simulation_is_announced_with_an_estimate(capsys):
+    """0.1 ms steps at 2 Hz whisking: 5000 steps per sample. Estimate: (samples + warm-up
+    cycle) x steps x 25 us + samples x 1 ms; train 5000 samples, two evaluation runs of 150."""
+    from vitaplace.engine.plausibility import duration
+
+    seconds = (5001 * 5000 * 25e-6 + 5000 * 1e-3) + 2 * (151 * 5000 * 25e-6 + 150 * 1e-3)
+    assert duration(seconds) == "11 min"  # 668.2 s
+    assert main(["validate", "quickstart", "--set", "robot.timestep=1e-4", "--set", "train.run.n_samples=5000"]) == 0
+    assert "simulating its runs takes about 11 min on one core (estimate)" in capsys.readouterr().out
+    assert main(["validate", "quickstart"]) == 0
+    assert "estimate" not in capsys.readouterr().out
+
+
+def test_a_long_simulation_in_a_worker_logs_its_progress(monkeypatch, caplog):
+    """While a worker simulates a run estimated to take long, a line each tenth of the estimate."""
+    import threading
+    from concurrent.futures import Future
+
+    from vitaplace.engine import runner
+
+    monkeypatch.setattr(runner, "LONG_SECONDS", 0.1)
+    future: Future = Future()
+    threading.Timer(0.35, future.set_result, ((10, 1.0),)).start()
+    with caplog.at_level("INFO", logger="vitaplace"):
+        assert runner._await(future, "train", estimate=1.0) == (10, 1.0)
+    lines = [r.getMessage() for r in caplog.records if "of an estimated 1 s" in r.getMessage()]
+    assert 2 <= len(lines) <= 4, lines
+
+
+@pytest.mark.parametrize("workers", ["-1", "0"])
+def test_bad_worker_counts_are_one_line(tmp_path, capsys, workers):
+    assert main(["sweep", "quickstart", "--workers", workers, "--out", str(tmp_path / "out")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [f"vitaplace: error: --workers {workers}: expected a number of worker processes, at least 1"]
+
+
+def test_ctrl_c_before_the_command_starts_is_one_line(capsys, monkeypatch):
+    """A Ctrl-C while the arguments are parsed (or anything before the command runs)."""
+    from vitaplace.engine import cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert main(["validate", "quickstart"]) == 130
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "vitaplace: interrupted; finished stages are cached, run again to resume"]

@@ -163,3 +163,68 @@ def test_nan_in_memory_is_rejected():
             xy=np.full((2, 24, 2), np.nan),
             poses=np.zeros((2, 3)),
         )
+
+
+# --------------------------------------------------------------------------- hostile run files
+# Each file below is what a damaged or forged recording looks like; `open_run` must answer
+# with one DatasetError naming the file (never a traceback, never gigabytes read).
+
+
+def _set_attr(key, value):
+    def change(f):
+        f.attrs[key] = value
+    return change
+
+
+def _field_as_group(f):
+    del f["theta"]
+    f.create_group("theta")
+
+
+def _forged_size(f):
+    """A small file declaring 10^7 samples: chunked datasets whose chunks were never written."""
+    n = 10**7
+    for key in list(f):
+        del f[key]
+    for key, shape in {"images": (n, 2, 2, 3), "theta": (n, 24), "xy": (n, 24, 2), "deflection": (n, 1, 24, 2),
+                       "poses": (n, 3), "times": (n,), "contact_offsets": (n + 1,)}.items():
+        f.create_dataset(key, shape=shape, dtype=ds.FIELDS[key], chunks=(1000,) + shape[1:])
+    for key in ("contact_points", "contact_normals"):
+        f.create_dataset(key, shape=(0, 3), dtype=np.float32)
+
+
+HOSTILE_FILES = {
+    "schema_version as text": (_set_attr("schema_version", "one"), r"schema version 'one' \(not an integer\)"),
+    "schema_version as an array": (_set_attr("schema_version", np.array([1, 1])), r"schema version .*not an integer"),
+    "seed as text": (_set_attr("seed", "seven"), r"attribute 'seed' is .*seven.*expected an integer"),
+    "params not JSON": (_set_attr("params", "{not json"), r"attribute 'params' is not valid JSON"),
+    "params a JSON list": (_set_attr("params", "[1, 2]"), r"attribute 'params' is list JSON, expected a JSON object"),
+    "name as a number": (_set_attr("name", 3.5), r"attribute 'name' is .*3\.5.*expected text"),
+    "a field stored as a group": (_field_as_group, r"field 'theta' is a group, expected a dataset"),
+    "images as floats": (lambda f: (f.__delitem__("images"), f.create_dataset("images", data=np.zeros((5, 12, 16, 3)))),
+                         r"field 'images' has dtype float64, expected uint8"),
+    "theta as text": (lambda f: (f.__delitem__("theta"), f.create_dataset("theta", data=np.full((5, 24), b"x"))),
+                      r"field 'theta' has dtype \|S1, expected float32"),
+    "10^7 samples declared, none stored": (_forged_size, r"field 'images' declares shape \(10000000, 2, 2, 3\) but the file "
+                                                         r"does not hold its data"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(HOSTILE_FILES))
+def test_hostile_run_files_are_one_dataset_error(tmp_path, case):
+    import re
+    import tracemalloc
+
+    path = write_run(tmp_path / "run.h5", make_run())
+    with h5py.File(path, "a") as f:
+        HOSTILE_FILES[case][0](f)
+    tracemalloc.start()
+    with pytest.raises(DatasetError) as info:
+        open_run(path).validate()
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    message = str(info.value)
+    assert message.startswith(str(path)) and "\n" not in message, message
+    assert re.search(HOSTILE_FILES[case][1], message), message
+    assert peak < 50e6, f"read {peak / 1e6:.0f} MB to refuse the file"
+

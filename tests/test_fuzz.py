@@ -94,3 +94,147 @@ def test_wrong_shapes_at_the_top_level(tmp_path, capsys, value):
     scenario.write_text(yaml.safe_dump(value))
     assert main(["validate", str(scenario)]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+# --------------------------------------------------------------------------- recorded run files
+# Whatever a run file holds, opening and checking it ends in a clean state or one DatasetError
+# line naming the file: never another exception.
+
+import shutil  # noqa: E402
+import tempfile  # noqa: E402
+
+import h5py  # noqa: E402
+import numpy as np  # noqa: E402
+
+from vitaplace.engine.dataset import FIELDS, DatasetError, Run, open_run, write_run  # noqa: E402
+
+
+def _base_run_file(folder: Path) -> Path:
+    rng = np.random.default_rng(0)
+    n = 6
+    run = Run.from_arrays(images=rng.integers(0, 256, (n, 4, 5, 3), dtype=np.uint8), theta=rng.normal(size=(n, 24)),
+                          xy=rng.normal(size=(n, 24, 2)), poses=rng.normal(size=(n, 3)), attrs={"seed": 1})
+    return write_run(folder / "run.h5", run)
+
+
+def _array(dtype: str, shape: tuple, fill) -> np.ndarray:
+    with np.errstate(invalid="ignore", over="ignore"):  # NaN or 1e9 cast to small integers: whatever comes
+        return np.full(shape, fill).astype(dtype)
+
+
+arrays = st.builds(
+    _array,
+    st.sampled_from(["u1", "i8", "f4", "f8", "S3", "c16", "?"]),
+    st.lists(st.integers(0, 7), min_size=0, max_size=4).map(tuple),
+    st.sampled_from([0, 1, -1, 255, 1e9, math.nan, math.inf]),
+)
+run_values = st.one_of(arrays, scalars.filter(lambda v: v is not None), st.lists(st.integers(-5, 5), max_size=5))
+
+
+def _store(group, name: str, value) -> bool:
+    """Put ``value`` under ``name`` as a dataset; False when HDF5 cannot hold it at all."""
+    try:
+        group.create_dataset(name, data=value)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+@settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", 60)), deadline=None)
+@given(target=st.sampled_from([*FIELDS, "schema_version", "seed", "name", "params", "scenario_hash", "bytes"]),
+       value=run_values, delete=st.booleans(), offset=st.integers(0, 10**6))
+def test_any_mutated_run_file_gets_a_clean_answer(target, value, delete, offset):
+    folder = Path(tempfile.mkdtemp())
+    try:
+        path = _base_run_file(folder)
+        if target == "bytes":  # a flipped byte somewhere in the file
+            data = bytearray(path.read_bytes())
+            data[offset % len(data)] ^= 0xFF
+            path.write_bytes(bytes(data))
+        else:
+            with h5py.File(path, "a") as f:
+                if target in FIELDS:
+                    del f[target]
+                    if not delete and not _store(f, target, value):
+                        f.create_group(target)
+                elif delete:
+                    del f.attrs[target]
+                else:
+                    try:
+                        f.attrs[target] = value
+                    except (TypeError, ValueError):
+                        f.attrs[target] = str(value)
+        try:
+            run = open_run(path)
+            run.validate()
+            len(run), run.n_whiskers, run.image_shape  # noqa: B018 - what a scenario check reads
+        except DatasetError as exc:
+            message = str(exc)
+            assert message.startswith(str(path)) and "\n" not in message, message
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+# --------------------------------------------------------------------------- aggregate folders
+# Whatever two run folders hold, `vitaplace aggregate` exits 0 with a summary, or 2 with one line
+# and nothing written.
+
+
+def _finished_folder(folder: Path, seed: int) -> None:
+    """A finished run folder as the runner leaves one: scenario, manifest, results, PR curve
+    and the completion record written last."""
+    import json
+
+    from vitaplace.engine import completion
+    from vitaplace.engine.evaluate import evaluate_pair
+
+    poses = np.stack([np.linspace(0, 2, 6), np.zeros(6), np.zeros(6)], axis=1)
+    tme = np.abs(np.subtract.outer(np.arange(6.0), np.arange(6.0))) + 0.1 * seed
+    evaluation = folder / "evaluations" / "E1" / "M" / "query-to-reference"
+    summary = evaluate_pair(evaluation, tme, poses, poses, 0.3)
+    (folder / "scenario.resolved.yaml").write_text(yaml.safe_dump({"name": "fuzz", "seed": seed, "evaluation": {"tau": 0.3}}))
+    (folder / "manifest.json").write_text(json.dumps({"scenario": "fuzz", "seed": seed}))
+    rows = [{"environment": "E1", "method": "M", "direction": "query-to-reference", **summary}]
+    (folder / "results.json").write_text(json.dumps(rows))
+    completion.write(folder, [folder / "manifest.json", folder / "results.json", evaluation / "pr_curve.npz"])
+
+
+@settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", 60)), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(file=st.sampled_from(["results.json", "manifest.json", "completed.json", "scenario.resolved.yaml"]),
+       key=st.sampled_from(["max_f1", "auc", "recall_at_k", "environment", "seed", "scenario", "files", "name", "n_queries"]),
+       value=values, whole=st.booleans(), reseal=st.booleans())
+def test_any_mutated_aggregate_folder_gets_a_clean_answer(capsys, file, key, value, whole, reseal):
+    import json
+
+    from vitaplace.engine import completion
+
+    root = Path(tempfile.mkdtemp())
+    try:
+        for seed in (0, 1):
+            _finished_folder(root / f"seed-{seed}", seed)
+        victim = root / "seed-1" / file
+        loads = yaml.safe_load if file.endswith(".yaml") else json.loads
+        data = loads(victim.read_text())
+        if whole:
+            data = value
+        elif file == "results.json":
+            data[0][key] = value
+        elif isinstance(data, dict):
+            data[key] = value
+        victim.write_text(yaml.safe_dump(data) if file.endswith(".yaml") else json.dumps(data))
+        if reseal and file != "completed.json":
+            names = json.loads((root / "seed-1" / "completed.json").read_text())["files"]
+            completion.write(root / "seed-1", [root / "seed-1" / n for n in names])
+        out = root / "summary"
+        code = main(["aggregate", str(root / "seed-0"), str(root / "seed-1"), "--out", str(out)])
+        captured = capsys.readouterr()
+        assert code in (0, 2), captured.err
+        if code == 2:
+            lines = captured.err.strip().splitlines()
+            assert len(lines) == 1 and lines[0].startswith("vitaplace: error:"), captured.err
+            assert not out.exists()
+        else:
+            assert (out / "sweep.csv").is_file() and "summary of 2 seeds" in captured.out
+    finally:
+        shutil.rmtree(root, ignore_errors=True)

@@ -416,3 +416,146 @@ def test_collisions_and_a_training_run_in_no_world_reach_the_user(tmp_path):
         assert row["difficulty"]["nearest_ref_median_m"] == pytest.approx(0.05)
         assert row["difficulty"]["nearest_ref_heading_median_deg"] == pytest.approx(0.0)
         assert (row["difficulty"]["query_touch_share"], row["difficulty"]["reference_touch_share"]) == (0.25, 0.0)
+
+
+# --------------------------------------------------------------------------- imports that refuse to guess
+
+
+def _one_line_error(capsys, argv) -> str:
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+def test_float_frames_that_overshoot_1_are_refused_not_blackened(tmp_path, capsys):
+    """Bicubic resizing of [0, 1] frames overshoots: one pixel at 1.004 must not turn the
+    recording into 0..255 values (every pixel 0 or 1)."""
+    folder = tmp_path / "rec"
+    images = write_recording(folder)[0] / 255.0
+    images[10, 20, 1, 3] = 1.004
+    scipy.io.savemat(folder / "images.mat", {"images": images})
+    out = tmp_path / "run.h5"
+    line = _one_line_error(capsys, ["import", str(folder), "--out", str(out)])
+    assert f"{folder / 'images.mat'}: variable 'images'" in line and "1 value(s) above 1 (largest 1.004)" in line
+    assert "--image-range" in line and not out.exists()
+    # stated: [0, 1] frames, the overshoot saturates as MATLAB's im2uint8 does
+    assert main(["import", str(folder), "--out", str(out), "--image-range", "0-1"]) == 0
+    run = open_run(out)
+    expected = np.rint(np.clip(images, 0, 1) * 255).astype(np.uint8)
+    assert np.array_equal(run.images, np.moveaxis(expected, 3, 0)) and run.images[3, 10, 20, 1] == 255
+
+
+@pytest.mark.parametrize("bad,count", [((-0.5,), 1), ((300.0, 256.5), 2)])
+def test_values_outside_both_ranges_are_refused_with_their_count(tmp_path, capsys, bad, count):
+    folder = tmp_path / "rec"
+    images = write_recording(folder)[0].astype(np.float64)
+    images.reshape(-1)[: len(bad)] = bad
+    scipy.io.savemat(folder / "images.mat", {"images": images})
+    for extra in ([], ["--image-range", "0-255"]):
+        line = _one_line_error(capsys, ["import", str(folder), "--out", str(tmp_path / "run.h5"), *extra])
+        assert f"{folder / 'images.mat'}" in line and f"has {count} value(s) outside both [0, 1] and [0, 255]" in line
+
+
+def test_whole_numbers_in_a_double_array_are_0_to_255(tmp_path):
+    """``double(uint8_image)`` in MATLAB: whole numbers up to 255, read as they are."""
+    folder = tmp_path / "rec"
+    images = write_recording(folder)[0]
+    scipy.io.savemat(folder / "images.mat", {"images": images.astype(np.float64)})
+    assert np.array_equal(import_mat(folder).images, np.moveaxis(images, 3, 0))
+
+
+def test_the_declared_matlab_class_decides_not_the_storage_type(tmp_path):
+    """MATLAB stores a double array of whole numbers in a smaller integer type: a binary
+    frame (0.0 and 1.0, class double) stored as uint8 is [0, 1], i.e. black and white."""
+    folder = tmp_path / "rec"
+    write_recording(folder, "v7.3")
+    binary = (np.random.default_rng(3).random((45, 80, 3, N)) > 0.5).astype(np.uint8)
+    with h5py.File(folder / "images.mat", "w", userblock_size=512) as f:
+        f.create_dataset("images", data=binary.T).attrs["MATLAB_class"] = np.bytes_("double")
+    run = import_mat(folder)
+    assert np.array_equal(run.images, np.moveaxis(binary, 3, 0) * 255)
+
+
+@pytest.mark.parametrize("version", ["v5", "v7.3"])
+def test_complex_arrays_are_refused(tmp_path, capsys, version):
+    folder = tmp_path / "rec"
+    theta = write_recording(folder, version)[1] * (1 + 0.5j)
+    if version == "v7.3":  # MATLAB stores a complex array as a compound of real and imaginary parts
+        with h5py.File(folder / "theta.mat", "w", userblock_size=512) as f:
+            data = np.empty(theta.T.shape, dtype=[("real", "<f8"), ("imag", "<f8")])
+            data["real"], data["imag"] = theta.T.real, theta.T.imag
+            f.create_dataset("theta", data=data).attrs["MATLAB_class"] = np.bytes_("double")
+    else:
+        scipy.io.savemat(folder / "theta.mat", {"theta": theta})
+    line = _one_line_error(capsys, ["import", str(folder), "--out", str(tmp_path / "run.h5")])
+    assert f"{folder / 'theta.mat'}: variable 'theta' is complex; expected real values" in line
+
+
+def test_three_poses_are_ambiguous_unless_the_layout_is_stated(tmp_path, capsys):
+    folder = tmp_path / "rec"
+    write_recording(folder, n=3)
+    poses = np.arange(9.0).reshape(3, 3)  # rows: (0, 1, 2), (3, 4, 5), (6, 7, 8)
+    scipy.io.savemat(folder / "poses.mat", {"poses": poses})
+    out = tmp_path / "run.h5"
+    line = _one_line_error(capsys, ["import", str(folder), "--out", str(out)])
+    assert f"{folder / 'poses.mat'}: variable 'poses' is 3 x 3" in line and "--pose-layout" in line
+    assert main(["import", str(folder), "--out", str(out), "--pose-layout", "Nx3"]) == 0
+    assert open_run(out).poses.tolist() == [[0, 1, 2], [3, 4, 5], [6, 7, 8]]
+    assert main(["import", str(folder), "--out", str(out), "--pose-layout", "3xN"]) == 0
+    assert open_run(out).poses.tolist() == [[0, 3, 6], [1, 4, 7], [2, 5, 8]]
+
+
+# --------------------------------------------------------------------------- recorded runs checked at validate
+
+
+def _twelve_whiskers(tmp_path, data):
+    from vitaplace.engine.dataset import Run
+
+    rng = np.random.default_rng(0)
+    run = Run.from_arrays(images=rng.integers(0, 256, (8, 45, 80, 3), dtype=np.uint8), theta=np.zeros((8, 12)),
+                          xy=np.zeros((8, 12, 2)), poses=np.stack([np.linspace(0, 2, 8), np.zeros(8), np.zeros(8)], 1))
+    write_run(tmp_path / "q12.h5", run)
+    data["evaluations"][0]["datasets"]["query"] = "q12.h5"
+
+
+def _smaller_images(tmp_path, data):
+    run = open_run(tmp_path / "query.h5")
+    small = run.subset(slice(None))
+    small._source["images"] = np.ascontiguousarray(run.images[:, :40])
+    write_run(tmp_path / "q40.h5", small)
+    data["evaluations"][0]["datasets"]["query"] = "q40.h5"
+
+
+def _copy_of_the_reference(tmp_path, data):
+    (tmp_path / "copy.h5").write_bytes((tmp_path / "ref.h5").read_bytes())
+    data["evaluations"][0]["datasets"]["query"] = "copy.h5"
+
+
+def _symlink_loop(tmp_path, data):
+    (tmp_path / "loop.h5").symlink_to(tmp_path / "loop.h5")
+    data["evaluations"][0]["datasets"]["query"] = "loop.h5"
+
+
+INCONSISTENT_RECORDINGS = {
+    "a query with 12 whiskers": (_twelve_whiskers, r"evaluations\.0\.datasets\.query: .*q12\.h5 has 12 whiskers, the training run 24"),
+    "a query with smaller images": (_smaller_images, r"evaluations\.0\.datasets\.query: .*q40\.h5 has 40x80x3 images, the training run 45x80x3"),
+    "query = reference": (lambda t, d: d["evaluations"][0]["datasets"].update(query="ref.h5"),
+                          r"evaluations\.0\.datasets: query .*ref\.h5 and reference .*ref\.h5 are the same recording"),
+    "query a copy of the reference": (_copy_of_the_reference, r"evaluations\.0\.datasets: query .*copy\.h5 and reference .*ref\.h5 are the same recording"),
+    "a symlink loop": (_symlink_loop, r"evaluations\.0\.datasets\.query: no such file .*loop\.h5"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(INCONSISTENT_RECORDINGS))
+def test_recorded_runs_that_cannot_be_compared_are_refused_at_validate(tmp_path, capsys, case):
+    import re
+
+    path = recorded_scenario(tmp_path)
+    data = yaml.safe_load(path.read_text())
+    INCONSISTENT_RECORDINGS[case][0](tmp_path, data)
+    path.write_text(yaml.safe_dump(data))
+    capsys.readouterr()
+    line = _one_line_error(capsys, ["validate", str(path)])
+    assert line.startswith(f"vitaplace: error: {path}: ") and re.search(INCONSISTENT_RECORDINGS[case][1], line), line

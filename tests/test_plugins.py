@@ -473,9 +473,13 @@ def test_cache_keys_change_with_the_plugin_version(monkeypatch):
     assert registry.version_of("handcrafted").startswith("vitaplace==")
     pipeline = Pipeline(scenario, resolved, Path("unused"), registry=registry)
     pipeline.state.datasets["train"] = "k"
+    pipeline.state.digests[str(pipeline.dataset_path("train"))] = "d"
     method = scenario.methods[1]
     before = pipeline.model_key(method)
     registry.distributions[registry.sources[method.plugin]] = "vitaplace==99.0"
+    assert pipeline.model_key(method) != before
+    before = pipeline.model_key(method)
+    pipeline.state.digests[str(pipeline.dataset_path("train"))] = "another training run's content"
     assert pipeline.model_key(method) != before
 
 

@@ -153,6 +153,7 @@ def test_aggregate_refuses_other_scenarios_and_unfinished_runs(local_sweep, tmp_
     resolved = yaml.safe_load((other / "scenario.resolved.yaml").read_text())
     resolved["evaluation"]["tau"] = 0.4
     (other / "scenario.resolved.yaml").write_text(yaml.safe_dump(resolved))
+    reseal(other)  # a finished run of another scenario
     cases = {
         "differs from": [str(out / "seed-0"), str(other)],
         "incomplete run folder": [str(out / "seed-0"), str(out / "seed-1")],  # the seed that failed
@@ -539,3 +540,105 @@ def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
     assert len(lines) == 1 and "worker process died" in lines[0] and "traceback in" not in lines[0], result.stderr[-3000:]
     record = json.loads((out / "sweep.json").read_text())
     assert record["seeds"] == [0, 2] and list(record["failed"]) == ["1"]
+
+
+# --------------------------------------------------------------------------- run folders that prove they are finished
+
+
+def reseal(folder: Path) -> None:
+    """Write the folder's completion record anew over what it holds now: as if its own run had
+    produced the damaged files (a buggy plugin, a bad disk), so the row checks must catch them."""
+    from vitaplace.engine import completion
+
+    files = json.loads((folder / completion.RECORD).read_text())["files"]
+    completion.write(folder, [folder / name for name in files])
+
+
+def _rows(folder: Path, change) -> None:
+    path = folder / "results.json"
+    rows = json.loads(path.read_text())
+    change(rows)
+    path.write_text(json.dumps(rows))
+
+
+CURVE = "evaluations/E1/O/query-to-reference/pr_curve.npz"
+UNFINISHED = {
+    "results edited after the run": (lambda f: _rows(f, lambda r: r[0].update(max_f1=0.5)), False,
+                                     r"seed-copy: not a finished run: results\.json is not the file its finished run recorded"),
+    "a truncated PR curve": (lambda f: (f / CURVE).write_bytes((f / CURVE).read_bytes()[:50]), False,
+                             rf"not a finished run: {CURVE} is not the file its finished run recorded"),
+    "a truncated PR curve, recorded so": (lambda f: (f / CURVE).write_bytes((f / CURVE).read_bytes()[:50]), True,
+                                          rf"{CURVE}: unreadable PR curve"),
+    "no result rows": (lambda f: (f / "results.json").write_text("[]"), True,
+                       r"results\.json: holds no result rows, expected a non-empty list"),
+    "a metric as text": (lambda f: _rows(f, lambda r: r[0].update(auc="high")), True,
+                         r"results\.json: row 0: field 'auc' is 'high', expected a finite number or null"),
+    "max F1 missing": (lambda f: _rows(f, lambda r: r[1].pop("max_f1")), True,
+                       r"results\.json: row 1: field 'max_f1' is None, expected a finite number"),
+    "recall@K as text": (lambda f: _rows(f, lambda r: r[0]["recall_at_k"].update({"5": "x"})), True,
+                         r"results\.json: row 0: field 'recall_at_k\.5' is 'x', expected a finite number or null"),
+    "a row that is a list": (lambda f: _rows(f, lambda r: r.append([1, 2])), True,
+                             r"results\.json: row 2: a list, expected a result row"),
+    "no environment": (lambda f: _rows(f, lambda r: r[0].pop("environment")), True,
+                       r"results\.json: row 0: field 'environment' is None, expected a non-empty name"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(UNFINISHED))
+def test_aggregate_refuses_folders_it_cannot_trust_before_writing_anything(local_sweep, tmp_path, capsys, case):
+    import re
+
+    out, _ = local_sweep
+    folder = tmp_path / "seed-copy"
+    shutil.copytree(out / "seed-2", folder)
+    damage, recorded, message = UNFINISHED[case]
+    damage(folder)
+    if recorded:
+        reseal(folder)
+    summary = tmp_path / "summary"
+    assert main(["aggregate", str(out / "seed-0"), str(folder), "--out", str(summary)]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err and re.search(message, lines[0]), lines
+    assert str(folder) in lines[0]
+    assert not summary.exists() or not any(summary.iterdir())  # nothing written
+
+
+def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path, capsys, monkeypatch):
+    """Finish seed 2, rerun it with another tau and kill the rerun during simulate: the folder
+    holds the old results beside the new resolved scenario, and no completion record."""
+    from vitaplace.engine import completion
+    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.scenario import Scenario
+
+    out, _ = local_sweep
+    folder = tmp_path / "seed-2"
+    shutil.copytree(out / "seed-2", folder)
+    record = (folder / completion.RECORD).read_text()
+    resolved = yaml.safe_load((folder / "scenario.resolved.yaml").read_text())
+    resolved["evaluation"]["tau"] = 0.4
+
+    def killed(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Pipeline, "simulate", killed)
+    with pytest.raises(KeyboardInterrupt):
+        Pipeline(Scenario.model_validate(resolved), resolved, folder, cache=tmp_path / "cache").run()
+    assert (folder / "results.json").is_file() and (folder / "manifest.json").is_file()  # the old run's
+    summary = tmp_path / "summary"
+    assert main(["aggregate", str(out / "seed-0"), str(folder), "--out", str(summary)]) == 2
+    line = capsys.readouterr().err.strip()
+    assert line == f"vitaplace: error: {folder}: incomplete run folder (no {completion.RECORD}); did its run finish?"
+    # even with the old record put back, it does not match the new resolved scenario
+    (folder / completion.RECORD).write_text(record)
+    assert main(["aggregate", str(out / "seed-0"), str(folder), "--out", str(summary)]) == 2
+    assert "scenario.resolved.yaml is not the scenario its finished run recorded" in capsys.readouterr().err
+    assert not summary.exists()
+
+
+def test_aggregate_counts_the_seeds_that_contribute(local_sweep, tmp_path, capsys):
+    out, _ = local_sweep
+    assert main(["aggregate", str(out / "seed-0"), str(out / "seed-2"), "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().out.startswith("summary of 2 seeds")
+    record = json.loads((tmp_path / "sweep.json").read_text())
+    assert record["seeds"] == [0, 2] and {r["seed"] for r in record["runs"]} == {0, 2}

@@ -45,7 +45,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -92,6 +92,10 @@ WHISKER_DENSITY = 1200.0  #: shaft material density [kg/m^3] (plastic)
 ROBOT_GROUP = 3  #: geom group of the robot's own geoms (hidden from its camera)
 
 
+#: a whisker shaft's length [mm]: positive, at most half a metre
+WhiskerLength = Annotated[float, Field(gt=0, le=500)]
+
+
 def camera_fovy_deg(hfov_deg: float, width: int, height: int) -> float:
     """Vertical field of view of a pinhole camera with horizontal field ``hfov_deg`` and an
     image of ``width`` x ``height`` pixels (square pixels)."""
@@ -107,8 +111,8 @@ class RobotSpec(BaseModel):
     whisk_hz: float = Field(2.0, gt=0, le=20, description="whisking frequency; one sample per whisk cycle [Hz]")
     protraction_min_deg: float = Field(-60.0, ge=-80, le=80, description="full retraction angle [deg] (WhiskEye: -60)")
     protraction_max_deg: float = Field(60.0, ge=-80, le=80, description="full protraction angle [deg] (WhiskEye: 60)")
-    whisker_lengths_mm: tuple[float, float, float, float] = Field(
-        (50.0, 70.0, 100.0, 160.0), description="shaft length per column, front to back [mm]"
+    whisker_lengths_mm: tuple[WhiskerLength, WhiskerLength, WhiskerLength, WhiskerLength] = Field(
+        (50.0, 70.0, 100.0, 160.0), description="shaft length per column, front to back [mm], each in (0, 500]"
     )
     whisker_radius_mm: float = Field(1.0, gt=0.1, le=5, description="shaft (capsule) radius [mm]")
     # compliant base (two orthogonal spring hinges)
@@ -140,7 +144,9 @@ class RobotSpec(BaseModel):
     base_mass: float = Field(10.0, gt=0, description="mass of the mobile base [kg] (WhiskEye model: 10)")
     base_servo_hz: float = Field(10.0, gt=0, le=50, description="bandwidth of the base's pose servo [Hz]")
     # simulation
-    timestep: float = Field(0.002, gt=0, le=0.01, description="physics timestep [s]")
+    timestep: float = Field(
+        0.002, ge=1e-4, le=0.01, description="physics timestep [s], 0.1 ms to 10 ms (below, a run takes hours)"
+    )
     deflection_samples: int = Field(25, ge=1, le=1000, description="samples S of the per-cycle deflection series")
 
     @model_validator(mode="after")
