@@ -608,9 +608,11 @@ def test_kill_9_during_a_stage_then_resume_gives_identical_results(tmp_path):
 
 
 def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_path):
-    """Partial revisits: with query_off_route 0.5 the last half of the query run (and only
-    that, and never the reference run) runs off_route_offset (0.6 m, facing outward: towards
-    the centre) away from E1's route, farther than tau = 0.3, so those queries have no match."""
+    """Partial revisits of the route kind (the near-duplicate regression protocol): with
+    query_off_route 0.5 the last half of the query run (and only that, and never the
+    reference run) runs off_route_offset (0.6 m, facing outward: towards the centre) away from
+    E1's route, farther than tau = 0.3, so those queries have no match. (The teleop kind's
+    detours, spread along the run: tests/test_teleop.py.)"""
     from vitaplace.engine.dataset import open_run
     from vitaplace.engine.runner import Pipeline
     from vitaplace.engine.scenario import load_scenario
@@ -618,7 +620,7 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     from vitaplace.engine.sim.environment import load_environment
 
     overrides = ["train.run.n_samples=3", "evaluations.0.run.n_samples=40", "evaluations.0.query_off_route=0.5"]
-    scenario, resolved = load_scenario("quickstart", overrides)
+    scenario, resolved = load_scenario("near-duplicate", overrides)
     pipeline = Pipeline(scenario, resolved, tmp_path, progress=False, workers=1)
     pipeline.run(until="simulate")
     route = Route(load_environment("e1").route)
@@ -905,13 +907,13 @@ def test_settings_just_inside_the_arena_are_valid(capsys):
 
 def test_a_long_simulation_is_announced_with_an_estimate(capsys):
     """0.1 ms steps at 2 Hz whisking: 5000 steps per sample. Estimate: (samples + warm-up
-    cycle) x steps x 25 us + samples x 1 ms; train 5000 samples, two evaluation runs of 150."""
+    cycle) x steps x 25 us + samples x 1 ms; train 5000 samples, two evaluation runs of 450."""
     from vitaplace.engine.plausibility import duration
 
-    seconds = (5001 * 5000 * 25e-6 + 5000 * 1e-3) + 2 * (151 * 5000 * 25e-6 + 150 * 1e-3)
-    assert duration(seconds) == "11 min"  # 668.2 s
+    seconds = (5001 * 5000 * 25e-6 + 5000 * 1e-3) + 2 * (451 * 5000 * 25e-6 + 450 * 1e-3)
+    assert duration(seconds) == "12 min"  # 743.8 s
     assert main(["validate", "quickstart", "--set", "robot.timestep=1e-4", "--set", "train.run.n_samples=5000"]) == 0
-    assert "simulating its runs takes about 11 min on one core (estimate)" in capsys.readouterr().out
+    assert "simulating its runs takes about 12 min on one core (estimate)" in capsys.readouterr().out
     assert main(["validate", "quickstart"]) == 0
     assert "estimate" not in capsys.readouterr().out
 
