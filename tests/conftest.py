@@ -6,6 +6,7 @@ runs both halves with the same command (``pytest -m cuda`` for the GPU half alon
 """
 
 import functools
+from pathlib import Path
 
 import pytest
 
@@ -29,3 +30,15 @@ def device(request) -> str:
     if request.param == "cuda" and not cuda_present():
         pytest.skip("no CUDA device")
     return request.param
+
+
+def install_plugin(site: Path, module: str, source: str, project: str, version: str, entry_point: str) -> None:
+    """Install a feature-extractor plugin into the folder ``site`` as pip would, without pip:
+    the module ``module``.py holding ``source``, and a dist-info of distribution ``project``
+    ``version`` whose ``vitaplace.features`` entry point ``entry_point`` is that module.
+    Put ``site`` on a process's path to have the plugin discovered there."""
+    (site / f"{module}.py").write_text(source)
+    dist = site / f"{project.replace('-', '_')}-{version}.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {project}\nVersion: {version}\n")
+    (dist / "entry_points.txt").write_text(f"[vitaplace.features]\n{entry_point} = {module}\n")

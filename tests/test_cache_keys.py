@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -52,11 +53,7 @@ def setup(tmp_path):
     """A site folder with the plugin installed as a distribution (version 1.0), and a scenario."""
     site = tmp_path / "site"
     site.mkdir()
-    (site / "vitaplace_oracle.py").write_text(PLUGIN)
-    dist = site / "vitaplace_oracle-1.0.dist-info"
-    dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: vitaplace-oracle\nVersion: 1.0\n")
-    (dist / "entry_points.txt").write_text("[vitaplace.features]\noracle = vitaplace_oracle\n")
+    install_plugin(site, "vitaplace_oracle", PLUGIN, "vitaplace-oracle", "1.0", "oracle")
     scenario = tmp_path / "oracle.yaml"
     scenario.write_text(yaml.safe_dump({
         "name": "oracle",

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -315,11 +316,7 @@ def test_oracle_features_score_perfectly_end_to_end(tmp_path):
     where they face alike."""
     pkg = tmp_path / "site"
     pkg.mkdir()
-    (pkg / "vitaplace_oracle_plugin.py").write_text(ORACLE_PLUGIN)
-    dist = pkg / "vitaplace_oracle_plugin-0.0.1.dist-info"
-    dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: vitaplace-oracle-plugin\nVersion: 0.0.1\n")
-    (dist / "entry_points.txt").write_text("[vitaplace.features]\noracle = vitaplace_oracle_plugin\n")
+    install_plugin(pkg, "vitaplace_oracle_plugin", ORACLE_PLUGIN, "vitaplace-oracle-plugin", "0.0.1", "oracle")
     scenario = valid_scenario()
     scenario["evaluations"][0]["run"]["n_samples"] = 12
     scenario["methods"] = [{"name": "O", "plugin": "oracle"}]

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -82,11 +83,8 @@ def tiny_scenario(fail_seed: int = -1) -> dict:
 def plugin_env(tmp_path_factory) -> dict:
     """The environment of a process that has the failing plugin installed."""
     site = tmp_path_factory.mktemp("site")
-    (site / "vitaplace_failing_plugin.py").write_text(FAILING_PLUGIN)
-    dist = site / "vitaplace_failing_plugin-0.0.1.dist-info"
-    dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: vitaplace-failing-plugin\nVersion: 0.0.1\n")
-    (dist / "entry_points.txt").write_text("[vitaplace.features]\nfails-for-one-seed = vitaplace_failing_plugin\n")
+    install_plugin(site, "vitaplace_failing_plugin", FAILING_PLUGIN, "vitaplace-failing-plugin", "0.0.1",
+                   "fails-for-one-seed")
     return {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")])}
 
 
