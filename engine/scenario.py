@@ -122,8 +122,8 @@ MIN_EVALUATION_SAMPLES = 5
 
 
 class EvaluationRuns(_RunSource):
-    """An evaluation: two noisy simulated runs along the same route, or two recorded runs
-    (query and reference)."""
+    """An evaluation: two simulated runs (in the shipped scenarios: independent teleoperated
+    drives) or two recorded runs (query and reference)."""
 
     @pydantic.field_validator("run")
     @classmethod

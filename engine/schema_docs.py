@@ -44,7 +44,7 @@ from vitaplace.plugins.mupnet.extractor import MupnetParams
 SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("Scenario", Scenario, "the top level of a scenario file"),
     ("train: TrainingRun", TrainingRun, "the training run"),
-    ("evaluations[]: EvaluationRuns", EvaluationRuns, "one evaluation environment (two route runs, simulated or recorded)"),
+    ("evaluations[]: EvaluationRuns", EvaluationRuns, "one evaluation environment (two runs, simulated or recorded)"),
     ("evaluations[].datasets: RecordedRuns", RecordedRuns, "an evaluation's two recorded runs (docs/DATA.md)"),
     ("run: RunSpec", RunSpec, "how the robot moves in a recorded run"),
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),

@@ -70,7 +70,7 @@ def plot_environment(
     return ax
 
 
-def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, route_samples: int = 150) -> list[Path]:
+def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, drive_samples: int = 450) -> list[Path]:
     """Regenerate the figures of docs/SIMULATION.md into ``out_dir``; returns the written files."""
     import matplotlib
 
@@ -90,15 +90,15 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, route_samp
     for name in ("e1", "e2", "e3"):
         env = load_environment(name)
         forage = simulate_run(env, RunSpec(kind="foraging", n_samples=foraging_samples), seed=0, progress=False)
-        query = simulate_run(env, RunSpec(kind="route", n_samples=route_samples), seed=1, progress=False)
-        ref = simulate_run(env, RunSpec(kind="route", n_samples=route_samples), seed=2, progress=False)
+        query = simulate_run(env, RunSpec(kind="teleop", n_samples=drive_samples), seed=1, progress=False)
+        ref = simulate_run(env, RunSpec(kind="teleop", n_samples=drive_samples), seed=2, progress=False)
         fig, ax = plt.subplots(figsize=(5.5, 5.5))
         plot_environment(
             env.top_view(),
             {
                 f"foraging ({foraging_samples} samples)": forage.poses,
-                "route run A (seed 1)": query.poses,
-                "route run B (seed 2)": ref.poses,
+                "teleop drive A (seed 1)": query.poses,
+                "teleop drive B (seed 2)": ref.poses,
             },
             ax=ax,
             title=name.upper(),
@@ -109,10 +109,10 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, route_samp
         fig.savefig(path, dpi=110)
         plt.close(fig)
         written.append(path)
-        idx = np.linspace(0, route_samples - 1, 4).astype(int)
+        idx = np.linspace(0, drive_samples - 1, 4).astype(int)
         frames[name] = query.images[idx]
 
-    # camera frames along the route of each environment (one row per environment)
+    # camera frames along a drive through each environment (one row per environment)
     fig, axes = plt.subplots(3, 4, figsize=(10, 5.6))
     for row, (name, imgs) in enumerate(frames.items()):
         for col, img in enumerate(imgs):
@@ -121,7 +121,7 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, route_samp
             axes[row, col].set_yticks([])
             if col == 0:
                 axes[row, col].set_ylabel(name.upper())
-    fig.suptitle("robot camera, 120 x 160, at maximum protraction (route run A)")
+    fig.suptitle("robot camera, 120 x 160, at maximum protraction (teleop drive A)")
     fig.tight_layout()
     path = out / "camera_frames.png"
     fig.savefig(path, dpi=100)
