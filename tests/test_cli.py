@@ -520,11 +520,15 @@ def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
     Ctrl-C in that moment is lost, docs/DESIGN.md), while they still import."""
     import signal
     import time
+    from functools import partial
 
     out = tmp_path / "out"
     args = ["run", "quickstart", "--out", str(out), "-q"] + [a for o in TINY for a in ("--set", o)]
+    # as from a terminal: Ctrl-C not ignored (a test run started in the background, e.g. by
+    # `cmd &` in a script, ignores SIGINT, and a process keeps an ignored SIGINT ignored)
     proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=partial(signal.signal, signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     workers: list[int] = []
     while time.monotonic() < deadline and proc.poll() is None:
