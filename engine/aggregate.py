@@ -137,7 +137,7 @@ def validate_run_folder(folder: Path) -> RunFolder:
         except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many kinds on a damaged file
             raise AggregateError(f"{folder / name}: unreadable PR curve ({type(exc).__name__}: {exc})".splitlines()[0]) from None
     seed = manifest["seed"]
-    return RunFolder(folder, seed, manifest["scenario"], scenario_identity(resolved), [{"seed": seed, **r} for r in rows])
+    return RunFolder(folder, seed, manifest["scenario"], scenario_identity(resolved), [{**r, "seed": seed} for r in rows])
 
 
 def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Path, dict[str, Any]]:

@@ -84,7 +84,7 @@ def replicate_rows(tme: np.ndarray, gtm: np.ndarray, row: Mapping[str, Any], see
     fixed ``delta`` and recall@K of its results row ``row``; where the row has an
     ``f1_at_e1_threshold``, each replicate's F1 at the row's ``e1_threshold`` too (null: the
     training world's best was to accept nothing, so nothing is accepted)."""
-    ks = tuple(sorted(int(k) for k in row.get("recall_at_k", {}))) or (1,)
+    ks = tuple(sorted(int(k) for k in row.get("recall_at_k") or {})) or (1,)
     tme_c, gtm_c = compact_matrices(np.asarray(tme, dtype=float), np.asarray(gtm, dtype=float), max(ks))
     delta, tau = row.get("delta"), row["tau"]
     transferred = row.get("f1_at_e1_threshold") is not None

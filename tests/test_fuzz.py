@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -204,6 +204,9 @@ def _finished_folder(folder: Path, seed: int) -> None:
 @given(file=st.sampled_from(["results.json", "manifest.json", "completed.json", "scenario.resolved.yaml"]),
        key=st.sampled_from(["max_f1", "auc", "recall_at_k", "environment", "seed", "scenario", "files", "name", "n_queries"]),
        value=values, whole=st.booleans(), reseal=st.booleans())
+# found by this test: a row's own null seed overrode the folder's; a null recall_at_k
+@example(file="results.json", key="seed", value=None, whole=False, reseal=True)
+@example(file="results.json", key="recall_at_k", value=None, whole=False, reseal=True)
 def test_any_mutated_aggregate_folder_gets_a_clean_answer(capsys, file, key, value, whole, reseal):
     import json
 
