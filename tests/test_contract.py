@@ -193,6 +193,30 @@ def _fit_changing_the_given_params(self, train):
     self.given["dims"].append(3)  # dims[0], all that transform uses, stays
 
 
+def _save_state_clobbering_params(self, directory):
+    Reference.save_state(self, directory)
+    (directory / "params.json").write_text("{}")
+
+
+def _init_naming_features_raw(self, params=None):
+    Reference.__init__(self, params)
+    self.feature_name = "raw"
+
+
+def _fit_naming_features(self, train):
+    Reference.fit(self, train)
+    self.feature_name = "projection"  # fitted state that save_state does not save
+
+
+def _transform_with_fitted_name(self, run):
+    return {self.feature_name: Reference.transform(self, run)["projection"]}
+
+
+def _distance_of_the_only_feature(self, query, reference):
+    (q,), (r,) = query.values(), reference.values()
+    return Reference.distance(self, {"projection": q}, {"projection": r})
+
+
 def _load_state_forgetting_spread(self, directory):
     Reference.load_state(self, directory)
     self.spread = 1.0
@@ -237,6 +261,12 @@ BROKEN = [
                                r"'projection' differs by up to"),
     (broken("forgetful", load_state=_load_state_forgetting_spread),
      "check_save_load_round_trip", r"after save and load, distance gives other values"),
+    (broken("params-clobbering", save_state=_save_state_clobbering_params),
+     "check_save_load_round_trip", r"load gave BrokenParamsClobbering with params ReferenceParams\(seed=0, "
+                                   r"dims=\[2\]\), expected BrokenParamsClobbering with ReferenceParams\(seed=1, "),
+    (broken("name-forgetting", __init__=_init_naming_features_raw, fit=_fit_naming_features,
+            transform=_transform_with_fitted_name, distance=_distance_of_the_only_feature),
+     "check_save_load_round_trip", r"after save and load, transform differs: keys \['raw'\] instead of \['projection'\]"),
     (broken("unguarded-transform", transform=lambda self, run: {"projection": self._raw(run) @ self.axes.reshape(4, -1)}),
      "check_transform_before_fit", r"transform before fit raised AttributeError: 'NoneType' object has no attribute 'reshape'; .*raise a clear error instead"),
     (broken("unguarded-distance", distance=_unguarded_distance),
