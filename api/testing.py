@@ -36,7 +36,7 @@ ATOL = 1e-6
 #: errors that come from code tripping over missing state, not from a deliberate message
 ACCIDENTAL_ERRORS = (AttributeError, TypeError, KeyError, IndexError, NameError)
 
-Params = Mapping[str, Any] | None
+RawParams = Mapping[str, Any] | None
 
 
 class ContractError(AssertionError):
@@ -51,7 +51,7 @@ def synthetic_run(n_samples: int = 8, seed: int = 0, image_shape: tuple[int, int
     """A small run of random but valid data: RGB noise images, 24 whiskers with theta, xy and
     a 3-sample deflection series, 2-4 contacts per whisk cycle with unit normals."""
     rng = np.random.default_rng(seed)
-    whiskers = 24
+    whiskers = 24  # the WhiskEye's
     counts = rng.integers(2, 5, n_samples)
     normals = rng.normal(size=(int(counts.sum()), 3))
     return Run.from_arrays(
@@ -67,7 +67,7 @@ def synthetic_run(n_samples: int = 8, seed: int = 0, image_shape: tuple[int, int
     )
 
 
-def _fitted(cls: type[FeatureExtractor], params: Params, run: Run) -> FeatureExtractor:
+def _fitted(cls: type[FeatureExtractor], params: RawParams, run: Run) -> FeatureExtractor:
     extractor = cls(params)
     extractor.progress = False
     extractor.fit(run)
@@ -97,7 +97,7 @@ def _same_distances(expected: np.ndarray, actual: np.ndarray) -> bool:
     return np.shape(actual) == np.shape(expected) and np.allclose(actual, expected, rtol=RTOL, atol=ATOL)
 
 
-def check_features_output(cls: type[FeatureExtractor], params: Params, run: Run) -> None:
+def check_features_output(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
     """``transform`` gives a non-empty dict of arrays with one row per sample, finite numbers."""
     features = _fitted(cls, params, run).transform(run)
     if not isinstance(features, Mapping) or not features:
@@ -115,7 +115,7 @@ def check_features_output(cls: type[FeatureExtractor], params: Params, run: Run)
                         f"(first in sample {int(np.argmin(np.isfinite(value.reshape(len(run), -1)).all(axis=1)))})")
 
 
-def check_distance_output(cls: type[FeatureExtractor], params: Params, run: Run) -> None:
+def check_distance_output(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
     """``distance(query, reference)`` is a finite (n_query, n_reference) matrix of numbers."""
     extractor = _fitted(cls, params, run)
     query = run.subset(slice(0, max(1, len(run) // 2)))
@@ -132,7 +132,7 @@ def check_distance_output(cls: type[FeatureExtractor], params: Params, run: Run)
                     "infinite entries")
 
 
-def check_transform_subset(cls: type[FeatureExtractor], params: Params, run: Run) -> None:
+def check_transform_subset(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
     """Transforming some samples gives the matching rows of transforming them all (features
     of a sample do not depend on which other samples are transformed with it)."""
     extractor = _fitted(cls, params, run)
@@ -145,7 +145,7 @@ def check_transform_subset(cls: type[FeatureExtractor], params: Params, run: Run
                     f"transform(run): {'; '.join(problems)}")
 
 
-def check_save_load_round_trip(cls: type[FeatureExtractor], params: Params, run: Run) -> None:
+def check_save_load_round_trip(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
     """``cls.load`` of what ``save`` wrote gives an extractor of the same class and parameters
     whose features and distances are those of the saved one."""
     extractor = _fitted(cls, params, run)
@@ -185,7 +185,7 @@ def _check_before_fit(check: Callable[..., None], cls: type[FeatureExtractor], c
                     "fitted state that is not there yet: raise a clear error instead")
 
 
-def check_distance_before_fit(cls: type[FeatureExtractor], params: Params, run: Run) -> None:
+def check_distance_before_fit(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
     """``distance`` on a new, unfitted extractor raises a clear error, unless it needs no
     fitted state (then it gives the fitted extractor's distances)."""
     extractor = _fitted(cls, params, run)
@@ -197,7 +197,7 @@ def check_distance_before_fit(cls: type[FeatureExtractor], params: Params, run: 
                       lambda got: _same_distances(expected, got))
 
 
-def check_transform_before_fit(cls: type[FeatureExtractor], params: Params, run: Run) -> None:
+def check_transform_before_fit(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
     """``transform`` on a new, unfitted extractor raises a clear error, unless it needs no
     fitted state (then it gives the fitted extractor's features)."""
     expected = _fitted(cls, params, run).transform(run)
@@ -207,7 +207,7 @@ def check_transform_before_fit(cls: type[FeatureExtractor], params: Params, run:
                       lambda got: isinstance(got, Mapping) and not _differences(expected, got))
 
 
-def check_same_seed_same_features(cls: type[FeatureExtractor], params: Params, run: Run) -> None:
+def check_same_seed_same_features(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
     """Two extractors with the same parameters (seed included) fitted on the same run give
     the same features and distances: all randomness comes from ``params``."""
     first, second = _fitted(cls, params, run), _fitted(cls, params, run)
@@ -221,7 +221,7 @@ def check_same_seed_same_features(cls: type[FeatureExtractor], params: Params, r
                     "distances; draw random numbers from a generator seeded by params")
 
 
-def check_fit_leaves_params(cls: type[FeatureExtractor], params: Params, run: Run) -> None:
+def check_fit_leaves_params(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
     """``fit`` changes neither the parameters it was given nor ``self.params`` (they are what
     the cache key and the saved params.json describe)."""
     given = copy.deepcopy(params)
@@ -240,7 +240,7 @@ def check_fit_leaves_params(cls: type[FeatureExtractor], params: Params, run: Ru
 
 
 #: every check, in the order `check_extractor` runs them
-CHECKS: tuple[Callable[[type[FeatureExtractor], Params, Run], None], ...] = (
+CHECKS: tuple[Callable[[type[FeatureExtractor], RawParams, Run], None], ...] = (
     check_features_output,
     check_distance_output,
     check_transform_subset,
@@ -252,7 +252,7 @@ CHECKS: tuple[Callable[[type[FeatureExtractor], Params, Run], None], ...] = (
 )
 
 
-def check_extractor(cls: type[FeatureExtractor], params: Params = None, run: Run | None = None) -> None:
+def check_extractor(cls: type[FeatureExtractor], params: RawParams = None, run: Run | None = None) -> None:
     """Check that the extractor class ``cls`` with ``params`` keeps the plugin contract of
     docs/plugins.md; raise `ContractError` naming the first check it fails. ``run``: the
     training and test run (default `synthetic_run()`: 8 samples, 24 x 32 images, 24
