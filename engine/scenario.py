@@ -205,9 +205,7 @@ class EvaluationSettings(Strict):
 
 
 class Scenario(Strict):
-    name: SafeName = pydantic.Field(
-        description="the scenario's name (reports, output folders): letters, digits, _ . -",
-    )
+    name: SafeName = pydantic.Field(description="the scenario's name (reports, output folders): letters, digits, _ . -")
     description: str = pydantic.Field("", description="free text shown in the report")
     seed: int = pydantic.Field(
         0, ge=0, lt=2**32,

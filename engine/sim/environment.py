@@ -74,10 +74,7 @@ class _Model(BaseModel):
 class TextureSpec(_Model):
     """A MuJoCo procedural texture (``builtin``) or a PNG file (``file``, relative to the YAML)."""
 
-    builtin: Literal["checker", "gradient", "flat", "none"] = Field(
-        "checker",
-        description="MuJoCo procedural texture",
-    )
+    builtin: Literal["checker", "gradient", "flat", "none"] = Field("checker", description="MuJoCo procedural texture")
     file: str | None = Field(None, description="PNG file instead, relative to the YAML")
     rgb1: RGB = Field((0.8, 0.8, 0.8), description="first colour")
     rgb2: RGB = Field((0.5, 0.5, 0.5), description="second colour")
@@ -342,10 +339,7 @@ class EnvironmentSpec(_Model):
         description="how route runs drive the loop: facing the direction of travel, or sideways with the camera "
         "facing away from the loop's centroid (towards the walls)",
     )
-    start: tuple[float, float, float] = Field(
-        (0.0, 0.0, 0.0),
-        description="where foraging runs start: [x, y, yaw_deg]",
-    )
+    start: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="where foraging runs start: [x, y, yaw_deg]")
     background_rgb: RGB = Field((0.55, 0.65, 0.8), description="flat background colour seen above the walls")
     lighting: LightingSpec = Field(LightingSpec(), description="lights of the scene")
     boards: list[BoardSpec] = Field(
