@@ -30,7 +30,6 @@ from tqdm.auto import tqdm
 from vitaplace.engine.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.backends import Backend, get_backend
 from vitaplace.engine.errors import UserError
-from vitaplace.kernels.reference import ACTIVATIONS
 
 FORMAT_VERSION = 1
 LATENT_INIT = 0.1
@@ -87,8 +86,8 @@ class NetworkConfig:
 class TrainingConfig:
     """Passes over the data (the maximum when converging: stop once the epoch energy fell by
     less than ``converge_tol`` over ``converge_window`` epochs, 0: off), minibatch size, T
-    latent steps per minibatch, and the seed of the minibatch order (``shuffle``: random
-    order; off only in tests). Settings and defaults: ``MupnetParams.training_config``."""
+    latent steps per minibatch, and the seed of the random minibatch order. Settings and
+    defaults: ``MupnetParams.training_config``."""
 
     epochs: int
     batch_size: int
@@ -96,7 +95,6 @@ class TrainingConfig:
     seed: int
     converge_window: int
     converge_tol: float
-    shuffle: bool = True
 
 
 @dataclass
@@ -311,7 +309,7 @@ class Network:
         batches_per_epoch = math.ceil(n / cfg.batch_size)
         bar = tqdm(total=cfg.epochs * batches_per_epoch, desc="train", unit="batch", disable=not progress)
         for epoch in range(cfg.epochs):
-            order = rng.permutation(n) if cfg.shuffle else np.arange(n)
+            order = rng.permutation(n)
             totals = dict.fromkeys(history.energy, 0.0)
             for b in range(batches_per_epoch):
                 index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])

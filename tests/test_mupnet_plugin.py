@@ -270,8 +270,7 @@ def test_diverging_latents_are_flagged_per_sample(mupnet_class, runs, caplog):
 
 def test_the_engine_configs_hold_no_defaults_of_their_own():
     """MuPNet's settings and defaults are MupnetParams alone: the engine's containers, the
-    network's seed and the inference step cap have none (``shuffle`` is no setting: tests
-    turn it off)."""
+    network's seed and the inference step cap have none."""
     import dataclasses
     import inspect
 
@@ -279,8 +278,8 @@ def test_the_engine_configs_hold_no_defaults_of_their_own():
 
     for container in (ModalityConfig, JointConfig, NetworkConfig, TrainingConfig):
         for field in dataclasses.fields(container):
-            has_default = field.default is not dataclasses.MISSING or field.default_factory is not dataclasses.MISSING
-            assert has_default == (container is TrainingConfig and field.name == "shuffle"), (container, field.name)
+            assert field.default is dataclasses.MISSING, (container, field.name)
+            assert field.default_factory is dataclasses.MISSING, (container, field.name)
     assert inspect.signature(Network).parameters["seed"].default is inspect.Parameter.empty
     assert inspect.signature(Network.infer).parameters["max_steps"].default is inspect.Parameter.empty
 
@@ -310,7 +309,7 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
         activation="tanh",
         slope=0.4,
     )
-    assert params.training_config() == TrainingConfig(17, 19, 23, 29, 3, 0.05, shuffle=True)
+    assert params.training_config() == TrainingConfig(17, 19, 23, 29, 3, 0.05)
     only_touch = pydantic.create_model("OnlyTouch", __base__=MupnetParams, modalities=(list[str], ["tactile"]))()
     assert list(only_touch.network_config(tactile_size=72).modalities) == ["tactile"]
 

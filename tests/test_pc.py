@@ -248,7 +248,7 @@ def test_training_moves_every_sample_every_epoch():
     inputs, _ = synthetic(n=60)
     net = Network(SYNTH, seed=2, backend="numpy")
     latents: dict[str, np.ndarray] = {}
-    net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25, "shuffle": True}, progress=False, latents=latents)
+    net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, progress=False, latents=latents)
     for node, y in latents.items():
         assert y.shape[0] == 60
         assert np.all(np.any(y != np.float32(0.1), axis=1)), f"{node}: samples never trained"
