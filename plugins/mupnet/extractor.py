@@ -49,7 +49,8 @@ class MupnetParams(ExtractorParams):
         (45, 80), description="(rows, columns) the camera frames are resampled to"
     )
     visual_layers: list[pydantic.PositiveInt] = Field(
-        default_factory=lambda: [1000, 300], min_length=1, description="latent layer sizes of the visual stack, bottom first"
+        default_factory=lambda: [1000, 300], min_length=1,
+        description="latent layer sizes of the visual stack, bottom first",
     )
     tactile_layers: list[pydantic.PositiveInt] = Field(
         default_factory=lambda: [100], min_length=1, description="latent layer sizes of the tactile stack, bottom first"
