@@ -2,8 +2,9 @@
 """Benchmark one predictive-coding training minibatch at the MuPNet paper's shapes.
 
 One minibatch is exactly what ``Network.train`` does per minibatch, minus data loading:
-``predict_all``, then T x (``latent_step`` + ``predict_all``), then ``weight_step``. Shapes: visual 10800 -> 1000 -> 300, tactile 72 -> 100, joint 200,
-B = 150, T = 20.
+``predict_all``, then T x (``latent_step`` + ``predict_all``), then ``weight_step``. Shapes and
+step sizes: MuPNet's settings in scenarios/paper.yaml (visual 10800 -> 1000 -> 300, tactile
+72 -> 100, joint 200, B = 150, T = 20).
 
 Measured in one run, interleaved round by round (the machine is shared and noisy; the
 median over the rounds is reported, the best round too):
@@ -45,6 +46,7 @@ updates against the numpy backend.
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import os
@@ -60,43 +62,70 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")  # before any jax import: no GPU p
 import numpy as np
 
 from vitaplace.engine.backends import NumpyBackend
-from vitaplace.engine.pc import LATENT_INIT, BatchState, Network
+from vitaplace.engine.pc import LATENT_INIT, BatchState, Network, NetworkConfig
+from vitaplace.engine.scenario import Scenario, load_scenario
+from vitaplace.engine.sim.robot import N_WHISKERS
+from vitaplace.plugins.mupnet.extractor import MupnetParams
 
-PAPER = {
-    "config": {
-        "modalities": {
-            "visual": {"input_size": 10800, "layers": [1000, 300], "eta_y": 4e-4, "eta_w": 1e-4},
-            "tactile": {"input_size": 72, "layers": [100], "eta_y": 4e-3, "eta_w": 1e-3},
-        },
-        "joint": {"size": 200, "eta_y": 4e-4, "eta_w": 1e-4},
-    },
-    "batch": 150,
-    "steps": 20,
-}
-QUICK = {
-    "config": {
-        "modalities": {
-            "visual": {"input_size": 1080, "layers": [100, 30], "eta_y": 4e-4, "eta_w": 1e-4},
-            "tactile": {"input_size": 72, "layers": [10], "eta_y": 4e-3, "eta_w": 1e-3},
-        },
-        "joint": {"size": 20, "eta_y": 4e-4, "eta_w": 1e-4},
-    },
-    "batch": 30,
-    "steps": 3,
-}
-# Smoke check: small shapes, large step sizes so that one minibatch changes every array
-# visibly (the comparison is on the updates, not on the arrays).
-SMOKE = {
-    "config": {
-        "modalities": {
-            "visual": {"input_size": 96, "layers": [40, 24], "eta_y": 0.02, "eta_w": 0.01},
-            "tactile": {"input_size": 12, "layers": [8], "eta_y": 0.02, "eta_w": 0.01},
-        },
-        "joint": {"size": 16, "eta_y": 0.02, "eta_w": 0.01},
-    },
-    "batch": 40,  # > 32: the same CUDA tile configurations (compiled modules) as B = 150
-    "steps": 5,
-}
+TACTILE_SIZE = 3 * N_WHISKERS  # theta and xy per whisker
+
+
+@dataclass(frozen=True)
+class Spec:
+    """A benchmarked network: MuPNet's settings and its tactile input size."""
+
+    params: MupnetParams
+    tactile_size: int = TACTILE_SIZE
+
+    @property
+    def config(self) -> NetworkConfig:
+        return self.params.network_config(self.tactile_size)
+
+    @property
+    def batch(self) -> int:
+        return self.params.batch_size
+
+    @property
+    def steps(self) -> int:
+        return self.params.inference_steps
+
+    def changed(self, tactile_size: int | None = None, **params) -> Spec:
+        """These settings with some replaced (and validated by the schema)."""
+        merged = MupnetParams.model_validate({**self.params.model_dump(), **params})
+        return Spec(merged, self.tactile_size if tactile_size is None else tactile_size)
+
+
+@functools.cache
+def paper_scenario() -> Scenario:
+    """scenarios/paper.yaml, read and checked by the scenario loader."""
+    return load_scenario("paper")[0]
+
+
+def paper_spec() -> Spec:
+    """The MuPNet paper's network and training settings, as scenarios/paper.yaml gives them."""
+    (method,) = [m for m in paper_scenario().methods if m.plugin == "mupnet"]
+    return Spec(MupnetParams.model_validate(method.params))
+
+
+def quick_spec() -> Spec:
+    """The paper's step sizes at small shapes (15 x 24 frames)."""
+    return paper_spec().changed(
+        image_size=(15, 24), visual_layers=[100, 30], tactile_layers=[10], joint_size=20, batch_size=30,
+        inference_steps=3,
+    )
+
+
+def smoke_spec() -> Spec:
+    """Small shapes, large step sizes so that one minibatch changes every array visibly (the
+    comparison is on the updates, not on the arrays); B = 40 > 32: the same CUDA tile
+    configurations (compiled modules) as B = 150."""
+    etas = {f"eta_{kind}_{layer}": eta for kind, eta in (("y", 0.02), ("w", 0.01)) for layer in ("visual", "tactile", "joint")}
+    return Spec(MupnetParams(
+        image_size=(4, 8), visual_layers=[40, 24], tactile_layers=[8], joint_size=16, batch_size=40, inference_steps=5,
+        **etas,
+    ), tactile_size=12)
+
+
 GAP = 0.3  # seconds of idle between implementations (thread pools stop spinning)
 
 
@@ -142,22 +171,22 @@ class Problem:
         return float(sum(2 * m * n * k for _, m, n, k in self.gemm_shapes()))
 
 
-def make_problem(spec: dict, seed: int = 0) -> Problem:
-    net = Network(spec["config"], seed=seed, backend=NumpyBackend())
-    state = BatchState(net, spec["batch"], net.modalities)
+def make_problem(spec: Spec, seed: int = 0) -> Problem:
+    net = Network(spec.config, seed=seed, backend=NumpyBackend())
+    state = BatchState(net, spec.batch, net.modalities)
     edges = []
     for e in state.edges:
         above = state.edge_above.get(e.upper) if state.first_below[e.upper] == e.name else None
         edges.append(EdgeSpec(e.name, e.upper, e.lower, net.eta_y[e.upper], e.eta_w, above))
     rng = np.random.default_rng(seed + 1)
-    b = spec["batch"]
+    b = spec.batch
     inputs = {net.input_node(m): rng.random((b, net.sizes[net.input_node(m)]), dtype=np.float32) for m in net.modalities}
     latents = {node: np.full((b, net.sizes[node]), LATENT_INIT, np.float32) for node in state.nodes}
     # latents slightly off 0.1 so that no two samples are identical
     for y in latents.values():
         y += rng.normal(0.0, 0.01, y.shape).astype(np.float32)
     weights = {name: w.copy() for name, w in net.weights.items()}
-    return Problem(net, b, spec["steps"], edges, dict(net.sizes), inputs, latents, weights)
+    return Problem(net, b, spec.steps, edges, dict(net.sizes), inputs, latents, weights)
 
 
 class LegacyScipyBackend(NumpyBackend):
@@ -542,7 +571,7 @@ def relative_difference(ref: dict[str, np.ndarray], other: dict[str, np.ndarray]
 def smoke_check(impls: dict[str, Callable[[Problem], object]]) -> dict[str, tuple[float, float]]:
     """One small minibatch from the same state in each implementation; max relative
     difference of the latent and weight *updates* against the numpy backend."""
-    prob = make_problem(SMOKE, seed=3)
+    prob = make_problem(smoke_spec(), seed=3)
     deltas = {}
     for name, factory in impls.items():
         impl = factory(prob)
@@ -699,7 +728,7 @@ def main(argv: list[str] | None = None) -> int:
         pc_step_cuda.cuda_main(args, sys.modules[__name__])
         return 0
 
-    spec = QUICK if args.quick else PAPER
+    spec = quick_spec() if args.quick else paper_spec()
     print("optional frameworks:")
     torch = None if args.skip_torch else optional("torch")
     jax = None if args.skip_jax else optional("jax")
@@ -730,9 +759,9 @@ def main(argv: list[str] | None = None) -> int:
     prob = make_problem(spec)
     flops = prob.flops()
     sz = prob.sizes
-    mods = spec["config"]["modalities"]
-    desc = (f"visual {sz['visual.0']} -> " + " -> ".join(map(str, mods["visual"]["layers"]))
-            + f", tactile {sz['tactile.0']} -> " + " -> ".join(map(str, mods["tactile"]["layers"]))
+    mods = spec.config.modalities
+    desc = (f"visual {sz['visual.0']} -> " + " -> ".join(map(str, mods["visual"].layers))
+            + f", tactile {sz['tactile.0']} -> " + " -> ".join(map(str, mods["tactile"].layers))
             + f", joint {sz['joint']}, B = {prob.batch}, T = {prob.steps}")
     print(f"\nshapes: {desc}")
     print(f"GEMMs per minibatch: {len(prob.gemm_shapes())}, FLOPs per minibatch (2mnk per GEMM): {flops / 1e9:.2f} GFLOP")

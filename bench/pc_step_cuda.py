@@ -32,12 +32,12 @@ import json
 import statistics
 import time
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
-PAPER_EPOCHS = 10_000
-PAPER_SAMPLES = 5550
-# The paper's hardware time for that budget (GTX 1080 Ti, 5-6 hours): the anchor.
+# The paper's hardware time for its training budget (scenarios/paper.yaml: 5550 samples,
+# 10000 epochs) on a GTX 1080 Ti, 5-6 hours: the anchor.
 PAPER_HOURS = (5.0, 6.0)
 
 
@@ -171,28 +171,28 @@ def timed_training(pc, epochs: int, samples: int, log, precision: str) -> dict:
 
     import warp as wp
 
-    spec = pc.PAPER
+    spec = pc.paper_spec()
     rng = np.random.default_rng(0)
-    mods = spec["config"]["modalities"]
-    inputs = {m: rng.random((samples, mc["input_size"]), dtype=np.float32) for m, mc in mods.items()}
-    net = Network(spec["config"], seed=0, backend=warp_backend(precision))
-    train = {"batch_size": spec["batch"], "inference_steps": spec["steps"]}
+    net = Network(spec.config, seed=spec.params.seed, backend=warp_backend(precision))
+    inputs = {m: rng.random((samples, net.sizes[net.input_node(m)]), dtype=np.float32) for m in net.modalities}
+    train = spec.params.training_config()
     latents: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
-    first_history = net.train(inputs, {**train, "epochs": 1}, progress=False, latents=latents)
+    first_history = net.train(inputs, replace(train, epochs=1), progress=False, latents=latents)
     wp.synchronize_device("cuda")
     first = time.perf_counter() - t0
     log(f"  {precision}: first epoch (compile + capture + run): {first:.1f} s")
     t0 = time.perf_counter()
-    history = net.train(inputs, {**train, "epochs": epochs}, progress=False, latents=latents)
+    history = net.train(inputs, replace(train, epochs=epochs), progress=False, latents=latents)
     wp.synchronize_device("cuda")
     per_epoch = (time.perf_counter() - t0) / epochs
-    full = [spec["batch"]] * (samples // spec["batch"]) + ([samples % spec["batch"]] if samples % spec["batch"] else [])
-    prob_flops = pc.make_problem(spec).flops() / spec["batch"]  # per sample of a minibatch
+    full = [spec.batch] * (samples // spec.batch) + ([samples % spec.batch] if samples % spec.batch else [])
+    prob_flops = pc.make_problem(spec).flops() / spec.batch  # per sample of a minibatch
     flops_epoch = prob_flops * sum(full)
-    projected = per_epoch * PAPER_EPOCHS
+    paper_epochs = spec.params.epochs
+    projected = per_epoch * paper_epochs
     log(f"  {precision}: {epochs} epochs: {per_epoch:.3f} s per epoch, {flops_epoch / per_epoch / 1e12:.1f} TFLOP/s; "
-        f"{PAPER_EPOCHS} epochs projected: {projected / 60:.1f} min "
+        f"{paper_epochs} epochs projected: {projected / 60:.1f} min "
         f"(paper: {PAPER_HOURS[0]:.0f}-{PAPER_HOURS[1]:.0f} h, {PAPER_HOURS[0] * 3600 / projected:.1f}-"
         f"{PAPER_HOURS[1] * 3600 / projected:.1f} x faster)")
     energy = {k: v[-1] for k, v in history.energy.items()}
@@ -207,7 +207,7 @@ def timed_training(pc, epochs: int, samples: int, log, precision: str) -> dict:
     never = {e.name: 0.0 for e in net.edges}
     net.infer(test, max_steps=10, thresholds=never)  # compile the inference kernels
     t0 = time.perf_counter()
-    inferred = net.infer(test, max_steps=3000, thresholds=never)
+    inferred = net.infer(test, max_steps=spec.params.max_steps, thresholds=never)
     infer_s = time.perf_counter() - t0
     log(f"  {precision}: inference, 300 samples x {inferred.steps} steps: {infer_s:.2f} s")
     return {**result, "inference_300x3000_s": infer_s, "inference_steps": inferred.steps}
@@ -249,7 +249,7 @@ def cuda_main(args, pc) -> dict:
     for name, (dy, dw) in agree.items():
         print(f"  {name:24s} vs numpy backend: latents {dy:.2e}, weights {dw:.2e}")
 
-    spec = pc.QUICK if args.quick else pc.PAPER
+    spec = pc.quick_spec() if args.quick else pc.paper_spec()
     prob = pc.make_problem(spec)
     flops = prob.flops()
     print(f"\nminibatch: B = {prob.batch}, T = {prob.steps}, {flops / 1e9:.1f} GFLOP (2mnk per GEMM)", flush=True)
@@ -307,9 +307,10 @@ def cuda_main(args, pc) -> dict:
     _print_results({k: v for k, v in results.items() if k in beside}, args, pc)
     _save(args.json, out)  # the comparison survives a time limit hit during the training
     if not args.quick:
-        print(f"\ntimed training at the paper's shapes ({PAPER_SAMPLES} random samples), per precision:", flush=True)
+        samples = pc.paper_scenario().train.run.n_samples
+        print(f"\ntimed training at the paper's shapes ({samples} random samples), per precision:", flush=True)
         for precision in PRECISIONS:
-            training = timed_training(pc, args.epochs, PAPER_SAMPLES, lambda line: print(line, flush=True), precision)
+            training = timed_training(pc, args.epochs, samples, lambda line: print(line, flush=True), precision)
             out["training"][precision] = training
             out["s_per_epoch"][precision] = training["epoch_s"]
             if "float32" in out["training"]:

@@ -1,7 +1,8 @@
 #!/usr/bin/env python
 """Sweep the Warp kernels' tile sizes and block_dim on one device at the paper's largest edge.
 
-The visual input edge dominates a MuPNet minibatch (W is 1000 x 10800; the other edges
+The visual input edge dominates a MuPNet minibatch (at the sizes of scenarios/paper.yaml
+W is 1000 x 10800; the other edges
 hold 3 % of the weights). For each kernel -- predict (M=B, N=10800, K=1000), the latent
 GEMM (M=B, N=1000, K=10800, split along K) and the weight update (M=1000, N=10800, K=B)
 -- every configuration is compiled (each in its own process, all at once, with a time
@@ -27,6 +28,7 @@ import time
 import numpy as np
 import warp as wp
 
+import pc_step
 from vitaplace.kernels import warp_kernels as wk
 
 CANDIDATES = [
@@ -229,7 +231,7 @@ def cublas_baseline(shape: tuple[int, int, int], repeat: int) -> dict | None:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="cuda")
-    ap.add_argument("--batch", type=int, default=150)
+    ap.add_argument("--batch", type=int, help="minibatch size (default: the paper's, scenarios/paper.yaml)")
     ap.add_argument("--quick", action="store_true", help="small shapes, two configurations")
     ap.add_argument("--launches", type=int, default=20)
     ap.add_argument("--repeat", type=int, default=5)
@@ -241,7 +243,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     wp.init()
     dev = wp.get_device(args.device)
-    shape = (args.batch, 100, 1080) if args.quick else (args.batch, 1000, 10800)
+    spec = pc_step.quick_spec() if args.quick else pc_step.paper_spec()
+    visual = spec.config.modalities["visual"]
+    shape = (args.batch or spec.batch, visual.layers[0], visual.input_size)
     candidates = CANDIDATES if dev.is_cuda else CPU_CANDIDATES
     if args.quick:
         candidates = candidates[:2]

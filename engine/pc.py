@@ -21,17 +21,15 @@ import functools
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import pydantic
 from tqdm.auto import tqdm
 
 from vitaplace.engine.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.backends import Backend, get_backend
 from vitaplace.engine.errors import UserError
-from vitaplace.kernels.reference import ACTIVATIONS
 
 FORMAT_VERSION = 1
 LATENT_INIT = 0.1
@@ -41,80 +39,62 @@ class NetworkError(UserError, RuntimeError):
     """Training or inference cannot go on (divergence, incompatible file, bad input)."""
 
 
-def _per_layer(value: float | list[float], n_layers: int, what: str) -> list[float]:
-    if isinstance(value, (int, float)):
-        return [float(value)] * n_layers
-    if len(value) != n_layers:
-        raise ValueError(f"{what}: {len(value)} values given for {n_layers} layers")
-    return [float(v) for v in value]
+@dataclass(frozen=True)
+class ModalityConfig:
+    """One sensory modality: its input size, the latent layer sizes above it (bottom first),
+    and the latent step size, weight step size and test-time stop threshold of its layers."""
+
+    input_size: int
+    layers: list[int]
+    eta_y: float
+    eta_w: float
+    threshold: float
 
 
-class ModalityConfig(pydantic.BaseModel):
-    """One sensory modality: its input size and the latent layer sizes above it (bottom first)."""
+@dataclass(frozen=True)
+class JointConfig:
+    """The joint layer: its size, step sizes and the test-time threshold of its edges."""
 
-    model_config = pydantic.ConfigDict(extra="forbid")
-
-    input_size: int = pydantic.Field(gt=0)
-    layers: list[pydantic.PositiveInt] = pydantic.Field(min_length=1)
-    eta_y: float | list[float] = pydantic.Field(4e-4, description="latent step size, per modality or per layer")
-    eta_w: float | list[float] = pydantic.Field(1e-4, description="weight step size, per modality or per layer")
-    threshold: float | list[float] = pydantic.Field(
-        1e-3, description="test-time stop: mean squared error of each layer's prediction"
-    )
-
-    @pydantic.model_validator(mode="after")
-    def _lengths(self) -> ModalityConfig:
-        for key in ("eta_y", "eta_w", "threshold"):
-            _per_layer(getattr(self, key), len(self.layers), key)
-        return self
+    size: int
+    eta_y: float
+    eta_w: float
+    threshold: float
 
 
-class JointConfig(pydantic.BaseModel):
-    model_config = pydantic.ConfigDict(extra="forbid")
-
-    size: int = pydantic.Field(200, gt=0)
-    eta_y: float = 4e-4
-    eta_w: float = 1e-4
-    threshold: float = 1e-3
-
-
-class NetworkConfig(pydantic.BaseModel):
-    """Architecture and step sizes; defaults follow the MuPNet paper and code."""
-
-    model_config = pydantic.ConfigDict(extra="forbid")
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Architecture and step sizes. The settings and their defaults and checks are the MuPNet
+    plugin's parameter schema (``MupnetParams.network_config``); these are plain containers."""
 
     modalities: dict[str, ModalityConfig]
-    joint: JointConfig = JointConfig()
-    activation: str = "leaky_relu"
-    slope: float = pydantic.Field(0.2, ge=0.0)
+    joint: JointConfig
+    activation: str
+    slope: float
 
-    @pydantic.field_validator("activation")
     @classmethod
-    def _known_activation(cls, value: str) -> str:
-        if value not in ACTIVATIONS:
-            raise ValueError(f"unknown activation '{value}', expected one of {', '.join(ACTIVATIONS)}")
-        return value
-
-    @pydantic.field_validator("modalities")
-    @classmethod
-    def _some_modality(cls, value: dict[str, ModalityConfig]) -> dict[str, ModalityConfig]:
-        if not value:
-            raise ValueError("at least one modality is needed")
-        return value
+    def from_dict(cls, data: Mapping) -> NetworkConfig:
+        """The configuration from its `asdict` form (every key required)."""
+        return cls(
+            modalities={m: ModalityConfig(**mc) for m, mc in data["modalities"].items()},
+            joint=JointConfig(**data["joint"]),
+            activation=data["activation"],
+            slope=data["slope"],
+        )
 
 
-class TrainingConfig(pydantic.BaseModel):
-    model_config = pydantic.ConfigDict(extra="forbid")
+@dataclass(frozen=True)
+class TrainingConfig:
+    """Passes over the data (the maximum when converging: stop once the epoch energy fell by
+    less than ``converge_tol`` over ``converge_window`` epochs, 0: off), minibatch size, T
+    latent steps per minibatch, and the seed of the random minibatch order. Settings and
+    defaults: ``MupnetParams.training_config``."""
 
-    epochs: int = pydantic.Field(10, gt=0, description="passes over the data; the maximum when converging")
-    batch_size: int = pydantic.Field(150, gt=0)
-    inference_steps: int = pydantic.Field(20, gt=0, description="T latent steps per minibatch")
-    shuffle: bool = True
-    seed: int = 0
-    converge_window: int = pydantic.Field(
-        0, ge=0, description="stop once the epoch energy fell by less than converge_tol over this many epochs (0: off)"
-    )
-    converge_tol: float = pydantic.Field(0.01, gt=0, lt=1, description="relative energy improvement that counts")
+    epochs: int
+    batch_size: int
+    inference_steps: int
+    seed: int
+    converge_window: int
+    converge_tol: float
 
 
 @dataclass
@@ -188,25 +168,19 @@ def converged(energies: Sequence[float], window: int, tol: float) -> bool:
 class Network:
     """MuPNet: named modalities under one joint layer, trained by local predictive-coding updates."""
 
-    def __init__(self, config: NetworkConfig | Mapping, seed: int = 0, backend: str | Backend = "auto") -> None:
-        self.config = config if isinstance(config, NetworkConfig) else NetworkConfig.model_validate(config)
+    def __init__(self, config: NetworkConfig | Mapping, *, seed: int, backend: str | Backend = "auto") -> None:
+        self.config = config if isinstance(config, NetworkConfig) else NetworkConfig.from_dict(config)
         self.backend = get_backend(backend) if isinstance(backend, str) else backend
         self.seed = seed
         self.sizes: dict[str, int] = {}
         self.eta_y: dict[str, float] = {}
         self.edges: list[Edge] = []
         for m, mc in self.config.modalities.items():
-            n = len(mc.layers)
-            etas_y = _per_layer(mc.eta_y, n, f"{m}.eta_y")
-            etas_w = _per_layer(mc.eta_w, n, f"{m}.eta_w")
-            thresholds = _per_layer(mc.threshold, n, f"{m}.threshold")
             self.sizes[f"{m}.0"] = mc.input_size
             for layer, size in enumerate(mc.layers, start=1):
                 self.sizes[f"{m}.{layer}"] = size
-                self.eta_y[f"{m}.{layer}"] = etas_y[layer - 1]
-                self.edges.append(
-                    Edge(f"{m}.{layer}", f"{m}.{layer}", f"{m}.{layer - 1}", m, etas_w[layer - 1], thresholds[layer - 1])
-                )
+                self.eta_y[f"{m}.{layer}"] = mc.eta_y
+                self.edges.append(Edge(f"{m}.{layer}", f"{m}.{layer}", f"{m}.{layer - 1}", m, mc.eta_w, mc.threshold))
         jc = self.config.joint
         self.sizes["joint"] = jc.size
         self.eta_y["joint"] = jc.eta_y
@@ -305,7 +279,7 @@ class Network:
     def train(
         self,
         inputs: Mapping[str, np.ndarray],
-        training: TrainingConfig | Mapping | None = None,
+        training: TrainingConfig | Mapping,
         progress: bool = True,
         latents: dict[str, np.ndarray] | None = None,
     ) -> TrainingHistory:
@@ -318,7 +292,7 @@ class Network:
         only its energies come back to the host.
         Raises NetworkError naming the epoch and minibatch when an error becomes NaN/Inf.
         """
-        cfg = training if isinstance(training, TrainingConfig) else TrainingConfig.model_validate(training or {})
+        cfg = training if isinstance(training, TrainingConfig) else TrainingConfig(**training)
         present, n = self._check_inputs(inputs)
         nodes = self.latent_nodes(present)
         store = latents if latents is not None else {}
@@ -335,7 +309,7 @@ class Network:
         batches_per_epoch = math.ceil(n / cfg.batch_size)
         bar = tqdm(total=cfg.epochs * batches_per_epoch, desc="train", unit="batch", disable=not progress)
         for epoch in range(cfg.epochs):
-            order = rng.permutation(n) if cfg.shuffle else np.arange(n)
+            order = rng.permutation(n)
             totals = dict.fromkeys(history.energy, 0.0)
             for b in range(batches_per_epoch):
                 index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
@@ -369,7 +343,7 @@ class Network:
     def infer(
         self,
         inputs: Mapping[str, np.ndarray],
-        max_steps: int = 3000,
+        max_steps: int,
         thresholds: Mapping[str, float] | None = None,
         batch_size: int = 500,
         on_progress: Callable[[int], None] | None = None,
@@ -448,7 +422,7 @@ class Network:
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         self._sync_weights_to_host()
-        meta = {"format_version": FORMAT_VERSION, "seed": self.seed, "config": self.config.model_dump(mode="json")}
+        meta = {"format_version": FORMAT_VERSION, "seed": self.seed, "config": asdict(self.config)}
         with atomic_path(directory / "weights.npz") as tmp, open(tmp, "wb") as f:
             np.savez(f, **self.weights)
         scalers = {f"{m}/{part}": arr for m, pair in self.scalers.items() for part, arr in zip(("offset", "scale"), pair)}
@@ -471,7 +445,7 @@ class Network:
             raise NetworkError(
                 f"{meta_path}: network format version {version}, this vitaplace reads version {FORMAT_VERSION}; retrain it"
             )
-        net = cls(meta["config"], seed=meta.get("seed", 0), backend=backend)
+        net = cls(meta["config"], seed=meta["seed"], backend=backend)
         with np.load(directory / "weights.npz") as weights:
             missing = [e.name for e in net.edges if e.name not in weights]
             if missing:

@@ -65,10 +65,14 @@ class Strict(pydantic.BaseModel):
 class _RunSource(Strict):
     """Where a run comes from: simulated (environment and run) or recorded (subclasses add the file keys)."""
 
-    #: environment YAML, relative to the scenario file (or a shipped name); required for simulated runs
-    environment: Path | None = None
-    #: how the robot moves and how many samples are recorded (simulated runs only)
-    run: RunSpec | None = None
+    environment: Path | None = pydantic.Field(
+        None,
+        description="environment YAML, relative to the scenario file (or a shipped name); required for simulated runs",
+    )
+    run: RunSpec | None = pydantic.Field(
+        None,
+        description="how the robot moves and how many samples are recorded (simulated runs only)",
+    )
 
     def _check_source(self, key: str, recorded: bool, environment_allowed: bool) -> None:
         """A run is simulated (``environment`` and ``run``) or recorded (``key``), never both."""
@@ -91,8 +95,11 @@ class _RunSource(Strict):
 class TrainingRun(_RunSource):
     """Simulated (an environment file and how the robot moves in it) or recorded (a run file)."""
 
-    #: a recorded run file (HDF5, e.g. from `vitaplace import`), relative to the scenario file; instead of environment and run
-    dataset: Path | None = None
+    dataset: Path | None = pydantic.Field(
+        None,
+        description="a recorded run file (HDF5, e.g. from `vitaplace import`), relative to the scenario file; "
+        "instead of environment and run",
+    )
 
     @pydantic.model_validator(mode="after")
     def _simulated_or_recorded(self) -> TrainingRun:
@@ -103,10 +110,8 @@ class TrainingRun(_RunSource):
 class RecordedRuns(Strict):
     """Run files (HDF5, e.g. from `vitaplace import`), relative to the scenario file."""
 
-    #: the run whose samples query the reference run
-    query: Path
-    #: the run that is searched for each query
-    reference: Path
+    query: Path = pydantic.Field(description="the run whose samples query the reference run")
+    reference: Path = pydantic.Field(description="the run that is searched for each query")
 
 
 def _not_only_dots(name: str) -> str:
@@ -132,14 +137,18 @@ class EvaluationRuns(_RunSource):
             raise ValueError(f"an evaluation run needs at least {MIN_EVALUATION_SAMPLES} samples, got {run.n_samples}")
         return run
 
-    #: label of the evaluation (E1, E2, ...), letters, digits, _ . -
-    name: SafeName
-    #: partial revisits: this fraction of the query run is driven off the route (the run's
-    #: off_route_offset across it; route, orbit: the final part; teleop: detours spread along
-    #: the run), so some queries have no true match
-    query_off_route: float = pydantic.Field(0.0, ge=0, le=0.9, allow_inf_nan=False)
-    #: recorded query and reference runs instead of simulated ones (no run key then; environment optional: it only draws the arena in the report and bounds tau)
-    datasets: RecordedRuns | None = None
+    name: SafeName = pydantic.Field(description="label of the evaluation (E1, E2, ...), letters, digits, _ . -")
+    query_off_route: float = pydantic.Field(
+        0.0, ge=0, le=0.9, allow_inf_nan=False,
+        description="partial revisits: this fraction of the query run is driven off the route (the run's "
+        "off_route_offset across it; route, orbit: the final part; teleop: detours spread along the "
+        "run), so some queries have no true match",
+    )
+    datasets: RecordedRuns | None = pydantic.Field(
+        None,
+        description="recorded query and reference runs instead of simulated ones (no run key then; environment "
+        "optional: it only draws the arena in the report and bounds tau)",
+    )
 
     @pydantic.model_validator(mode="after")
     def _simulated_or_recorded(self) -> EvaluationRuns:
@@ -166,12 +175,14 @@ class EvaluationRuns(_RunSource):
 class Method(Strict):
     """A feature extractor to compare: a label, the plugin's extractor name, its parameters."""
 
-    #: label of the method in results and figures (L, H, ...)
-    name: SafeName
-    #: name of the registered feature extractor (`vitaplace plugins` lists them)
-    plugin: str
-    #: the extractor's parameters (validated by the extractor, see its section)
-    params: dict[str, Any] = {}
+    name: SafeName = pydantic.Field(description="label of the method in results and figures (L, H, ...)")
+    plugin: str = pydantic.Field(
+        description="name of the registered feature extractor (`vitaplace plugins` lists them)",
+    )
+    params: dict[str, Any] = pydantic.Field(
+        {},
+        description="the extractor's parameters (validated by the extractor, see its section)",
+    )
 
 
 class EvaluationSettings(Strict):
@@ -186,29 +197,31 @@ class EvaluationSettings(Strict):
     delta: float | None = pydantic.Field(
         None, allow_inf_nan=False, description="fixed acceptance threshold for the F1 at delta"
     )
-    #: K values of recall@K
-    recall_k: list[pydantic.PositiveInt] = [1, 5, 10]
-    #: which run queries which: query-to-reference, the reverse, or both
-    direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = "query-to-reference"
+    recall_k: list[pydantic.PositiveInt] = pydantic.Field([1, 5, 10], description="K values of recall@K")
+    direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = pydantic.Field(
+        "query-to-reference",
+        description="which run queries which: query-to-reference, the reverse, or both",
+    )
 
 
 class Scenario(Strict):
-    #: the scenario's name (reports, output folders): letters, digits, _ . -
-    name: SafeName
-    #: free text shown in the report
-    description: str = ""
-    #: master seed: every run's and method's seed derives from it
-    seed: int = pydantic.Field(0, ge=0, lt=2**32)
-    #: robot, sensors and physics for every run of the scenario
-    robot: RobotSpec = RobotSpec()
-    #: the run the methods are fitted on
-    train: TrainingRun
-    #: evaluation environments, each with a query and a reference run
-    evaluations: list[EvaluationRuns] = pydantic.Field(min_length=1)
-    #: the feature extractors compared
-    methods: list[Method] = pydantic.Field(min_length=1)
-    #: how features are scored
-    evaluation: EvaluationSettings = EvaluationSettings()
+    name: SafeName = pydantic.Field(description="the scenario's name (reports, output folders): letters, digits, _ . -")
+    description: str = pydantic.Field("", description="free text shown in the report")
+    seed: int = pydantic.Field(
+        0, ge=0, lt=2**32,
+        description="master seed: every run's and method's seed derives from it",
+    )
+    robot: RobotSpec = pydantic.Field(
+        RobotSpec(),
+        description="robot, sensors and physics for every run of the scenario",
+    )
+    train: TrainingRun = pydantic.Field(description="the run the methods are fitted on")
+    evaluations: list[EvaluationRuns] = pydantic.Field(
+        min_length=1,
+        description="evaluation environments, each with a query and a reference run",
+    )
+    methods: list[Method] = pydantic.Field(min_length=1, description="the feature extractors compared")
+    evaluation: EvaluationSettings = pydantic.Field(EvaluationSettings(), description="how features are scored")
 
     @pydantic.model_validator(mode="after")
     def _unique_names(self) -> Scenario:

@@ -3,15 +3,14 @@
     python -m vitaplace.engine.schema_docs docs/SCENARIOS.md     # regenerate
     python -m vitaplace.engine.schema_docs                       # print
 
-`tests/test_docs.py` checks the committed file equals what this module generates.
+Every schema field documents itself with ``Field(description=...)``, the one way fields are
+documented: a table row is the field's type, default, constraints and description as pydantic
+holds them, and a field without a description is an error. `tests/test_docs.py` checks the
+committed file equals what this module generates.
 """
 
 from __future__ import annotations
 
-import ast
-import inspect
-import re
-import textwrap
 import sys
 import types
 import typing
@@ -110,45 +109,13 @@ def _first_line(doc: str | None) -> str:
     return " ".join((doc or "").strip().split("\n\n")[0].split())
 
 
-def _comment_docs(model: type[pydantic.BaseModel]) -> dict[str, str]:
-    """Attribute documentation of ``model`` and its bases, Sphinx style: a string right after
-    a field, ``#: text`` on the lines above it, or ``name: type = value  #: text``."""
-    docs: dict[str, str] = {}
-    for cls in reversed(model.__mro__):
-        if not (isinstance(cls, type) and issubclass(cls, pydantic.BaseModel)) or cls is pydantic.BaseModel:
-            continue
-        try:
-            lines = inspect.getsource(cls).splitlines()
-        except (OSError, TypeError):
-            continue
-        tree = ast.parse(textwrap.dedent("\n".join(lines)))
-        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
-        for node, after in zip(body, body[1:]):
-            if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
-                    and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
-                    and isinstance(after.value.value, str)):
-                docs[node.target.id] = " ".join(after.value.value.split())
-        pending: list[str] = []
-        for line in lines:
-            stripped = line.strip()
-            if stripped.startswith("#:"):
-                pending.append(stripped[2:].strip())
-                continue
-            match = re.match(r"^(\w+)\s*:", stripped)
-            if match and match.group(1) in cls.model_fields:
-                trailing = re.search(r"#:\s*(.*)$", stripped)
-                text = " ".join(pending) or (trailing.group(1) if trailing else "")
-                if text and match.group(1) not in docs:
-                    docs[match.group(1)] = text
-            pending = []
-    return docs
-
-
 def model_table(model: type[pydantic.BaseModel]) -> str:
+    """The reference table of ``model``: one row per field, its meaning the field's description."""
     rows = ["| key | type | default | constraints | meaning |", "|---|---|---|---|---|"]
-    comments = _comment_docs(model)
     for name, field in model.model_fields.items():
-        meaning = (field.description or comments.get(name, "")).replace("|", "\\|").replace("\n", " ")
+        if not field.description:
+            raise ValueError(f"{model.__name__}.{name}: a schema field needs Field(description=...)")
+        meaning = field.description.replace("|", "\\|").replace("\n", " ")
         rows.append(f"| `{name}` | {_type_name(field.annotation)} | {_default(field)} | {_constraints(field)} | {meaning} |")
     return "\n".join(rows)
 

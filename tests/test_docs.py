@@ -23,11 +23,30 @@ def test_scenario_reference_is_current():
     )
 
 
-def test_every_schema_field_has_a_meaning():
+def test_every_schema_field_has_a_description():
+    """One way to document a schema field: Field(description=...), read by the generator."""
     from vitaplace.engine import schema_docs
 
-    undocumented = [line for line in schema_docs.markdown().splitlines() if line.startswith("| `") and line.endswith("|  |")]
+    undocumented = [f"{model.__name__}.{name}" for _, model, _ in schema_docs.SECTIONS
+                    for name, field in model.model_fields.items() if not field.description]
     assert not undocumented, undocumented
+
+
+def test_the_generator_refuses_a_field_without_description():
+    import pydantic
+
+    from vitaplace.engine import schema_docs
+
+    class Documented(pydantic.BaseModel):
+        size: int = pydantic.Field(3, gt=0, description="how big | how many")
+
+    assert schema_docs.model_table(Documented).splitlines()[-1] == "| `size` | int | `3` | > 0 | how big \\| how many |"
+
+    class Undocumented(pydantic.BaseModel):
+        size: int = 3  #: a comment is no description
+
+    with pytest.raises(ValueError, match=r"Undocumented\.size: a schema field needs Field\(description=\.\.\.\)"):
+        schema_docs.model_table(Undocumented)
 
 
 def test_nothing_cites_documents_outside_the_repository():

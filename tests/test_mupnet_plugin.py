@@ -263,3 +263,71 @@ def test_diverging_latents_are_flagged_per_sample(mupnet_class, runs, caplog):
         features = extractor.transform(test)
     assert list(np.flatnonzero(features["diverged"])) == [3, 7]
     assert "2 of 80 samples of run 'B'" in caplog.text and "first: 3, 7" in caplog.text
+
+
+# --------------------------------------------------------------------------- one schema
+
+
+def test_the_engine_configs_hold_no_defaults_of_their_own():
+    """MuPNet's settings and defaults are MupnetParams alone: the engine's containers, the
+    network's seed and the inference step cap have none."""
+    import dataclasses
+    import inspect
+
+    from vitaplace.engine.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
+
+    for container in (ModalityConfig, JointConfig, NetworkConfig, TrainingConfig):
+        for field in dataclasses.fields(container):
+            assert field.default is dataclasses.MISSING, (container, field.name)
+            assert field.default_factory is dataclasses.MISSING, (container, field.name)
+    assert inspect.signature(Network).parameters["seed"].default is inspect.Parameter.empty
+    assert inspect.signature(Network.infer).parameters["max_steps"].default is inspect.Parameter.empty
+
+
+def test_a_changed_schema_default_reaches_the_engine_configs():
+    """A schema whose defaults differ in every setting the engine uses: the network and
+    training configurations built from its defaults carry each changed value to its place."""
+    import pydantic
+
+    from vitaplace.engine.pc import JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
+    from vitaplace.plugins.mupnet.extractor import MupnetParams
+
+    changed = {
+        "image_size": (tuple[int, int], (3, 4)), "visual_layers": (list[int], [7, 5]), "tactile_layers": (list[int], [6]),
+        "joint_size": (int, 9), "eta_y_visual": (float, 0.11), "eta_y_tactile": (float, 0.12),
+        "eta_y_joint": (float, 0.13), "eta_w_visual": (float, 0.21), "eta_w_tactile": (float, 0.22),
+        "eta_w_joint": (float, 0.23), "threshold_visual": (float, 0.31), "threshold_tactile": (float, 0.32),
+        "threshold_joint": (float, 0.33), "activation": (str, "tanh"), "slope": (float, 0.4), "epochs": (int, 17),
+        "batch_size": (int, 19), "inference_steps": (int, 23), "seed": (int, 29), "converge_window": (int, 3),
+        "converge_tol": (float, 0.05),
+    }
+    params = pydantic.create_model("Changed", __base__=MupnetParams, **changed)()
+    assert params.network_config(tactile_size=72) == NetworkConfig(
+        modalities={"visual": ModalityConfig(3 * 4 * 3, [7, 5], 0.11, 0.21, 0.31),
+                    "tactile": ModalityConfig(72, [6], 0.12, 0.22, 0.32)},
+        joint=JointConfig(9, 0.13, 0.23, 0.33),
+        activation="tanh",
+        slope=0.4,
+    )
+    assert params.training_config() == TrainingConfig(17, 19, 23, 29, 3, 0.05)
+    only_touch = pydantic.create_model("OnlyTouch", __base__=MupnetParams, modalities=(list[str], ["tactile"]))()
+    assert list(only_touch.network_config(tactile_size=72).modalities) == ["tactile"]
+
+
+def test_the_fitted_network_is_built_from_the_params(fitted):
+    assert fitted.network.config == fitted.params.network_config(N_WHISKERS * 3)
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("eta_y_visual", "-1", "Input should be greater than 0"),
+    ("converge_tol", "1.5", "Input should be less than 1"),
+    ("activation", "relu", "Input should be 'leaky_relu', 'tanh', 'sigmoid' or 'linear'"),
+])
+def test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path(capsys, key, value, message):
+    from vitaplace.engine.cli import main
+
+    assert main(["validate", "quickstart", "--set", f"methods.0.params.{key}={value}"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("vitaplace: error: ") and "quickstart.yaml: methods.0.params: extractor 'mupnet': " in lines[0]
+    assert f"{key}: {message}" in lines[0], lines[0]

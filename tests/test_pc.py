@@ -16,10 +16,12 @@ from vitaplace.engine.pc import Network, NetworkError
 
 SMALL = {
     "modalities": {
-        "visual": {"input_size": 7, "layers": [5, 4], "eta_y": 1.0, "eta_w": 1.0},
-        "tactile": {"input_size": 6, "layers": [3], "eta_y": 1.0, "eta_w": 1.0},
+        "visual": {"input_size": 7, "layers": [5, 4], "eta_y": 1.0, "eta_w": 1.0, "threshold": 1e-3},
+        "tactile": {"input_size": 6, "layers": [3], "eta_y": 1.0, "eta_w": 1.0, "threshold": 1e-3},
     },
-    "joint": {"size": 3, "eta_y": 1.0, "eta_w": 1.0},
+    "joint": {"size": 3, "eta_y": 1.0, "eta_w": 1.0, "threshold": 1e-3},
+    "activation": "leaky_relu",
+    "slope": 0.2,
 }
 
 
@@ -83,10 +85,12 @@ def test_latent_and_weight_gradients_match_finite_differences(activation):
 def test_inference_with_small_step_never_increases_energy():
     config = {
         "modalities": {
-            "visual": {"input_size": 20, "layers": [10, 6], "eta_y": 0.01},
-            "tactile": {"input_size": 8, "layers": [5], "eta_y": 0.01},
+            "visual": {"input_size": 20, "layers": [10, 6], "eta_y": 0.01, "eta_w": 1e-4, "threshold": 1e-3},
+            "tactile": {"input_size": 8, "layers": [5], "eta_y": 0.01, "eta_w": 1e-4, "threshold": 1e-3},
         },
-        "joint": {"size": 4, "eta_y": 0.01},
+        "joint": {"size": 4, "eta_y": 0.01, "eta_w": 1e-4, "threshold": 1e-3},
+        "activation": "leaky_relu",
+        "slope": 0.2,
     }
     net = Network(config, seed=0, backend="numpy")
     inputs, latents = random_state(net, n=16, seed=2)
@@ -116,12 +120,14 @@ def synthetic(n: int = 400, causes: int = 5, seed: int = 0):
 
 SYNTH = {
     "modalities": {
-        "visual": {"input_size": 40, "layers": [20], "eta_y": 0.05, "eta_w": 0.005},
-        "tactile": {"input_size": 10, "layers": [8], "eta_y": 0.05, "eta_w": 0.005},
+        "visual": {"input_size": 40, "layers": [20], "eta_y": 0.05, "eta_w": 0.005, "threshold": 1e-3},
+        "tactile": {"input_size": 10, "layers": [8], "eta_y": 0.05, "eta_w": 0.005, "threshold": 1e-3},
     },
-    "joint": {"size": 6, "eta_y": 0.05, "eta_w": 0.005},
+    "joint": {"size": 6, "eta_y": 0.05, "eta_w": 0.005, "threshold": 1e-3},
+    "activation": "leaky_relu",
+    "slope": 0.2,
 }
-TRAIN = {"epochs": 30, "batch_size": 50, "inference_steps": 20}
+TRAIN = {"epochs": 30, "batch_size": 50, "inference_steps": 20, "seed": 0, "converge_window": 0, "converge_tol": 0.01}
 NO_STOP = {"visual.1": 0.0, "tactile.1": 0.0, "joint.visual": 0.0, "joint.tactile": 0.0}
 
 
@@ -242,7 +248,7 @@ def test_training_moves_every_sample_every_epoch():
     inputs, _ = synthetic(n=60)
     net = Network(SYNTH, seed=2, backend="numpy")
     latents: dict[str, np.ndarray] = {}
-    net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25, "shuffle": True}, progress=False, latents=latents)
+    net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, progress=False, latents=latents)
     for node, y in latents.items():
         assert y.shape[0] == 60
         assert np.all(np.any(y != np.float32(0.1), axis=1)), f"{node}: samples never trained"
@@ -324,9 +330,9 @@ def test_diverging_inference_names_the_layer_and_the_samples():
 def test_bad_input_shape_is_reported():
     net = Network(SYNTH, seed=0, backend="numpy")
     with pytest.raises(NetworkError, match=r"input 'visual' has shape \(3, 39\), expected \(3, 40\)"):
-        net.infer({"visual": np.zeros((3, 39))})
+        net.infer({"visual": np.zeros((3, 39))}, max_steps=10)
     with pytest.raises(NetworkError, match="unknown modality"):
-        net.infer({"audio": np.zeros((3, 4))})
+        net.infer({"audio": np.zeros((3, 4))}, max_steps=10)
 
 
 def test_numpy_and_warp_backends_agree(device):

@@ -31,6 +31,7 @@ from vitaplace.engine.backends import (
     row_major_gemm,
 )
 from vitaplace.engine.pc import LATENT_INIT, Network
+from vitaplace.plugins.mupnet.extractor import MupnetParams
 
 wp = pytest.importorskip("warp")
 
@@ -153,10 +154,12 @@ def test_product_error_of_rounded_operands_follows_the_error_model(precision, bi
 
 SMALL = {
     "modalities": {
-        "visual": {"input_size": 96, "layers": [40, 24], "eta_y": 0.02, "eta_w": 0.01},
-        "tactile": {"input_size": 12, "layers": [8], "eta_y": 0.02, "eta_w": 0.01},
+        "visual": {"input_size": 96, "layers": [40, 24], "eta_y": 0.02, "eta_w": 0.01, "threshold": 1e-3},
+        "tactile": {"input_size": 12, "layers": [8], "eta_y": 0.02, "eta_w": 0.01, "threshold": 1e-3},
     },
-    "joint": {"size": 16, "eta_y": 0.02, "eta_w": 0.01},
+    "joint": {"size": 16, "eta_y": 0.02, "eta_w": 0.01, "threshold": 1e-3},
+    "activation": "leaky_relu",
+    "slope": 0.2,
 }
 
 
@@ -330,13 +333,8 @@ def test_small_edges_on_a_second_stream_give_the_same_updates(cuda, precision):
             np.testing.assert_allclose(other[name], one[name], rtol=1e-6, atol=1e-9, err_msg=name)
 
 
-PAPER = {
-    "modalities": {
-        "visual": {"input_size": 10800, "layers": [1000, 300], "eta_y": 4e-4, "eta_w": 1e-4},
-        "tactile": {"input_size": 72, "layers": [100], "eta_y": 4e-3, "eta_w": 1e-3},
-    },
-    "joint": {"size": 200, "eta_y": 4e-4, "eta_w": 1e-4},
-}
+#: the paper's network (MuPNet's defaults): 45 x 80 RGB frames, 24 whiskers x 3 tactile channels
+PAPER = MupnetParams().network_config(tactile_size=72)
 #: per-epoch energy of a low-precision training: within this relative band of float32's
 ENERGY_BAND = {"tf32": 0.01, "bf16": 0.03}
 
@@ -349,7 +347,7 @@ def test_paper_shape_training_energy_stays_in_band_of_float32(cuda, precision):
     epoch's energy per sample within ENERGY_BAND of the float32 run's, and falling."""
     rng = np.random.default_rng(0)
     inputs = {"visual": rng.random((600, 10800), dtype=np.float32), "tactile": rng.random((600, 72), dtype=np.float32)}
-    train = {"epochs": 5, "batch_size": 150, "inference_steps": 20}
+    train = MupnetParams(epochs=5).training_config()
     curves = {}
     for p in ("float32", precision):
         net = Network(PAPER, seed=0, backend=get_backend("warp", cuda, precision=p))

@@ -155,12 +155,13 @@ class RunSpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
-    #: foraging (tactile-attention exploration, training), teleop (an emulated keyboard
-    #: teleoperator driving its own copy of the environment's route and whisking its landmarks),
-    #: route (noisy laps of the environment's route) or orbit (noisy laps of a circle, driven
-    #: sideways with the camera facing outward); route and orbit runs with different seeds are
-    #: near-duplicates (kept for regression), teleop runs are independent drives
-    kind: Literal["foraging", "teleop", "route", "orbit"]
+    kind: Literal["foraging", "teleop", "route", "orbit"] = Field(
+        description="foraging (tactile-attention exploration, training), teleop (an emulated keyboard "
+        "teleoperator driving its own copy of the environment's route and whisking its landmarks), "
+        "route (noisy laps of the environment's route) or orbit (noisy laps of a circle, driven "
+        "sideways with the camera facing outward); route and orbit runs with different seeds are "
+        "near-duplicates (kept for regression), teleop runs are independent drives",
+    )
     n_samples: int = Field(gt=0, description="samples (whisk cycles) to record")
     speed: float = Field(
         0.15, gt=0, le=1.0, description=f"nominal forward speed [m/s] (teleop: the keys' speed, default {TELEOP_SPEED})"

@@ -74,41 +74,29 @@ class _Model(BaseModel):
 class TextureSpec(_Model):
     """A MuJoCo procedural texture (``builtin``) or a PNG file (``file``, relative to the YAML)."""
 
-    #: MuJoCo procedural texture
-    builtin: Literal["checker", "gradient", "flat", "none"] = "checker"
-    #: PNG file instead, relative to the YAML
-    file: str | None = None
-    #: first colour
-    rgb1: RGB = (0.8, 0.8, 0.8)
-    #: second colour
-    rgb2: RGB = (0.5, 0.5, 0.5)
-    #: marks drawn on the texture
-    mark: Literal["none", "edge", "cross", "random"] = "none"
-    #: colour of the marks
-    markrgb: RGB = (0.0, 0.0, 0.0)
-    #: fraction of random pixels (mark: random)
-    random: Annotated[float, Field(ge=0, le=1)] = 0.01
-    #: texture width [px]
-    width: Annotated[int, Field(ge=2, le=2048)] = 64
-    #: texture height [px]
-    height: Annotated[int, Field(ge=2, le=2048)] = 64
+    builtin: Literal["checker", "gradient", "flat", "none"] = Field("checker", description="MuJoCo procedural texture")
+    file: str | None = Field(None, description="PNG file instead, relative to the YAML")
+    rgb1: RGB = Field((0.8, 0.8, 0.8), description="first colour")
+    rgb2: RGB = Field((0.5, 0.5, 0.5), description="second colour")
+    mark: Literal["none", "edge", "cross", "random"] = Field("none", description="marks drawn on the texture")
+    markrgb: RGB = Field((0.0, 0.0, 0.0), description="colour of the marks")
+    random: Annotated[float, Field(ge=0, le=1)] = Field(0.01, description="fraction of random pixels (mark: random)")
+    width: Annotated[int, Field(ge=2, le=2048)] = Field(64, description="texture width [px]")
+    height: Annotated[int, Field(ge=2, le=2048)] = Field(64, description="texture height [px]")
 
 
 class MaterialSpec(_Model):
     """A render material: colour, optional texture, repetition. Reflectance is always 0 (fast rendering)."""
 
-    #: colour (multiplies the texture)
-    rgba: RGBA = (1.0, 1.0, 1.0, 1.0)
-    #: optional texture
-    texture: TextureSpec | None = None
-    #: how often the 2-D texture repeats over the textured face (``texuniform``: per metre)
-    texrepeat: tuple[Positive, Positive] = (1.0, 1.0)
-    #: texture repeats per metre rather than per face
-    texuniform: bool = False
-    #: specular reflection
-    specular: Annotated[float, Field(ge=0, le=1)] = 0.1
-    #: specular exponent (0-1)
-    shininess: Annotated[float, Field(ge=0, le=1)] = 0.2
+    rgba: RGBA = Field((1.0, 1.0, 1.0, 1.0), description="colour (multiplies the texture)")
+    texture: TextureSpec | None = Field(None, description="optional texture")
+    texrepeat: tuple[Positive, Positive] = Field(
+        (1.0, 1.0),
+        description="how often the 2-D texture repeats over the textured face (``texuniform``: per metre)",
+    )
+    texuniform: bool = Field(False, description="texture repeats per metre rather than per face")
+    specular: Annotated[float, Field(ge=0, le=1)] = Field(0.1, description="specular reflection")
+    shininess: Annotated[float, Field(ge=0, le=1)] = Field(0.2, description="specular exponent (0-1)")
 
 
 WALLS = ("north", "south", "east", "west")
@@ -119,20 +107,15 @@ class PanelSpec(_Model):
     from ``bottom`` to ``top`` above the floor, ``depth`` thick, its front face
     ``protrusion`` in front of the wall's inner face, centred ``offset`` from the wall's middle."""
 
-    #: extent along the wall
-    width: Positive
-    #: height of its lower edge above the floor
-    bottom: Annotated[float, Field(ge=0)]
-    #: height of its upper edge
-    top: Positive
-    #: thickness of the box
-    depth: Positive
-    #: distance its front stands in front of the wall's inner face
-    protrusion: Annotated[float, Field(ge=0)]
-    #: shift along the wall from the wall's middle
-    offset: float = 0.0
-    #: colour
-    rgba: RGBA = (1.0, 0.0, 0.0, 1.0)
+    width: Positive = Field(description="extent along the wall")
+    bottom: Annotated[float, Field(ge=0)] = Field(description="height of its lower edge above the floor")
+    top: Positive = Field(description="height of its upper edge")
+    depth: Positive = Field(description="thickness of the box")
+    protrusion: Annotated[float, Field(ge=0)] = Field(
+        description="distance its front stands in front of the wall's inner face",
+    )
+    offset: float = Field(0.0, description="shift along the wall from the wall's middle")
+    rgba: RGBA = Field((1.0, 0.0, 0.0, 1.0), description="colour")
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> PanelSpec:
@@ -145,36 +128,33 @@ class WallSpec(_Model):
     """One wall's look: a plain colour, or a material (a textured material repeats
     ``ArenaSpec.wall_panels`` times along the wall), and an optional panel."""
 
-    #: plain colour of the wall (when no material)
-    rgba: RGBA = (0.8, 0.8, 0.8, 1.0)
-    #: a material instead of the plain colour
-    material: str | None = None
-    #: an optional box on the wall's inner face
-    panel: PanelSpec | None = None
+    rgba: RGBA = Field((0.8, 0.8, 0.8, 1.0), description="plain colour of the wall (when no material)")
+    material: str | None = Field(None, description="a material instead of the plain colour")
+    panel: PanelSpec | None = Field(None, description="an optional box on the wall's inner face")
 
 
 class ArenaSpec(_Model):
     """Rectangular arena centred on the origin: ``width`` (x) by ``depth`` (y) inside the
     walls, or a ``size`` x ``size`` square when those are not given."""
 
-    #: inner side of a square arena
-    size: Annotated[float, Field(gt=1.0, le=50.0)] = 6.0
-    #: inner extent along x (with depth: a rectangle)
-    width: Annotated[float, Field(gt=1.0, le=50.0)] | None = None
-    #: inner extent along y
-    depth: Annotated[float, Field(gt=1.0, le=50.0)] | None = None
-    #: height of the walls
-    wall_height: Positive = 1.5
-    #: thickness of the walls (outside the inner extent)
-    wall_thickness: Positive = 0.1
-    #: number of identical panels along each wall (visual aliasing: every wall looks the same)
-    wall_panels: Annotated[int, Field(ge=1, le=64)] = 6
-    #: material of every wall without its own entry in ``walls``
-    wall_material: str = "wall"
-    #: per-wall look (keys: north, south, east, west); missing walls use ``wall_material``
-    walls: dict[Literal["north", "south", "east", "west"], WallSpec] = Field(default_factory=dict)
-    #: material of the floor
-    floor_material: str = "floor"
+    size: Annotated[float, Field(gt=1.0, le=50.0)] = Field(6.0, description="inner side of a square arena")
+    width: Annotated[float, Field(gt=1.0, le=50.0)] | None = Field(
+        None,
+        description="inner extent along x (with depth: a rectangle)",
+    )
+    depth: Annotated[float, Field(gt=1.0, le=50.0)] | None = Field(None, description="inner extent along y")
+    wall_height: Positive = Field(1.5, description="height of the walls")
+    wall_thickness: Positive = Field(0.1, description="thickness of the walls (outside the inner extent)")
+    wall_panels: Annotated[int, Field(ge=1, le=64)] = Field(
+        6,
+        description="number of identical panels along each wall (visual aliasing: every wall looks the same)",
+    )
+    wall_material: str = Field("wall", description="material of every wall without its own entry in ``walls``")
+    walls: dict[Literal["north", "south", "east", "west"], WallSpec] = Field(
+        default_factory=dict,
+        description="per-wall look (keys: north, south, east, west); missing walls use ``wall_material``",
+    )
+    floor_material: str = Field("floor", description="material of the floor")
 
     @property
     def half_x(self) -> float:
@@ -188,12 +168,9 @@ class ArenaSpec(_Model):
 class LightSpec(_Model):
     """A directional light (sun): direction of travel of the light, diffuse and specular level."""
 
-    #: direction the light travels
-    direction: tuple[float, float, float] = (0.3, 0.2, -1.0)
-    #: diffuse level
-    diffuse: Annotated[float, Field(ge=0, le=1)] = 0.5
-    #: specular level
-    specular: Annotated[float, Field(ge=0, le=1)] = 0.0
+    direction: tuple[float, float, float] = Field((0.3, 0.2, -1.0), description="direction the light travels")
+    diffuse: Annotated[float, Field(ge=0, le=1)] = Field(0.5, description="diffuse level")
+    specular: Annotated[float, Field(ge=0, le=1)] = Field(0.0, description="specular level")
 
     @pydantic.field_validator("direction")
     @classmethod
@@ -208,14 +185,16 @@ class LightingSpec(_Model):
     only) and shadows. The defaults are vitaplace's original look (sun 0.5, ambient 0.45,
     headlight 0.35, no shadows)."""
 
-    #: directional lights
-    lights: list[LightSpec] = Field(default_factory=lambda: [LightSpec()], max_length=6)
-    #: uniform ambient light level
-    ambient: Annotated[float, Field(ge=0, le=1)] = 0.45
-    #: diffuse level of the camera-mounted light (0: off)
-    headlight: Annotated[float, Field(ge=0, le=1)] = 0.35
-    #: cast shadows
-    shadows: bool = False
+    lights: list[LightSpec] = Field(
+        default_factory=lambda: [LightSpec()], max_length=6,
+        description="directional lights",
+    )
+    ambient: Annotated[float, Field(ge=0, le=1)] = Field(0.45, description="uniform ambient light level")
+    headlight: Annotated[float, Field(ge=0, le=1)] = Field(
+        0.35,
+        description="diffuse level of the camera-mounted light (0: off)",
+    )
+    shadows: bool = Field(False, description="cast shadows")
 
 
 class BoardSpec(_Model):
@@ -225,73 +204,66 @@ class BoardSpec(_Model):
     floor), and a horizontal strip of ``strip_rgba`` ``strip_height`` high on its front,
     centred ``strip_below_top`` under the top edge."""
 
-    #: position of its centre
-    pos: XY
-    #: direction its front faces, degrees from +x
-    yaw: float = 0.0
-    #: width
-    width: Positive
-    #: height
-    height: Positive
-    #: thickness
-    thickness: Positive = 0.05
-    #: height of its bottom edge (may be below the floor)
-    bottom: float = 0.0
-    #: colour of the board
-    rgba: RGBA = (0.6, 0.6, 0.6, 1.0)
-    #: colour of the strip
-    strip_rgba: RGBA = (0.05, 0.05, 0.05, 1.0)
-    #: height of the strip (0: none)
-    strip_height: Annotated[float, Field(ge=0)] = 0.0
-    #: distance of the strip's centre below the top edge
-    strip_below_top: Annotated[float, Field(ge=0)] = 0.0
+    pos: XY = Field(description="position of its centre")
+    yaw: float = Field(0.0, description="direction its front faces, degrees from +x")
+    width: Positive = Field(description="width")
+    height: Positive = Field(description="height")
+    thickness: Positive = Field(0.05, description="thickness")
+    bottom: float = Field(0.0, description="height of its bottom edge (may be below the floor)")
+    rgba: RGBA = Field((0.6, 0.6, 0.6, 1.0), description="colour of the board")
+    strip_rgba: RGBA = Field((0.05, 0.05, 0.05, 1.0), description="colour of the strip")
+    strip_height: Annotated[float, Field(ge=0)] = Field(0.0, description="height of the strip (0: none)")
+    strip_below_top: Annotated[float, Field(ge=0)] = Field(
+        0.0,
+        description="distance of the strip's centre below the top edge",
+    )
 
 
 class _LandmarkBase(_Model):
-    #: unique name (default: type and index)
-    name: str | None = None
-    #: position of its centre on the floor
-    pos: XY
-    yaw: float = 0.0  #: degrees, counter-clockwise
-    #: colour (when no material)
-    rgba: RGBA = (0.6, 0.6, 0.6, 1.0)
-    #: name of an entry of ``materials`` (overrides rgba for rendering when given)
-    material: str | None = None
-    #: reachable by whiskers (collides with whisker shafts); always an obstacle for the body
-    tactile: bool = True
-    #: height of the landmark's bottom above the floor [m] (a floating box)
-    z: Annotated[float, Field(ge=0)] = 0.0
+    name: str | None = Field(None, description="unique name (default: type and index)")
+    pos: XY = Field(description="position of its centre on the floor")
+    yaw: float = Field(0.0, description="degrees, counter-clockwise")
+    rgba: RGBA = Field((0.6, 0.6, 0.6, 1.0), description="colour (when no material)")
+    material: str | None = Field(
+        None,
+        description="name of an entry of ``materials`` (overrides rgba for rendering when given)",
+    )
+    tactile: bool = Field(
+        True,
+        description="reachable by whiskers (collides with whisker shafts); always an obstacle for the body",
+    )
+    z: Annotated[float, Field(ge=0)] = Field(
+        0.0,
+        description="height of the landmark's bottom above the floor [m] (a floating box)",
+    )
 
 
 class BoxLandmark(_LandmarkBase):
-    #: box
-    type: Literal["box"]
-    size: tuple[Positive, Positive, Positive]  #: full extents x, y, z [m]
+    type: Literal["box"] = Field(description="box")
+    size: tuple[Positive, Positive, Positive] = Field(description="full extents x, y, z [m]")
 
 
 class CylinderLandmark(_LandmarkBase):
-    #: cylinder
-    type: Literal["cylinder"]
-    #: radius
-    radius: Positive
-    #: height
-    height: Positive
+    type: Literal["cylinder"] = Field(description="cylinder")
+    radius: Positive = Field(description="radius")
+    height: Positive = Field(description="height")
 
 
 class RockLandmark(_LandmarkBase):
     """Convex hull of a seeded random point cloud on a lumpy, sheared ellipsoid (asymmetric)."""
 
-    #: rock
-    type: Literal["rock"]
-    #: seed of its random point cloud: the same seed gives the same rock
-    seed: int = 0
-    size: tuple[Positive, Positive, Positive]  #: full extents of the envelope x, y, z [m]
-    #: amplitude of the lumps
-    roughness: Annotated[float, Field(ge=0, le=0.6)] = 0.25
-    #: shear of the upper part along x (makes the rock lean: asymmetric from every side)
-    lean: Annotated[float, Field(ge=-1, le=1)] = 0.3
-    #: points of the cloud whose convex hull is the rock
-    n_points: Annotated[int, Field(ge=8, le=400)] = 48
+    type: Literal["rock"] = Field(description="rock")
+    seed: int = Field(0, description="seed of its random point cloud: the same seed gives the same rock")
+    size: tuple[Positive, Positive, Positive] = Field(description="full extents of the envelope x, y, z [m]")
+    roughness: Annotated[float, Field(ge=0, le=0.6)] = Field(0.25, description="amplitude of the lumps")
+    lean: Annotated[float, Field(ge=-1, le=1)] = Field(
+        0.3,
+        description="shear of the upper part along x (makes the rock lean: asymmetric from every side)",
+    )
+    n_points: Annotated[int, Field(ge=8, le=400)] = Field(
+        48,
+        description="points of the cloud whose convex hull is the rock",
+    )
 
     def vertices(self) -> np.ndarray:
         """(n, 3) vertices in the landmark frame; the lowest point sits on the floor (z = 0)."""
@@ -347,29 +319,33 @@ def _default_materials() -> dict[str, MaterialSpec]:
 class EnvironmentSpec(_Model):
     """A validated environment. Build one with `load_environment` (or ``model_validate`` a dict)."""
 
-    #: the environment's name (defaults to the file stem)
-    name: str
-    #: free text
-    description: str = ""
-    #: walls and floor
-    arena: ArenaSpec = ArenaSpec()
-    #: render materials by name (walls, floor and landmarks refer to them)
-    materials: dict[str, MaterialSpec] = Field(default_factory=_default_materials)
-    #: free-standing objects: boxes, cylinders, rocks
-    landmarks: list[Landmark] = Field(default_factory=list)
-    #: closed loop of waypoints [x, y] for evaluation runs (driven in order, back to the first)
-    route: list[XY] = Field(default_factory=list)
-    #: how route runs drive the loop: facing the direction of travel, or sideways with the
-    #: camera facing away from the loop's centroid (towards the walls)
-    route_facing: Literal["travel", "outward"] = "travel"
-    #: where foraging runs start: [x, y, yaw_deg]
-    start: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    #: flat background colour seen above the walls
-    background_rgb: RGB = (0.55, 0.65, 0.8)
-    #: lights of the scene
-    lighting: LightingSpec = LightingSpec()
-    #: render-only boards (e.g. a banner behind a wall)
-    boards: list[BoardSpec] = Field(default_factory=list)
+    name: str = Field(description="the environment's name (defaults to the file stem)")
+    description: str = Field("", description="free text")
+    arena: ArenaSpec = Field(ArenaSpec(), description="walls and floor")
+    materials: dict[str, MaterialSpec] = Field(
+        default_factory=_default_materials,
+        description="render materials by name (walls, floor and landmarks refer to them)",
+    )
+    landmarks: list[Landmark] = Field(
+        default_factory=list,
+        description="free-standing objects: boxes, cylinders, rocks",
+    )
+    route: list[XY] = Field(
+        default_factory=list,
+        description="closed loop of waypoints [x, y] for evaluation runs (driven in order, back to the first)",
+    )
+    route_facing: Literal["travel", "outward"] = Field(
+        "travel",
+        description="how route runs drive the loop: facing the direction of travel, or sideways with the camera "
+        "facing away from the loop's centroid (towards the walls)",
+    )
+    start: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="where foraging runs start: [x, y, yaw_deg]")
+    background_rgb: RGB = Field((0.55, 0.65, 0.8), description="flat background colour seen above the walls")
+    lighting: LightingSpec = Field(LightingSpec(), description="lights of the scene")
+    boards: list[BoardSpec] = Field(
+        default_factory=list,
+        description="render-only boards (e.g. a banner behind a wall)",
+    )
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> EnvironmentSpec:

@@ -40,33 +40,54 @@ PositiveInt = Annotated[int, pydantic.Field(ge=1)]
 class HandcraftedParams(ExtractorParams):
     """Parameters of the hand-crafted extractor (unknown keys are errors)."""
 
-    grid: tuple[PositiveInt, PositiveInt] = (40, 64)
-    """Profile grid (rows, columns); ViTa-SLAM uses 40 x 64."""
-    crop_fraction: float = pydantic.Field(0.625, gt=0.0, le=1.0)
-    """Fraction of the image rows, from the top, used for the profile (300/480 in ViTa-SLAM)."""
-    normalise: bool = True
-    """Scale each profile to mean 0.4 (OpenRatSLAM ``vt_normalisation``)."""
-    max_shift: int = pydantic.Field(5, ge=0)
-    """Horizontal shift tolerance of the profile comparison, in grid cells."""
-    pfh_bins: int = pydantic.Field(3, ge=1, le=16)
-    """Bins per PFH feature (alpha, phi, theta): pfh_bins**3 histogram bins."""
-    max_points: int = pydantic.Field(64, ge=2)
-    """At most this many contacts per whisk cycle enter the PFH (evenly spaced subsample)."""
-    sda_threshold: float = pydantic.Field(0.01, ge=0.0)
-    """Deflection [rad] above which a sample counts as positive (in contact) for the SDA. The
-    simulated whiskers deflect up to ~1e-3 rad from whisking alone and 0.08-0.85 rad on contact."""
-    sda_mode: Literal["magnitude", "per_axis"] = "magnitude"
-    """How a 2-axis deflection is reduced to a slope, see `vitaplace.plugins.handcrafted.sda`."""
-    #: include the visual intensity profile term
-    use_visual: bool = True
-    #: include the PFH and SDA terms
-    use_tactile: bool = True
-    sigma_samples: int = pydantic.Field(500, ge=2)
-    """At most this many training samples (evenly spaced) are used to estimate the sigmas."""
-    batch_size: int = pydantic.Field(256, ge=1)
-    """Images converted to profiles per batch (a run is never loaded whole)."""
-    threads: int = pydantic.Field(0, ge=0)
-    """Threads for the profile distance; 0 = every CPU this process may use."""
+    grid: tuple[PositiveInt, PositiveInt] = pydantic.Field(
+        (40, 64),
+        description="Profile grid (rows, columns); ViTa-SLAM uses 40 x 64.",
+    )
+    crop_fraction: float = pydantic.Field(
+        0.625, gt=0.0, le=1.0,
+        description="Fraction of the image rows, from the top, used for the profile (300/480 in ViTa-SLAM).",
+    )
+    normalise: bool = pydantic.Field(
+        True,
+        description="Scale each profile to mean 0.4 (OpenRatSLAM ``vt_normalisation``).",
+    )
+    max_shift: int = pydantic.Field(
+        5, ge=0,
+        description="Horizontal shift tolerance of the profile comparison, in grid cells.",
+    )
+    pfh_bins: int = pydantic.Field(
+        3, ge=1, le=16,
+        description="Bins per PFH feature (alpha, phi, theta): pfh_bins**3 histogram bins.",
+    )
+    max_points: int = pydantic.Field(
+        64, ge=2,
+        description="At most this many contacts per whisk cycle enter the PFH (evenly spaced subsample).",
+    )
+    sda_threshold: float = pydantic.Field(
+        0.01, ge=0.0,
+        description="Deflection [rad] above which a sample counts as positive (in contact) for the SDA. The "
+        "simulated whiskers deflect up to ~1e-3 rad from whisking alone and 0.08-0.85 rad on "
+        "contact.",
+    )
+    sda_mode: Literal["magnitude", "per_axis"] = pydantic.Field(
+        "magnitude",
+        description="How a 2-axis deflection is reduced to a slope, see `vitaplace.plugins.handcrafted.sda`.",
+    )
+    use_visual: bool = pydantic.Field(True, description="include the visual intensity profile term")
+    use_tactile: bool = pydantic.Field(True, description="include the PFH and SDA terms")
+    sigma_samples: int = pydantic.Field(
+        500, ge=2,
+        description="At most this many training samples (evenly spaced) are used to estimate the sigmas.",
+    )
+    batch_size: int = pydantic.Field(
+        256, ge=1,
+        description="Images converted to profiles per batch (a run is never loaded whole).",
+    )
+    threads: int = pydantic.Field(
+        0, ge=0,
+        description="Threads for the profile distance; 0 = every CPU this process may use.",
+    )
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> HandcraftedParams:

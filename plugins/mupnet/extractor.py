@@ -18,6 +18,7 @@ from typing import Literal
 
 import numpy as np
 import pydantic
+from pydantic import Field
 from scipy.ndimage import zoom
 from scipy.spatial.distance import cdist
 from tqdm.auto import tqdm
@@ -26,7 +27,7 @@ from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.backends import BackendError, check_precision, get_backend
 from vitaplace.engine.dataset import Run
 from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
-from vitaplace.engine.pc import Network, NetworkConfig, TrainingConfig
+from vitaplace.engine.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
 
 Modality = Literal["visual", "tactile"]
 log = logging.getLogger("vitaplace.mupnet")
@@ -35,62 +36,98 @@ DIVERGED_FACTOR = 10.0
 
 
 class MupnetParams(ExtractorParams):
-    """Network, training and test-time inference settings (defaults: the MuPNet paper/code)."""
+    """Network, training and test-time inference settings (defaults: the MuPNet paper/code).
 
-    #: modalities fed to the network (an ablation leaves one out)
-    modalities: list[Modality] = pydantic.Field(default_factory=lambda: ["visual", "tactile"], min_length=1)
-    #: (rows, columns) the camera frames are resampled to
-    image_size: tuple[pydantic.PositiveInt, pydantic.PositiveInt] = (45, 80)
-    #: latent layer sizes of the visual stack, bottom first
-    visual_layers: list[pydantic.PositiveInt] = pydantic.Field(default_factory=lambda: [1000, 300], min_length=1)
-    #: latent layer sizes of the tactile stack, bottom first
-    tactile_layers: list[pydantic.PositiveInt] = pydantic.Field(default_factory=lambda: [100], min_length=1)
-    #: size of the joint latent: the place feature
-    joint_size: pydantic.PositiveInt = 200
-    #: latent step size of the visual layers
-    eta_y_visual: pydantic.PositiveFloat = 4e-4
-    #: latent step size of the tactile layers
-    eta_y_tactile: pydantic.PositiveFloat = 4e-3
-    #: latent step size of the joint layer
-    eta_y_joint: pydantic.PositiveFloat = 4e-4
-    #: weight step size of the visual layers
-    eta_w_visual: pydantic.PositiveFloat = 1e-4
-    #: weight step size of the tactile layers
-    eta_w_tactile: pydantic.PositiveFloat = 1e-3
-    #: weight step size of the joint layer's edges
-    eta_w_joint: pydantic.PositiveFloat = 1e-4
-    #: test-time stop: mean squared error of each visual layer's prediction
-    threshold_visual: pydantic.NonNegativeFloat = 1e-3
-    #: test-time stop: mean squared error of each tactile layer's prediction
-    threshold_tactile: pydantic.NonNegativeFloat = 1e-3
-    #: test-time stop: mean squared error of the joint layer's predictions
-    threshold_joint: pydantic.NonNegativeFloat = 1e-3
-    #: leaky_relu, tanh, sigmoid or linear
-    activation: Literal["leaky_relu", "tanh", "sigmoid", "linear"] = "leaky_relu"
-    #: negative slope of the leaky ReLU
-    slope: pydantic.NonNegativeFloat = 0.2
-    #: passes over the training run (the maximum when converge_window > 0)
-    epochs: pydantic.PositiveInt = 10
-    #: stop once the training energy fell by less than converge_tol over this many epochs (0: run all epochs)
-    converge_window: pydantic.NonNegativeInt = 0
-    #: relative improvement of the training energy over converge_window epochs that still counts as progress
-    converge_tol: float = pydantic.Field(0.01, gt=0, lt=1)
-    #: samples per minibatch
-    batch_size: pydantic.PositiveInt = 150
-    #: T latent steps per minibatch before the weight step
-    inference_steps: pydantic.PositiveInt = 20
-    max_steps: pydantic.PositiveInt = pydantic.Field(3000, description="test-time inference step cap")
-    tactile_min_range: pydantic.NonNegativeFloat = pydantic.Field(
+    The one definition of these settings: the engine's network and training configurations
+    are built from them (`network_config`, `training_config`)."""
+
+    modalities: list[Modality] = Field(
+        default_factory=lambda: ["visual", "tactile"], min_length=1,
+        description="modalities fed to the network (an ablation leaves one out)",
+    )
+    image_size: tuple[pydantic.PositiveInt, pydantic.PositiveInt] = Field(
+        (45, 80), description="(rows, columns) the camera frames are resampled to"
+    )
+    visual_layers: list[pydantic.PositiveInt] = Field(
+        default_factory=lambda: [1000, 300], min_length=1,
+        description="latent layer sizes of the visual stack, bottom first",
+    )
+    tactile_layers: list[pydantic.PositiveInt] = Field(
+        default_factory=lambda: [100], min_length=1, description="latent layer sizes of the tactile stack, bottom first"
+    )
+    joint_size: pydantic.PositiveInt = Field(200, description="size of the joint latent: the place feature")
+    eta_y_visual: pydantic.PositiveFloat = Field(4e-4, description="latent step size of the visual layers")
+    eta_y_tactile: pydantic.PositiveFloat = Field(4e-3, description="latent step size of the tactile layers")
+    eta_y_joint: pydantic.PositiveFloat = Field(4e-4, description="latent step size of the joint layer")
+    eta_w_visual: pydantic.PositiveFloat = Field(1e-4, description="weight step size of the visual layers")
+    eta_w_tactile: pydantic.PositiveFloat = Field(1e-3, description="weight step size of the tactile layers")
+    eta_w_joint: pydantic.PositiveFloat = Field(1e-4, description="weight step size of the joint layer's edges")
+    threshold_visual: pydantic.NonNegativeFloat = Field(
+        1e-3, description="test-time stop: mean squared error of each visual layer's prediction"
+    )
+    threshold_tactile: pydantic.NonNegativeFloat = Field(
+        1e-3, description="test-time stop: mean squared error of each tactile layer's prediction"
+    )
+    threshold_joint: pydantic.NonNegativeFloat = Field(
+        1e-3, description="test-time stop: mean squared error of the joint layer's predictions"
+    )
+    activation: Literal["leaky_relu", "tanh", "sigmoid", "linear"] = Field(
+        "leaky_relu", description="leaky_relu, tanh, sigmoid or linear"
+    )
+    slope: pydantic.NonNegativeFloat = Field(0.2, description="negative slope of the leaky ReLU")
+    epochs: pydantic.PositiveInt = Field(
+        10, description="passes over the training run (the maximum when converge_window > 0)"
+    )
+    converge_window: pydantic.NonNegativeInt = Field(
+        0, description="stop once the training energy fell by less than converge_tol over this many epochs "
+        "(0: run all epochs)",
+    )
+    converge_tol: float = Field(
+        0.01, gt=0, lt=1, description="relative improvement of the training energy over converge_window epochs "
+        "that still counts as progress",
+    )
+    batch_size: pydantic.PositiveInt = Field(150, description="samples per minibatch")
+    inference_steps: pydantic.PositiveInt = Field(20, description="T latent steps per minibatch before the weight step")
+    max_steps: pydantic.PositiveInt = Field(3000, description="test-time inference step cap")
+    tactile_min_range: pydantic.NonNegativeFloat = Field(
         0.05,
         description="floor on each tactile channel's min-max range before scaling (theta and xy units): a channel "
         "that barely moved in training is not blown up to unit range",
     )
-    #: auto (warp on CUDA, numpy otherwise), numpy or warp
-    backend: Literal["auto", "numpy", "warp"] = "auto"
-    #: GEMM precision: float32, or on CUDA tensor cores tf32 or bf16 operands (float32 accumulation, weights and latents)
-    precision: Literal["float32", "tf32", "bf16"] = "float32"
-    #: network initialisation and minibatch order
-    seed: int = 0
+    backend: Literal["auto", "numpy", "warp"] = Field(
+        "auto", description="auto (warp on CUDA, numpy otherwise), numpy or warp"
+    )
+    precision: Literal["float32", "tf32", "bf16"] = Field(
+        "float32", description="GEMM precision: float32, or on CUDA tensor cores tf32 or bf16 operands "
+        "(float32 accumulation, weights and latents)",
+    )
+    seed: int = Field(0, description="network initialisation and minibatch order")
+
+    def network_config(self, tactile_size: int) -> NetworkConfig:
+        """The engine's network configuration for inputs of ``image_size`` RGB frames and
+        ``tactile_size`` tactile channels (the chosen modalities only)."""
+        h, w = self.image_size
+        modalities = {
+            "visual": ModalityConfig(
+                h * w * 3, self.visual_layers, self.eta_y_visual, self.eta_w_visual, self.threshold_visual
+            ),
+            "tactile": ModalityConfig(
+                tactile_size, self.tactile_layers, self.eta_y_tactile, self.eta_w_tactile, self.threshold_tactile
+            ),
+        }
+        return NetworkConfig(
+            modalities={m: modalities[m] for m in self.modalities},
+            joint=JointConfig(self.joint_size, self.eta_y_joint, self.eta_w_joint, self.threshold_joint),
+            activation=self.activation,
+            slope=self.slope,
+        )
+
+    def training_config(self) -> TrainingConfig:
+        """The engine's training configuration."""
+        return TrainingConfig(
+            epochs=self.epochs, batch_size=self.batch_size, inference_steps=self.inference_steps, seed=self.seed,
+            converge_window=self.converge_window, converge_tol=self.converge_tol,
+        )
 
     @pydantic.field_validator("precision")
     @classmethod
@@ -147,32 +184,6 @@ class MupnetExtractor(FeatureExtractor):
         p = self.params
         return p.backend if p.precision == "float32" else get_backend(p.backend, precision=p.precision)
 
-    def network_config(self, tactile_size: int) -> NetworkConfig:
-        p = self.params
-        h, w = p.image_size
-        modalities = {
-            "visual": {
-                "input_size": h * w * 3,
-                "layers": p.visual_layers,
-                "eta_y": p.eta_y_visual,
-                "eta_w": p.eta_w_visual,
-                "threshold": p.threshold_visual,
-            },
-            "tactile": {
-                "input_size": tactile_size,
-                "layers": p.tactile_layers,
-                "eta_y": p.eta_y_tactile,
-                "eta_w": p.eta_w_tactile,
-                "threshold": p.threshold_tactile,
-            },
-        }
-        return NetworkConfig(
-            modalities={m: modalities[m] for m in p.modalities},
-            joint={"size": p.joint_size, "eta_y": p.eta_y_joint, "eta_w": p.eta_w_joint, "threshold": p.threshold_joint},
-            activation=p.activation,
-            slope=p.slope,
-        )
-
     def raw_inputs(self, run: Run) -> dict[str, np.ndarray]:
         """Unscaled network inputs: flattened resampled RGB and theta + xy per sample."""
         inputs = {}
@@ -193,19 +204,15 @@ class MupnetExtractor(FeatureExtractor):
     def fit(self, train: Run) -> None:
         p = self.params
         raw = self.raw_inputs(train)
-        self.network = Network(self.network_config(train.n_whiskers * 3), seed=p.seed, backend=self._backend())
+        self.network = Network(p.network_config(train.n_whiskers * 3), seed=p.seed, backend=self._backend())
         if "visual" in raw:
             self.network.set_scaler("visual", np.zeros(1, np.float32), np.full(1, 1 / 255, np.float32))
         if "tactile" in raw:
             low, high = raw["tactile"].min(axis=0), raw["tactile"].max(axis=0)
             span = np.maximum(high - low, p.tactile_min_range)
             self.network.set_scaler("tactile", low, np.where(span > 0, 1 / np.where(span > 0, span, 1), 0))
-        training = TrainingConfig(
-            epochs=p.epochs, batch_size=p.batch_size, inference_steps=p.inference_steps, seed=p.seed,
-            converge_window=p.converge_window, converge_tol=p.converge_tol,
-        )
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
-        history = self.network.train(inputs, training, progress=self.progress)
+        history = self.network.train(inputs, p.training_config(), progress=self.progress)
         self.energy = history.energy
         self.converged = history.converged
         self.train_norm_max = float(np.linalg.norm(self.network.train_latents["joint"], axis=1).max())
