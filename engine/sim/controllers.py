@@ -228,42 +228,64 @@ class RunSpec(BaseModel):
     control_hz: float = Field(10.0, gt=0, le=500, description="controller update rate (rounded to deflection samples) [Hz]")
     # foraging states (ForagingController): gains and thresholds; left out of the run's
     # dump while at their defaults (see _drop_default_foraging_gains)
-    wander_turn_time: ForagingGain = Field(2.0, gt=0, le=60, description="wander: correlation time of the random turn rate [s]")
+    wander_turn_time: ForagingGain = Field(
+        2.0, gt=0, le=60, description="wander: correlation time of the random turn rate [s]"
+    )
     wander_steer_range: ForagingGain = Field(
         0.05, ge=0, le=1, description="wander: steer away from an obstacle this close to the point 0.15 m beyond the snout [m]"
     )
-    wander_steer_gain: ForagingGain = Field(1.5, ge=0, le=20, description="wander: turn rate per radian of that obstacle's escape direction [1/s]")
+    wander_steer_gain: ForagingGain = Field(
+        1.5, ge=0, le=20, description="wander: turn rate per radian of that obstacle's escape direction [1/s]"
+    )
     contact_weight: ForagingGain = Field(
         0.3, gt=0, le=1, description="orient, explore: weight of the newest contacts' centroid in the attended point per tick"
     )
-    orient_turn_gain: ForagingGain = Field(3.0, gt=0, le=20, description="orient: turn rate per radian of bearing to the attended point [1/s]")
+    orient_turn_gain: ForagingGain = Field(
+        3.0, gt=0, le=20, description="orient: turn rate per radian of bearing to the attended point [1/s]"
+    )
     orient_slow_share: ForagingGain = Field(
         0.15, gt=0, le=1, description="orient: share of that turn rate left when the attended point is at the snout"
     )
     orient_back_gain: ForagingGain = Field(
-        1.5, ge=0, le=20, description="orient: backing speed per metre that the attended point is inside the head's turning reach [1/s]"
+        1.5, ge=0, le=20, description="orient: backing speed per metre the attended point is inside the head's turning reach [1/s]"
     )
     orient_back_speed: ForagingGain = Field(0.08, ge=0, le=0.5, description="orient: largest backing speed [m/s]")
-    orient_done_deg: ForagingGain = Field(15.0, gt=0, le=90, description="orient: bearing of the attended point at which exploring starts [deg]")
+    orient_done_deg: ForagingGain = Field(
+        15.0, gt=0, le=90, description="orient: bearing of the attended point at which exploring starts [deg]"
+    )
     explore_bearing_deg: ForagingGain = Field(
         25.0, ge=0, le=90, description="explore: the attended point is kept this far to one side of the heading [deg]"
     )
     explore_reach: ForagingGain = Field(
         0.12, ge=0, le=0.3, description="explore: ... and this far beyond the head's centre, within the whiskers' reach [m]"
     )
-    explore_bearing_gain: ForagingGain = Field(2.5, ge=0, le=20, description="explore: turn rate per radian of bearing error [1/s]")
-    explore_distance_gain: ForagingGain = Field(1.5, ge=0, le=50, description="explore: turn rate per metre of distance error [rad/(s m)]")
+    explore_bearing_gain: ForagingGain = Field(
+        2.5, ge=0, le=20, description="explore: turn rate per radian of bearing error [1/s]"
+    )
+    explore_distance_gain: ForagingGain = Field(
+        1.5, ge=0, le=50, description="explore: turn rate per metre of distance error [rad/(s m)]"
+    )
     explore_snout_gain: ForagingGain = Field(
         8.0, ge=0, le=100, description="explore: turn rate away per metre that the head is inside avoid_margin [rad/(s m)]"
     )
-    explore_speed_share: ForagingGain = Field(0.5, gt=0, le=1, description="explore: largest forward speed, as a share of speed")
-    leave_time: ForagingGain = Field(1.5, ge=0, le=30, description="leave: shortest time spent turning away and leaving [s]")
-    leave_jitter: ForagingGain = Field(
-        0.8, ge=0, le=3.1, description="leave: the leaving heading is away from the object plus a uniform angle within +-this [rad]"
+    explore_speed_share: ForagingGain = Field(
+        0.5, gt=0, le=1, description="explore: largest forward speed, as a share of speed"
     )
-    leave_turn_gain: ForagingGain = Field(3.0, gt=0, le=20, description="leave: turn rate per radian of heading error [1/s]")
-    leave_drive_deg: ForagingGain = Field(45.0, gt=0, le=180, description="leave: heading error below which it drives at speed [deg]")
-    leave_done_deg: ForagingGain = Field(20.0, gt=0, le=180, description="leave: heading error below which wandering resumes [deg]")
+    leave_time: ForagingGain = Field(
+        1.5, ge=0, le=30, description="leave: shortest time spent turning away and leaving [s]"
+    )
+    leave_jitter: ForagingGain = Field(
+        0.8, ge=0, le=3.1, description="leave: it heads away from the object plus a uniform angle within +-this [rad]"
+    )
+    leave_turn_gain: ForagingGain = Field(
+        3.0, gt=0, le=20, description="leave: turn rate per radian of heading error [1/s]"
+    )
+    leave_drive_deg: ForagingGain = Field(
+        45.0, gt=0, le=180, description="leave: heading error below which it drives at speed [deg]"
+    )
+    leave_done_deg: ForagingGain = Field(
+        20.0, gt=0, le=180, description="leave: heading error below which wandering resumes [deg]"
+    )
     attend_margin_share: ForagingGain = Field(
         0.5, gt=0, le=1, description="share of avoid_margin that triggers avoid while attending (orient, explore, leave)"
     )
@@ -273,14 +295,20 @@ class RunSpec(BaseModel):
     avoid_release_ahead: ForagingGain = Field(
         0.1, ge=0, le=1, description="avoid: ... and nothing is this close to the point 0.15 m beyond the snout [m]"
     )
-    avoid_turn_gain: ForagingGain = Field(3.0, gt=0, le=20, description="avoid: turn rate per radian of error to the escape heading [1/s]")
-    avoid_drive_deg: ForagingGain = Field(30.0, gt=0, le=180, description="avoid: heading error below which it drives off [deg]")
-    avoid_speed_share: ForagingGain = Field(0.5, gt=0, le=1, description="avoid: largest escape speed, as a share of speed")
+    avoid_turn_gain: ForagingGain = Field(
+        3.0, gt=0, le=20, description="avoid: turn rate per radian of error to the escape heading [1/s]"
+    )
+    avoid_drive_deg: ForagingGain = Field(
+        30.0, gt=0, le=180, description="avoid: heading error below which it drives off [deg]"
+    )
+    avoid_speed_share: ForagingGain = Field(
+        0.5, gt=0, le=1, description="avoid: largest escape speed, as a share of speed"
+    )
     back_off_speed: ForagingGain = Field(
         0.05, ge=0, le=0.5, description="avoid, leave, safety guard: speed of backing away from an obstacle [m/s]"
     )
     guard_margin_share: ForagingGain = Field(
-        0.25, gt=0, le=1, description="safety guard: share of avoid_margin that a command may not drive the body or head closer than"
+        0.25, gt=0, le=1, description="safety guard: no command may bring the body or head closer than this share of avoid_margin"
     )
 
     @model_serializer(mode="wrap")
@@ -770,7 +798,8 @@ class ForagingController:
         self._last_t = obs.time
         s = self.sense(obs, dt)
         margin = self.spec.avoid_margin * (self.spec.attend_margin_share if self.mode in ATTENDING else 1.0)
-        state = self._switch("too close", s) if self.mode != "avoid" and s.clearance < margin else self.states[self.mode]
+        too_close = self.mode != "avoid" and s.clearance < margin
+        state = self._switch("too close", s) if too_close else self.states[self.mode]
         command, event = state.step(s)
         while command is None:  # handed over at once: the next state acts in this tick
             state = self._switch(event, s)

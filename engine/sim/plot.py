@@ -92,7 +92,9 @@ def _save(fig: Any, path: Path, dpi: int) -> Path:
     return path
 
 
-def _trajectory_figures(out: Path, foraging_samples: int, drive_samples: int) -> tuple[list[Path], dict[str, np.ndarray]]:
+def _trajectory_figures(
+    out: Path, foraging_samples: int, drive_samples: int
+) -> tuple[list[Path], dict[str, np.ndarray]]:
     """Top views of E1-E3 with a foraging run and two teleop drives (``<env>_top.png``), and
     four camera frames along drive A of each (returned, by environment)."""
     import matplotlib.pyplot as plt
