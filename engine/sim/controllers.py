@@ -12,11 +12,16 @@ Foraging (inspired by rodent exploration; Mitchinson & Prescott's "orient" behav
 
 * ``wander``  - drive forward with a smoothly random turn rate (Ornstein-Uhlenbeck);
 * ``orient``  - on whisker contact, turn toward the contact (the attended point);
-* ``explore`` - keep the attended object 25 deg to one side, at the whiskers' reach, and move slowly along it,
+* ``explore`` - keep the attended object to one side, at the whiskers' reach, and move slowly along it,
   re-attending to the newest contacts (contour following), for a random 3-8 s;
 * ``leave``   - turn away from the explored object, ignore contacts for a refractory period;
 * ``avoid``   - whenever the chassis or the head gets close to a wall or landmark (from
   the environment's 2-D obstacle map, a stand-in for a proximity sensor), turn away.
+
+Each mode is a `ForagingState` (`Wander`, `Orient`, `Explore`, `Leave`, `Avoid`) whose step
+returns a command and an event; `TRANSITIONS` maps (state, event) to the next state. Their
+gains and thresholds are `RunSpec` fields (docs/SCENARIOS.md), defaulting to the values the
+controller always used.
 
 Teleoperation (``teleop``, `TeleopDriver`): ViTa-SLAM's keyboard teleoperation emulated -
 one key at a time from its key set, stop-and-go, along the run's own jittered copy of the
@@ -44,25 +49,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
 from vitaplace.engine.dataset import TOUCH_THRESHOLD
 from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS, HEAD_HALF, HEAD_POS
 
 __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "make_controller", "Route",
-           "footprint_clearance"]
+           "footprint_clearance", "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore",
+           "Leave", "Avoid", "TRANSITIONS"]
 
 HEAD_REACH = HEAD_POS[0] + HEAD_HALF[0]  #: distance from the base centre to the snout [m]
 HEAD_CENTRE = HEAD_POS[0]  #: the head is modelled as a disc at this distance ahead of the base centre
 HEAD_RADIUS = math.hypot(HEAD_HALF[0], HEAD_HALF[1])  #: ... with this radius (covers the head box)
-#: where an attended object is kept while exploring it: within the whiskers' reach, which
-#: begins at the head (bases 0.54-0.60 m ahead) and ends ~0.16 m beyond
-TOUCH_DISTANCE = HEAD_CENTRE + 0.12
-TOUCH_BEARING_DEG = 25.0
 
 #: ViTa-SLAM's keyboard teleoperation (whiskeye_controller/src/teleop.py): each key sets the
 #: multipliers of the forward speed, the leftward (strafe) speed and the turn rate; "k", like
@@ -77,6 +79,11 @@ TELEOP_KEYS: dict[str, tuple[int, int, int]] = {
 TELEOP_TURN_PER_SPEED = 0.25
 #: the keys' nominal speed [m/s] for the WhiskEye (see docs/SIMULATION.md)
 TELEOP_SPEED = 0.3
+
+
+#: marks the `RunSpec` fields that are gains or thresholds of the foraging states
+FORAGING_GAIN = object()
+ForagingGain = Annotated[float, FORAGING_GAIN]
 
 
 def footprint_clearance(obstacles: ObstacleMap, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
@@ -220,6 +227,102 @@ class RunSpec(BaseModel):
     refractory_time: float = Field(4.0, ge=0, description="contacts ignored after leaving an object [s]")
     avoid_margin: float = Field(0.06, ge=0, description="clearance kept between the body and obstacles [m]")
     control_hz: float = Field(10.0, gt=0, le=500, description="controller update rate (rounded to deflection samples) [Hz]")
+    # foraging states (ForagingController): gains and thresholds; left out of the run's
+    # dump while at their defaults (see _drop_default_foraging_gains)
+    wander_turn_time: ForagingGain = Field(
+        2.0, gt=0, le=60, description="wander: correlation time of the random turn rate [s]"
+    )
+    wander_steer_range: ForagingGain = Field(
+        0.05, ge=0, le=1, description="wander: steer away from an obstacle this close to the point 0.15 m beyond the snout [m]"
+    )
+    wander_steer_gain: ForagingGain = Field(
+        1.5, ge=0, le=20, description="wander: turn rate per radian of that obstacle's escape direction [1/s]"
+    )
+    contact_weight: ForagingGain = Field(
+        0.3, gt=0, le=1, description="orient, explore: weight of the newest contacts' centroid in the attended point per tick"
+    )
+    orient_turn_gain: ForagingGain = Field(
+        3.0, gt=0, le=20, description="orient: turn rate per radian of bearing to the attended point [1/s]"
+    )
+    orient_slow_share: ForagingGain = Field(
+        0.15, gt=0, le=1, description="orient: share of that turn rate left when the attended point is at the snout"
+    )
+    orient_back_gain: ForagingGain = Field(
+        1.5, ge=0, le=20, description="orient: backing speed per metre the attended point is inside the head's turning reach [1/s]"
+    )
+    orient_back_speed: ForagingGain = Field(0.08, ge=0, le=0.5, description="orient: largest backing speed [m/s]")
+    orient_done_deg: ForagingGain = Field(
+        15.0, gt=0, le=90, description="orient: bearing of the attended point at which exploring starts [deg]"
+    )
+    explore_bearing_deg: ForagingGain = Field(
+        25.0, ge=0, le=90, description="explore: the attended point is kept this far to one side of the heading [deg]"
+    )
+    explore_reach: ForagingGain = Field(
+        0.12, ge=0, le=0.3, description="explore: ... and this far beyond the head's centre, within the whiskers' reach [m]"
+    )
+    explore_bearing_gain: ForagingGain = Field(
+        2.5, ge=0, le=20, description="explore: turn rate per radian of bearing error [1/s]"
+    )
+    explore_distance_gain: ForagingGain = Field(
+        1.5, ge=0, le=50, description="explore: turn rate per metre of distance error [rad/(s m)]"
+    )
+    explore_snout_gain: ForagingGain = Field(
+        8.0, ge=0, le=100, description="explore: turn rate away per metre that the head is inside avoid_margin [rad/(s m)]"
+    )
+    explore_speed_share: ForagingGain = Field(
+        0.5, gt=0, le=1, description="explore: largest forward speed, as a share of speed"
+    )
+    leave_time: ForagingGain = Field(
+        1.5, ge=0, le=30, description="leave: shortest time spent turning away and leaving [s]"
+    )
+    leave_jitter: ForagingGain = Field(
+        0.8, ge=0, le=3.1, description="leave: it heads away from the object plus a uniform angle within +-this [rad]"
+    )
+    leave_turn_gain: ForagingGain = Field(
+        3.0, gt=0, le=20, description="leave: turn rate per radian of heading error [1/s]"
+    )
+    leave_drive_deg: ForagingGain = Field(
+        45.0, gt=0, le=180, description="leave: heading error below which it drives at speed [deg]"
+    )
+    leave_done_deg: ForagingGain = Field(
+        20.0, gt=0, le=180, description="leave: heading error below which wandering resumes [deg]"
+    )
+    attend_margin_share: ForagingGain = Field(
+        0.5, gt=0, le=1, description="share of avoid_margin that triggers avoid while attending (orient, explore, leave)"
+    )
+    avoid_release_gap: ForagingGain = Field(
+        0.04, ge=0, le=0.5, description="avoid: ends when the body and head are avoid_margin + this clear [m] ..."
+    )
+    avoid_release_ahead: ForagingGain = Field(
+        0.1, ge=0, le=1, description="avoid: ... and nothing is this close to the point 0.15 m beyond the snout [m]"
+    )
+    avoid_turn_gain: ForagingGain = Field(
+        3.0, gt=0, le=20, description="avoid: turn rate per radian of error to the escape heading [1/s]"
+    )
+    avoid_drive_deg: ForagingGain = Field(
+        30.0, gt=0, le=180, description="avoid: heading error below which it drives off [deg]"
+    )
+    avoid_speed_share: ForagingGain = Field(
+        0.5, gt=0, le=1, description="avoid: largest escape speed, as a share of speed"
+    )
+    back_off_speed: ForagingGain = Field(
+        0.05, ge=0, le=0.5, description="avoid, leave, safety guard: speed of backing away from an obstacle [m/s]"
+    )
+    guard_margin_share: ForagingGain = Field(
+        0.25, gt=0, le=1, description="safety guard: no command may bring the body or head closer than this share of avoid_margin"
+    )
+
+    @model_serializer(mode="wrap")
+    def _drop_default_foraging_gains(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """The dump leaves out foraging gains at their defaults, so that run hashes and cache
+        keys of runs recorded before the gains were settings stay valid (the defaults are the
+        constants those runs used). Changing a gain's default therefore needs a
+        SIMULATOR_VERSION bump."""
+        data = handler(self)
+        for name, field in type(self).model_fields.items():
+            if FORAGING_GAIN in field.metadata and getattr(self, name) == field.default:
+                del data[name]
+        return data
 
     @model_validator(mode="before")
     @classmethod
@@ -394,31 +497,217 @@ def route_collision(env: EnvironmentSpec) -> str | None:
     )
 
 
+Command = tuple[float, float]  #: a foraging command: forward speed [m/s], yaw rate [rad/s]
+
+
+@dataclass(frozen=True)
+class Surroundings:
+    """What the foraging states act on at one control tick: the observation and the obstacle
+    probes of the (stand-in) proximity sensor."""
+
+    time: float
+    pose: np.ndarray  #: (3,) x, y, yaw
+    contacts: np.ndarray  #: (k, 3) whisker contact points (world frame)
+    body_gap: float  #: clearance of the body from the nearest obstacle [m]
+    head_gap: float  #: clearance of the head [m]
+    ahead_distance: float  #: distance from the point `PROBE_AHEAD` beyond the snout to the nearest obstacle [m]
+    ahead_escape: np.ndarray  #: (2,) unit direction away from that obstacle, there
+    wander_turn: float  #: the wandering turn rate now [rad/s]
+
+    @property
+    def pos(self) -> np.ndarray:
+        return self.pose[:2]
+
+    @property
+    def yaw(self) -> float:
+        return float(self.pose[2])
+
+    @property
+    def clearance(self) -> float:
+        return min(self.body_gap, self.head_gap)
+
+
+#: the obstacle probe ahead of the robot lies this far beyond the snout [m]
+PROBE_AHEAD = 0.15
+
+
 @dataclass
-class ForagingController:
-    """Tactile-attention foraging (see the module docstring)."""
+class Attention:
+    """What the foraging states share: the attended point, the side it is kept on while
+    exploring, and until when contacts are ignored (after leaving an object)."""
 
-    spec: RunSpec
-    obstacles: ObstacleMap
-    rng: np.random.Generator
-    mode: str = "wander"
-    target: np.ndarray | None = None
-    until: float = 0.0
-    refractory_until: float = 0.0
-    side: float = 1.0
-    _wander: _OU | None = None
-    _limit: _Limiter | None = None
-    _guard: SafetyGuard | None = None
-    _last_t: float | None = None
+    target: np.ndarray | None = None  #: (2,) the attended point
+    side: float = 1.0  #: +1: the attended point is kept to the left, -1: to the right
+    refractory_until: float = 0.0  #: contacts before this time [s] are ignored
 
-    def __post_init__(self) -> None:
-        self._wander = _OU(self.rng, math.radians(self.spec.wander_turn_deg), 2.0, x0=0.0)
-        self._limit = _Limiter(self.spec.max_accel, 4.0)
-        self._guard = SafetyGuard(self.obstacles, 0.25 * self.spec.avoid_margin)
+    def heeds(self, s: Surroundings) -> bool:
+        """Whether this tick has contacts that are not ignored."""
+        return bool(len(s.contacts)) and s.time >= self.refractory_until
 
-    def start_pose(self, default: tuple[float, float, float]) -> tuple[float, float, float]:
-        x, y, yaw = self.spec.start if self.spec.start is not None else default
-        return (x, y, math.radians(yaw))
+    def follow(self, s: Surroundings, weight: float) -> None:
+        """Move the attended point ``weight`` of the way to the centroid of this tick's heeded
+        contacts (re-attending to the newest contacts: contour following); with no attended
+        point yet, attend to the centroid."""
+        if self.heeds(s):
+            centroid = s.contacts[:, :2].mean(axis=0)
+            self.target = centroid if self.target is None else (1.0 - weight) * self.target + weight * centroid
+
+    def bearing(self, s: Surroundings) -> float:
+        """Direction of the attended point [rad, robot frame]."""
+        return _wrap(math.atan2(*(self.target - s.pos)[::-1]) - s.yaw)
+
+    def distance(self, s: Surroundings) -> float:
+        return float(np.linalg.norm(self.target - s.pos))
+
+
+class ForagingState:
+    """One mode of the foraging controller. `step` returns the command for this tick and an
+    event ("" for none) that `TRANSITIONS` maps to the next state; a step without a command
+    hands over at once (the next state acts in the same tick)."""
+
+    name = ""
+
+    def __init__(self, spec: RunSpec, attention: Attention) -> None:
+        self.spec, self.attention = spec, attention
+        self.max_turn = math.radians(spec.max_turn_rate_deg)
+
+    def enter(self, s: Surroundings) -> None:
+        """Called when the controller switches to this state."""
+
+    def step(self, s: Surroundings) -> tuple[Command | None, str]:
+        raise NotImplementedError
+
+    def _turn(self, w: float) -> float:
+        return float(np.clip(w, -self.max_turn, self.max_turn))
+
+
+class Wander(ForagingState):
+    """Drive forward at ``speed`` with the Ornstein-Uhlenbeck turn rate; an obstacle within
+    ``wander_steer_range`` of the probe ahead (with no whisker contact: e.g. a visual-only
+    landmark) adds ``wander_steer_gain`` times the turn towards its escape direction."""
+
+    name = "wander"
+
+    def step(self, s: Surroundings) -> tuple[Command | None, str]:
+        if self.attention.heeds(s):
+            return None, "touch"
+        spec = self.spec
+        w = s.wander_turn
+        if s.ahead_distance < spec.wander_steer_range and not len(s.contacts):
+            w += spec.wander_steer_gain * _wrap(math.atan2(s.ahead_escape[1], s.ahead_escape[0]) - s.yaw)
+        return (spec.speed, self._turn(w)), ""
+
+
+class Orient(ForagingState):
+    """Turn toward the attended contact at ``orient_turn_gain`` times the bearing; when the
+    point is inside the head's turning reach (centre to snout plus ``avoid_margin``), back off
+    at ``orient_back_gain`` times the shortfall (at most ``orient_back_speed``) and turn
+    slower, down to ``orient_slow_share`` with the point at the snout. Facing it within
+    ``orient_done_deg``: explore."""
+
+    name = "orient"
+
+    def enter(self, s: Surroundings) -> None:
+        self.attention.target = None  # a new object: attend to this tick's contacts
+
+    def step(self, s: Surroundings) -> tuple[Command | None, str]:
+        spec, attention = self.spec, self.attention
+        attention.follow(s, spec.contact_weight)
+        err = attention.bearing(s)
+        reach = HEAD_CENTRE + HEAD_RADIUS + spec.avoid_margin
+        dist = attention.distance(s)
+        v = float(np.clip(spec.orient_back_gain * (dist - reach), -spec.orient_back_speed, 0.0))
+        slow = float(np.clip((dist - HEAD_REACH) / (reach - HEAD_REACH), spec.orient_slow_share, 1.0))
+        w = self._turn(spec.orient_turn_gain * err * slow)
+        return (v, w), "facing" if abs(err) < math.radians(spec.orient_done_deg) else ""
+
+
+class Explore(ForagingState):
+    """Contour following for a bout of ``explore_time`` (uniform): keep the attended point
+    ``explore_bearing_deg`` to one side (chosen at random) and ``explore_reach`` beyond the
+    head's centre, turning at ``explore_bearing_gain`` x bearing error + ``explore_distance_gain``
+    x distance error (x side), and ``explore_snout_gain`` x intrusion away from the object when
+    the head is within ``avoid_margin``; forward speed ``explore_speed_share`` x ``speed``,
+    ramped down to 0 as the head's clearance falls to a quarter of ``avoid_margin``."""
+
+    name = "explore"
+
+    def __init__(self, spec: RunSpec, attention: Attention, rng: np.random.Generator) -> None:
+        super().__init__(spec, attention)
+        self.rng = rng
+        self.until = 0.0  #: end of the bout [s]
+
+    def enter(self, s: Surroundings) -> None:
+        lo, hi = self.spec.explore_time
+        self.until = s.time + float(self.rng.uniform(lo, hi))
+        self.attention.side = float(self.rng.choice([-1.0, 1.0]))
+
+    def step(self, s: Surroundings) -> tuple[Command | None, str]:
+        spec, attention = self.spec, self.attention
+        attention.follow(s, spec.contact_weight)
+        if s.time >= self.until:
+            return None, "bout over"
+        side, margin = attention.side, spec.avoid_margin
+        err = _wrap(attention.bearing(s) - side * math.radians(spec.explore_bearing_deg))
+        reach_err = attention.distance(s) - (HEAD_CENTRE + spec.explore_reach)
+        w = spec.explore_bearing_gain * err + spec.explore_distance_gain * reach_err * side
+        if s.head_gap < margin:  # snout too close: steer away from the object's side
+            w -= side * spec.explore_snout_gain * (margin - s.head_gap)
+        v = spec.explore_speed_share * spec.speed * float(np.clip((s.head_gap - 0.25 * margin) / margin, 0.0, 1.0))
+        return (v, self._turn(w)), ""
+
+
+class Leave(ForagingState):
+    """Turn to a heading away from the attended point (plus a uniform angle within
+    ``leave_jitter``) at ``leave_turn_gain`` x error, driving at ``speed`` once within
+    ``leave_drive_deg`` of it (backing at ``back_off_speed`` while the head is within
+    ``avoid_margin``); contacts are ignored for ``refractory_time``. After ``leave_time`` and
+    within ``leave_done_deg`` of the heading: wander."""
+
+    name = "leave"
+
+    def __init__(self, spec: RunSpec, attention: Attention, rng: np.random.Generator) -> None:
+        super().__init__(spec, attention)
+        self.rng = rng
+        self.until = 0.0  #: earliest end [s]
+        self.heading = 0.0  #: the heading it leaves along [rad]
+
+    def enter(self, s: Surroundings) -> None:
+        spec = self.spec
+        self.until = s.time + spec.leave_time
+        self.attention.refractory_until = s.time + spec.refractory_time
+        away = s.pos - self.attention.target
+        self.heading = math.atan2(away[1], away[0]) + float(self.rng.uniform(-spec.leave_jitter, spec.leave_jitter))
+
+    def step(self, s: Surroundings) -> tuple[Command | None, str]:
+        spec = self.spec
+        err = _wrap(self.heading - s.yaw)
+        w = self._turn(spec.leave_turn_gain * err)
+        v = 0.0 if abs(err) > math.radians(spec.leave_drive_deg) else spec.speed
+        if s.head_gap < spec.avoid_margin:
+            v = -spec.back_off_speed
+        done = s.time >= self.until and abs(err) < math.radians(spec.leave_done_deg)
+        return (v, w), "turned away" if done else ""
+
+
+class Avoid(ForagingState):
+    """Entered from any state when the body or head comes closer than ``avoid_margin`` (while
+    attending: ``attend_margin_share`` of it). Turn to the free-most escape heading at
+    ``avoid_turn_gain`` x error; within ``avoid_drive_deg`` of it drive off at up to
+    ``avoid_speed_share`` x ``speed`` (ramped from 0 at half the margin; blocked: pick another
+    heading), otherwise back at ``back_off_speed`` when within half the margin. Clear by
+    ``avoid_release_gap`` beyond the margin with the probe ahead ``avoid_release_ahead`` free:
+    wander."""
+
+    name = "avoid"
+
+    def __init__(self, spec: RunSpec, attention: Attention, obstacles: ObstacleMap) -> None:
+        super().__init__(spec, attention)
+        self.obstacles = obstacles
+        self.heading = 0.0  #: the escape heading [rad]
+
+    def enter(self, s: Surroundings) -> None:
+        self.heading = self._escape_heading(s.pos, s.yaw)
 
     def _escape_heading(self, pos: np.ndarray, yaw: float) -> float:
         """The free-most of 12 headings (probed where the head would be), preferring small turns."""
@@ -429,116 +718,103 @@ class ForagingController:
         score = np.minimum(clear, HEAD_RADIUS + 0.25) - 1e-3 * turn  # free enough -> the smallest turn wins
         return float(cand[int(np.argmax(score))])
 
-    def _probe(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Obstacle distances and escape directions at the base, the head and 0.15 m beyond the snout."""
-        x, y, yaw = pose
+    def step(self, s: Surroundings) -> tuple[Command | None, str]:
+        spec = self.spec
+        margin = spec.avoid_margin
+        if s.clearance >= margin + spec.avoid_release_gap and s.ahead_distance > spec.avoid_release_ahead:
+            return None, "clear"
+        err = _wrap(self.heading - s.yaw)
+        if abs(err) < math.radians(spec.avoid_drive_deg):
+            v = spec.avoid_speed_share * spec.speed * float(np.clip((s.head_gap - 0.5 * margin) / margin, 0.0, 1.0))
+            if v == 0.0:  # blocked in this direction too: look for another way out
+                self.heading = self._escape_heading(s.pos, s.yaw + math.pi / 6)
+        else:
+            v = -spec.back_off_speed if s.clearance < 0.5 * margin else 0.0  # make room to turn
+        return (v, self._turn(spec.avoid_turn_gain * err)), ""
+
+
+#: (state, event) -> next state of the foraging controller
+TRANSITIONS: dict[tuple[str, str], str] = {
+    ("wander", "touch"): "orient",  # a heeded whisker contact
+    ("orient", "facing"): "explore",  # the attended point is ahead
+    ("explore", "bout over"): "leave",
+    ("leave", "turned away"): "wander",
+    ("avoid", "clear"): "wander",
+    **{(name, "too close"): "avoid" for name in ("wander", "orient", "explore", "leave")},
+}
+#: the states that attend to an object (and may come closer to it: ``attend_margin_share``)
+ATTENDING = ("orient", "explore", "leave")
+
+
+@dataclass
+class ForagingController:
+    """Tactile-attention foraging (see the module docstring): a state machine over `Wander`,
+    `Orient`, `Explore`, `Leave` and `Avoid` with the transitions `TRANSITIONS`."""
+
+    spec: RunSpec
+    obstacles: ObstacleMap
+    rng: np.random.Generator
+    mode: str = "wander"  #: the name of the current state
+
+    def __post_init__(self) -> None:
+        spec = self.spec
+        self.attention = Attention()
+        self.states: dict[str, ForagingState] = {
+            state.name: state for state in (
+                Wander(spec, self.attention), Orient(spec, self.attention), Explore(spec, self.attention, self.rng),
+                Leave(spec, self.attention, self.rng), Avoid(spec, self.attention, self.obstacles),
+            )
+        }
+        self._wander = _OU(self.rng, math.radians(spec.wander_turn_deg), spec.wander_turn_time, x0=0.0)
+        self._limit = _Limiter(spec.max_accel, 4.0)
+        self._guard = SafetyGuard(self.obstacles, spec.guard_margin_share * spec.avoid_margin)
+        self._last_t: float | None = None
+
+    def start_pose(self, default: tuple[float, float, float]) -> tuple[float, float, float]:
+        x, y, yaw = self.spec.start if self.spec.start is not None else default
+        return (x, y, math.radians(yaw))
+
+    def sense(self, obs: Observation, dt: float) -> Surroundings:
+        """The observation with the obstacle distances at the base, the head and
+        `PROBE_AHEAD` beyond the snout, and the wandering turn rate advanced by ``dt``."""
+        x, y, yaw = obs.pose
         c, s_ = math.cos(yaw), math.sin(yaw)
-        ahead = HEAD_REACH + 0.15
+        ahead = HEAD_REACH + PROBE_AHEAD
         pts = np.array([[x, y], [x + HEAD_CENTRE * c, y + HEAD_CENTRE * s_], [x + ahead * c, y + ahead * s_]])
-        return self.obstacles.query(pts)
+        dist, grad = self.obstacles.query(pts)
+        return Surroundings(
+            time=obs.time, pose=obs.pose, contacts=obs.contacts, body_gap=dist[0] - BODY_RADIUS,
+            head_gap=dist[1] - HEAD_RADIUS, ahead_distance=dist[2], ahead_escape=grad[2],
+            wander_turn=self._wander.step(dt) if dt > 0 else self._wander.x,
+        )
+
+    def _switch(self, event: str, s: Surroundings) -> ForagingState:
+        self.mode = TRANSITIONS[(self.mode, event)]
+        state = self.states[self.mode]
+        state.enter(s)
+        return state
 
     def __call__(self, obs: Observation) -> tuple[float, float]:
         dt = 0.0 if self._last_t is None else obs.time - self._last_t
         self._last_t = obs.time
-        spec = self.spec
-        wmax = math.radians(spec.max_turn_rate_deg)
-        x, y, yaw = obs.pose
-        pos = np.array([x, y])
-        wander = self._wander.step(dt) if dt > 0 else self._wander.x
-        dist, grad = self._probe(obs.pose)
-        d_base, d_head = dist[0] - BODY_RADIUS, dist[1] - HEAD_RADIUS
-        clearance = min(d_base, d_head)
-        margin = spec.avoid_margin
-
-        # ---- safety first: never drive the body into walls or landmarks (attending to an
-        # object allows getting closer: half the margin)
-        attending = self.mode in ("orient", "explore", "leave")
-        limit = 0.5 * margin if attending else margin
-        if self.mode == "avoid" and clearance >= margin + 0.04 and dist[2] > 0.1:
-            self.mode = "wander"  # free again
-        if clearance < limit or self.mode == "avoid":
-            if self.mode != "avoid":
-                self.mode = "avoid"
-                self.escape_heading = self._escape_heading(pos, yaw)
-            err = _wrap(self.escape_heading - yaw)
-            if abs(err) < math.radians(30):
-                v = 0.5 * spec.speed * float(np.clip((d_head - 0.5 * margin) / margin, 0.0, 1.0))
-                if v == 0.0:  # blocked in this direction too: look for another way out
-                    self.escape_heading = self._escape_heading(pos, yaw + math.pi / 6)
-            else:
-                v = -0.05 if min(d_head, d_base) < 0.5 * margin else 0.0  # make room to turn
-            w = float(np.clip(3.0 * err, -wmax, wmax))
-            return self._out(v, w, dt, obs.pose)
-
-        in_refractory = obs.time < self.refractory_until
-        if len(obs.contacts) and not in_refractory:
-            centroid = obs.contacts[:, :2].mean(axis=0)
-            if self.mode in ("wander",):
-                self.mode = "orient"
-                self.target = centroid
-            elif self.mode in ("orient", "explore"):
-                self.target = 0.7 * self.target + 0.3 * centroid  # follow the newest contacts
-
-        if self.mode == "orient":
-            err = _wrap(math.atan2(*(self.target - pos)[::-1]) - yaw)
-            # turn toward the attended contact; when it is too close to face it without the
-            # snout hitting it, back off first and turn slowly
-            reach = HEAD_CENTRE + HEAD_RADIUS + margin
-            dist_t = float(np.linalg.norm(self.target - pos))
-            v = float(np.clip(1.5 * (dist_t - reach), -0.08, 0.0))
-            slow = float(np.clip((dist_t - HEAD_REACH) / (reach - HEAD_REACH), 0.15, 1.0))
-            w = float(np.clip(3.0 * err * slow, -wmax, wmax))
-            if abs(err) < math.radians(15):
-                self.mode = "explore"
-                lo, hi = spec.explore_time
-                self.until = obs.time + float(self.rng.uniform(lo, hi))
-                self.side = float(self.rng.choice([-1.0, 1.0]))
-            return self._out(v, w, dt, obs.pose)
-
-        if self.mode == "explore":
-            if obs.time >= self.until:
-                self.mode = "leave"
-                self.until = obs.time + 1.5
-                self.refractory_until = obs.time + spec.refractory_time
-                away_dir = pos - self.target
-                self.leave_heading = math.atan2(away_dir[1], away_dir[0]) + float(self.rng.uniform(-0.8, 0.8))
-            else:
-                # keep the attended point a little to one side, at the whiskers' reach, while
-                # moving: contour following
-                bearing = _wrap(math.atan2(*(self.target - pos)[::-1]) - yaw)
-                err = _wrap(bearing - self.side * math.radians(TOUCH_BEARING_DEG))
-                dist = float(np.linalg.norm(self.target - pos))
-                w = 2.5 * err + 1.5 * (dist - TOUCH_DISTANCE) * self.side
-                if d_head < margin:  # snout too close: steer away from the object's side
-                    w -= self.side * 8.0 * (margin - d_head)
-                w = float(np.clip(w, -wmax, wmax))
-                v = 0.5 * spec.speed * float(np.clip((d_head - 0.25 * margin) / margin, 0.0, 1.0))
-                return self._out(v, w, dt, obs.pose)
-
-        if self.mode == "leave":
-            err = _wrap(self.leave_heading - yaw)
-            w = float(np.clip(3.0 * err, -wmax, wmax))
-            v = 0.0 if abs(err) > math.radians(45) else spec.speed
-            if d_head < margin:
-                v = -0.05
-            if obs.time >= self.until and abs(err) < math.radians(20):
-                self.mode = "wander"
-            return self._out(v, w, dt, obs.pose)
-
-        # ---- wander; steer gently away from obstacles seen ahead
-        self.mode = "wander"
-        w = wander
-        if dist[2] < 0.05 and not len(obs.contacts):  # e.g. a visual-only landmark ahead
-            g = grad[2]
-            w += 1.5 * _wrap(math.atan2(g[1], g[0]) - yaw)
-        v = spec.speed
-        return self._out(v, float(np.clip(w, -wmax, wmax)), dt, obs.pose)
+        s = self.sense(obs, dt)
+        margin = self.spec.avoid_margin * (self.spec.attend_margin_share if self.mode in ATTENDING else 1.0)
+        too_close = self.mode != "avoid" and s.clearance < margin
+        state = self._switch("too close", s) if too_close else self.states[self.mode]
+        command, event = state.step(s)
+        while command is None:  # handed over at once: the next state acts in this tick
+            state = self._switch(event, s)
+            command, event = state.step(s)
+        if event:
+            self._switch(event, s)
+        return self._out(*command, dt, obs.pose)
 
     def _out(self, v: float, w: float, dt: float, pose: np.ndarray) -> tuple[float, float]:
         """Rate-limited command; one that would swing the head or drive the body into an
         obstacle within the guard's horizon is replaced by the first safe one of: backing off
         while turning, backing off straight, not turning, standing still (always safe)."""
-        v, w, _ = self._guard.first_safe(pose, [(v, w, 0.0), (-0.05, w, 0.0), (-0.05, 0.0, 0.0), (v, 0.0, 0.0)])
+        back = -self.spec.back_off_speed
+        v, w, _ = self._guard.first_safe(pose, [(v, w, 0.0), (back, w, 0.0), (back, 0.0, 0.0), (v, 0.0, 0.0)])
         return self._limit(v, w, dt=dt)
 
 

@@ -75,16 +75,33 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, drive_samp
     import matplotlib
 
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import mujoco
-
-    from vitaplace.engine.sim.environment import load_environment
-    from vitaplace.engine.sim.model import build_model
-    from vitaplace.engine.sim.render import Camera
-    from vitaplace.engine.sim.simulate import RunSpec, Simulator, simulate_run
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    written, frames = _trajectory_figures(out, foraging_samples, drive_samples)
+    written.append(_camera_frames_figure(out, frames))
+    written.extend(_robot_figures(out))
+    written.append(_whisker_figure(out))
+    return written
+
+
+def _save(fig: Any, path: Path, dpi: int) -> Path:
+    import matplotlib.pyplot as plt
+
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
+def _trajectory_figures(
+    out: Path, foraging_samples: int, drive_samples: int
+) -> tuple[list[Path], dict[str, np.ndarray]]:
+    """Top views of E1-E3 with a foraging run and two teleop drives (``<env>_top.png``), and
+    four camera frames along drive A of each (returned, by environment)."""
+    import matplotlib.pyplot as plt
+
+    from vitaplace.engine.sim.environment import load_environment
+    from vitaplace.engine.sim.simulate import RunSpec, simulate_run
+
     written: list[Path] = []
     frames: dict[str, np.ndarray] = {}
     for name in ("e1", "e2", "e3"):
@@ -105,14 +122,16 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, drive_samp
         )
         ax.text(0.0, -0.13, env.description.split(" - ", 1)[-1], transform=ax.transAxes, fontsize=8, color="0.3")
         fig.tight_layout()
-        path = out / f"{name}_top.png"
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
-        written.append(path)
+        written.append(_save(fig, out / f"{name}_top.png", dpi=110))
         idx = np.linspace(0, drive_samples - 1, 4).astype(int)
         frames[name] = query.images[idx]
+    return written, frames
 
-    # camera frames along a drive through each environment (one row per environment)
+
+def _camera_frames_figure(out: Path, frames: Mapping[str, np.ndarray]) -> Path:
+    """Camera frames along a drive through each environment (one row per environment)."""
+    import matplotlib.pyplot as plt
+
     fig, axes = plt.subplots(3, 4, figsize=(10, 5.6))
     for row, (name, imgs) in enumerate(frames.items()):
         for col, img in enumerate(imgs):
@@ -123,12 +142,19 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, drive_samp
                 axes[row, col].set_ylabel(name.upper())
     fig.suptitle("robot camera, 120 x 160, at maximum protraction (teleop drive A)")
     fig.tight_layout()
-    path = out / "camera_frames.png"
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    written.append(path)
+    return _save(fig, out / "camera_frames.png", dpi=100)
 
-    # the robot next to a landmark, seen from outside (whiskers visible)
+
+def _robot_figures(out: Path) -> list[Path]:
+    """The robot next to a landmark, seen from outside (whiskers visible), and an overview of E2."""
+    import matplotlib.pyplot as plt
+    import mujoco
+
+    from vitaplace.engine.sim.environment import load_environment
+    from vitaplace.engine.sim.model import build_model
+    from vitaplace.engine.sim.render import Camera
+    from vitaplace.engine.sim.simulate import Simulator
+
     env = load_environment("e2")
     sim = Simulator(env, camera=False)
     sim.reset((0.0, -1.0, -math.pi / 2))  # facing the southern cylinder, its whiskers on it
@@ -149,17 +175,22 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, drive_samp
     overview = cam.render(d).copy()
     cam.close()
     sim.close()
+    written = []
     for fname, img in (("robot.png", shot), ("arena_e2.png", overview)):
         fig = plt.figure(figsize=(6.4, 4.8), dpi=100)
         fig.figimage(img)
-        path = out / fname
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        written.append(path)
+        written.append(_save(fig, out / fname, dpi=100))
+    return written
 
-    # whisker signals over one cycle, robot beside a wall (contact) vs. in the open
-    env = load_environment("e1")
-    sim = Simulator(env, camera=False)
+
+def _whisker_figure(out: Path) -> Path:
+    """Whisker signals over one cycle, robot beside a wall (contact) vs. in the open."""
+    import matplotlib.pyplot as plt
+
+    from vitaplace.engine.sim.environment import load_environment
+    from vitaplace.engine.sim.simulate import Simulator
+
+    sim = Simulator(load_environment("e1"), camera=False)
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharey=True)
     t = (sim.robot.series_steps() + 1) * sim.robot.timestep
     east_wall = (2.58, 0.0, math.radians(60))  # the east wall ahead and to the right
@@ -175,12 +206,8 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, drive_samp
     axes[0].set_ylabel("base deflection [deg]")
     axes[1].legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    path = out / "whisker_deflection.png"
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
     sim.close()
-    written.append(path)
-    return written
+    return _save(fig, out / "whisker_deflection.png", dpi=100)
 
 
 if __name__ == "__main__":

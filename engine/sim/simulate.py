@@ -22,7 +22,8 @@ import json
 import logging
 import math
 import time
-from typing import Any
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import mujoco
 import numpy as np
@@ -170,59 +171,58 @@ def check_plausible(name: str, mujoco_warnings: dict[str, int], poses: np.ndarra
             raise SimulationError(f"run {name!r}: all {len(images)} camera frames are identical")
 
 
-def simulate_run(
-    environment: EnvironmentSpec,
-    run: RunSpec,
-    seed: int,
-    robot: RobotSpec | None = None,
-    progress: bool = True,
-    name: str = "run",
-    stats: dict[str, Any] | None = None,
-) -> Run:
-    """Simulate one run and return it as an in-memory `Run`.
+class Samples(NamedTuple):
+    """The arrays a run's samples are written into: allocated by `allocate_samples`, filled
+    by `simulate_samples`, turned into a `Run` by `run_from_samples`."""
 
-    ``run.kind == "foraging"`` drives the tactile-attention foraging controller from the
-    environment's ``start`` (or ``run.start``); ``"teleop"`` drives the emulated keyboard
-    teleoperator along its own copy of the environment's route; ``"route"`` follows the
-    route with the run's noise settings. ``attrs["touch_share"]`` is the share of samples
-    with whisker contact at the sampling instant (`Run.touch_mask`). ``stats``, if given, receives timing figures
-    (``physics_s`` - stepping and sensor readout, ``control_s`` - the controller,
-    ``render_s``, ``wall_s`` - everything including model build, ``samples_per_s``) - kept
-    out of ``attrs`` so the recorded data stay reproducible.
-    """
-    robot = robot or RobotSpec()
-    wall0 = time.perf_counter()
-    sim = Simulator(environment, robot)
-    rng = np.random.default_rng(seed)
-    controller, start = make_controller(environment, run, rng, robot.whisk_period)
-    sim.reset(start)
+    images: np.ndarray  #: (N, H, W, 3) uint8
+    theta: np.ndarray  #: (N, 24) float32
+    xy: np.ndarray  #: (N, 24, 2) float32
+    deflection: np.ndarray  #: (N, S, 24, 2) float32
+    poses: np.ndarray  #: (N, 3) float64
+    times: np.ndarray  #: (N,) float64
+    points: list[np.ndarray]  #: per sample, the contact points (k, 3) of its whisk cycle
+    normals: list[np.ndarray]  #: ... and their normals (k, 3)
+    counts: np.ndarray  #: (N + 1,) int64, cumulative contact counts (the run's contact offsets)
 
-    N, S = run.n_samples, robot.deflection_samples
-    H, W = robot.camera_height, robot.camera_width
-    images = np.empty((N, H, W, 3), dtype=np.uint8)
-    theta = np.empty((N, N_WHISKERS), dtype=np.float32)
-    xy = np.empty((N, N_WHISKERS, 2), dtype=np.float32)
-    deflection = np.empty((N, S, N_WHISKERS, 2), dtype=np.float32)
-    poses = np.empty((N, 3), dtype=np.float64)
-    times = np.empty(N, dtype=np.float64)
-    all_points: list[np.ndarray] = []
-    all_normals: list[np.ndarray] = []
-    counts = np.zeros(N + 1, dtype=np.int64)
 
-    series_hz = S * robot.whisk_hz
-    every = max(1, int(round(series_hz / run.control_hz)))
-    pending: list[np.ndarray] = []
-    mode_counts: dict[str, int] = {}
-    control_time = [0.0]
+def allocate_samples(n_samples: int, robot: RobotSpec) -> Samples:
+    """Empty arrays for ``n_samples`` samples of ``robot``'s sensors."""
+    N, S = n_samples, robot.deflection_samples
+    return Samples(
+        images=np.empty((N, robot.camera_height, robot.camera_width, 3), dtype=np.uint8),
+        theta=np.empty((N, N_WHISKERS), dtype=np.float32),
+        xy=np.empty((N, N_WHISKERS, 2), dtype=np.float32),
+        deflection=np.empty((N, S, N_WHISKERS, 2), dtype=np.float32),
+        poses=np.empty((N, 3), dtype=np.float64),
+        times=np.empty(N, dtype=np.float64),
+        points=[],
+        normals=[],
+        counts=np.zeros(N + 1, dtype=np.int64),
+    )
 
-    def tick(i: int, contact_points: np.ndarray) -> None:
+
+class ControlTicks:
+    """The controller in the loop: called after each deflection-series instant of a cycle, it
+    drives the robot with the controller's command every ``every`` instants, observing the
+    whisker contacts gathered since the last tick; it counts the ticks spent in each
+    controller mode and the time the controller took."""
+
+    def __init__(self, sim: Simulator, controller: Callable[[Observation], tuple[float, ...]], kind: str,
+                 every: int) -> None:
+        self.sim, self.controller, self.kind, self.every = sim, controller, kind, every
+        self.pending: list[np.ndarray] = []  #: contact points (k, 3) since the last tick
+        self.mode_counts: dict[str, int] = {}
+        self.control_s = 0.0
+
+    def __call__(self, i: int, contact_points: np.ndarray) -> None:
         if len(contact_points):
-            pending.append(contact_points)
-        if i % every != every - 1:
+            self.pending.append(contact_points)
+        if i % self.every != self.every - 1:
             return
-        d = sim.data
-        contacts = np.concatenate(pending) if pending else np.zeros((0, 3))
-        pending.clear()
+        sim, d = self.sim, self.sim.data
+        contacts = np.concatenate(self.pending) if self.pending else np.zeros((0, 3))
+        self.pending.clear()
         obs = Observation(
             time=float(d.time),
             pose=sim.sim.pose(d),
@@ -230,16 +230,22 @@ def simulate_run(
             deflection=np.linalg.norm(sim.sim.xy(d), axis=1),
         )
         t0 = time.perf_counter()
-        sim.drive(*controller(obs))
-        control_time[0] += time.perf_counter() - t0
-        mode = getattr(controller, "mode", run.kind)
-        mode_counts[mode] = mode_counts.get(mode, 0) + 1
+        sim.drive(*self.controller(obs))
+        self.control_s += time.perf_counter() - t0
+        mode = getattr(self.controller, "mode", self.kind)
+        self.mode_counts[mode] = self.mode_counts.get(mode, 0) + 1
 
-    for _ in range(run.warmup_cycles):
+
+def simulate_samples(sim: Simulator, samples: Samples, tick: ControlTicks, warmup_cycles: int, name: str,
+                   progress: bool) -> None:
+    """The simulation loop: ``warmup_cycles`` whisk cycles, then one cycle per sample, each
+    sample read at the cycle's end (maximum protraction); closes ``sim``."""
+    images, theta, xy, deflection, poses, times, all_points, all_normals, counts = samples
+    for _ in range(warmup_cycles):
         sim.cycle()
-    bar = tqdm(total=N, unit="sample", desc=name, disable=not progress, smoothing=0.1, leave=False)
+    bar = tqdm(total=len(poses), unit="sample", desc=name, disable=not progress, smoothing=0.1, leave=False)
     try:
-        for k in range(N):
+        for k in range(len(poses)):
             series, points, normals = sim.cycle(tick)
             d = sim.data
             deflection[k] = series
@@ -257,8 +263,13 @@ def simulate_run(
         bar.close()
         sim.close()
 
+
+def run_from_samples(sim: Simulator, samples: Samples, environment: EnvironmentSpec, run: RunSpec, robot: RobotSpec,
+               seed: int, name: str, mode_counts: dict[str, int]) -> Run:
+    """The simulated samples as a `Run` with everything that made them in its ``attrs``;
+    raises SimulationError when the recording is implausible (`check_plausible`)."""
     warn = sim.sim.warnings(sim.data)
-    check_plausible(name, warn, poses, images, environment)
+    check_plausible(name, warn, samples.poses, samples.images, environment)
     layout = sim.sim.layout
     attrs: dict[str, Any] = {
         "seed": int(seed),
@@ -292,28 +303,62 @@ def simulate_run(
         "gl_backend": GL_STATE.get("chosen"),
     }
     run_out = Run.from_arrays(
-        images=images,
-        theta=theta,
-        xy=xy,
-        poses=poses,
-        times=times,
-        deflection=deflection,
-        contact_points=np.concatenate(all_points).astype(np.float32) if all_points else np.zeros((0, 3)),
-        contact_normals=np.concatenate(all_normals).astype(np.float32) if all_normals else np.zeros((0, 3)),
-        contact_offsets=counts,
+        images=samples.images,
+        theta=samples.theta,
+        xy=samples.xy,
+        poses=samples.poses,
+        times=samples.times,
+        deflection=samples.deflection,
+        contact_points=np.concatenate(samples.points).astype(np.float32) if samples.points else np.zeros((0, 3)),
+        contact_normals=np.concatenate(samples.normals).astype(np.float32) if samples.normals else np.zeros((0, 3)),
+        contact_offsets=samples.counts,
         name=name,
         attrs=attrs,
     )
     #: share of samples with whisker contact at the sampling instant
     run_out.attrs["touch_share"] = float(run_out.touch_mask().mean())
+    return run_out
+
+
+def simulate_run(
+    environment: EnvironmentSpec,
+    run: RunSpec,
+    seed: int,
+    robot: RobotSpec | None = None,
+    progress: bool = True,
+    name: str = "run",
+    stats: dict[str, Any] | None = None,
+) -> Run:
+    """Simulate one run and return it as an in-memory `Run`.
+
+    ``run.kind == "foraging"`` drives the tactile-attention foraging controller from the
+    environment's ``start`` (or ``run.start``); ``"teleop"`` drives the emulated keyboard
+    teleoperator along its own copy of the environment's route; ``"route"`` follows the
+    route with the run's noise settings. ``attrs["touch_share"]`` is the share of samples
+    with whisker contact at the sampling instant (`Run.touch_mask`). ``stats``, if given, receives timing figures
+    (``physics_s`` - stepping and sensor readout, ``control_s`` - the controller,
+    ``render_s``, ``wall_s`` - everything including model build, ``samples_per_s``) - kept
+    out of ``attrs`` so the recorded data stay reproducible.
+    """
+    robot = robot or RobotSpec()
+    wall0 = time.perf_counter()
+    sim = Simulator(environment, robot)
+    rng = np.random.default_rng(seed)
+    controller, start = make_controller(environment, run, rng, robot.whisk_period)
+    sim.reset(start)
+    samples = allocate_samples(run.n_samples, robot)
+    series_hz = robot.deflection_samples * robot.whisk_hz
+    tick = ControlTicks(sim, controller, run.kind, every=max(1, int(round(series_hz / run.control_hz))))
+    simulate_samples(sim, samples, tick, run.warmup_cycles, name, progress)
+    run_out = run_from_samples(sim, samples, environment, run, robot, seed, name, tick.mode_counts)
     if stats is not None:
         wall = time.perf_counter() - wall0
         stats.update(
-            physics_s=sim.physics_time - control_time[0],
-            control_s=control_time[0],
+            physics_s=sim.physics_time - tick.control_s,
+            control_s=tick.control_s,
             render_s=sim.camera.render_time if sim.camera else 0.0,
             wall_s=wall,
-            samples=N,
-            samples_per_s=N / wall if wall > 0 else float("inf"),
+            samples=run.n_samples,
+            samples_per_s=run.n_samples / wall if wall > 0 else float("inf"),
         )
     return run_out
