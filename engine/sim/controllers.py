@@ -764,14 +764,16 @@ class TeleopDriver:
         """The base's commanded forward and leftward speed now (after the rate limit)."""
         return (float(self._limit.state[0]), float(self._limit.state[2]))
 
+    def _standing(self) -> bool:
+        return max(abs(v) for v in self._current()) < _STANDING
+
     def _pick(self, pose: np.ndarray, ranked: list[str], hold: bool = True) -> tuple[str, float]:
         """The first of ``ranked`` that is safe to hold (with ``hold``), else the first safe to
         tap, else stop (a key the guard has just released is not pressed again at once). A tap
         from standstill is checked as pressed `_TAP` (the robot stands through the reaction
         delay); otherwise as held from now to its release."""
         delay = self.spec.reaction_delay
-        standing = max(abs(v) for v in self._current()) < _STANDING
-        tap = (_TAP if standing else delay + _TAP, _TAP)
+        tap = (_TAP if self._standing() else delay + _TAP, _TAP)
         for horizon, duration in ((delay + SafetyGuard.HORIZON, math.inf), tap) if hold else (tap,):
             for key in (k for k in ranked if k != self.released):
                 if self.guard.safe(pose, *self._command(key), horizon=horizon, current=self._current()):
@@ -844,6 +846,8 @@ class TeleopDriver:
                 key, duration = self._pick(pose, self._translation_keys(bearing)[:3])
                 if key != "k":
                     return key, duration
+                if not self._standing():  # stop first: from standstill, taps may still be safe
+                    return "k", math.inf
                 if not self.touched:  # no closer, and the whiskers do not reach it: go on
                     self.mode, self.until = "leave", t + 6.0
                     return "k", math.inf
