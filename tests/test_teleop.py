@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
 from vitaplace.engine.sim.controllers import (  # noqa: E402
     ROUTE_MIN_CLEARANCE,
-    TELEOP_TURN_PER_SPEED,
+    TELEOP_TURN,
     Route,
     SafetyGuard,
     loop_clearance,
@@ -100,7 +100,7 @@ def test_each_seed_draws_its_own_start_speed_loop_and_bias():
         driver, start = make_controller(e1, spec, np.random.default_rng(seed))
         starts.append(base.project(np.array(start[:2]))[0])
         speeds.add(round(driver.speed, 9))
-        assert driver.turn == pytest.approx(TELEOP_TURN_PER_SPEED * driver.speed)
+        assert driver.turn == pytest.approx(0.25 * driver.speed / 0.3)  # q/z steps scale 0.3 m/s and 0.25 rad/s alike
         moved = np.linalg.norm(driver.loop.points - base.points, axis=1)
         assert 0.02 < moved.max() < 0.4
         _, clearance = loop_clearance(e1.obstacles, driver.loop, np.mean(e1.route, axis=0))
@@ -142,6 +142,25 @@ def test_touch_share_follows_the_paper_e3_above_e2_above_e1(drives):
     assert share["e1"] >= 0.05 and share["e2"] >= 0.15 and share["e3"] >= 0.20, share
     for name in ("e1", "e2", "e3"):
         assert drives[name].attrs["controller_modes"].get("hold", 0) > 0  # it stopped to whisk
+
+
+def test_a_hold_lasts_until_its_contacts_are_recorded_and_nudges_back_onto_the_landmark():
+    """Holding at E1's east box (face at x = 1.638) with the head 0.05 m from it: a sample with
+    contact counts and the driver stands ("k"); a sample without is not counted and the driver
+    taps the key towards the box ("i", facing it); once the hold's contacts are in, it leaves."""
+    e1 = load_environment("e1")
+    driver, _ = make_controller(e1, RunSpec(kind="teleop", n_samples=N), np.random.default_rng(0), 0.5)
+    east = [lm.name for lm in e1.landmarks].index("box_east")
+    pose = np.array([1.638 - 0.05 - math.hypot(0.08, 0.08) - 0.5, 0.0, 0.0])  # head disc 0.05 m from the face
+    driver.mode, driver.target_landmark, driver.until, driver.contacts_left = "hold", east, 100.0, 2
+    driver.touched = True
+    assert driver._decide(1.0, pose) == ("k", math.inf) and driver.contacts_left == 1
+    driver.touched = False
+    key, duration = driver._decide(1.5, pose)
+    assert (key, duration) == ("i", 0.2) and driver.contacts_left == 1
+    driver.touched = True
+    driver._decide(2.0, pose)
+    assert driver.mode == "leave" and driver.contacts_left == 0
 
 
 # ---------------------------------------------------------------------- detours
@@ -220,4 +239,4 @@ def test_first_key_waits_for_the_reaction_delay_and_is_one_of_the_keys():
     v, w, lateral = seen[4]
     assert driver.key != "k" and (v, w, lateral) != (0.0, 0.0, 0.0)
     assert {round(abs(v), 9), round(abs(lateral), 9)} <= {0.0, round(driver.speed, 9)}
-    assert abs(w) == pytest.approx(0.0) or abs(w) == pytest.approx(TELEOP_TURN_PER_SPEED * driver.speed)
+    assert abs(w) == pytest.approx(0.0) or abs(w) == pytest.approx(TELEOP_TURN * driver.speed / 0.3)

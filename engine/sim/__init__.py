@@ -22,7 +22,8 @@ select_gl_backend()
 #: simulate stage's cache key, so raise it whenever the same specs would record other data.
 #: 2: WhiskEye geometry, routes for its footprint, detours that follow the offset path.
 #: 3: the teleop run kind, the touch_share run attribute, the shared look-ahead guard.
-SIMULATOR_VERSION = 3
+#: 4: teleop turns at teleop.launch's 0.25 rad/s; holds at a landmark count samples with contact.
+SIMULATOR_VERSION = 4
 
 _EXPORTS = {
     "EnvironmentSpecError": "environment",

@@ -75,8 +75,9 @@ TELEOP_KEYS: dict[str, tuple[int, int, int]] = {
     "O": (1, -1, 0), "J": (0, 1, 0), "L": (0, -1, 0), "U": (1, 1, 0), ">": (-1, -1, 0), "M": (-1, 1, 0),
     "k": (0, 0, 0),
 }  # (I and < repeat i and ,)
-#: teleop.launch: speed 1 m/s, turn 0.25 rad/s - the turn rate per unit of speed [rad/m]
-TELEOP_TURN_PER_SPEED = 0.25
+#: teleop.launch's ``turn``: the turn keys' rate [rad/s] (kept when the operator lowers only the
+#: linear speed with teleop.py's x key to `TELEOP_SPEED`)
+TELEOP_TURN = 0.25
 #: the keys' nominal speed [m/s] for the WhiskEye (see docs/SIMULATION.md)
 TELEOP_SPEED = 0.3
 
@@ -906,8 +907,10 @@ class RouteFollower:
 #: directions [deg] of the translation keys in the robot frame (0: forward, 90: left)
 _TRANSLATION_KEYS = {"i": 0.0, "U": 45.0, "J": 90.0, "M": 135.0, ",": 180.0, ">": -135.0, "L": -90.0, "O": -45.0}
 _TAP = 0.2  #: a key tapped where holding it would be unsafe: pressed this long [s]
+_STANDING = 0.02  #: the base counts as standing below this speed [m/s]
+_HOLD_PATIENCE = 3  #: a hold waiting for its contacts ends after this many whisk cycles per contact
 _LEAVE_GAP = 0.15  #: after a hold, back off until the head is this far from the landmark [m]
-_APPROACH_TIMEOUT = 30.0  #: an exploration that has not reached its landmark by then is given up [s]
+_APPROACH_TIMEOUT = 12.0  #: an exploration that has not reached its landmark by then is given up [s]
 _TURN_CLEARANCE = 0.02  #: the driver turns towards a landmark only as far as the head stays this clear [m]
 _MAKE_ROOM = 0.3  #: where the head cannot swing round to face a landmark, back away up to this far first [m]
 
@@ -917,7 +920,7 @@ class TeleopDriver:
 
     Every ``decision_interval`` it looks at the robot and picks one key of `TELEOP_KEYS`:
     the key's speeds are the run's speed (the nominal speed after a few q/z presses) and
-    `TELEOP_TURN_PER_SPEED` times that as the turn rate. A new key is pressed
+    `TELEOP_TURN` times the same speed steps as the turn rate. A new key is pressed
     ``reaction_delay`` after the decision; the old one is released at once, so the robot
     stops in between (the Gazebo plugin zeroes every command after one update: no key, no
     motion). The driver follows its own copy of the environment's loop (waypoints moved
@@ -940,8 +943,8 @@ class TeleopDriver:
         self.centre = np.mean(env.route, axis=0)
         self.outward = self.centre if env.route_facing == "outward" else None
         k = int(rng.integers(-spec.speed_steps, spec.speed_steps + 1))
-        self.speed = spec.speed * (1.1**k if k >= 0 else 0.9**-k)  # q/z scale speed and turn alike
-        self.turn = TELEOP_TURN_PER_SPEED * self.speed
+        steps = 1.1**k if k >= 0 else 0.9**-k  # q/z scale speed and turn alike
+        self.speed, self.turn = spec.speed * steps, TELEOP_TURN * steps
         self.bias = math.radians(spec.heading_bias_deg) * float(np.clip(rng.normal(), -2.0, 2.0))
         self.tolerance = math.radians(spec.heading_tolerance_deg)
         base = Route(env.route)
@@ -955,6 +958,7 @@ class TeleopDriver:
         self.visited: dict[int, float] = {}  #: landmark -> lap count when it was explored
         self.mode, self.turning = "drive", False
         self.target_landmark, self.until, self.approach_from = -1, 0.0, np.zeros(2)
+        self.contacts_left = 0  #: samples with contact still to record in the current hold
         self.touched = False  #: whisker deflection at full protraction seen since the last decision
         self.released = ""  #: the key the guard released since the last decision
         self.sample_period = sample_period
@@ -1037,11 +1041,17 @@ class TeleopDriver:
         """The base's commanded forward and leftward speed now (after the rate limit)."""
         return (float(self._limit.state[0]), float(self._limit.state[2]))
 
-    def _pick(self, pose: np.ndarray, ranked: list[str]) -> tuple[str, float]:
-        """The first of ``ranked`` that is safe to hold, else the first safe to tap, else stop
-        (a key the guard has just released is not pressed again at once)."""
+    def _standing(self) -> bool:
+        return max(abs(v) for v in self._current()) < _STANDING
+
+    def _pick(self, pose: np.ndarray, ranked: list[str], hold: bool = True) -> tuple[str, float]:
+        """The first of ``ranked`` that is safe to hold (with ``hold``), else the first safe to
+        tap, else stop (a key the guard has just released is not pressed again at once). A tap
+        from standstill is checked as pressed `_TAP` (the robot stands through the reaction
+        delay); otherwise as held from now to its release."""
         delay = self.spec.reaction_delay
-        for horizon, duration in ((delay + SafetyGuard.HORIZON, math.inf), (delay + _TAP, _TAP)):
+        tap = (_TAP if self._standing() else delay + _TAP, _TAP)
+        for horizon, duration in ((delay + SafetyGuard.HORIZON, math.inf), tap) if hold else (tap,):
             for key in (k for k in ranked if k != self.released):
                 if self.guard.safe(pose, *self._command(key), horizon=horizon, current=self._current()):
                     return key, duration
@@ -1077,8 +1087,12 @@ class TeleopDriver:
         """The key to press next and how long (inf: until the next decision)."""
         pos, yaw = pose[:2], float(pose[2])
         if self.mode == "hold":
-            if t < self.until:
-                return "k", math.inf
+            self.contacts_left -= int(self.touched)
+            if self.contacts_left > 0 and t < self.until:
+                if self.touched:
+                    return "k", math.inf
+                bearing = self._bearing(pose, self.target_landmark)
+                return self._pick(pose, self._translation_keys(bearing)[:3], hold=False)  # tap back onto it
             self.mode, self.until = "leave", t + 6.0
         if self.mode == "leave":
             if self._landmark_gaps(pose)[self.target_landmark] < _LEAVE_GAP and t < self.until:
@@ -1109,11 +1123,14 @@ class TeleopDriver:
                 key, duration = self._pick(pose, self._translation_keys(bearing)[:3])
                 if key != "k":
                     return key, duration
+                if not self._standing():  # stop first: from standstill, taps may still be safe
+                    return "k", math.inf
                 if not self.touched:  # no closer, and the whiskers do not reach it: go on
                     self.mode, self.until = "leave", t + 6.0
                     return "k", math.inf
             lo, hi = self.spec.hold_cycles
-            self.mode, self.until = "hold", t + int(self.rng.integers(lo, hi + 1)) * self.sample_period
+            self.contacts_left = int(self.rng.integers(lo, hi + 1)) - int(self.touched)
+            self.mode, self.until = "hold", t + _HOLD_PATIENCE * self.contacts_left * self.sample_period
             return "k", math.inf
         # ---- drive along the path (the loop or, in a detour window, the offset loop)
         path = self.detour if self.detour is not None and self.in_detour(t) else self.loop
