@@ -841,6 +841,23 @@ def test_report_of_a_damaged_output_folder_is_one_line_naming_the_file(quiet_jso
     assert not (copy / "report.md").exists()
 
 
+def test_the_report_key_follows_what_the_report_reads_and_nothing_else(quiet_json_run, tmp_path):
+    """The report stage's key (a hash of `report_key_inputs`) changes with a manifest entry the
+    report prints or a file it draws, not with the manifest's timings and stage records."""
+    from vitaplace.engine.report import report_key_inputs
+
+    copy = _copy_without_cache(quiet_json_run[0], tmp_path / "copy")
+    before = report_key_inputs(copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    (copy / "manifest.json").write_text(json.dumps({**manifest, "seconds": manifest["seconds"] + 1, "stages": []}))
+    assert report_key_inputs(copy) == before
+    (copy / "manifest.json").write_text(json.dumps({**manifest, "git_commit": "another"}))
+    assert report_key_inputs(copy) != before
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    np.savez(copy / "poses" / "E1.npz", query=np.zeros((10, 3)), reference=np.zeros((10, 3)))
+    assert report_key_inputs(copy) != before
+
+
 def test_report_of_a_folder_takes_no_scenario_options(quiet_json_run, tmp_path, capsys):
     copy = _copy_without_cache(quiet_json_run[0], tmp_path / "copy")
     assert main(["report", str(copy), "--set", "seed=1"]) == 2
