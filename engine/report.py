@@ -359,8 +359,8 @@ def read_inputs(out: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     out = Path(out)
     manifest = _read_json(out / MANIFEST, "the manifest a `vitaplace run` writes")
     rows = _read_json(out / RESULTS, "the result rows a `vitaplace run` writes")
-    if not isinstance(manifest, dict) or any(k not in manifest for k in MANIFEST_KEYS):
-        missing = [k for k in MANIFEST_KEYS if not isinstance(manifest, dict) or k not in manifest]
+    missing = [k for k in MANIFEST_KEYS if not isinstance(manifest, dict) or k not in manifest]
+    if missing:
         raise ReportError(f"{out / MANIFEST}: no {', '.join(missing)}; expected the manifest of a `vitaplace run` "
                           "(those of older versions lack these entries)")
     if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) for r in rows):
@@ -405,7 +405,8 @@ def rebuild_report(out: Path) -> Path:
     missing = next((p for p in files if not p.is_file()), None)
     if missing is not None:
         raise ReportError(f"{missing}: missing; expected it in the folder of a finished `vitaplace run`")
-    wrong = completion.problem(out, [MANIFEST] + [str(p.relative_to(out)) for p in files if p.name != completion.SCENARIO])
+    recorded = [str(p.relative_to(out)) for p in files if p.name != completion.SCENARIO]  # the record has its own
+    wrong = completion.problem(out, [MANIFEST, *recorded])
     if wrong:
         raise ReportError(f"{out}: not a finished run: {wrong}")
     write_report(out)
