@@ -302,10 +302,13 @@ class Pipeline:
             status = "cached"
             log.info("%-9s %-28s cached (%s)", stage, item, key)
             result = None
+            self._restore_warnings(output)
         else:
             status = "ran"
             log.info("%-9s %-28s running (%s)", stage, item, key)
+            before = {label: set(run.warnings) for label, run in self.opened.items()}
             result = work()
+            self._keep_warnings(output, before)
             checksum.seal(output, key)
         self.state.digests[str(output)] = checksum.sealed_digest(output)
         seconds = time.perf_counter() - start
@@ -313,6 +316,30 @@ class Pipeline:
         log.debug("%-9s %-28s %s in %.2f s: %s", stage, item, status, seconds, where)
         self.state.records.append(StageRecord(stage, item, key, status, round(seconds, 3), list(inputs), str(where)))
         return result
+
+    @staticmethod
+    def _warnings_path(output: Path) -> Path:
+        return output.with_name(output.name + ".warnings.json")
+
+    def _keep_warnings(self, output: Path, before: dict[str, set[str]]) -> None:
+        """Beside a stage's output, the run warnings its work raised (label -> feature ->
+        message), so that a later run that finds the stage cached reports them too."""
+        raised = {label: {k: v for k, v in run.warnings.items() if k not in before.get(label, set())}
+                  for label, run in self.opened.items()}
+        raised = {label: warnings for label, warnings in raised.items() if warnings}
+        path = self._warnings_path(output)
+        if raised:
+            write_text_atomic(path, json.dumps(raised))
+        else:
+            path.unlink(missing_ok=True)
+
+    def _restore_warnings(self, output: Path) -> None:
+        """The run warnings the work of a now cached stage raised (`_keep_warnings`)."""
+        path = self._warnings_path(output)
+        if path.is_file():
+            for label, warnings in json.loads(path.read_text()).items():
+                for feature, message in warnings.items():
+                    self.open(label).warnings.setdefault(feature, message)
 
     # ------------------------------------------------------------------ simulate
     def runs(self) -> dict[str, tuple[TrainingRun | EvaluationRuns, int]]:
