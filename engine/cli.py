@@ -72,7 +72,7 @@ def build_parser() -> argparse.ArgumentParser:
         "simulate": "record the scenario's datasets (HDF5), or one foraging run of an environment file",
         "train": "simulate, then fit every method on the training run",
         "evaluate": "everything up to the evaluation: results.json and results.csv",
-        "report": "everything, then (re)write the report (cached stages are reused)",
+        "report": "everything, then (re)write the report (cached stages reused); `report OUT`: rebuild it from OUT",
     }
     for name, help_text in stages.items():
         p = sub.add_parser(name, help=help_text, description=help_text, parents=[common])
@@ -249,6 +249,22 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
         log.info("results in %s", out / ("report.md" if until == "report" else "results.csv"))
     if getattr(args, "json", False):
         print(json.dumps(rows, indent=2))
+    return 0
+
+
+def _report_folder(args: argparse.Namespace) -> int:
+    """`vitaplace report OUT`: report.md and the figures rebuilt from a run's output folder alone."""
+    from vitaplace.engine.report import rebuild_report
+
+    given = [flag for flag, value in (("--set", args.overrides), ("--force", args.force), ("--out", args.out),
+                                      ("--json", args.json)) if value]
+    if given:
+        raise UserError(f"{' '.join(given)}: apply to a scenario; `vitaplace report {args.scenario}` rebuilds the report "
+                        "of that output folder from its files as they are")
+    out = writable_dir(Path(args.scenario))
+    with OutputLock(out):
+        path = rebuild_report(out)
+    print(f"wrote {path} and its figures")
     return 0
 
 
@@ -433,6 +449,8 @@ def _main(argv: list[str] | None) -> int:
             return _import(args)
         if args.command in ("view", "video"):
             return _view(args) if args.command == "view" else _video(args)
+        if args.command == "report" and Path(args.scenario).is_dir():
+            return _report_folder(args)
         if args.command == "simulate" and _is_environment_file(args.scenario):
             return _simulate_environment(args)
         until = {"simulate": "simulate", "train": "fit", "evaluate": "evaluate"}.get(args.command, "report")

@@ -1,5 +1,12 @@
-"""The output directory a run writes to: checked writable up front, locked against a second
-run, and cleared of temporaries an interrupted run left behind.
+"""The output directory a run writes to: its layout, checked writable up front, locked
+against a second run, and cleared of temporaries an interrupted run left behind.
+
+Layout (every path relative to OUT): ``results.json``/``results.csv``, ``manifest.json``,
+``report.md`` with ``figures/``, per evaluation x method x direction
+``evaluations/ENV/METHOD/DIRECTION/`` (`evaluation_dir`), and what the report reads besides:
+``poses/ENV.npz`` (the evaluation's query and reference poses), ``arenas/ENV.json`` (its
+environment's top view, for simulated evaluations) and ``training/METHOD.json`` (the
+method's per-epoch training curves, for methods that record them).
 
 The lock is an advisory ``flock`` on ``OUT/.vitaplace.lock`` holding the owner's pid: the
 operating system releases it when the owner exits, even by ``kill -9``, so a stale lock
@@ -22,6 +29,31 @@ except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
 LOCK_NAME = ".vitaplace.lock"
+MANIFEST = "manifest.json"
+RESULTS = "results.json"
+RESULTS_CSV = "results.csv"
+REPORT = "report.md"
+FIGURES = "figures"
+
+
+def evaluation_dir(out: Path, environment: str, method: str, direction: str) -> Path:
+    """Where one evaluation of one method in one direction keeps its matrices, curve and decisions."""
+    return Path(out) / "evaluations" / environment / method / direction
+
+
+def poses_path(out: Path, environment: str) -> Path:
+    """The ``query`` and ``reference`` poses of evaluation ``environment`` (an ``.npz``)."""
+    return Path(out) / "poses" / f"{environment}.npz"
+
+
+def arena_path(out: Path, environment: str) -> Path:
+    """The top view (JSON) of the environment of evaluation ``environment``."""
+    return Path(out) / "arenas" / f"{environment}.json"
+
+
+def training_path(out: Path, method: str) -> Path:
+    """The per-epoch training curves (JSON) of ``method``."""
+    return Path(out) / "training" / f"{method}.json"
 
 
 class OutputDirError(UserError):

@@ -1,23 +1,43 @@
 """The Markdown report of a scenario run, with the paper's figures (paper Fig. 4-5): results,
-sample counts, every method's parameters, figures per evaluation, training, provenance."""
+sample counts, every method's parameters, figures per evaluation, training, provenance.
+
+The report is a function of the output folder alone (`write_report`): it reads
+``results.json``, ``manifest.json``, ``scenario.resolved.yaml`` and the files `outdir`
+places for it (each evaluation's matrices, curve and decisions, its poses and arena, the
+training curves), never the cache, the plugins or a live pipeline. The run's report stage
+and ``vitaplace report OUT`` (`rebuild_report`) call the same function.
+"""
 
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any
 
 import numpy as np
+import yaml
 
+from vitaplace.engine import completion
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine import figures
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.plugins import plugin_distributions
-from vitaplace.engine.provenance import provenance
-from vitaplace.engine.scenario import training_world_evaluation
-from vitaplace.engine.sim.environment import load_environment
+from vitaplace.engine.checksum import digest
+from vitaplace.engine.dataset import Run
+from vitaplace.engine.errors import UserError
+from vitaplace.engine.features import Features
+from vitaplace.engine.outdir import (
+    FIGURES, MANIFEST, REPORT, RESULTS, arena_path, evaluation_dir, poses_path, training_path,
+)
 
-if TYPE_CHECKING:
-    from vitaplace.engine.runner import Pipeline
+#: the manifest entries the report reads (a change to one of them changes the report's key)
+MANIFEST_KEYS = ("scenario", "seed", "vitaplace_version", "git_commit", "git_dirty", "packages", "plugins", "recorded",
+                 "warnings", "training_world", "methods", "runs", "features")
+#: the files of each evaluation folder the report reads
+EVALUATION_FILES = ("matrices.npz", "pr_curve.npz", "decisions.npz")
+
+
+class ReportError(UserError):
+    """An output folder the report cannot be built from; the message names the file."""
 
 
 def _pct(value: Any) -> str:
@@ -85,144 +105,143 @@ def difficulty_table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def method_parameters(pipeline: Pipeline) -> dict[str, tuple[str, dict[str, Any], dict[str, Any]]]:
-    """Per method: its plugin, the parameters the scenario sets (with the derived seed) and
-    the plugin's defaults for the others."""
-    out = {}
-    for method in pipeline.scenario.methods:
-        given = pipeline.method_params(method)
-        full = pipeline.registry.get(method.plugin).validate_params(given).model_dump(mode="json")
-        out[method.name] = (method.plugin, {k: full[k] for k in full if k in given},
-                            {k: v for k, v in full.items() if k not in given})
-    return out
-
-
 def _params_text(params: dict[str, Any]) -> str:
     return ", ".join(f"{k}={json.dumps(v)}" for k, v in params.items()) or "none"
 
 
-def _methods_section(pipeline: Pipeline) -> list[str]:
+def _methods_section(methods: dict[str, dict[str, Any]]) -> list[str]:
+    """One line per method (manifest ``methods``): its plugin, the parameters the scenario
+    sets (with the derived seed) and the plugin's defaults for the others."""
     lines = ["## Methods", ""]
-    for name, (plugin, given, defaults) in method_parameters(pipeline).items():
-        lines += [f"- **{name}** (`{plugin}`): {_params_text(given)}; defaults: {_params_text(defaults)}"]
+    for name, method in methods.items():
+        lines += [f"- **{name}** (`{method['plugin']}`): {_params_text(method['params'])}; "
+                  f"defaults: {_params_text(method['defaults'])}"]
     return lines + [""]
 
 
-def inference_table(pipeline: Pipeline) -> str:
-    """Markdown table of the test-time inference steps per method and evaluation run, for
-    methods whose features record them (``inference_steps``, ``inference_stopped``): median,
-    90th percentile and largest step count, and the share of samples that hit the step cap."""
-    from vitaplace.engine.features import load_features
+def run_facts(run: Run) -> dict[str, int]:
+    """What the report says about a run (manifest ``runs``): samples, whisker contacts and
+    deflection samples per whisk cycle."""
+    return {"samples": len(run), "whisker_contacts": int(run.contact_offsets[-1]),
+            "deflection_samples": int(run.deflection.shape[1])}
 
-    lines = []
-    for method in pipeline.scenario.methods:
-        for label in pipeline.runs():
-            if label == "train":
-                continue
-            features = load_features(pipeline.features_path(method, label))
-            if "inference_steps" not in features:
-                break
-            steps, stopped = features["inference_steps"], features["inference_stopped"].astype(bool)
-            lines.append(
-                f"| {method.name} | {label} | {np.median(steps):.0f} | {np.percentile(steps, 90):.0f} | "
-                f"{steps.max()} | {100 * (~stopped).mean():.1f} |"
-            )
+
+def feature_facts(features: Features) -> dict[str, Any]:
+    """What the report says about one method's features of one run (manifest ``features``):
+    its feature arrays (float, one row of at least one column per sample), those that are
+    all zero, and, for features that record test-time inference (``inference_steps``,
+    ``inference_stopped``), the step counts' median, 90th percentile and largest value, the
+    samples that hit the step cap and the number of samples."""
+    arrays = sorted(k for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2)
+    facts: dict[str, Any] = {"arrays": arrays, "zero": [k for k in arrays if not features[k].any()]}
+    if "inference_steps" in features and "inference_stopped" in features:
+        steps, stopped = features["inference_steps"], features["inference_stopped"].astype(bool)
+        facts["inference"] = {"median": float(np.median(steps)), "p90": float(np.percentile(steps, 90)),
+                              "max": steps.max().item(), "capped": int((~stopped).sum()), "samples": int(stopped.size)}
+    return facts
+
+
+def inference_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
+    """Markdown table of the test-time inference steps per method and evaluation run, for
+    methods whose features record them (`feature_facts`): median, 90th percentile and
+    largest step count, and the share of samples that hit the step cap."""
+    lines = [
+        f"| {method} | {label} | {i['median']:.0f} | {i['p90']:.0f} | {i['max']} | {100 * i['capped'] / i['samples']:.1f} |"
+        for method, by_run in features.items() for label, facts in by_run.items() if (i := facts.get("inference"))
+    ]
     if not lines:
         return ""
     table = ["| method | run | median steps | 90th percentile | most | % at the cap |", "|---|---|---|---|---|---|", *lines]
-    return "\n".join(table + _cap_warnings(pipeline))
+    return "\n".join(table + _cap_warnings(features))
 
 
 #: a share of test-time inferences at the step cap from which the report warns
 CAP_WARNING_SHARE = 0.5
 
 
-def _cap_warnings(pipeline: Pipeline) -> list[str]:
+def _cap_warnings(features: dict[str, dict[str, dict[str, Any]]]) -> list[str]:
     """A warning line per method whose test-time inference hit the step cap in every, or in
     most (`CAP_WARNING_SHARE`), samples of the evaluation runs: its latents did not settle."""
-    from vitaplace.engine.features import load_features
-
     lines = []
-    for method in pipeline.scenario.methods:
-        stopped = [load_features(pipeline.features_path(method, label)).get("inference_stopped")
-                   for label in pipeline.runs() if label != "train"]
-        if not stopped or any(s is None for s in stopped):
+    for method, by_run in features.items():
+        inferences = [facts.get("inference") for facts in by_run.values()]
+        if not inferences or any(i is None for i in inferences):
             continue
-        capped = ~np.concatenate(stopped).astype(bool)
-        if capped.mean() >= CAP_WARNING_SHARE:
-            share = "every" if capped.all() else f"{100 * capped.mean():.0f} % of the"
+        capped, samples = sum(i["capped"] for i in inferences), sum(i["samples"] for i in inferences)
+        if capped / samples >= CAP_WARNING_SHARE:
+            every = capped == samples
+            share = "every" if every else f"{100 * capped / samples:.0f} % of the"
             lines.append(
-                f"**Warning: {share} test-time inference{'' if capped.all() else 's'} of {method.name} hit the step "
-                f"cap** ({capped.sum()} of {capped.size} samples): the latents had not settled when they were read; "
+                f"**Warning: {share} test-time inference{'' if every else 's'} of {method} hit the step "
+                f"cap** ({capped} of {samples} samples): the latents had not settled when they were read; "
                 "raise the method's `max_steps` (or its inference rate) before reading much into its numbers."
             )
     return ["", *lines] if lines else []
 
 
-def _inputs_section(pipeline: Pipeline) -> list[str]:
+def _inputs_section(manifest: dict[str, Any]) -> list[str]:
     """Which runs were read from recorded files (with the file and what data it holds), and
     every method x evaluation run whose feature arrays were all zero, i.e. which features
     carried no information there (e.g. ViTa-SLAM's tactile ones on a run without contacts)."""
-    from vitaplace.engine.features import load_features
-
     lines = []
-    for label, path in pipeline.recorded.items():
-        run = pipeline.open(label)
-        contacts = int(run.contact_offsets[-1])
+    for label, path in manifest["recorded"].items():
+        run = manifest["runs"][label]
         lines.append(
-            f"- `{label}` read from `{path}`: {len(run)} samples, {contacts or 'no'} whisker contacts, "
-            f"{run.deflection.shape[1]} deflection sample(s) per whisk cycle"
+            f"- `{label}` read from `{path}`: {run['samples']} samples, {run['whisker_contacts'] or 'no'} whisker "
+            f"contacts, {run['deflection_samples']} deflection sample(s) per whisk cycle"
         )
-    for method in pipeline.scenario.methods:
-        for label in pipeline.runs():
-            if label == "train":
-                continue
-            features = load_features(pipeline.features_path(method, label))
-            arrays = {k: v for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2}
-            zero = sorted(k for k, v in arrays.items() if not v.any())
-            if zero:
-                used = ", ".join(f"`{k}`" for k in sorted(arrays) if k not in zero) or "nothing"
+    for method, by_run in manifest["features"].items():
+        for label, facts in by_run.items():
+            if facts["zero"]:
+                used = ", ".join(f"`{k}`" for k in facts["arrays"] if k not in facts["zero"]) or "nothing"
                 lines.append(
-                    f"- **{method.name}** on `{label}`: features {', '.join(f'`{k}`' for k in zero)} are all zero "
+                    f"- **{method}** on `{label}`: features {', '.join(f'`{k}`' for k in facts['zero'])} are all zero "
                     f"(no data for them in this run), so it matched on {used} alone there"
                 )
     if not lines:
         return []
-    head = "Runs read from recorded files, and features that carried no information:" if pipeline.recorded else \
+    head = "Runs read from recorded files, and features that carried no information:" if manifest["recorded"] else \
         "Features that carried no information:"
     return ["## Inputs", "", head, "", *lines, ""]
 
 
-def _warnings_section(pipeline: Pipeline) -> list[str]:
+def _warnings_section(manifest: dict[str, Any]) -> list[str]:
     """Every run's warnings (robot collisions, data a method could not use), as in manifest.json."""
-    lines = [f"- {message}" for run in pipeline.opened.values() for message in run.warnings.values()]
+    lines = [f"- {message}" for messages in manifest["warnings"].values() for message in messages.values()]
     return ["## Warnings", "", *lines, ""] if lines else []
 
 
-def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
-    """figures/ (PNG + PDF) and report.md for the evaluated scenario."""
-    out, scenario = pipeline.out, pipeline.scenario
-    fig_dir = out / "figures"
-    tau, heading = scenario.evaluation.tau, scenario.evaluation.heading_tolerance_deg
-    true_match = f"a reference pose within τ = {tau} m" + ("" if heading is None else f" facing within {heading:g}°")
-    _, source = training_world_evaluation(scenario)
-    sections = [f"# vitaplace report — {scenario.name}", ""]
-    if scenario.description:
-        sections += [scenario.description.strip(), ""]
-    sections += [
-        f"Place recognition, single best match per query; a true match is {true_match}"
+def _header(manifest: dict[str, Any], description: str, rows: list[dict[str, Any]]) -> list[str]:
+    """Title, description and what the results table shows, then the table."""
+    tau, heading = rows[0]["tau"], rows[0]["heading_tolerance_deg"]
+    sections = [f"# vitaplace report — {manifest['scenario']}", ""]
+    if description:
+        sections += [description.strip(), ""]
+    return sections + [
+        f"Place recognition, single best match per query; a true match is {_true_match(tau, heading)}"
         + (" (position only)" if heading is None else "")
         + ". P and R are at the δ that maximises F1 in each evaluation; F1 at training δ is the F1 at the δ that "
-        f"maximised the method's F1 in the training world's evaluation, applied unchanged. Training world: {source}. "
+        f"maximised the method's F1 in the training world's evaluation, applied unchanged. Training world: "
+        f"{manifest['training_world']}. "
         "AUC is the step-wise average precision: the sum over acceptance thresholds δ, in increasing order, of the "
         "recall gained times the precision there (the area under the drawn step curve; 1 is perfect).",
         "",
         results_table(rows),
         "",
-        *_warnings_section(pipeline),
+    ]
+
+
+def _true_match(tau: float, heading: float | None) -> str:
+    return f"a reference pose within τ = {tau} m" + ("" if heading is None else f" facing within {heading:g}°")
+
+
+def _samples_and_difficulty(manifest: dict[str, Any], rows: list[dict[str, Any]]) -> list[str]:
+    """The sample counts and the difficulty of each evaluation pair."""
+    true_match = _true_match(rows[0]["tau"], rows[0]["heading_tolerance_deg"])
+    return [
         "## Samples",
         "",
-        f"Training run: {len(pipeline.open('train'))} samples. A revisit is a query with {true_match} (only "
+        f"Training run: {manifest['runs']['train']['samples']} samples. A revisit is a query with {true_match} (only "
         "revisits can be recalled).",
         "",
         samples_table(rows),
@@ -236,68 +255,159 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         "",
         difficulty_table(rows),
         "",
-        *_methods_section(pipeline),
     ]
-    inference = inference_table(pipeline)
-    if inference:
-        sections += [
-            "## Test-time inference",
-            "",
-            "Each sample's latents are inferred until its prediction errors fall under their "
-            "thresholds, or up to the method's step cap (`max_steps`).",
-            "",
-            inference,
-            "",
-        ]
-    for e in scenario.evaluations:
-        arena = load_environment(e.environment).top_view() if e.environment is not None else None
+
+
+def _inference_section(manifest: dict[str, Any]) -> list[str]:
+    inference = inference_table(manifest["features"])
+    if not inference:
+        return []
+    return [
+        "## Test-time inference",
+        "",
+        "Each sample's latents are inferred until its prediction errors fall under their "
+        "thresholds, or up to the method's step cap (`max_steps`).",
+        "",
+        inference,
+        "",
+    ]
+
+
+def _evaluation_sections(out: Path, rows: list[dict[str, Any]]) -> list[str]:
+    """Per evaluation: its PR curves, and per method and direction its matrices with the
+    decisions and its matches drawn over the trajectories (figures into OUT/figures)."""
+    fig_dir = out / FIGURES
+    one_direction = len({row["direction"] for row in rows}) == 1
+    sections = []
+    for environment in dict.fromkeys(row["environment"] for row in rows):
+        arena_file = arena_path(out, environment)
+        arena = json.loads(arena_file.read_text()) if arena_file.is_file() else None
+        with np.load(poses_path(out, environment)) as saved:
+            poses = {side: saved[side] for side in ("query", "reference")}
         curves = {}
-        sections += [f"## {e.name}", "", f"![PR curves](figures/pr-{e.name}.png)", ""]
-        for method in scenario.methods:
-            for direction, q, r in pipeline.directions():
-                folder = pipeline.evaluation_dir(e.name, method.name, direction)
-                with np.load(folder / "matrices.npz") as m:
-                    tme, gtm = m["tme"], m["gtm"]
-                curve = ev.load_curve(folder / "pr_curve.npz")
-                curves[method.name if len(pipeline.directions()) == 1 else f"{method.name} {direction}"] = curve
-                decisions = ev.load_decisions(folder / "decisions.npz")
-                stem = f"{e.name}-{method.name}-{direction}"
-                figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{e.name} {method.name}")
-                figures.plot_trajectories(
-                    fig_dir / f"trajectories-{stem}",
-                    pipeline.open(f"{e.name}/{q}").poses,
-                    pipeline.open(f"{e.name}/{r}").poses,
-                    decisions,
-                    arena=arena,
-                    title=f"{e.name} {method.name}: matches at max F1",
-                )
-                sections += [
-                    f"### {method.name} ({direction})",
-                    "",
-                    f"![GTM and TME](figures/matrices-{stem}.png)",
-                    "",
-                    f"![trajectories](figures/trajectories-{stem}.png)",
-                    "",
-                ]
-        figures.plot_pr_curves(fig_dir / f"pr-{e.name}", curves, title=f"{e.name}: precision-recall")
-    training = [(m.name, pipeline.training_record(m)["history"]) for m in scenario.methods]
-    training = [(name, history) for name, history in training if history]
-    if training:
-        sections += ["## Training", ""]
-        for name, history in training:
-            figures.plot_energy(fig_dir / f"training-{name}", history, title=f"{name}: training energy per layer")
+        sections += [f"## {environment}", "", f"![PR curves](figures/pr-{environment}.png)", ""]
+        for row in (r for r in rows if r["environment"] == environment):
+            method, direction = row["method"], row["direction"]
+            folder = evaluation_dir(out, environment, method, direction)
+            with np.load(folder / "matrices.npz") as m:
+                tme, gtm = m["tme"], m["gtm"]
+            curves[method if one_direction else f"{method} {direction}"] = ev.load_curve(folder / "pr_curve.npz")
+            decisions = ev.load_decisions(folder / "decisions.npz")
+            stem = f"{environment}-{method}-{direction}"
+            figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{environment} {method}")
+            query, reference = direction.split("-to-")
+            figures.plot_trajectories(fig_dir / f"trajectories-{stem}", poses[query], poses[reference], decisions,
+                                      arena=arena, title=f"{environment} {method}: matches at max F1")
+            sections += [f"### {method} ({direction})", "", f"![GTM and TME](figures/matrices-{stem}.png)", "",
+                         f"![trajectories](figures/trajectories-{stem}.png)", ""]
+        figures.plot_pr_curves(fig_dir / f"pr-{environment}", curves, title=f"{environment}: precision-recall")
+    return sections
+
+
+def _training_section(out: Path, methods: list[str]) -> list[str]:
+    """The training energy per layer of each method that recorded it."""
+    sections = []
+    for name in methods:
+        path = training_path(out, name)
+        if path.is_file():
+            figures.plot_energy(out / FIGURES / f"training-{name}", json.loads(path.read_text()),
+                                title=f"{name}: training energy per layer")
             sections += [f"![training {name}](figures/training-{name}.png)", ""]
-    sections += _inputs_section(pipeline)
-    origin = provenance()
-    packages = ", ".join(f"{name} {v}" for name, v in origin["packages"].items() if v)
-    plugins = ", ".join(sorted({f"{p['distribution']} {p['version']}" for p in plugin_distributions(pipeline.registry).values()}))
-    dirty = " with uncommitted changes" if origin["git_dirty"] else ""
-    sections += [
+    return ["## Training", "", *sections] if sections else []
+
+
+def _provenance_section(manifest: dict[str, Any]) -> list[str]:
+    packages = ", ".join(f"{name} {v}" for name, v in manifest["packages"].items() if v)
+    plugins = ", ".join(sorted({f"{p['distribution']} {p['version']}" for p in manifest["plugins"].values()}))
+    dirty = " with uncommitted changes" if manifest["git_dirty"] else ""
+    return [
         "## Provenance",
         "",
-        f"vitaplace {origin['vitaplace_version']}, commit {origin['git_commit'] or 'unknown'}{dirty}, scenario seed "
-        f"{scenario.seed}; {packages}; feature plugins from {plugins or 'no distribution'}. Seeds, timings and "
+        f"vitaplace {manifest['vitaplace_version']}, commit {manifest['git_commit'] or 'unknown'}{dirty}, scenario seed "
+        f"{manifest['seed']}; {packages}; feature plugins from {plugins or 'no distribution'}. Seeds, timings and "
         "machine in manifest.json, resolved configuration in scenario.resolved.yaml.",
         "",
     ]
-    write_text_atomic(out / "report.md", "\n".join(sections))
+
+
+def report_files(out: Path, rows: list[dict[str, Any]], methods: list[str]) -> list[Path]:
+    """Every file the report reads besides the manifest: results, resolved scenario, each
+    row's evaluation files, each evaluation's poses and (if simulated) arena, each method's
+    training curves (if recorded)."""
+    out = Path(out)
+    files = [out / RESULTS, out / completion.SCENARIO]
+    files += [evaluation_dir(out, r["environment"], r["method"], r["direction"]) / name
+              for r in rows for name in EVALUATION_FILES]
+    for environment in dict.fromkeys(r["environment"] for r in rows):
+        files += [poses_path(out, environment)] + [p for p in [arena_path(out, environment)] if p.is_file()]
+    return files + [p for name in methods if (p := training_path(out, name)).is_file()]
+
+
+def _read_json(path: Path, expected: str) -> Any:
+    """``path``'s JSON content, or ReportError naming the file and what was expected."""
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ReportError(f"{path}: missing; expected {expected}") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise ReportError(f"{path}: unreadable ({type(exc).__name__}); expected {expected}") from None
+
+
+def read_inputs(out: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """The manifest's entries the report reads (`MANIFEST_KEYS`) and the result rows of the
+    run in ``out``; ReportError naming the file when one is missing or is not what a run writes."""
+    out = Path(out)
+    manifest = _read_json(out / MANIFEST, "the manifest a `vitaplace run` writes")
+    rows = _read_json(out / RESULTS, "the result rows a `vitaplace run` writes")
+    missing = [k for k in MANIFEST_KEYS if not isinstance(manifest, dict) or k not in manifest]
+    if missing:
+        raise ReportError(f"{out / MANIFEST}: no {', '.join(missing)}; expected the manifest of a `vitaplace run` "
+                          "(those of older versions lack these entries)")
+    if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) for r in rows):
+        raise ReportError(f"{out / RESULTS}: expected a non-empty list of result rows")
+    return {k: manifest[k] for k in MANIFEST_KEYS}, rows
+
+
+def report_key_inputs(out: Path) -> dict[str, Any]:
+    """Everything the report of ``out`` depends on: the manifest entries it reads and the
+    digest of every other file it reads (the report stage's key is a hash of this)."""
+    manifest, rows = read_inputs(out)
+    files = report_files(out, rows, list(manifest["methods"]))
+    return {"manifest": manifest, "files": {str(p.relative_to(out)): digest(p) for p in files}}
+
+
+def write_report(out: Path) -> None:
+    """figures/ (PNG + PDF) and report.md for the run in ``out``, from its files alone."""
+    out = Path(out)
+    manifest, rows = read_inputs(out)
+    description = (yaml.safe_load((out / completion.SCENARIO).read_text()) or {}).get("description", "")
+    sections = [
+        *_header(manifest, description, rows),
+        *_warnings_section(manifest),
+        *_samples_and_difficulty(manifest, rows),
+        *_methods_section(manifest["methods"]),
+        *_inference_section(manifest),
+        *_evaluation_sections(out, rows),
+        *_training_section(out, list(manifest["methods"])),
+        *_inputs_section(manifest),
+        *_provenance_section(manifest),
+    ]
+    write_text_atomic(out / REPORT, "\n".join(sections))
+
+
+def rebuild_report(out: Path) -> Path:
+    """``vitaplace report OUT``: check that ``out`` holds a finished run whose files the
+    report reads are all there and unchanged since (its completion record), then
+    `write_report`; returns the report's path."""
+    out = Path(out)
+    manifest, rows = read_inputs(out)
+    files = report_files(out, rows, list(manifest["methods"]))
+    missing = next((p for p in files if not p.is_file()), None)
+    if missing is not None:
+        raise ReportError(f"{missing}: missing; expected it in the folder of a finished `vitaplace run`")
+    recorded = [str(p.relative_to(out)) for p in files if p.name != completion.SCENARIO]  # the record has its own
+    wrong = completion.problem(out, [MANIFEST, *recorded])
+    if wrong:
+        raise ReportError(f"{out}: not a finished run: {wrong}")
+    write_report(out)
+    return out / REPORT

@@ -38,6 +38,9 @@ from vitaplace.engine.provenance import provenance
 from vitaplace.engine import checksum, completion
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.outdir import (
+    MANIFEST, REPORT, RESULTS, RESULTS_CSV, arena_path, evaluation_dir, poses_path, training_path,
+)
 from vitaplace.engine.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features, warn_once
@@ -51,7 +54,7 @@ from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 3, "report": 5}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 3, "report": 6}
 
 log = logging.getLogger("vitaplace")
 
@@ -299,10 +302,13 @@ class Pipeline:
             status = "cached"
             log.info("%-9s %-28s cached (%s)", stage, item, key)
             result = None
+            self._restore_warnings(output)
         else:
             status = "ran"
             log.info("%-9s %-28s running (%s)", stage, item, key)
+            before = {label: set(run.warnings) for label, run in self.opened.items()}
             result = work()
+            self._keep_warnings(output, before)
             checksum.seal(output, key)
         self.state.digests[str(output)] = checksum.sealed_digest(output)
         seconds = time.perf_counter() - start
@@ -310,6 +316,30 @@ class Pipeline:
         log.debug("%-9s %-28s %s in %.2f s: %s", stage, item, status, seconds, where)
         self.state.records.append(StageRecord(stage, item, key, status, round(seconds, 3), list(inputs), str(where)))
         return result
+
+    @staticmethod
+    def _warnings_path(output: Path) -> Path:
+        return output.with_name(output.name + ".warnings.json")
+
+    def _keep_warnings(self, output: Path, before: dict[str, set[str]]) -> None:
+        """Beside a stage's output, the run warnings its work raised (label -> feature ->
+        message), so that a later run that finds the stage cached reports them too."""
+        raised = {label: {k: v for k, v in run.warnings.items() if k not in before.get(label, set())}
+                  for label, run in self.opened.items()}
+        raised = {label: warnings for label, warnings in raised.items() if warnings}
+        path = self._warnings_path(output)
+        if raised:
+            write_text_atomic(path, json.dumps(raised))
+        else:
+            path.unlink(missing_ok=True)
+
+    def _restore_warnings(self, output: Path) -> None:
+        """The run warnings the work of a now cached stage raised (`_keep_warnings`)."""
+        path = self._warnings_path(output)
+        if path.is_file():
+            for label, warnings in json.loads(path.read_text()).items():
+                for feature, message in warnings.items():
+                    self.open(label).warnings.setdefault(feature, message)
 
     # ------------------------------------------------------------------ simulate
     def runs(self) -> dict[str, tuple[TrainingRun | EvaluationRuns, int]]:
@@ -503,9 +533,6 @@ class Pipeline:
         pairs = [("query-to-reference", "query", "reference"), ("reference-to-query", "reference", "query")]
         return [p for p in pairs if d in (p[0], "both")]
 
-    def evaluation_dir(self, env: str, method: str, direction: str) -> Path:
-        return self.out / "evaluations" / env / method / direction
-
     def evaluate(self) -> list[dict[str, Any]]:
         settings = self.scenario.evaluation
         rows = []
@@ -519,7 +546,7 @@ class Pipeline:
                         [self.output_digest(p) for p in (qpath, rpath)],
                         [self.dataset_digest(f"{e.name}/{side}") for side in (q, r)], settings.model_dump(),
                     )
-                    folder = self.evaluation_dir(e.name, method.name, direction)
+                    folder = evaluation_dir(self.out, e.name, method.name, direction)
                     summary_path = folder / "summary.json"
 
                     def work(method=method, qpath=qpath, rpath=rpath, folder=folder, e=e, q=q, r=r) -> None:
@@ -553,8 +580,8 @@ class Pipeline:
             row["f1_at_e1_threshold"] = row["e1_threshold"] = None
             if source is None:
                 continue
-            curve = ev.load_curve(self.evaluation_dir(source, row["method"], row["direction"]) / "pr_curve.npz")
-            with np.load(self.evaluation_dir(row["environment"], row["method"], row["direction"]) / "matrices.npz") as m:
+            curve = ev.load_curve(evaluation_dir(self.out, source, row["method"], row["direction"]) / "pr_curve.npz")
+            with np.load(evaluation_dir(self.out, row["environment"], row["method"], row["direction"]) / "matrices.npz") as m:
                 row["f1_at_e1_threshold"] = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row["tau"])
             row["e1_threshold"] = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None
 
@@ -576,31 +603,56 @@ class Pipeline:
             rows = self.evaluate()
             write_results(self.out, rows)
         if stop >= STAGES.index("report"):
-            from vitaplace.engine.report import write_report
-
-            params = [self.method_params(m) for m in self.scenario.methods]
-            key = content_hash("report", STAGE_VERSION["report"], rows, params,
-                               [self.model_key(m) for m in self.scenario.methods])
-            self._stage("report", "report", key, self.out / "report.md", lambda: write_report(self, rows))
-        self.write_manifest(time.perf_counter() - started)
+            self.report(started)
+        self.write_manifest(time.perf_counter() - started, until)
         announce_run_finished(self.registry, self.out, self.scenario, rows, until)
-        completion.write(self.out, self.finished_files(until))
+        completion.write(self.out, self.finished_files(until, rows))
         return rows
 
-    def finished_files(self, until: str) -> list[Path]:
+    def report(self, started: float) -> None:
+        """The report stage: first what the report reads besides the results (`write_report_inputs`,
+        the manifest so far), then report.md and the figures from the output folder alone."""
+        from vitaplace.engine.report import report_key_inputs, write_report
+
+        self.write_report_inputs()
+        self.write_manifest(time.perf_counter() - started, "report")
+        key = content_hash("report", STAGE_VERSION["report"], report_key_inputs(self.out))
+        self._stage("report", "report", key, self.out / REPORT, partial(write_report, self.out))
+
+    def write_report_inputs(self) -> None:
+        """Into the output folder: each evaluation's query and reference poses and, when
+        simulated, its environment's top view; each method's training curves, when it has them."""
+        for e in self.scenario.evaluations:
+            save_features(poses_path(self.out, e.name), {side: self.open(f"{e.name}/{side}").poses
+                                                         for side in ("query", "reference")})
+            if e.environment is not None:
+                write_text_atomic(arena_path(self.out, e.name), json.dumps(load_environment(e.environment).top_view()))
+        for method in self.scenario.methods:
+            history = self.training_record(method)["history"]
+            if history:
+                write_text_atomic(training_path(self.out, method.name), json.dumps(history))
+
+    def finished_files(self, until: str, rows: list[dict[str, Any]]) -> list[Path]:
         """What this run wrote for readers outside the pipeline (the completion record covers
-        them): the manifest, results and report, each evaluation's summary and PR curve."""
-        names = ["manifest.json"]
+        them): the manifest, results and report, each evaluation's summary and PR curve, and
+        every file the report is built from (`report_files`)."""
+        from vitaplace.engine.report import report_files
+
+        files = [self.out / MANIFEST]
         if STAGES.index(until) >= STAGES.index("evaluate"):
-            names += ["results.json", "results.csv"]
-            names += [str(self.evaluation_dir(e.name, m.name, d).relative_to(self.out) / f)
+            files += [self.out / RESULTS, self.out / RESULTS_CSV]
+            files += [evaluation_dir(self.out, e.name, m.name, d) / f
                       for e in self.scenario.evaluations for m in self.scenario.methods for d, *_ in self.directions()
                       for f in ("summary.json", "pr_curve.npz")]
         if until == "report":
-            names.append("report.md")
-        return [self.out / name for name in names]
+            files += [self.out / REPORT, *report_files(self.out, rows, [m.name for m in self.scenario.methods])]
+        return [f for f in dict.fromkeys(files) if f.name != completion.SCENARIO]
 
-    def write_manifest(self, seconds: float) -> None:
+    def write_manifest(self, seconds: float, until: str) -> None:
+        """manifest.json: provenance, seeds, datasets, warnings, stages, training, timing, and
+        what the report reads besides (`vitaplace.engine.report.MANIFEST_KEYS`)."""
+        from vitaplace.engine.report import feature_facts, run_facts
+
         manifest = {
             "scenario": self.scenario.name,
             **provenance(),
@@ -609,12 +661,29 @@ class Pipeline:
             "run_seeds": {label: seed for label, (_, seed) in self.runs().items() if label not in self.recorded},
             "datasets": self.state.datasets,
             "recorded": {label: str(path) for label, path in self.recorded.items()},
+            "runs": {label: run_facts(self.open(label)) for label in self.runs()},
             "warnings": {label: dict(run.warnings) for label, run in self.opened.items() if run.warnings},
             "stages": [record.__dict__ for record in self.state.records],
             "training": {m.name: s for m in self.scenario.methods if (s := self.training_record(m)["summary"])},
+            "training_world": training_world_evaluation(self.scenario)[1],
+            "methods": self.method_parameters(),
             "seconds": round(seconds, 3),
         }
-        write_text_atomic(self.out / "manifest.json", json.dumps(manifest, indent=2))
+        if STAGES.index(until) >= STAGES.index("transform"):
+            manifest["features"] = {m.name: {label: feature_facts(load_features(self.features_path(m, label)))
+                                             for label in self.runs() if label != "train"} for m in self.scenario.methods}
+        write_text_atomic(self.out / MANIFEST, json.dumps(manifest, indent=2))
+
+    def method_parameters(self) -> dict[str, dict[str, Any]]:
+        """Per method: its plugin, the parameters the scenario sets (with the derived seed) and
+        the plugin's defaults for the others."""
+        out = {}
+        for method in self.scenario.methods:
+            given = self.method_params(method)
+            full = self.registry.get(method.plugin).validate_params(given).model_dump(mode="json")
+            out[method.name] = {"plugin": method.plugin, "params": {k: full[k] for k in full if k in given},
+                                "defaults": {k: v for k, v in full.items() if k not in given}}
+        return out
 
 
 RESULT_COLUMNS = (
@@ -639,7 +708,7 @@ def write_results(out: Path, rows: list[dict[str, Any]]) -> None:
     import csv
     import io
 
-    write_text_atomic(out / "results.json", json.dumps(rows, indent=2))
+    write_text_atomic(out / RESULTS, json.dumps(rows, indent=2))
     ks = sorted({k for row in rows for k in row.get("recall_at_k", {})}, key=int)
     buffer = io.StringIO()
     writer = csv.writer(buffer)
@@ -647,5 +716,5 @@ def write_results(out: Path, rows: list[dict[str, Any]]) -> None:
     for row in rows:
         filled = csv_row(row)
         writer.writerow([filled.get(c, "") for c in RESULT_COLUMNS] + [row["recall_at_k"].get(k, "") for k in ks])
-    write_text_atomic(out / "results.csv", buffer.getvalue())
+    write_text_atomic(out / RESULTS_CSV, buffer.getvalue())
 

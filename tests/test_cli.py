@@ -792,6 +792,78 @@ def test_report_states_sample_counts_and_method_parameters(quiet_json_run):
     assert "**H** (`handcrafted`): none; defaults: grid=" in report
 
 
+def _copy_without_cache(out: Path, to: Path) -> Path:
+    """``out`` copied to ``to`` without its cache, report and figures."""
+    import shutil
+
+    return Path(shutil.copytree(out, to, ignore=shutil.ignore_patterns("cache", "figures", "report.md*")))
+
+
+def test_report_is_rebuilt_from_a_copy_of_the_output_folder_alone(quiet_json_run, tmp_path, monkeypatch, capsys):
+    """`vitaplace report COPY` on a copy without the cache, the report and the figures, with
+    no plugin to be found: report.md byte for byte as the run wrote it, and the same figures."""
+    from vitaplace.engine import plugins
+
+    out, _ = quiet_json_run
+    copy = _copy_without_cache(out, tmp_path / "copy")
+    monkeypatch.setattr(plugins, "discover", lambda *a, **k: pytest.fail("the report looked for plugins"))
+    assert main(["-q", "report", str(copy)]) == 0
+    assert capsys.readouterr().out == f"wrote {copy / 'report.md'} and its figures\n"
+    report = (out / "report.md").read_text()
+    for part in ("## Test-time inference", "## Training", "![trajectories]", "Training run: 12 samples",
+                 "**L** (`mupnet`): image_size=[9, 16]"):
+        assert part in report, part  # what the folder's manifest, training curves and poses hold is in it
+    assert (copy / "report.md").read_bytes() == (out / "report.md").read_bytes()
+    drawn = sorted(p.name for p in (out / "figures").iterdir())
+    assert "training-L.png" in drawn and sorted(p.name for p in (copy / "figures").iterdir()) == drawn
+    for name in drawn:
+        assert (copy / "figures" / name).read_bytes() == (out / "figures" / name).read_bytes(), name
+
+
+@pytest.mark.parametrize("damage, expected", [
+    (lambda copy: (copy / "results.json").unlink(),
+     "results.json: missing; expected the result rows a `vitaplace run` writes"),
+    (lambda copy: (copy / "manifest.json").write_text("{"),
+     "manifest.json: unreadable (JSONDecodeError); expected the manifest a `vitaplace run` writes"),
+    (lambda copy: (copy / "poses" / "E1.npz").unlink(),
+     "poses/E1.npz: missing; expected it in the folder of a finished `vitaplace run`"),
+    (lambda copy: (copy / "completed.json").unlink(), ": not a finished run: no completed.json"),
+    (lambda copy: (copy / "evaluations/E1/H/query-to-reference/decisions.npz").write_bytes(b"PK"),
+     ": not a finished run: evaluations/E1/H/query-to-reference/decisions.npz is not the file its finished run "
+     "recorded in completed.json"),
+], ids=["no results", "corrupt manifest", "no poses", "unfinished", "damaged decisions"])
+def test_report_of_a_damaged_output_folder_is_one_line_naming_the_file(quiet_json_run, tmp_path, capsys, damage, expected):
+    copy = _copy_without_cache(quiet_json_run[0], tmp_path / "copy")
+    damage(copy)
+    assert main(["report", str(copy)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"vitaplace: error: {copy}") and expected in err and err.count("\n") == 1, err
+    assert not (copy / "report.md").exists()
+
+
+def test_the_report_key_follows_what_the_report_reads_and_nothing_else(quiet_json_run, tmp_path):
+    """The report stage's key (a hash of `report_key_inputs`) changes with a manifest entry the
+    report prints or a file it draws, not with the manifest's timings and stage records."""
+    from vitaplace.engine.report import report_key_inputs
+
+    copy = _copy_without_cache(quiet_json_run[0], tmp_path / "copy")
+    before = report_key_inputs(copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    (copy / "manifest.json").write_text(json.dumps({**manifest, "seconds": manifest["seconds"] + 1, "stages": []}))
+    assert report_key_inputs(copy) == before
+    (copy / "manifest.json").write_text(json.dumps({**manifest, "git_commit": "another"}))
+    assert report_key_inputs(copy) != before
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    np.savez(copy / "poses" / "E1.npz", query=np.zeros((10, 3)), reference=np.zeros((10, 3)))
+    assert report_key_inputs(copy) != before
+
+
+def test_report_of_a_folder_takes_no_scenario_options(quiet_json_run, tmp_path, capsys):
+    copy = _copy_without_cache(quiet_json_run[0], tmp_path / "copy")
+    assert main(["report", str(copy), "--set", "seed=1"]) == 2
+    assert "--set: apply to a scenario" in capsys.readouterr().err
+
+
 def test_results_csv_has_precision_recall_f1_at_max_f1_without_fixed_delta(quiet_json_run):
     import csv
 

@@ -686,13 +686,14 @@ def test_the_training_world_is_the_one_evaluation_in_the_training_environment(tm
 def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp_path):
     """E1 (in the training run's world, e1) holds the training matrices above, E2 the other
     ones: every row of a method gets the F1 at E1's max-F1 threshold (0.3), per direction."""
+    from vitaplace.engine.outdir import evaluation_dir
     from vitaplace.engine.runner import Pipeline
 
     scenario = _scenario(_train_in("e1"), [("E2", "e2"), ("E1", "e1")])
     pipeline = Pipeline(scenario, {}, tmp_path)
     rows = []
     for env, tme, gtm in (("E2", OTHER_TME, OTHER_GTM), ("E1", TRAIN_TME, TRAIN_GTM)):
-        folder = pipeline.evaluation_dir(env, "H", "query-to-reference")
+        folder = evaluation_dir(tmp_path, env, "H", "query-to-reference")
         folder.mkdir(parents=True)
         curve = ev.pr_curve(tme, gtm, 1.0)
         ev.save_curve_and_decisions(folder, curve, ev.decide(tme, gtm, 1.0, curve.delta_at_max_f1))

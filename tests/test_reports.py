@@ -17,7 +17,6 @@ import yaml
 from vitaplace.engine import evaluate as ev
 from vitaplace.engine import figures
 from vitaplace.engine.dataset import Run, write_run
-from vitaplace.engine.features import save_features
 
 
 @pytest.fixture
@@ -78,24 +77,11 @@ def test_the_pr_band_figure_says_what_its_band_is_whatever_its_title(tmp_path, d
 # --------------------------------------------------------------------------- report sections
 
 
-def _features(tmp_path: Path, method: str, label: str, features: dict) -> Path:
-    path = tmp_path / f"{method}-{label.replace('/', '-')}.npz"
-    save_features(path, features)
-    return path
+def _facts(features: dict[str, dict[str, dict]]) -> dict[str, dict[str, dict]]:
+    """The manifest's ``features`` entry for these feature arrays (method -> run -> arrays)."""
+    from vitaplace.engine.report import feature_facts
 
-
-def _stub_pipeline(tmp_path: Path, features: dict[str, dict[str, dict]], recorded: dict | None = None):
-    """Just what the report sections read: methods, run labels, feature files, recorded runs."""
-    from vitaplace.engine.dataset import open_run
-
-    paths = {(m, label): _features(tmp_path, m, label, f) for m, by_label in features.items() for label, f in by_label.items()}
-    return SimpleNamespace(
-        scenario=SimpleNamespace(methods=[SimpleNamespace(name=m) for m in features]),
-        runs=lambda: {"train": None, "E1/query": None, "E1/reference": None},
-        features_path=lambda method, label: paths[(method.name, label)],
-        recorded=recorded or {},
-        open=lambda label: open_run(recorded[label]),
-    )
+    return {m: {label: feature_facts(f) for label, f in by_label.items()} for m, by_label in features.items()}
 
 
 @pytest.mark.parametrize(
@@ -116,11 +102,11 @@ def test_the_report_warns_when_most_test_time_inferences_hit_the_cap(tmp_path, c
         stopped[:capped] = False
         return {"latent": np.ones((10, 3)), "inference_stopped": stopped, "inference_steps": np.full(10, 7)}
 
-    pipeline = _stub_pipeline(tmp_path, {
+    features = _facts({
         "L": {"E1/query": run(capped_per_run[0]), "E1/reference": run(capped_per_run[1])},
         "H": {"E1/query": {"profile": np.ones((10, 2))}, "E1/reference": {"profile": np.ones((10, 2))}},
     })
-    text = " ".join(_cap_warnings(pipeline)).replace("*", "")
+    text = " ".join(_cap_warnings(features)).replace("*", "")
     if expected is None:
         assert text == ""
     else:
@@ -139,14 +125,18 @@ def _recorded(path: Path, n: int = 10, rng=None) -> Path:
 
 
 def test_inputs_name_recorded_files_and_features_that_carried_nothing(tmp_path):
-    from vitaplace.engine.report import _inputs_section
+    from vitaplace.engine.dataset import open_run
+    from vitaplace.engine.report import _inputs_section, run_facts
 
     query = _recorded(tmp_path / "query.h5")
     h = {"profile": np.ones((10, 4, 4)), "pfh": np.zeros((10, 8)), "sda": np.zeros((10, 24))}
     latent = {"latent": np.ones((10, 3)), "diverged": np.zeros(10, dtype=bool), "inference_steps": np.zeros(10)}
-    pipeline = _stub_pipeline(tmp_path, {"H": {"E1/query": h, "E1/reference": {**h, "pfh": np.ones((10, 8))}},
-                                         "L": {"E1/query": latent, "E1/reference": latent}}, {"E1/query": query})
-    text = "\n".join(_inputs_section(pipeline))
+    manifest = {
+        "recorded": {"E1/query": str(query)}, "runs": {"E1/query": run_facts(open_run(query))},
+        "features": _facts({"H": {"E1/query": h, "E1/reference": {**h, "pfh": np.ones((10, 8))}},
+                            "L": {"E1/query": latent, "E1/reference": latent}}),
+    }
+    text = "\n".join(_inputs_section(manifest))
     assert f"`E1/query` read from `{query}`: 10 samples, no whisker contacts, 1 deflection sample(s)" in text
     assert "**H** on `E1/query`: features `pfh`, `sda` are all zero" in text and "on `profile` alone" in text
     assert "**H** on `E1/reference`: features `sda` are all zero" in text
