@@ -609,3 +609,62 @@ def test_shipped_routes_are_what_the_route_generator_makes(name):
 
     env = load_environment(name)
     np.testing.assert_allclose(inner_loop(env, env.route_facing), np.array(env.route), atol=1e-9)
+
+
+def test_the_simulator_package_exports_its_modules_names():
+    import importlib
+
+    from vitaplace.engine import sim
+
+    for name in sim.__all__:
+        if name != "SIMULATOR_VERSION":
+            defining = [m for m in ("environment", "robot", "simulate", "render")
+                        if name in vars(importlib.import_module(f"vitaplace.engine.sim.{m}"))]
+            assert defining and getattr(sim, name) is getattr(importlib.import_module(f"vitaplace.engine.sim.{defining[0]}"), name)
+    assert sim.simulate_run is simulate_run
+
+
+def test_without_mujoco_gl_the_first_loadable_library_is_chosen():
+    """A fresh process without MUJOCO_GL gets EGL where libEGL loads, else OSMesa where that loads, else none."""
+    import ctypes
+
+    def loads(lib: str) -> bool:
+        try:
+            ctypes.CDLL(lib)
+            return True
+        except OSError:
+            return False
+
+    expected = "egl" if loads("libEGL.so.1") else "osmesa" if loads("libOSMesa.so.8") else "None"
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    code = "import os, vitaplace.engine.sim; print(os.environ.get('MUJOCO_GL'))"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == expected
+
+
+def test_the_eye_camera_sees_the_robot_only_when_asked(bare_sim):
+    from vitaplace.engine.sim.render import Camera
+
+    data = bare_sim.sim.new_data((0.0, 0.0, 0.0))
+    mujoco.mj_forward(bare_sim.model, data)
+    images = []
+    for show_robot in (False, True, False):
+        with Camera(bare_sim.model, 64, 48, show_robot=show_robot) as cam:
+            images.append(cam.render(data).copy())
+    assert np.array_equal(images[0], images[2]) and not np.array_equal(images[0], images[1])
+
+
+def test_top_view_plot_closes_the_route(e1):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vitaplace.engine.sim.plot import plot_environment
+
+    tv = e1.top_view()
+    ax = plot_environment(tv)
+    (route,) = [line for line in ax.get_lines() if line.get_label() == "route"]
+    xy = np.column_stack(route.get_data())
+    assert len(xy) == len(tv["route"]) + 1 and np.array_equal(xy[0], xy[-1])  # back to the first waypoint
+    plt.close(ax.figure)
