@@ -198,6 +198,8 @@ def test_inference_stops_at_threshold_or_step_cap(trained):
     assert capped.steps == 7 and not capped.converged
     loose = net.infer(inputs, max_steps=500, thresholds=dict.fromkeys(NO_STOP, 1e9))
     assert loose.steps == 0 and loose.converged
+    for node, y in loose.latents.items():  # no step taken: MuPNet's initial latents, 0.1 everywhere
+        np.testing.assert_array_equal(y, np.full_like(y, 0.1), err_msg=node)
     moderate = net.infer(inputs, max_steps=3000, thresholds=dict.fromkeys(NO_STOP, 5e-3))
     assert moderate.converged and all(v < 5e-3 for v in moderate.mse.values())
 
