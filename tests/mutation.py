@@ -197,9 +197,8 @@ MUTANTS = [
       'folder, tme, self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses,',
       'folder, tme, self.open(f"{e.name}/{r}").poses, self.open(f"{e.name}/{q}").poses,',
       *t("cli", "test_oracle_features_score_perfectly_end_to_end")),
-    m("runner: evaluation cache key ignores the model", "runner",
-      '"evaluate", STAGE_VERSION["evaluate"], self.model_key(method), qpath.name, rpath.name,',
-      '"evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name,',
+    m("runner: evaluation cache key ignores the settings", "runner",
+      'for side in (q, r)], settings.model_dump(),', 'for side in (q, r)],',
       *t("cli", "test_cache_redoes_exactly_what_a_change_touches")),
     # --- the hand-crafted front end
     m("pfh: upper-edge values beyond the last bin", "handcrafted.pfh",
