@@ -379,7 +379,7 @@ MUTANTS = [
       "                    raise\n    finally:", *t("sweep", "test_ray_sweep_keeps_going_past_a_failed_seed")),
     m("sweep: colour codes kept in the failure line", "sweep",
       'text = " ".join(ANSI.sub("", text).split())', 'text = " ".join(text.split())',
-      *t("sweep", "test_failures_of_ray_tasks_read_as_one_line")),
+      *t("sweep", "test_failures_of_ray_tasks_read_as_one_line", "test_local_sweep_keeps_going_past_a_failed_seed")),
     m("sweep: Ray's wrapped exception not unwrapped", "sweep",
       "    if isinstance(cause, BaseException):\n        exc = cause", "    if False:\n        exc = cause",
       *t("sweep", "test_failures_of_ray_tasks_read_as_one_line")),
@@ -388,7 +388,7 @@ MUTANTS = [
       *t("sweep", "test_a_job_reads_nothing_from_the_driver_s_files")),
     m("sweep: unshared storage never noticed", "sweep",
       "socket.gethostname(), not job.marker or Path(job.marker).exists()", "socket.gethostname(), True",
-      *t("sweep", "test_the_driver_warns_once_about_unshared_storage_and_reports_failures")),
+      *t("sweep", "test_a_job_reads_nothing_from_the_driver_s_files")),
     m("sweep: unshared storage warned for every job", "sweep",
       'if not result["sees_out"] and not outcome.unshared:', 'if not result["sees_out"]:',
       *t("sweep", "test_the_driver_warns_once_about_unshared_storage_and_reports_failures")),
@@ -531,7 +531,8 @@ def run_pytest(ws: Workspace, tests: tuple[str, ...], timeout: float) -> tuple[s
         RUNNING.discard(proc)
     if proc.returncode == 0:
         return "passed", ""
-    failed = [line.split(" ", 1)[1].split(" - ")[0] for line in out.splitlines() if line.startswith(("FAILED ", "ERROR "))]
+    failed = [line.split(" ", 1)[1].split(" - ")[0] for line in out.splitlines()
+              if line.startswith(("FAILED tests", "ERROR tests"))]  # pytest's summary, not captured log lines
     if failed:
         return "failed", failed[0]
     # no test failed, yet pytest did not pass: a test module no longer imports (collection error)
