@@ -1,301 +1,648 @@
 #!/usr/bin/env python
 """Mutation testing on demand (not part of CI): does the suite notice when the code is wrong?
 
-Each mutant changes one line of the package the way a real bug would (a sign, an index,
-an off-by-one, a swapped argument, a skipped step). The script applies it, runs the tests
-that guard that code, and restores the file; a mutant is *killed* when a test fails. The
-kill rate is over the mutants that change behaviour; `EQUIVALENT` lists mutants kept for
-the record that cannot change any result, with the reason.
+Each mutant changes one snippet of the package the way a real bug would (a sign, an index,
+an off-by-one, a comparison, a dropped term, a skipped step) and names the narrowest pytest
+selection that should catch it. The script copies the working tree into a temporary folder,
+applies each mutant there (the working tree is never written, so nothing is left mutated, not
+even after Ctrl-C), runs the mutant's tests with a timeout and records the test that failed.
+A mutant is *killed* when a test fails, *killed by timeout* when its tests run past the limit
+(an endless loop is a detected bug, but it is reported apart), *survived* otherwise.
+`EQUIVALENT` lists mutants that cannot change any result, with the reason.
 
-    python tests/mutation.py              # all mutants (a few minutes on 2 cores)
-    python tests/mutation.py pc kernels   # only mutants whose name starts with these
-    python tests/mutation.py --list
+    python tests/mutation.py                    # every mutant (about an hour on 2 shared cores)
+    python tests/mutation.py summary sim.model  # mutants of these modules (keys of MODULES) or names
+    python tests/mutation.py --list             # mutant, file, tests
+    python tests/mutation.py --check            # every snippet applies exactly once (no tests run)
+    python tests/mutation.py --jobs 2 --timeout 300
 
-Exit status 0 when the kill rate is at least 90 %.
+A snippet that no longer occurs exactly once in its file stops the script before anything
+runs (one line, exit 2): update the mutant. Exit status 0 when at least 90 % are killed.
+When a module moves, edit its line in `MODULES` (the only place that names files).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import math
 import os
+import queue
+import shutil
+import signal
 import subprocess
 import sys
+import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET = 0.90
+#: Folders of the package whose modules need mutants; a module over MIN_LINES lines needs one.
+PACKAGE_DIRS = ("engine", "kernels", "plugins", "api")
+MIN_LINES = 40
+
+#: Every mutated module by key; a mutant names its module by key, so a moved file is one line here.
+MODULES = {
+    "aggregate": "engine/aggregate.py",
+    "backends": "engine/backends.py",
+    "checksum": "engine/checksum.py",
+    "cli": "engine/cli.py",
+    "completion": "engine/completion.py",
+    "configfile": "engine/configfile.py",
+    "cpus": "engine/cpus.py",
+    "dataset": "engine/dataset.py",
+    "evaluate": "engine/evaluate.py",
+    "features": "engine/features.py",
+    "figures": "engine/figures.py",
+    "hookspecs": "engine/hookspecs.py",
+    "matimport": "engine/matimport.py",
+    "outdir": "engine/outdir.py",
+    "pc": "engine/pc.py",
+    "plausibility": "engine/plausibility.py",
+    "plugins": "engine/plugins.py",
+    "provenance": "engine/provenance.py",
+    "report": "engine/report.py",
+    "resample": "engine/resample.py",
+    "runner": "engine/runner.py",
+    "scenario": "engine/scenario.py",
+    "schema_docs": "engine/schema_docs.py",
+    "slurm": "engine/slurm.py",
+    "summary": "engine/summary.py",
+    "sweep": "engine/sweep.py",
+    "video": "engine/video.py",
+    "sim": "engine/sim/__init__.py",
+    "sim.build": "engine/sim/build.py",
+    "sim.controllers": "engine/sim/controllers.py",
+    "sim.environment": "engine/sim/environment.py",
+    "sim.glsetup": "engine/sim/glsetup.py",
+    "sim.model": "engine/sim/model.py",
+    "sim.plot": "engine/sim/plot.py",
+    "sim.render": "engine/sim/render.py",
+    "sim.robot": "engine/sim/robot.py",
+    "sim.routegen": "engine/sim/routegen.py",
+    "sim.simulate": "engine/sim/simulate.py",
+    "sim.viewer": "engine/sim/viewer.py",
+    "kernels.reference": "kernels/reference.py",
+    "kernels.warp_kernels": "kernels/warp_kernels.py",
+    "handcrafted.extractor": "plugins/handcrafted/extractor.py",
+    "handcrafted.pfh": "plugins/handcrafted/pfh.py",
+    "handcrafted.profile": "plugins/handcrafted/profile.py",
+    "handcrafted.sda": "plugins/handcrafted/sda.py",
+    "mupnet.extractor": "plugins/mupnet/extractor.py",
+    "mlflow_tracking": "plugins/mlflow_tracking.py",
+    "api": "api/__init__.py",
+}
 
 
 @dataclass(frozen=True)
 class Mutant:
     name: str
-    path: str
-    old: str
+    module: str  # a key of MODULES
+    old: str  # must occur exactly once in the module
     new: str
-    tests: tuple[str, ...]
+    tests: tuple[str, ...]  # pytest node ids that should fail
+
+    @property
+    def path(self) -> str:
+        return MODULES[self.module]
 
 
-def m(name: str, path: str, old: str, new: str, *tests: str) -> Mutant:
-    return Mutant(name, path, old, new, tests)
+def m(name: str, module: str, old: str, new: str, *tests: str) -> Mutant:
+    return Mutant(name, module, old, new, tests)
 
 
-PC = ("tests/test_pc.py",)
-KERNELS = ("tests/test_kernels.py",)
-EVAL = ("tests/test_evaluate.py",)
-HAND = ("tests/test_handcrafted.py",)
-SIM = ("tests/test_sim.py",)
-WORLDS = ("tests/test_worlds.py",)
-CLI = ("tests/test_cli.py",)
-MUPNET = ("tests/test_mupnet_plugin.py",)
-SWEEP = ("tests/test_sweep.py",)
-MATIMPORT = ("tests/test_matimport.py",)
+def t(file: str, *names: str) -> tuple[str, ...]:
+    """Node ids of tests ``names`` in ``tests/test_<file>.py``."""
+    return tuple(f"tests/test_{file}.py::{name}" for name in names)
 
 PFH_NORMALISE = "    return (counts * (100.0 / counts.sum())).astype(np.float32)"
+PC_TRAINED = (*t("pc", *(f"{name}[numpy]" for name in (
+    "test_training_lowers_reconstruction_error_of_both_modalities", "test_training_moves_every_sample_every_epoch",
+    "test_energy_history_is_the_per_sample_energy_of_the_epoch", "test_inference_stops_at_threshold_or_step_cap",
+    "test_each_sample_stops_on_its_own", "test_a_sample_at_the_cap_is_not_stopped", "test_joint_latents_group_samples_by_cause"))),
+    *t("pc", "test_numpy_backend_matches_the_reference_on_wide_layers"))
+PC_AGREE = t("pc", "test_numpy_and_warp_backends_agree[cpu]")
+PC_GRADIENTS = t("pc", "test_latent_and_weight_gradients_match_finite_differences",
+                 "test_inference_with_small_step_never_increases_energy[numpy]")
 
 MUTANTS = [
     # --- the predictive-coding network and its backends
-    m("pc: one sample per minibatch never trained", "engine/pc.py",
+    m("pc: one sample per minibatch never trained", "pc",
       "index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])",
-      "index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size - 1])", *PC),
-    m("pc: latents not written back to the store", "engine/pc.py",
-      "            self.be.scatter_rows(y, self.index, latents[node])", "            pass", *PC),
-    m("pc: latent init 0.1 -> 0", "engine/pc.py", "LATENT_INIT = 0.1", "LATENT_INIT = 0.0", *PC),
-    m("pc: per-sample limit not scaled by the layer width", "engine/pc.py",
-      "be.upload(threshold * width, state.limits)", "be.upload(threshold, state.limits)", *PC),
-    m("pc: inference step cap off by one", "engine/pc.py",
-      "todo = min(self.STEPS_PER_CHECK, max_steps - done)", "todo = min(self.STEPS_PER_CHECK, max_steps - done + 1)", *PC),
-    m("pc: energy history not divided by the samples", "engine/pc.py",
-      "history.energy[name].append(total / n)", "history.energy[name].append(total)", *PC),
-    m("pc: Glorot limit uses fan_in only", "engine/pc.py",
-      "limit = math.sqrt(6.0 / (fan_in + fan_out))", "limit = math.sqrt(6.0 / fan_in)", *PC),
-    m("numpy backend: weight update skips the last partial chunk", "engine/backends.py",
-      "        for i in range(0, n_l, step):", "        for i in range(0, n_l - n_l % step if n_l > step else n_l, step):", *PC),
-    m("numpy backend: top-down error added instead of subtracted", "engine/backends.py",
-      "            np.subtract(t, E_above, out=t)", "            np.add(t, E_above, out=t)", *PC),
-    m("numpy backend: inference mask ignored", "engine/backends.py",
-      "            np.multiply(t, mask[:, None], out=t)", "            pass", *PC),
-    m("numpy backend: leaky slope ignored", "engine/backends.py",
+      "index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size - 1])", *PC_TRAINED),
+    m("pc: latents not written back to the store", "pc",
+      "            self.be.scatter_rows(y, self.index, latents[node])", "            pass", *PC_TRAINED),
+    m("pc: latent init 0.1 -> 0", "pc", "LATENT_INIT = 0.1", "LATENT_INIT = 0.0", *PC_TRAINED),
+    m("pc: per-sample limit not scaled by the layer width", "pc",
+      "be.upload(threshold * width, state.limits)", "be.upload(threshold, state.limits)", *PC_TRAINED),
+    m("pc: inference step cap off by one", "pc",
+      "todo = min(self.STEPS_PER_CHECK, max_steps - done)", "todo = min(self.STEPS_PER_CHECK, max_steps - done + 1)", *PC_TRAINED),
+    m("pc: energy history not divided by the samples", "pc",
+      "history.energy[name].append(total / n)", "history.energy[name].append(total)", *PC_TRAINED),
+    m("pc: Glorot limit uses fan_in only", "pc",
+      "limit = math.sqrt(6.0 / (fan_in + fan_out))", "limit = math.sqrt(6.0 / fan_in)", "tests/test_pc.py"),
+    m("numpy backend: weight update skips the last partial chunk", "backends",
+      "        for i in range(0, n_l, step):", "        for i in range(0, n_l - n_l % step if n_l > step else n_l, step):",
+      *t("pc", "test_numpy_backend_matches_the_reference_on_wide_layers")),
+    m("numpy backend: top-down error added instead of subtracted", "backends",
+      "            np.subtract(t, E_above, out=t)", "            np.add(t, E_above, out=t)", *PC_GRADIENTS),
+    m("numpy backend: inference mask ignored", "backends",
+      "            np.multiply(t, mask[:, None], out=t)", "            pass", *PC_TRAINED, *PC_AGREE),
+    m("numpy backend: leaky slope ignored", "backends",
       "            np.maximum(G, self.dtype.type(slope), out=G)  # G = phi'(A)",
-      "            np.maximum(G, self.dtype.type(0.0), out=G)  # G = phi'(A)", *PC),
-    m("numpy backend: a stopped sample keeps counting steps", "engine/backends.py",
-      "        active &= ~done\n        steps += active", "        steps += active\n        active &= ~done", *PC),
+      "            np.maximum(G, self.dtype.type(0.0), out=G)  # G = phi'(A)", *PC_GRADIENTS, *PC_AGREE),
+    m("numpy backend: a stopped sample keeps counting steps", "backends",
+      "        active &= ~done\n        steps += active", "        steps += active\n        active &= ~done", *PC_TRAINED),
     # --- the Warp kernels
-    m("kernels: stop test <= instead of <", "kernels/warp_kernels.py",
-      "if not (row_energy[e, r] < limits[e]):", "if not (row_energy[e, r] <= limits[e]):", *KERNELS),
-    m("kernels: split-K sum drops the last slice", "kernels/warp_kernels.py",
-      "        for s in range(1, D.shape[0]):", "        for s in range(1, D.shape[0] - 1):", *KERNELS),
-    m("kernels: latent step ignores the mask", "kernels/warp_kernels.py",
-      "            if mask[r] == 0:\n                return", "            if mask[r] == 2:\n                return", *KERNELS),
-    m("kernels: gather ignores the index", "kernels/warp_kernels.py",
-      "    dst[r, c] = src[index[r], c]", "    dst[r, c] = src[r, c]", *KERNELS),
-    m("kernels: weight kernel does not keep W transposed", "kernels/warp_kernels.py",
-      "            wp.tile_store(Wt, wp.tile_transpose(w), offset=(col, row))", "            pass", *KERNELS),
-    m("kernels: sigmoid padding leaks into the row energies", "kernels/warp_kernels.py",
-      '        if wp.static(activation == "sigmoid"):', '        if wp.static(activation == "none"):', *KERNELS),
-    m("kernels: latent split uses the wrong K range", "kernels/warp_kernels.py",
-      "        for k in range(s * steps, end):", "        for k in range(s * steps + 1, end):", *KERNELS),
-    m("kernels: weight step sign", "kernels/warp_kernels.py",
+    m("kernels: stop test <= instead of <", "kernels.warp_kernels",
+      "if not (row_energy[e, r] < limits[e]):", "if not (row_energy[e, r] <= limits[e]):", *t("kernels", "test_stop_converged_hand_case")),
+    m("kernels: split-K sum drops the last slice", "kernels.warp_kernels",
+      "        for s in range(1, D.shape[0]):", "        for s in range(1, D.shape[0] - 1):", *t("kernels", "test_latent_update_matches_reference")),
+    m("kernels: latent step ignores the mask", "kernels.warp_kernels",
+      "            if mask[r] == 0:\n                return", "            if mask[r] == 2:\n                return", *t("kernels", "test_latent_update_mask_leaves_inactive_rows_alone")),
+    m("kernels: gather ignores the index", "kernels.warp_kernels",
+      "    dst[r, c] = src[index[r], c]", "    dst[r, c] = src[r, c]", *t("kernels", "test_gather_and_scatter_rows")),
+    m("kernels: weight kernel does not keep W transposed", "kernels.warp_kernels",
+      "            wp.tile_store(Wt, wp.tile_transpose(w), offset=(col, row))", "            pass", *t("kernels", "test_weight_update_keeps_the_transpose")),
+    m("kernels: sigmoid padding leaks into the row energies", "kernels.warp_kernels",
+      '        if wp.static(activation == "sigmoid"):', '        if wp.static(activation == "none"):',
+      *t("kernels", "test_predict_matches_reference", "test_small_tiles_many_partial_edges")),
+    m("kernels: latent split uses the wrong K range", "kernels.warp_kernels",
+      "        for k in range(s * steps, end):", "        for k in range(s * steps + 1, end):", *t("kernels", "test_latent_update_matches_reference")),
+    m("kernels: weight step sign", "kernels.warp_kernels",
       "        w = wp.tile_load(W, shape=(tm, tn), offset=(row, col)) + d * two_eta",
-      "        w = wp.tile_load(W, shape=(tm, tn), offset=(row, col)) - d * two_eta", *KERNELS),
-    m("reference: tanh derivative", "kernels/reference.py", "        return one - t * t", "        return one - t", *KERNELS),
+      "        w = wp.tile_load(W, shape=(tm, tn), offset=(row, col)) - d * two_eta",
+      *t("kernels", "test_weight_update_matches_reference")),
+    m("reference: tanh derivative", "kernels.reference", "        return one - t * t", "        return one - t",
+      *t("kernels", "test_reference_derivative_vs_central_differences")),
     # --- evaluation
-    m("evaluate: accept with < instead of <=", "engine/evaluate.py",
-      "    accepted = best_tme <= delta", "    accepted = best_tme < delta", *EVAL),
-    m("evaluate: precision defined as 0 with nothing accepted", "engine/evaluate.py",
-      "    precision = _safe_div(tp, tp + fp, 1.0)", "    precision = _safe_div(tp, tp + fp, 0.0)", *EVAL),
-    m("evaluate: recall over queries instead of revisits", "engine/evaluate.py",
+    m("evaluate: accept with < instead of <=", "evaluate",
+      "    accepted = best_tme <= delta", "    accepted = best_tme < delta", "tests/test_evaluate.py"),
+    m("evaluate: precision defined as 0 with nothing accepted", "evaluate",
+      "    precision = _safe_div(tp, tp + fp, 1.0)", "    precision = _safe_div(tp, tp + fp, 0.0)", "tests/test_evaluate.py"),
+    m("evaluate: recall over queries instead of revisits", "evaluate",
       "    recall = _safe_div(tp, np.full_like(tp, n_revisit), 0.0)",
-      "    recall = _safe_div(tp, np.full_like(tp, int(tme_a.shape[0])), 0.0)", *EVAL),
-    m("evaluate: revisit tolerance exclusive", "engine/evaluate.py",
-      "    has_revisit = gtm_a.min(axis=1) <= tau", "    has_revisit = gtm_a.min(axis=1) < tau", *EVAL),
-    m("evaluate: ground truth ignores y", "engine/evaluate.py",
-      'gtm = cdist(q[:, :2], r[:, :2], metric="euclidean")', 'gtm = cdist(q[:, :1], r[:, :1], metric="euclidean")', *EVAL),
-    m("runner: ground truth built reference-to-query", "engine/runner.py",
-      'folder, tme, self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses,',
-      'folder, tme, self.open(f"{e.name}/{r}").poses, self.open(f"{e.name}/{q}").poses,', *CLI),
-    m("runner: evaluation cache key ignores the settings", "engine/runner.py",
-      'key = content_hash("evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name, settings.model_dump())',
-      'key = content_hash("evaluate", STAGE_VERSION["evaluate"], qpath.name, rpath.name)', *CLI),
-    # --- the hand-crafted front end
-    m("pfh: upper-edge values beyond the last bin", "plugins/handcrafted/pfh.py",
-      "    return np.clip(idx, 0, bins - 1)", "    return np.clip(idx, 0, bins)", *HAND),
-    m("pfh: histogram normalised to 1 instead of 100", "plugins/handcrafted/pfh.py",
-      PFH_NORMALISE, PFH_NORMALISE.replace("100", "1"), *HAND),
-    m("sda: per_axis ignores the threshold", "plugins/handcrafted/sda.py",
-      "        positive = d > threshold  # (N, S, W, 2)", "        positive = d > 0  # (N, S, W, 2)", *HAND),
-    m("sda: magnitude slope inverted", "plugins/handcrafted/sda.py",
-      "        return _slope(delta[..., 1], delta[..., 0]).astype(np.float32)\n    if mode",
-      "        return _slope(delta[..., 0], delta[..., 1]).astype(np.float32)\n    if mode", *HAND),
-    # --- recorded runs: `vitaplace import` and `dataset:` in scenarios
-    m("matimport: v7.3 arrays not transposed back", "engine/matimport.py",
-      "        return data.T\n", "        return data\n", *MATIMPORT),
-    m("matimport: boards and columns swapped in the whisker index", "engine/matimport.py",
-      "theta_run = np.transpose(theta, (2, 1, 0)).reshape(n, 24)",
-      "theta_run = np.transpose(theta, (2, 0, 1)).reshape(n, 24)", *MATIMPORT),
-    m("matimport: pose_return.mat not looked for", "engine/matimport.py",
-      "for f in POSE_FILES if (folder / f).is_file()", "for f in POSE_FILES[:1] if (folder / f).is_file()", *MATIMPORT),
-    m("matimport: NaN in theta or xy not named by file and variable", "engine/matimport.py",
-      "        raise DatasetError(f\"{path}: variable '{name}' has shape {arr.shape}, expected {_EXPECTED[kind]}\")\n"
-      "    _check_finite(arr, path, name)",
-      "        raise DatasetError(f\"{path}: variable '{name}' has shape {arr.shape}, expected {_EXPECTED[kind]}\")",
-      *MATIMPORT),
-    m("runner: a recorded run's key ignores its content", "engine/runner.py",
-      'content_hash("recorded", STAGE_VERSION["simulate"], checksum.digest(path))',
-      'content_hash("recorded", STAGE_VERSION["simulate"], str(path))', *MATIMPORT),
-    m("runner: recorded runs not checked before the stages", "engine/runner.py",
-      "        run.validate()\n", "", *MATIMPORT),
-    m("scenario: recorded evaluation runs not relative to the scenario file", "engine/scenario.py",
-      '            fix(entry.get("datasets"), ("query", "reference"))', "            pass", *MATIMPORT),
-    m("features: unusable-data warning repeated for every method", "engine/features.py",
-      "    if feature in run.warnings:\n        return\n", "", *MATIMPORT),
-    m("handcrafted: no warning for a run without contacts", "plugins/handcrafted/extractor.py",
-      "if n and int(run.contact_offsets[-1]) == 0:", "if n and int(run.contact_offsets[-1]) < 0:", *MATIMPORT),
-    # --- the simulator
-    m("sim: stored xy taken at the start of the cycle", "engine/sim/simulate.py",
-      "            xy[k] = series[-1]", "            xy[k] = series[0]", *SIM),
-    m("sim: route lateral noise std doubled", "engine/sim/controllers.py",
-      "        self._lateral = _OU(self.rng, self.spec.lateral_noise, tau)",
-      "        self._lateral = _OU(self.rng, 2 * self.spec.lateral_noise, tau)", *SIM),
-    m("sim: OU process variance not stationary", "engine/sim/controllers.py",
-      "self.x = a * self.x + self.sigma * math.sqrt(1 - a * a) * float(self.rng.normal())",
-      "self.x = a * self.x + self.sigma * float(self.rng.normal())", *SIM),
-    m("sim: penetration signal without the 0.1 offset", "engine/sim/model.py",
-      "/ (np.asarray(along, dtype=float)[:, None] + 0.1)", "/ (np.asarray(along, dtype=float)[:, None] + 0.2)", *SIM),
-    m("sim: penetration normal from the whisker's x axis", "engine/sim/model.py",
-      "np.add.at(out, whisker, penetration_deflection(-dist, local_normal[:, 1:], along))",
-      "np.add.at(out, whisker, penetration_deflection(-dist, local_normal[:, :2], along))", *SIM),
-    m("worlds: panels on the wrong side of the wall", "engine/sim/build.py",
-      "            face = np.array([cx, cy]) + inward[:2] * t / 2  # centre of the wall's inner face",
-      "            face = np.array([cx, cy]) - inward[:2] * t / 2  # centre of the wall's inner face", *WORLDS),
-    m("worlds: landmark height offset ignored", "engine/sim/build.py",
-      "shape = dict(type=_GEOM.mjGEOM_BOX, pos=(x, y, lm.z + lm.size[2] / 2)",
-      "shape = dict(type=_GEOM.mjGEOM_BOX, pos=(x, y, lm.size[2] / 2)", *WORLDS),
-    m("robot: camera at the base centre's side instead of cam0's", "engine/sim/robot.py",
-      "CAMERA_POS = (0.5166, 0.0573, 0.315)", "CAMERA_POS = (0.5166, 0.0, 0.315)", *SIM),
-    m("routes: footprint clearance forgets the head's own radius", "engine/sim/controllers.py",
-      "dist[len(xy):] - HEAD_RADIUS)", "dist[len(xy):])", *SIM),
-    m("evaluate: recall at 100 % precision taken at 90 %", "engine/evaluate.py",
+      "    recall = _safe_div(tp, np.full_like(tp, int(tme_a.shape[0])), 0.0)", "tests/test_evaluate.py"),
+    m("evaluate: revisit tolerance exclusive", "evaluate",
+      "    has_revisit = gtm_a.min(axis=1) <= tau", "    has_revisit = gtm_a.min(axis=1) < tau", "tests/test_evaluate.py"),
+    m("evaluate: ground truth ignores y", "evaluate",
+      'gtm = cdist(q[:, :2], r[:, :2], metric="euclidean")', 'gtm = cdist(q[:, :1], r[:, :1], metric="euclidean")',
+      "tests/test_evaluate.py"),
+    m("evaluate: recall at 100 % precision taken at 90 %", "evaluate",
       "full = self.precision >= 1.0", "full = self.precision >= 0.9", "tests/test_evaluate.py"),
-    m("sweep: jobs lost with a broken pool are not run again", "engine/sweep.py",
-      "                rounds.append(([job], 1))", "                pass", "tests/test_sweep.py"),
-    m("routes: partial revisit applied to the reference run", "engine/scenario.py",
-      'if role == "query" and self.query_off_route:', 'if role == "reference" and self.query_off_route:',
-      "tests/test_cli.py"),
-    m("worlds: obstacle map ignores the arena depth", "engine/sim/environment.py",
+    m("runner: ground truth built reference-to-query", "runner",
+      'folder, tme, self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses,',
+      'folder, tme, self.open(f"{e.name}/{r}").poses, self.open(f"{e.name}/{q}").poses,',
+      *t("cli", "test_oracle_features_score_perfectly_end_to_end")),
+    m("runner: evaluation cache key ignores the settings", "runner",
+      'for side in (q, r)], settings.model_dump(),', 'for side in (q, r)],',
+      *t("cli", "test_cache_redoes_exactly_what_a_change_touches")),
+    # --- the hand-crafted front end
+    m("pfh: upper-edge values beyond the last bin", "handcrafted.pfh",
+      "    return np.clip(idx, 0, bins - 1)", "    return np.clip(idx, 0, bins)", "tests/test_handcrafted.py"),
+    m("pfh: histogram normalised to 1 instead of 100", "handcrafted.pfh",
+      PFH_NORMALISE, PFH_NORMALISE.replace("100", "1"), "tests/test_handcrafted.py"),
+    m("sda: per_axis ignores the threshold", "handcrafted.sda",
+      "        positive = d > threshold  # (N, S, W, 2)", "        positive = d > 0  # (N, S, W, 2)", "tests/test_handcrafted.py"),
+    m("sda: magnitude slope inverted", "handcrafted.sda",
+      "        return _slope(delta[..., 1], delta[..., 0]).astype(np.float32)\n    if mode",
+      "        return _slope(delta[..., 0], delta[..., 1]).astype(np.float32)\n    if mode", "tests/test_handcrafted.py"),
+    m("profile: grey is the brightest channel, not the mean of R, G, B", "handcrafted.profile",
+      "grey = images[:, : self.rows].astype(np.float32).mean(axis=-1)",
+      "grey = images[:, : self.rows].astype(np.float32).max(axis=-1)", "tests/test_handcrafted.py"),
+    m("handcrafted: no warning for a run without contacts", "handcrafted.extractor",
+      "if n and int(run.contact_offsets[-1]) == 0:", "if n and int(run.contact_offsets[-1]) < 0:", "tests/test_matimport.py"),
+    # --- recorded runs: `vitaplace import`, run files and `dataset:` in scenarios
+    m("matimport: v7.3 arrays not transposed back", "matimport",
+      "        return data.T.astype(_CLASSES[declared], copy=False) if declared in _CLASSES else data.T",
+      "        return data.astype(_CLASSES[declared], copy=False) if declared in _CLASSES else data", "tests/test_matimport.py"),
+    m("matimport: boards and columns swapped in the whisker index", "matimport",
+      "theta_run = np.transpose(theta, (2, 1, 0)).reshape(n, 24)",
+      "theta_run = np.transpose(theta, (2, 0, 1)).reshape(n, 24)", "tests/test_matimport.py"),
+    m("matimport: pose_return.mat not looked for", "matimport",
+      "for f in POSE_FILES if (folder / f).is_file()", "for f in POSE_FILES[:1] if (folder / f).is_file()", "tests/test_matimport.py"),
+    m("matimport: NaN in theta or xy not named by file and variable", "matimport",
+      "        raise DatasetError(f\"{path}: variable '{name}' holds no samples; expected {_EXPECTED[kind]}\")\n"
+      "    _check_finite(arr, path, name)",
+      "        raise DatasetError(f\"{path}: variable '{name}' holds no samples; expected {_EXPECTED[kind]}\")",
+      "tests/test_matimport.py"),
+    m("runner: recorded runs not checked before the stages", "runner",
+      "        run = open_run(path)\n        run.validate()\n", "        run = open_run(path)\n", "tests/test_matimport.py"),
+    m("scenario: recorded evaluation runs not relative to the scenario file", "scenario",
+      '            fix(entry.get("datasets"), ("query", "reference"))', "            pass", "tests/test_matimport.py"),
+    m("features: unusable-data warning repeated for every method", "features",
+      "    if feature in run.warnings:\n        return\n", "", "tests/test_matimport.py"),
+    m("dataset: NaN in a float field not refused", "dataset",
+      'if data.dtype.kind != "f" or data.size == 0:', 'if data.dtype.kind != "i" or data.size == 0:',
+      *t("dataset", "test_nan_values_are_reported_with_field_and_sample", "test_nan_in_memory_is_rejected")),
+    # --- the simulator
+    m("sim: stored xy taken at the start of the cycle", "sim.simulate",
+      "            xy[k] = series[-1]", "            xy[k] = series[0]",
+      *t("sim", "test_stored_xy_is_the_deflection_at_maximum_protraction_and_yaw_is_wrapped")),
+    m("sim: route lateral noise std doubled", "sim.controllers",
+      "        self._lateral = _OU(self.rng, self.spec.lateral_noise, tau)",
+      "        self._lateral = _OU(self.rng, 2 * self.spec.lateral_noise, tau)",
+      *t("sim", "test_route_noise_processes_have_the_documented_standard_deviations")),
+    m("sim: OU process variance not stationary", "sim.controllers",
+      "self.x = a * self.x + self.sigma * math.sqrt(1 - a * a) * float(self.rng.normal())",
+      "self.x = a * self.x + self.sigma * float(self.rng.normal())",
+      *t("sim", "test_route_noise_processes_have_the_documented_standard_deviations")),
+    m("sim: penetration signal without the 0.1 offset", "sim.model",
+      "/ (np.asarray(along, dtype=float)[:, None] + 0.1)", "/ (np.asarray(along, dtype=float)[:, None] + 0.2)",
+      *t("sim", "test_penetration_deflection_hand_case", "test_penetration_whiskers_pass_through_and_report_the_plugin_formula")),
+    m("sim: penetration normal from the whisker's x axis", "sim.model",
+      "np.add.at(out, whisker, penetration_deflection(-dist, local_normal[:, 1:], along))",
+      "np.add.at(out, whisker, penetration_deflection(-dist, local_normal[:, :2], along))",
+      *t("sim", "test_penetration_whiskers_pass_through_and_report_the_plugin_formula")),
+    m("worlds: panels on the wrong side of the wall", "sim.build",
+      "            face = np.array([cx, cy]) + inward[:2] * t / 2  # centre of the wall's inner face",
+      "            face = np.array([cx, cy]) - inward[:2] * t / 2  # centre of the wall's inner face", "tests/test_worlds.py"),
+    m("worlds: landmark height offset ignored", "sim.build",
+      "shape = dict(type=_GEOM.mjGEOM_BOX, pos=(x, y, lm.z + lm.size[2] / 2)",
+      "shape = dict(type=_GEOM.mjGEOM_BOX, pos=(x, y, lm.size[2] / 2)", "tests/test_worlds.py"),
+    m("robot: camera at the base centre's side instead of cam0's", "sim.robot",
+      "CAMERA_POS = (0.5166, 0.0573, 0.315)", "CAMERA_POS = (0.5166, 0.0, 0.315)",
+      *t("sim", "test_camera_projects_a_known_point_where_the_whiskeye_pinhole_model_says",
+         "test_compiled_robot_has_whiskeyes_body_and_whisker_poses")),
+    m("routes: footprint clearance forgets the head's own radius", "sim.controllers",
+      "dist[len(xy):] - HEAD_RADIUS)", "dist[len(xy):])",
+      *t("sim", "test_route_keeps_body_and_head_clear_of_obstacles", "test_shipped_routes_are_what_the_route_generator_makes")),
+    m("routes: the generator keeps the first clear point, not the last", "sim.routegen",
+      "        out.append(xy[stop - 1])", "        out.append(xy[first])",
+      *t("sim", "test_shipped_routes_are_what_the_route_generator_makes")),
+    m("worlds: obstacle map ignores the arena depth", "sim.environment",
       "        self.half = np.array([env.arena.half_x, env.arena.half_y])",
-      "        self.half = np.array([env.arena.half_x, env.arena.half_x])", *SIM),
+      "        self.half = np.array([env.arena.half_x, env.arena.half_x])", *t("sim", "test_obstacle_map_of_a_rectangular_arena")),
+    m("routes: partial revisit applied to the reference run", "scenario",
+      'if role == "query" and self.query_off_route:', 'if role == "reference" and self.query_off_route:',
+      *t("cli", "test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route")),
+    m("plausibility: the body's radius forgotten at the arena's edge", "plausibility",
+      "return np.any(np.abs(points) + BODY_RADIUS > half, axis=1)", "return np.any(np.abs(points) > half, axis=1)",
+      *t("cli", "test_settings_just_inside_the_arena_are_valid")),
+    m("viewer: the start heading taken as radians", "sim.viewer",
+      "sim.new_data((x, y, math.radians(yaw_deg)))", "sim.new_data((x, y, yaw_deg))",
+      *t("video", "test_the_viewer_shows_the_robot_at_the_environments_start")),
+    m("video: more frames than the cap", "video",
+      "step = step or max(1, math.ceil(n_samples / MAX_FRAMES))", "step = step or max(1, n_samples // MAX_FRAMES)",
+      *t("video", "test_frame_indices")),
+    m("sim: simulate_run looked up in the wrong module", "sim",
+      '"simulate_run": "simulate",', '"simulate_run": "environment",',
+      *t("sim", "test_the_simulator_package_exports_its_modules_names")),
+    m("glsetup: an unloadable GL library chosen", "sim.glsetup",
+      "        if _loadable(backend):", "        if not _loadable(backend):",
+      *t("sim", "test_without_mujoco_gl_the_first_loadable_library_is_chosen")),
+    m("render: the robot's own body shown to its camera", "sim.render",
+      "self._option.geomgroup[ROBOT_GROUP] = 1 if show_robot else 0", "self._option.geomgroup[ROBOT_GROUP] = 1",
+      *t("sim", "test_the_eye_camera_sees_the_robot_only_when_asked")),
+    m("plot: the route drawn open", "sim.plot",
+      '        r = np.array([*top_view["route"], top_view["route"][0]])', '        r = np.array(top_view["route"])',
+      *t("sim", "test_top_view_plot_closes_the_route")),
+    # --- configuration, plugins, reports
+    m("configfile: extends merges the base over the file", "configfile",
+      "    return deep_merge(base, data)", "    return deep_merge(data, base)", *t("sim", "test_extends_deep_merges_and_replaces_lists")),
+    m("schema docs: >= documented as >", "schema_docs", '("ge", ">=")', '("ge", ">")', *t("docs", "test_scenario_reference_is_current")),
+    m("hookspecs: hooks declared for another project", "hookspecs",
+      "hookspec = pluggy.HookspecMarker(PROJECT)", 'hookspec = pluggy.HookspecMarker("other")', *t("plugins", "test_hookspecs_found")),
+    m("plugins: two extractors of one name accepted", "plugins",
+      "        if name in self.extractors:\n            raise PluginError(", "        if False:\n            raise PluginError(",
+      *t("plugins", "test_duplicate_names_raise_naming_both_sources", "test_duplicate_of_a_builtin_name_is_an_error")),
+    m("mupnet: diverged latents not flagged", "mupnet.extractor", "        if diverged.any():", "        if False:",
+      *t("mupnet_plugin", "test_diverging_latents_are_flagged_per_sample")),
+    m("api: overrides given as a mapping not written as YAML", "api",
+      'return [f"{key}={json.dumps(value)}" for key, value in overrides.items()]',
+      'return [f"{key}={value}" for key, value in overrides.items()]',
+      *t("api", "test_overrides_as_a_mapping_or_as_set_strings_mean_the_same")),
+    m("mlflow: metrics not logged", "mlflow_tracking", "        if metrics:\n", "        if not metrics:\n",
+      *t("reports", "test_a_finished_run_is_logged_to_mlflow_when_asked")),
+    m("figures: TME colours stretched to the outliers", "figures",
+      "TME_PERCENTILES = (1.0, 90.0)", "TME_PERCENTILES = (1.0, 100.0)",
+      *t("reports", "test_tme_colours_span_its_bulk_not_its_outliers_and_the_colour_bar_says_so")),
+    m("report: no warning when exactly half hit the cap", "report",
+      "if capped / samples >= CAP_WARNING_SHARE:", "if capped / samples > CAP_WARNING_SHARE:",
+      *t("reports", "test_the_report_warns_when_most_test_time_inferences_hit_the_cap")),
+    m("provenance: a changed checkout reported clean", "provenance",
+      "    return bool(result.stdout.strip())", "    return False",
+      *t("reports", "test_git_dirty_tells_a_changed_checkout_from_a_clean_one")),
+    # --- seals, completion records, output folders, CPUs
+    m("checksum: a folder's digest ignores its file names", "checksum",
+      '            h.update(str(file.relative_to(path)).encode() + b"\\0")', "            pass",
+      *t("seals", "test_digest_of_a_folder_is_that_of_its_names_and_contents_in_order")),
+    m("checksum: a damaged output passes its seal", "checksum",
+      'if record.get("sha256") != digest(path):', 'if record.get("sha256") == "":',
+      *t("seals", "test_check_says_why_an_output_cannot_be_used")),
+    m("completion: a changed file passes the record", "completion",
+      "        if _digest(folder / name) != files[name]:", "        if False:",
+      *t("seals", "test_a_completion_record_notices_a_changed_file_and_scenario")),
+    m("outdir: interrupted writes left behind", "outdir",
+      'if path.is_file() and path.name.endswith(".part"):', 'if path.is_file() and path.name.endswith(".tmp"):',
+      *t("seals", "test_stale_temporaries_are_removed_and_the_lock_is_kept")),
+    m("cpus: the largest CPU count taken", "cpus",
+      "    return max(1, min(counts))", "    return max(1, max(counts))",
+      *t("cpus", "test_usable_cpus_is_the_smallest_of_affinity_slurm_and_override")),
+    m("slurm: --time rounded down to whole minutes", "slurm",
+      "    return -(-seconds // 60)", "    return seconds // 60", *t("sweep", "test_slurm_time_limits_by_hand")),
     # --- sweeps and their summary
-    m("summary: standard deviation with ddof=0", "engine/summary.py",
-      "    std = float(x.std(ddof=1))", "    std = float(x.std(ddof=0))", *SWEEP),
-    m("summary: normal quantile instead of Student's t", "engine/summary.py",
-      "float(stats.t.ppf(0.5 + LEVEL / 2, n - 1))", "float(stats.norm.ppf(0.5 + LEVEL / 2))", *SWEEP),
-    m("summary: t with n degrees of freedom", "engine/summary.py",
-      "stats.t.ppf(0.5 + LEVEL / 2, n - 1)", "stats.t.ppf(0.5 + LEVEL / 2, n)", *SWEEP),
-    m("summary: interval from the std instead of the standard error", "engine/summary.py",
-      "* std / math.sqrt(n)", "* std", *SWEEP),
-    m("summary: an interval made up for one seed", "engine/summary.py", "    if n < 2:", "    if n < 1:", *SWEEP),
-    m("summary: differences b - a", "engine/summary.py",
-      "diffs = [va[s] - vb[s] for s in seeds]", "diffs = [vb[s] - va[s] for s in seeds]", *SWEEP),
-    m("summary: differences over seeds only one method has", "engine/summary.py",
-      "seeds = [s for s in va if s in vb]", "seeds = list(va)", *SWEEP),
-    m("summary: settings summarised as metrics", "engine/summary.py",
-      "        if key in IDENTITY or key in SETTINGS:", "        if key in IDENTITY:", *SWEEP),
-    m("sweep: a failed local seed stops the sweep", "engine/sweep.py",
+    m("resample: block length rounded down", "resample",
+      "max(1, math.ceil(math.sqrt(n_queries)))", "max(1, math.floor(math.sqrt(n_queries)))",
+      *t("summary", "test_block_length_and_draws")),
+    m("summary: standard deviation with ddof=0", "summary",
+      '"std": float(x.std(ddof=1)) if n >= 2', '"std": float(x.std(ddof=0)) if n >= 2',
+      *t("summary", "test_describe_matches_hand_computed_statistics")),
+    m("summary: normal quantile instead of Student's t", "summary",
+      "float(stats.t.ppf(0.5 + LEVEL / 2, n - 1))", "float(stats.norm.ppf(0.5 + LEVEL / 2))",
+      *t("summary", "test_describe_matches_hand_computed_statistics")),
+    m("summary: t with n degrees of freedom", "summary",
+      "stats.t.ppf(0.5 + LEVEL / 2, n - 1)", "stats.t.ppf(0.5 + LEVEL / 2, n)",
+      *t("summary", "test_describe_matches_hand_computed_statistics")),
+    m("summary: interval from the std instead of the standard error", "summary",
+      '* out["std"] / math.sqrt(n)', '* out["std"]', *t("summary", "test_describe_matches_hand_computed_statistics")),
+    m("summary: an interval made up for one seed", "summary", "    if n >= 2:\n        half", "    if n >= 1:\n        half",
+      *t("summary", "test_one_seed_has_no_interval_over_seeds_and_says_so")),
+    m("summary: differences b - a", "summary",
+      "diffs = [va[s] - vb[s] for s in seeds]", "diffs = [vb[s] - va[s] for s in seeds]",
+      *t("summary", "test_paired_differences_are_per_seed", "test_sign_flip_p_values_by_hand")),
+    m("summary: differences over seeds only one method has", "summary",
+      "seeds = [s for s in va if s in vb]", "seeds = list(va)", *t("summary", "test_paired_differences_are_per_seed")),
+    m("summary: settings summarised as metrics", "summary",
+      "        if key in IDENTITY or key in SETTINGS:", "        if key in IDENTITY:",
+      *t("summary", "test_every_numeric_value_is_summarised_and_settings_are_not")),
+    m("sweep: jobs lost with a broken pool are not run again", "sweep",
+      "                rounds.append(([job], 1))", "                pass", *t("sweep", "test_a_seed_whose_worker_process_dies_fails_alone")),
+    m("sweep: a failed local seed stops the sweep", "sweep",
       "                    yield job, None, describe_failure(exc)\n    except BaseException:",
-      "                    raise\n    except BaseException:", *SWEEP),
-    m("sweep: a failed Ray seed stops the sweep", "engine/sweep.py",
+      "                    raise\n    except BaseException:", *t("sweep", "test_local_sweep_keeps_going_past_a_failed_seed")),
+    m("sweep: a failed Ray seed stops the sweep", "sweep",
       "                    yield job, None, describe_failure(exc)\n    finally:",
-      "                    raise\n    finally:", *SWEEP),
-    m("sweep: colour codes kept in the failure line", "engine/sweep.py",
-      'text = " ".join(ANSI.sub("", text).split())', 'text = " ".join(text.split())', *SWEEP),
-    m("sweep: Ray's wrapped exception not unwrapped", "engine/sweep.py",
-      "    if isinstance(cause, BaseException):\n        exc = cause", "    if False:\n        exc = cause", *SWEEP),
-    m("sweep: jobs read environments from the driver's paths", "engine/sweep.py",
-      '            entry["environment"] = str(files[entry["environment"]])', "            pass", *SWEEP),
-    m("sweep: unshared storage never noticed", "engine/sweep.py",
-      "socket.gethostname(), not job.marker or Path(job.marker).exists()", "socket.gethostname(), True", *SWEEP),
-    m("sweep: unshared storage warned for every job", "engine/sweep.py",
-      'if not result["sees_out"] and not outcome.unshared:', 'if not result["sees_out"]:', *SWEEP),
-    m("sweep: --force not passed to the jobs", "engine/sweep.py",
+      "                    raise\n    finally:", *t("sweep", "test_ray_sweep_keeps_going_past_a_failed_seed")),
+    m("sweep: colour codes kept in the failure line", "sweep",
+      'text = " ".join(ANSI.sub("", text).split())', 'text = " ".join(text.split())',
+      *t("sweep", "test_failures_of_ray_tasks_read_as_one_line", "test_local_sweep_keeps_going_past_a_failed_seed")),
+    m("sweep: Ray's wrapped exception not unwrapped", "sweep",
+      "    if isinstance(cause, BaseException):\n        exc = cause", "    if False:\n        exc = cause",
+      *t("sweep", "test_failures_of_ray_tasks_read_as_one_line")),
+    m("sweep: jobs read environments from the driver's paths", "sweep",
+      '            entry["environment"] = str(files[entry["environment"]])', "            pass",
+      *t("sweep", "test_a_job_reads_nothing_from_the_driver_s_files")),
+    m("sweep: unshared storage never noticed", "sweep",
+      "socket.gethostname(), not job.marker or Path(job.marker).exists()", "socket.gethostname(), True",
+      *t("sweep", "test_a_job_reads_nothing_from_the_driver_s_files")),
+    m("sweep: unshared storage warned for every job", "sweep",
+      'if not result["sees_out"] and not outcome.unshared:', 'if not result["sees_out"]:',
+      *t("sweep", "test_the_driver_warns_once_about_unshared_storage_and_reports_failures")),
+    m("sweep: --force not passed to the jobs", "sweep",
       "SeedJob(data, environments, seed, str(out), tuple(force), progress, marker)",
-      "SeedJob(data, environments, seed, str(out), (), progress, marker)", *SWEEP),
-    m("sweep: GPU jobs keep the CPU backend", "engine/sweep.py", "    if gpus_per_job > 0:", "    if gpus_per_job > 1:", *SWEEP),
-    m("sweep: failed seeds exit 0", "engine/cli.py", "        return EXIT_SEEDS_FAILED", "        return 0", *SWEEP),
-    m("aggregate: other scenarios accepted", "engine/aggregate.py",
-      'if manifest.get("scenario") != first_manifest.get("scenario") or identity != first_identity:',
-      'if manifest.get("scenario") != first_manifest.get("scenario"):', *SWEEP),
-    m("aggregate: the seed counted in the scenario's identity", "engine/aggregate.py",
-      'resolved.items() if k != "seed"', 'resolved.items() if k != "name"', *SWEEP),
-    m("aggregate: unfinished runs not recognised", "engine/aggregate.py",
-      'REQUIRED = ("manifest.json", "results.json", "scenario.resolved.yaml")', 'REQUIRED = ("scenario.resolved.yaml",)',
-      *SWEEP),
-    m("aggregate: a seed given twice accepted", "engine/aggregate.py",
-      '        if manifest["seed"] in seen:', "        if False:", *SWEEP),
+      "SeedJob(data, environments, seed, str(out), (), progress, marker)",
+      *t("sweep", "test_a_job_reads_nothing_from_the_driver_s_files", "test_local_sweep_keeps_going_past_a_failed_seed")),
+    m("sweep: GPU jobs keep the CPU backend", "sweep", "    if gpus_per_job > 0:", "    if gpus_per_job > 1:",
+      *t("sweep", "test_gpu_jobs_select_the_gpu_backend_where_a_method_has_one")),
+    m("sweep: failed seeds exit 0", "cli", "        return EXIT_SEEDS_FAILED", "        return 0",
+      *t("sweep", "test_local_sweep_keeps_going_past_a_failed_seed")),
+    m("aggregate: other scenarios accepted", "aggregate",
+      "if run.scenario != first.scenario or run.identity != first.identity:", "if run.scenario != first.scenario:",
+      *t("sweep", "test_aggregate_refuses_other_scenarios_and_unfinished_runs")),
+    m("aggregate: the seed counted in the scenario's identity", "aggregate",
+      'resolved.items() if k != "seed"', 'resolved.items() if k != "name"',
+      *t("sweep", "test_aggregate_reproduces_the_sweep_summary")),
+    m("aggregate: unfinished runs not recognised", "aggregate",
+      'REQUIRED = (completion.RECORD, "manifest.json", "results.json", completion.SCENARIO)', "REQUIRED = (completion.SCENARIO,)",
+      *t("sweep", "test_aggregate_refuses_other_scenarios_and_unfinished_runs")),
+    m("aggregate: a seed given twice accepted", "aggregate", "        if run.seed in seen:", "        if False:",
+      *t("sweep", "test_aggregate_refuses_other_scenarios_and_unfinished_runs")),
 ]
 
 #: Mutants that cannot change a result, kept to document why they survive.
 EQUIVALENT = [
-    (m("pc: top-down error applied with every edge below", "engine/pc.py",
+    (m("pc: top-down error applied with every edge below", "pc",
        "above = self.edge_above.get(e.upper) if self.first_below[e.upper] == e.name else None",
-       "above = self.edge_above.get(e.upper)", *PC),
+       "above = self.edge_above.get(e.upper)", "tests/test_pc.py"),
      "only a node with several edges below and one above would see it twice; in MuPNet's tree the "
      "joint node is the only one with several edges below, and it has none above"),
-    (m("pc: energies also computed on the first predict of a minibatch", "engine/pc.py",
-       "        self.predict_all(energy=steps == 0)", "        self.predict_all(energy=True)", *PC),
+    (m("pc: energies also computed on the first predict of a minibatch", "pc",
+       "        self.predict_all(energy=steps == 0)", "        self.predict_all(energy=True)", "tests/test_pc.py"),
      "the row energies of that predict are overwritten by the last one before anything reads them"),
+    (m("runner: a recorded run's key ignores its content", "runner",
+       'key = content_hash("recorded", STAGE_VERSION["simulate"], digest)',
+       'key = content_hash("recorded", STAGE_VERSION["simulate"], str(path))',
+       *t("matimport", "test_a_changed_run_file_reruns_what_depends_on_it")),
+     "every key that depends on a run also holds the run file's digest (`dataset_digest`), so a changed "
+     "file re-runs what depends on it either way; only the key the manifest records would change"),
 ]
 
 
-def run_tests(tests: tuple[str, ...]) -> bool:
-    """True when the tests pass."""
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
-    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", "--no-header", *tests]
-    return subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True).returncode == 0
+def stale(mutants: list[Mutant], root: Path = ROOT) -> list[str]:
+    """One message per mutant whose snippet does not occur exactly once in its module."""
+    problems = []
+    for mt in mutants:
+        if mt.module not in MODULES:
+            problems.append(f"'{mt.name}': module key '{mt.module}' is not in MODULES")
+            continue
+        file = root / mt.path
+        count = file.read_text().count(mt.old) if file.is_file() else 0
+        if count != 1:
+            where = f"{mt.path} ({count} times)" if file.is_file() else f"{mt.path} (no such file)"
+            problems.append(f"'{mt.name}': its snippet occurs not exactly once in {where}")
+    return problems
 
 
-def apply_and_test(mutant: Mutant) -> bool:
-    """Apply ``mutant``, run its tests, restore the file. True when the mutant was killed."""
-    path = ROOT / mutant.path
-    original = path.read_text()
-    count = original.count(mutant.old)
-    if count != 1:
-        raise SystemExit(f"{mutant.name}: the line to mutate occurs {count} times in {mutant.path}; update the script")
+def modules_needing_mutants(root: Path = ROOT) -> list[str]:
+    """Repository paths of the package's modules longer than MIN_LINES lines."""
+    return sorted(
+        str(p.relative_to(root))
+        for d in PACKAGE_DIRS
+        for p in (root / d).rglob("*.py")
+        if len(p.read_text().splitlines()) > MIN_LINES
+    )
+
+
+def uncovered(root: Path = ROOT) -> list[str]:
+    """Modules over MIN_LINES lines that no mutant in MUTANTS changes."""
+    mutated = {mt.path for mt in MUTANTS}
+    return [path for path in modules_needing_mutants(root) if path not in mutated]
+
+
+class Workspace:
+    """A copy of the working tree in ``folder`` that imports as ``vitaplace``.
+
+    The repository's files (tracked and untracked, not ignored) go to ``folder/repo``;
+    ``folder/site`` maps the package names onto them as pyproject.toml's ``package-dir`` does,
+    and comes first on PYTHONPATH, ahead of the editable install of the working tree.
+    """
+
+    def __init__(self, folder: Path):
+        self.repo = folder / "repo"
+        listed = subprocess.run(
+            ["git", "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+            cwd=ROOT, check=True, capture_output=True,
+        ).stdout.decode().split("\0")
+        for name in filter(None, listed):
+            source = ROOT / name
+            if source.is_file():
+                (self.repo / name).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(source, self.repo / name)
+        import tomllib  # Python >= 3.11 for a run; --check, --list and tests/test_mutation.py work on 3.10
+
+        site = folder / "site"
+        package_dir = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+        for package, directory in sorted(package_dir.items(), key=lambda item: item[0].count(".")):
+            target = site.joinpath(*package.split("."))
+            if package.count(".") == 0:  # the top package: its files, subpackages get links below
+                target.mkdir(parents=True)
+                for f in (self.repo / directory).iterdir():
+                    (target / f.name).symlink_to(f)
+            elif not target.exists():
+                target.symlink_to(self.repo / directory, target_is_directory=True)
+        self.env = {
+            **os.environ,
+            "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+            "PYTHONPATH": os.pathsep.join(filter(None, [str(site), os.environ.get("PYTHONPATH")])),
+            "PYTHONDONTWRITEBYTECODE": "1",  # a mutant of the same size and second must not reuse bytecode
+        }
+
+
+RUNNING: set[subprocess.Popen] = set()
+
+
+def kill(proc: subprocess.Popen) -> None:
+    """End ``proc``'s process group (pytest and whatever it started)."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGKILL)
+
+
+def run_pytest(ws: Workspace, tests: tuple[str, ...], timeout: float) -> tuple[str, str]:
+    """(status, killer): 'passed', 'failed' (killer = the first failing node id, or why pytest
+    stopped when no test ran: under a mutant whose unmutated tests pass, a broken import) or 'timeout'."""
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-rfE", "-p", "no:cacheprovider", "--no-header", *tests]
+    proc = subprocess.Popen(cmd, cwd=ws.repo, env=ws.env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            start_new_session=True, text=True)
+    RUNNING.add(proc)
     try:
-        path.write_text(original.replace(mutant.old, mutant.new))
-        return not run_tests(mutant.tests)
+        out, _ = proc.communicate(timeout=None if math.isinf(timeout) else timeout)
+    except subprocess.TimeoutExpired:
+        kill(proc)
+        proc.communicate()
+        return "timeout", f"over {timeout:.0f} s"
+    except BaseException:  # Ctrl-C: the tests' whole process group goes too
+        kill(proc)
+        raise
     finally:
-        path.write_text(original)
+        RUNNING.discard(proc)
+    if proc.returncode == 0:
+        return "passed", ""
+    failed = [line.split(" ", 1)[1].split(" - ")[0] for line in out.splitlines()
+              if line.startswith(("FAILED tests", "ERROR tests"))]  # pytest's summary, not captured log lines
+    if failed:
+        return "failed", failed[0]
+    # no test failed, yet pytest did not pass: a test module no longer imports (collection error)
+    last = out.strip().splitlines()[-1] if out.strip() else ""
+    return "failed", f"pytest exit {proc.returncode}: {last}"
+
+
+@dataclass(frozen=True)
+class Outcome:
+    mutant: Mutant
+    status: str  # killed, timeout, survived
+    killer: str
+    seconds: float
+
+
+def try_mutant(ws: Workspace, mt: Mutant, timeout: float) -> Outcome:
+    """Apply ``mt`` to the workspace copy, run its tests, restore the copy."""
+    file = ws.repo / mt.path
+    original = file.read_text()
+    start = time.perf_counter()
+    try:
+        file.write_text(original.replace(mt.old, mt.new))
+        status, killer = run_pytest(ws, mt.tests, timeout)
+    finally:
+        file.write_text(original)
+    status = {"failed": "killed", "passed": "survived"}.get(status, status)
+    return Outcome(mt, status, killer, time.perf_counter() - start)
+
+
+def print_row(i: int, total: int, o: Outcome) -> None:
+    label = {"killed": "killed", "timeout": "TIMEOUT", "survived": "SURVIVED"}[o.status]
+    print(f"[{i:3d}/{total}] {label:8s} {o.seconds:5.0f} s  {o.mutant.name}  <- {o.killer or '-'}", flush=True)
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("only", nargs="*", help="run only mutants whose name starts with one of these")
-    ap.add_argument("--list", action="store_true")
+    ap.add_argument("only", nargs="*", help="only mutants of these modules (keys of MODULES) or whose name starts so")
+    ap.add_argument("--list", action="store_true", help="list the chosen mutants and exit")
+    ap.add_argument("--check", action="store_true", help="check that every snippet applies and exit")
+    ap.add_argument("--timeout", type=float, default=600.0, help="seconds per mutant (default 600)")
+    ap.add_argument("--jobs", type=int, default=1, help="mutants run at once, each in its own copy (default 1)")
     args = ap.parse_args(argv)
-    chosen = [mt for mt in MUTANTS if not args.only or any(mt.name.startswith(p) for p in args.only)]
+    chosen = [mt for mt in MUTANTS if not args.only
+              or any(mt.module == p or mt.name.startswith(p) for p in args.only)]
+    problems = stale(chosen + [mt for mt, _ in EQUIVALENT])
+    if problems:
+        print(f"mutation.py: {len(problems)} mutant(s) no longer apply: " + "; ".join(problems), file=sys.stderr)
+        return 2
+    if args.check:
+        print(f"{len(MUTANTS)} mutants and {len(EQUIVALENT)} equivalent ones apply; "
+              f"modules over {MIN_LINES} lines without a mutant: {', '.join(uncovered()) or 'none'}")
+        return 0
     if args.list:
         for mt in chosen:
-            print(f"{mt.name}  ({mt.path}; {', '.join(mt.tests)})")
+            print(f"{mt.name}  ({mt.path}; {' '.join(mt.tests)})")
         return 0
-    if not run_tests(tuple(sorted({t for mt in chosen for t in mt.tests}))):
-        raise SystemExit("the unmutated suite fails: fix it first")
-    killed, survived = 0, []
-    t0 = time.perf_counter()
-    for i, mt in enumerate(chosen, 1):
-        ok = apply_and_test(mt)
-        killed += ok
-        if not ok:
-            survived.append(mt)
-        print(f"[{i:2d}/{len(chosen)}] {'killed  ' if ok else 'SURVIVED'} {mt.name}", flush=True)
+    if not chosen:
+        print("mutation.py: no mutant matches " + " ".join(args.only), file=sys.stderr)
+        return 2
+    for signum in (signal.SIGINT, signal.SIGTERM):  # Ctrl-C, also when started with SIGINT ignored, and `timeout`
+        signal.signal(signum, _interrupt)
+    start = time.perf_counter()
+    outcomes: list[Outcome] = []
+    with tempfile.TemporaryDirectory(prefix="vitaplace-mutation-") as tmp:
+        try:
+            spaces: queue.Queue[Workspace] = queue.Queue()
+            for j in range(max(1, args.jobs)):
+                spaces.put(Workspace(Path(tmp) / str(j)))
+            baseline = tuple(sorted({node for mt in chosen for node in mt.tests}))
+            status, killer = run_pytest(spaces.queue[0], baseline, math.inf)
+            if status != "passed":
+                print(f"mutation.py: the unmutated tests fail ({status}: {killer}); fix them first", file=sys.stderr)
+                return 2
+
+            def work(mt: Mutant) -> Outcome:
+                ws = spaces.get()
+                try:
+                    return try_mutant(ws, mt, args.timeout)
+                finally:
+                    spaces.put(ws)
+
+            pool = ThreadPoolExecutor(max_workers=max(1, args.jobs))
+            try:
+                for i, outcome in enumerate(pool.map(work, chosen), 1):
+                    outcomes.append(outcome)
+                    print_row(i, len(chosen), outcome)
+            finally:  # on Ctrl-C: nothing queued starts, the running tests are killed, then the copies go
+                pool.shutdown(wait=False, cancel_futures=True)
+                for proc in list(RUNNING):
+                    kill(proc)
+                pool.shutdown(wait=True)
+        except KeyboardInterrupt:
+            print(f"\ninterrupted after {len(outcomes)} of {len(chosen)} mutants (the working tree was never changed)",
+                  file=sys.stderr)
+            return 130
+    killed = sum(o.status == "killed" for o in outcomes)
+    timeouts = sum(o.status == "timeout" for o in outcomes)
+    rate = (killed + timeouts) / len(outcomes)
+    print(f"\n{'mutant':60s} {'module':28s} {'result':9s} killed by")
+    for o in outcomes:
+        print(f"{o.mutant.name[:60]:60s} {o.mutant.path:28s} {o.status:9s} {o.killer}")
     for mt, reason in EQUIVALENT:
-        print(f"[  equivalent ] {mt.name}: {reason}")
-    rate = killed / len(chosen) if chosen else 1.0
-    print(f"\nkilled {killed} of {len(chosen)} behaviour-changing mutants: {100 * rate:.0f} % "
-          f"(target {100 * TARGET:.0f} %), {time.perf_counter() - t0:.0f} s")
-    for mt in survived:
-        print(f"  survived: {mt.name} ({mt.path})")
+        print(f"[equivalent] {mt.name}: {reason}")
+    print(f"\nscore: {killed + timeouts}/{len(outcomes)} killed ({100 * rate:.1f} %; {killed} by a failing test, "
+          f"{timeouts} by timeout), {len(outcomes) - killed - timeouts} survived; target {100 * TARGET:.0f} %; "
+          f"{time.perf_counter() - start:.0f} s")
     return 0 if rate >= TARGET else 1
 
 

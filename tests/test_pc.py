@@ -11,8 +11,29 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.backends import NumpyBackend
+from conftest import cuda_present
+from vitaplace.engine.backends import NumpyBackend, get_backend
 from vitaplace.engine.pc import Network, NetworkError
+
+#: The behavioural tests (inference lowers the energy, training lowers the error, samples stop
+#: on their own, ...) run on every backend: numpy, Warp on the CPU, Warp on CUDA (skipped
+#: without a CUDA device). The maths tests (finite differences in float64) stay on numpy.
+BACKENDS = [
+    pytest.param(("numpy", None), id="numpy"),
+    pytest.param(("warp", "cpu"), id="warp-cpu"),
+    pytest.param(("warp", "cuda"), id="warp-cuda", marks=pytest.mark.cuda),
+]
+
+
+@pytest.fixture(scope="module", params=BACKENDS)
+def backend(request):
+    """A function giving a fresh backend of the parametrised kind (a network owns its backend)."""
+    name, device = request.param
+    if device == "cuda" and not cuda_present():
+        pytest.skip("no CUDA device")
+    if name == "warp":
+        pytest.importorskip("warp")
+    return lambda: get_backend(name, device)
 
 SMALL = {
     "modalities": {
@@ -82,7 +103,7 @@ def test_latent_and_weight_gradients_match_finite_differences(activation):
             assert analytic_dw[name][index] == pytest.approx(numeric, rel=1e-5, abs=1e-7), (name, index)
 
 
-def test_inference_with_small_step_never_increases_energy():
+def test_inference_with_small_step_never_increases_energy(backend):
     config = {
         "modalities": {
             "visual": {"input_size": 20, "layers": [10, 6], "eta_y": 0.01, "eta_w": 1e-4, "threshold": 1e-3},
@@ -92,7 +113,7 @@ def test_inference_with_small_step_never_increases_energy():
         "activation": "leaky_relu",
         "slope": 0.2,
     }
-    net = Network(config, seed=0, backend="numpy")
+    net = Network(config, seed=0, backend=backend())
     inputs, latents = random_state(net, n=16, seed=2)
     state = net.batch_state(16)
     state.load(inputs, latents)
@@ -137,9 +158,9 @@ def reconstruction_mse(net: Network, inputs) -> dict[str, float]:
 
 
 @pytest.fixture(scope="module")
-def trained():
+def trained(backend):
     inputs, labels = synthetic()
-    net = Network(SYNTH, seed=0, backend="numpy")
+    net = Network(SYNTH, seed=0, backend=backend())
     before = reconstruction_mse(net, inputs)
     history = net.train(inputs, TRAIN, progress=False)
     return net, inputs, labels, before, history
@@ -183,6 +204,8 @@ def test_inference_stops_at_threshold_or_step_cap(trained):
     assert capped.steps == 7 and not capped.converged
     loose = net.infer(inputs, max_steps=500, thresholds=dict.fromkeys(NO_STOP, 1e9))
     assert loose.steps == 0 and loose.converged
+    for node, y in loose.latents.items():  # no step taken: MuPNet's initial latents, 0.1 everywhere
+        np.testing.assert_array_equal(y, np.full_like(y, 0.1), err_msg=node)
     moderate = net.infer(inputs, max_steps=3000, thresholds=dict.fromkeys(NO_STOP, 5e-3))
     assert moderate.converged and all(v < 5e-3 for v in moderate.mse.values())
 
@@ -220,11 +243,11 @@ def test_a_sample_at_the_cap_is_not_stopped(trained):
     assert result.stopped[~late].all()
 
 
-def test_save_load_gives_identical_inference(trained, tmp_path):
+def test_save_load_gives_identical_inference(trained, backend, tmp_path):
     net, inputs, _, _, _ = trained
     net.set_scaler("tactile", np.zeros(10), np.full(10, 2.0))
     net.save(tmp_path / "net")
-    loaded = Network.load(tmp_path / "net", backend="numpy")
+    loaded = Network.load(tmp_path / "net", backend=backend())
     a = net.infer(inputs, max_steps=50).latents
     b = loaded.infer(inputs, max_steps=50).latents
     for node in a:
@@ -242,11 +265,11 @@ def test_load_refuses_other_format_version(trained, tmp_path):
         Network.load(tmp_path / "net")
 
 
-def test_training_moves_every_sample_every_epoch():
+def test_training_moves_every_sample_every_epoch(backend):
     """With 60 samples in minibatches of 25 (25, 25, 10) every sample is trained once per
     epoch: after one epoch no sample's latents are still at their initial 0.1."""
     inputs, _ = synthetic(n=60)
-    net = Network(SYNTH, seed=2, backend="numpy")
+    net = Network(SYNTH, seed=2, backend=backend())
     latents: dict[str, np.ndarray] = {}
     net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, progress=False, latents=latents)
     for node, y in latents.items():
@@ -254,14 +277,14 @@ def test_training_moves_every_sample_every_epoch():
         assert np.all(np.any(y != np.float32(0.1), axis=1)), f"{node}: samples never trained"
 
 
-def test_energy_history_is_the_per_sample_energy_of_the_epoch():
+def test_energy_history_is_the_per_sample_energy_of_the_epoch(backend):
     """With the weights frozen (eta_w = 0) every minibatch's final energy is F of its samples'
     final latents under the same weights, so an epoch's history entry must equal
     Network.energy of all samples at their final latents, divided by the sample count."""
     inputs, _ = synthetic(n=60)
     frozen = {**SYNTH, "modalities": {m: {**mc, "eta_w": 0.0} for m, mc in SYNTH["modalities"].items()},
               "joint": {**SYNTH["joint"], "eta_w": 0.0}}
-    net = Network(frozen, seed=4, backend="numpy")
+    net = Network(frozen, seed=4, backend=backend())
     latents: dict[str, np.ndarray] = {}
     history = net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, progress=False, latents=latents)
     expected = net.energy(inputs, latents)
@@ -374,9 +397,9 @@ def test_convergence_rule_by_hand():
     assert not converged([10.0, 10.0, 10.0, 10.0], 0, 0.1)  # off
 
 
-def test_training_stops_when_the_energy_has_converged():
+def test_training_stops_when_the_energy_has_converged(backend):
     inputs, _ = synthetic(n=60)
-    net = Network(SYNTH, seed=1, backend="numpy")
+    net = Network(SYNTH, seed=1, backend=backend())
     cfg = {**TRAIN, "epochs": 200, "batch_size": 25, "converge_window": 5, "converge_tol": 0.02}
     history = net.train(inputs, cfg, progress=False)
     assert history.converged and 5 < history.epochs < 200

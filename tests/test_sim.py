@@ -472,30 +472,45 @@ def test_penetration_whiskers_pass_through_and_report_the_plugin_formula(bare_si
     sim.reset((0.0, 0.0, math.pi / 2))
     for _ in range(2):
         sim.cycle(on_series=lambda i, p: free.append(sim.sim.theta(sim.data)))
-    pressed = []
+    m, s = sim.model, sim.sim
+
+    def plugin_formula(d) -> tuple[np.ndarray, int]:
+        """The plugin's signal recomputed here from MuJoCo's raw contacts in ``d``, and their count."""
+        expected, touching = np.zeros((N_WHISKERS, 2)), 0
+        for c in d.contact[: d.ncon]:
+            g1, g2 = int(c.geom[0]), int(c.geom[1])
+            w = s.whisker_of_geom[g1] if s.whisker_of_geom[g1] >= 0 else s.whisker_of_geom[g2]
+            if w < 0:
+                continue
+            touching += 1
+            # MuJoCo's frame normal points from geom1 to geom2; we want object -> whisker
+            n = np.array(c.frame[:3]) * (1.0 if s.whisker_of_geom[g2] >= 0 else -1.0)
+            body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"w{w:02d}")
+            R = d.xmat[body].reshape(3, 3)
+            along = float((c.pos - d.xpos[body]) @ R[:, 0])
+            expected[w] += 10 * max(-c.dist, 0.0) * np.array([n @ R[:, 1], n @ R[:, 2]]) / (along + 0.1)
+        return expected, touching
+
+    pressed, compared = [], []
+
+    def record(i, p) -> None:
+        pressed.append(s.theta(sim.data))
+        expected, touching = plugin_formula(sim.data)
+        if touching:
+            compared.append((s.xy(sim.data), expected))
+
     sim.reset(pose)
     for _ in range(2):
-        series, _, _ = sim.cycle(on_series=lambda i, p: pressed.append(sim.sim.theta(sim.data)))
+        series, _, _ = sim.cycle(on_series=record)
     # the whiskers sweep through the wall as through air
     np.testing.assert_allclose(np.array(pressed), np.array(free), atol=1e-3)
     # touching whiskers on the right only, at some instant of the cycle
     touched = np.abs(series).max(axis=(0, 2))
     assert touched[RIGHT].max() > 0.05 and touched[LEFT].max() == 0.0
-    # the signal equals the plugin's formula recomputed here from MuJoCo's raw contacts
-    d, m, s = sim.data, sim.model, sim.sim
-    expected = np.zeros((N_WHISKERS, 2))
-    for c in d.contact[: d.ncon]:
-        g1, g2 = int(c.geom[0]), int(c.geom[1])
-        w = s.whisker_of_geom[g1] if s.whisker_of_geom[g1] >= 0 else s.whisker_of_geom[g2]
-        if w < 0:
-            continue
-        # MuJoCo's frame normal points from geom1 to geom2; we want object -> whisker
-        n = np.array(c.frame[:3]) * (1.0 if s.whisker_of_geom[g2] >= 0 else -1.0)
-        body = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, f"w{w:02d}")
-        R = d.xmat[body].reshape(3, 3)
-        along = float((c.pos - d.xpos[body]) @ R[:, 0])
-        expected[w] += 10 * max(-c.dist, 0.0) * np.array([n @ R[:, 1], n @ R[:, 2]]) / (along + 0.1)
-    np.testing.assert_allclose(s.xy(d), expected, atol=1e-12)
+    # at every instant with whisker contacts, the signal is the plugin's formula
+    assert len(compared) >= 5 and max(np.abs(expected).max() for _, expected in compared) > 0.05
+    for actual, expected in compared:
+        np.testing.assert_allclose(actual, expected, atol=1e-12)
 
 
 # ---------------------------------------------------------------------- the sensor contract
@@ -609,3 +624,62 @@ def test_shipped_routes_are_what_the_route_generator_makes(name):
 
     env = load_environment(name)
     np.testing.assert_allclose(inner_loop(env, env.route_facing), np.array(env.route), atol=1e-9)
+
+
+def test_the_simulator_package_exports_its_modules_names():
+    import importlib
+
+    from vitaplace.engine import sim
+
+    for name in sim.__all__:
+        if name != "SIMULATOR_VERSION":
+            defining = [m for m in ("environment", "robot", "simulate", "render")
+                        if name in vars(importlib.import_module(f"vitaplace.engine.sim.{m}"))]
+            assert defining and getattr(sim, name) is getattr(importlib.import_module(f"vitaplace.engine.sim.{defining[0]}"), name)
+    assert sim.simulate_run is simulate_run
+
+
+def test_without_mujoco_gl_the_first_loadable_library_is_chosen():
+    """A fresh process without MUJOCO_GL gets EGL where libEGL loads, else OSMesa where that loads, else none."""
+    import ctypes
+
+    def loads(lib: str) -> bool:
+        try:
+            ctypes.CDLL(lib)
+            return True
+        except OSError:
+            return False
+
+    expected = "egl" if loads("libEGL.so.1") else "osmesa" if loads("libOSMesa.so.8") else "None"
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    code = "import os, vitaplace.engine.sim; print(os.environ.get('MUJOCO_GL'))"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    assert out.strip() == expected
+
+
+def test_the_eye_camera_sees_the_robot_only_when_asked(bare_sim):
+    from vitaplace.engine.sim.render import Camera
+
+    data = bare_sim.sim.new_data((0.0, 0.0, 0.0))
+    mujoco.mj_forward(bare_sim.model, data)
+    images = []
+    for show_robot in (False, True, False):
+        with Camera(bare_sim.model, 64, 48, show_robot=show_robot) as cam:
+            images.append(cam.render(data).copy())
+    assert np.array_equal(images[0], images[2]) and not np.array_equal(images[0], images[1])
+
+
+def test_top_view_plot_closes_the_route(e1):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from vitaplace.engine.sim.plot import plot_environment
+
+    tv = e1.top_view()
+    ax = plot_environment(tv)
+    (route,) = [line for line in ax.get_lines() if line.get_label() == "route"]
+    xy = np.column_stack(route.get_data())
+    assert len(xy) == len(tv["route"]) + 1 and np.array_equal(xy[0], xy[-1])  # back to the first waypoint
+    plt.close(ax.figure)

@@ -640,3 +640,13 @@ def test_aggregate_counts_the_seeds_that_contribute(local_sweep, tmp_path, capsy
     assert capsys.readouterr().out.startswith("summary of 2 seeds")
     record = json.loads((tmp_path / "sweep.json").read_text())
     assert record["seeds"] == [0, 2] and {r["seed"] for r in record["runs"]} == {0, 2}
+
+
+@pytest.mark.parametrize("text, minutes", [
+    ("30", 30), ("1:30", 2), ("0:0:1", 1), ("2:00:00", 120), ("1-2", 26 * 60), ("1-2:30", 26 * 60 + 30),
+    ("1-0:0:30", 24 * 60 + 1),  # a day and 30 s: rounded up to the next whole minute
+])
+def test_slurm_time_limits_by_hand(text, minutes):
+    from vitaplace.engine.slurm import parse_time
+
+    assert parse_time(text) == minutes
