@@ -94,6 +94,7 @@ MODULES = {
     "mupnet.extractor": "plugins/mupnet/extractor.py",
     "mlflow_tracking": "plugins/mlflow_tracking.py",
     "api": "api/__init__.py",
+    "testing": "api/testing.py",
 }
 
 
@@ -323,6 +324,10 @@ MUTANTS = [
     m("report: no warning when exactly half hit the cap", "report",
       "if capped / samples >= CAP_WARNING_SHARE:", "if capped / samples > CAP_WARNING_SHARE:",
       *t("reports", "test_the_report_warns_when_most_test_time_inferences_hit_the_cap")),
+    m("testing: the subset check compares the rows in the wrong order", "testing",
+      "    problems = _differences({key: np.asarray(value)[index] for key, value in whole.items()}, part)",
+      "    problems = _differences({key: np.asarray(value)[index[::-1]] for key, value in whole.items()}, part)",
+      *t("contract", "test_shipped_extractors_keep_the_contract[handcrafted]")),
     m("provenance: a changed checkout reported clean", "provenance",
       "    return bool(result.stdout.strip())", "    return False",
       *t("reports", "test_git_dirty_tells_a_changed_checkout_from_a_clean_one")),
