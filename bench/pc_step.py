@@ -59,8 +59,8 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")  # before any jax import: no GPU p
 
 import numpy as np
 
-from vitaplace.engine.backends import NumpyBackend
-from vitaplace.engine.pc import LATENT_INIT, BatchState, Network
+from vitaplace.engine.network.backends import NumpyBackend
+from vitaplace.engine.network.pc import LATENT_INIT, BatchState, Network
 
 PAPER = {
     "config": {
@@ -821,7 +821,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _warp_backend():
-    from vitaplace.engine.backends import WarpBackend
+    from vitaplace.engine.network.backends import WarpBackend
 
     return WarpBackend("cpu")
 

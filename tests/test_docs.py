@@ -15,16 +15,16 @@ OUTSIDE_CITATIONS = ("/".join(["..", "shared", ""]), " ".join(["DESIGN", "§"]))
 
 
 def test_scenario_reference_is_current():
-    from vitaplace.engine import schema_docs
+    from vitaplace.engine.config import schema_docs
 
     committed = (ROOT / "docs" / "SCENARIOS.md").read_text()
     assert committed == schema_docs.markdown(), (
-        "docs/SCENARIOS.md is out of date: python -m vitaplace.engine.schema_docs docs/SCENARIOS.md"
+        "docs/SCENARIOS.md is out of date: python -m vitaplace.engine.config.schema_docs docs/SCENARIOS.md"
     )
 
 
 def test_every_schema_field_has_a_meaning():
-    from vitaplace.engine import schema_docs
+    from vitaplace.engine.config import schema_docs
 
     undocumented = [line for line in schema_docs.markdown().splitlines() if line.startswith("| `") and line.endswith("|  |")]
     assert not undocumented, undocumented

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.features import ExtractorParamsError
 from vitaplace.engine.plugins import discover
 

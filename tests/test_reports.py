@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import yaml
 
-from vitaplace.engine import evaluate as ev
-from vitaplace.engine import figures
-from vitaplace.engine.dataset import Run, write_run
+from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation import figures
+from vitaplace.engine.data.dataset import Run, write_run
 from vitaplace.engine.features import save_features
 
 
@@ -86,7 +86,7 @@ def _features(tmp_path: Path, method: str, label: str, features: dict) -> Path:
 
 def _stub_pipeline(tmp_path: Path, features: dict[str, dict[str, dict]], recorded: dict | None = None):
     """Just what the report sections read: methods, run labels, feature files, recorded runs."""
-    from vitaplace.engine.dataset import open_run
+    from vitaplace.engine.data.dataset import open_run
 
     paths = {(m, label): _features(tmp_path, m, label, f) for m, by_label in features.items() for label, f in by_label.items()}
     return SimpleNamespace(
@@ -109,7 +109,7 @@ def _stub_pipeline(tmp_path: Path, features: dict[str, dict[str, dict]], recorde
     ],
 )
 def test_the_report_warns_when_most_test_time_inferences_hit_the_cap(tmp_path, capped_per_run, expected):
-    from vitaplace.engine.report import _cap_warnings
+    from vitaplace.engine.evaluation.report import _cap_warnings
 
     def run(capped: int) -> dict:
         stopped = np.ones(10, dtype=bool)
@@ -139,7 +139,7 @@ def _recorded(path: Path, n: int = 10, rng=None) -> Path:
 
 
 def test_inputs_name_recorded_files_and_features_that_carried_nothing(tmp_path):
-    from vitaplace.engine.report import _inputs_section
+    from vitaplace.engine.evaluation.report import _inputs_section
 
     query = _recorded(tmp_path / "query.h5")
     h = {"profile": np.ones((10, 4, 4)), "pfh": np.zeros((10, 8)), "sda": np.zeros((10, 24))}
@@ -154,7 +154,7 @@ def test_inputs_name_recorded_files_and_features_that_carried_nothing(tmp_path):
 
 
 def test_git_dirty_tells_a_changed_checkout_from_a_clean_one(tmp_path):
-    from vitaplace.engine.provenance import git_dirty
+    from vitaplace.engine.pipeline.provenance import git_dirty
 
     assert git_dirty(tmp_path) is None  # no checkout
     git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path)]
@@ -187,7 +187,7 @@ def test_recorded_run_report_and_manifest_end_to_end(tmp_path):
     """A scenario on recorded files (no contacts, as imported data): the report defines AUC,
     names the files and says H matched on vision alone; the manifest names the plugins'
     distributions and the dirty flag."""
-    from vitaplace.engine.cli import main
+    from vitaplace.engine.cli.main import main
 
     path, files = _recorded_scenario(tmp_path)
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
@@ -246,7 +246,7 @@ class FakeMlflow:
 
 
 def test_a_finished_run_is_logged_to_mlflow_when_asked(tmp_path, monkeypatch):
-    from vitaplace.engine.cli import main
+    from vitaplace.engine.cli.main import main
 
     fake = FakeMlflow()
     monkeypatch.setitem(sys.modules, "mlflow", fake)
@@ -269,7 +269,7 @@ def test_a_finished_run_is_logged_to_mlflow_when_asked(tmp_path, monkeypatch):
 
 
 def test_tracking_is_off_unless_asked_and_never_fails_a_run(tmp_path, monkeypatch, caplog):
-    from vitaplace.engine.cli import main
+    from vitaplace.engine.cli.main import main
 
     fake = FakeMlflow()
     monkeypatch.setitem(sys.modules, "mlflow", fake)

@@ -178,7 +178,7 @@ def test_detours_are_spread_along_the_run_with_the_requested_share():
 def test_a_route_the_whiskeye_cannot_drive_clear_is_refused_by_validate(tmp_path):
     path = tmp_path / "narrow.yaml"
     path.write_text("extends: e1\nroute: [[2.1, 0], [0, 1.5], [-2.1, 0], [0, -1.5]]\n")
-    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli", "validate", str(path)],
+    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli.main", "validate", str(path)],
                             capture_output=True, text=True, timeout=120)
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-500:]

@@ -49,7 +49,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from vitaplace.engine.dataset import TOUCH_THRESHOLD
+from vitaplace.engine.data.dataset import TOUCH_THRESHOLD
 from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS, HEAD_HALF, HEAD_POS
 

@@ -24,7 +24,7 @@ import numpy as np
 import pydantic
 from pydantic import BaseModel, ConfigDict, Field
 
-from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml
+from vitaplace.engine.config.configfile import ConfigError, format_validation_error, load_yaml
 
 __all__ = [
     "EnvironmentSpecError",

@@ -8,16 +8,16 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from vitaplace.engine import evaluate as ev
-from vitaplace.engine import figures
+from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation import figures
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.plugins import plugin_distributions
-from vitaplace.engine.provenance import provenance
-from vitaplace.engine.scenario import training_world_evaluation
+from vitaplace.engine.pipeline.provenance import provenance
+from vitaplace.engine.config.scenario import training_world_evaluation
 from vitaplace.engine.sim.environment import load_environment
 
 if TYPE_CHECKING:
-    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.pipeline.runner import Pipeline
 
 
 def _pct(value: Any) -> str:

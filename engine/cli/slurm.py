@@ -123,7 +123,7 @@ def executor(settings: SlurmSettings, folder: Path, name: str) -> Any:
 def run_array(jobs: Sequence[Any], settings: SlurmSettings, folder: Path, name: str) -> Iterator[tuple[Any, Any, str | None]]:
     """Submit ``jobs`` (sweep `SeedJob`s) as one array now; the iterator returned yields (job,
     result, failure) as each task ends (`_wait`)."""
-    from vitaplace.engine.sweep import run_seed_reported
+    from vitaplace.engine.cli.sweep import run_seed_reported
 
     tasks = executor(settings, folder, name).map_array(run_seed_reported, jobs)
     array = tasks[0].job_id.split("_")[0] if settings.cluster == "slurm" else " ".join(t.job_id for t in tasks)

@@ -22,12 +22,12 @@ from typing import Any
 
 import yaml
 
-from vitaplace.engine import completion
+from vitaplace.engine.pipeline import completion
 from vitaplace.engine.errors import UserError
-from vitaplace.engine.evaluate import load_curve
-from vitaplace.engine.scenario import content_hash
-from vitaplace.engine.figures import write_pr_bands
-from vitaplace.engine.summary import write_summary
+from vitaplace.engine.evaluation.evaluate import load_curve
+from vitaplace.engine.config.scenario import content_hash
+from vitaplace.engine.evaluation.figures import write_pr_bands
+from vitaplace.engine.evaluation.summary import write_summary
 
 REQUIRED = (completion.RECORD, "manifest.json", "results.json", completion.SCENARIO)
 #: identity columns of a result row: non-empty text
@@ -105,7 +105,7 @@ def curve_path(row: dict[str, Any]) -> str:
 
 def validate_run_folder(folder: Path) -> RunFolder:
     """Everything `vitaplace aggregate` reads from one run folder, validated: a completion
-    record (`vitaplace.engine.completion`) that matches the resolved scenario, the manifest,
+    record (`vitaplace.engine.pipeline.completion`) that matches the resolved scenario, the manifest,
     the results and every row's PR curve; each result row checked (`check_row`). Raises
     AggregateError, one line naming the folder or the file (and field) at fault."""
     folder = Path(folder)

@@ -43,9 +43,9 @@ from typing import Annotated, Any
 import pydantic
 import yaml
 
-from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml, local_or_shipped
-from vitaplace.engine.dataset import Run
-from vitaplace.engine.plausibility import ImplausibleRun, check_run
+from vitaplace.engine.config.configfile import ConfigError, format_validation_error, load_yaml, local_or_shipped
+from vitaplace.engine.data.dataset import Run
+from vitaplace.engine.sim.plausibility import ImplausibleRun, check_run
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec
 from vitaplace.engine.sim.controllers import RunSpec
@@ -384,7 +384,7 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
 def _recorded(path: Path, where: str, file: Path, minimum: int) -> Run:
     """The recorded run ``file``, opened (its attributes, fields, storage and shapes checked)
     and with at least ``minimum`` samples."""
-    from vitaplace.engine.dataset import DatasetError, open_run
+    from vitaplace.engine.data.dataset import DatasetError, open_run
 
     if not file.is_file():
         raise ScenarioError(f"{path}: {where}: no such file {str(file)!r} (make one with `vitaplace import`)")
@@ -414,7 +414,7 @@ def _check_like_training(path: Path, where: str, run: Run, train: tuple[int, tup
 def _check_distinct(path: Path, where: str, datasets: RecordedRuns) -> None:
     """Query and reference are two recordings: the same file (or the same content) would
     match every query to itself and score 100 %."""
-    from vitaplace.engine.checksum import digest
+    from vitaplace.engine.pipeline.checksum import digest
 
     if digest(datasets.query) == digest(datasets.reference):
         raise ScenarioError(

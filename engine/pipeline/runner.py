@@ -6,7 +6,7 @@ the digests of the upstream outputs it reads, as DVC does: a re-run skips finish
 an interrupted run resumes with the first missing output, and ``force`` redoes named stages
 and, when their output changed, every stage downstream that reads it (an identical output
 leaves the downstream keys, and so their cached work, as they were). A run ends by writing
-its completion record (`vitaplace.engine.completion`).
+its completion record (`vitaplace.engine.pipeline.completion`).
 """
 
 from __future__ import annotations
@@ -34,16 +34,16 @@ import numpy as np
 import yaml
 
 from vitaplace.engine.errors import UserError
-from vitaplace.engine.provenance import provenance
-from vitaplace.engine import checksum, completion
-from vitaplace.engine import evaluate as ev
+from vitaplace.engine.pipeline.provenance import provenance
+from vitaplace.engine.pipeline import checksum, completion
+from vitaplace.engine.evaluation import evaluate as ev
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.cpus import limit_blas_threads, usable_cpus
-from vitaplace.engine.dataset import SCHEMA_VERSION, Run, open_run, write_run
+from vitaplace.engine.pipeline.cpus import limit_blas_threads, usable_cpus
+from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run, write_run
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features, warn_once
-from vitaplace.engine.plausibility import LONG_SECONDS, duration, estimated_seconds
+from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_seconds
 from vitaplace.engine.plugins import Registry, announce_run_finished, discover, plugin_distributions
-from vitaplace.engine.scenario import (
+from vitaplace.engine.config.scenario import (
     EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, content_hash, training_world_evaluation,
 )
 from vitaplace.engine.sim import SIMULATOR_VERSION
@@ -576,7 +576,7 @@ class Pipeline:
             rows = self.evaluate()
             write_results(self.out, rows)
         if stop >= STAGES.index("report"):
-            from vitaplace.engine.report import write_report
+            from vitaplace.engine.evaluation.report import write_report
 
             params = [self.method_params(m) for m in self.scenario.methods]
             key = content_hash("report", STAGE_VERSION["report"], rows, params,
