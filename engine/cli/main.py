@@ -280,11 +280,12 @@ SCENARIO_KEYS = {"seed", "robot", "train", "evaluations", "methods", "evaluation
 
 def _is_environment_file(name: str) -> bool:
     """Whether ``name`` is an environment file (or a shipped environment's name), not a scenario."""
-    from vitaplace.engine.config.configfile import SHIPPED_DIRS, ConfigError, load_yaml, read_yaml
+    from vitaplace.engine.config.configfile import ConfigError, load_yaml, read_yaml
+    from vitaplace.engine.config.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR, shipped_file
 
     path = Path(name)
-    if not path.exists() and not path.suffix and (SHIPPED_DIRS[1] / f"{name}.yaml").is_file():
-        return not (SHIPPED_DIRS[0] / f"{name}.yaml").is_file()
+    if not path.exists() and not path.suffix and shipped_file(name, (ENVIRONMENTS_DIR,)):
+        return shipped_file(name, (SCENARIOS_DIR,)) is None
     if path.suffix not in (".yaml", ".yml") or not path.is_file():
         return False
     try:

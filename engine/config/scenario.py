@@ -44,13 +44,13 @@ import pydantic
 import yaml
 
 from vitaplace.engine.config.configfile import ConfigError, format_validation_error, load_yaml, local_or_shipped
+from vitaplace.engine.config.shipped import SCENARIOS_DIR, scenario_names, shipped_file
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.sim.plausibility import ImplausibleRun, check_run
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec
 from vitaplace.engine.sim.controllers import RunSpec
 
-BUILTIN_DIR = Path(__file__).resolve().parent.parent / "scenarios"
 log = logging.getLogger("vitaplace")
 
 
@@ -320,14 +320,10 @@ def resolve_path(name: str | Path) -> Path:
     path = Path(name)
     if path.exists():
         return path
-    for candidate in (BUILTIN_DIR / path, BUILTIN_DIR / f"{path}.yaml"):
-        if candidate.exists():
-            return candidate
-    raise ScenarioError(f"{name}: no such scenario file (built-in scenarios: {', '.join(builtin_names())})")
-
-
-def builtin_names() -> list[str]:
-    return sorted(p.stem for p in BUILTIN_DIR.glob("*.yaml"))
+    shipped = shipped_file(path, (SCENARIOS_DIR,))
+    if shipped is None:
+        raise ScenarioError(f"{name}: no such scenario file (built-in scenarios: {', '.join(scenario_names())})")
+    return shipped
 
 
 def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scenario, dict[str, Any]]:
