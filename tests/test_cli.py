@@ -619,7 +619,7 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     from vitaplace.engine.data.dataset import open_run
     from vitaplace.engine.pipeline.runner import Pipeline
     from vitaplace.engine.config.scenario import load_scenario
-    from vitaplace.engine.sim.controllers import Route
+    from vitaplace.engine.sim.clearance import Route
     from vitaplace.engine.sim.environment import load_environment
 
     overrides = ["train.run.n_samples=3", "evaluations.0.run.n_samples=40", "evaluations.0.query_off_route=0.5"]

@@ -19,7 +19,7 @@ import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco
 import mujoco  # noqa: E402
 
 from vitaplace.engine.data.dataset import Run  # noqa: E402
-from vitaplace.engine.sim.controllers import Route  # noqa: E402
+from vitaplace.engine.sim.clearance import Route  # noqa: E402
 from vitaplace.engine.sim.environment import (  # noqa: E402
     EnvironmentSpecError,
     EnvironmentSpec,

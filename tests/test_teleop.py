@@ -16,14 +16,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
-from vitaplace.engine.sim.controllers import (  # noqa: E402
-    ROUTE_MIN_CLEARANCE,
-    TELEOP_TURN_PER_SPEED,
-    Route,
-    SafetyGuard,
-    loop_clearance,
-    make_controller,
-)
+from vitaplace.engine.sim.clearance import ROUTE_MIN_CLEARANCE, Route, loop_clearance  # noqa: E402
+from vitaplace.engine.sim.controllers import TELEOP_TURN_PER_SPEED, SafetyGuard, make_controller  # noqa: E402
 from vitaplace.engine.sim.environment import EnvironmentSpec, environment_files, load_environment  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
 from vitaplace.engine.sim.simulate import RunSpec, simulate_run  # noqa: E402
@@ -199,9 +193,10 @@ def test_route_check_names_the_waypoint_near_the_obstacle():
 
 @pytest.mark.parametrize("name", ENVS)
 def test_shipped_routes_pass_the_route_check(name):
-    from vitaplace.engine.sim.controllers import route_collision
+    from vitaplace.engine.sim.clearance import route_collision
 
-    assert route_collision(load_environment(name)) is None
+    env = load_environment(name)
+    assert route_collision(env.route, env.route_facing, env.obstacles) is None
 
 
 def test_first_key_waits_for_the_reaction_delay_and_is_one_of_the_keys():

@@ -26,6 +26,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from vitaplace.engine.config.configfile import ConfigError, format_validation_error, load_yaml
 from vitaplace.engine.config.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file
+from vitaplace.engine.sim.clearance import route_collision
 
 __all__ = [
     "EnvironmentSpecError",
@@ -403,10 +404,7 @@ class EnvironmentSpec(_Model):
         if len(self.route) == 1:
             raise ValueError("route: a route needs at least 2 waypoints")
         if self.route:
-            # imported here: the controllers (robot footprint, routes) import this module
-            from vitaplace.engine.sim.controllers import route_collision
-
-            problem = route_collision(self)
+            problem = route_collision(self.route, self.route_facing, self.obstacles)
             if problem is not None:
                 raise ValueError(problem)
         if abs(self.start[0]) >= hx or abs(self.start[1]) >= hy:

@@ -20,7 +20,8 @@ import math
 
 import numpy as np
 
-from vitaplace.engine.sim.controllers import Route, RunSpec
+from vitaplace.engine.sim.clearance import Route
+from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.robot import BODY_RADIUS, RobotSpec
 
