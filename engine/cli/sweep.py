@@ -484,7 +484,7 @@ def run_sweep(
     if ray_address:
         ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
     elif slurm:
-        ended = run_array(jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
+        ended = run_array(run_seed_reported, jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
     else:
         ended = _local(jobs, workers or max(1, min(len(jobs), usable_cpus() // max(1, int(cpus_per_job)))))
     try:
