@@ -75,7 +75,7 @@ def load_scenario(scenario: str | Path, overrides: Overrides = None) -> Scenario
     """The validated scenario ``scenario`` (a YAML file or a shipped scenario's name) with
     ``overrides`` applied, e.g. ``{"methods.0.params.epochs": 2, "seed": 3}``. Raises
     `UserError` (one line naming file, key path and problem) for anything invalid."""
-    from vitaplace.engine.config.scenario import load_scenario as load
+    from vitaplace.engine.config.loading import load_scenario as load
 
     return load(scenario, _assignments(overrides))[0]
 
@@ -98,7 +98,7 @@ def run(
     shows them)."""
     from vitaplace.engine.pipeline.outdir import OutputLock, remove_stale_temporaries, writable_dir
     from vitaplace.engine.pipeline.runner import STAGES, Pipeline
-    from vitaplace.engine.config.scenario import load_scenario as load
+    from vitaplace.engine.config.loading import load_scenario as load
 
     if until not in STAGES:
         raise UserError(f"until={until!r}: expected one of {', '.join(STAGES)}")

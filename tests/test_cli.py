@@ -147,7 +147,7 @@ def re_line(text: str, pattern: str) -> bool:
 
 
 def test_extends_merges_over_the_base(tmp_path):
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     base = write_scenario(tmp_path, valid_scenario(), "base.yaml")
     child = write_scenario(tmp_path, {"extends": base.name, "name": "child", "evaluation": {"tau": 0.5}}, "child.yaml")
@@ -618,7 +618,7 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     detours, spread along the run: tests/test_teleop.py.)"""
     from vitaplace.engine.data.dataset import open_run
     from vitaplace.engine.pipeline.runner import Pipeline
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
     from vitaplace.engine.sim.clearance import Route
     from vitaplace.engine.sim.environment import load_environment
 
@@ -718,7 +718,8 @@ def test_force_of_a_stage_the_command_does_not_reach_is_refused(tmp_path, capsys
 
 
 def test_set_appends_to_a_list_and_refuses_anything_else(capsys):
-    from vitaplace.engine.config.scenario import ScenarioError, apply_overrides
+    from vitaplace.engine.config.scenario import ScenarioError
+    from vitaplace.engine.config.overrides import apply_overrides
 
     data = {"methods": [{"name": "L"}], "evaluation": {"tau": 0.3}}
     appended = apply_overrides(data, ["methods+={name: L2, plugin: mupnet, params: {epochs: 1}}"])

@@ -38,7 +38,7 @@ def test_usable_cpus_is_the_smallest_of_affinity_slurm_and_override(four_cpus, m
 
 
 def test_a_local_sweep_starts_one_worker_per_usable_cpu(four_cpus, tmp_path, monkeypatch):
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     data = {"name": "tiny", "train": {"environment": "e1", "run": {"kind": "foraging", "n_samples": 5}},
             "evaluations": [{"name": "E1", "environment": "e1", "run": {"kind": "route", "n_samples": 5}}],

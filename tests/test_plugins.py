@@ -466,7 +466,7 @@ def test_doc_mentions_error_behaviour_and_usage():
 def test_cache_keys_change_with_the_plugin_version(monkeypatch):
     """A new version of a plugin must not reuse the old version's fitted model and features."""
     from vitaplace.engine.pipeline.runner import Pipeline
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     scenario, resolved = load_scenario("quickstart")
     registry = discover()
@@ -485,7 +485,7 @@ def test_cache_keys_change_with_the_plugin_version(monkeypatch):
 
 def test_the_scenario_seed_reaches_the_methods_seed():
     from vitaplace.engine.pipeline.runner import Pipeline
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     keys = {}
     for seed in (0, 1):

@@ -388,7 +388,7 @@ def rows_for(values: dict[str, list[float]], seeds: list[int]) -> list[dict]:
 def test_a_job_reads_nothing_from_the_driver_s_files(tmp_path, monkeypatch):
     """The job carries the resolved scenario and environments: with the scenario, its
     environment file and the working directory gone, it still runs; --force reaches it."""
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     src = tmp_path / "src"
     src.mkdir()
@@ -413,7 +413,8 @@ def test_a_job_reads_nothing_from_the_driver_s_files(tmp_path, monkeypatch):
 
 
 def test_bad_seeds_and_stages_are_user_errors_before_any_job(tmp_path):
-    from vitaplace.engine.config.scenario import ScenarioError, load_scenario
+    from vitaplace.engine.config.scenario import ScenarioError
+    from vitaplace.engine.config.loading import load_scenario
 
     (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}))
     scenario, resolved = load_scenario(tmp_path / "s.yaml")
@@ -434,7 +435,7 @@ def test_recorded_run_files_reach_jobs_as_absolute_paths(tmp_path, monkeypatch):
 
 
 def test_the_driver_warns_once_about_unshared_storage_and_reports_failures(tmp_path, monkeypatch, caplog):
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     data = tiny_scenario()
     data["methods"] = [{"name": "H", "plugin": "handcrafted"}]
@@ -469,7 +470,7 @@ def test_failures_of_ray_tasks_read_as_one_line():
 
 
 def test_gpu_jobs_select_the_gpu_backend_where_a_method_has_one(tmp_path):
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     data = tiny_scenario()
     data["methods"] = [{"name": "L", "plugin": "mupnet"}, {"name": "H", "plugin": "handcrafted"},

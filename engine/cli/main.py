@@ -229,7 +229,7 @@ def _forced(force: list[str], until: str, command: str) -> list[str]:
 
 def _run_stages(args: argparse.Namespace, until: str) -> int:
     from vitaplace.engine.pipeline.runner import Pipeline
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     args.force = _forced(args.force, until, args.command)
     scenario, resolved = load_scenario(args.scenario, args.overrides)
@@ -329,7 +329,7 @@ def _validate_environment(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from vitaplace.engine.config.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     if _is_environment_file(args.scenario):
         return _validate_environment(args)

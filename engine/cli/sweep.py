@@ -44,7 +44,8 @@ import yaml
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.pipeline.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.errors import UserError
-from vitaplace.engine.config.scenario import Scenario, ScenarioError, load_scenario
+from vitaplace.engine.config.scenario import Scenario, ScenarioError
+from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.cli.slurm import SlurmSettings, run_array
 
 log = logging.getLogger("vitaplace")

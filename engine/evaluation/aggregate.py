@@ -25,7 +25,7 @@ import yaml
 from vitaplace.engine.pipeline import completion
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.evaluation.evaluate import load_curve
-from vitaplace.engine.config.scenario import content_hash
+from vitaplace.engine.pipeline.keys import content_hash
 from vitaplace.engine.evaluation.figures import write_pr_bands
 from vitaplace.engine.evaluation.summary import write_summary
 

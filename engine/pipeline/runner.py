@@ -43,9 +43,8 @@ from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run, write_r
 from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features, warn_once
 from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_seconds
 from vitaplace.engine.plugins import Registry, announce_run_finished, discover, plugin_distributions
-from vitaplace.engine.config.scenario import (
-    EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, content_hash, training_world_evaluation,
-)
+from vitaplace.engine.config.scenario import EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, training_world_evaluation
+from vitaplace.engine.pipeline.keys import content_hash
 from vitaplace.engine.sim import SIMULATOR_VERSION
 from vitaplace.engine.sim.environment import load_environment
 
