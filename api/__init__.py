@@ -97,8 +97,9 @@ def run(
     Stage messages go to the ``vitaplace`` logger (``logging.basicConfig(level="INFO")``
     shows them)."""
     from vitaplace.engine.pipeline.outdir import OutputLock, remove_stale_temporaries, writable_dir
-    from vitaplace.engine.pipeline.runner import STAGES, Pipeline
     from vitaplace.engine.config.loading import load_scenario as load
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import STAGES, Pipeline
 
     if until not in STAGES:
         raise UserError(f"until={until!r}: expected one of {', '.join(STAGES)}")
@@ -112,7 +113,7 @@ def run(
     with OutputLock(folder):
         for path in remove_stale_temporaries(folder):
             log.info("removed %s, left by an interrupted run", path)
-        return Pipeline(loaded, resolved, folder, force=force, progress=progress, workers=workers).run(until=until)
+        return run_stages(Pipeline(loaded, resolved, folder, force=force, progress=progress, workers=workers), until)
 
 
 def unguarded_script() -> str | None:

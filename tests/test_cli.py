@@ -276,7 +276,7 @@ def test_plugins_command_lists_the_builtins(capsys):
 def test_non_finite_features_stop_the_pipeline_with_a_clear_error():
     import numpy as np
 
-    from vitaplace.engine.pipeline.runner import StageError, check_finite
+    from vitaplace.engine.pipeline.output_checks import StageError, check_finite
 
     good = {"latent": np.ones((3, 2))}
     assert check_finite(good, "x") is good
@@ -403,7 +403,7 @@ def test_an_unstable_stiffness_is_refused_before_any_compute_with_one_clear_erro
 
 
 def test_extractor_outputs_are_checked_with_one_line():
-    from vitaplace.engine.pipeline.runner import StageError, check_distance, check_features
+    from vitaplace.engine.pipeline.output_checks import StageError, check_distance, check_features
 
     good = {"x": np.zeros((3, 2))}
     assert check_features(good, 3, "t") is good

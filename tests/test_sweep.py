@@ -606,9 +606,10 @@ def test_aggregate_refuses_folders_it_cannot_trust_before_writing_anything(local
 def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path, capsys, monkeypatch):
     """Finish seed 2, rerun it with another tau and kill the rerun during simulate: the folder
     holds the old results beside the new resolved scenario, and no completion record."""
-    from vitaplace.engine.pipeline import completion
-    from vitaplace.engine.pipeline.runner import Pipeline
     from vitaplace.engine.config.scenario import Scenario
+    from vitaplace.engine.pipeline import completion
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
 
     out, _ = local_sweep
     folder = tmp_path / "seed-2"
@@ -622,7 +623,7 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
 
     monkeypatch.setattr(Pipeline, "simulate", killed)
     with pytest.raises(KeyboardInterrupt):
-        Pipeline(Scenario.model_validate(resolved), resolved, folder, cache=tmp_path / "cache").run()
+        run_stages(Pipeline(Scenario.model_validate(resolved), resolved, folder, cache=tmp_path / "cache"))
     assert (folder / "results.json").is_file() and (folder / "manifest.json").is_file()  # the old run's
     summary = tmp_path / "summary"
     assert main(["aggregate", str(out / "seed-0"), str(folder), "--out", str(summary)]) == 2

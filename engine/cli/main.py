@@ -228,8 +228,9 @@ def _forced(force: list[str], until: str, command: str) -> list[str]:
 
 
 def _run_stages(args: argparse.Namespace, until: str) -> int:
-    from vitaplace.engine.pipeline.runner import Pipeline
     from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
 
     args.force = _forced(args.force, until, args.command)
     scenario, resolved = load_scenario(args.scenario, args.overrides)
@@ -239,7 +240,7 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
         _setup_logging(out)
         for path in remove_stale_temporaries(out):
             log.info("removed %s, left by an interrupted run", path)
-        rows = Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress).run(until=until)
+        rows = run_stages(Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress), until)
     for row in rows:
         log.info(
             "%-6s %-12s %-20s max F1 %.2f %%  AUC %.3f",

@@ -44,6 +44,7 @@ import yaml
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.pipeline.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.errors import UserError
+from vitaplace.engine.pipeline.outdir import SEED_ERROR, cache_dir, seed_dir
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
 from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.cli.slurm import SlurmSettings, run_array
@@ -153,17 +154,18 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
     """One sweep job (runs in a worker): the whole pipeline for ``job.seed``. Returns its
     result rows tagged with the seed, the host and whether it saw the driver's marker;
     raises SeedFailed, with the traceback in ``OUT/seed-<s>/error.txt``."""
+    from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.runner import Pipeline
 
     limit_blas_threads(usable_cpus())  # a Ray task's or SLURM task's CPUs, a pool worker's share
     host, sees_out = socket.gethostname(), not job.marker or Path(job.marker).exists()
     if not sees_out:
         log.warning("seed %d on %s: %s is not visible here: --out is not on shared storage", job.seed, host, job.out)
-    folder = Path(job.out) / f"seed-{job.seed}"
+    folder = seed_dir(Path(job.out), job.seed)
     handler = None
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        (folder / "error.txt").unlink(missing_ok=True)  # from an earlier attempt
+        (folder / SEED_ERROR).unlink(missing_ok=True)  # from an earlier attempt
         handler = logging.FileHandler(folder / "log.txt")
         handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
         log.addHandler(handler)
@@ -171,11 +173,11 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
         resolved = _localise(job, folder)
         scenario = Scenario.model_validate(resolved)
         pipeline = Pipeline(scenario, resolved, folder, force=job.force, progress=job.progress, workers=1,
-                            cache=Path(job.out) / "cache")
-        rows = [{"seed": job.seed, **row} for row in pipeline.run()]
+                            cache=cache_dir(Path(job.out)))
+        rows = [{"seed": job.seed, **row} for row in run_stages(pipeline)]
     except Exception as exc:
         try:
-            write_text_atomic(folder / "error.txt", traceback.format_exc())
+            write_text_atomic(folder / SEED_ERROR, traceback.format_exc())
         except OSError:
             pass
         raise SeedFailed(type(exc).__name__, one_line(str(exc))) from None
@@ -276,7 +278,7 @@ def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dic
 def _pool_round(jobs: Sequence[SeedJob], workers: int):
     """One process pool over ``jobs``: yields (job, result, failure) for the jobs that ended,
     returns those lost to a broken pool."""
-    from vitaplace.engine.pipeline.runner import interrupts_to_this_process, stop_pool, worker_pool
+    from vitaplace.engine.pipeline.processes import interrupts_to_this_process, stop_pool, worker_pool
 
     # spawned, not forked (GL and Warp state are not fork-safe); BLAS threads: each worker its share
     pool = worker_pool(workers, blas_threads=max(1, usable_cpus() // workers))
@@ -494,7 +496,7 @@ def run_sweep(
                 bar.update()
                 if failure is not None:
                     outcome.failed[job.seed] = failure
-                    trace = out / f"seed-{job.seed}" / "error.txt"
+                    trace = seed_dir(out, job.seed) / SEED_ERROR
                     where = f" (traceback in {trace})" if trace.is_file() else ""
                     log.error("seed %d failed: %s%s", job.seed, failure, where)
                     continue
@@ -511,7 +513,7 @@ def run_sweep(
         marker.unlink(missing_ok=True)
     ok = sorted({row["seed"] for row in outcome.rows})
     info = {"scenario": scenario.name, "seeds": ok, "failed": {str(s): m for s, m in sorted(outcome.failed.items())}}
-    folders = {seed: out / f"seed-{seed}" for seed in ok}
+    folders = {seed: seed_dir(out, seed) for seed in ok}
     outcome.summary = write_summary(out, outcome.rows, f"{scenario.name}: {len(ok)} seed(s)", info, folders)["summary"]
     write_pr_bands(out, folders, outcome.rows)
     return outcome

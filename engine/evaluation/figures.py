@@ -22,6 +22,7 @@ from matplotlib.patches import Circle, Polygon, Rectangle
 
 from vitaplace.engine.atomic import atomic_path
 from vitaplace.engine.evaluation.evaluate import Decisions, PRCurve
+from vitaplace.engine.pipeline.outdir import PR_CURVE, evaluation_dir
 
 __all__ = ["plot_energy", "plot_matrices", "plot_pr_curves", "plot_trajectories", "OUTCOME_COLOURS"]
 
@@ -186,7 +187,7 @@ def write_pr_bands(out: Path, folders: Mapping[int, Path], rows: Sequence[Mappin
 
     groups: dict[tuple[str, str], dict[str, list[PRCurve]]] = {}
     for row in sorted(rows, key=lambda r: r["seed"]):
-        path = Path(folders[row["seed"]]) / "evaluations" / row["environment"] / row["method"] / row["direction"] / "pr_curve.npz"
+        path = evaluation_dir(folders[row["seed"]], row["environment"], row["method"], row["direction"]) / PR_CURVE
         if path.is_file():
             groups.setdefault((row["environment"], row["direction"]), {}).setdefault(row["method"], []).append(load_curve(path))
     written = []

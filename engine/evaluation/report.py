@@ -12,6 +12,7 @@ from vitaplace.engine.evaluation import evaluate as ev
 from vitaplace.engine.evaluation import figures
 from vitaplace.engine.atomic import write_text_atomic
 from vitaplace.engine.plugins import plugin_distributions
+from vitaplace.engine.pipeline import outdir
 from vitaplace.engine.pipeline.provenance import provenance
 from vitaplace.engine.config.scenario import training_world_evaluation
 from vitaplace.engine.sim.environment import load_environment
@@ -202,7 +203,7 @@ def _warnings_section(pipeline: Pipeline) -> list[str]:
 def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
     """figures/ (PNG + PDF) and report.md for the evaluated scenario."""
     out, scenario = pipeline.out, pipeline.scenario
-    fig_dir = out / "figures"
+    fig_dir = out / outdir.FIGURES
     tau, heading = scenario.evaluation.tau, scenario.evaluation.heading_tolerance_deg
     true_match = f"a reference pose within τ = {tau} m" + ("" if heading is None else f" facing within {heading:g}°")
     _, source = training_world_evaluation(scenario)
@@ -256,9 +257,9 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         for method in scenario.methods:
             for direction, q, r in pipeline.directions():
                 folder = pipeline.evaluation_dir(e.name, method.name, direction)
-                with np.load(folder / "matrices.npz") as m:
+                with np.load(folder / outdir.MATRICES) as m:
                     tme, gtm = m["tme"], m["gtm"]
-                curve = ev.load_curve(folder / "pr_curve.npz")
+                curve = ev.load_curve(folder / outdir.PR_CURVE)
                 curves[method.name if len(pipeline.directions()) == 1 else f"{method.name} {direction}"] = curve
                 decisions = ev.load_decisions(folder / "decisions.npz")
                 stem = f"{e.name}-{method.name}-{direction}"
@@ -300,4 +301,4 @@ def write_report(pipeline: Pipeline, rows: list[dict[str, Any]]) -> None:
         "machine in manifest.json, resolved configuration in scenario.resolved.yaml.",
         "",
     ]
-    write_text_atomic(out / "report.md", "\n".join(sections))
+    write_text_atomic(out / outdir.REPORT, "\n".join(sections))

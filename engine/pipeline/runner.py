@@ -1,4 +1,5 @@
-"""The scenario pipeline: simulate -> fit -> transform -> evaluate -> report, cached per stage.
+"""The scenario pipeline's stages: simulate -> fit -> transform -> evaluate -> report, cached per stage
+(`vitaplace.engine.pipeline.orchestrate.run_stages` runs them in order).
 
 Every stage's output lives under ``OUT/cache`` named by a hash of everything it depends on
 (config, upstream keys, format versions, the code digest of the plugin that runs it) and of
@@ -11,156 +12,40 @@ its completion record (`vitaplace.engine.pipeline.completion`).
 
 from __future__ import annotations
 
-import ctypes
 import json
 import logging
-import multiprocessing
 import os
 import shutil
-import signal
 import tempfile
-import threading
 import time
-from collections.abc import Iterable, Iterator
-from concurrent.futures import Future, ProcessPoolExecutor
-from concurrent.futures import TimeoutError as FutureTimeout
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-import yaml
 
-from vitaplace.engine.errors import UserError
-from vitaplace.engine.pipeline.provenance import provenance
-from vitaplace.engine.pipeline import checksum, completion
-from vitaplace.engine.evaluation import evaluate as ev
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.pipeline.cpus import limit_blas_threads, usable_cpus
-from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run, write_run
-from vitaplace.engine.features import FeatureExtractor, Features, load_features, save_features, warn_once
-from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_seconds
-from vitaplace.engine.plugins import Registry, announce_run_finished, discover, plugin_distributions
 from vitaplace.engine.config.scenario import EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, training_world_evaluation
+from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run
+from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.features import FeatureExtractor, load_features, save_features, warn_once
+from vitaplace.engine.pipeline import checksum, outdir
+from vitaplace.engine.pipeline.cpus import usable_cpus
 from vitaplace.engine.pipeline.keys import content_hash
+from vitaplace.engine.pipeline.output_checks import check_distance, check_features
+from vitaplace.engine.pipeline.simulation import SimulationJob, simulate_here, simulations_in_workers
+from vitaplace.engine.plugins import Registry, discover
 from vitaplace.engine.sim import SIMULATOR_VERSION
 from vitaplace.engine.sim.environment import load_environment
+from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_seconds
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
 STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 3, "report": 5}
 
 log = logging.getLogger("vitaplace")
-
-
-class StageError(UserError, RuntimeError):
-    """A stage produced unusable output (e.g. non-finite features); names the stage and item."""
-
-
-def check_finite(features: Features, what: str) -> Features:
-    """Raise StageError if any feature array holds NaN or infinite values."""
-    for key, values in features.items():
-        values = np.asarray(values)
-        if values.dtype.kind == "f" and not np.all(np.isfinite(values)):
-            rows = np.flatnonzero(~np.isfinite(values.reshape(len(values), -1)).all(axis=1))
-            raise StageError(
-                f"{what}: feature '{key}' has NaN or infinite values in {len(rows)} samples (first: {rows[0]}); "
-                "check the method's parameters (e.g. lower learning rates) and the dataset"
-            )
-    return features
-
-
-def process_identity(pid: int) -> str:
-    """``pid`` with its start time where the OS says it (Linux ``/proc``), so a reused pid
-    does not pass for the process that had it before."""
-    try:
-        start = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[19]
-    except (OSError, IndexError):
-        start = "?"
-    return f"{pid}:{start}"
-
-
-def worker_pool(workers: int, blas_threads: int | None = None) -> ProcessPoolExecutor:
-    """A pool of spawned worker processes that end with the process that made it
-    (`die_with_parent`), each limited to ``blas_threads`` BLAS threads when given."""
-    return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
-                               initargs=(process_identity(os.getpid()), blas_threads))
-
-
-def _start_worker(parent: str, blas_threads: int | None) -> None:
-    """Worker-process initializer: `die_with_parent`, then the BLAS thread limit."""
-    die_with_parent(parent)
-    if blas_threads is not None:
-        limit_blas_threads(blas_threads)
-
-
-@contextmanager
-def interrupts_to_this_process() -> Iterator[None]:
-    """Processes started inside ignore Ctrl-C from their first instant (an ignored SIGINT
-    survives exec, and Python keeps it ignored), so a Ctrl-C stops this process alone, with
-    one line, instead of a traceback from every worker still importing; `stop_pool` then
-    ends them. A Ctrl-C during the few milliseconds it takes to start them is ignored."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-def stop_pool(pool: ProcessPoolExecutor) -> None:
-    """End ``pool`` now, killing its workers mid-task (after Ctrl-C: nothing they do is kept)."""
-    for process in list((getattr(pool, "_processes", None) or {}).values()):  # the executor's own record
-        process.kill()
-    pool.shutdown(cancel_futures=True)  # quick once they are dead; frees the pool's queues and semaphores
-
-
-def die_with_parent(parent: str) -> None:
-    """Worker-process initializer: end this worker when the process that started it dies
-    (even by kill -9), so no simulation keeps running orphaned. ``parent`` is that process's
-    `process_identity`: a worker whose parent died while it was starting (its parent is now
-    another process) exits at once. Linux: then the kernel's parent-death signal; elsewhere a
-    daemon thread that notices the parent is gone."""
-    parent_pid = os.getppid()
-    if process_identity(parent_pid) != parent:
-        os._exit(1)
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.prctl(1, signal.SIGTERM) == 0 and os.getppid() == parent_pid:  # PR_SET_PDEATHSIG
-            return
-    except (OSError, AttributeError):
-        pass
-
-    def watch() -> None:
-        while os.getppid() == parent_pid:
-            time.sleep(1.0)
-        os._exit(1)
-
-    threading.Thread(target=watch, daemon=True).start()
-
-
-def check_features(features: Any, samples: int, what: str) -> Features:
-    """An extractor's ``transform`` output must be a mapping of arrays with one row per sample."""
-    if not isinstance(features, dict) or not features:
-        raise StageError(f"{what}: transform returned {type(features).__name__}, expected a non-empty mapping of arrays")
-    for key, values in features.items():
-        shape = np.shape(values)
-        if not shape or shape[0] != samples:
-            raise StageError(f"{what}: feature '{key}' has shape {shape}, expected {samples} rows (one per sample)")
-    return check_finite(features, what)
-
-
-def check_distance(tme: Any, shape: tuple[int, int], what: str) -> np.ndarray:
-    """An extractor's ``distance`` output must be a finite (n_query, n_reference) matrix."""
-    tme = np.asarray(tme)
-    if tme.shape != shape:
-        raise StageError(f"{what}: distance returned shape {tme.shape}, expected {shape} (queries x references)")
-    check_finite({"distance": tme}, what)
-    return tme
 
 
 @dataclass
@@ -183,56 +68,6 @@ class RunnerState:
     datasets: dict[str, str] = field(default_factory=dict)  # run label -> dataset key
     #: output path -> SHA-256 of its content, for each output done in this run (`checksum`)
     digests: dict[str, str] = field(default_factory=dict)
-
-
-def record_run(
-    environment: str, run: dict[str, Any], robot: dict[str, Any], seed: int, label: str, key: str, path: Path,
-    progress: bool,
-) -> tuple[int, float]:
-    """Simulate one run and write its dataset (a top-level function: runs in worker processes);
-    returns its number of samples and the seconds it took."""
-    from vitaplace.engine.sim.robot import RobotSpec
-    from vitaplace.engine.sim.simulate import RunSpec, simulate_run
-
-    start = time.perf_counter()
-    recorded = simulate_run(
-        load_environment(environment), RunSpec(**run), seed=seed, robot=RobotSpec(**robot), progress=progress, name=label
-    )
-    recorded.attrs["scenario_hash"] = key
-    write_run(path, recorded)
-    return len(recorded), time.perf_counter() - start
-
-
-def log_recorded(label: str, samples: int, seconds: float, where: str = "") -> None:
-    """The line a finished simulation logs: run, samples, seconds (and where it ran)."""
-    log.info("%-9s %-28s recorded %d samples in %.1f s%s", "simulate", label, samples, seconds, where)
-
-
-def _log_finished(label: str, future: Any) -> None:
-    """Done-callback of a simulation in a worker process: log it as soon as it finishes."""
-    if not future.cancelled() and future.exception() is None:
-        log_recorded(label, *future.result(), " (worker process)")
-
-
-def _record_and_log(*args: Any) -> tuple[int, float]:
-    """`record_run` in this process, then its log line."""
-    result = record_run(*args)
-    log_recorded(args[4], *result)
-    return result
-
-
-def _await(future: Future, label: str, estimate: float) -> tuple[int, float]:
-    """The result of a simulation in a worker process; for a long one (`LONG_SECONDS`), a log
-    line each tenth of its estimated time while it runs."""
-    if estimate <= LONG_SECONDS:
-        return future.result()
-    started = time.perf_counter()
-    while True:
-        try:
-            return future.result(timeout=estimate / 10)
-        except FutureTimeout:
-            log.info("%-9s %-28s running for %s of an estimated %s", "simulate", label,
-                     duration(time.perf_counter() - started), duration(estimate))
 
 
 def seed_for(scenario_seed: int, *path: int) -> int:
@@ -264,7 +99,7 @@ class Pipeline:
         self.workers = workers or usable_cpus()
         self.registry = registry or discover()
         #: where stage outputs are cached (default OUT/cache; sweeps share one across seeds)
-        self.cache = Path(cache) if cache is not None else self.out / "cache"
+        self.cache = Path(cache) if cache is not None else outdir.cache_dir(self.out)
         self.state = RunnerState()
         self.extractors: dict[str, FeatureExtractor] = {}
         self.opened: dict[str, Run] = {}
@@ -276,7 +111,7 @@ class Pipeline:
             self.recorded.update({f"{e.name}/{side}": file for side, file in e.recorded().items()})
 
     # ------------------------------------------------------------------ bookkeeping
-    def _done(self, stage: str, item: str, output: Path, key: str) -> bool:
+    def done(self, stage: str, item: str, output: Path, key: str) -> bool:
         """The one "done" rule of every stage: ``output`` is there and sealed for ``key`` with
         a matching digest (`checksum`); anything else but "not made yet" is logged."""
         problem = checksum.check(output, key)
@@ -286,14 +121,15 @@ class Pipeline:
             log.warning("%-9s %-28s cached output %s is %s: recomputing", stage, item, output.name, problem)
         return False
 
-    def _stage(
-        self, stage: str, item: str, key: str, output: Path, work, inputs: Iterable[str] = (), done: bool | None = None
+    def stage(
+        self, stage: str, item: str, key: str, output: Path, work: Callable[[], Any], inputs: Iterable[str] = (),
+        done: bool | None = None,
     ) -> Any:
-        """Run ``work()`` unless ``output`` is done for ``key`` (`_done`, or ``done`` when the
+        """Run ``work()`` unless ``output`` is done for ``key`` (`done`, or ``done`` when the
         caller has checked already) and the stage is not forced; seal what it wrote."""
         start = time.perf_counter()
         if done is None:
-            done = self._done(stage, item, output, key)
+            done = self.done(stage, item, output, key)
         if done and stage not in self.force:
             status = "cached"
             log.info("%-9s %-28s cached (%s)", stage, item, key)
@@ -331,7 +167,7 @@ class Pipeline:
     def dataset_path(self, label: str) -> Path:
         if label in self.recorded:
             return self.recorded[label]
-        return self.cache / "datasets" / f"{label.replace('/', '-')}-{self.state.datasets[label]}.h5"
+        return outdir.dataset_file(self.cache, label, self.state.datasets[label])
 
     def use_recorded(self, label: str) -> None:
         """A recorded run instead of a simulation: open and check it (format, shapes, finite
@@ -352,7 +188,7 @@ class Pipeline:
 
     def simulate(self) -> None:
         """Record every run not cached yet; several runs are recorded by parallel processes."""
-        jobs, estimates = {}, {}
+        jobs = []
         for label, (entry, seed) in self.runs().items():
             if label in self.recorded:
                 self.use_recorded(label)
@@ -364,39 +200,17 @@ class Pipeline:
             key = content_hash("simulate", STAGE_VERSION["simulate"], SIMULATOR_VERSION, spec,
                                self.scenario.robot.model_dump(mode="json"), seed)
             self.state.datasets[label] = key
-            estimates[label] = estimated_seconds(run, self.scenario.robot)
-            args = (str(entry.environment), run.model_dump(), self.scenario.robot.model_dump(), seed, label, key)
-            jobs[label] = (args, self.dataset_path(label))
-        pending = [
-            label for label, (job_args, path) in jobs.items()
-            if "simulate" in self.force or not self._done("simulate", label, path, job_args[-1])
-        ]
-        for label in pending:
-            if estimates[label] > LONG_SECONDS:
-                log.warning("%-9s %-28s a long simulation: about %s on one core (estimate)", "simulate", label,
-                            duration(estimates[label]))
-        workers = min(self.workers, len(pending))
-        pool = worker_pool(workers) if workers > 1 else None
-        try:
-            with interrupts_to_this_process():
-                futures = {label: pool.submit(record_run, *jobs[label][0], jobs[label][1], False)
-                           for label in pending} if pool else {}
-            for label, future in futures.items():
-                future.add_done_callback(partial(_log_finished, label))
-            if futures:
-                log.info("%-9s %d runs on %d worker processes (no progress bars there; a line as each finishes)",
-                         "simulate", len(futures), workers)
-            for label, (args, path) in jobs.items():
-                work = (partial(_await, futures[label], label, estimates[label]) if label in futures
-                        else partial(_record_and_log, *args, path, self.progress))
-                self._stage("simulate", label, args[-1], path, work, done=label not in pending)
-        except KeyboardInterrupt:
-            if pool is not None:
-                stop_pool(pool)
-            raise
-        finally:
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
+            jobs.append(SimulationJob(label, str(entry.environment), run.model_dump(), self.scenario.robot.model_dump(),
+                                      seed, key, self.dataset_path(label), estimated_seconds(run, self.scenario.robot)))
+        pending = [job for job in jobs if "simulate" in self.force or not self.done("simulate", job.label, job.path, job.key)]
+        for job in pending:
+            if job.estimate > LONG_SECONDS:
+                log.warning("%-9s %-28s a long simulation: about %s on one core (estimate)", "simulate", job.label,
+                            duration(job.estimate))
+        with simulations_in_workers(pending, self.workers) as in_workers:
+            for job in jobs:
+                work = in_workers.get(job.label) or partial(simulate_here, job, self.progress)
+                self.stage("simulate", job.label, job.key, job.path, work, done=job not in pending)
         self.warn_collisions()
 
     def warn_collisions(self) -> None:
@@ -435,36 +249,36 @@ class Pipeline:
         )
 
     def model_dir(self, method: Method) -> Path:
-        return self.cache / "models" / f"{method.name}-{self.model_key(method)}"
+        return outdir.model_dir(self.cache, method.name, self.model_key(method))
 
     def fit(self) -> None:
         for method in self.scenario.methods:
-            key = self.model_key(method)
             directory = self.model_dir(method)
-
-            def work(method=method, directory=directory) -> None:
-                extractor = self.registry.create(method.plugin, self.method_params(method))
-                extractor.progress = self.progress
-                extractor.fit(self.open("train"))
-                tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
-                try:
-                    extractor.save(tmp)
-                    if directory.exists():
-                        shutil.rmtree(directory)
-                    os.replace(tmp, directory)
-                except BaseException:
-                    shutil.rmtree(tmp, ignore_errors=True)
-                    raise
-                self.extractors[method.name] = extractor
-                record = {"history": extractor.training_history(), "summary": extractor.training_summary()}
-                write_text_atomic(self.training_path(method), json.dumps(record))
-
             directory.parent.mkdir(parents=True, exist_ok=True)
-            self._stage("fit", method.name, key, directory, work, [self.state.datasets["train"]])
+            self.stage("fit", method.name, self.model_key(method), directory, partial(self._fit, method, directory),
+                       [self.state.datasets["train"]])
+
+    def _fit(self, method: Method, directory: Path) -> None:
+        """Fit ``method`` on the training run and save it into ``directory`` (atomically)."""
+        extractor = self.registry.create(method.plugin, self.method_params(method))
+        extractor.progress = self.progress
+        extractor.fit(self.open("train"))
+        tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+        try:
+            extractor.save(tmp)
+            if directory.exists():
+                shutil.rmtree(directory)
+            os.replace(tmp, directory)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        self.extractors[method.name] = extractor
+        record = {"history": extractor.training_history(), "summary": extractor.training_summary()}
+        write_text_atomic(self.training_path(method), json.dumps(record))
 
     def training_path(self, method: Method) -> Path:
         """Where the fit stage records how training went (read by the report and the manifest)."""
-        return self.model_dir(method).with_name(self.model_dir(method).name + ".training.json")
+        return outdir.training_file(self.model_dir(method))
 
     def training_record(self, method: Method) -> dict[str, Any]:
         """``{"history": per-epoch curves, "summary": how training ended}`` saved by the fit stage."""
@@ -477,24 +291,26 @@ class Pipeline:
             self.extractors[method.name].progress = self.progress
         return self.extractors[method.name]
 
+    def features_key(self, method: Method, label: str) -> str:
+        return content_hash("transform", STAGE_VERSION["transform"], self.model_key(method),
+                            self.output_digest(self.model_dir(method)), self.state.datasets[label], self.dataset_digest(label))
+
     def features_path(self, method: Method, label: str) -> Path:
-        key = content_hash("transform", STAGE_VERSION["transform"], self.model_key(method),
-                           self.output_digest(self.model_dir(method)), self.state.datasets[label], self.dataset_digest(label))
-        return self.cache / "features" / f"{method.name}-{label.replace('/', '-')}-{key}.npz"
+        return outdir.features_file(self.cache, method.name, label, self.features_key(method, label))
 
     def transform(self) -> None:
         labels = [label for label in self.runs() if label != "train"]
         for method in self.scenario.methods:
             for label in labels:
                 path = self.features_path(method, label)
+                self.stage("transform", f"{method.name} {label}", self.features_key(method, label), path,
+                           partial(self._transform, method, label, path), [self.model_key(method), self.state.datasets[label]])
 
-                def work(method=method, label=label, path=path) -> None:
-                    run = self.open(label)
-                    features = self.extractor(method).transform(run)
-                    save_features(path, check_features(features, len(run), f"transform {method.name} {label}"))
-
-                self._stage("transform", f"{method.name} {label}", path.stem.rsplit("-", 1)[1], path, work,
-                            [self.model_key(method), self.state.datasets[label]])
+    def _transform(self, method: Method, label: str, path: Path) -> None:
+        """The features of run ``label`` by the fitted ``method``, checked, saved to ``path``."""
+        run = self.open(label)
+        features = self.extractor(method).transform(run)
+        save_features(path, check_features(features, len(run), f"transform {method.name} {label}"))
 
     # ------------------------------------------------------------------ evaluate
     def directions(self) -> list[tuple[str, str, str]]:
@@ -503,7 +319,7 @@ class Pipeline:
         return [p for p in pairs if d in (p[0], "both")]
 
     def evaluation_dir(self, env: str, method: str, direction: str) -> Path:
-        return self.out / "evaluations" / env / method / direction
+        return outdir.evaluation_dir(self.out, env, method, direction)
 
     def evaluate(self) -> list[dict[str, Any]]:
         settings = self.scenario.evaluation
@@ -519,28 +335,28 @@ class Pipeline:
                         [self.dataset_digest(f"{e.name}/{side}") for side in (q, r)], settings.model_dump(),
                     )
                     folder = self.evaluation_dir(e.name, method.name, direction)
-                    summary_path = folder / "summary.json"
-
-                    def work(method=method, qpath=qpath, rpath=rpath, folder=folder, e=e, q=q, r=r) -> None:
-                        folder.mkdir(parents=True, exist_ok=True)
-                        shape = (len(self.open(f"{e.name}/{q}")), len(self.open(f"{e.name}/{r}")))
-                        tme = check_distance(self.extractor(method).distance(load_features(qpath), load_features(rpath)),
-                                             shape, f"evaluate {e.name} {method.name}")
-                        summary = ev.evaluate_pair(
-                            folder, tme, self.open(f"{e.name}/{q}").poses, self.open(f"{e.name}/{r}").poses,
-                            settings.tau, query_touch=self.open(f"{e.name}/{q}").touch_mask(),
-                            reference_touch=self.open(f"{e.name}/{r}").touch_mask(),
-                            delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg,
-                            ks=tuple(settings.recall_k),
-                        )
-                        write_text_atomic(folder / "summary.json", json.dumps(summary, indent=2))
-
-                    item = f"{e.name} {method.name} {direction}"
-                    self._stage("evaluate", item, key, folder, work, [qpath.stem, rpath.stem])
-                    summary = json.loads(summary_path.read_text())
+                    work = partial(self._evaluate, method, f"{e.name}/{q}", f"{e.name}/{r}", folder)
+                    self.stage("evaluate", f"{e.name} {method.name} {direction}", key, folder, work,
+                               [qpath.stem, rpath.stem])
+                    summary = json.loads((folder / outdir.SUMMARY).read_text())
                     rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
         self.add_f1_at_training_threshold(rows)
         return rows
+
+    def _evaluate(self, method: Method, query: str, reference: str, folder: Path) -> None:
+        """Score ``method``'s distances from the ``query`` run's samples to the ``reference``
+        run's into ``folder`` (summary, curves, matrices)."""
+        settings = self.scenario.evaluation
+        folder.mkdir(parents=True, exist_ok=True)
+        q, r = self.open(query), self.open(reference)
+        distances = self.extractor(method).distance(load_features(self.features_path(method, query)),
+                                                    load_features(self.features_path(method, reference)))
+        tme = check_distance(distances, (len(q), len(r)), f"evaluate {query.split('/')[0]} {method.name}")
+        summary = ev.evaluate_pair(
+            folder, tme, q.poses, r.poses, settings.tau, query_touch=q.touch_mask(), reference_touch=r.touch_mask(),
+            delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg, ks=tuple(settings.recall_k),
+        )
+        write_text_atomic(folder / outdir.SUMMARY, json.dumps(summary, indent=2))
 
     def add_f1_at_training_threshold(self, rows: list[dict[str, Any]]) -> None:
         """``f1_at_e1_threshold`` in every row: F1 at the threshold that maximised the same
@@ -552,99 +368,12 @@ class Pipeline:
             row["f1_at_e1_threshold"] = row["e1_threshold"] = None
             if source is None:
                 continue
-            curve = ev.load_curve(self.evaluation_dir(source, row["method"], row["direction"]) / "pr_curve.npz")
-            with np.load(self.evaluation_dir(row["environment"], row["method"], row["direction"]) / "matrices.npz") as m:
+            curve = ev.load_curve(self.evaluation_dir(source, row["method"], row["direction"]) / outdir.PR_CURVE)
+            with np.load(self.evaluation_dir(row["environment"], row["method"], row["direction"]) / outdir.MATRICES) as m:
                 row["f1_at_e1_threshold"] = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row["tau"])
             row["e1_threshold"] = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None
 
-    # ------------------------------------------------------------------ everything
-    def run(self, until: str = "report") -> list[dict[str, Any]]:
-        """Run the stages up to and including ``until``; return the result rows (if evaluated)."""
-        self.out.mkdir(parents=True, exist_ok=True)
-        completion.clear(self.out)  # first: until the new record, the folder holds no finished run
-        write_text_atomic(self.out / completion.SCENARIO, yaml.safe_dump(self.resolved, sort_keys=False))
-        started = time.perf_counter()
-        rows: list[dict[str, Any]] = []
-        stop = STAGES.index(until)
-        self.simulate()
-        if stop >= STAGES.index("fit"):
-            self.fit()
-        if stop >= STAGES.index("transform"):
-            self.transform()
-        if stop >= STAGES.index("evaluate"):
-            rows = self.evaluate()
-            write_results(self.out, rows)
-        if stop >= STAGES.index("report"):
-            from vitaplace.engine.evaluation.report import write_report
-
-            params = [self.method_params(m) for m in self.scenario.methods]
-            key = content_hash("report", STAGE_VERSION["report"], rows, params,
-                               [self.model_key(m) for m in self.scenario.methods])
-            self._stage("report", "report", key, self.out / "report.md", lambda: write_report(self, rows))
-        self.write_manifest(time.perf_counter() - started)
-        announce_run_finished(self.registry, self.out, self.scenario, rows, until)
-        completion.write(self.out, self.finished_files(until))
-        return rows
-
-    def finished_files(self, until: str) -> list[Path]:
-        """What this run wrote for readers outside the pipeline (the completion record covers
-        them): the manifest, results and report, each evaluation's summary and PR curve."""
-        names = ["manifest.json"]
-        if STAGES.index(until) >= STAGES.index("evaluate"):
-            names += ["results.json", "results.csv"]
-            names += [str(self.evaluation_dir(e.name, m.name, d).relative_to(self.out) / f)
-                      for e in self.scenario.evaluations for m in self.scenario.methods for d, *_ in self.directions()
-                      for f in ("summary.json", "pr_curve.npz")]
-        if until == "report":
-            names.append("report.md")
-        return [self.out / name for name in names]
-
-    def write_manifest(self, seconds: float) -> None:
-        manifest = {
-            "scenario": self.scenario.name,
-            **provenance(),
-            "plugins": plugin_distributions(self.registry),
-            "seed": self.scenario.seed,
-            "run_seeds": {label: seed for label, (_, seed) in self.runs().items() if label not in self.recorded},
-            "datasets": self.state.datasets,
-            "recorded": {label: str(path) for label, path in self.recorded.items()},
-            "warnings": {label: dict(run.warnings) for label, run in self.opened.items() if run.warnings},
-            "stages": [record.__dict__ for record in self.state.records],
-            "training": {m.name: s for m in self.scenario.methods if (s := self.training_record(m)["summary"])},
-            "seconds": round(seconds, 3),
-        }
-        write_text_atomic(self.out / "manifest.json", json.dumps(manifest, indent=2))
-
-
-RESULT_COLUMNS = (
-    "environment", "method", "direction", "max_f1", "precision_at_max_f1", "recall_at_max_f1",
-    "delta_at_max_f1", "auc", "recall_at_100_precision", "f1_at_e1_threshold", "e1_threshold", "delta", "precision",
-    "recall", "f1", "n_queries", "n_references", "n_revisit",
-)
-
-
-def csv_row(row: dict[str, Any]) -> dict[str, Any]:
-    """A results row for results.csv: without a fixed ``evaluation.delta``, delta, precision,
-    recall and F1 are those at the max-F1 threshold (instead of empty)."""
-    if row.get("f1") is not None:
-        return row
-    return {**row, "delta": row["delta_at_max_f1"], "precision": row["precision_at_max_f1"],
-            "recall": row["recall_at_max_f1"], "f1": row["max_f1"]}
-
-
-def write_results(out: Path, rows: list[dict[str, Any]]) -> None:
-    """results.json (everything) and results.csv (one row per environment x method x direction;
-    `csv_row`: delta, precision, recall, F1 at the fixed delta, else at the max-F1 one)."""
-    import csv
-    import io
-
-    write_text_atomic(out / "results.json", json.dumps(rows, indent=2))
-    ks = sorted({k for row in rows for k in row.get("recall_at_k", {})}, key=int)
-    buffer = io.StringIO()
-    writer = csv.writer(buffer)
-    writer.writerow([*RESULT_COLUMNS, *(f"recall@{k}" for k in ks)])
-    for row in rows:
-        filled = csv_row(row)
-        writer.writerow([filled.get(c, "") for c in RESULT_COLUMNS] + [row["recall_at_k"].get(k, "") for k in ks])
-    write_text_atomic(out / "results.csv", buffer.getvalue())
-
+    def report_key(self, rows: list[dict[str, Any]]) -> str:
+        """The report stage's key: the result rows, the methods' parameters and models."""
+        return content_hash("report", STAGE_VERSION["report"], rows, [self.method_params(m) for m in self.scenario.methods],
+                            [self.model_key(m) for m in self.scenario.methods])
