@@ -473,7 +473,7 @@ def _worker_outlives_a_killed_parent(tmp_path: Path, main_body: str) -> bool:
     import time
 
     script = tmp_path / "parent.py"
-    script.write_text("import os, time\nfrom vitaplace.engine.pipeline.runner import worker_pool\nif __name__ == '__main__':\n"
+    script.write_text("import os, time\nfrom vitaplace.engine.pipeline.processes import worker_pool\nif __name__ == '__main__':\n"
                       "    pool = worker_pool(1)\n" + main_body + "    time.sleep(60)\n")
     parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
     worker = int(parent.stdout.readline())
@@ -617,15 +617,16 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     E1's route, farther than tau = 0.3, so those queries have no match. (The teleop kind's
     detours, spread along the run: tests/test_teleop.py.)"""
     from vitaplace.engine.data.dataset import open_run
-    from vitaplace.engine.pipeline.runner import Pipeline
     from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
     from vitaplace.engine.sim.clearance import Route
     from vitaplace.engine.sim.environment import load_environment
 
     overrides = ["train.run.n_samples=3", "evaluations.0.run.n_samples=40", "evaluations.0.query_off_route=0.5"]
     scenario, resolved = load_scenario("near-duplicate", overrides)
     pipeline = Pipeline(scenario, resolved, tmp_path, progress=False, workers=1)
-    pipeline.run(until="simulate")
+    run_stages(pipeline, until="simulate")
     route = Route(load_environment("e1").route)
     query = route.distance(open_run(pipeline.dataset_path("E1/query")).poses[:, :2])
     reference = route.distance(open_run(pipeline.dataset_path("E1/reference")).poses[:, :2])
@@ -927,13 +928,14 @@ def test_a_long_simulation_in_a_worker_logs_its_progress(monkeypatch, caplog):
     import threading
     from concurrent.futures import Future
 
-    from vitaplace.engine.pipeline import runner
+    from vitaplace.engine.pipeline import simulation
 
-    monkeypatch.setattr(runner, "LONG_SECONDS", 0.1)
+    monkeypatch.setattr(simulation, "LONG_SECONDS", 0.1)
     future: Future = Future()
     threading.Timer(0.35, future.set_result, ((10, 1.0),)).start()
+    job = simulation.SimulationJob("train", "e1", {}, {}, 0, "key", Path("unused.h5"), estimate=1.0)
     with caplog.at_level("INFO", logger="vitaplace"):
-        assert runner._await(future, "train", estimate=1.0) == (10, 1.0)
+        assert simulation._await(future, job) == (10, 1.0)
     lines = [r.getMessage() for r in caplog.records if "of an estimated 1 s" in r.getMessage()]
     assert 2 <= len(lines) <= 4, lines
 
