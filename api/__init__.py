@@ -31,16 +31,16 @@ from vitaplace.engine import __version__
 from vitaplace.engine.errors import UserError
 
 if TYPE_CHECKING:
-    from vitaplace.engine.dataset import Run
+    from vitaplace.engine.data.dataset import Run
     from vitaplace.engine.features import FeatureExtractor
-    from vitaplace.engine.scenario import Scenario
+    from vitaplace.engine.config.scenario import Scenario
 
 #: names imported on first use, so that ``import vitaplace`` (and every ``vitaplace.engine``
 #: import, the command line's included) stays cheap
 _LAZY = {
-    "Run": "vitaplace.engine.dataset", "open_run": "vitaplace.engine.dataset",
+    "Run": "vitaplace.engine.data.dataset", "open_run": "vitaplace.engine.data.dataset",
     "FeatureExtractor": "vitaplace.engine.features", "Features": "vitaplace.engine.features",
-    "Scenario": "vitaplace.engine.scenario", "STAGES": "vitaplace.engine.runner",
+    "Scenario": "vitaplace.engine.config.scenario", "STAGES": "vitaplace.engine.pipeline.runner",
 }
 
 
@@ -75,7 +75,7 @@ def load_scenario(scenario: str | Path, overrides: Overrides = None) -> Scenario
     """The validated scenario ``scenario`` (a YAML file or a shipped scenario's name) with
     ``overrides`` applied, e.g. ``{"methods.0.params.epochs": 2, "seed": 3}``. Raises
     `UserError` (one line naming file, key path and problem) for anything invalid."""
-    from vitaplace.engine.scenario import load_scenario as load
+    from vitaplace.engine.config.loading import load_scenario as load
 
     return load(scenario, _assignments(overrides))[0]
 
@@ -96,9 +96,10 @@ def run(
     runs in parallel (default: one per core; 1 in a script without a ``__main__`` guard).
     Stage messages go to the ``vitaplace`` logger (``logging.basicConfig(level="INFO")``
     shows them)."""
-    from vitaplace.engine.outdir import OutputLock, remove_stale_temporaries, writable_dir
-    from vitaplace.engine.runner import STAGES, Pipeline
-    from vitaplace.engine.scenario import load_scenario as load
+    from vitaplace.engine.pipeline.outdir import OutputLock, remove_stale_temporaries, writable_dir
+    from vitaplace.engine.config.loading import load_scenario as load
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import STAGES, Pipeline
 
     if until not in STAGES:
         raise UserError(f"until={until!r}: expected one of {', '.join(STAGES)}")
@@ -112,7 +113,7 @@ def run(
     with OutputLock(folder):
         for path in remove_stale_temporaries(folder):
             log.info("removed %s, left by an interrupted run", path)
-        return Pipeline(loaded, resolved, folder, force=force, progress=progress, workers=workers).run(until=until)
+        return run_stages(Pipeline(loaded, resolved, folder, force=force, progress=progress, workers=workers), until)
 
 
 def unguarded_script() -> str | None:
@@ -164,7 +165,7 @@ def simulate(
     **run_settings: Any,
 ) -> Run:
     """Simulate one run of the WhiskEye in ``environment`` (a YAML file or a shipped name such
-    as ``"e1"``) and return it in memory (``vitaplace.engine.dataset.write_run`` saves it).
+    as ``"e1"``) and return it in memory (``vitaplace.engine.data.dataset.write_run`` saves it).
     ``kind``: foraging, route or orbit; ``run_settings``: any other run key
     (docs/SCENARIOS.md), e.g. ``lateral_noise=0.05``. Runs in this process."""
     from vitaplace.engine.sim.controllers import RunSpec

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.features import FeatureExtractor, Features
 
 __all__ = [

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from vitaplace.engine import evaluate as ev
-from vitaplace.engine import resample, summary
+from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation import resample, summary
 
 
 def main() -> None:

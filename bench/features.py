@@ -21,7 +21,7 @@ import time
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.data.dataset import Run
 from vitaplace.plugins.handcrafted import HandcraftedExtractor, template_distance
 from vitaplace.plugins.mupnet import MupnetExtractor
 

@@ -61,9 +61,10 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")  # before any jax import: no GPU p
 
 import numpy as np
 
-from vitaplace.engine.backends import NumpyBackend
-from vitaplace.engine.pc import LATENT_INIT, BatchState, Network, NetworkConfig
-from vitaplace.engine.scenario import Scenario, load_scenario
+from vitaplace.engine.network.backends import NumpyBackend
+from vitaplace.engine.network.pc import LATENT_INIT, BatchState, Network, NetworkConfig
+from vitaplace.engine.config.scenario import Scenario
+from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.sim.robot import N_WHISKERS
 from vitaplace.plugins.mupnet.extractor import MupnetParams
 
@@ -850,7 +851,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _warp_backend():
-    from vitaplace.engine.backends import WarpBackend
+    from vitaplace.engine.network.backends import WarpBackend
 
     return WarpBackend("cpu")
 

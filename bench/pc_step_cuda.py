@@ -158,7 +158,7 @@ def _breakdown(name: str, impl, prob, repeat: int, sync: Callable[[], None]) -> 
 def warp_backend(precision: str):
     """The project's CUDA backend in ``precision``: Warp's tile GEMMs for float32 (the
     default path), cuBLAS GEMMs with fused Warp epilogues for tf32 and bf16."""
-    from vitaplace.engine.backends import get_backend
+    from vitaplace.engine.network.backends import get_backend
 
     return get_backend("warp", "cuda", precision=precision)
 
@@ -167,7 +167,7 @@ def timed_training(pc, epochs: int, samples: int, log, precision: str) -> dict:
     """The paper's network trained on random data (the same data and seed in every
     precision): the first epoch (kernel compilation, graph capture) timed apart, then
     ``epochs`` epochs; projected to the paper's budget; then test-time inference."""
-    from vitaplace.engine.pc import Network
+    from vitaplace.engine.network.pc import Network
 
     import warp as wp
 
@@ -225,7 +225,7 @@ def cuda_main(args, pc) -> dict:
     import torch
     import warp as wp
 
-    from vitaplace.engine.backends import PRECISIONS, CublasBackend, WarpBackend
+    from vitaplace.engine.network.backends import PRECISIONS, CublasBackend, WarpBackend
 
     if not torch.cuda.is_available():
         raise SystemExit("--device cuda: PyTorch sees no CUDA device")

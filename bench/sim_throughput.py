@@ -29,7 +29,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 def one_run(args: tuple[str, int, int, str, str]) -> dict:
     env_name, n, seed, out_dir, tactile_model = args
-    from vitaplace.engine.dataset import write_run
+    from vitaplace.engine.data.dataset import write_run
     from vitaplace.engine.sim import RobotSpec, RunSpec, load_environment
     from vitaplace.engine.sim.simulate import simulate_run
 

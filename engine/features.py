@@ -18,8 +18,8 @@ import numpy as np
 import pydantic
 
 from vitaplace.engine.atomic import atomic_path
-from vitaplace.engine.configfile import show_key
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.config.configfile import show_key
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.errors import UserError
 
 #: Features of one run: named arrays whose first axis is the sample index.

@@ -11,7 +11,7 @@ import pluggy
 from vitaplace.engine.features import FeatureExtractor
 
 if TYPE_CHECKING:
-    from vitaplace.engine.scenario import Scenario
+    from vitaplace.engine.config.scenario import Scenario
 
 PROJECT = "vitaplace"
 #: Entry-point group through which packages (built-in ones included) contribute plugins.

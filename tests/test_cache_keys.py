@@ -70,7 +70,7 @@ def setup(tmp_path):
 def run(scenario: Path, out: Path, env: dict, *extra: str, order: str = "") -> tuple[float, dict[str, str]]:
     """`vitaplace evaluate` in a fresh process: (max F1, stage -> statuses of its items)."""
     result = subprocess.run(
-        [sys.executable, "-m", "vitaplace.engine.cli", "evaluate", str(scenario), "--out", str(out), "--no-progress",
+        [sys.executable, "-m", "vitaplace.engine.cli.main", "evaluate", str(scenario), "--out", str(out), "--no-progress",
          *extra], capture_output=True, text=True, timeout=600, env={**env, "ORACLE_ORDER": order},
     )
     assert result.returncode == 0, result.stderr[-2000:]

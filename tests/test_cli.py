@@ -13,7 +13,7 @@ from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vitaplace.engine.cli import main  # noqa: E402
+from vitaplace.engine.cli.main import main  # noqa: E402
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
 ENV_E1 = str(SCENARIOS / "environments" / "e1.yaml")
@@ -50,7 +50,7 @@ def valid_scenario() -> dict:
 
 def run_cli(args: list[str], cwd: Path | None = None) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "vitaplace.engine.cli", *args], capture_output=True, text=True, timeout=600, cwd=cwd
+        [sys.executable, "-m", "vitaplace.engine.cli.main", *args], capture_output=True, text=True, timeout=600, cwd=cwd
     )
 
 
@@ -147,7 +147,7 @@ def re_line(text: str, pattern: str) -> bool:
 
 
 def test_extends_merges_over_the_base(tmp_path):
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     base = write_scenario(tmp_path, valid_scenario(), "base.yaml")
     child = write_scenario(tmp_path, {"extends": base.name, "name": "child", "evaluation": {"tau": 0.5}}, "child.yaml")
@@ -276,7 +276,7 @@ def test_plugins_command_lists_the_builtins(capsys):
 def test_non_finite_features_stop_the_pipeline_with_a_clear_error():
     import numpy as np
 
-    from vitaplace.engine.runner import StageError, check_finite
+    from vitaplace.engine.pipeline.output_checks import StageError, check_finite
 
     good = {"latent": np.ones((3, 2))}
     assert check_finite(good, "x") is good
@@ -323,7 +323,7 @@ def test_oracle_features_score_perfectly_end_to_end(tmp_path):
     path = write_scenario(tmp_path, scenario)
     out = tmp_path / "out"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(pkg), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli", "run", str(path), "--out", str(out)],
+    proc = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli.main", "run", str(path), "--out", str(out)],
                           capture_output=True, text=True, timeout=600, env=env)
     assert proc.returncode == 0, proc.stderr[-2000:]
     (row,) = json.loads((out / "results.json").read_text())
@@ -331,7 +331,7 @@ def test_oracle_features_score_perfectly_end_to_end(tmp_path):
     assert row["recall_at_k"]["1"] == pytest.approx(1.0)
     (npz,) = list(out.glob("evaluations/E1/O/**/matrices.npz"))
     # and +inf where the two runs face more than the default 30 degrees apart
-    from vitaplace.engine.dataset import open_run
+    from vitaplace.engine.data.dataset import open_run
 
     yaw = [open_run(next((out / "cache" / "datasets").glob(f"E1-{role}-*.h5"))).poses[:, 2] for role in ("query", "reference")]
     facing_apart = np.degrees(np.abs(np.angle(np.exp(1j * (yaw[0][:, None] - yaw[1][None, :]))))) > 30
@@ -362,7 +362,7 @@ def test_hostile_files_end_in_one_line_quickly(tmp_path, case):
     content, pattern = HOSTILE[case]
     path = tmp_path / "hostile.yaml"
     path.write_bytes(content)
-    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli", "validate", str(path)],
+    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli.main", "validate", str(path)],
                             capture_output=True, text=True, timeout=60)
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-500:]
@@ -403,7 +403,7 @@ def test_an_unstable_stiffness_is_refused_before_any_compute_with_one_clear_erro
 
 
 def test_extractor_outputs_are_checked_with_one_line():
-    from vitaplace.engine.runner import StageError, check_distance, check_features
+    from vitaplace.engine.pipeline.output_checks import StageError, check_distance, check_features
 
     good = {"x": np.zeros((3, 2))}
     assert check_features(good, 3, "t") is good
@@ -416,7 +416,7 @@ def test_extractor_outputs_are_checked_with_one_line():
 
 
 def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path):
-    from vitaplace.engine.outdir import OutputDirError, OutputLock
+    from vitaplace.engine.pipeline.outdir import OutputDirError, OutputLock
 
     out = tmp_path / "out"
     out.mkdir()
@@ -424,7 +424,7 @@ def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path
         pass
     holder = subprocess.Popen(
         [sys.executable, "-c",
-         "import time\nfrom pathlib import Path\nfrom vitaplace.engine.outdir import OutputLock\n"
+         "import time\nfrom pathlib import Path\nfrom vitaplace.engine.pipeline.outdir import OutputLock\n"
          f"with OutputLock(Path({str(out)!r})):\n    print('locked', flush=True)\n    time.sleep(30)\n"],
         stdout=subprocess.PIPE, text=True,
     )
@@ -444,7 +444,7 @@ def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path
 
 
 def test_temporaries_left_by_an_interrupted_run_are_removed(tmp_path):
-    from vitaplace.engine.outdir import remove_stale_temporaries
+    from vitaplace.engine.pipeline.outdir import remove_stale_temporaries
 
     (tmp_path / "cache" / "models").mkdir(parents=True)
     part = tmp_path / "evaluations" / ".summary.json.abc.part"
@@ -473,7 +473,7 @@ def _worker_outlives_a_killed_parent(tmp_path: Path, main_body: str) -> bool:
     import time
 
     script = tmp_path / "parent.py"
-    script.write_text("import os, time\nfrom vitaplace.engine.runner import worker_pool\nif __name__ == '__main__':\n"
+    script.write_text("import os, time\nfrom vitaplace.engine.pipeline.processes import worker_pool\nif __name__ == '__main__':\n"
                       "    pool = worker_pool(1)\n" + main_body + "    time.sleep(60)\n")
     parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
     worker = int(parent.stdout.readline())
@@ -526,7 +526,7 @@ def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
     args = ["run", "quickstart", "--out", str(out), "-q"] + [a for o in TINY for a in ("--set", o)]
     # as from a terminal: Ctrl-C not ignored (a test run started in the background, e.g. by
     # `cmd &` in a script, ignores SIGINT, and a process keeps an ignored SIGINT ignored)
-    proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli", *args], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli.main", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, start_new_session=True,
                             preexec_fn=partial(signal.signal, signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
@@ -591,7 +591,7 @@ def test_kill_9_during_a_stage_then_resume_gives_identical_results(tmp_path):
     clean = tmp_path / "clean"
     assert run_cli([*args, "--out", str(clean)]).returncode == 0
     out = tmp_path / "killed"
-    proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli", *args, "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli.main", *args, "--out", str(out)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     log_file = out / "log.txt"
     deadline = time.monotonic() + 120
@@ -616,16 +616,17 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     reference run) runs off_route_offset (0.6 m, facing outward: towards the centre) away from
     E1's route, farther than tau = 0.3, so those queries have no match. (The teleop kind's
     detours, spread along the run: tests/test_teleop.py.)"""
-    from vitaplace.engine.dataset import open_run
-    from vitaplace.engine.runner import Pipeline
-    from vitaplace.engine.scenario import load_scenario
-    from vitaplace.engine.sim.controllers import Route
+    from vitaplace.engine.data.dataset import open_run
+    from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.sim.clearance import Route
     from vitaplace.engine.sim.environment import load_environment
 
     overrides = ["train.run.n_samples=3", "evaluations.0.run.n_samples=40", "evaluations.0.query_off_route=0.5"]
     scenario, resolved = load_scenario("near-duplicate", overrides)
     pipeline = Pipeline(scenario, resolved, tmp_path, progress=False, workers=1)
-    pipeline.run(until="simulate")
+    run_stages(pipeline, until="simulate")
     route = Route(load_environment("e1").route)
     query = route.distance(open_run(pipeline.dataset_path("E1/query")).poses[:, :2])
     reference = route.distance(open_run(pipeline.dataset_path("E1/reference")).poses[:, :2])
@@ -686,7 +687,7 @@ def test_quiet_leaves_warnings_only_on_stderr_and_everything_in_the_log(quiet_js
 def test_verbose_and_quiet_are_accepted_by_every_command(tmp_path, capsys):
     import argparse
 
-    from vitaplace.engine.cli import build_parser
+    from vitaplace.engine.cli.main import build_parser
 
     parser = build_parser()
     (commands,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
@@ -718,7 +719,8 @@ def test_force_of_a_stage_the_command_does_not_reach_is_refused(tmp_path, capsys
 
 
 def test_set_appends_to_a_list_and_refuses_anything_else(capsys):
-    from vitaplace.engine.scenario import ScenarioError, apply_overrides
+    from vitaplace.engine.config.scenario import ScenarioError
+    from vitaplace.engine.config.overrides import apply_overrides
 
     data = {"methods": [{"name": "L"}], "evaluation": {"tau": 0.3}}
     appended = apply_overrides(data, ["methods+={name: L2, plugin: mupnet, params: {epochs: 1}}"])
@@ -759,7 +761,7 @@ def test_shell_completion_when_shtab_is_installed():
 def test_mupnet_inference_shows_a_bar_and_logs_samples_cap_and_time(quiet_json_run, capsys):
     import re
 
-    from vitaplace.engine.dataset import open_run
+    from vitaplace.engine.data.dataset import open_run
     from vitaplace.plugins.mupnet.extractor import MupnetExtractor
 
     out, _ = quiet_json_run
@@ -844,7 +846,7 @@ def test_report_of_a_damaged_output_folder_is_one_line_naming_the_file(quiet_jso
 def test_the_report_key_follows_what_the_report_reads_and_nothing_else(quiet_json_run, tmp_path):
     """The report stage's key (a hash of `report_key_inputs`) changes with a manifest entry the
     report prints or a file it draws, not with the manifest's timings and stage records."""
-    from vitaplace.engine.report import report_key_inputs
+    from vitaplace.engine.evaluation.report import report_key_inputs
 
     copy = _copy_without_cache(quiet_json_run[0], tmp_path / "copy")
     before = report_key_inputs(copy)
@@ -880,8 +882,8 @@ def test_results_csv_has_precision_recall_f1_at_max_f1_without_fixed_delta(quiet
 
 
 def test_figures_label_colour_bars_and_keep_legends_off_the_data(tmp_path, monkeypatch):
-    from vitaplace.engine import evaluate as ev
-    from vitaplace.engine import figures
+    from vitaplace.engine.evaluation import evaluate as ev
+    from vitaplace.engine.evaluation import figures
 
     drawn = []
     monkeypatch.setattr(figures, "_save", lambda fig, stem: drawn.append(fig) or [])
@@ -983,7 +985,7 @@ def test_settings_just_inside_the_arena_are_valid(capsys):
 def test_a_long_simulation_is_announced_with_an_estimate(capsys):
     """0.1 ms steps at 2 Hz whisking: 5000 steps per sample. Estimate: (samples + warm-up
     cycle) x steps x 25 us + samples x 1 ms; train 5000 samples, two evaluation runs of 450."""
-    from vitaplace.engine.plausibility import duration
+    from vitaplace.engine.sim.plausibility import duration
 
     seconds = (5001 * 5000 * 25e-6 + 5000 * 1e-3) + 2 * (451 * 5000 * 25e-6 + 450 * 1e-3)
     assert duration(seconds) == "12 min"  # 743.8 s
@@ -998,13 +1000,14 @@ def test_a_long_simulation_in_a_worker_logs_its_progress(monkeypatch, caplog):
     import threading
     from concurrent.futures import Future
 
-    from vitaplace.engine import runner
+    from vitaplace.engine.pipeline import simulation
 
-    monkeypatch.setattr(runner, "LONG_SECONDS", 0.1)
+    monkeypatch.setattr(simulation, "LONG_SECONDS", 0.1)
     future: Future = Future()
     threading.Timer(0.35, future.set_result, ((10, 1.0),)).start()
+    job = simulation.SimulationJob("train", "e1", {}, {}, 0, "key", Path("unused.h5"), estimate=1.0)
     with caplog.at_level("INFO", logger="vitaplace"):
-        assert runner._await(future, "train", estimate=1.0) == (10, 1.0)
+        assert simulation._await(future, job) == (10, 1.0)
     lines = [r.getMessage() for r in caplog.records if "of an estimated 1 s" in r.getMessage()]
     assert 2 <= len(lines) <= 4, lines
 
@@ -1018,7 +1021,7 @@ def test_bad_worker_counts_are_one_line(tmp_path, capsys, workers):
 
 def test_ctrl_c_before_the_command_starts_is_one_line(capsys, monkeypatch):
     """A Ctrl-C while the arguments are parsed (or anything before the command runs)."""
-    from vitaplace.engine import cli
+    import vitaplace.engine.cli.main as cli
 
     def interrupted():
         raise KeyboardInterrupt

@@ -8,7 +8,8 @@ import sys
 import pytest
 import yaml
 
-from vitaplace.engine import cpus, sweep
+from vitaplace.engine.pipeline import cpus
+import vitaplace.engine.cli.sweep as sweep
 from vitaplace.engine.errors import UserError
 
 
@@ -37,7 +38,7 @@ def test_usable_cpus_is_the_smallest_of_affinity_slurm_and_override(four_cpus, m
 
 
 def test_a_local_sweep_starts_one_worker_per_usable_cpu(four_cpus, tmp_path, monkeypatch):
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     data = {"name": "tiny", "train": {"environment": "e1", "run": {"kind": "foraging", "n_samples": 5}},
             "evaluations": [{"name": "E1", "environment": "e1", "run": {"kind": "route", "n_samples": 5}}],
@@ -69,7 +70,7 @@ print("BLAS", sorted({p["num_threads"] for p in threadpoolctl.threadpool_info() 
 ])
 def test_the_cli_sizes_blas_threads_to_the_allocation(variables, expected):
     env = {k: v for k, v in os.environ.items() if k not in (*cpus.THREAD_ENVS, cpus.OVERRIDE_ENV)}
-    code = f"import os, sys\nfrom vitaplace.engine.cli import main\nmain(['plugins'])\n{BLAS_THREADS}"
+    code = f"import os, sys\nfrom vitaplace.engine.cli.main import main\nmain(['plugins'])\n{BLAS_THREADS}"
     result = subprocess.run([sys.executable, "-c", code], env={**env, **variables}, capture_output=True, text=True,
                             timeout=120)
     assert expected in result.stdout, result.stdout + result.stderr
@@ -79,7 +80,7 @@ def test_a_pool_worker_keeps_its_share_when_its_seed_asks_for_the_allocation():
     """The driver set 2 BLAS threads; a worker's initializer caps it at 1, and the seed's own
     call for every usable CPU (2) must not raise it again: a cap only goes down."""
     env = {k: v for k, v in os.environ.items() if k not in (*cpus.THREAD_ENVS, cpus.OVERRIDE_ENV)}
-    code = (f"import os\nfrom vitaplace.engine.cpus import limit_blas_threads\n"
+    code = (f"import os\nfrom vitaplace.engine.pipeline.cpus import limit_blas_threads\n"
             f"print('CAPS', limit_blas_threads(1), limit_blas_threads(2))\n{BLAS_THREADS}")
     result = subprocess.run([sys.executable, "-c", code], env={**env, "OPENBLAS_NUM_THREADS": "2"},
                             capture_output=True, text=True, timeout=120)

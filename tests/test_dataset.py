@@ -6,8 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from vitaplace.engine import dataset as ds
-from vitaplace.engine.dataset import SCHEMA_VERSION, DatasetError, Run, open_run, write_run
+from vitaplace.engine.data import dataset as ds
+from vitaplace.engine.data.dataset import SCHEMA_VERSION, DatasetError, Run, open_run, write_run
 
 
 def make_run(n: int = 5, s: int = 3, seed: int = 0) -> Run:

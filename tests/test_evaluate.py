@@ -1,4 +1,4 @@
-"""Tests of vitaplace.engine.evaluate and vitaplace.engine.figures.
+"""Tests of vitaplace.engine.evaluation.evaluate and vitaplace.engine.evaluation.figures.
 
 Expected values come from hand derivations (comments), scikit-learn, an independent
 per-query loop of the definition (docs/RESULTS.md, evaluation), and an independent re-implementation of
@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from sklearn.metrics import average_precision_score, precision_recall_curve
 
-from vitaplace.engine import evaluate as ev
+from vitaplace.engine.evaluation import evaluate as ev
 
 # --------------------------------------------------------------------------- hand case
 # 5 queries x 4 references, tau = 1.0.
@@ -593,7 +593,7 @@ def _assert_written(paths, tmp_path, stem):
 
 
 def test_plot_matrices(tmp_path, small_case):
-    from vitaplace.engine import figures
+    from vitaplace.engine.evaluation import figures
 
     qry, ref, tme, gtm = small_case
     d = ev.decide(tme, gtm, 0.3, 0.5)
@@ -601,7 +601,7 @@ def test_plot_matrices(tmp_path, small_case):
 
 
 def test_plot_pr_curves(tmp_path, small_case):
-    from vitaplace.engine import figures
+    from vitaplace.engine.evaluation import figures
 
     _, _, tme, gtm = small_case
     curves = {"mupnet": ev.pr_curve(tme, gtm, 0.3), "oracle": ev.pr_curve(gtm, gtm, 0.3)}
@@ -609,7 +609,7 @@ def test_plot_pr_curves(tmp_path, small_case):
 
 
 def test_plot_trajectories(tmp_path, small_case):
-    from vitaplace.engine import figures
+    from vitaplace.engine.evaluation import figures
 
     qry, ref, tme, gtm = small_case
     d = ev.decide(tme, gtm, 0.3, 0.8)
@@ -627,7 +627,7 @@ def test_plot_trajectories(tmp_path, small_case):
 
 
 def test_plot_energy(tmp_path):
-    from vitaplace.engine import figures
+    from vitaplace.engine.evaluation import figures
 
     energy = {"visual/1": [100.0, 40.0, 20.0, 15.0], "tactile/1": [50.0, 30.0, 0.0, 9.0], "joint": []}
     _assert_written(figures.plot_energy(tmp_path / "energy", energy), tmp_path, "energy")
@@ -651,7 +651,7 @@ ENVIRONMENTS = Path(__file__).resolve().parent.parent / "scenarios" / "environme
 
 def _scenario(train: dict, evaluations: list[tuple[str, str]]):
     """A scenario training as ``train`` with (name, shipped environment or file) evaluations."""
-    from vitaplace.engine.scenario import Scenario
+    from vitaplace.engine.config.scenario import Scenario
 
     return Scenario.model_validate({
         "name": "t",
@@ -667,7 +667,7 @@ def _train_in(env: str) -> dict:
 
 
 def test_the_training_world_is_the_one_evaluation_in_the_training_environment(tmp_path):
-    from vitaplace.engine.scenario import training_world_evaluation
+    from vitaplace.engine.config.scenario import training_world_evaluation
 
     # the one in e1, wherever it is listed and whatever its name
     assert training_world_evaluation(_scenario(_train_in("e1"), [("X", "e2"), ("Mine", "e1")]))[0] == "Mine"
@@ -686,8 +686,8 @@ def test_the_training_world_is_the_one_evaluation_in_the_training_environment(tm
 def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp_path):
     """E1 (in the training run's world, e1) holds the training matrices above, E2 the other
     ones: every row of a method gets the F1 at E1's max-F1 threshold (0.3), per direction."""
-    from vitaplace.engine.outdir import evaluation_dir
-    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.pipeline.outdir import evaluation_dir
+    from vitaplace.engine.pipeline.runner import Pipeline
 
     scenario = _scenario(_train_in("e1"), [("E2", "e2"), ("E1", "e1")])
     pipeline = Pipeline(scenario, {}, tmp_path)

@@ -14,23 +14,9 @@ import pytest
 import yaml
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
-from vitaplace.engine.cli import main  # noqa: E402
-from vitaplace.engine.sim.controllers import (  # noqa: E402
-    FORAGING_GAIN,
-    HEAD_CENTRE,
-    HEAD_RADIUS,
-    HEAD_REACH,
-    TRANSITIONS,
-    Attention,
-    Avoid,
-    Explore,
-    ForagingController,
-    Leave,
-    Observation,
-    Orient,
-    Surroundings,
-    Wander,
-)
+from vitaplace.engine.cli.main import main  # noqa: E402
+from vitaplace.engine.sim.controllers import FORAGING_GAIN, HEAD_REACH, TRANSITIONS, Attention, Avoid, Explore, ForagingController, Leave, Observation, Orient, Surroundings, Wander
+from vitaplace.engine.sim.clearance import HEAD_CENTRE, HEAD_RADIUS
 from vitaplace.engine.sim.environment import EnvironmentSpec  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
 from vitaplace.engine.sim.simulate import RunSpec, run_hash  # noqa: E402

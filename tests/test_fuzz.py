@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vitaplace.engine.cli import main  # noqa: E402
+from vitaplace.engine.cli.main import main  # noqa: E402
 
 E1 = str(Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml")
 VALID = {
@@ -106,7 +106,7 @@ import tempfile  # noqa: E402
 import h5py  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vitaplace.engine.dataset import FIELDS, DatasetError, Run, open_run, write_run  # noqa: E402
+from vitaplace.engine.data.dataset import FIELDS, DatasetError, Run, open_run, write_run  # noqa: E402
 
 
 def _base_run_file(folder: Path) -> Path:
@@ -185,8 +185,8 @@ def _finished_folder(folder: Path, seed: int) -> None:
     and the completion record written last."""
     import json
 
-    from vitaplace.engine import completion
-    from vitaplace.engine.evaluate import evaluate_pair
+    from vitaplace.engine.pipeline import completion
+    from vitaplace.engine.evaluation.evaluate import evaluate_pair
 
     poses = np.stack([np.linspace(0, 2, 6), np.zeros(6), np.zeros(6)], axis=1)
     tme = np.abs(np.subtract.outer(np.arange(6.0), np.arange(6.0))) + 0.1 * seed
@@ -210,7 +210,7 @@ def _finished_folder(folder: Path, seed: int) -> None:
 def test_any_mutated_aggregate_folder_gets_a_clean_answer(capsys, file, key, value, whole, reseal):
     import json
 
-    from vitaplace.engine import completion
+    from vitaplace.engine.pipeline import completion
 
     root = Path(tempfile.mkdtemp())
     try:

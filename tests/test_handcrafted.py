@@ -14,7 +14,7 @@ import pluggy
 import pytest
 
 from vitaplace.engine import hookspecs
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.features import ExtractorParamsError
 from vitaplace.plugins import handcrafted
 from vitaplace.plugins.handcrafted import HandcraftedExtractor, pfh, sda, template_distance, templates

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import scipy.io
 
-from vitaplace.engine.dataset import DatasetError, open_run, write_run
-from vitaplace.engine.matimport import import_mat
+from vitaplace.engine.data.dataset import DatasetError, open_run, write_run
+from vitaplace.engine.data.matimport import import_mat
 
 
 def write_layout(folder, n=7, seed=0, images_as_cell=False, float_images=False):
@@ -104,7 +104,7 @@ import json  # noqa: E402
 import h5py  # noqa: E402
 import yaml  # noqa: E402
 
-from vitaplace.engine.cli import main  # noqa: E402
+from vitaplace.engine.cli.main import main  # noqa: E402
 
 N = 7
 #: MATLAB's class names of the numpy dtypes written below.
@@ -390,7 +390,7 @@ def test_collisions_and_a_training_run_in_no_world_reach_the_user(tmp_path):
     the reference route shifted 5 cm sideways, facing the same way: each query's nearest
     reference is 5 cm and 0 degrees away. Touch: whisker 0 of query samples 0 and 1 deflected,
     nothing in the reference run (touch shares 2/8 and 0)."""
-    from vitaplace.engine.dataset import Run
+    from vitaplace.engine.data.dataset import Run
 
     scenario = recorded_scenario(tmp_path)
     for name, touched, collisions in (("query", [0, 1], 3), ("ref", [], 0)):
@@ -511,7 +511,7 @@ def test_three_poses_are_ambiguous_unless_the_layout_is_stated(tmp_path, capsys)
 
 
 def _twelve_whiskers(tmp_path, data):
-    from vitaplace.engine.dataset import Run
+    from vitaplace.engine.data.dataset import Run
 
     rng = np.random.default_rng(0)
     run = Run.from_arrays(images=rng.integers(0, 256, (8, 45, 80, 3), dtype=np.uint8), theta=np.zeros((8, 12)),

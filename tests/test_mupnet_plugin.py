@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.features import ExtractorParamsError
 from vitaplace.engine.plugins import discover
 
@@ -274,7 +274,7 @@ def test_the_engine_configs_hold_no_defaults_of_their_own():
     import dataclasses
     import inspect
 
-    from vitaplace.engine.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
+    from vitaplace.engine.network.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
 
     for container in (ModalityConfig, JointConfig, NetworkConfig, TrainingConfig):
         for field in dataclasses.fields(container):
@@ -289,7 +289,7 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
     training configurations built from its defaults carry each changed value to its place."""
     import pydantic
 
-    from vitaplace.engine.pc import JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
+    from vitaplace.engine.network.pc import JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
     from vitaplace.plugins.mupnet.extractor import MupnetParams
 
     changed = {
@@ -324,7 +324,7 @@ def test_the_fitted_network_is_built_from_the_params(fitted):
     ("activation", "relu", "Input should be 'leaky_relu', 'tanh', 'sigmoid' or 'linear'"),
 ])
 def test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path(capsys, key, value, message):
-    from vitaplace.engine.cli import main
+    from vitaplace.engine.cli.main import main
 
     assert main(["validate", "quickstart", "--set", f"methods.0.params.{key}={value}"]) == 2
     lines = capsys.readouterr().err.strip().splitlines()

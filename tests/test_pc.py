@@ -12,8 +12,8 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from conftest import cuda_present
-from vitaplace.engine.backends import NumpyBackend, get_backend
-from vitaplace.engine.pc import Network, NetworkError
+from vitaplace.engine.network.backends import NumpyBackend, get_backend
+from vitaplace.engine.network.pc import Network, NetworkError
 
 #: The behavioural tests (inference lowers the energy, training lowers the error, samples stop
 #: on their own, ...) run on every backend: numpy, Warp on the CPU, Warp on CUDA (skipped
@@ -363,7 +363,7 @@ def test_numpy_and_warp_backends_agree(device):
     CUDA) and per-sample-stopping inference give the same numbers on the numpy backend
     and on Warp on every device."""
     pytest.importorskip("warp")
-    from vitaplace.engine.backends import WarpBackend
+    from vitaplace.engine.network.backends import WarpBackend
 
     inputs, _ = synthetic(n=60)
     runs = {}
@@ -388,7 +388,7 @@ def test_numpy_and_warp_backends_agree(device):
 
 
 def test_convergence_rule_by_hand():
-    from vitaplace.engine.pc import converged
+    from vitaplace.engine.network.pc import converged
 
     # window 2, tol 0.1: 10 -> 9.5 over two epochs is a 5 % improvement: converged
     assert converged([12.0, 10.0, 9.8, 9.5], 2, 0.1)

@@ -19,7 +19,7 @@ import pluggy
 import pytest
 
 from vitaplace.engine import hookspecs
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.features import ExtractorParamsError, FeatureExtractor
 from vitaplace.engine.plugins import ONLY_ENV, PluginError, discover
 
@@ -465,8 +465,8 @@ def test_doc_mentions_error_behaviour_and_usage():
 
 def test_cache_keys_change_with_the_plugin_version(monkeypatch):
     """A new version of a plugin must not reuse the old version's fitted model and features."""
-    from vitaplace.engine.runner import Pipeline
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.config.loading import load_scenario
 
     scenario, resolved = load_scenario("quickstart")
     registry = discover()
@@ -484,8 +484,8 @@ def test_cache_keys_change_with_the_plugin_version(monkeypatch):
 
 
 def test_the_scenario_seed_reaches_the_methods_seed():
-    from vitaplace.engine.runner import Pipeline
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.config.loading import load_scenario
 
     keys = {}
     for seed in (0, 1):

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import yaml
 
-from vitaplace.engine import evaluate as ev
-from vitaplace.engine import figures
-from vitaplace.engine.dataset import Run, write_run
+from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation import figures
+from vitaplace.engine.data.dataset import Run, write_run
 
 
 @pytest.fixture
@@ -79,7 +79,7 @@ def test_the_pr_band_figure_says_what_its_band_is_whatever_its_title(tmp_path, d
 
 def _facts(features: dict[str, dict[str, dict]]) -> dict[str, dict[str, dict]]:
     """The manifest's ``features`` entry for these feature arrays (method -> run -> arrays)."""
-    from vitaplace.engine.report import feature_facts
+    from vitaplace.engine.evaluation.report import feature_facts
 
     return {m: {label: feature_facts(f) for label, f in by_label.items()} for m, by_label in features.items()}
 
@@ -95,7 +95,7 @@ def _facts(features: dict[str, dict[str, dict]]) -> dict[str, dict[str, dict]]:
     ],
 )
 def test_the_report_warns_when_most_test_time_inferences_hit_the_cap(tmp_path, capped_per_run, expected):
-    from vitaplace.engine.report import _cap_warnings
+    from vitaplace.engine.evaluation.report import _cap_warnings
 
     def run(capped: int) -> dict:
         stopped = np.ones(10, dtype=bool)
@@ -125,8 +125,8 @@ def _recorded(path: Path, n: int = 10, rng=None) -> Path:
 
 
 def test_inputs_name_recorded_files_and_features_that_carried_nothing(tmp_path):
-    from vitaplace.engine.dataset import open_run
-    from vitaplace.engine.report import _inputs_section, run_facts
+    from vitaplace.engine.data.dataset import open_run
+    from vitaplace.engine.evaluation.report import _inputs_section, run_facts
 
     query = _recorded(tmp_path / "query.h5")
     h = {"profile": np.ones((10, 4, 4)), "pfh": np.zeros((10, 8)), "sda": np.zeros((10, 24))}
@@ -144,7 +144,7 @@ def test_inputs_name_recorded_files_and_features_that_carried_nothing(tmp_path):
 
 
 def test_git_dirty_tells_a_changed_checkout_from_a_clean_one(tmp_path):
-    from vitaplace.engine.provenance import git_dirty
+    from vitaplace.engine.pipeline.provenance import git_dirty
 
     assert git_dirty(tmp_path) is None  # no checkout
     git = ["git", "-c", "user.name=t", "-c", "user.email=t@t", "-C", str(tmp_path)]
@@ -177,7 +177,7 @@ def test_recorded_run_report_and_manifest_end_to_end(tmp_path):
     """A scenario on recorded files (no contacts, as imported data): the report defines AUC,
     names the files and says H matched on vision alone; the manifest names the plugins'
     distributions and the dirty flag."""
-    from vitaplace.engine.cli import main
+    from vitaplace.engine.cli.main import main
 
     path, files = _recorded_scenario(tmp_path)
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
@@ -236,7 +236,7 @@ class FakeMlflow:
 
 
 def test_a_finished_run_is_logged_to_mlflow_when_asked(tmp_path, monkeypatch):
-    from vitaplace.engine.cli import main
+    from vitaplace.engine.cli.main import main
 
     fake = FakeMlflow()
     monkeypatch.setitem(sys.modules, "mlflow", fake)
@@ -259,7 +259,7 @@ def test_a_finished_run_is_logged_to_mlflow_when_asked(tmp_path, monkeypatch):
 
 
 def test_tracking_is_off_unless_asked_and_never_fails_a_run(tmp_path, monkeypatch, caplog):
-    from vitaplace.engine.cli import main
+    from vitaplace.engine.cli.main import main
 
     fake = FakeMlflow()
     monkeypatch.setitem(sys.modules, "mlflow", fake)

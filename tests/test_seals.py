@@ -7,8 +7,8 @@ the cases each describes.
 import hashlib
 import json
 
-from vitaplace.engine import checksum, completion
-from vitaplace.engine.outdir import LOCK_NAME, remove_stale_temporaries
+from vitaplace.engine.pipeline import checksum, completion
+from vitaplace.engine.pipeline.outdir import LOCK_NAME, remove_stale_temporaries
 
 
 def test_digest_of_a_folder_is_that_of_its_names_and_contents_in_order(tmp_path):

@@ -18,8 +18,8 @@ import pytest
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
 import mujoco  # noqa: E402
 
-from vitaplace.engine.dataset import Run  # noqa: E402
-from vitaplace.engine.sim.controllers import Route  # noqa: E402
+from vitaplace.engine.data.dataset import Run  # noqa: E402
+from vitaplace.engine.sim.clearance import Route  # noqa: E402
 from vitaplace.engine.sim.environment import (  # noqa: E402
     EnvironmentSpecError,
     EnvironmentSpec,
@@ -417,7 +417,7 @@ def test_shipped_environment_files_are_packaged():
 
 
 def test_simulated_run_round_trips_through_hdf5(e1, tmp_path):
-    from vitaplace.engine.dataset import open_run, write_run
+    from vitaplace.engine.data.dataset import open_run, write_run
 
     run = simulate_run(e1, RunSpec(kind="route", n_samples=3), seed=9, progress=False, name="r")
     back = open_run(write_run(tmp_path / "r.h5", run))

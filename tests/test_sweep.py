@@ -21,8 +21,8 @@ from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vitaplace.engine import sweep  # noqa: E402
-from vitaplace.engine.cli import main  # noqa: E402
+import vitaplace.engine.cli.sweep as sweep  # noqa: E402
+from vitaplace.engine.cli.main import main  # noqa: E402
 
 ENV_E1 = Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml"
 
@@ -65,7 +65,7 @@ def vitaplace_register_features(register):
 
 def tiny_scenario(fail_seed: int = -1) -> dict:
     """Two methods, 5-sample runs: one seed takes a second or two."""
-    from vitaplace.engine.runner import seed_for
+    from vitaplace.engine.pipeline.runner import seed_for
 
     # the runner gives the first method of scenario seed s the seed seed_for(s, 1000)
     fail_for = seed_for(fail_seed, 1000) if fail_seed >= 0 else -1
@@ -90,7 +90,7 @@ def plugin_env(tmp_path_factory) -> dict:
 
 def vitaplace(args: list[str], env: dict, prelude: str = "", postlude: str = "") -> subprocess.CompletedProcess:
     """The CLI in a fresh process, between ``prelude`` and ``postlude`` (Python code)."""
-    code = f"import sys\n{prelude}\nfrom vitaplace.engine.cli import main\nrc = main(sys.argv[1:])\n{postlude}\nsys.exit(rc)"
+    code = f"import sys\n{prelude}\nfrom vitaplace.engine.cli.main import main\nrc = main(sys.argv[1:])\n{postlude}\nsys.exit(rc)"
     return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=300, env=env)
 
 
@@ -199,7 +199,7 @@ def test_the_documented_slurm_command_runs_and_reports_a_failed_seed_in_one_line
 
 
 def test_slurm_options_are_checked_before_anything_runs(tmp_path, capsys):
-    from vitaplace.engine import slurm
+    import vitaplace.engine.cli.slurm as slurm
 
     assert [slurm.parse_time(t) for t in ("90", "1:30", "04:00:00", "1-0", "0-01:00:01", "2-03:04")] == [
         90, 2, 240, 1440, 61, 2 * 1440 + 3 * 60 + 4]
@@ -231,10 +231,10 @@ def test_slurm_settings_reach_the_sbatch_script(tmp_path, monkeypatch):
     submitit = pytest.importorskip("submitit")
     from submitit.slurm.slurm import _make_sbatch_string
 
-    from vitaplace.engine import slurm
+    import vitaplace.engine.cli.slurm as slurm
     from vitaplace.engine.errors import UserError
 
-    from vitaplace.engine.cli import build_parser
+    from vitaplace.engine.cli.main import build_parser
 
     settings = slurm.settings_from_args(build_parser().parse_args(["sweep", *documented_slurm_command(),
                                                                     "--sbatch", "exclusive"]))
@@ -271,7 +271,7 @@ class FakeTask:
 
 def test_a_slurm_task_without_a_result_is_one_line_and_an_interrupt_cancels_the_rest():
     pytest.importorskip("submitit")
-    from vitaplace.engine import slurm
+    import vitaplace.engine.cli.slurm as slurm
 
     tasks = [FakeTask("12_0", {"seed": 0, "rows": []}), FakeTask("12_1"), FakeTask("12_2", {"seed": 2, "failure": "E: x"})]
     ended = list(slurm._wait(tasks, ["job0", "job1", "job2"], 0.01))
@@ -388,7 +388,7 @@ def rows_for(values: dict[str, list[float]], seeds: list[int]) -> list[dict]:
 def test_a_job_reads_nothing_from_the_driver_s_files(tmp_path, monkeypatch):
     """The job carries the resolved scenario and environments: with the scenario, its
     environment file and the working directory gone, it still runs; --force reaches it."""
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     src = tmp_path / "src"
     src.mkdir()
@@ -413,7 +413,8 @@ def test_a_job_reads_nothing_from_the_driver_s_files(tmp_path, monkeypatch):
 
 
 def test_bad_seeds_and_stages_are_user_errors_before_any_job(tmp_path):
-    from vitaplace.engine.scenario import ScenarioError, load_scenario
+    from vitaplace.engine.config.scenario import ScenarioError
+    from vitaplace.engine.config.loading import load_scenario
 
     (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}))
     scenario, resolved = load_scenario(tmp_path / "s.yaml")
@@ -434,7 +435,7 @@ def test_recorded_run_files_reach_jobs_as_absolute_paths(tmp_path, monkeypatch):
 
 
 def test_the_driver_warns_once_about_unshared_storage_and_reports_failures(tmp_path, monkeypatch, caplog):
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     data = tiny_scenario()
     data["methods"] = [{"name": "H", "plugin": "handcrafted"}]
@@ -469,7 +470,7 @@ def test_failures_of_ray_tasks_read_as_one_line():
 
 
 def test_gpu_jobs_select_the_gpu_backend_where_a_method_has_one(tmp_path):
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     data = tiny_scenario()
     data["methods"] = [{"name": "L", "plugin": "mupnet"}, {"name": "H", "plugin": "handcrafted"},
@@ -483,7 +484,7 @@ def test_gpu_jobs_select_the_gpu_backend_where_a_method_has_one(tmp_path):
 
 
 def _curve(recall, precision):
-    from vitaplace.engine.evaluate import PRCurve
+    from vitaplace.engine.evaluation.evaluate import PRCurve
 
     r, p = np.asarray(recall, float), np.asarray(precision, float)
     f1 = np.where(p + r > 0, 2 * p * r / np.maximum(p + r, 1e-12), 0.0)
@@ -492,7 +493,7 @@ def _curve(recall, precision):
 
 
 def test_interpolated_precision_is_the_best_precision_at_or_beyond_each_recall():
-    from vitaplace.engine.figures import interpolated_precision
+    from vitaplace.engine.evaluation.figures import interpolated_precision
 
     # points (recall, precision): (0.2, 1.0), (0.5, 0.8), (0.5, 0.9), (1.0, 0.5), in threshold order
     curve = _curve([0.5, 0.2, 1.0, 0.5], [0.8, 1.0, 0.5, 0.9])
@@ -505,7 +506,7 @@ def test_interpolated_precision_is_the_best_precision_at_or_beyond_each_recall()
 def test_pr_band_figures_are_written_per_environment_from_the_seed_folders(tmp_path):
     import dataclasses
 
-    from vitaplace.engine.figures import write_pr_bands
+    from vitaplace.engine.evaluation.figures import write_pr_bands
 
     rows = []
     for seed in (0, 1):
@@ -524,7 +525,7 @@ def test_pr_band_figures_are_written_per_environment_from_the_seed_folders(tmp_p
 def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
     """A worker killed mid-job breaks the process pool and the jobs beside it; those run again,
     each in its own pool: the dying seed fails in one line, the others finish."""
-    from vitaplace.engine.runner import seed_for
+    from vitaplace.engine.pipeline.runner import seed_for
 
     data = tiny_scenario()
     data["methods"][0]["params"] = {"exit_for": seed_for(1, 1000)}
@@ -546,7 +547,7 @@ def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
 def reseal(folder: Path) -> None:
     """Write the folder's completion record anew over what it holds now: as if its own run had
     produced the damaged files (a buggy plugin, a bad disk), so the row checks must catch them."""
-    from vitaplace.engine import completion
+    from vitaplace.engine.pipeline import completion
 
     files = json.loads((folder / completion.RECORD).read_text())["files"]
     completion.write(folder, [folder / name for name in files])
@@ -605,9 +606,10 @@ def test_aggregate_refuses_folders_it_cannot_trust_before_writing_anything(local
 def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path, capsys, monkeypatch):
     """Finish seed 2, rerun it with another tau and kill the rerun during simulate: the folder
     holds the old results beside the new resolved scenario, and no completion record."""
-    from vitaplace.engine import completion
-    from vitaplace.engine.runner import Pipeline
-    from vitaplace.engine.scenario import Scenario
+    from vitaplace.engine.config.scenario import Scenario
+    from vitaplace.engine.pipeline import completion
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
 
     out, _ = local_sweep
     folder = tmp_path / "seed-2"
@@ -621,7 +623,7 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
 
     monkeypatch.setattr(Pipeline, "simulate", killed)
     with pytest.raises(KeyboardInterrupt):
-        Pipeline(Scenario.model_validate(resolved), resolved, folder, cache=tmp_path / "cache").run()
+        run_stages(Pipeline(Scenario.model_validate(resolved), resolved, folder, cache=tmp_path / "cache"))
     assert (folder / "results.json").is_file() and (folder / "manifest.json").is_file()  # the old run's
     summary = tmp_path / "summary"
     assert main(["aggregate", str(out / "seed-0"), str(folder), "--out", str(summary)]) == 2
@@ -647,6 +649,6 @@ def test_aggregate_counts_the_seeds_that_contribute(local_sweep, tmp_path, capsy
     ("1-0:0:30", 24 * 60 + 1),  # a day and 30 s: rounded up to the next whole minute
 ])
 def test_slurm_time_limits_by_hand(text, minutes):
-    from vitaplace.engine.slurm import parse_time
+    from vitaplace.engine.cli.slurm import parse_time
 
     assert parse_time(text) == minutes

@@ -16,14 +16,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
-from vitaplace.engine.sim.controllers import (  # noqa: E402
-    ROUTE_MIN_CLEARANCE,
-    TELEOP_TURN,
-    Route,
-    SafetyGuard,
-    loop_clearance,
-    make_controller,
-)
+from vitaplace.engine.sim.clearance import ROUTE_MIN_CLEARANCE, Route, loop_clearance
+from vitaplace.engine.sim.controllers import TELEOP_TURN, SafetyGuard, make_controller
 from vitaplace.engine.sim.environment import EnvironmentSpec, environment_files, load_environment  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
 from vitaplace.engine.sim.simulate import RunSpec, simulate_run  # noqa: E402
@@ -197,7 +191,7 @@ def test_detours_are_spread_along_the_run_with_the_requested_share():
 def test_a_route_the_whiskeye_cannot_drive_clear_is_refused_by_validate(tmp_path):
     path = tmp_path / "narrow.yaml"
     path.write_text("extends: e1\nroute: [[2.1, 0], [0, 1.5], [-2.1, 0], [0, -1.5]]\n")
-    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli", "validate", str(path)],
+    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli.main", "validate", str(path)],
                             capture_output=True, text=True, timeout=120)
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-500:]
@@ -218,9 +212,10 @@ def test_route_check_names_the_waypoint_near_the_obstacle():
 
 @pytest.mark.parametrize("name", ENVS)
 def test_shipped_routes_pass_the_route_check(name):
-    from vitaplace.engine.sim.controllers import route_collision
+    from vitaplace.engine.sim.clearance import route_collision
 
-    assert route_collision(load_environment(name)) is None
+    env = load_environment(name)
+    assert route_collision(env.route, env.route_facing, env.obstacles) is None
 
 
 def test_first_key_waits_for_the_reaction_delay_and_is_one_of_the_keys():

@@ -21,7 +21,7 @@ import ctypes
 import numpy as np
 import pytest
 
-from vitaplace.engine.backends import (
+from vitaplace.engine.network.backends import (
     PRECISIONS,
     BackendError,
     CublasBackend,
@@ -30,7 +30,7 @@ from vitaplace.engine.backends import (
     get_backend,
     row_major_gemm,
 )
-from vitaplace.engine.pc import LATENT_INIT, Network
+from vitaplace.engine.network.pc import LATENT_INIT, Network
 from vitaplace.plugins.mupnet.extractor import MupnetParams
 
 wp = pytest.importorskip("warp")
@@ -259,7 +259,7 @@ def test_stream_order_waits_for_writers_and_for_readers_of_what_it_writes():
     """Hand-traced hazards: read-after-write and write-after-read across streams wait,
     reads after reads and anything on one stream do not; a join moves the other stream's
     accesses to the joining one."""
-    from vitaplace.engine.backends import StreamOrder
+    from vitaplace.engine.network.backends import StreamOrder
 
     main, side = object(), object()
     order = StreamOrder()
@@ -287,7 +287,7 @@ def test_tensor_core_precisions_need_cuda_and_not_numpy():
 
 
 def test_tensor_core_precisions_without_cuda_are_refused(monkeypatch):
-    from vitaplace.engine import backends
+    from vitaplace.engine.network import backends
 
     monkeypatch.setattr(backends, "cuda_available", lambda: False)
     for precision in ("tf32", "bf16"):
@@ -301,7 +301,7 @@ def test_tensor_core_precisions_without_cuda_are_refused(monkeypatch):
 
 @pytest.fixture
 def cuda():
-    from vitaplace.engine.backends import cuda_available
+    from vitaplace.engine.network.backends import cuda_available
 
     if not cuda_available():
         pytest.skip("no CUDA device")
@@ -360,7 +360,7 @@ def test_paper_shape_training_energy_stays_in_band_of_float32(cuda, precision):
 def test_mupnet_refuses_tensor_core_precision_without_cuda_at_validation(monkeypatch):
     """``precision: bf16`` on a machine without CUDA (or with backend numpy) fails when the
     scenario is validated, in one line naming the extractor and the key; float32 is fine."""
-    from vitaplace.engine import backends
+    from vitaplace.engine.network import backends
     from vitaplace.engine.features import ExtractorParamsError
     from vitaplace.plugins.mupnet import MupnetExtractor
 

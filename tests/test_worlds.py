@@ -145,7 +145,7 @@ def test_validate_does_not_load_mujoco():
 
     code = (
         "import sys\n"
-        "from vitaplace.engine.cli import main\n"
+        "from vitaplace.engine.cli.main import main\n"
         "try:\n    main(['validate', 'quickstart'])\nexcept SystemExit as exc:\n    assert not exc.code, exc.code\n"
         "print(sorted(m for m in ('mujoco', 'warp') if m in sys.modules))\n"
     )

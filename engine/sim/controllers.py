@@ -54,17 +54,23 @@ from typing import Annotated, Any, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, SerializerFunctionWrapHandler, model_serializer, model_validator
 
-from vitaplace.engine.dataset import TOUCH_THRESHOLD
+from vitaplace.engine.data.dataset import TOUCH_THRESHOLD
+from vitaplace.engine.sim.clearance import (
+    HEAD_CENTRE,
+    HEAD_RADIUS,
+    ROUTE_LOOKAHEAD,
+    ROUTE_MIN_CLEARANCE,
+    Route,
+    footprint_clearance,
+    loop_clearance,
+)
 from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS, HEAD_HALF, HEAD_POS
 
-__all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "make_controller", "Route",
-           "footprint_clearance", "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore",
-           "Leave", "Avoid", "TRANSITIONS"]
+__all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "make_controller",
+           "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore", "Leave", "Avoid", "TRANSITIONS"]
 
 HEAD_REACH = HEAD_POS[0] + HEAD_HALF[0]  #: distance from the base centre to the snout [m]
-HEAD_CENTRE = HEAD_POS[0]  #: the head is modelled as a disc at this distance ahead of the base centre
-HEAD_RADIUS = math.hypot(HEAD_HALF[0], HEAD_HALF[1])  #: ... with this radius (covers the head box)
 
 #: ViTa-SLAM's keyboard teleoperation (whiskeye_controller/src/teleop.py): each key sets the
 #: multipliers of the forward speed, the leftward (strafe) speed and the turn rate; "k", like
@@ -85,16 +91,6 @@ TELEOP_SPEED = 0.3
 #: marks the `RunSpec` fields that are gains or thresholds of the foraging states
 FORAGING_GAIN = object()
 ForagingGain = Annotated[float, FORAGING_GAIN]
-
-
-def footprint_clearance(obstacles: ObstacleMap, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
-    """Smallest clearance (n,) of the body and the head of the robot at positions ``xy``
-    (n, 2) facing ``heading`` (n,) [rad]: obstacle distance minus the disc's radius [m]."""
-    xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-    heading = np.asarray(heading, dtype=float).reshape(-1)
-    head = xy + HEAD_CENTRE * np.stack([np.cos(heading), np.sin(heading)], axis=1)
-    dist = obstacles.distance_many(np.concatenate([xy, head]))
-    return np.minimum(dist[: len(xy)] - BODY_RADIUS, dist[len(xy):] - HEAD_RADIUS)
 
 
 class SafetyGuard:
@@ -383,119 +379,6 @@ class _Limiter:
         step = self.limits * dt
         self.state += np.clip(np.asarray(command, dtype=float) - self.state, -step, step)
         return tuple(float(c) for c in self.state)
-
-
-class Route:
-    """A closed polyline with arc-length parametrisation."""
-
-    def __init__(self, waypoints: list[tuple[float, float]] | np.ndarray) -> None:
-        pts = np.asarray(waypoints, dtype=float)
-        if len(pts) < 2:
-            raise ValueError("a route needs at least 2 waypoints")
-        if np.allclose(pts[0], pts[-1]):
-            pts = pts[:-1]
-        self.points = pts
-        self.seg_a = pts
-        self.seg_b = np.roll(pts, -1, axis=0)
-        seg = self.seg_b - self.seg_a
-        self.seg_len = np.linalg.norm(seg, axis=1)
-        self.seg_dir = seg / self.seg_len[:, None]
-        self.cum = np.concatenate([[0.0], np.cumsum(self.seg_len)])
-        self.length = float(self.cum[-1])
-
-    def at(self, s: np.ndarray) -> np.ndarray:
-        """Positions (n, 2) at arc lengths ``s`` (n,), wrapped around the loop."""
-        return self.offset_at(s, 0.0)
-
-    def offset_at(self, s: np.ndarray, offset: float) -> np.ndarray:
-        """Positions (n, 2) at arc lengths ``s``, moved ``offset`` metres to the left of the
-        direction of travel (the segment's normal)."""
-        s = np.asarray(s, dtype=float) % self.length
-        i = np.clip(np.searchsorted(self.cum, s, side="right") - 1, 0, len(self.seg_len) - 1)
-        normal = np.stack([-self.seg_dir[i, 1], self.seg_dir[i, 0]], axis=1)
-        return self.seg_a[i] + (s - self.cum[i])[:, None] * self.seg_dir[i] + offset * normal
-
-    def point(self, s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Position and unit tangent at arc length ``s`` (wrapped around the loop)."""
-        s = s % self.length
-        i = int(np.searchsorted(self.cum, s, side="right") - 1)
-        i = min(max(i, 0), len(self.seg_len) - 1)
-        return self.seg_a[i] + (s - self.cum[i]) * self.seg_dir[i], self.seg_dir[i]
-
-    def project(self, p: np.ndarray) -> tuple[float, float]:
-        """Arc length of the closest route point to ``p`` and the distance to it."""
-        ap = p[None, :] - self.seg_a
-        t = np.clip(np.einsum("ij,ij->i", ap, self.seg_dir), 0, self.seg_len)
-        closest = self.seg_a + t[:, None] * self.seg_dir
-        dist = np.linalg.norm(closest - p[None, :], axis=1)
-        i = int(np.argmin(dist))
-        return float(self.cum[i] + t[i]), float(dist[i])
-
-    def distance(self, points: np.ndarray) -> np.ndarray:
-        """Distance of each of ``points`` (n, 2) to the route polyline."""
-        p = np.asarray(points, dtype=float)[:, None, :]
-        ap = p - self.seg_a[None]
-        t = np.clip(np.einsum("nij,ij->ni", ap, self.seg_dir), 0, self.seg_len[None])
-        closest = self.seg_a[None] + t[..., None] * self.seg_dir[None]
-        return np.linalg.norm(closest - p, axis=2).min(axis=1)
-
-    def sample(self, step: float = 0.05) -> np.ndarray:
-        """Points every ``step`` metres along the loop, (n, 2)."""
-        return np.array([self.point(s)[0] for s in np.arange(0.0, self.length, step)])
-
-    def segment_of(self, s: np.ndarray) -> np.ndarray:
-        """Index (n,) of the segment (from waypoint i to i + 1) holding arc lengths ``s``."""
-        s = np.asarray(s, dtype=float) % self.length
-        return np.clip(np.searchsorted(self.cum, s, side="right") - 1, 0, len(self.seg_len) - 1)
-
-    def waypoint_normals(self) -> np.ndarray:
-        """Unit normals (n, 2) at the waypoints, to the left of travel: the bisectors of the
-        adjacent segments' normals."""
-        seg_normal = np.stack([-self.seg_dir[:, 1], self.seg_dir[:, 0]], axis=1)
-        n = seg_normal + np.roll(seg_normal, 1, axis=0)
-        return n / np.linalg.norm(n, axis=1, keepdims=True)
-
-
-#: Clearance [m] that the body and the head must keep along a route loop, driven as the route
-#: kinds drive it: the followers cut corners and wander by a few cm.
-ROUTE_MIN_CLEARANCE = 0.03
-#: Pure-pursuit look-ahead [m] that sets the heading of a loop driven facing the direction of travel.
-ROUTE_LOOKAHEAD = 0.3
-
-
-def loop_clearance(
-    obstacles: ObstacleMap, route: Route, outward: np.ndarray | None, step: float = 0.02
-) -> tuple[np.ndarray, np.ndarray]:
-    """Arc lengths (n,) every ``step`` metres along ``route`` and the robot's footprint
-    clearance (n,) there, facing away from ``outward`` or, when that is None, towards the
-    loop point `ROUTE_LOOKAHEAD` further on (pure pursuit)."""
-    s = np.arange(0.0, route.length, step)
-    points = route.at(s)
-    rel = points - outward if outward is not None else route.at(s + ROUTE_LOOKAHEAD) - points
-    return s, footprint_clearance(obstacles, points, np.arctan2(rel[:, 1], rel[:, 0]))
-
-
-def route_collision(env: EnvironmentSpec) -> str | None:
-    """Why the WhiskEye cannot drive ``env``'s route clear of the walls and landmarks (one
-    line naming the waypoint), or None when it can."""
-    route = Route(env.route)
-    outward = np.mean(env.route, axis=0) if env.route_facing == "outward" else None
-    s, clearance = loop_clearance(env.obstacles, route, outward)
-    bad = np.flatnonzero(clearance < ROUTE_MIN_CLEARANCE)
-    if not len(bad):
-        return None
-    k = int(bad[0])
-    i = int(route.segment_of(s[k]))
-    if s[k] - route.cum[i] > 0.5 * route.seg_len[i]:  # name the nearer end of the segment
-        i = (i + 1) % len(route.points)
-    x, y = env.route[i]
-    how = "sideways facing outward" if outward is not None else "facing the direction of travel"
-    where = f"{-clearance[k]:.2f} m inside" if clearance[k] < 0 else f"{clearance[k]:.2f} m from"
-    return (
-        f"route.{i}: the WhiskEye cannot drive this loop clear of the walls and landmarks: near waypoint {i} "
-        f"({x:g}, {y:g}), driven {how}, its body or head comes {where} an obstacle "
-        f"(it needs {ROUTE_MIN_CLEARANCE:g} m all along the loop)"
-    )
 
 
 Command = tuple[float, float]  #: a foraging command: forward speed [m/s], yaw rate [rad/s]

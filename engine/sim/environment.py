@@ -24,7 +24,9 @@ import numpy as np
 import pydantic
 from pydantic import BaseModel, ConfigDict, Field
 
-from vitaplace.engine.configfile import ConfigError, format_validation_error, load_yaml
+from vitaplace.engine.config.configfile import ConfigError, format_validation_error, load_yaml
+from vitaplace.engine.config.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file
+from vitaplace.engine.sim.clearance import route_collision
 
 __all__ = [
     "EnvironmentSpecError",
@@ -39,9 +41,6 @@ __all__ = [
     "environment_files",
     "ENVIRONMENTS_DIR",
 ]
-
-#: Folder of the environments shipped with vitaplace (scenarios/environments).
-ENVIRONMENTS_DIR = Path(__file__).resolve().parents[2] / "scenarios" / "environments"
 
 # Collision bit masks (MuJoCo: two geoms collide when (contype1 & conaffinity2) or
 # (contype2 & conaffinity1) is non-zero).
@@ -381,10 +380,7 @@ class EnvironmentSpec(_Model):
         if len(self.route) == 1:
             raise ValueError("route: a route needs at least 2 waypoints")
         if self.route:
-            # imported here: the controllers (robot footprint, routes) import this module
-            from vitaplace.engine.sim.controllers import route_collision
-
-            problem = route_collision(self)
+            problem = route_collision(self.route, self.route_facing, self.obstacles)
             if problem is not None:
                 raise ValueError(problem)
         if abs(self.start[0]) >= hx or abs(self.start[1]) >= hy:
@@ -557,8 +553,8 @@ def load_environment(path: str | Path) -> EnvironmentSpec:
     the key path, e.g. ``e2.yaml: landmarks.3.size: Field required``.
     """
     p = Path(path)
-    if not p.suffix and not p.exists() and (ENVIRONMENTS_DIR / f"{p.name}.yaml").is_file():
-        p = ENVIRONMENTS_DIR / f"{p.name}.yaml"
+    if not p.suffix and not p.exists():
+        p = shipped_file(p.name, (ENVIRONMENTS_DIR,)) or p
     p = p.resolve()
     data = load_yaml(p, EnvironmentSpecError, _localise_textures)
     data.setdefault("name", p.stem)
@@ -567,7 +563,3 @@ def load_environment(path: str | Path) -> EnvironmentSpec:
     except pydantic.ValidationError as exc:
         raise EnvironmentSpecError(format_validation_error(p, exc, EnvironmentSpec)) from None
 
-
-def environment_files() -> dict[str, Path]:
-    """The shipped environments by name (``base*`` files, which only serve ``extends:``, excluded)."""
-    return {p.stem: p for p in sorted(ENVIRONMENTS_DIR.glob("*.yaml")) if not p.stem.startswith("base")}

@@ -186,6 +186,11 @@ class RobotSpec(BaseModel):
         return inertia * (2.0 / self.timestep) ** 2
 
     @property
+    def n_whiskers(self) -> int:
+        """Whiskers the robot carries (its boards times the whiskers on each)."""
+        return N_WHISKERS
+
+    @property
     def whisk_period(self) -> float:
         return 1.0 / self.whisk_hz
 

@@ -22,7 +22,7 @@ import sys
 
 import numpy as np
 
-from vitaplace.engine.sim.controllers import footprint_clearance
+from vitaplace.engine.sim.clearance import footprint_clearance
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 
 __all__ = ["inner_loop"]

@@ -29,7 +29,7 @@ import mujoco
 import numpy as np
 from tqdm.auto import tqdm
 
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.sim.controllers import Observation, RunSpec, make_controller
 from vitaplace.engine.sim.environment import EnvironmentSpec

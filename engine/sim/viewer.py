@@ -54,7 +54,7 @@ def view(environment: str | Path, robot: RobotSpec | None = None) -> None:
     try:
         handle = mujoco.viewer.launch_passive(model, data)
     except RuntimeError as exc:  # macOS: the viewer must run on the main thread, under mjpython
-        raise UserError(f"vitaplace view: {exc} (e.g. `mjpython -m vitaplace.engine.cli view {environment}`)") from None
+        raise UserError(f"vitaplace view: {exc} (e.g. `mjpython -m vitaplace.engine.cli.main view {environment}`)") from None
     with handle:
         with handle.lock():
             handle.opt.geomgroup[ROBOT_GROUP] = 1

@@ -24,7 +24,7 @@ import pydantic
 from scipy.spatial.distance import cdist
 
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features, warn_once
 
 from .pfh import pfh_batch

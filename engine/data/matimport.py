@@ -39,7 +39,7 @@ from typing import Any
 
 import numpy as np
 
-from vitaplace.engine.dataset import DatasetError, Run
+from vitaplace.engine.data.dataset import DatasetError, Run
 
 __all__ = ["import_mat", "load_mat_variable", "IMAGE_RANGES", "POSE_LAYOUTS"]
 

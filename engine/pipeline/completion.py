@@ -19,7 +19,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.checksum import digest
+from vitaplace.engine.pipeline.checksum import digest
 
 RECORD = "completed.json"
 SCENARIO = "scenario.resolved.yaml"

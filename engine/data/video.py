@@ -20,7 +20,7 @@ from matplotlib import animation
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from vitaplace.engine.dataset import TOUCH_THRESHOLD, Run
+from vitaplace.engine.data.dataset import TOUCH_THRESHOLD, Run
 from vitaplace.engine.errors import UserError
 
 log = logging.getLogger("vitaplace")

@@ -21,9 +21,9 @@ from pathlib import Path
 from typing import TextIO
 
 from vitaplace.engine import __version__
-from vitaplace.engine.cpus import limit_blas_threads, usable_cpus
+from vitaplace.engine.pipeline.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.errors import UserError
-from vitaplace.engine.outdir import OutputLock, remove_stale_temporaries, writable_dir
+from vitaplace.engine.pipeline.outdir import OutputLock, remove_stale_temporaries, writable_dir
 
 EXIT_USER_ERROR = 2
 EXIT_SEEDS_FAILED = 1
@@ -160,8 +160,8 @@ def _view(args: argparse.Namespace) -> int:
 
 
 def _video(args: argparse.Namespace) -> int:
-    from vitaplace.engine.dataset import open_run
-    from vitaplace.engine.video import write_video
+    from vitaplace.engine.data.dataset import open_run
+    from vitaplace.engine.data.video import write_video
 
     if args.fps <= 0 or (args.step is not None and args.step < 1):
         raise UserError("--fps must be > 0 and --step >= 1")
@@ -215,7 +215,7 @@ def _setup_logging(out: Path) -> None:
 def _forced(force: list[str], until: str, command: str) -> list[str]:
     """The stages ``--force`` names, ``all`` being every stage up to ``until``; a stage the
     command does not reach is refused (it would be ignored)."""
-    from vitaplace.engine.runner import STAGES
+    from vitaplace.engine.pipeline.runner import STAGES
 
     reached = STAGES[: STAGES.index(until) + 1]
     late = [s for s in force if s in STAGES and s not in reached]
@@ -228,8 +228,9 @@ def _forced(force: list[str], until: str, command: str) -> list[str]:
 
 
 def _run_stages(args: argparse.Namespace, until: str) -> int:
-    from vitaplace.engine.runner import Pipeline
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
 
     args.force = _forced(args.force, until, args.command)
     scenario, resolved = load_scenario(args.scenario, args.overrides)
@@ -239,7 +240,7 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
         _setup_logging(out)
         for path in remove_stale_temporaries(out):
             log.info("removed %s, left by an interrupted run", path)
-        rows = Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress).run(until=until)
+        rows = run_stages(Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress), until)
     for row in rows:
         log.info(
             "%-6s %-12s %-20s max F1 %.2f %%  AUC %.3f",
@@ -270,7 +271,7 @@ def _report_folder(args: argparse.Namespace) -> int:
 
 def _simulate_environment(args: argparse.Namespace) -> int:
     """`vitaplace simulate ENV.yaml`: one foraging run of an environment file."""
-    from vitaplace.engine.dataset import write_run
+    from vitaplace.engine.data.dataset import write_run
     from vitaplace.engine.sim.environment import load_environment
     from vitaplace.engine.sim.simulate import RunSpec, simulate_run
 
@@ -296,11 +297,12 @@ SCENARIO_KEYS = {"seed", "robot", "train", "evaluations", "methods", "evaluation
 
 def _is_environment_file(name: str) -> bool:
     """Whether ``name`` is an environment file (or a shipped environment's name), not a scenario."""
-    from vitaplace.engine.configfile import SHIPPED_DIRS, ConfigError, load_yaml, read_yaml
+    from vitaplace.engine.config.configfile import ConfigError, load_yaml, read_yaml
+    from vitaplace.engine.config.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR, shipped_file
 
     path = Path(name)
-    if not path.exists() and not path.suffix and (SHIPPED_DIRS[1] / f"{name}.yaml").is_file():
-        return not (SHIPPED_DIRS[0] / f"{name}.yaml").is_file()
+    if not path.exists() and not path.suffix and shipped_file(name, (ENVIRONMENTS_DIR,)):
+        return shipped_file(name, (SCENARIOS_DIR,)) is None
     if path.suffix not in (".yaml", ".yml") or not path.is_file():
         return False
     try:
@@ -344,11 +346,11 @@ def _validate_environment(args: argparse.Namespace) -> int:
 
 
 def _validate(args: argparse.Namespace) -> int:
-    from vitaplace.engine.scenario import load_scenario
+    from vitaplace.engine.config.loading import load_scenario
 
     if _is_environment_file(args.scenario):
         return _validate_environment(args)
-    from vitaplace.engine.plausibility import LONG_SECONDS, duration, estimated_seconds
+    from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_seconds
 
     scenario, _ = load_scenario(args.scenario, args.overrides)
     runs = [scenario.train.run] + [e.run for e in scenario.evaluations for _ in ("query", "reference")]
@@ -363,8 +365,8 @@ def _validate(args: argparse.Namespace) -> int:
 
 def _import(args: argparse.Namespace) -> int:
     """`vitaplace import SRC --out RUN.h5`: a MultiPredNet-layout folder as a run file."""
-    from vitaplace.engine.dataset import DatasetError, write_run
-    from vitaplace.engine.matimport import import_mat
+    from vitaplace.engine.data.dataset import DatasetError, write_run
+    from vitaplace.engine.data.matimport import import_mat
 
     if args.out.is_dir():
         raise DatasetError(f"--out {args.out}: is a folder; expected the run file to write (e.g. {args.out / 'run.h5'})")
@@ -378,9 +380,9 @@ def _import(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from vitaplace.engine.slurm import settings_from_args
-    from vitaplace.engine.summary import cell
-    from vitaplace.engine.sweep import check_placement, load_sweep_scenario, run_sweep
+    from vitaplace.engine.cli.slurm import settings_from_args
+    from vitaplace.engine.evaluation.summary import cell
+    from vitaplace.engine.cli.sweep import check_placement, load_sweep_scenario, run_sweep
 
     if args.cpus_per_job <= 0 or args.gpus_per_job < 0:
         raise UserError("--cpus-per-job must be > 0 and --gpus-per-job >= 0")
@@ -412,7 +414,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _aggregate(args: argparse.Namespace) -> int:
-    from vitaplace.engine.aggregate import aggregate_runs
+    from vitaplace.engine.evaluation.aggregate import aggregate_runs
 
     out, record = aggregate_runs(args.folders, args.out)
     print(f"summary of {len(record['seeds'])} seeds in {out / 'sweep.md'}")

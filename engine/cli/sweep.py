@@ -8,7 +8,7 @@ and runs the whole pipeline into ``OUT/seed-<s>``; all jobs share the stage cach
 ``OUT/seed-<s>/error.txt``; the driver reports it in one line and goes on with the others.
 
 When every job has ended, the summary of the seeds that succeeded is written
-(`vitaplace.engine.summary`). `run_sweep` returns which seeds failed; the CLI exits 1 when
+(`vitaplace.engine.evaluation.summary`). `run_sweep` returns which seeds failed; the CLI exits 1 when
 any did (2 stays for user errors found before any job starts).
 
 ``OUT`` must be storage every worker shares for the seed folders and the cache to land in
@@ -18,7 +18,7 @@ wrote into ``OUT``; the driver warns once when one does not.
 Before submitting to Ray, the driver names the cluster's address, runs a probe task on every
 node and refuses a node whose vitaplace version, git commit or installed feature plugins
 differ from its own (`installation`), and refuses resources no node has. SLURM arrays go
-through submitit (`vitaplace.engine.slurm`).
+through submitit (`vitaplace.engine.cli.slurm`).
 """
 
 from __future__ import annotations
@@ -42,10 +42,12 @@ from typing import Any
 import yaml
 
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.cpus import limit_blas_threads, usable_cpus
+from vitaplace.engine.pipeline.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.errors import UserError
-from vitaplace.engine.scenario import Scenario, ScenarioError, load_scenario
-from vitaplace.engine.slurm import SlurmSettings, run_array
+from vitaplace.engine.pipeline.outdir import SEED_ERROR, cache_dir, seed_dir
+from vitaplace.engine.config.scenario import Scenario, ScenarioError
+from vitaplace.engine.config.loading import load_scenario
+from vitaplace.engine.cli.slurm import SlurmSettings, run_array
 
 log = logging.getLogger("vitaplace")
 
@@ -152,17 +154,18 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
     """One sweep job (runs in a worker): the whole pipeline for ``job.seed``. Returns its
     result rows tagged with the seed, the host and whether it saw the driver's marker;
     raises SeedFailed, with the traceback in ``OUT/seed-<s>/error.txt``."""
-    from vitaplace.engine.runner import Pipeline
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
 
     limit_blas_threads(usable_cpus())  # a Ray task's or SLURM task's CPUs, a pool worker's share
     host, sees_out = socket.gethostname(), not job.marker or Path(job.marker).exists()
     if not sees_out:
         log.warning("seed %d on %s: %s is not visible here: --out is not on shared storage", job.seed, host, job.out)
-    folder = Path(job.out) / f"seed-{job.seed}"
+    folder = seed_dir(Path(job.out), job.seed)
     handler = None
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        (folder / "error.txt").unlink(missing_ok=True)  # from an earlier attempt
+        (folder / SEED_ERROR).unlink(missing_ok=True)  # from an earlier attempt
         handler = logging.FileHandler(folder / "log.txt")
         handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
         log.addHandler(handler)
@@ -170,11 +173,11 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
         resolved = _localise(job, folder)
         scenario = Scenario.model_validate(resolved)
         pipeline = Pipeline(scenario, resolved, folder, force=job.force, progress=job.progress, workers=1,
-                            cache=Path(job.out) / "cache")
-        rows = [{"seed": job.seed, **row} for row in pipeline.run()]
+                            cache=cache_dir(Path(job.out)))
+        rows = [{"seed": job.seed, **row} for row in run_stages(pipeline)]
     except Exception as exc:
         try:
-            write_text_atomic(folder / "error.txt", traceback.format_exc())
+            write_text_atomic(folder / SEED_ERROR, traceback.format_exc())
         except OSError:
             pass
         raise SeedFailed(type(exc).__name__, one_line(str(exc))) from None
@@ -231,7 +234,7 @@ def seed_jobs(
     progress: bool = False, marker: str = "",
 ) -> list[SeedJob]:
     """One job per seed; each seed is validated here, so a bad one is a user error up front."""
-    from vitaplace.engine.runner import STAGES
+    from vitaplace.engine.pipeline.runner import STAGES
     from vitaplace.engine.sim.environment import load_environment
 
     unknown = set(force) - set(STAGES)
@@ -275,7 +278,7 @@ def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dic
 def _pool_round(jobs: Sequence[SeedJob], workers: int):
     """One process pool over ``jobs``: yields (job, result, failure) for the jobs that ended,
     returns those lost to a broken pool."""
-    from vitaplace.engine.runner import interrupts_to_this_process, stop_pool, worker_pool
+    from vitaplace.engine.pipeline.processes import interrupts_to_this_process, stop_pool, worker_pool
 
     # spawned, not forked (GL and Warp state are not fork-safe); BLAS threads: each worker its share
     pool = worker_pool(workers, blas_threads=max(1, usable_cpus() // workers))
@@ -358,7 +361,7 @@ def installation() -> dict[str, Any]:
 
     import vitaplace.engine
     from vitaplace.engine.hookspecs import ENTRY_POINT_GROUP
-    from vitaplace.engine.provenance import git_commit
+    from vitaplace.engine.pipeline.provenance import git_commit
 
     plugins = sorted(
         f"{ep.name}={ep.dist.name}=={ep.dist.version}" if getattr(ep, "dist", None) else f"{ep.name}=unknown"
@@ -465,12 +468,12 @@ def run_sweep(
 ) -> SweepOutcome:
     """Run every seed, locally (process pool), on Ray or as a SLURM array (``slurm``; its
     settings then give the CPUs and GPUs), and write the summary of those that succeeded into
-    ``out`` (`vitaplace.engine.summary`). A failed seed does not stop the others."""
+    ``out`` (`vitaplace.engine.evaluation.summary`). A failed seed does not stop the others."""
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
-    from vitaplace.engine.figures import write_pr_bands
-    from vitaplace.engine.summary import write_summary
+    from vitaplace.engine.evaluation.figures import write_pr_bands
+    from vitaplace.engine.evaluation.summary import write_summary
 
     check_placement(workers, ray_address, slurm, gpus_per_job)
     out = Path(os.path.abspath(out))
@@ -484,7 +487,7 @@ def run_sweep(
     if ray_address:
         ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
     elif slurm:
-        ended = run_array(jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
+        ended = run_array(run_seed_reported, jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
     else:
         ended = _local(jobs, workers or max(1, min(len(jobs), usable_cpus() // max(1, int(cpus_per_job)))))
     try:
@@ -493,7 +496,7 @@ def run_sweep(
                 bar.update()
                 if failure is not None:
                     outcome.failed[job.seed] = failure
-                    trace = out / f"seed-{job.seed}" / "error.txt"
+                    trace = seed_dir(out, job.seed) / SEED_ERROR
                     where = f" (traceback in {trace})" if trace.is_file() else ""
                     log.error("seed %d failed: %s%s", job.seed, failure, where)
                     continue
@@ -510,7 +513,7 @@ def run_sweep(
         marker.unlink(missing_ok=True)
     ok = sorted({row["seed"] for row in outcome.rows})
     info = {"scenario": scenario.name, "seeds": ok, "failed": {str(s): m for s, m in sorted(outcome.failed.items())}}
-    folders = {seed: out / f"seed-{seed}" for seed in ok}
+    folders = {seed: seed_dir(out, seed) for seed in ok}
     outcome.summary = write_summary(out, outcome.rows, f"{scenario.name}: {len(ok)} seed(s)", info, folders)["summary"]
     write_pr_bands(out, folders, outcome.rows)
     return outcome

@@ -21,13 +21,9 @@ from typing import Any
 import pydantic
 import yaml
 
+from vitaplace.engine.config.shipped import shipped_file
 from vitaplace.engine.errors import UserError
 
-#: Folders of the files shipped with vitaplace: scenarios, then environments.
-SHIPPED_DIRS = (
-    Path(__file__).resolve().parent.parent / "scenarios",
-    Path(__file__).resolve().parent.parent / "scenarios" / "environments",
-)
 log = logging.getLogger("vitaplace")
 
 
@@ -161,17 +157,6 @@ def load_yaml(
     base = load_yaml(local_or_shipped(path.parent, parent, f"{path.name}: extends"), error, localise, (*_chain, path))
     base.pop("name", None)  # a name belongs to the file that states it
     return deep_merge(base, data)
-
-
-def shipped_file(name: str) -> Path | None:
-    """The shipped scenario or environment ``name`` (``e1``, ``e1.yaml``, ``quickstart``,
-    ``environments/e1.yaml``), or None when vitaplace ships no such file."""
-    for folder in SHIPPED_DIRS:
-        for candidate in (folder / name, folder / f"{name}.yaml"):
-            candidate = candidate.resolve()
-            if candidate.is_file() and candidate.is_relative_to(folder):
-                return candidate
-    return None
 
 
 def local_or_shipped(folder: Path, name: str, what: str = "") -> Path:

@@ -29,31 +29,6 @@ except ImportError:  # pragma: no cover - Windows
     fcntl = None  # type: ignore[assignment]
 
 LOCK_NAME = ".vitaplace.lock"
-MANIFEST = "manifest.json"
-RESULTS = "results.json"
-RESULTS_CSV = "results.csv"
-REPORT = "report.md"
-FIGURES = "figures"
-
-
-def evaluation_dir(out: Path, environment: str, method: str, direction: str) -> Path:
-    """Where one evaluation of one method in one direction keeps its matrices, curve and decisions."""
-    return Path(out) / "evaluations" / environment / method / direction
-
-
-def poses_path(out: Path, environment: str) -> Path:
-    """The ``query`` and ``reference`` poses of evaluation ``environment`` (an ``.npz``)."""
-    return Path(out) / "poses" / f"{environment}.npz"
-
-
-def arena_path(out: Path, environment: str) -> Path:
-    """The top view (JSON) of the environment of evaluation ``environment``."""
-    return Path(out) / "arenas" / f"{environment}.json"
-
-
-def training_path(out: Path, method: str) -> Path:
-    """The per-epoch training curves (JSON) of ``method``."""
-    return Path(out) / "training" / f"{method}.json"
 
 
 class OutputDirError(UserError):
@@ -123,3 +98,82 @@ class OutputLock:
             fcntl.flock(self._file, fcntl.LOCK_UN)
             self._file.close()
             self._file = None
+
+
+# ---------------------------------------------------------------------------- layout
+# What a run writes into its output folder OUT, and where; every module that reads or writes
+# these files names them through here.
+#
+#   OUT/manifest.json, results.json, results.csv, report.md, figures/, completed.json,
+#       scenario.resolved.yaml
+#   OUT/evaluations/ENV/METHOD/DIRECTION/summary.json, pr_curve.npz, decisions.npz,
+#       decisions.csv, matrices.npz
+#   OUT/cache/datasets/LABEL-KEY.h5, models/METHOD-KEY/, models/METHOD-KEY.training.json,
+#       features/METHOD-LABEL-KEY.npz           (a sweep shares one cache: OUT/cache)
+#   OUT/poses/ENV.npz, arenas/ENV.json, training/METHOD.json (what the report reads besides)
+#   sweep OUT/seed-S/ (one run folder per seed, with error.txt when it failed),
+#       seed-S/environments/ (the environment files the seed's scenario names)
+
+MANIFEST = "manifest.json"
+RESULTS_JSON = "results.json"
+RESULTS_CSV = "results.csv"
+REPORT = "report.md"
+FIGURES = "figures"
+#: in an evaluation folder (`evaluation_dir`)
+SUMMARY = "summary.json"
+PR_CURVE = "pr_curve.npz"
+DECISIONS = "decisions.npz"
+DECISIONS_CSV = "decisions.csv"
+MATRICES = "matrices.npz"
+#: in a sweep's seed folder (`seed_dir`): the traceback of a failed seed
+SEED_ERROR = "error.txt"
+
+
+def evaluation_dir(out: Path, environment: str, method: str, direction: str) -> Path:
+    """The folder of one evaluation: ``environment`` scored with ``method`` in ``direction``."""
+    return Path(out) / "evaluations" / environment / method / direction
+
+
+def cache_dir(out: Path) -> Path:
+    """The stage cache of the run (or sweep) writing into ``out``."""
+    return Path(out) / "cache"
+
+
+def dataset_file(cache: Path, label: str, key: str) -> Path:
+    """A simulated run ``label`` (``train``, ``E1/query``) made for ``key``."""
+    return Path(cache) / "datasets" / f"{label.replace('/', '-')}-{key}.h5"
+
+
+def model_dir(cache: Path, method: str, key: str) -> Path:
+    """The fitted extractor of ``method`` made for ``key``."""
+    return Path(cache) / "models" / f"{method}-{key}"
+
+
+def training_file(model: Path) -> Path:
+    """How training of the model in ``model`` (a `model_dir`) went, beside it."""
+    return model.with_name(model.name + ".training.json")
+
+
+def features_file(cache: Path, method: str, label: str, key: str) -> Path:
+    """The features ``method`` extracted from run ``label``, made for ``key``."""
+    return Path(cache) / "features" / f"{method}-{label.replace('/', '-')}-{key}.npz"
+
+
+def seed_dir(out: Path, seed: int) -> Path:
+    """The run folder of ``seed`` in a sweep's output folder ``out``."""
+    return Path(out) / f"seed-{seed}"
+
+
+def poses_path(out: Path, environment: str) -> Path:
+    """The ``query`` and ``reference`` poses of evaluation ``environment`` (an ``.npz``)."""
+    return Path(out) / "poses" / f"{environment}.npz"
+
+
+def arena_path(out: Path, environment: str) -> Path:
+    """The top view (JSON) of the environment of evaluation ``environment``."""
+    return Path(out) / "arenas" / f"{environment}.json"
+
+
+def training_path(out: Path, method: str) -> Path:
+    """The per-epoch training curves (JSON) of ``method``."""
+    return Path(out) / "training" / f"{method}.json"

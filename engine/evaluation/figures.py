@@ -21,7 +21,8 @@ from matplotlib.collections import LineCollection
 from matplotlib.patches import Circle, Polygon, Rectangle
 
 from vitaplace.engine.atomic import atomic_path
-from vitaplace.engine.evaluate import Decisions, PRCurve
+from vitaplace.engine.evaluation.evaluate import Decisions, PRCurve
+from vitaplace.engine.pipeline.outdir import PR_CURVE, evaluation_dir
 
 __all__ = ["plot_energy", "plot_matrices", "plot_pr_curves", "plot_trajectories", "OUTCOME_COLOURS"]
 
@@ -182,11 +183,11 @@ def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str 
 def write_pr_bands(out: Path, folders: Mapping[int, Path], rows: Sequence[Mapping]) -> list[Path]:
     """``pr-bands-<environment>-<direction>`` figures in ``out`` from the seed run folders'
     saved curves (``evaluations/ENV/METHOD/DIRECTION/pr_curve.npz``)."""
-    from vitaplace.engine.evaluate import load_curve
+    from vitaplace.engine.evaluation.evaluate import load_curve
 
     groups: dict[tuple[str, str], dict[str, list[PRCurve]]] = {}
     for row in sorted(rows, key=lambda r: r["seed"]):
-        path = Path(folders[row["seed"]]) / "evaluations" / row["environment"] / row["method"] / row["direction"] / "pr_curve.npz"
+        path = evaluation_dir(folders[row["seed"]], row["environment"], row["method"], row["direction"]) / PR_CURVE
         if path.is_file():
             groups.setdefault((row["environment"], row["direction"]), {}).setdefault(row["method"], []).append(load_curve(path))
     written = []

@@ -22,14 +22,15 @@ from typing import Any
 
 import yaml
 
-from vitaplace.engine import completion
+from vitaplace.engine.pipeline import completion
 from vitaplace.engine.errors import UserError
-from vitaplace.engine.evaluate import load_curve
-from vitaplace.engine.scenario import content_hash
-from vitaplace.engine.figures import write_pr_bands
-from vitaplace.engine.summary import write_summary
+from vitaplace.engine.evaluation.evaluate import load_curve
+from vitaplace.engine.pipeline.keys import content_hash
+from vitaplace.engine.pipeline.outdir import MANIFEST, RESULTS_JSON
+from vitaplace.engine.evaluation.figures import write_pr_bands
+from vitaplace.engine.evaluation.summary import write_summary
 
-REQUIRED = (completion.RECORD, "manifest.json", "results.json", completion.SCENARIO)
+REQUIRED = (completion.RECORD, MANIFEST, RESULTS_JSON, completion.SCENARIO)
 #: identity columns of a result row: non-empty text
 IDENTITY = ("environment", "method", "direction")
 #: the metric every result row has (a row without it contributes nothing)
@@ -105,18 +106,18 @@ def curve_path(row: dict[str, Any]) -> str:
 
 def validate_run_folder(folder: Path) -> RunFolder:
     """Everything `vitaplace aggregate` reads from one run folder, validated: a completion
-    record (`vitaplace.engine.completion`) that matches the resolved scenario, the manifest,
+    record (`vitaplace.engine.pipeline.completion`) that matches the resolved scenario, the manifest,
     the results and every row's PR curve; each result row checked (`check_row`). Raises
     AggregateError, one line naming the folder or the file (and field) at fault."""
     folder = Path(folder)
     missing = [name for name in REQUIRED if not (folder / name).is_file()]
     if missing:
         raise AggregateError(f"{folder}: incomplete run folder (no {', '.join(missing)}); did its run finish?")
-    wrong = completion.problem(folder, ["manifest.json", "results.json"])
+    wrong = completion.problem(folder, [MANIFEST, RESULTS_JSON])
     if wrong:
         raise AggregateError(f"{folder}: not a finished run: {wrong}")
-    manifest = _read(folder, "manifest.json", json.loads)
-    rows = _read(folder, "results.json", json.loads)
+    manifest = _read(folder, MANIFEST, json.loads)
+    rows = _read(folder, RESULTS_JSON, json.loads)
     resolved = _read(folder, completion.SCENARIO, yaml.safe_load)
     if not isinstance(manifest, dict) or not isinstance(manifest.get("seed"), int) or isinstance(manifest["seed"], bool):
         raise AggregateError(f"{folder / 'manifest.json'}: field 'seed' missing or not an integer; not a vitaplace run's")

@@ -9,7 +9,7 @@ one (the non-overlapping block bootstrap of Carlstein, 1986):
   order of the run, are cut into ``b = ceil(Q / L)`` segments ``[kL, min((k+1)L, Q))``, the
   last one possibly shorter;
 * a replicate draws ``b`` segments uniformly with replacement and concatenates their
-  queries; every metric is recomputed by `vitaplace.engine.evaluate.evaluate` on those rows
+  queries; every metric is recomputed by `vitaplace.engine.evaluation.evaluate.evaluate` on those rows
   of the saved distance and ground-truth matrices (``matrices.npz``), the reference run
   fixed;
 * `RESAMPLES` replicates from a generator seeded with ``(BLOCK_SEED, run seed)``: all
@@ -31,14 +31,13 @@ from typing import Any
 
 import numpy as np
 
-from vitaplace.engine.evaluate import evaluate, pr_curve
+from vitaplace.engine.evaluation.evaluate import evaluate, pr_curve
+from vitaplace.engine.pipeline.outdir import MATRICES, evaluation_dir
 
 #: replicates per evaluation
 RESAMPLES = 1000
 #: first word of every replicate generator's seed (the second is the run's seed)
 BLOCK_SEED = 20260
-#: name of the saved matrices in an evaluation folder (`vitaplace.engine.evaluate.evaluate_pair`)
-MATRICES = "matrices.npz"
 
 
 def block_length(n_queries: int) -> int:
@@ -102,7 +101,7 @@ def evaluation_replicates(run_folder: Path, row: Mapping[str, Any],
                           resamples: int | None = None) -> list[dict[str, Any]] | None:
     """`replicate_rows` of the evaluation that made ``row`` (a results row with its ``seed``)
     in the run folder ``run_folder``; None when its matrices were not saved there."""
-    path = Path(run_folder) / "evaluations" / row["environment"] / row["method"] / row["direction"] / MATRICES
+    path = evaluation_dir(run_folder, row["environment"], row["method"], row["direction"]) / MATRICES
     if not path.is_file():
         return None
     with np.load(path) as saved:

@@ -43,6 +43,7 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from vitaplace.engine.atomic import atomic_path
+from vitaplace.engine.pipeline.outdir import DECISIONS, DECISIONS_CSV, MATRICES, PR_CURVE
 
 __all__ = [
     "DIFFICULTY_KEYS",
@@ -529,7 +530,7 @@ def save_curve_and_decisions(folder: str | os.PathLike, curve: PRCurve, decision
     """``pr_curve.npz`` and ``decisions.npz`` in ``folder``, every field, atomically: what
     the report reads back with `load_curve` and `load_decisions`."""
     folder = Path(folder)
-    for name, obj in (("pr_curve.npz", curve), ("decisions.npz", decisions)):
+    for name, obj in ((PR_CURVE, curve), (DECISIONS, decisions)):
         with atomic_path(folder / name) as tmp, open(tmp, "wb") as f:
             np.savez(f, **{k: np.asarray(v) for k, v in dataclasses.asdict(obj).items()})
 
@@ -579,8 +580,8 @@ def evaluate_pair(
     summary["heading_tolerance_deg"] = heading_tolerance_deg
     summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
     decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
-    export_matrices_npz(folder / "matrices.npz", tme, gtm)
-    export_decisions_csv(folder / "decisions.csv", decisions)
+    export_matrices_npz(folder / MATRICES, tme, gtm)
+    export_decisions_csv(folder / DECISIONS_CSV, decisions)
     save_curve_and_decisions(folder, curve, decisions)
     return summary
 

@@ -17,23 +17,24 @@ from typing import Any
 import numpy as np
 import yaml
 
-from vitaplace.engine import completion
-from vitaplace.engine import evaluate as ev
-from vitaplace.engine import figures
+from vitaplace.engine.pipeline import completion
+from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation import figures
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.checksum import digest
-from vitaplace.engine.dataset import Run
+from vitaplace.engine.pipeline.checksum import digest
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.features import Features
-from vitaplace.engine.outdir import (
-    FIGURES, MANIFEST, REPORT, RESULTS, arena_path, evaluation_dir, poses_path, training_path,
+from vitaplace.engine.pipeline.outdir import (
+    DECISIONS, FIGURES, MANIFEST, MATRICES, PR_CURVE, REPORT, RESULTS_JSON,
+    arena_path, evaluation_dir, poses_path, training_path,
 )
 
 #: the manifest entries the report reads (a change to one of them changes the report's key)
 MANIFEST_KEYS = ("scenario", "seed", "vitaplace_version", "git_commit", "git_dirty", "packages", "plugins", "recorded",
                  "warnings", "training_world", "methods", "runs", "features")
 #: the files of each evaluation folder the report reads
-EVALUATION_FILES = ("matrices.npz", "pr_curve.npz", "decisions.npz")
+EVALUATION_FILES = (MATRICES, PR_CURVE, DECISIONS)
 
 
 class ReportError(UserError):
@@ -289,10 +290,10 @@ def _evaluation_sections(out: Path, rows: list[dict[str, Any]]) -> list[str]:
         for row in (r for r in rows if r["environment"] == environment):
             method, direction = row["method"], row["direction"]
             folder = evaluation_dir(out, environment, method, direction)
-            with np.load(folder / "matrices.npz") as m:
+            with np.load(folder / MATRICES) as m:
                 tme, gtm = m["tme"], m["gtm"]
-            curves[method if one_direction else f"{method} {direction}"] = ev.load_curve(folder / "pr_curve.npz")
-            decisions = ev.load_decisions(folder / "decisions.npz")
+            curves[method if one_direction else f"{method} {direction}"] = ev.load_curve(folder / PR_CURVE)
+            decisions = ev.load_decisions(folder / DECISIONS)
             stem = f"{environment}-{method}-{direction}"
             figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{environment} {method}")
             query, reference = direction.split("-to-")
@@ -335,7 +336,7 @@ def report_files(out: Path, rows: list[dict[str, Any]], methods: list[str]) -> l
     row's evaluation files, each evaluation's poses and (if simulated) arena, each method's
     training curves (if recorded)."""
     out = Path(out)
-    files = [out / RESULTS, out / completion.SCENARIO]
+    files = [out / RESULTS_JSON, out / completion.SCENARIO]
     files += [evaluation_dir(out, r["environment"], r["method"], r["direction"]) / name
               for r in rows for name in EVALUATION_FILES]
     for environment in dict.fromkeys(r["environment"] for r in rows):
@@ -358,13 +359,13 @@ def read_inputs(out: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     run in ``out``; ReportError naming the file when one is missing or is not what a run writes."""
     out = Path(out)
     manifest = _read_json(out / MANIFEST, "the manifest a `vitaplace run` writes")
-    rows = _read_json(out / RESULTS, "the result rows a `vitaplace run` writes")
+    rows = _read_json(out / RESULTS_JSON, "the result rows a `vitaplace run` writes")
     missing = [k for k in MANIFEST_KEYS if not isinstance(manifest, dict) or k not in manifest]
     if missing:
         raise ReportError(f"{out / MANIFEST}: no {', '.join(missing)}; expected the manifest of a `vitaplace run` "
                           "(those of older versions lack these entries)")
     if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) for r in rows):
-        raise ReportError(f"{out / RESULTS}: expected a non-empty list of result rows")
+        raise ReportError(f"{out / RESULTS_JSON}: expected a non-empty list of result rows")
     return {k: manifest[k] for k in MANIFEST_KEYS}, rows
 
 

@@ -2,7 +2,7 @@
 
 A run specification is valid field by field (`RunSpec`, `RobotSpec`: ranges as pydantic
 constraints); what depends on the arena and the robot together is checked here, where the
-scenario knows both (`vitaplace.engine.scenario.load_scenario`):
+scenario knows both (`vitaplace.engine.config.loading.load_scenario`):
 
 * ``start``: the robot's body (a disc of `BODY_RADIUS`) inside the arena's walls;
 * ``orbit_centre`` inside the arena, and the orbit of ``orbit_radius`` with the body inside it;
@@ -20,7 +20,8 @@ import math
 
 import numpy as np
 
-from vitaplace.engine.sim.controllers import Route, RunSpec
+from vitaplace.engine.sim.clearance import Route
+from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.robot import BODY_RADIUS, RobotSpec
 

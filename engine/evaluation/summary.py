@@ -29,7 +29,7 @@ Per environment x method x direction x metric, over the seeds (`describe`):
   (`scipy.stats.bootstrap`, `SEED_RESAMPLES` resamples, generator seed `BOOT_SEED`),
   inside the range of the values and so inside the bounds;
 * ``block_low``/``block_high``: the within-seed block bootstrap over contiguous query
-  segments (`vitaplace.engine.resample`): replicate r of the mean is the mean over seeds of
+  segments (`vitaplace.engine.evaluation.resample`): replicate r of the mean is the mean over seeds of
   each seed's replicate r; its 2.5 and 97.5 percentiles. With one seed it is that seed's
   interval. Only for metrics `evaluate` recomputes from the saved matrices and only where
   every seed's matrices are there (NaN otherwise).
@@ -62,7 +62,7 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from vitaplace.engine import resample
+from vitaplace.engine.evaluation import resample
 from vitaplace.engine.atomic import write_text_atomic
 
 #: columns naming what a result row is about, not values

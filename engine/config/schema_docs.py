@@ -1,7 +1,7 @@
 """docs/SCENARIOS.md, generated from the pydantic schemas, so the reference cannot drift.
 
-    python -m vitaplace.engine.schema_docs docs/SCENARIOS.md     # regenerate
-    python -m vitaplace.engine.schema_docs                       # print
+    python -m vitaplace.engine.config.schema_docs docs/SCENARIOS.md     # regenerate
+    python -m vitaplace.engine.config.schema_docs                       # print
 
 Every schema field documents itself with ``Field(description=...)``, the one way fields are
 documented: a table row is the field's type, default, constraints and description as pydantic
@@ -19,7 +19,7 @@ from pathlib import Path
 import pydantic
 from pydantic_core import PydanticUndefined
 
-from vitaplace.engine.scenario import EvaluationRuns, EvaluationSettings, Method, RecordedRuns, Scenario, TrainingRun
+from vitaplace.engine.config.scenario import EvaluationRuns, EvaluationSettings, Method, RecordedRuns, Scenario, TrainingRun
 from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
@@ -124,12 +124,12 @@ def markdown() -> str:
     parts = [
         "# Scenario and environment reference",
         "",
-        "Generated from the pydantic schemas by `python -m vitaplace.engine.schema_docs docs/SCENARIOS.md`;",
+        "Generated from the pydantic schemas by `python -m vitaplace.engine.config.schema_docs docs/SCENARIOS.md`;",
         "`tests/test_docs.py` fails when this file is out of date. Unknown keys are errors everywhere.",
         "Units: metres, seconds, degrees in files (radians inside), colours in [0, 1].",
         "",
         "Beyond each key's own range, `vitaplace validate` checks what needs the arena and the robot",
-        "together (`engine/plausibility.py`), each refusal naming its key: a run's `start` and its",
+        "together (`engine/sim/plausibility.py`), each refusal naming its key: a run's `start` and its",
         "`orbit_centre` inside the arena; the orbit (`orbit_radius`) and the off-route detour",
         "(`off_route_offset`, when `off_route_fraction` or `query_off_route` is set) keep the robot's",
         "body (radius 0.23 m) inside the walls; `control_hz` at least `robot.whisk_hz`; a `route` run",

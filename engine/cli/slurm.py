@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import logging
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -120,12 +120,13 @@ def executor(settings: SlurmSettings, folder: Path, name: str) -> Any:
     return ex
 
 
-def run_array(jobs: Sequence[Any], settings: SlurmSettings, folder: Path, name: str) -> Iterator[tuple[Any, Any, str | None]]:
-    """Submit ``jobs`` (sweep `SeedJob`s) as one array now; the iterator returned yields (job,
-    result, failure) as each task ends (`_wait`)."""
-    from vitaplace.engine.sweep import run_seed_reported
-
-    tasks = executor(settings, folder, name).map_array(run_seed_reported, jobs)
+def run_array(
+    task: Callable[[Any], dict[str, Any]], jobs: Sequence[Any], settings: SlurmSettings, folder: Path, name: str
+) -> Iterator[tuple[Any, Any, str | None]]:
+    """Submit ``task(job)`` for each of ``jobs`` (a sweep's `run_seed_reported` over its
+    `SeedJob`s) as one array now; the iterator returned yields (job, result, failure) as each
+    task ends (`_wait`). A task reports its own failure as ``{"failure": "..."}``."""
+    tasks = executor(settings, folder, name).map_array(task, jobs)
     array = tasks[0].job_id.split("_")[0] if settings.cluster == "slurm" else " ".join(t.job_id for t in tasks)
     log.info("SLURM (%s): job %s, %d task(s); scripts and logs in %s", settings.cluster, array, len(tasks), folder)
     return _wait(tasks, jobs, POLL_S[settings.cluster])

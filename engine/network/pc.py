@@ -28,7 +28,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from vitaplace.engine.atomic import atomic_path, write_text_atomic
-from vitaplace.engine.backends import Backend, get_backend
+from vitaplace.engine.network.backends import Backend, get_backend
 from vitaplace.engine.errors import UserError
 
 FORMAT_VERSION = 1

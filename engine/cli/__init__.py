@@ -1,0 +1,1 @@
+"""The command line (`vitaplace ...`) and the drivers of many runs it starts (sweeps, Slurm arrays)."""

@@ -1,0 +1,93 @@
+"""Checks of a validated scenario's runs against what they name: recorded run files (there,
+readable, long enough, shaped like the training run, query and reference distinct) and
+environments (there, and the runs plausible in them; ``evaluation.tau`` below each arena's
+diagonal)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+from vitaplace.engine.config.scenario import MIN_EVALUATION_SAMPLES, RecordedRuns, Scenario, ScenarioError
+from vitaplace.engine.data.dataset import DatasetError, Run, open_run
+from vitaplace.engine.pipeline.checksum import digest
+from vitaplace.engine.sim.environment import load_environment
+from vitaplace.engine.sim.plausibility import ImplausibleRun, check_run
+
+
+def check_runs(path: Path, scenario: Scenario) -> int:
+    """Check every run of ``scenario`` (read from ``path``, which errors name); return the
+    number of samples of the training run."""
+    train_samples = scenario.train.run.n_samples if scenario.train.run else 0
+    robot = scenario.robot
+    # what every run must share with the training run: whiskers and image size
+    train_shape = (robot.n_whiskers, (robot.camera_height, robot.camera_width, 3))
+    if scenario.train.dataset is not None:
+        train = _recorded(path, "train.dataset", scenario.train.dataset, 1)
+        train_samples, train_shape = len(train), (train.n_whiskers, train.image_shape)
+    for i, e in enumerate(scenario.evaluations):
+        for side, file in e.recorded().items():
+            run = _recorded(path, f"evaluations.{i}.datasets.{side}", file, MIN_EVALUATION_SAMPLES)
+            _check_like_training(path, f"evaluations.{i}.datasets.{side}", run, train_shape)
+        if e.datasets is not None:
+            _check_distinct(path, f"evaluations.{i}.datasets", e.datasets)
+    for where, entry in [("train", scenario.train)] + [
+        (f"evaluations.{i}", e) for i, e in enumerate(scenario.evaluations)
+    ]:
+        if entry.environment is None:
+            continue
+        if not entry.environment.is_file():
+            raise ScenarioError(f"{path}: {where}.environment: no such file {str(entry.environment)!r}")
+        env = load_environment(entry.environment)
+        if entry.run is not None:
+            runs = [entry.run_for(role) for role in ("query", "reference")] if where != "train" else [entry.run]
+            for run in runs:
+                try:
+                    check_run(env, run, robot)
+                except ImplausibleRun as exc:
+                    raise ScenarioError(f"{path}: {where}.run.{exc.key}: {exc}") from None
+        diagonal = 2 * math.hypot(env.arena.half_x, env.arena.half_y)
+        if where != "train" and scenario.evaluation.tau >= diagonal:
+            raise ScenarioError(
+                f"{path}: evaluation.tau: {scenario.evaluation.tau} m is not below the {diagonal:.2f} m diagonal of "
+                f"{env.name}: every pair of poses would count as a revisit"
+            )
+    return train_samples
+
+
+def _recorded(path: Path, where: str, file: Path, minimum: int) -> Run:
+    """The recorded run ``file``, opened (its attributes, fields, storage and shapes checked)
+    and with at least ``minimum`` samples."""
+    if not file.is_file():
+        raise ScenarioError(f"{path}: {where}: no such file {str(file)!r} (make one with `vitaplace import`)")
+    try:
+        run = open_run(file)
+    except DatasetError as exc:
+        raise ScenarioError(f"{path}: {where}: {exc}") from None
+    if len(run) < minimum:
+        role = "a training" if where.startswith("train") else "an evaluation"
+        raise ScenarioError(f"{path}: {where}: {role} run needs at least {minimum} samples, {file} has {len(run)}")
+    return run
+
+
+def _check_like_training(path: Path, where: str, run: Run, train: tuple[int, tuple[int, ...]]) -> None:
+    """An evaluation run has the training run's whiskers and image size (methods fitted on
+    one cannot read the other)."""
+    whiskers, image = train
+    if run.n_whiskers != whiskers:
+        raise ScenarioError(f"{path}: {where}: {run.path} has {run.n_whiskers} whiskers, the training run {whiskers}")
+    if run.image_shape != tuple(image):
+        shown = lambda shape: "x".join(map(str, shape))  # noqa: E731
+        raise ScenarioError(
+            f"{path}: {where}: {run.path} has {shown(run.image_shape)} images, the training run {shown(image)}"
+        )
+
+
+def _check_distinct(path: Path, where: str, datasets: RecordedRuns) -> None:
+    """Query and reference are two recordings: the same file (or the same content) would
+    match every query to itself and score 100 %."""
+    if digest(datasets.query) == digest(datasets.reference):
+        raise ScenarioError(
+            f"{path}: {where}: query {datasets.query} and reference {datasets.reference} are the same recording; "
+            "an evaluation needs two separate runs"
+        )

@@ -1,0 +1,85 @@
+"""Loading a scenario: find the file (a path, or a shipped scenario's name), merge what it
+``extends``, make the paths it names absolute, apply ``--set`` overrides, validate the schema,
+then check its runs, methods and memory needs, so that every error surfaces here."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pydantic
+
+from vitaplace.engine.config.configfile import format_validation_error, load_yaml, local_or_shipped
+from vitaplace.engine.config.inputs import check_runs
+from vitaplace.engine.config.memory import check_memory, physical_memory
+from vitaplace.engine.config.methods import check_methods
+from vitaplace.engine.config.overrides import apply_overrides
+from vitaplace.engine.config.scenario import Scenario, ScenarioError
+from vitaplace.engine.config.shipped import SCENARIOS_DIR, scenario_names, shipped_file
+
+log = logging.getLogger("vitaplace")
+
+
+def resolve_path(name: str | Path) -> Path:
+    """A scenario path as given, or the name of a built-in scenario (``quickstart``)."""
+    path = Path(name)
+    if path.exists():
+        return path
+    shipped = shipped_file(path, (SCENARIOS_DIR,))
+    if shipped is None:
+        raise ScenarioError(f"{name}: no such scenario file (built-in scenarios: {', '.join(scenario_names())})")
+    return shipped
+
+
+def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scenario, dict[str, Any]]:
+    """Read, merge, override and validate a scenario; also return the resolved raw mapping.
+
+    Environment files and method plugins are checked too, so every error surfaces here.
+    """
+    path = resolve_path(name)
+    log.debug("scenario %s: file %s, %d override(s)", name, path.resolve(), len(overrides))
+    raw = apply_overrides(_load_raw(path), overrides)
+    try:
+        scenario = Scenario.model_validate(raw)
+    except pydantic.ValidationError as exc:
+        raise ScenarioError(format_validation_error(path, exc, Scenario)) from None
+    train_samples = check_runs(path, scenario)
+    params = check_methods(path, scenario)
+    check_memory(path, scenario, params, physical_memory(), train_samples)
+    return scenario, raw
+
+
+def _load_raw(path: Path) -> dict[str, Any]:
+    """The scenario mapping with ``extends`` merged and environment paths made absolute."""
+    return load_yaml(path, ScenarioError, _absolute_paths)
+
+
+def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """Environment and run-file paths are relative to the file that names them."""
+
+    def fix(entry: Any, keys: tuple[str, ...] = ("environment", "dataset")) -> None:
+        for key in keys if isinstance(entry, dict) else ():
+            if isinstance(entry.get(key), str):
+                where = folder / entry[key]
+                if key == "environment":  # a shipped name (e1) when no such file is next to the scenario
+                    where = local_or_shipped(folder, entry[key], key)
+                entry[key] = str(_resolved(where))
+        if isinstance(entry, dict) and "datasets" in keys:
+            fix(entry.get("datasets"), ("query", "reference"))
+
+    fix(data.get("train"))
+    evaluations = data.get("evaluations")
+    for entry in evaluations if isinstance(evaluations, list) else []:  # anything else: the schema says why
+        fix(entry, ("environment", "datasets"))
+    return data
+
+
+def _resolved(path: Path) -> Path:
+    """``path`` absolute with its links followed; a link loop stays as it is (the file check
+    then reports it as missing instead of Python raising)."""
+    try:
+        return path.resolve()
+    except (RuntimeError, OSError):
+        return path.absolute()

@@ -1,0 +1,26 @@
+"""The scenario's methods checked against the installed plugins: each names a registered
+feature extractor and gives parameters that extractor accepts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from vitaplace.engine.config.scenario import Scenario, ScenarioError
+from vitaplace.engine.features import ExtractorParamsError
+from vitaplace.engine.plugins import PluginError, discover
+
+
+def check_methods(path: Path, scenario: Scenario) -> list[tuple[Any, Any]]:
+    """Each method's extractor class and validated parameters (errors name the method)."""
+    registry = discover()
+    checked = []
+    for i, method in enumerate(scenario.methods):
+        try:
+            extractor = registry.get(method.plugin)
+            checked.append((extractor, extractor.validate_params(method.params)))
+        except PluginError as exc:
+            raise ScenarioError(f"{path}: methods.{i}.plugin: {exc}") from None
+        except ExtractorParamsError as exc:
+            raise ScenarioError(f"{path}: methods.{i}.params: {exc}") from None
+    return checked

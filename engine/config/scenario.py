@@ -1,0 +1,246 @@
+"""The scenario schema: what to simulate, which methods to compare, how to evaluate.
+
+A scenario is YAML validated by pydantic before anything runs (`vitaplace.engine.config.loading`
+reads, overrides and checks it). ``extends: other.yaml``
+(relative to the file, or a shipped scenario's name) deep-merges the file over another
+scenario; ``environment: e1`` names a shipped environment when no such file is next to the
+scenario. Errors name the file,
+the key path and what was expected, and suggest the nearest valid key for a typo.
+
+Example::
+
+    name: quickstart
+    seed: 0
+    train:
+      environment: environments/e1.yaml
+      run: {kind: foraging, n_samples: 300}
+    evaluations:
+      - name: E1
+        environment: environments/e1.yaml
+        run: {kind: route, n_samples: 120}
+    methods:
+      - {name: L, plugin: mupnet, params: {epochs: 5}}
+      - {name: H, plugin: handcrafted}
+    evaluation: {tau: 0.3}
+
+A run can be a recorded run file instead (`vitaplace import`; docs/DATA.md): ``train:
+{dataset: train.h5}`` and ``datasets: {query: q.h5, reference: r.h5}`` in an evaluation,
+relative to the scenario file; the pipeline then reads the file instead of simulating.
+"""
+
+from __future__ import annotations
+
+import typing
+from pathlib import Path
+from typing import Annotated, Any
+
+import pydantic
+
+from vitaplace.engine.config.configfile import ConfigError
+from vitaplace.engine.sim.controllers import RunSpec
+from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
+from vitaplace.engine.sim.robot import RobotSpec
+
+
+class ScenarioError(ConfigError):
+    """A scenario that cannot run; the message is one line naming file, key path and problem."""
+
+
+class Strict(pydantic.BaseModel):
+    model_config = pydantic.ConfigDict(extra="forbid")
+
+
+class _RunSource(Strict):
+    """Where a run comes from: simulated (environment and run) or recorded (subclasses add the file keys)."""
+
+    environment: Path | None = pydantic.Field(
+        None,
+        description="environment YAML, relative to the scenario file (or a shipped name); required for simulated runs",
+    )
+    run: RunSpec | None = pydantic.Field(
+        None,
+        description="how the robot moves and how many samples are recorded (simulated runs only)",
+    )
+
+    def _check_source(self, key: str, recorded: bool, environment_allowed: bool) -> None:
+        """A run is simulated (``environment`` and ``run``) or recorded (``key``), never both."""
+        if recorded:
+            extra = [k for k in ("run",) + (() if environment_allowed else ("environment",)) if getattr(self, k) is not None]
+            if extra:
+                raise ValueError(
+                    f"give either '{key}' (recorded runs) or 'environment' and 'run' (simulated), not both: remove "
+                    f"{' and '.join(repr(k) for k in extra)} (or set to null what 'extends' brings)"
+                )
+            return
+        missing = [k for k in ("environment", "run") if getattr(self, k) is None]
+        if missing:
+            raise ValueError(
+                f"{' and '.join(repr(k) for k in missing)} missing: a run is simulated ('environment' and 'run') "
+                f"or recorded ('{key}': a run file from `vitaplace import`)"
+            )
+
+
+class TrainingRun(_RunSource):
+    """Simulated (an environment file and how the robot moves in it) or recorded (a run file)."""
+
+    dataset: Path | None = pydantic.Field(
+        None,
+        description="a recorded run file (HDF5, e.g. from `vitaplace import`), relative to the scenario file; "
+        "instead of environment and run",
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _simulated_or_recorded(self) -> TrainingRun:
+        self._check_source("dataset", self.dataset is not None, environment_allowed=False)
+        return self
+
+
+class RecordedRuns(Strict):
+    """Run files (HDF5, e.g. from `vitaplace import`), relative to the scenario file."""
+
+    query: Path = pydantic.Field(description="the run whose samples query the reference run")
+    reference: Path = pydantic.Field(description="the run that is searched for each query")
+
+
+def _not_only_dots(name: str) -> str:
+    if set(name) == {"."}:
+        raise ValueError(f"{name!r} is not a usable name: it would name a parent folder")
+    return name
+
+
+#: Names that become folder or file names: letters, digits, _ . - (not only dots), <= 64 long.
+SafeName = Annotated[str, pydantic.StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$"), pydantic.AfterValidator(_not_only_dots)]
+#: An evaluation run with fewer samples gives no meaningful precision-recall curve.
+MIN_EVALUATION_SAMPLES = 5
+
+
+class EvaluationRuns(_RunSource):
+    """An evaluation: two simulated runs (in the shipped scenarios: independent teleoperated
+    drives) or two recorded runs (query and reference)."""
+
+    @pydantic.field_validator("run")
+    @classmethod
+    def _enough_samples(cls, run: RunSpec | None) -> RunSpec | None:
+        if run is not None and run.n_samples < MIN_EVALUATION_SAMPLES:
+            raise ValueError(f"an evaluation run needs at least {MIN_EVALUATION_SAMPLES} samples, got {run.n_samples}")
+        return run
+
+    name: SafeName = pydantic.Field(description="label of the evaluation (E1, E2, ...), letters, digits, _ . -")
+    query_off_route: float = pydantic.Field(
+        0.0, ge=0, le=0.9, allow_inf_nan=False,
+        description="partial revisits: this fraction of the query run is driven off the route (the run's "
+        "off_route_offset across it; route, orbit: the final part; teleop: detours spread along the "
+        "run), so some queries have no true match",
+    )
+    datasets: RecordedRuns | None = pydantic.Field(
+        None,
+        description="recorded query and reference runs instead of simulated ones (no run key then; environment "
+        "optional: it only draws the arena in the report and bounds tau)",
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _simulated_or_recorded(self) -> EvaluationRuns:
+        self._check_source("datasets", self.datasets is not None, environment_allowed=True)
+        if self.query_off_route and (self.run is None or self.run.kind == "foraging"):
+            raise ValueError(
+                "query_off_route needs a simulated teleop, route or orbit run (not recorded runs, not foraging)"
+            )
+        return self
+
+    def run_for(self, role: str) -> RunSpec:
+        """The simulated run of ``role`` ("query" or "reference"): the query's carries the
+        partial-revisit detour (``query_off_route``)."""
+        assert self.run is not None  # validated: simulated
+        if role == "query" and self.query_off_route:
+            return self.run.model_copy(update={"off_route_fraction": self.query_off_route})
+        return self.run
+
+    def recorded(self) -> dict[str, Path]:
+        """``{"query": file, "reference": file}`` for recorded runs, else empty."""
+        return {} if self.datasets is None else {"query": self.datasets.query, "reference": self.datasets.reference}
+
+
+class Method(Strict):
+    """A feature extractor to compare: a label, the plugin's extractor name, its parameters."""
+
+    name: SafeName = pydantic.Field(description="label of the method in results and figures (L, H, ...)")
+    plugin: str = pydantic.Field(
+        description="name of the registered feature extractor (`vitaplace plugins` lists them)",
+    )
+    params: dict[str, Any] = pydantic.Field(
+        {},
+        description="the extractor's parameters (validated by the extractor, see its section)",
+    )
+
+
+class EvaluationSettings(Strict):
+    tau: float = pydantic.Field(
+        0.3, gt=0, allow_inf_nan=False, description="ground-truth revisit tolerance [m], below the arena's diagonal"
+    )
+    heading_tolerance_deg: float | None = pydantic.Field(
+        30.0, ge=0, le=180, allow_inf_nan=False,
+        description="a true match also faces within this many degrees of the query (wrapped yaw difference); "
+        "null: position only",
+    )
+    delta: float | None = pydantic.Field(
+        None, allow_inf_nan=False, description="fixed acceptance threshold for the F1 at delta"
+    )
+    recall_k: list[pydantic.PositiveInt] = pydantic.Field([1, 5, 10], description="K values of recall@K")
+    direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = pydantic.Field(
+        "query-to-reference",
+        description="which run queries which: query-to-reference, the reverse, or both",
+    )
+
+
+class Scenario(Strict):
+    name: SafeName = pydantic.Field(description="the scenario's name (reports, output folders): letters, digits, _ . -")
+    description: str = pydantic.Field("", description="free text shown in the report")
+    seed: int = pydantic.Field(
+        0, ge=0, lt=2**32,
+        description="master seed: every run's and method's seed derives from it",
+    )
+    robot: RobotSpec = pydantic.Field(
+        RobotSpec(),
+        description="robot, sensors and physics for every run of the scenario",
+    )
+    train: TrainingRun = pydantic.Field(description="the run the methods are fitted on")
+    evaluations: list[EvaluationRuns] = pydantic.Field(
+        min_length=1,
+        description="evaluation environments, each with a query and a reference run",
+    )
+    methods: list[Method] = pydantic.Field(min_length=1, description="the feature extractors compared")
+    evaluation: EvaluationSettings = pydantic.Field(EvaluationSettings(), description="how features are scored")
+
+    @pydantic.model_validator(mode="after")
+    def _unique_names(self) -> Scenario:
+        for what, items in (("methods", self.methods), ("evaluations", self.evaluations)):
+            names = [item.name for item in items]
+            if len(set(names)) != len(names):
+                raise ValueError(f"{what}: names must be unique, got {names}")
+        return self
+
+
+def training_world_evaluation(scenario: Scenario) -> tuple[str | None, str]:
+    """The evaluation in the training run's world, whose max-F1 threshold every evaluation is
+    also scored at (``f1_at_e1_threshold``), and a sentence for the report saying which, or
+    why there is none.
+
+    It is the one evaluation whose environment is the training run's environment (the same
+    environment specification once loaded, whatever the file and its name). None when the
+    training run is a recorded file (no environment), when no evaluation is in that
+    environment, or when several are (no single threshold to transfer).
+    """
+    if scenario.train.environment is None:
+        return None, "none: the training run is a recorded file, in no known environment"
+    world = load_environment(scenario.train.environment)
+
+    def spec(env: EnvironmentSpec) -> dict[str, Any]:
+        return env.model_dump(mode="json", exclude={"name"})
+
+    same = [e.name for e in scenario.evaluations
+            if e.environment is not None and spec(load_environment(e.environment)) == spec(world)]
+    if len(same) == 1:
+        return same[0], f"{same[0]}, the evaluation in the training run's environment {world.name}"
+    if not same:
+        return None, f"none: no evaluation is in the training run's environment {world.name}"
+    return None, f"none: several evaluations are in the training run's environment {world.name}: {', '.join(same)}"

@@ -1,0 +1,1 @@
+"""Run files: the HDF5 run format, MATLAB import, videos of a run."""

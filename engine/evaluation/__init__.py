@@ -1,0 +1,1 @@
+"""Evaluation: place-recognition metrics, statistics over seeds, figures, report.md, aggregation of run folders."""

@@ -1,0 +1,424 @@
+"""The scenario pipeline's stages: simulate -> fit -> transform -> evaluate -> report, cached per stage
+(`vitaplace.engine.pipeline.orchestrate.run_stages` runs them in order).
+
+Every stage's output lives under ``OUT/cache`` named by a hash of everything it depends on
+(config, upstream keys, format versions, the code digest of the plugin that runs it) and of
+the digests of the upstream outputs it reads, as DVC does: a re-run skips finished stages,
+an interrupted run resumes with the first missing output, and ``force`` redoes named stages
+and, when their output changed, every stage downstream that reads it (an identical output
+leaves the downstream keys, and so their cached work, as they were). A run ends by writing
+its completion record (`vitaplace.engine.pipeline.completion`).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from functools import partial
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.config.scenario import EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, training_world_evaluation
+from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run
+from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.features import FeatureExtractor, load_features, save_features, warn_once
+from vitaplace.engine.pipeline import checksum, outdir
+from vitaplace.engine.pipeline.cpus import usable_cpus
+from vitaplace.engine.pipeline.keys import content_hash
+from vitaplace.engine.pipeline.output_checks import check_distance, check_features
+from vitaplace.engine.pipeline.simulation import SimulationJob, simulate_here, simulations_in_workers
+from vitaplace.engine.plugins import Registry, discover
+from vitaplace.engine.sim import SIMULATOR_VERSION
+from vitaplace.engine.sim.environment import load_environment
+from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_seconds
+
+STAGES = ("simulate", "fit", "transform", "evaluate", "report")
+#: Bump when a stage's output format or algorithm changes, to invalidate old caches.
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 3, "report": 6}
+
+log = logging.getLogger("vitaplace")
+
+
+@dataclass
+class StageRecord:
+    """One stage of one item: what keyed it (the keys of its inputs), where its output is,
+    and whether it ran or came from the cache."""
+
+    stage: str
+    item: str
+    key: str
+    status: str  # "ran" or "cached"
+    seconds: float
+    inputs: list[str] = field(default_factory=list)  # keys of the upstream outputs it was made from
+    output: str = ""  # its output, relative to the output directory when inside it
+
+
+@dataclass
+class RunnerState:
+    records: list[StageRecord] = field(default_factory=list)
+    datasets: dict[str, str] = field(default_factory=dict)  # run label -> dataset key
+    #: output path -> SHA-256 of its content, for each output done in this run (`checksum`)
+    digests: dict[str, str] = field(default_factory=dict)
+
+
+def seed_for(scenario_seed: int, *path: int) -> int:
+    """Independent, reproducible seeds for the runs of a scenario (numpy SeedSequence)."""
+    return int(np.random.SeedSequence([scenario_seed, *path]).generate_state(1)[0])
+
+
+class Pipeline:
+    """Runs the stages of one scenario into an output directory."""
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        resolved: dict[str, Any],
+        out: Path,
+        force: Iterable[str] = (),
+        progress: bool = True,
+        registry: Registry | None = None,
+        workers: int | None = None,
+        cache: Path | None = None,
+    ) -> None:
+        self.scenario, self.resolved, self.out = scenario, resolved, Path(out)
+        self.force = set(force)
+        unknown = self.force - set(STAGES)
+        if unknown:
+            raise ScenarioError(f"--force: unknown stage(s) {', '.join(sorted(unknown))}; stages: {', '.join(STAGES)}")
+        self.progress = progress
+        #: processes recording runs in parallel (default: one per CPU this process may use)
+        self.workers = workers or usable_cpus()
+        self.registry = registry or discover()
+        #: where stage outputs are cached (default OUT/cache; sweeps share one across seeds)
+        self.cache = Path(cache) if cache is not None else outdir.cache_dir(self.out)
+        self.state = RunnerState()
+        self.extractors: dict[str, FeatureExtractor] = {}
+        self.opened: dict[str, Run] = {}
+        #: run label -> recorded run file, for runs the scenario gives as files (not simulated)
+        self.recorded: dict[str, Path] = {}
+        if scenario.train.dataset is not None:
+            self.recorded["train"] = scenario.train.dataset
+        for e in scenario.evaluations:
+            self.recorded.update({f"{e.name}/{side}": file for side, file in e.recorded().items()})
+
+    # ------------------------------------------------------------------ bookkeeping
+    def done(self, stage: str, item: str, output: Path, key: str) -> bool:
+        """The one "done" rule of every stage: ``output`` is there and sealed for ``key`` with
+        a matching digest (`checksum`); anything else but "not made yet" is logged."""
+        problem = checksum.check(output, key)
+        if problem is None:
+            return True
+        if problem not in ("absent", "made for other settings"):
+            log.warning("%-9s %-28s cached output %s is %s: recomputing", stage, item, output.name, problem)
+        return False
+
+    def stage(
+        self, stage: str, item: str, key: str, output: Path, work: Callable[[], Any], inputs: Iterable[str] = (),
+        done: bool | None = None,
+    ) -> Any:
+        """Run ``work()`` unless ``output`` is done for ``key`` (`done`, or ``done`` when the
+        caller has checked already) and the stage is not forced; seal what it wrote."""
+        start = time.perf_counter()
+        if done is None:
+            done = self.done(stage, item, output, key)
+        if done and stage not in self.force:
+            status = "cached"
+            log.info("%-9s %-28s cached (%s)", stage, item, key)
+            result = None
+            self._restore_warnings(output)
+        else:
+            status = "ran"
+            log.info("%-9s %-28s running (%s)", stage, item, key)
+            before = {label: set(run.warnings) for label, run in self.opened.items()}
+            result = work()
+            self._keep_warnings(output, before)
+            checksum.seal(output, key)
+        self.state.digests[str(output)] = checksum.sealed_digest(output)
+        seconds = time.perf_counter() - start
+        where = output.relative_to(self.out) if output.is_relative_to(self.out) else output
+        log.debug("%-9s %-28s %s in %.2f s: %s", stage, item, status, seconds, where)
+        self.state.records.append(StageRecord(stage, item, key, status, round(seconds, 3), list(inputs), str(where)))
+        return result
+
+    @staticmethod
+    def _warnings_path(output: Path) -> Path:
+        return output.with_name(output.name + ".warnings.json")
+
+    def _keep_warnings(self, output: Path, before: dict[str, set[str]]) -> None:
+        """Beside a stage's output, the run warnings its work raised (label -> feature ->
+        message), so that a later run that finds the stage cached reports them too."""
+        raised = {label: {k: v for k, v in run.warnings.items() if k not in before.get(label, set())}
+                  for label, run in self.opened.items()}
+        raised = {label: warnings for label, warnings in raised.items() if warnings}
+        path = self._warnings_path(output)
+        if raised:
+            write_text_atomic(path, json.dumps(raised))
+        else:
+            path.unlink(missing_ok=True)
+
+    def _restore_warnings(self, output: Path) -> None:
+        """The run warnings the work of a now cached stage raised (`_keep_warnings`)."""
+        path = self._warnings_path(output)
+        if path.is_file():
+            for label, warnings in json.loads(path.read_text()).items():
+                for feature, message in warnings.items():
+                    self.open(label).warnings.setdefault(feature, message)
+
+    # ------------------------------------------------------------------ simulate
+    def runs(self) -> dict[str, tuple[TrainingRun | EvaluationRuns, int]]:
+        """Every run of the scenario: label -> (spec, seed); `recorded` ones are not simulated."""
+        s = self.scenario
+        runs = {"train": (s.train, seed_for(s.seed, 0))}
+        for i, e in enumerate(s.evaluations):
+            runs[f"{e.name}/query"] = (e, seed_for(s.seed, i + 1, 1))
+            runs[f"{e.name}/reference"] = (e, seed_for(s.seed, i + 1, 2))
+        return runs
+
+    def output_digest(self, path: Path) -> str:
+        """SHA-256 of the content of an output this run has made or verified (or of a recorded
+        run file): the part of a downstream key that follows what the stage actually read."""
+        return self.state.digests[str(path)]
+
+    def dataset_digest(self, label: str) -> str:
+        return self.output_digest(self.dataset_path(label))
+
+    def dataset_path(self, label: str) -> Path:
+        if label in self.recorded:
+            return self.recorded[label]
+        return outdir.dataset_file(self.cache, label, self.state.datasets[label])
+
+    def use_recorded(self, label: str) -> None:
+        """A recorded run instead of a simulation: open and check it (format, shapes, finite
+        values); its key is the file's SHA-256, so a changed file re-runs what depends on it."""
+        start = time.perf_counter()
+        path = self.recorded[label]
+        run = open_run(path)
+        run.validate()
+        run.name = label  # warnings and errors name the run as the scenario does
+        self.opened[label] = run
+        digest = checksum.digest(path)
+        key = content_hash("recorded", STAGE_VERSION["simulate"], digest)
+        self.state.datasets[label] = key
+        self.state.digests[str(path)] = digest
+        log.info("%-9s %-28s recorded run %s (%s)", "simulate", label, path, key)
+        seconds = round(time.perf_counter() - start, 3)
+        self.state.records.append(StageRecord("simulate", label, key, "recorded", seconds, [], str(path)))
+
+    def simulate(self) -> None:
+        """Record every run not cached yet; several runs are recorded by parallel processes."""
+        jobs = []
+        for label, (entry, seed) in self.runs().items():
+            if label in self.recorded:
+                self.use_recorded(label)
+                continue
+            assert entry.environment is not None and entry.run is not None  # validated: simulated
+            environment = load_environment(entry.environment)
+            run = entry.run_for(label.rsplit("/", 1)[1]) if isinstance(entry, EvaluationRuns) else entry.run
+            spec = [environment.model_dump(mode="json"), run.model_dump(mode="json")]
+            key = content_hash("simulate", STAGE_VERSION["simulate"], SIMULATOR_VERSION, spec,
+                               self.scenario.robot.model_dump(mode="json"), seed)
+            self.state.datasets[label] = key
+            jobs.append(SimulationJob(label, str(entry.environment), run.model_dump(), self.scenario.robot.model_dump(),
+                                      seed, key, self.dataset_path(label), estimated_seconds(run, self.scenario.robot)))
+        pending = [job for job in jobs if "simulate" in self.force or not self.done("simulate", job.label, job.path, job.key)]
+        for job in pending:
+            if job.estimate > LONG_SECONDS:
+                log.warning("%-9s %-28s a long simulation: about %s on one core (estimate)", "simulate", job.label,
+                            duration(job.estimate))
+        with simulations_in_workers(pending, self.workers) as in_workers:
+            for job in jobs:
+                work = in_workers.get(job.label) or partial(simulate_here, job, self.progress)
+                self.stage("simulate", job.label, job.key, job.path, work, done=job not in pending)
+        self.warn_collisions()
+
+    def warn_collisions(self) -> None:
+        """Warn (log, manifest.json, report.md) about every run in which the robot's body or
+        head touched the world (``body_collision_instants`` > 0 in its attributes)."""
+        for label in self.runs():
+            run = self.open(label)
+            instants = int(run.attrs.get("body_collision_instants", 0))
+            if instants > 0:
+                warn_once(run, "body_collision_instants",
+                          f"run {label}: the robot's body or head touched a landmark or wall at {instants} "
+                          f"whisk-series instant(s) (body_collision_instants): it was not driven clear of the world")
+
+    def open(self, label: str) -> Run:
+        """The recorded run ``label``, opened once per pipeline (its fields load lazily, once)."""
+        if label not in self.opened:
+            self.opened[label] = open_run(self.dataset_path(label))
+        return self.opened[label]
+
+    # ------------------------------------------------------------------ fit / transform
+    def method_params(self, method: Method) -> dict[str, Any]:
+        """The method's parameters, with ``seed`` derived from the scenario seed when the
+        extractor takes one and the scenario does not set it (so every scenario seed also
+        changes the method's initialisation)."""
+        params = dict(method.params)
+        if "seed" not in params and "seed" in self.registry.get(method.plugin).Params.model_fields:
+            index = [m.name for m in self.scenario.methods].index(method.name)
+            params["seed"] = seed_for(self.scenario.seed, 1000 + index)
+        return params
+
+    def model_key(self, method: Method) -> str:
+        return content_hash(
+            "fit", STAGE_VERSION["fit"], method.plugin, self.registry.version_of(method.plugin),
+            self.registry.code_digest(method.plugin), self.method_params(method), self.state.datasets["train"],
+            self.dataset_digest("train"),
+        )
+
+    def model_dir(self, method: Method) -> Path:
+        return outdir.model_dir(self.cache, method.name, self.model_key(method))
+
+    def fit(self) -> None:
+        for method in self.scenario.methods:
+            directory = self.model_dir(method)
+            directory.parent.mkdir(parents=True, exist_ok=True)
+            self.stage("fit", method.name, self.model_key(method), directory, partial(self._fit, method, directory),
+                       [self.state.datasets["train"]])
+
+    def _fit(self, method: Method, directory: Path) -> None:
+        """Fit ``method`` on the training run and save it into ``directory`` (atomically)."""
+        extractor = self.registry.create(method.plugin, self.method_params(method))
+        extractor.progress = self.progress
+        extractor.fit(self.open("train"))
+        tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
+        try:
+            extractor.save(tmp)
+            if directory.exists():
+                shutil.rmtree(directory)
+            os.replace(tmp, directory)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        self.extractors[method.name] = extractor
+        record = {"history": extractor.training_history(), "summary": extractor.training_summary()}
+        write_text_atomic(self.training_path(method), json.dumps(record))
+
+    def training_path(self, method: Method) -> Path:
+        """Where the fit stage records how training went (read by the report and the manifest)."""
+        return outdir.training_file(self.model_dir(method))
+
+    def training_record(self, method: Method) -> dict[str, Any]:
+        """``{"history": per-epoch curves, "summary": how training ended}`` saved by the fit stage."""
+        path = self.training_path(method)
+        return json.loads(path.read_text()) if path.exists() else {"history": {}, "summary": {}}
+
+    def extractor(self, method: Method) -> FeatureExtractor:
+        if method.name not in self.extractors:
+            self.extractors[method.name] = self.registry.get(method.plugin).load(self.model_dir(method))
+            self.extractors[method.name].progress = self.progress
+        return self.extractors[method.name]
+
+    def features_key(self, method: Method, label: str) -> str:
+        return content_hash("transform", STAGE_VERSION["transform"], self.model_key(method),
+                            self.output_digest(self.model_dir(method)), self.state.datasets[label], self.dataset_digest(label))
+
+    def features_path(self, method: Method, label: str) -> Path:
+        return outdir.features_file(self.cache, method.name, label, self.features_key(method, label))
+
+    def transform(self) -> None:
+        labels = [label for label in self.runs() if label != "train"]
+        for method in self.scenario.methods:
+            for label in labels:
+                path = self.features_path(method, label)
+                self.stage("transform", f"{method.name} {label}", self.features_key(method, label), path,
+                           partial(self._transform, method, label, path), [self.model_key(method), self.state.datasets[label]])
+
+    def _transform(self, method: Method, label: str, path: Path) -> None:
+        """The features of run ``label`` by the fitted ``method``, checked, saved to ``path``."""
+        run = self.open(label)
+        features = self.extractor(method).transform(run)
+        save_features(path, check_features(features, len(run), f"transform {method.name} {label}"))
+
+    # ------------------------------------------------------------------ evaluate
+    def directions(self) -> list[tuple[str, str, str]]:
+        d = self.scenario.evaluation.direction
+        pairs = [("query-to-reference", "query", "reference"), ("reference-to-query", "reference", "query")]
+        return [p for p in pairs if d in (p[0], "both")]
+
+    def evaluate(self) -> list[dict[str, Any]]:
+        settings = self.scenario.evaluation
+        rows = []
+        for e in self.scenario.evaluations:
+            for method in self.scenario.methods:
+                for direction, q, r in self.directions():
+                    qpath = self.features_path(method, f"{e.name}/{q}")
+                    rpath = self.features_path(method, f"{e.name}/{r}")
+                    key = content_hash(
+                        "evaluate", STAGE_VERSION["evaluate"], self.model_key(method), qpath.name, rpath.name,
+                        [self.output_digest(p) for p in (qpath, rpath)],
+                        [self.dataset_digest(f"{e.name}/{side}") for side in (q, r)], settings.model_dump(),
+                    )
+                    folder = outdir.evaluation_dir(self.out, e.name, method.name, direction)
+                    work = partial(self._evaluate, method, f"{e.name}/{q}", f"{e.name}/{r}", folder)
+                    self.stage("evaluate", f"{e.name} {method.name} {direction}", key, folder, work,
+                               [qpath.stem, rpath.stem])
+                    summary = json.loads((folder / outdir.SUMMARY).read_text())
+                    rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
+        self.add_f1_at_training_threshold(rows)
+        return rows
+
+    def _evaluate(self, method: Method, query: str, reference: str, folder: Path) -> None:
+        """Score ``method``'s distances from the ``query`` run's samples to the ``reference``
+        run's into ``folder`` (summary, curves, matrices)."""
+        settings = self.scenario.evaluation
+        folder.mkdir(parents=True, exist_ok=True)
+        q, r = self.open(query), self.open(reference)
+        distances = self.extractor(method).distance(load_features(self.features_path(method, query)),
+                                                    load_features(self.features_path(method, reference)))
+        tme = check_distance(distances, (len(q), len(r)), f"evaluate {query.split('/')[0]} {method.name}")
+        summary = ev.evaluate_pair(
+            folder, tme, q.poses, r.poses, settings.tau, query_touch=q.touch_mask(), reference_touch=r.touch_mask(),
+            delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg, ks=tuple(settings.recall_k),
+        )
+        write_text_atomic(folder / outdir.SUMMARY, json.dumps(summary, indent=2))
+
+    def add_f1_at_training_threshold(self, rows: list[dict[str, Any]]) -> None:
+        """``f1_at_e1_threshold`` in every row: F1 at the threshold that maximised the same
+        method's F1 (same direction) on the training world's evaluation
+        (`training_world_evaluation`), applied unchanged, and that threshold, ``e1_threshold``
+        (None when it is -inf: accept nothing); both None when there is no such evaluation."""
+        source, _ = training_world_evaluation(self.scenario)
+        for row in rows:
+            row["f1_at_e1_threshold"] = row["e1_threshold"] = None
+            if source is None:
+                continue
+            curve = ev.load_curve(outdir.evaluation_dir(self.out, source, row["method"], row["direction"]) / outdir.PR_CURVE)
+            with np.load(outdir.evaluation_dir(self.out, row["environment"], row["method"], row["direction"]) / outdir.MATRICES) as m:
+                row["f1_at_e1_threshold"] = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row["tau"])
+            row["e1_threshold"] = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None
+
+    # ------------------------------------------------------------------ report
+    def write_report_inputs(self) -> None:
+        """Into the output folder: each evaluation's query and reference poses and, when
+        simulated, its environment's top view; each method's training curves, when it has them."""
+        for e in self.scenario.evaluations:
+            save_features(outdir.poses_path(self.out, e.name),
+                          {side: self.open(f"{e.name}/{side}").poses for side in ("query", "reference")})
+            if e.environment is not None:
+                write_text_atomic(outdir.arena_path(self.out, e.name),
+                                  json.dumps(load_environment(e.environment).top_view()))
+        for method in self.scenario.methods:
+            history = self.training_record(method)["history"]
+            if history:
+                write_text_atomic(outdir.training_path(self.out, method.name), json.dumps(history))
+
+    def method_parameters(self) -> dict[str, dict[str, Any]]:
+        """Per method: its plugin, the parameters the scenario sets (with the derived seed) and
+        the plugin's defaults for the others."""
+        out = {}
+        for method in self.scenario.methods:
+            given = self.method_params(method)
+            full = self.registry.get(method.plugin).validate_params(given).model_dump(mode="json")
+            out[method.name] = {"plugin": method.plugin, "params": {k: full[k] for k in full if k in given},
+                                "defaults": {k: v for k, v in full.items() if k not in given}}
+        return out
