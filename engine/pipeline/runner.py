@@ -237,7 +237,9 @@ class Pipeline:
         with simulations_in_workers(pending, self.workers) as in_workers:
             for job in jobs:
                 work = in_workers.get(job.label) or partial(simulate_here, job, self.progress)
-                self.stage("simulate", job.label, job.key, job.path, work, done=job not in pending)
+                simulated = self.stage("simulate", job.label, job.key, job.path, work, done=job not in pending)
+                if simulated is not None:  # the simulation's own time, not the wait for its worker
+                    self.state.records[-1].seconds = round(simulated[1], 3)
         self.warn_collisions()
 
     def warn_collisions(self) -> None:
