@@ -48,7 +48,7 @@ def main() -> None:
         env = load_environment(world)
         for kind in args.kinds.split(","):
             spec = RunSpec(kind=kind, n_samples=args.samples)
-            ref, query = (simulate_run(env, spec, seed, robot, progress=False) for seed in (ref_seed, query_seed))
+            ref, query = (simulate_run(env, spec, seed, robot) for seed in (ref_seed, query_seed))
             dist, dyaw = nearest(query.poses, ref.poses)
             matched = dist < 0.3
             print(

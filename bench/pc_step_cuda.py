@@ -178,12 +178,12 @@ def timed_training(pc, epochs: int, samples: int, log, precision: str) -> dict:
     train = spec.params.training_config()
     latents: dict[str, np.ndarray] = {}
     t0 = time.perf_counter()
-    first_history = net.train(inputs, replace(train, epochs=1), progress=False, latents=latents)
+    first_history = net.train(inputs, replace(train, epochs=1), latents=latents)
     wp.synchronize_device("cuda")
     first = time.perf_counter() - t0
     log(f"  {precision}: first epoch (compile + capture + run): {first:.1f} s")
     t0 = time.perf_counter()
-    history = net.train(inputs, replace(train, epochs=epochs), progress=False, latents=latents)
+    history = net.train(inputs, replace(train, epochs=epochs), latents=latents)
     wp.synchronize_device("cuda")
     per_epoch = (time.perf_counter() - t0) / epochs
     full = [spec.batch] * (samples // spec.batch) + ([samples % spec.batch] if samples % spec.batch else [])

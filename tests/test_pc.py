@@ -162,7 +162,7 @@ def trained(backend):
     inputs, labels = synthetic()
     net = Network(SYNTH, seed=0, backend=backend())
     before = reconstruction_mse(net, inputs)
-    history = net.train(inputs, TRAIN, progress=False)
+    history = net.train(inputs, TRAIN)
     return net, inputs, labels, before, history
 
 
@@ -271,7 +271,7 @@ def test_training_moves_every_sample_every_epoch(backend):
     inputs, _ = synthetic(n=60)
     net = Network(SYNTH, seed=2, backend=backend())
     latents: dict[str, np.ndarray] = {}
-    net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, progress=False, latents=latents)
+    net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, latents=latents)
     for node, y in latents.items():
         assert y.shape[0] == 60
         assert np.all(np.any(y != np.float32(0.1), axis=1)), f"{node}: samples never trained"
@@ -286,10 +286,25 @@ def test_energy_history_is_the_per_sample_energy_of_the_epoch(backend):
               "joint": {**SYNTH["joint"], "eta_w": 0.0}}
     net = Network(frozen, seed=4, backend=backend())
     latents: dict[str, np.ndarray] = {}
-    history = net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, progress=False, latents=latents)
+    history = net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 25}, latents=latents)
     expected = net.energy(inputs, latents)
     for name, value in expected.items():
         assert history.energy[name][0] == pytest.approx(value / 60, rel=1e-5), name
+
+
+def test_training_reports_each_minibatch_with_its_epoch_and_energy_per_sample():
+    """60 samples in minibatches of 25 (25, 25, 10) for 2 epochs: on_progress is called 6 times,
+    with epochs 1, 1, 1, 2, 2, 2; with the weights frozen, the three energies of an epoch add
+    up, weighted by minibatch size, to the epoch's history entry times 60."""
+    inputs, _ = synthetic(n=60)
+    frozen = {**SYNTH, "modalities": {m: {**mc, "eta_w": 0.0} for m, mc in SYNTH["modalities"].items()},
+              "joint": {**SYNTH["joint"], "eta_w": 0.0}}
+    calls: list[tuple[int, float]] = []
+    history = Network(frozen, seed=4, backend="numpy").train(
+        inputs, {**TRAIN, "epochs": 2, "batch_size": 25}, on_progress=lambda epoch, f: calls.append((epoch, f)))
+    assert [epoch for epoch, _ in calls] == [1, 1, 1, 2, 2, 2]
+    first = sum(size * f for size, (_, f) in zip((25, 25, 10), calls[:3]))
+    assert first == pytest.approx(60 * history.total()[0], rel=1e-5)
 
 
 @pytest.mark.parametrize("shape", [(150, 129, 300), (40, 1000, 300), (20, 300, 1000)], ids=str)
@@ -326,7 +341,7 @@ def test_same_seed_gives_identical_training():
     runs = []
     for _ in range(2):
         net = Network(SYNTH, seed=5, backend="numpy")
-        net.train(inputs, {**TRAIN, "epochs": 3, "seed": 9}, progress=False)
+        net.train(inputs, {**TRAIN, "epochs": 3, "seed": 9})
         runs.append(net.weights)
     for name in runs[0]:
         np.testing.assert_array_equal(runs[0][name], runs[1][name])
@@ -338,7 +353,7 @@ def test_divergence_names_the_layer_and_suggests_lower_rates():
     net = Network(config, seed=0, backend="numpy")
     with pytest.raises(NetworkError, match=r"layer '.*' became (nan|inf).*lower the learning rates"):
         with np.errstate(all="ignore"):
-            net.train(inputs, {**TRAIN, "epochs": 2}, progress=False)
+            net.train(inputs, {**TRAIN, "epochs": 2})
 
 
 def test_diverging_inference_names_the_layer_and_the_samples():
@@ -369,7 +384,7 @@ def test_numpy_and_warp_backends_agree(device):
     runs = {}
     for name, backend in (("numpy", "numpy"), ("warp", WarpBackend(device))):
         net = Network(SYNTH, seed=1, backend=backend)
-        history = net.train(inputs, {**TRAIN, "epochs": 3, "batch_size": 25, "inference_steps": 5}, progress=False)
+        history = net.train(inputs, {**TRAIN, "epochs": 3, "batch_size": 25, "inference_steps": 5})
         result = net.infer(inputs, max_steps=200, thresholds=dict.fromkeys(NO_STOP, 0.1), batch_size=40)
         runs[name] = (net.weights, net.train_latents, history, result)
     (w_np, y_np, h_np, r_np), (w_wp, y_wp, h_wp, r_wp) = runs["numpy"], runs["warp"]
@@ -401,7 +416,7 @@ def test_training_stops_when_the_energy_has_converged(backend):
     inputs, _ = synthetic(n=60)
     net = Network(SYNTH, seed=1, backend=backend())
     cfg = {**TRAIN, "epochs": 200, "batch_size": 25, "converge_window": 5, "converge_tol": 0.02}
-    history = net.train(inputs, cfg, progress=False)
+    history = net.train(inputs, cfg)
     assert history.converged and 5 < history.epochs < 200
     total = history.total()
     assert total[-6] - total[-1] < 0.02 * total[-6]  # the rule held at the stop

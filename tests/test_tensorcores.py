@@ -351,7 +351,7 @@ def test_paper_shape_training_energy_stays_in_band_of_float32(cuda, precision):
     curves = {}
     for p in ("float32", precision):
         net = Network(PAPER, seed=0, backend=get_backend("warp", cuda, precision=p))
-        curves[p] = np.array(net.train(inputs, train, progress=False).total())
+        curves[p] = np.array(net.train(inputs, train).total())
     band = np.abs(curves[precision] - curves["float32"]) / curves["float32"]
     assert band.max() < ENERGY_BAND[precision], f"{precision}: {band}"
     assert np.all(np.diff(curves[precision]) < 0)

@@ -25,7 +25,6 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from vitaplace.engine.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.network.backends import Backend, get_backend
@@ -280,8 +279,8 @@ class Network:
         self,
         inputs: Mapping[str, np.ndarray],
         training: TrainingConfig | Mapping,
-        progress: bool = True,
         latents: dict[str, np.ndarray] | None = None,
+        on_progress: Callable[[int, float], None] | None = None,
     ) -> TrainingHistory:
         """Learn the weights from (already scaled) inputs of N samples.
 
@@ -290,6 +289,8 @@ class Network:
         one weight step (eq. 4). Inputs, latents and weights stay on the backend's device
         for the whole run; a minibatch is one captured sequence (a CUDA graph on CUDA) and
         only its energies come back to the host.
+        ``on_progress(epoch, energy)`` is called after every minibatch with the epoch (from 1)
+        and the minibatch's energy per sample, for progress bars (as `infer`'s).
         Raises NetworkError naming the epoch and minibatch when an error becomes NaN/Inf.
         """
         cfg = training if isinstance(training, TrainingConfig) else TrainingConfig(**training)
@@ -307,7 +308,6 @@ class Network:
         states: dict[int, BatchState] = {}
         runs: dict[int, Callable[[], None]] = {}
         batches_per_epoch = math.ceil(n / cfg.batch_size)
-        bar = tqdm(total=cfg.epochs * batches_per_epoch, desc="train", unit="batch", disable=not progress)
         for epoch in range(cfg.epochs):
             order = rng.permutation(n)
             totals = dict.fromkeys(history.energy, 0.0)
@@ -322,14 +322,13 @@ class Network:
                 state.check_finite(energy, f"epoch {epoch + 1}, minibatch {b + 1}")
                 for name, value in energy.items():
                     totals[name] += value
-                bar.update()
-                bar.set_postfix(epoch=epoch + 1, F=f"{sum(energy.values()) / len(index):.4g}")
+                if on_progress is not None:
+                    on_progress(epoch + 1, sum(energy.values()) / len(index))
             for name, total in totals.items():
                 history.energy[name].append(total / n)
             if converged(history.total(), cfg.converge_window, cfg.converge_tol):
                 history.converged = True
                 break
-        bar.close()
         for node in nodes:
             store[node][...] = be.download(resident_y[node])
         self._sync_weights_to_host()

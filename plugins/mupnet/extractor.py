@@ -212,7 +212,14 @@ class MupnetExtractor(FeatureExtractor):
             span = np.maximum(high - low, p.tactile_min_range)
             self.network.set_scaler("tactile", low, np.where(span > 0, 1 / np.where(span > 0, span, 1), 0))
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
-        history = self.network.train(inputs, p.training_config(), progress=self.progress)
+        training = p.training_config()
+        minibatches = training.epochs * math.ceil(len(train) / training.batch_size)
+        with tqdm(total=minibatches, desc="train", unit="batch", disable=not self.progress) as bar:
+            def on_progress(epoch: int, energy: float) -> None:
+                bar.update()
+                bar.set_postfix(epoch=epoch, F=f"{energy:.4g}")
+
+            history = self.network.train(inputs, training, on_progress=on_progress)
         self.energy = history.energy
         self.converged = history.converged
         self.train_norm_max = float(np.linalg.norm(self.network.train_latents["joint"], axis=1).max())
