@@ -80,7 +80,7 @@ class _RunSource(Strict):
             )
 
 
-class TrainingRun(_RunSource):
+class TrainingData(_RunSource):
     """Simulated (an environment file and how the robot moves in it) or recorded (a run file)."""
 
     dataset: Path | None = pydantic.Field(
@@ -90,7 +90,7 @@ class TrainingRun(_RunSource):
     )
 
     @pydantic.model_validator(mode="after")
-    def _simulated_or_recorded(self) -> TrainingRun:
+    def _simulated_or_recorded(self) -> TrainingData:
         self._check_source("dataset", self.dataset is not None, environment_allowed=False)
         return self
 
@@ -114,7 +114,7 @@ SafeName = Annotated[str, pydantic.StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1
 MIN_EVALUATION_SAMPLES = 5
 
 
-class EvaluationRuns(_RunSource):
+class EvaluationPair(_RunSource):
     """An evaluation: two simulated runs (in the shipped scenarios: independent teleoperated
     drives) or two recorded runs (query and reference)."""
 
@@ -139,7 +139,7 @@ class EvaluationRuns(_RunSource):
     )
 
     @pydantic.model_validator(mode="after")
-    def _simulated_or_recorded(self) -> EvaluationRuns:
+    def _simulated_or_recorded(self) -> EvaluationPair:
         self._check_source("datasets", self.datasets is not None, environment_allowed=True)
         if self.query_off_route and (self.run is None or self.run.kind == "foraging"):
             raise ValueError(
@@ -203,8 +203,8 @@ class Scenario(Strict):
         RobotSpec(),
         description="robot, sensors and physics for every run of the scenario",
     )
-    train: TrainingRun = pydantic.Field(description="the run the methods are fitted on")
-    evaluations: list[EvaluationRuns] = pydantic.Field(
+    train: TrainingData = pydantic.Field(description="the run the methods are fitted on")
+    evaluations: list[EvaluationPair] = pydantic.Field(
         min_length=1,
         description="evaluation environments, each with a query and a reference run",
     )

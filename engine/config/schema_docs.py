@@ -19,7 +19,7 @@ from pathlib import Path
 import pydantic
 from pydantic_core import PydanticUndefined
 
-from vitaplace.engine.config.scenario import EvaluationRuns, EvaluationSettings, Method, RecordedRuns, Scenario, TrainingRun
+from vitaplace.engine.config.scenario import EvaluationPair, EvaluationSettings, Method, RecordedRuns, Scenario, TrainingData
 from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
@@ -42,8 +42,8 @@ from vitaplace.plugins.mupnet.extractor import MupnetParams
 #: (heading, model, what it is) in the order the reference presents them
 SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("Scenario", Scenario, "the top level of a scenario file"),
-    ("train: TrainingRun", TrainingRun, "the training run"),
-    ("evaluations[]: EvaluationRuns", EvaluationRuns, "one evaluation environment (two runs, simulated or recorded)"),
+    ("train: TrainingData", TrainingData, "the training run"),
+    ("evaluations[]: EvaluationPair", EvaluationPair, "one evaluation environment (two runs, simulated or recorded)"),
     ("evaluations[].datasets: RecordedRuns", RecordedRuns, "an evaluation's two recorded runs (docs/DATA.md)"),
     ("run: RunSpec", RunSpec, "how the robot moves in a recorded run"),
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),

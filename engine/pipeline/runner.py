@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.config.scenario import EvaluationRuns, Method, Scenario, ScenarioError, TrainingRun, training_world_evaluation
+from vitaplace.engine.config.scenario import EvaluationPair, Method, Scenario, ScenarioError, TrainingData, training_world_evaluation
 from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run
 from vitaplace.engine.evaluation import evaluate as ev
 from vitaplace.engine.features import FeatureExtractor, load_features, save_features, warn_once
@@ -174,7 +174,7 @@ class Pipeline:
                     self.open(label).warnings.setdefault(feature, message)
 
     # ------------------------------------------------------------------ simulate
-    def runs(self) -> dict[str, tuple[TrainingRun | EvaluationRuns, int]]:
+    def runs(self) -> dict[str, tuple[TrainingData | EvaluationPair, int]]:
         """Every run of the scenario: label -> (spec, seed); `recorded` ones are not simulated."""
         s = self.scenario
         runs = {"train": (s.train, seed_for(s.seed, 0))}
@@ -222,7 +222,7 @@ class Pipeline:
                 continue
             assert entry.environment is not None and entry.run is not None  # validated: simulated
             environment = load_environment(entry.environment)
-            run = entry.run_for(label.rsplit("/", 1)[1]) if isinstance(entry, EvaluationRuns) else entry.run
+            run = entry.run_for(label.rsplit("/", 1)[1]) if isinstance(entry, EvaluationPair) else entry.run
             spec = [environment.model_dump(mode="json"), run.model_dump(mode="json")]
             key = content_hash("simulate", STAGE_VERSION["simulate"], SIMULATOR_VERSION, spec,
                                self.scenario.robot.model_dump(mode="json"), seed)

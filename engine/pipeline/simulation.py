@@ -58,7 +58,7 @@ def simulate_to_file(job: SimulationJob, progress: bool) -> tuple[int, float]:
 
 def log_simulated(label: str, samples: int, seconds: float, where: str = "") -> None:
     """The line a finished simulation logs: run, samples, seconds (and where it ran)."""
-    log.info("%-9s %-28s recorded %d samples in %.1f s%s", "simulate", label, samples, seconds, where)
+    log.info("%-9s %-28s simulated %d samples in %.1f s%s", "simulate", label, samples, seconds, where)
 
 
 def _log_finished(label: str, future: Future) -> None:
