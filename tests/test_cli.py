@@ -552,6 +552,22 @@ def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
     assert not list((out / "cache").rglob("*.h5")), "workers went on simulating after the interrupt"
 
 
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="process identities need /proc")
+def test_a_worker_whose_parent_is_not_the_one_named_exits_at_once():
+    """`die_with_parent` compares the worker's parent with the identity (pid and start time)
+    handed down: the right one lets the worker go on, another (a parent that died and left
+    the worker to a new one) ends it with exit status 1 before it does anything."""
+    from vitaplace.engine.pipeline.processes import process_identity
+
+    code = ("import sys; from vitaplace.engine.pipeline.processes import die_with_parent; "
+            "die_with_parent(sys.argv[1]); print('went on')")
+    here = process_identity(os.getpid())
+    pid, start = here.split(":")
+    for parent, status, out in ((here, 0, "went on\n"), (f"{pid}:{int(start) + 1}", 1, ""), (f"1:{start}", 1, "")):
+        result = subprocess.run([sys.executable, "-c", code, parent], capture_output=True, text=True, timeout=120)
+        assert (result.returncode, result.stdout) == (status, out), (parent, result.stderr[-2000:])
+
+
 @pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
 def test_a_damaged_cache_is_recomputed_with_one_line_each(tmp_path):
     """Flip a byte of a recorded dataset, truncate a feature file, delete a file of a trained
@@ -632,6 +648,25 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     reference = route.distance(open_run(pipeline.dataset_path("E1/reference")).poses[:, :2])
     assert query[:20].max() < 0.1 and reference.max() < 0.1
     assert query[-12:].min() > 0.4  # the detour starts at sample 20; ~8 samples to get there
+
+
+def test_until_runs_the_stages_up_to_and_including_the_one_named(tmp_path):
+    """``until="fit"``: the runs are simulated and the method fitted, nothing transformed or
+    evaluated; the completion record covers the manifest alone (no results, no report)."""
+    from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.pipeline import completion
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
+
+    overrides = ["train.run.n_samples=5", "evaluations.0.run.n_samples=5", "methods=[{name: H, plugin: handcrafted}]"]
+    scenario, resolved = load_scenario("quickstart", overrides)
+    pipeline = Pipeline(scenario, resolved, tmp_path, progress=False, workers=1)
+    assert run_stages(pipeline, until="fit") == []
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert {(r["stage"], r["item"]) for r in manifest["stages"]} == {
+        ("simulate", "train"), ("simulate", "E1/query"), ("simulate", "E1/reference"), ("fit", "H")}
+    assert "features" not in manifest
+    assert list(json.loads((tmp_path / completion.RECORD).read_text())["files"]) == ["manifest.json"]
 
 
 # --------------------------------------------------------------------------- CLI habits

@@ -35,8 +35,8 @@ def test_every_snippet_applies_exactly_once(mutation):
 
 
 def test_a_snippet_that_no_longer_applies_is_named(mutation, tmp_path):
-    (tmp_path / "engine").mkdir()
-    (tmp_path / "engine" / "pc.py").write_text("LATENT_INIT = 0.2\n")
+    (tmp_path / "engine" / "network").mkdir(parents=True)
+    (tmp_path / "engine" / "network" / "pc.py").write_text("LATENT_INIT = 0.2\n")
     gone = mutation.Mutant("pc: latent init", "pc", "LATENT_INIT = 0.1", "LATENT_INIT = 0.0", ())
     assert mutation.stale([gone], tmp_path) == ["'pc: latent init': its snippet occurs not exactly once in engine/network/pc.py (0 times)"]
 
