@@ -106,6 +106,7 @@ MODULES = {
     "mlflow_tracking": "plugins/mlflow_tracking.py",
     "api": "api/__init__.py",
     "testing": "api/testing.py",
+    "sensitivity": "engine/evaluation/sensitivity.py",
 }
 
 
@@ -347,6 +348,9 @@ MUTANTS = [
     m("report: no warning when exactly half hit the cap", "report",
       "if capped / samples >= CAP_WARNING_SHARE:", "if capped / samples > CAP_WARNING_SHARE:",
       *t("reports", "test_the_report_warns_when_most_test_time_inferences_hit_the_cap")),
+    m("sensitivity: recall at 100 % precision reported as max F1", "sensitivity",
+      '"recall_at_100_precision": curve.recall_at_full_precision})', '"recall_at_100_precision": curve.max_f1})',
+      *t("sensitivity", "test_rescore_matches_hand_computed_curves")),
     m("testing: the subset check compares the rows in the wrong order", "testing",
       "    problems = _differences({key: np.asarray(value)[index] for key, value in whole.items()}, part)",
       "    problems = _differences({key: np.asarray(value)[index[::-1]] for key, value in whole.items()}, part)",

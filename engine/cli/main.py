@@ -134,6 +134,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("folders", nargs="+", type=Path, metavar="DIR", help="run folders (vitaplace run --set seed=N --out DIR)")
     p.add_argument("--out", type=Path, help="where the summary goes (default: the folders' common parent)")
+    p = sub.add_parser(
+        "sensitivity", parents=[common],
+        help="rescore a run's or sweep's saved evaluations for other revisit and heading tolerances",
+    )
+    p.add_argument("folder", type=Path, metavar="DIR", help="a finished run folder or a sweep folder (seed-*/)")
+    p.add_argument("--tau", type=float, nargs="+", help="revisit tolerances in metres (default 0.2 0.3 0.5)")
+    p.add_argument("--heading-tolerance", type=float, metavar="DEG",
+                   help="heading tolerance scored beside position only (default 30)")
+    p.add_argument("--out", type=Path, help="where sensitivity.csv/.md/.json go (default: DIR)")
     _add_viewing_commands(sub, common)
     _add_completion(parser)
     return parser
@@ -255,7 +264,7 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
 
 def _report_folder(args: argparse.Namespace) -> int:
     """`vitaplace report OUT`: report.md and the figures rebuilt from a run's output folder alone."""
-    from vitaplace.engine.report import rebuild_report
+    from vitaplace.engine.evaluation.report import rebuild_report
 
     given = [flag for flag, value in (("--set", args.overrides), ("--force", args.force), ("--out", args.out),
                                       ("--json", args.json)) if value]
@@ -421,6 +430,15 @@ def _aggregate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _sensitivity(args: argparse.Namespace) -> int:
+    from vitaplace.engine.evaluation.sensitivity import write_sensitivity
+
+    grid = {"taus": args.tau, "heading_tolerance_deg": args.heading_tolerance}
+    out, record = write_sensitivity(args.folder, args.out, **{k: v for k, v in grid.items() if v is not None})
+    print(f"sensitivity of {len(record['seeds'])} seed(s) in {out / 'sensitivity.md'}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """The command line; a Ctrl-C at any moment (even while parsing or importing) ends it with one line."""
     try:
@@ -447,6 +465,8 @@ def _main(argv: list[str] | None) -> int:
             return _sweep(args)
         if args.command == "aggregate":
             return _aggregate(args)
+        if args.command == "sensitivity":
+            return _sensitivity(args)
         if args.command == "import":
             return _import(args)
         if args.command in ("view", "video"):

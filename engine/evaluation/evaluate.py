@@ -568,7 +568,8 @@ def evaluate_pair(
     reference_touch: np.ndarray | None = None,
 ) -> dict:
     """Everything about one query run against one reference run, written to ``folder``:
-    the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM), the
+    the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM and
+    the poses, so that other ground truths can be scored later: `vitaplace.engine.sensitivity`), the
     decisions at the F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR
     curve (``pr_curve.npz``); returns the summary (`evaluate`) with ``heading_tolerance_deg``
     and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks, when given)
@@ -580,7 +581,7 @@ def evaluate_pair(
     summary["heading_tolerance_deg"] = heading_tolerance_deg
     summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
     decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
-    export_matrices_npz(folder / MATRICES, tme, gtm)
+    export_matrices_npz(folder / MATRICES, tme, gtm, query_poses=query_poses, reference_poses=reference_poses)
     export_decisions_csv(folder / DECISIONS_CSV, decisions)
     save_curve_and_decisions(folder, curve, decisions)
     return summary

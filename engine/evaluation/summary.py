@@ -301,7 +301,8 @@ def paired_differences(long: Sequence[Mapping[str, Any]], replicates: Replicates
     return table
 
 
-def _csv(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
+def csv_text(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
+    """``rows`` as CSV text with a header of ``columns``."""
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=list(columns), lineterminator="\n")
     writer.writeheader()
@@ -389,14 +390,14 @@ def latex(summary: Sequence[Mapping], diffs: Sequence[Mapping]) -> str:
     return "\n".join(out)
 
 
-def _json_safe(value: Any) -> Any:
+def json_safe(value: Any) -> Any:
     """NaN and infinities as null (strict JSON)."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, Mapping):
-        return {k: _json_safe(v) for k, v in value.items()}
+        return {k: json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
+        return [json_safe(v) for v in value]
     return value
 
 
@@ -409,13 +410,13 @@ def write_summary(out: Path, rows: Sequence[Mapping[str, Any]], title: str, info
     replicates = block_replicates(rows, folders or {})
     long = seed_rows(rows, replicates)
     summary, diffs = summarise(long, replicates), paired_differences(long, replicates)
-    write_text_atomic(out / "sweep-seeds.csv", _csv(long, SEED_COLUMNS))
-    write_text_atomic(out / "sweep.csv", _csv(summary, SUMMARY_COLUMNS))
-    write_text_atomic(out / "sweep-diff.csv", _csv(diffs, DIFF_COLUMNS))
+    write_text_atomic(out / "sweep-seeds.csv", csv_text(long, SEED_COLUMNS))
+    write_text_atomic(out / "sweep.csv", csv_text(summary, SUMMARY_COLUMNS))
+    write_text_atomic(out / "sweep-diff.csv", csv_text(diffs, DIFF_COLUMNS))
     write_text_atomic(out / "sweep.md", markdown(summary, diffs, title))
     write_text_atomic(out / "sweep.tex", latex(summary, diffs))
     definitions = {**DEFINITIONS, "block_resamples": resample.RESAMPLES}
     record = {**info, "statistics": definitions, "runs": list(rows), "values": long, "summary": summary,
               "differences": diffs}
-    write_text_atomic(out / "sweep.json", json.dumps(_json_safe(record), indent=2))
+    write_text_atomic(out / "sweep.json", json.dumps(json_safe(record), indent=2))
     return record

@@ -43,7 +43,7 @@ from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 3, "report": 6}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 4, "report": 6}
 
 log = logging.getLogger("vitaplace")
 

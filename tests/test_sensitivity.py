@@ -1,0 +1,124 @@
+"""`vitaplace sensitivity`: scores rescored from an evaluation's saved matrices for other
+revisit and heading tolerances, checked against hand-computed PR curves and against the
+evaluation's own result at its own setting."""
+
+import csv
+import math
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from vitaplace.engine.cli.main import main  # noqa: E402
+from vitaplace.engine.evaluation.sensitivity import rescore  # noqa: E402
+
+ENV_E1 = Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml"
+
+# Three references on the x axis; r2 faces the other way (yaw pi).
+REFERENCES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, math.pi]])
+# q0 is 0.25 m from r0, q1 0.4 m from r1, q2 0.1 m from r2 but facing 180 degrees away.
+QUERIES = np.array([[0.25, 0.0, 0.0], [1.4, 0.0, 0.0], [2.0, 0.1, 0.0]])
+# Each query's best match is its own reference, accepted in the order q1 (0.1), q0 (0.2), q2 (0.3).
+TME = np.array([[0.2, 5.0, 5.0], [5.0, 0.1, 5.0], [5.0, 5.0, 0.3]])
+
+# (heading tolerance, tau) -> (n_revisit, max F1, recall at 100 % precision), by hand:
+# position only, tau 0.2: only q2 is correct (n 1); q1, q0 accepted first and wrong, so
+#   F1 peaks when all three are accepted: P 1/3, R 1 -> 0.5; precision 1 only with nothing accepted.
+# position only, tau 0.3: q0 and q2 correct (n 2), q1 wrong and first: at delta 0.3 P 2/3, R 1 -> 0.8.
+# position only, tau 0.5: all correct: F1 1 at delta 0.3, every prefix has precision 1.
+# heading <= 30 deg: q2's only reference within reach faces away, so q2 has no match:
+#   tau 0.2: no query has a match (n 0): recall and F1 are 0 everywhere;
+#   tau 0.3: only q0 (n 1); q1 wrong first: at delta 0.2 P 1/2, R 1 -> 2/3;
+#   tau 0.5: q0 and q1 (n 2), accepted first: F1 1 at delta 0.2, R 1 at precision 1.
+EXPECTED = {
+    (None, 0.2): (1, 0.5, 0.0),
+    (None, 0.3): (2, 0.8, 0.0),
+    (None, 0.5): (3, 1.0, 1.0),
+    (30.0, 0.2): (0, 0.0, 0.0),
+    (30.0, 0.3): (1, 2 / 3, 0.0),
+    (30.0, 0.5): (2, 1.0, 1.0),
+}
+
+
+def test_rescore_matches_hand_computed_curves():
+    rows = rescore(TME, QUERIES, REFERENCES, (0.2, 0.3, 0.5), (30.0, None))
+    got = {(r["heading_tolerance_deg"], r["tau"]): (r["n_revisit"], r["max_f1"], r["recall_at_100_precision"])
+           for r in rows}
+    assert got.keys() == EXPECTED.keys()
+    for key, (n, f1, r100) in EXPECTED.items():
+        assert got[key][0] == n, key
+        assert got[key][1:] == pytest.approx((f1, r100)), key
+
+
+@pytest.fixture(scope="module")
+def run_folder(tmp_path_factory) -> Path:
+    """A finished tiny run (hand-crafted features, 5-sample runs) evaluated in both directions."""
+    import yaml
+
+    tmp = tmp_path_factory.mktemp("sensitivity")
+    scenario = {
+        "name": "tiny",
+        "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 5}},
+        "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 5}}],
+        "methods": [{"name": "H", "plugin": "handcrafted"}],
+        "evaluation": {"tau": 0.3, "heading_tolerance_deg": 30.0, "direction": "both"},
+    }
+    path = tmp / "tiny.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    out = tmp / "run"
+    assert main(["run", str(path), "--out", str(out), "--no-progress", "-q"]) == 0
+    return out
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_command_reproduces_the_evaluation_at_its_own_setting(run_folder, tmp_path):
+    import json
+
+    assert main(["sensitivity", str(run_folder), "--out", str(tmp_path)]) == 0
+    rows = read_csv(tmp_path / "sensitivity.csv")
+    assert len(rows) == 2 * 3 * 2  # directions x taus x heading tolerances
+    assert {r["direction"] for r in rows} == {"query-to-reference", "reference-to-query"}
+    for result in json.loads((run_folder / "results.json").read_text()):
+        (own,) = [r for r in rows if r["direction"] == result["direction"] and float(r["tau"]) == 0.3
+                  and r["heading_tolerance_deg"] == "30.0"]
+        assert float(own["max_f1"]) == pytest.approx(result["max_f1"])
+        assert float(own["recall_at_100_precision"]) == pytest.approx(result["recall_at_100_precision"])
+        assert int(own["n_revisit"]) == result["n_revisit"]
+    assert "position only" in (tmp_path / "sensitivity.md").read_text()
+    record = json.loads((tmp_path / "sensitivity.json").read_text())
+    assert record["seeds"] == [0] and len(record["rows"]) == len(rows)
+
+
+def test_a_sweep_folder_reads_its_seed_folders(run_folder, tmp_path):
+    sweep = tmp_path / "sweep"
+    shutil.copytree(run_folder, sweep / "seed-0")
+    assert main(["sensitivity", str(sweep)]) == 0
+    assert main(["sensitivity", str(run_folder), "--out", str(tmp_path / "single")]) == 0
+    assert (sweep / "sensitivity.csv").read_bytes() == (tmp_path / "single" / "sensitivity.csv").read_bytes()
+
+
+def test_user_errors_are_one_line(run_folder, tmp_path, capsys):
+    old = tmp_path / "old"
+    shutil.copytree(run_folder, old)
+    matrices = old / "evaluations" / "E1" / "H" / "query-to-reference" / "matrices.npz"
+    with np.load(matrices) as saved:
+        np.savez_compressed(matrices, tme=saved["tme"], gtm=saved["gtm"])  # as evaluate stage 3 saved it
+    cases = {
+        "no query_poses": ["sensitivity", str(old)],
+        "expected positive distances": ["sensitivity", str(run_folder), "--tau", "0", "--out", str(tmp_path)],
+        "neither a run folder": ["sensitivity", str(tmp_path / "nothing")],
+    }
+    (tmp_path / "nothing").mkdir()
+    for message, args in cases.items():
+        assert main(args) == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], lines
+    assert not (old / "sensitivity.csv").exists()
