@@ -569,7 +569,7 @@ def evaluate_pair(
 ) -> dict:
     """Everything about one query run against one reference run, written to ``folder``:
     the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM and
-    the poses, so that other ground truths can be scored later: `vitaplace.engine.sensitivity`), the
+    the poses, so that other ground truths can be scored later: `vitaplace.engine.evaluation.sensitivity`), the
     decisions at the F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR
     curve (``pr_curve.npz``); returns the summary (`evaluate`) with ``heading_tolerance_deg``
     and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks, when given)
