@@ -27,8 +27,19 @@ def make_run(n: int = 5, s: int = 3, seed: int = 0) -> Run:
         contact_normals=normals,
         contact_offsets=np.concatenate([[0], np.cumsum(counts)]),
         name="unit",
-        attrs={"seed": 7, "scenario_hash": "abc123", "robot": {"whisk_hz": 2.0}, "camera": {"width": 16}},
+        attrs={"seed": 7, "run_key": "abc123", "robot": {"whisk_hz": 2.0}, "camera": {"width": 16}},
     )
+
+
+def test_a_file_from_before_the_engine_split_gives_its_scenario_hash_as_run_key(tmp_path):
+    """Run files written before the rename hold the key as ``scenario_hash``: it is read as ``run_key``."""
+    import h5py
+
+    path = write_run(tmp_path / "old.h5", make_run())
+    with h5py.File(path, "r+") as f:
+        f.attrs["scenario_hash"] = f.attrs["run_key"]
+        del f.attrs["run_key"]
+    assert open_run(path).attrs["run_key"] == "abc123"
 
 
 def test_round_trip(tmp_path):
@@ -41,7 +52,7 @@ def test_round_trip(tmp_path):
         assert a.dtype == b.dtype, key
         assert np.array_equal(a, b), key
     assert back.attrs["seed"] == 7
-    assert back.attrs["scenario_hash"] == "abc123"
+    assert back.attrs["run_key"] == "abc123"
     assert back.attrs["robot"] == {"whisk_hz": 2.0}
     assert back.n_whiskers == 24 and back.image_shape == (12, 16, 3)
     for i in range(len(run)):

@@ -141,7 +141,7 @@ def _store(group, name: str, value) -> bool:
 
 
 @settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", 60)), deadline=None)
-@given(target=st.sampled_from([*FIELDS, "schema_version", "seed", "name", "params", "scenario_hash", "bytes"]),
+@given(target=st.sampled_from([*FIELDS, "schema_version", "seed", "name", "params", "run_key", "bytes"]),
        value=run_values, delete=st.booleans(), offset=st.integers(0, 10**6))
 def test_any_mutated_run_file_gets_a_clean_answer(target, value, delete, offset):
     folder = Path(tempfile.mkdtemp())

@@ -423,7 +423,7 @@ def test_simulated_run_round_trips_through_hdf5(e1, tmp_path):
     back = open_run(write_run(tmp_path / "r.h5", run))
     for key in ("images", "theta", "xy", "deflection", "poses", "times", "contact_offsets"):
         assert np.array_equal(getattr(back, key), getattr(run, key)), key
-    assert back.attrs["seed"] == 9 and back.attrs["scenario_hash"] == run.attrs["scenario_hash"]
+    assert back.attrs["seed"] == 9 and back.attrs["run_key"] == run.attrs["run_key"]
     assert back.attrs["robot"] == run.attrs["robot"]
     assert back.attrs["environment"] == "e1"
 

@@ -13,7 +13,7 @@ W whiskers, M contacts in total):
     poses            (N, 3) float64           ground-truth x [m], y [m], yaw [rad]
     times            (N,) float64             simulation time of the sample [s]
 
-Root attributes: ``schema_version`` (integer), ``scenario_hash`` (text), ``seed``
+Root attributes: ``schema_version`` (integer), ``run_key`` (text; ``scenario_hash`` in older files), ``seed``
 (integer), ``name`` (text), ``vitaplace_version`` (text) and ``params`` (text: a JSON
 object: robot, camera, environment, ...). Files are written under a temporary name and
 renamed when complete.
@@ -266,9 +266,9 @@ def write_run(path: str | os.PathLike, run: Run) -> Path:
         f.attrs["schema_version"] = SCHEMA_VERSION
         f.attrs["name"] = run.name
         f.attrs["vitaplace_version"] = __version__
-        f.attrs["scenario_hash"] = str(run.attrs.get("scenario_hash", ""))
+        f.attrs["run_key"] = str(run.attrs.get("run_key", ""))
         f.attrs["seed"] = int(run.attrs.get("seed", -1))
-        params = {k: v for k, v in run.attrs.items() if k not in ("scenario_hash", "seed")}
+        params = {k: v for k, v in run.attrs.items() if k not in ("run_key", "seed")}
         f.attrs["params"] = json.dumps(params, sort_keys=True, default=_json_default)
     return path
 
@@ -337,9 +337,11 @@ def _text(value: Any) -> str | None:
 
 def _attributes(f: Any, where: str) -> dict[str, Any]:
     """The run's attributes, each of its schema type (module docstring): ``params``' object
-    with ``scenario_hash``, ``seed`` and ``name`` added."""
+    with ``run_key``, ``seed`` and ``name`` added (files written before the engine split
+    call ``run_key`` ``scenario_hash``; it is read under either name)."""
     found: dict[str, Any] = {}
-    for key, kind, read in (("scenario_hash", "text", _text), ("name", "text", _text), ("seed", "an integer", _integer),
+    for key, kind, read in (("run_key", "text", _text), ("scenario_hash", "text", _text), ("name", "text", _text),
+                            ("seed", "an integer", _integer),
                             ("params", "text", _text), ("vitaplace_version", "text", _text)):
         if key in f.attrs:
             found[key] = read(f.attrs[key])
@@ -351,7 +353,7 @@ def _attributes(f: Any, where: str) -> dict[str, Any]:
         raise DatasetError(f"{where}: attribute 'params' is not valid JSON ({exc})") from None
     if not isinstance(attrs, dict):
         raise DatasetError(f"{where}: attribute 'params' is {type(attrs).__name__} JSON, expected a JSON object")
-    attrs["scenario_hash"] = found.get("scenario_hash", "")
+    attrs["run_key"] = found.get("run_key", found.get("scenario_hash", ""))
     attrs["seed"] = found.get("seed", -1)
     if "name" in found:
         attrs["name"] = found["name"]

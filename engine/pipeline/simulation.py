@@ -51,7 +51,7 @@ def simulate_to_file(job: SimulationJob, progress: bool) -> tuple[int, float]:
     start = time.perf_counter()
     simulated = simulate_run(load_environment(job.environment), RunSpec(**job.run), seed=job.seed,
                              robot=RobotSpec(**job.robot), progress=progress, name=job.label)
-    simulated.attrs["scenario_hash"] = job.key
+    simulated.attrs["run_key"] = job.key
     write_run(job.path, simulated)
     return len(simulated), time.perf_counter() - start
 

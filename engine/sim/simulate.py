@@ -273,7 +273,7 @@ def run_from_samples(sim: Simulator, samples: Samples, environment: EnvironmentS
     layout = sim.sim.layout
     attrs: dict[str, Any] = {
         "seed": int(seed),
-        "scenario_hash": run_hash(environment, run, robot, seed),
+        "run_key": run_hash(environment, run, robot, seed),
         "environment": environment.name,
         "environment_spec": environment.model_dump(mode="json"),
         "robot": robot.model_dump(mode="json"),
