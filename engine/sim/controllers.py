@@ -48,6 +48,7 @@ not revisits and true negatives occur.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Annotated, Any, Literal
 
@@ -444,7 +445,7 @@ class Attention:
         return float(np.linalg.norm(self.target - s.pos))
 
 
-class ForagingState:
+class ForagingState(ABC):
     """One mode of the foraging controller. `step` returns the command for this tick and an
     event ("" for none) that `TRANSITIONS` maps to the next state; a step without a command
     hands over at once (the next state acts in the same tick)."""
@@ -458,8 +459,9 @@ class ForagingState:
     def enter(self, s: Surroundings) -> None:
         """Called when the controller switches to this state."""
 
+    @abstractmethod
     def step(self, s: Surroundings) -> tuple[Command | None, str]:
-        raise NotImplementedError
+        """This tick's command (None: hand over at once) and event."""
 
     def _turn(self, w: float) -> float:
         return float(np.clip(w, -self.max_turn, self.max_turn))
