@@ -6,7 +6,7 @@ MLflow run in that experiment, at MLflow's own tracking URI (``MLFLOW_TRACKING_U
 default MLflow's local store in the working folder). Install the client with
 ``pip install "vitaplace[mlflow]"``. Logged (docs/plugins.md, "Experiment tracking"):
 
-* params: the scenario's name and seed, its evaluation settings (``evaluation.tau``, ...)
+* params: the scenario's name and seed, its evaluation settings (``scoring.tau``, ...)
   and every method's plugin and the parameters the scenario sets
   (``methods.L.plugin``, ``methods.L.epochs``, ...);
 * metrics: per results row ``ENVIRONMENT/METHOD/DIRECTION/METRIC`` for `METRICS`;
@@ -45,7 +45,7 @@ def _flat(prefix: str, values: Mapping[str, Any]) -> dict[str, str]:
 def run_params(scenario: Any) -> dict[str, str]:
     """The MLflow params of a scenario: name, seed, evaluation settings, methods."""
     params = {"scenario": scenario.name, "seed": str(scenario.seed)}
-    params.update(_flat("evaluation", scenario.evaluation.model_dump(mode="json")))
+    params.update(_flat("scoring", scenario.scoring.model_dump(mode="json")))
     for method in scenario.methods:
         params[f"methods.{method.name}.plugin"] = method.plugin
         params.update(_flat(f"methods.{method.name}", method.params))

@@ -49,10 +49,10 @@ def test_overrides_as_a_mapping_or_as_set_strings_mean_the_same():
     as_mapping = vitaplace.load_scenario("quickstart", {"seed": 7, "methods.1.params": {"grid": [4, 8]}})
     as_strings = vitaplace.load_scenario("quickstart", ["seed=7", "methods.1.params={grid: [4, 8]}"])
     assert as_mapping == as_strings and as_mapping.seed == 7 and as_mapping.methods[1].params == {"grid": [4, 8]}
-    assert vitaplace.load_scenario("quickstart", {"evaluation.delta": 0.5, "seed": 1}).evaluation.delta == 0.5
-    assert vitaplace.load_scenario("quickstart", {"evaluation.delta": None}).evaluation.delta is None  # not "None"
-    with pytest.raises(vitaplace.UserError, match=r"evaluation\.tau"):
-        vitaplace.load_scenario("quickstart", {"evaluation.tau": -1})
+    assert vitaplace.load_scenario("quickstart", {"scoring.delta": 0.5, "seed": 1}).scoring.delta == 0.5
+    assert vitaplace.load_scenario("quickstart", {"scoring.delta": None}).scoring.delta is None  # not "None"
+    with pytest.raises(vitaplace.UserError, match=r"scoring\.tau"):
+        vitaplace.load_scenario("quickstart", {"scoring.tau": -1})
     with pytest.raises(vitaplace.UserError, match="until='plot'"):
         vitaplace.run("quickstart", until="plot")
 

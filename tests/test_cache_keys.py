@@ -60,7 +60,7 @@ def setup(tmp_path):
         "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 5}},
         "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 8}}],
         "methods": [{"name": "O", "plugin": "oracle"}],
-        "evaluation": {"tau": 0.3},
+        "scoring": {"tau": 0.3},
     }))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(site), os.environ.get("PYTHONPATH", "")]),
            "PYTHONDONTWRITEBYTECODE": "1", "VITAPLACE_PLUGINS": "oracle"}

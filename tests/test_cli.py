@@ -44,7 +44,7 @@ def valid_scenario() -> dict:
         "train": {"environment": ENV_E1, "run": {"kind": "foraging", "n_samples": 5}},
         "evaluations": [{"name": "E1", "environment": ENV_E1, "run": {"kind": "route", "n_samples": 5}}],
         "methods": [{"name": "H", "plugin": "handcrafted"}],
-        "evaluation": {"tau": 0.3},
+        "scoring": {"tau": 0.3},
     }
 
 
@@ -60,22 +60,22 @@ def test_valid_scenario_validates(tmp_path, capsys):
 
 
 BAD = {
-    "wrong type": (lambda d: d["evaluation"].update(tau="far"), r"evaluation\.tau: .*number"),
+    "wrong type": (lambda d: d["scoring"].update(tau="far"), r"scoring\.tau: .*number"),
     "unknown key": (lambda d: d.update(colour="red"), r"colour: unknown key"),
-    "typo": (lambda d: d["evaluation"].update(tua=0.3), r"evaluation\.tua: unknown key; did you mean 'tau'\?"),
+    "typo": (lambda d: d["scoring"].update(tua=0.3), r"scoring\.tua: unknown key; did you mean 'tau'\?"),
     "missing file": (lambda d: d["train"].update(environment="nowhere.yaml"), r"train\.environment: no such file"),
     "unknown plugin": (
         lambda d: d["methods"][0].update(plugin="sift"),
         r"methods\.0\.plugin: unknown feature extractor 'sift'; available: .*handcrafted.*mupnet",
     ),
-    "negative tau": (lambda d: d["evaluation"].update(tau=-1), r"evaluation\.tau: .*greater than 0"),
-    "zero tau": (lambda d: d["evaluation"].update(tau=0), r"evaluation\.tau: .*greater than 0"),
-    "infinite tau": (lambda d: d["evaluation"].update(tau=float("inf")), r"evaluation\.tau: .*finite"),
+    "negative tau": (lambda d: d["scoring"].update(tau=-1), r"scoring\.tau: .*greater than 0"),
+    "zero tau": (lambda d: d["scoring"].update(tau=0), r"scoring\.tau: .*greater than 0"),
+    "infinite tau": (lambda d: d["scoring"].update(tau=float("inf")), r"scoring\.tau: .*finite"),
     # the faithful E1 is 6.05 m square: its diagonal is 8.56 m
-    "tau over the diagonal": (lambda d: d["evaluation"].update(tau=9.0), r"evaluation\.tau: 9\.0 m is not below the 8\.56 m"),
-    "nan delta": (lambda d: d["evaluation"].update(delta=float("nan")), r"evaluation\.delta: .*finite"),
+    "tau over the diagonal": (lambda d: d["scoring"].update(tau=9.0), r"scoring\.tau: 9\.0 m is not below the 8\.56 m"),
+    "nan delta": (lambda d: d["scoring"].update(delta=float("nan")), r"scoring\.delta: .*finite"),
     "heading tolerance past 180": (
-        lambda d: d["evaluation"].update(heading_tolerance_deg=200), r"evaluation\.heading_tolerance_deg: .*180"
+        lambda d: d["scoring"].update(heading_tolerance_deg=200), r"scoring\.heading_tolerance_deg: .*180"
     ),
     "one evaluation sample": (
         lambda d: d["evaluations"][0]["run"].update(n_samples=1), r"evaluations\.0\.run: .*at least 5 samples"
@@ -136,7 +136,7 @@ def test_missing_scenario_file(tmp_path):
 
 def test_bad_override_is_reported(tmp_path):
     path = write_scenario(tmp_path, valid_scenario())
-    result = run_cli(["validate", str(path), "--set", "evaluation.tau"])
+    result = run_cli(["validate", str(path), "--set", "scoring.tau"])
     assert result.returncode == 2 and "expected key.path=value" in result.stderr
 
 
@@ -150,10 +150,34 @@ def test_extends_merges_over_the_base(tmp_path):
     from vitaplace.engine.config.loading import load_scenario
 
     base = write_scenario(tmp_path, valid_scenario(), "base.yaml")
-    child = write_scenario(tmp_path, {"extends": base.name, "name": "child", "evaluation": {"tau": 0.5}}, "child.yaml")
+    child = write_scenario(tmp_path, {"extends": base.name, "name": "child", "scoring": {"tau": 0.5}}, "child.yaml")
     scenario, _ = load_scenario(child)
-    assert scenario.name == "child" and scenario.evaluation.tau == 0.5
+    assert scenario.name == "child" and scenario.scoring.tau == 0.5
     assert scenario.methods[0].plugin == "handcrafted"
+
+
+def test_the_old_scoring_key_is_read_with_a_warning(tmp_path, caplog):
+    """`scoring:` was called `evaluation:`; files and --set paths that say so still load, as
+    `scoring`, each with one warning naming the file or the assignment; a file setting both
+    names is an error naming it."""
+    from vitaplace.engine.config.loading import load_scenario
+
+    old = {k: v for k, v in valid_scenario().items() if k != "scoring"} | {"evaluation": {"tau": 0.5}}
+    base = write_scenario(tmp_path, old, "base.yaml")
+    child = write_scenario(tmp_path, {"extends": base.name, "name": "child", "scoring": {"direction": "both"}}, "child.yaml")
+    with caplog.at_level("WARNING", logger="vitaplace"):
+        scenario, raw = load_scenario(child, ["evaluation.heading_tolerance_deg=null"])
+    assert (scenario.scoring.tau, scenario.scoring.direction, scenario.scoring.heading_tolerance_deg) == (0.5, "both", None)
+    assert "evaluation" not in raw and raw["scoring"]["tau"] == 0.5
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warnings) == 2, warnings
+    assert str(base.resolve()) in warnings[0] and "'evaluation' is now called 'scoring'" in warnings[0]
+    assert "--set 'evaluation.heading_tolerance_deg=null'" in warnings[1]
+
+    both = write_scenario(tmp_path, valid_scenario() | {"evaluation": {"tau": 0.5}}, "both.yaml")
+    result = run_cli(["validate", str(both)])
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert re_line(result.stderr, rf"both\.yaml: both 'evaluation' and 'scoring' are set"), result.stderr
 
 
 @pytest.fixture(scope="module")
@@ -239,7 +263,7 @@ def test_cache_redoes_exactly_what_a_change_touches(tmp_path):
     ran = {key for key, s in status.items() if s == "ran"}
     assert ran == {("fit", "L"), ("transform", "L E1/query"), ("transform", "L E1/reference"),
                    ("evaluate", "E1 L query-to-reference"), ("report", "report")}, ran
-    status = _rerun(out, "methods.0.params.epochs=3", "evaluation.tau=0.4")
+    status = _rerun(out, "methods.0.params.epochs=3", "scoring.tau=0.4")
     ran = {key for key, s in status.items() if s == "ran"}
     assert ran == {("evaluate", "E1 L query-to-reference"), ("evaluate", "E1 H query-to-reference"),
                    ("report", "report")}, ran
@@ -757,18 +781,18 @@ def test_set_appends_to_a_list_and_refuses_anything_else(capsys):
     from vitaplace.engine.config.scenario import ScenarioError
     from vitaplace.engine.config.overrides import apply_overrides
 
-    data = {"methods": [{"name": "L"}], "evaluation": {"tau": 0.3}}
+    data = {"methods": [{"name": "L"}], "scoring": {"tau": 0.3}}
     appended = apply_overrides(data, ["methods+={name: L2, plugin: mupnet, params: {epochs: 1}}"])
     assert appended["methods"] == [{"name": "L"}, {"name": "L2", "plugin": "mupnet", "params": {"epochs": 1}}]
     assert data["methods"] == [{"name": "L"}]
     assert main(["validate", "quickstart", "--set", "methods+={name: L2, plugin: handcrafted}"]) == 0
     assert "methods L, H, L2" in capsys.readouterr().out
-    for bad in ("evaluation.tau+=1", "evaluation.recall_k+=20", "methods.0.name+=x"):
+    for bad in ("scoring.tau+=1", "scoring.recall_k+=20", "methods.0.name+=x"):
         with pytest.raises(ScenarioError, match=r"\+= appends to a list"):
             apply_overrides(data, [bad])
-    assert main(["validate", "quickstart", "--set", "evaluation.tau+=1"]) == 2
+    assert main(["validate", "quickstart", "--set", "scoring.tau+=1"]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and "'evaluation.tau' is a float, not a list" in lines[0], lines
+    assert len(lines) == 1 and "'scoring.tau' is a float, not a list" in lines[0], lines
 
 
 def test_validate_checks_environment_files(tmp_path, capsys):
@@ -916,7 +940,7 @@ def test_results_csv_has_precision_recall_f1_at_max_f1_without_fixed_delta(quiet
     with open(out / "results.csv", newline="") as f:
         for line in csv.DictReader(f):
             row = rows[line["method"]]
-            assert "f1" not in row  # no evaluation.delta in the scenario
+            assert "f1" not in row  # no scoring.delta in the scenario
             assert float(line["f1"]) == pytest.approx(row["max_f1"])
             assert float(line["precision"]) == pytest.approx(row["precision_at_max_f1"])
             assert float(line["recall"]) == pytest.approx(row["recall_at_max_f1"])

@@ -24,7 +24,7 @@ VALID = {
     "train": {"environment": E1, "run": {"kind": "foraging", "n_samples": 5}},
     "evaluations": [{"name": "E1", "environment": E1, "run": {"kind": "route", "n_samples": 5}}],
     "methods": [{"name": "H", "plugin": "handcrafted"}, {"name": "L", "plugin": "mupnet", "params": {"epochs": 2}}],
-    "evaluation": {"tau": 0.3},
+    "scoring": {"tau": 0.3},
     "robot": {"whisk_hz": 2.0},
 }
 
@@ -37,7 +37,7 @@ values = st.recursive(scalars, lambda inner: st.lists(inner, max_size=4) | st.di
                       max_leaves=12)
 # a path into the valid scenario, and what to put there (or delete it)
 paths = st.lists(st.sampled_from(["name", "train", "run", "n_samples", "kind", "environment", "evaluations", 0,
-                                   "methods", 1, "params", "epochs", "image_size", "evaluation", "tau", "delta",
+                                   "methods", 1, "params", "epochs", "image_size", "scoring", "evaluation", "tau", "delta",
                                    "robot", "whisk_hz", "spring_stiffness", "seed", "extends", "plugin"]),
                  min_size=1, max_size=4)
 
@@ -192,7 +192,7 @@ def _finished_folder(folder: Path, seed: int) -> None:
     tme = np.abs(np.subtract.outer(np.arange(6.0), np.arange(6.0))) + 0.1 * seed
     evaluation = folder / "evaluations" / "E1" / "M" / "query-to-reference"
     summary = evaluate_pair(evaluation, tme, poses, poses, 0.3)
-    (folder / "scenario.resolved.yaml").write_text(yaml.safe_dump({"name": "fuzz", "seed": seed, "evaluation": {"tau": 0.3}}))
+    (folder / "scenario.resolved.yaml").write_text(yaml.safe_dump({"name": "fuzz", "seed": seed, "scoring": {"tau": 0.3}}))
     (folder / "manifest.json").write_text(json.dumps({"scenario": "fuzz", "seed": seed}))
     rows = [{"environment": "E1", "method": "M", "direction": "query-to-reference", **summary}]
     (folder / "results.json").write_text(json.dumps(rows))

@@ -166,7 +166,7 @@ def _recorded_scenario(tmp_path: Path) -> tuple[Path, dict[str, Path]]:
     scenario = {
         "name": "recorded", "train": {"dataset": str(files["train"])},
         "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]), "reference": str(files["reference"])}}],
-        "methods": [{"name": "H", "plugin": "handcrafted", "params": {"grid": [4, 8]}}], "evaluation": {"tau": 0.5},
+        "methods": [{"name": "H", "plugin": "handcrafted", "params": {"grid": [4, 8]}}], "scoring": {"tau": 0.5},
     }
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump(scenario))
@@ -247,7 +247,7 @@ def test_a_finished_run_is_logged_to_mlflow_when_asked(tmp_path, monkeypatch):
     assert fake.calls[1][:2] == ("start_run", "recorded seed 0") and fake.calls[-1] == ("end_run",)
     manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
     assert fake.calls[1][2]["git.commit"] == str(manifest["git_commit"]) and fake.calls[1][2]["vitaplace.stage"] == "report"
-    assert fake.params["seed"] == "0" and fake.params["evaluation.tau"] == "0.5"
+    assert fake.params["seed"] == "0" and fake.params["scoring.tau"] == "0.5"
     assert fake.params["methods.H.plugin"] == "handcrafted" and fake.params["methods.H.grid"] == "[4, 8]"
     rows = json.loads((tmp_path / "out" / "results.json").read_text())
     for row in rows:

@@ -65,7 +65,7 @@ def run_folder(tmp_path_factory) -> Path:
         "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 5}},
         "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 5}}],
         "methods": [{"name": "H", "plugin": "handcrafted"}],
-        "evaluation": {"tau": 0.3, "heading_tolerance_deg": 30.0, "direction": "both"},
+        "scoring": {"tau": 0.3, "heading_tolerance_deg": 30.0, "direction": "both"},
     }
     path = tmp / "tiny.yaml"
     path.write_text(yaml.safe_dump(scenario))

@@ -20,7 +20,7 @@ def test_each_touch_model_runs_the_six_methods_on_one_set_of_runs():
         scenario = pipeline(name, 0).scenario
         assert [m.name for m in scenario.methods] == SIX
         assert scenario.robot.tactile_model == touch
-        assert scenario.evaluation.direction == "both"
+        assert scenario.scoring.direction == "both"
         modalities = {m.name: m.params.get("modalities") for m in scenario.methods if m.plugin == "mupnet"}
         assert modalities == {"L": None, "L-V": ["visual"], "L-T": ["tactile"]}
 

@@ -75,7 +75,7 @@ def tiny_scenario(fail_seed: int = -1) -> dict:
         "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 5}}],
         "methods": [{"name": "O", "plugin": "fails-for-one-seed", "params": {"fail_for": fail_for}},
                     {"name": "H", "plugin": "handcrafted"}],
-        "evaluation": {"tau": 0.3},
+        "scoring": {"tau": 0.3},
     }
 
 
@@ -144,12 +144,26 @@ def test_aggregate_reproduces_the_sweep_summary(local_sweep, tmp_path):
         assert (tmp_path / name).read_bytes() == (out / name).read_bytes(), name
 
 
+def test_a_seed_written_before_the_scoring_rename_aggregates_with_one_after(local_sweep, tmp_path):
+    """A seed folder whose resolved scenario still says `evaluation:` (written before the key
+    became `scoring:`) is the same scenario as one that says `scoring:`."""
+    out, _ = local_sweep
+    old = tmp_path / "old"
+    shutil.copytree(out / "seed-2", old)
+    resolved = yaml.safe_load((old / "scenario.resolved.yaml").read_text())
+    resolved = {("evaluation" if key == "scoring" else key): value for key, value in resolved.items()}
+    (old / "scenario.resolved.yaml").write_text(yaml.safe_dump(resolved))
+    reseal(old)
+    assert main(["aggregate", str(out / "seed-0"), str(old), "--out", str(tmp_path / "summary")]) == 0
+    assert (tmp_path / "summary" / "sweep.csv").read_bytes() == (out / "sweep.csv").read_bytes()
+
+
 def test_aggregate_refuses_other_scenarios_and_unfinished_runs(local_sweep, tmp_path, capsys):
     out, _ = local_sweep
     other = tmp_path / "other"
     shutil.copytree(out / "seed-2", other)
     resolved = yaml.safe_load((other / "scenario.resolved.yaml").read_text())
-    resolved["evaluation"]["tau"] = 0.4
+    resolved["scoring"]["tau"] = 0.4
     (other / "scenario.resolved.yaml").write_text(yaml.safe_dump(resolved))
     reseal(other)  # a finished run of another scenario
     cases = {
@@ -616,7 +630,7 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     shutil.copytree(out / "seed-2", folder)
     record = (folder / completion.RECORD).read_text()
     resolved = yaml.safe_load((folder / "scenario.resolved.yaml").read_text())
-    resolved["evaluation"]["tau"] = 0.4
+    resolved["scoring"]["tau"] = 0.4
 
     def killed(self):
         raise KeyboardInterrupt

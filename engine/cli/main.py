@@ -301,7 +301,7 @@ def _simulate_environment(args: argparse.Namespace) -> int:
 #: Top-level keys only environment files have, and only scenario files have.
 ENVIRONMENT_KEYS = {"arena", "materials", "landmarks", "route", "route_facing", "start", "background_rgb", "lighting",
                     "boards"}
-SCENARIO_KEYS = {"seed", "robot", "train", "evaluations", "methods", "evaluation"}
+SCENARIO_KEYS = {"seed", "robot", "train", "evaluations", "methods", "scoring", "evaluation"}
 
 
 def _is_environment_file(name: str) -> bool:

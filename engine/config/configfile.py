@@ -140,15 +140,16 @@ def load_yaml(
 ) -> dict[str, Any]:
     """Read ``path`` with its ``extends:`` chain merged in.
 
-    ``localise(data, folder)`` makes relative paths in one file's own data absolute before
-    merging, so every path resolves against the file that names it.
+    ``localise(data, path)`` prepares one file's own data before merging (``path`` is that
+    file): relative paths made absolute, so every path resolves against the file that names
+    it, and renamed keys read under their new names.
     """
     path = path.resolve()
     if path in _chain:
         raise error(f"{_chain[0]}: 'extends' forms a cycle: {' -> '.join(str(p) for p in (*_chain, path))}")
     data = read_yaml(path, error)
     if localise is not None:
-        data = localise(data, path.parent)
+        data = localise(data, path)
     parent = data.pop("extends", None)
     if parent is None:
         return data

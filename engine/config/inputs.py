@@ -1,6 +1,6 @@
 """Checks of a validated scenario's runs against what they name: recorded run files (there,
 readable, long enough, shaped like the training run, query and reference distinct) and
-environments (there, and the runs plausible in them; ``evaluation.tau`` below each arena's
+environments (there, and the runs plausible in them; ``scoring.tau`` below each arena's
 diagonal)."""
 
 from __future__ import annotations
@@ -47,9 +47,9 @@ def check_runs(path: Path, scenario: Scenario) -> int:
                 except ImplausibleRun as exc:
                     raise ScenarioError(f"{path}: {where}.run.{exc.key}: {exc}") from None
         diagonal = 2 * math.hypot(env.arena.half_x, env.arena.half_y)
-        if where != "train" and scenario.evaluation.tau >= diagonal:
+        if where != "train" and scenario.scoring.tau >= diagonal:
             raise ScenarioError(
-                f"{path}: evaluation.tau: {scenario.evaluation.tau} m is not below the {diagonal:.2f} m diagonal of "
+                f"{path}: scoring.tau: {scenario.scoring.tau} m is not below the {diagonal:.2f} m diagonal of "
                 f"{env.name}: every pair of poses would count as a revisit"
             )
     return train_samples

@@ -16,7 +16,7 @@ from vitaplace.engine.config.inputs import check_runs
 from vitaplace.engine.config.memory import check_memory, physical_memory
 from vitaplace.engine.config.methods import check_methods
 from vitaplace.engine.config.overrides import apply_overrides
-from vitaplace.engine.config.scenario import Scenario, ScenarioError
+from vitaplace.engine.config.scenario import Scenario, ScenarioError, rename_legacy_keys
 from vitaplace.engine.config.shipped import SCENARIOS_DIR, scenario_names, shipped_file
 
 log = logging.getLogger("vitaplace")
@@ -52,8 +52,15 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
 
 
 def _load_raw(path: Path) -> dict[str, Any]:
-    """The scenario mapping with ``extends`` merged and environment paths made absolute."""
-    return load_yaml(path, ScenarioError, _absolute_paths)
+    """The scenario mapping with ``extends`` merged, renamed keys under their new names and
+    environment paths made absolute."""
+    return load_yaml(path, ScenarioError, _prepared)
+
+
+def _prepared(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """One scenario file's own mapping with renamed keys under their new names and its paths
+    absolute."""
+    return _absolute_paths(rename_legacy_keys(data, str(path)), path.parent)
 
 
 def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:

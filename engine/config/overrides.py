@@ -9,7 +9,7 @@ from typing import Any
 
 import yaml
 
-from vitaplace.engine.config.scenario import ScenarioError
+from vitaplace.engine.config.scenario import ScenarioError, current_key
 
 
 def apply_overrides(data: dict[str, Any], assignments: Sequence[str], source: str = "--set") -> dict[str, Any]:
@@ -22,6 +22,8 @@ def apply_overrides(data: dict[str, Any], assignments: Sequence[str], source: st
         key = key.removesuffix("+")
         if not sep or not key:
             raise ScenarioError(f"{source} '{assignment}': expected key.path=value or key.path+=value")
+        first, dot, rest = key.partition(".")
+        key = current_key(first, f"{source} '{assignment}'") + dot + rest
         value = yaml.safe_load(raw) if raw else ""
         node: Any = data
         parts = key.split(".")

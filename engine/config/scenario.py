@@ -21,7 +21,7 @@ Example::
     methods:
       - {name: L, plugin: mupnet, params: {epochs: 5}}
       - {name: H, plugin: handcrafted}
-    evaluation: {tau: 0.3}
+    scoring: {tau: 0.3}
 
 A run can be a recorded run file instead (`vitaplace import`; docs/DATA.md): ``train:
 {dataset: train.h5}`` and ``datasets: {query: q.h5, reference: r.h5}`` in an evaluation,
@@ -30,6 +30,7 @@ relative to the scenario file; the pipeline then reads the file instead of simul
 
 from __future__ import annotations
 
+import logging
 import typing
 from pathlib import Path
 from typing import Annotated, Any
@@ -40,6 +41,8 @@ from vitaplace.engine.config.configfile import ConfigError
 from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.robot import RobotSpec
+
+log = logging.getLogger("vitaplace")
 
 
 class ScenarioError(ConfigError):
@@ -173,7 +176,34 @@ class Method(Strict):
     )
 
 
-class EvaluationSettings(Strict):
+#: Top-level scenario keys renamed since scenario files were first written: old name -> new.
+#: Files (and ``--set`` paths) that use an old name are read under the new one, with a warning.
+RENAMED_KEYS = {"evaluation": "scoring"}
+
+
+def current_key(name: str, where: str) -> str:
+    """The current name of the top-level key ``name`` (`RENAMED_KEYS`); an old name is logged
+    as a warning naming ``where``."""
+    new = RENAMED_KEYS.get(name, name)
+    if new != name:
+        log.warning("%s: '%s' is now called '%s'; read as '%s' (rename it there)", where, name, new, new)
+    return new
+
+
+def rename_legacy_keys(data: dict[str, Any], where: str) -> dict[str, Any]:
+    """``data`` with its `RENAMED_KEYS` under their new names (`current_key`); both names at
+    once is a ScenarioError naming ``where``."""
+    for old, new in RENAMED_KEYS.items():
+        if old in data:
+            if new in data:
+                raise ScenarioError(
+                    f"{where}: both '{old}' and '{new}' are set; '{old}' is the old name of '{new}', keep only '{new}'"
+                )
+            data[current_key(old, where)] = data.pop(old)
+    return data
+
+
+class ScoringSettings(Strict):
     tau: float = pydantic.Field(
         0.3, gt=0, allow_inf_nan=False, description="ground-truth revisit tolerance [m], below the arena's diagonal"
     )
@@ -209,7 +239,10 @@ class Scenario(Strict):
         description="evaluation environments, each with a query and a reference run",
     )
     methods: list[Method] = pydantic.Field(min_length=1, description="the feature extractors compared")
-    evaluation: EvaluationSettings = pydantic.Field(EvaluationSettings(), description="how features are scored")
+    scoring: ScoringSettings = pydantic.Field(
+        ScoringSettings(),
+        description="how features are scored (an older file's `evaluation:` is read as this, with a warning)",
+    )
 
     @pydantic.model_validator(mode="after")
     def _unique_names(self) -> Scenario:

@@ -19,7 +19,7 @@ from pathlib import Path
 import pydantic
 from pydantic_core import PydanticUndefined
 
-from vitaplace.engine.config.scenario import EvaluationPair, EvaluationSettings, Method, RecordedRuns, Scenario, TrainingData
+from vitaplace.engine.config.scenario import EvaluationPair, ScoringSettings, Method, RecordedRuns, Scenario, TrainingData
 from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
@@ -50,7 +50,7 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("methods[]: Method", Method, "a feature extractor to compare"),
     ("methods[].params for plugin mupnet", MupnetParams, "the learned MuPNet features"),
     ("methods[].params for plugin handcrafted", HandcraftedParams, "the ViTa-SLAM front end"),
-    ("evaluation: EvaluationSettings", EvaluationSettings, "how features are scored"),
+    ("scoring: ScoringSettings", ScoringSettings, "how features are scored"),
     ("Environment file: EnvironmentSpec", EnvironmentSpec, "an environment YAML (scenarios/environments)"),
     ("arena: ArenaSpec", ArenaSpec, "walls and floor"),
     ("arena.walls.<wall>: WallSpec", WallSpec, "one wall's look"),

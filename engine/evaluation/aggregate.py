@@ -23,6 +23,7 @@ from typing import Any
 import yaml
 
 from vitaplace.engine.pipeline import completion
+from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.errors import UserError
 from vitaplace.engine.evaluation.evaluate import load_curve
 from vitaplace.engine.pipeline.keys import content_hash
@@ -55,8 +56,9 @@ class RunFolder:
 
 
 def scenario_identity(resolved: dict[str, Any]) -> str:
-    """A hash of the resolved scenario without its seed, environments by file name."""
-    data = copy.deepcopy({k: v for k, v in resolved.items() if k != "seed"})
+    """A hash of the resolved scenario without its seed, environments by file name, keys
+    under their current names (a folder written before a key's rename matches one after)."""
+    data = copy.deepcopy({RENAMED_KEYS.get(k, k): v for k, v in resolved.items() if k != "seed"})
     for key in ("train", "evaluations"):
         entries = data.get(key)
         entries = entries if isinstance(entries, list) else [entries]

@@ -8,7 +8,7 @@ tolerances τ in metres x heading tolerance, or position only), the ground-truth
 rebuilt from the poses (`ground_truth_matrix`) and the TME scored by the evaluation's own
 functions (`pr_curve`: ``max_f1``, ``recall_at_100_precision``; ``n_revisit`` the queries
 with a true match). Both match directions are scored where the run evaluated both
-(``evaluation.direction: both``); the TME of one direction is never transposed into the
+(``scoring.direction: both``); the TME of one direction is never transposed into the
 other, since a method's distance need not be symmetric.
 
 Input: one finished run folder, or a sweep folder (its ``seed-*`` run folders, each

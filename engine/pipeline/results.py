@@ -21,7 +21,7 @@ RESULT_COLUMNS = (
 
 
 def csv_row(row: dict[str, Any]) -> dict[str, Any]:
-    """A results row for results.csv: without a fixed ``evaluation.delta``, delta, precision,
+    """A results row for results.csv: without a fixed ``scoring.delta``, delta, precision,
     recall and F1 are those at the max-F1 threshold (instead of empty)."""
     if row.get("f1") is not None:
         return row

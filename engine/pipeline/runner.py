@@ -343,12 +343,12 @@ class Pipeline:
 
     # ------------------------------------------------------------------ evaluate
     def directions(self) -> list[tuple[str, str, str]]:
-        d = self.scenario.evaluation.direction
+        d = self.scenario.scoring.direction
         pairs = [("query-to-reference", "query", "reference"), ("reference-to-query", "reference", "query")]
         return [p for p in pairs if d in (p[0], "both")]
 
     def evaluate(self) -> list[dict[str, Any]]:
-        settings = self.scenario.evaluation
+        settings = self.scenario.scoring
         rows = []
         for e in self.scenario.evaluations:
             for method in self.scenario.methods:
@@ -372,7 +372,7 @@ class Pipeline:
     def _evaluate(self, method: Method, query: str, reference: str, folder: Path) -> None:
         """Score ``method``'s distances from the ``query`` run's samples to the ``reference``
         run's into ``folder`` (summary, curves, matrices)."""
-        settings = self.scenario.evaluation
+        settings = self.scenario.scoring
         folder.mkdir(parents=True, exist_ok=True)
         q, r = self.open(query), self.open(reference)
         distances = self.extractor(method).distance(load_features(self.features_path(method, query)),

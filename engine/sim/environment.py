@@ -535,13 +535,13 @@ def _signed_area(poly: np.ndarray) -> float:
 
 
 # ---------------------------------------------------------------------- loading
-def _localise_textures(data: dict[str, Any], folder: Path) -> dict[str, Any]:
-    """Relative texture files resolve against the file that names them."""
+def _localise_textures(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """Relative texture files resolve against the file that names them (``path``)."""
     materials = data.get("materials")
     for mat in materials.values() if isinstance(materials, dict) else []:
         tex = mat.get("texture") if isinstance(mat, dict) else None
         if isinstance(tex, dict) and isinstance(tex.get("file"), str):
-            tex["file"] = str((folder / tex["file"]).resolve())
+            tex["file"] = str((path.parent / tex["file"]).resolve())
     return data
 
 
