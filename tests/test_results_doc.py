@@ -1,0 +1,59 @@
+"""docs/RESULTS.md against the study's committed summaries (docs/results/): every table in
+the text is what docs/results/tables.py computes from them, and the summaries hold what the
+study promises (six methods, at least five seeds, three worlds, both touch models, bounded
+intervals, the sign-flip p, recall at 100 % precision, the F1 at E1's threshold)."""
+
+import csv
+import importlib.util
+import math
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = ROOT / "docs" / "results"
+SIX = {"L", "L-V", "L-T", "H", "H-V", "H-T"}
+
+
+def tables_module():
+    spec = importlib.util.spec_from_file_location("results_tables", RESULTS / "tables.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def rows(study: str, name: str) -> list[dict[str, str]]:
+    with open(RESULTS / study / name, newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_every_table_in_results_md_is_computed_from_the_committed_summaries():
+    tables = tables_module()
+    text = (ROOT / "docs" / "RESULTS.md").read_text()
+    found = dict(re.findall(r"<!-- table ([\w-]+) -->\n(.*?)\n<!-- /table -->", text, re.S))
+    assert set(found) == set(tables.TABLES), "tables in RESULTS.md vs docs/results/tables.py"
+    for name, table in found.items():
+        assert table == tables.TABLES[name](), f"RESULTS.md table {name} differs from `python docs/results/tables.py {name}`"
+
+
+@pytest.mark.parametrize("study", ["paper-cpu-sweep", "paper-cpu-physical-sweep"])
+def test_the_committed_study_holds_six_methods_five_seeds_and_bounded_intervals(study):
+    seeds = rows(study, "sweep-seeds.csv")
+    per_cell: dict[tuple[str, str], set[str]] = {}
+    for row in seeds:
+        per_cell.setdefault((row["environment"], row["method"]), set()).add(row["seed"])
+    assert {env for env, _ in per_cell} == {"E1", "E2", "E3"}
+    assert {method for _, method in per_cell} == SIX
+    assert all(len(s) >= 5 for s in per_cell.values()), {k: len(v) for k, v in per_cell.items()}
+    metrics = {row["metric"] for row in rows(study, "sweep.csv")}
+    assert {"max_f1", "recall_at_100_precision", "f1_at_e1_threshold"} <= metrics
+    for name, low, high in (("sweep.csv", 0.0, 1.0), ("sweep-diff.csv", -1.0, 1.0)):
+        for row in rows(study, name):
+            if row.get("kind", "metric") != "metric":
+                continue
+            for interval in ("t", "boot", "block"):
+                a, b = float(row[f"{interval}_low"]), float(row[f"{interval}_high"])
+                assert not math.isnan(a) and not math.isnan(b), (name, row)
+                assert low <= a <= b <= high, (name, interval, row)
+    assert all(0 < float(row["p_sign_flip"]) <= 1 for row in rows(study, "sweep-diff.csv"))
