@@ -1,4 +1,5 @@
-"""Lint: the package's import graph has no cycle; the plugin API keeps its documented import paths.
+"""Lint: the package's import graph has no cycle; no function is longer than `MAX_FUNCTION_LINES`;
+the plugin API keeps its documented import paths.
 
 Every ``import`` in engine/, kernels/, plugins/ and api/ counts: module-level ones, those
 inside functions (imported lazily) and those under ``if TYPE_CHECKING:`` (a cycle of type-only
@@ -21,6 +22,8 @@ ROOT = Path(__file__).resolve().parent.parent
 #: source folder -> the package it installs as (pyproject's package-dir)
 PACKAGES = {"api": "vitaplace", "engine": "vitaplace.engine", "kernels": "vitaplace.kernels",
             "plugins": "vitaplace.plugins"}
+#: the longest a function of the package may be (decorators and docstring included)
+MAX_FUNCTION_LINES = 80
 
 
 def module_files(root: Path, packages: dict[str, str]) -> dict[str, Path]:
@@ -131,3 +134,25 @@ def test_every_import_docs_plugins_md_shows_works():
     from vitaplace.engine.dataset import Run
 
     assert Run is RunFile
+
+
+def long_functions(root: Path, limit: int = MAX_FUNCTION_LINES) -> list[str]:
+    """``file:line name (N lines)`` of every function or method under the source folders
+    longer than ``limit`` lines, from its ``def`` (or first decorator) to its last line."""
+    found = []
+    for file in module_files(root, PACKAGES).values():
+        for node in ast.walk(ast.parse(file.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                first = min([node.lineno, *(d.lineno for d in node.decorator_list)])
+                length = node.end_lineno - first + 1
+                if length > limit:
+                    found.append(f"{file.relative_to(root)}:{first} {node.name} ({length} lines)")
+    return found
+
+
+def test_no_function_of_the_package_is_over_80_lines(tmp_path):
+    assert long_functions(ROOT) == []
+    (tmp_path / "engine").mkdir()
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES - 1))
+    (tmp_path / "engine" / "long.py").write_text(f"def fits():\n{body}\n\ndef too_long():\n{body}    return 0\n")
+    assert long_functions(tmp_path) == [f"engine/long.py:{MAX_FUNCTION_LINES + 3} too_long ({MAX_FUNCTION_LINES + 1} lines)"]

@@ -97,6 +97,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-range", choices=("0-1", "0-255"),
                    help="range of float images when the data cannot tell (0-1 saturates values above 1)")
     p.add_argument("--pose-layout", choices=("Nx3", "3xN"), help="layout of a 3 x 3 pose array (three samples)")
+    _add_sweep_command(sub, common)
+    p = sub.add_parser(
+        "aggregate", parents=[common],
+        help="summarise run folders of one scenario made by independent jobs (e.g. a SLURM array)",
+    )
+    p.add_argument("folders", nargs="+", type=Path, metavar="DIR", help="run folders (vitaplace run --set seed=N --out DIR)")
+    p.add_argument("--out", type=Path, help="where the summary goes (default: the folders' common parent)")
+    p = sub.add_parser(
+        "sensitivity", parents=[common],
+        help="rescore a run's or sweep's saved evaluations for other revisit and heading tolerances",
+    )
+    p.add_argument("folder", type=Path, metavar="DIR", help="a finished run folder or a sweep folder (seed-*/)")
+    p.add_argument("--tau", type=float, nargs="+", help="revisit tolerances in metres (default 0.2 0.3 0.5)")
+    p.add_argument("--heading-tolerance", type=float, metavar="DEG",
+                   help="heading tolerance scored beside position only (default 30)")
+    p.add_argument("--out", type=Path, help="where sensitivity.csv/.md/.json go (default: DIR)")
+    _add_viewing_commands(sub, common)
+    _add_completion(parser)
+    return parser
+
+
+def _add_sweep_command(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """`vitaplace sweep`: seeds, and where they run (local pool, Ray, SLURM) with what each reserves."""
     p = sub.add_parser("sweep", parents=[common], help="run a scenario over several seeds (local process pool, Ray or SLURM)")
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
@@ -128,24 +151,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="any other sbatch option, e.g. --sbatch account=myproject --sbatch qos=high (NAME alone: a flag; "
         "repeatable)",
     )
-    p = sub.add_parser(
-        "aggregate", parents=[common],
-        help="summarise run folders of one scenario made by independent jobs (e.g. a SLURM array)",
-    )
-    p.add_argument("folders", nargs="+", type=Path, metavar="DIR", help="run folders (vitaplace run --set seed=N --out DIR)")
-    p.add_argument("--out", type=Path, help="where the summary goes (default: the folders' common parent)")
-    p = sub.add_parser(
-        "sensitivity", parents=[common],
-        help="rescore a run's or sweep's saved evaluations for other revisit and heading tolerances",
-    )
-    p.add_argument("folder", type=Path, metavar="DIR", help="a finished run folder or a sweep folder (seed-*/)")
-    p.add_argument("--tau", type=float, nargs="+", help="revisit tolerances in metres (default 0.2 0.3 0.5)")
-    p.add_argument("--heading-tolerance", type=float, metavar="DEG",
-                   help="heading tolerance scored beside position only (default 30)")
-    p.add_argument("--out", type=Path, help="where sensitivity.csv/.md/.json go (default: DIR)")
-    _add_viewing_commands(sub, common)
-    _add_completion(parser)
-    return parser
 
 
 def _add_viewing_commands(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
