@@ -10,7 +10,7 @@ A mutant is *killed* when a test fails, *killed by timeout* when its tests run p
 (an endless loop is a detected bug, but it is reported apart), *survived* otherwise.
 `EQUIVALENT` lists mutants that cannot change any result, with the reason.
 
-    python tests/mutation.py                    # every mutant (about an hour on 2 shared cores)
+    python tests/mutation.py                    # every mutant (16 min with --jobs 2 on 2 cores, 2026-12-01)
     python tests/mutation.py summary sim.model  # mutants of these modules (keys of MODULES) or names
     python tests/mutation.py --list             # mutant, file, tests
     python tests/mutation.py --check            # every snippet applies exactly once (no tests run)
