@@ -8,7 +8,8 @@ exactly what this script prints for NAME (`tests/test_results_doc.py` checks it)
 number in the text can drift from the files `vitaplace sweep` and `vitaplace sensitivity`
 wrote: ``sweep.csv`` (statistics over seeds per world x method x direction x value),
 ``sweep-diff.csv`` (paired differences between methods, with the sign-flip p) and
-``sensitivity.csv`` (per seed, max F1 rescored under other ground truths), and each seed's
+``sensitivity.csv`` (per seed, max F1 rescored under other ground truths), ``stalls.csv``
+(`stalls.py`: where the drives stand still), and each seed's
 ``manifest.json`` and ``report.md`` (copied into ``seeds/seed-N/``), in
 ``paper-cpu-sweep/`` (penetration touch model) and ``paper-cpu-physical-sweep/`` (physical
 whiskers). Proportions are printed in percent, intervals are the percentile bootstrap over
@@ -245,6 +246,26 @@ def sensitivity() -> str:
     return markdown(header, body)
 
 
+#: a drive that stays this many samples within `stalls.py`'s radius (0.25 m) is stuck
+STALL_SAMPLES = 100
+
+
+def stalls() -> str:
+    """Per world and touch model: how many of the 12 evaluation drives (6 seeds x query and
+    reference) stay within 0.25 m for at least `STALL_SAMPLES` consecutive samples, and the
+    longest such stay (``stalls.csv``, written by docs/results/stalls.py from the sweep)."""
+    body = []
+    for study in STUDIES:
+        rows = read(study, "stalls.csv")
+        for world in WORLDS:
+            stays = [(int(r["longest_stay"]), r["seed"], r["drive"]) for r in rows if r["environment"] == world]
+            stuck = sorted((s for s in stays if s[0] >= STALL_SAMPLES), key=lambda s: (int(s[1]), s[2]))
+            body.append([world, study, f"{len(stuck)} of {len(stays)}", str(max(s[0] for s in stays)),
+                         ", ".join(f"{seed}{drive[0]} ({n})" for n, seed, drive in stuck) or "–"])
+    return markdown(["world", "touch model", f"drives stuck ≥ {STALL_SAMPLES} samples", "longest stay, samples",
+                     "stuck drives: seed, q/r (samples)"], body)
+
+
 def budget() -> str:
     """The learned methods' budget as run, from each seed's manifest.json: epochs trained (of
     the cap; converged seeds: the training energy improved by less than 1 % over 20 epochs)
@@ -278,6 +299,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "recall-at-full-precision": recall_at_full_precision,
     "sensitivity": sensitivity,
     "budget": budget,
+    "stalls": stalls,
 }
 
 
