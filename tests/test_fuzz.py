@@ -149,6 +149,7 @@ def _store(group, name: str, value) -> bool:
        value=run_values, delete=st.booleans(), offset=st.integers(0, 10**6))
 @example(target="images", value="\x00", delete=False, offset=0)  # HDF5 cannot store a NUL in a string
 @example(target="schema_version", value="\x00", delete=False, offset=0)
+@example(target="bytes", value=False, delete=False, offset=184)  # h5py: RuntimeError, bad symbol table node
 def test_any_mutated_run_file_gets_a_clean_answer(target, value, delete, offset):
     folder = Path(tempfile.mkdtemp())
     try:

@@ -126,7 +126,11 @@ class Run:
 
     def _get(self, key: str) -> np.ndarray:
         if key not in self._cache:
-            data = np.asarray(self._source[key][...])
+            try:
+                data = np.asarray(self._source[key][...])
+            except (OSError, RuntimeError, KeyError, ValueError) as exc:  # h5py on damaged data or its header
+                message = f"{self.path or self.name}: field '{key}' unreadable ({type(exc).__name__}: {exc})"
+                raise DatasetError(message.splitlines()[0]) from None
             _check_finite(data, key, str(self.path or self.name))
             self._cache[key] = data
         return self._cache[key]
@@ -310,7 +314,7 @@ def open_run(path: str | os.PathLike) -> Run:
     except DatasetError:
         f.close()
         raise
-    except (OSError, KeyError, ValueError, TypeError) as exc:  # h5py on a damaged object header or attribute
+    except (OSError, RuntimeError, KeyError, ValueError, TypeError) as exc:  # h5py on a damaged header or attribute
         f.close()
         raise DatasetError(f"{path}: unreadable HDF5 structure ({type(exc).__name__}: {exc})".splitlines()[0]) from None
     return Run(name=attrs.pop("name", path.stem), attrs=attrs, _source=f, path=path)
