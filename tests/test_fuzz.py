@@ -214,6 +214,7 @@ def _finished_folder(folder: Path, seed: int) -> None:
 # found by this test: a row's own null seed overrode the folder's; a null recall_at_k
 @example(file="results.json", key="seed", value=None, whole=False, reseal=True)
 @example(file="results.json", key="recall_at_k", value=None, whole=False, reseal=True)
+@example(file="results.json", key="auc", value={"\r": False}, whole=False, reseal=True)  # a line break in a field's name
 def test_any_mutated_aggregate_folder_gets_a_clean_answer(capsys, file, key, value, whole, reseal):
     import json
 

@@ -90,7 +90,7 @@ def check_row(row: Any, where: str) -> dict[str, Any]:
         for sub, item in items:
             if item is not None and not _finite(item):
                 name = key if sub is None else f"{key}.{sub}"
-                raise AggregateError(f"{where}: field '{name}' is {item!r:.60}, expected a finite number or null")
+                raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a finite number or null")
     return row
 
 
