@@ -19,6 +19,7 @@ seeds unless a column says otherwise.
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import sys
 from collections.abc import Callable, Iterable, Sequence
@@ -37,6 +38,7 @@ DIRECTIONS = {Q2R: "q→r", R2Q: "r→q"}
 PAPER = {"E1": "similar F1", "E2": "L: higher precision", "E3": "L 72.94 %, H 62.34 %"}
 
 
+@functools.cache  # each file is read once, however many tables use it (callers do not mutate rows)
 def read(study: str, name: str) -> list[dict[str, str]]:
     with open(STUDIES[study] / name, newline="") as handle:
         return list(csv.DictReader(handle))
