@@ -215,6 +215,7 @@ def _finished_folder(folder: Path, seed: int) -> None:
 @example(file="results.json", key="seed", value=None, whole=False, reseal=True)
 @example(file="results.json", key="recall_at_k", value=None, whole=False, reseal=True)
 @example(file="results.json", key="auc", value={"\r": False}, whole=False, reseal=True)  # a line break in a field's name
+@example(file="results.json", key="n_queries", value=None, whole=False, reseal=True)  # sized the block bootstrap
 def test_any_mutated_aggregate_folder_gets_a_clean_answer(capsys, file, key, value, whole, reseal):
     import json
 

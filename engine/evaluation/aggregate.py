@@ -73,9 +73,10 @@ def _finite(value: Any) -> bool:
 
 
 def check_row(row: Any, where: str) -> dict[str, Any]:
-    """``row`` if it is a result row: text identity columns, a finite ``max_f1``, and every
-    other field a finite number, null, a mapping of those (``recall_at_k``) or one of
-    `TEXT_FIELDS`; else AggregateError naming ``where`` and the field."""
+    """``row`` if it is a result row: text identity columns, a finite ``max_f1``, a whole
+    ``n_queries`` >= 1 (it sizes the block bootstrap's segments), and every other field a
+    finite number, null, a mapping of those (``recall_at_k``) or one of `TEXT_FIELDS`; else
+    AggregateError naming ``where`` and the field."""
     if not isinstance(row, dict):
         raise AggregateError(f"{where}: a {type(row).__name__}, expected a result row (a JSON object)")
     for key in IDENTITY:
@@ -83,6 +84,9 @@ def check_row(row: Any, where: str) -> dict[str, Any]:
             raise AggregateError(f"{where}: field '{key}' is {row.get(key)!r}, expected a non-empty name")
     if not _finite(row.get(HEADLINE)):
         raise AggregateError(f"{where}: field '{HEADLINE}' is {row.get(HEADLINE)!r}, expected a finite number")
+    queries = row.get("n_queries")
+    if not (_finite(queries) and queries == int(queries) and queries >= 1):
+        raise AggregateError(f"{where}: field 'n_queries' is {queries!r:.60}, expected a whole number of queries (>= 1)")
     for key, value in row.items():
         if key in IDENTITY or (key in TEXT_FIELDS and isinstance(value, str)):
             continue
