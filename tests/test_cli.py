@@ -208,7 +208,8 @@ def test_quickstart_writes_every_output(quickstart_run):
         assert row["e1_threshold"] == pytest.approx(row["delta_at_max_f1"])
     difficulties = [row["difficulty"] for row in rows]
     assert list(difficulties[0]) == ["nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg",
-                                     "chance_r1", "query_touch_share", "reference_touch_share"]
+                                     "chance_r1", "query_touch_share", "reference_touch_share",
+                                     "query_longest_stay_share", "reference_longest_stay_share"]
     assert difficulties[0] == difficulties[1]  # a property of the evaluation pair, not of the method
     for method in ("L", "H"):
         folder = out / "evaluations" / "E1" / method / "query-to-reference"

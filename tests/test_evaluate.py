@@ -208,6 +208,8 @@ def test_a_reference_facing_away_is_no_true_match_for_every_metric():
 # Over q0-q2: distances 0.02, 0.08, 0.1 -> median 0.08, 90th percentile (linear: position
 # 0.9 * 2 = 1.8) 0.08 + 0.8 * 0.02 = 0.096; headings 0, 100, 20 -> median 20;
 # chance_r1 = mean(2/4, 1/4, 2/4) = 5/12. Touch: queries 2 of 5, references 1 of 4.
+# Longest stay (within 0.25 m of its first sample): queries q0-q2 (q1 0.082 m, q2 0.128 m
+# from q0; q3 far), 3 of 5; references r0-r2 (0.1 m, 0.2 m; r3 far), 3 of 4.
 DEG = math.pi / 180
 DIFF_REF = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.2, 90 * DEG], [5.0, 0.0, 0.0]])
 DIFF_QRY = np.array(
@@ -222,7 +224,7 @@ def test_difficulty_hand_case():
     d = ev.difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, DIFF_QTOUCH, DIFF_RTOUCH)
     assert list(d) == [
         "nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg", "chance_r1",
-        "query_touch_share", "reference_touch_share",
+        "query_touch_share", "reference_touch_share", "query_longest_stay_share", "reference_longest_stay_share",
     ]
     assert d == {
         "nearest_ref_median_m": pytest.approx(0.08),
@@ -231,8 +233,24 @@ def test_difficulty_hand_case():
         "chance_r1": pytest.approx(5 / 12),
         "query_touch_share": pytest.approx(0.4),
         "reference_touch_share": pytest.approx(0.25),
+        "query_longest_stay_share": pytest.approx(0.6),
+        "reference_longest_stay_share": pytest.approx(0.75),
     }
     assert all(type(v) is float for v in d.values())  # JSON-ready
+
+
+@pytest.mark.parametrize("xs, expected", [
+    # a slow drift (0.1 m per sample) stays 3 samples at most; the stay at 1.0 (with a 0.1 m
+    # wobble) lasts 4: measured from the stretch's first sample, not step by step
+    ([0.0, 0.1, 0.2, 0.3, 0.4, 1.0, 1.0, 1.1, 1.0, 2.0], (4, 5)),
+    ([0.0, 0.1, 0.2, 0.3, 0.4], (3, 0)),  # ties: the earliest
+    ([0.0, 0.25, 0.5], (2, 0)),  # exactly the radius is within it
+    ([7.0] * 6, (6, 0)),  # never moves: the whole run
+    ([], (0, 0)),
+])
+def test_longest_stay_hand_cases(xs, expected):
+    xy = np.stack([np.array(xs), np.zeros(len(xs))], axis=1)
+    assert ev.longest_stay(xy, 0.25) == expected
 
 
 def test_difficulty_position_only_counts_the_query_that_faces_back():
@@ -254,6 +272,7 @@ def test_difficulty_without_any_true_match_is_none_but_touch_is_measured():
     assert d == {
         "nearest_ref_median_m": None, "nearest_ref_p90_m": None, "nearest_ref_heading_median_deg": None,
         "chance_r1": None, "query_touch_share": pytest.approx(0.4), "reference_touch_share": pytest.approx(0.25),
+        "query_longest_stay_share": pytest.approx(0.6), "reference_longest_stay_share": pytest.approx(0.75),
     }
 
 

@@ -383,6 +383,36 @@ def test_bad_recorded_runs_in_a_scenario_are_one_line(tmp_path, capsys, case):
     assert not (tmp_path / "out" / "cache" / "models").exists()  # refused before any method was fitted
 
 
+def test_a_run_stuck_in_one_place_reaches_the_user(tmp_path, monkeypatch):
+    """A query that stands at one pose for samples 2-6 (5 of its 8; the route's samples are
+    0.29 m apart, beyond the 0.25 m radius) warns in the log, manifest.json and report.md, and
+    its longest-stay share (5/8) is in the difficulty; the reference is not warned about. The
+    runs are tiny, so the sample floor is lowered to 4 (the share, 1/4, is the shipped one)."""
+    from vitaplace.engine.data.dataset import Run
+    from vitaplace.engine.pipeline import runner
+
+    monkeypatch.setattr(runner, "STUCK_SAMPLES", 4)
+    scenario = recorded_scenario(tmp_path)
+    run = open_run(tmp_path / "query.h5")
+    poses = run.poses.copy()
+    poses[2:7] = poses[2]
+    write_run(tmp_path / "query.h5", Run.from_arrays(
+        images=run.images, theta=run.theta, xy=run.xy, poses=poses, times=run.times, deflection=run.deflection,
+        name=run.name, attrs=run.attrs))
+    out = tmp_path / "out"
+    assert main(["run", str(scenario), "--out", str(out), "--no-progress"]) == 0
+    message = ("run E1/query: the robot stayed within 0.25 m of one place for 5 of its 8 samples, from sample 2 "
+               "(longest_stay)")
+    assert message in (out / "log.txt").read_text()
+    warnings = json.loads((out / "manifest.json").read_text())["warnings"]
+    assert warnings["E1/query"]["longest_stay"].startswith(message)
+    assert "longest_stay" not in warnings.get("E1/reference", {}) and "longest_stay" not in warnings.get("train", {})
+    assert message in (out / "report.md").read_text().split("## Warnings", 1)[1]
+    for row in json.loads((out / "results.json").read_text()):
+        assert row["difficulty"]["query_longest_stay_share"] == pytest.approx(5 / 8)
+        assert row["difficulty"]["reference_longest_stay_share"] == pytest.approx(1 / 8)
+
+
 def test_collisions_and_a_training_run_in_no_world_reach_the_user(tmp_path):
     """A run whose robot touched the world (``body_collision_instants`` > 0) warns in the log,
     manifest.json and report.md; a recorded training run is in no known world, so no

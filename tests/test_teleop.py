@@ -16,6 +16,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
+from vitaplace.engine.evaluation.evaluate import longest_stay
 from vitaplace.engine.sim.clearance import ROUTE_MIN_CLEARANCE, Route, loop_clearance
 from vitaplace.engine.sim.controllers import TELEOP_TURN, SafetyGuard, make_controller
 from vitaplace.engine.sim.environment import EnvironmentSpec, environment_files, load_environment  # noqa: E402
@@ -155,6 +156,61 @@ def test_a_hold_lasts_until_its_contacts_are_recorded_and_nudges_back_onto_the_l
     driver.touched = True
     driver._decide(2.0, pose)
     assert driver.mode == "leave" and driver.contacts_left == 0
+
+
+# ---------------------------------------------------------------------- blocked on its path
+#: where one E3 drive of the first study stood still from sample 212 to its end (seed
+#: 1384528246, the study's seed 3 query, penetration whiskers): heading east between the
+#: central rock and the south-east cylinder, where its jittered loop bends north-east; the
+#: lookahead point lies under the head (it reaches 0.58 m ahead), every key towards it was
+#: refused by the guard, and the driver stopped at each decision
+STUCK_SEED, STUCK_POSE, STUCK_S = 1384528246, np.array([0.332, -0.709, -0.036]), 5.004
+
+
+def test_a_driver_blocked_on_its_path_presses_a_safe_key_instead_of_standing():
+    """At the pose where that drive froze, standing, with no landmark to explore: the driver
+    presses a key (not "k") that the guard lets it press, and looks further along its path."""
+    e3 = load_environment("e3")
+    driver, _ = make_controller(e3, RunSpec(kind="teleop", n_samples=600), np.random.default_rng(STUCK_SEED), 0.5)
+    driver.s, driver.tactile = STUCK_S, ()
+    key, duration = driver._decide(150.0, STUCK_POSE)
+    assert key != "k"
+    horizon = driver.spec.reaction_delay + (SafetyGuard.HORIZON if math.isinf(duration) else duration)
+    assert driver.guard.safe(STUCK_POSE, *driver._command(key), horizon=horizon)
+    assert driver.s > STUCK_S
+
+
+def test_a_driver_without_headway_for_3_s_looks_further_along_its_path():
+    """On its loop, facing along it, in the open: a driver that made headway just now keeps
+    its place along the loop; one that has neither moved 0.1 m nor turned 0.3 rad for 3 s
+    (dithering between keys) looks 0.1 m further along it, as when blocked."""
+    e3 = load_environment("e3")
+    s0 = {}
+    for stalled_for in (0.0, 3.0):
+        driver, _ = make_controller(e3, RunSpec(kind="teleop", n_samples=600), np.random.default_rng(STUCK_SEED), 0.5)
+        point, tangent = driver.loop.point(1.0)
+        pose = np.array([*point, math.atan2(tangent[1], tangent[0])])
+        driver.s, driver.tactile, driver.headway = 1.0, (), (pose, 100.0 - stalled_for)
+        key, _ = driver._decide(100.0, pose)
+        assert key != "k"
+        s0[stalled_for] = driver.s
+    assert s0[0.0] == pytest.approx(1.0, abs=0.03)
+    assert s0[3.0] == pytest.approx(s0[0.0] + 0.1)
+
+
+def test_a_drive_started_where_one_froze_moves_on():
+    """Simulated from that pose (same seed, so the same jittered loop; exploring switched off
+    by a tiny ``visit_range``, or the driver whisks the rock beside it first), the drive
+    creeps through the bend (taps: the corridor is narrow) and goes on: within 20 s it has
+    left the 0.25 m disc around the pose for good, and it ends more than 0.5 m away. The old
+    driver never moved: the simulation failed its plausibility check."""
+    start = (*STUCK_POSE[:2], math.degrees(STUCK_POSE[2]))
+    run = simulate_run(load_environment("e3"), RunSpec(kind="teleop", n_samples=60, visit_range=0.01, start=start),
+                       STUCK_SEED, RobotSpec(camera_width=16, camera_height=12, tactile_model="penetration"),
+                       progress=False)
+    length, first = longest_stay(run.poses[:, :2], 0.25)
+    assert length < 40, (length, first)
+    assert np.hypot(*(run.poses[-1, :2] - STUCK_POSE[:2])) > 0.5
 
 
 # ---------------------------------------------------------------------- detours

@@ -1,5 +1,6 @@
 """Where the evaluation drives of a sweep stall: per seed, world and drive, the longest stretch
-of consecutive samples that stays within RADIUS of its first pose, and where it starts.
+of consecutive samples that stays within 0.25 m of its first pose (`longest_stay`, also in
+every evaluation's difficulty as a share), and where it starts.
 
     python docs/results/stalls.py runs/paper-cpu-sweep docs/results/paper-cpu-sweep/stalls.csv
 
@@ -17,18 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-RADIUS = 0.25  # m
-
-
-def longest_stay(xy: np.ndarray, radius: float = RADIUS) -> tuple[int, int]:
-    """(length, first index) of the longest run of consecutive samples within ``radius`` of
-    the run's first sample."""
-    best = (0, 0)
-    for i in range(len(xy)):
-        away = np.nonzero(np.hypot(*(xy[i:] - xy[i]).T) > radius)[0]
-        length = int(away[0]) if len(away) else len(xy) - i
-        best = max(best, (length, -i))
-    return best[0], -best[1]
+from vitaplace.engine.evaluation.evaluate import longest_stay
 
 
 def main(sweep: Path, out: Path) -> int:

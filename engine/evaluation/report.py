@@ -92,8 +92,8 @@ def difficulty_table(rows: list[dict[str, Any]]) -> str:
     """Markdown table of each evaluation pair's ``difficulty`` (per environment x direction)."""
     lines = [
         "| environment | direction | nearest ref. median m | nearest ref. 90th pct. m | nearest ref. heading median ° "
-        "| chance R@1 % | query touch % | reference touch % |",
-        "|---|---|---|---|---|---|---|---|",
+        "| chance R@1 % | query touch % | reference touch % | query longest stay % | reference longest stay % |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in _per_pair(rows):
         d = row["difficulty"]
@@ -101,6 +101,7 @@ def difficulty_table(rows: list[dict[str, Any]]) -> str:
             row["environment"], row["direction"], _number(d["nearest_ref_median_m"], 3),
             _number(d["nearest_ref_p90_m"], 3), _number(d["nearest_ref_heading_median_deg"], 1),
             _pct(d["chance_r1"]), _pct(d["query_touch_share"]), _pct(d["reference_touch_share"]),
+            _pct(d.get("query_longest_stay_share")), _pct(d.get("reference_longest_stay_share")),
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -252,7 +253,9 @@ def _samples_and_difficulty(manifest: dict[str, Any], rows: list[dict[str, Any]]
         "Properties of each evaluation pair, the same for every method. Over the queries with a true match: the "
         "distance from each query to its nearest reference pose by position (median, 90th percentile) and the "
         "heading difference to it (median); chance R@1 is the mean share of references that are true matches (a "
-        "random guess's recall@1). Touch: the share of samples with a whisker deflected at the sampling instant.",
+        "random guess's recall@1). Touch: the share of samples with a whisker deflected at the sampling instant. "
+        f"Longest stay: the longest stretch of consecutive samples within {ev.STAY_RADIUS} m of its first, as a share "
+        "of the run (a drive whisking a landmark stays a few samples; a stuck one, much of the run).",
         "",
         difficulty_table(rows),
         "",

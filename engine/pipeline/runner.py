@@ -43,7 +43,10 @@ from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 4, "report": 6}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 5, "report": 7}
+
+#: a run that stays in one place this long (share of its samples, and samples) is warned about
+STUCK_SHARE, STUCK_SAMPLES = 0.25, 50
 
 log = logging.getLogger("vitaplace")
 
@@ -241,6 +244,7 @@ class Pipeline:
                 if simulated is not None:  # the simulation's own time, not the wait for its worker
                     self.state.records[-1].seconds = round(simulated[1], 3)
         self.warn_collisions()
+        self.warn_stays()
 
     def warn_collisions(self) -> None:
         """Warn (log, manifest.json, report.md) about every run in which the robot's body or
@@ -252,6 +256,18 @@ class Pipeline:
                 warn_once(run, "body_collision_instants",
                           f"run {label}: the robot's body or head touched a landmark or wall at {instants} "
                           f"whisk-series instant(s) (body_collision_instants): it was not driven clear of the world")
+
+    def warn_stays(self) -> None:
+        """Warn about every run whose robot stayed in one place (`ev.longest_stay`) for at
+        least `STUCK_SHARE` of its samples, and at least `STUCK_SAMPLES`: a stuck drive, whose
+        samples repeat one place and would make that world's scores unrepresentative."""
+        for label in self.runs():
+            run = self.open(label)
+            length, start = ev.longest_stay(run.poses[:, :2])
+            if length >= max(STUCK_SAMPLES, STUCK_SHARE * len(run.poses)):
+                warn_once(run, "longest_stay",
+                          f"run {label}: the robot stayed within {ev.STAY_RADIUS} m of one place for {length} of its "
+                          f"{len(run.poses)} samples, from sample {start} (longest_stay): it got stuck there")
 
     def open(self, label: str) -> Run:
         """The recorded run ``label``, opened once per pipeline (its fields load lazily, once)."""

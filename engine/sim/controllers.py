@@ -798,6 +798,9 @@ _LEAVE_GAP = 0.15  #: after a hold, back off until the head is this far from the
 _APPROACH_TIMEOUT = 12.0  #: an exploration that has not reached its landmark by then is given up [s]
 _TURN_CLEARANCE = 0.02  #: the driver turns towards a landmark only as far as the head stays this clear [m]
 _MAKE_ROOM = 0.3  #: where the head cannot swing round to face a landmark, back away up to this far first [m]
+_SKIP_AHEAD = 0.1  #: blocked on its path, the driver looks this much further along it per decision [m]
+_STALL_TIME = 3.0  #: driving, a robot that has neither moved `_HEADWAY` nor turned `_TURNED` for this long is blocked [s]
+_HEADWAY, _TURNED = 0.1, 0.3  #: [m], [rad]
 
 
 class TeleopDriver:
@@ -820,6 +823,8 @@ class TeleopDriver:
     that share of the run, along the loop moved ``off_route_offset`` to the left of travel
     (less where that would not be clear). A key that would bring the body or the head
     closer than the `SafetyGuard` allows is not pressed (a tap is tried), or released.
+    Blocked on its path (no key towards it is safe, or no headway for `_STALL_TIME`), the
+    driver looks further along the path and makes its way round (`_way_round`).
     """
 
     def __init__(self, spec: RunSpec, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
@@ -843,6 +848,7 @@ class TeleopDriver:
         self.visited: dict[int, float] = {}  #: landmark -> lap count when it was explored
         self.mode, self.turning = "drive", False
         self.target_landmark, self.until, self.approach_from = -1, 0.0, np.zeros(2)
+        self.headway = (np.zeros(3), 0.0)  #: the pose where the drive last made headway, and when
         self.contacts_left = 0  #: samples with contact still to record in the current hold
         self.touched = False  #: whisker deflection at full protraction seen since the last decision
         self.released = ""  #: the key the guard released since the last decision
@@ -971,6 +977,9 @@ class TeleopDriver:
     def _decide(self, t: float, pose: np.ndarray) -> tuple[str, float]:
         """The key to press next and how long (inf: until the next decision)."""
         pos, yaw = pose[:2], float(pose[2])
+        last, _ = self.headway
+        if self.mode != "drive" or np.hypot(*(pos - last[:2])) > _HEADWAY or abs(_wrap(yaw - last[2])) > _TURNED:
+            self.headway = (pose.copy(), t)
         if self.mode == "hold":
             self.contacts_left -= int(self.touched)
             if self.contacts_left > 0 and t < self.until:
@@ -1031,11 +1040,32 @@ class TeleopDriver:
         self.turning = abs(err) > (0.5 if self.turning else 1.0) * self.tolerance
         translation = self._translation_keys(direction)
         if not self.turning:
-            return self._pick(pose, translation)
-        turn = self._turn_key(err)
-        if self.outward is None and abs(err) < 3 * self.tolerance and translation[:1] == ["i"]:
-            return self._pick(pose, ["u" if err > 0 else "o", turn, *translation])  # forward and turn
-        return self._pick(pose, [turn, *translation])
+            ranked = translation
+        elif self.outward is None and abs(err) < 3 * self.tolerance and translation[:1] == ["i"]:
+            ranked = ["u" if err > 0 else "o", self._turn_key(err), *translation]  # forward and turn
+        else:
+            ranked = [self._turn_key(err), *translation]
+        key, duration = self._pick(pose, ranked)
+        if (key == "k" and self._standing()) or t - self.headway[1] >= _STALL_TIME:
+            return self._way_round(pose)
+        return key, duration
+
+    def _way_round(self, pose: np.ndarray) -> tuple[str, float]:
+        """Blocked: standing with no key towards the path ahead safe, or dithering without
+        headway (the path bends round something the head is up against, or its target lies
+        under the head, which reaches 0.58 m ahead). Look `_SKIP_AHEAD` further along the path
+        and turn or move towards it, else move away from the obstacle nearest the head; stand
+        only when none of these is safe. Without this the driver would stand, or dither, there
+        until the run ends: each decision would see the same blocked keys."""
+        self.s += _SKIP_AHEAD
+        yaw = float(pose[2])
+        rel = self.path.point(self.s + self.spec.lookahead)[0] - pose[:2]
+        direction = _wrap(math.atan2(rel[1], rel[0]) - yaw)
+        head = pose[:2] + HEAD_CENTRE * np.array([math.cos(yaw), math.sin(yaw)])
+        _, grad = self.obstacles.query(head[None])
+        away = _wrap(math.atan2(grad[0, 1], grad[0, 0]) - yaw)
+        turn = [self._turn_key(direction)] if self.outward is None else []
+        return self._pick(pose, [*turn, *self._translation_keys(direction), *self._translation_keys(away)])
 
     def _room_to_turn(self, pose: np.ndarray, bearing: float) -> float:
         """How far [rad] the robot can turn in place towards ``bearing`` (robot frame) with the
