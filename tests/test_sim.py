@@ -389,6 +389,45 @@ def test_two_route_runs_differ_but_follow_the_route(e1):
     assert 2.5 < travelled < 6.0
 
 
+def test_headway_is_a_move_of_0_1_m_or_a_turn_of_0_3_rad_within_3_s():
+    from vitaplace.engine.sim.controllers import Headway
+
+    headway = Headway()
+    headway.restart(np.array([0.0, 0.0, 0.0]), 0.0)
+    assert not headway.stalled(np.array([0.09, 0.0, 0.29]), 2.9)  # neither yet, but not 3 s
+    assert headway.stalled(np.array([0.09, 0.0, 0.29]), 3.0)
+    assert not headway.stalled(np.array([0.0, 0.11, 0.0]), 3.5) and headway.since == 3.5  # moved: a new anchor
+    assert not headway.stalled(np.array([0.0, 0.11, 0.31]), 6.6) and headway.since == 6.6  # turned
+    assert not headway.stalled(np.array([0.0, 0.11, 0.31 - 2 * math.pi]), 9.5)  # a full turn is no turn
+    assert headway.stalled(np.array([0.0, 0.11, 0.31 - 2 * math.pi]), 9.6)
+
+
+def test_a_foraging_robot_whose_turn_is_refused_turns_the_other_way_then_gives_the_state_up(e1):
+    """Where one training run of the first teleoperated study stood for its last 348 of 1000
+    samples (seed 2968811710, penetration): in E1's south-east, its body 3.5 cm from the
+    wall, leaving an explored landmark towards heading 3.168 rad, the short way round (right)
+    refused by the guard, backing off too. The robot turns the other way round at once
+    (before: it stood still), and with no headway for 3 s (the pose is held here) it gives
+    the leave state up for wandering."""
+    from vitaplace.engine.sim.controllers import ForagingController, Observation
+
+    controller = ForagingController(RunSpec(kind="foraging", n_samples=2), e1.obstacles, np.random.default_rng(0))
+    pose = np.array([0.687, -2.474, -0.315])
+    nothing = dict(contacts=np.zeros((0, 3)), deflection=np.zeros(N_WHISKERS))
+    controller(Observation(time=0.0, pose=pose, **nothing))  # starts wandering; now, leaving:
+    controller.mode = "leave"
+    leave = controller.states["leave"]
+    leave.heading, leave.until = 3.168, 0.0
+    controller.headway.restart(pose, 0.0)
+    v, w = controller(Observation(time=0.1, pose=pose, **nothing))
+    assert v == 0.0 and w > 0.0  # left: the long way round
+    for k in range(2, 30):
+        controller(Observation(time=0.1 * k, pose=pose, **nothing))
+    assert controller.mode == "leave"
+    controller(Observation(time=3.0, pose=pose, **nothing))
+    assert controller.mode == "wander"
+
+
 def test_foraging_touches_things_and_never_drives_into_them(e1):
     run = simulate_run(e1, RunSpec(kind="foraging", n_samples=120), seed=5, progress=False)
     assert run.attrs["body_collision_instants"] == 0

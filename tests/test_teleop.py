@@ -190,7 +190,8 @@ def test_a_driver_without_headway_for_3_s_looks_further_along_its_path():
         driver, _ = make_controller(e3, RunSpec(kind="teleop", n_samples=600), np.random.default_rng(STUCK_SEED), 0.5)
         point, tangent = driver.loop.point(1.0)
         pose = np.array([*point, math.atan2(tangent[1], tangent[0])])
-        driver.s, driver.tactile, driver.headway = 1.0, (), (pose, 100.0 - stalled_for)
+        driver.s, driver.tactile = 1.0, ()
+        driver.headway.restart(pose, 100.0 - stalled_for)
         key, _ = driver._decide(100.0, pose)
         assert key != "k"
         s0[stalled_for] = driver.s

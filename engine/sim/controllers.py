@@ -69,7 +69,7 @@ from vitaplace.engine.sim.environment import EnvironmentSpec, ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS, HEAD_HALF, HEAD_POS
 
 __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "make_controller",
-           "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore", "Leave", "Avoid", "TRANSITIONS"]
+           "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore", "Leave", "Avoid", "TRANSITIONS", "Headway"]
 
 HEAD_REACH = HEAD_POS[0] + HEAD_HALF[0]  #: distance from the base centre to the snout [m]
 
@@ -153,6 +153,26 @@ class SafetyGuard:
             if self.clearance(pose, *cand, horizon=horizon, current=current) >= floor:
                 return cand
         return (0.0, 0.0, 0.0)
+
+
+class Headway:
+    """Whether a robot is getting anywhere: it has moved `DISTANCE` or turned `TURN` since the
+    pose it last did (its anchor). `stalled` when that was `STALL_TIME` ago or more: it is
+    stuck (standing, or dithering between commands the guard lets through one by one)."""
+
+    DISTANCE, TURN, STALL_TIME = 0.1, 0.3, 3.0  #: [m], [rad], [s]
+
+    def __init__(self) -> None:
+        self.pose, self.since = np.zeros(3), 0.0
+
+    def restart(self, pose: np.ndarray, t: float) -> None:
+        self.pose, self.since = np.array(pose, dtype=float), t
+
+    def stalled(self, pose: np.ndarray, t: float) -> bool:
+        moved = math.hypot(*(pose[:2] - self.pose[:2])) > self.DISTANCE or abs(_wrap(pose[2] - self.pose[2])) > self.TURN
+        if moved:
+            self.restart(pose, t)
+        return not moved and t - self.since >= self.STALL_TIME
 
 
 class RunSpec(BaseModel):
@@ -627,6 +647,9 @@ TRANSITIONS: dict[tuple[str, str], str] = {
     ("leave", "turned away"): "wander",
     ("avoid", "clear"): "wander",
     **{(name, "too close"): "avoid" for name in ("wander", "orient", "explore", "leave")},
+    # no `Headway` for 3 s (a turn and its ways out refused in turn): give the state up
+    ("wander", "stuck"): "avoid",
+    **{(name, "stuck"): "wander" for name in ("orient", "explore", "leave", "avoid")},
 }
 #: the states that attend to an object (and may come closer to it: ``attend_margin_share``)
 ATTENDING = ("orient", "explore", "leave")
@@ -654,6 +677,7 @@ class ForagingController:
         self._wander = _OU(self.rng, math.radians(spec.wander_turn_deg), spec.wander_turn_time, x0=0.0)
         self._limit = _Limiter(spec.max_accel, 4.0)
         self._guard = SafetyGuard(self.obstacles, spec.guard_margin_share * spec.avoid_margin)
+        self.headway = Headway()  #: is the robot getting anywhere?
         self._last_t: float | None = None
 
     def start_pose(self, default: tuple[float, float, float]) -> tuple[float, float, float]:
@@ -678,6 +702,7 @@ class ForagingController:
         self.mode = TRANSITIONS[(self.mode, event)]
         state = self.states[self.mode]
         state.enter(s)
+        self.headway.restart(s.pose, s.time)  # each state gets its time to get somewhere
         return state
 
     def __call__(self, obs: Observation) -> tuple[float, float]:
@@ -686,7 +711,12 @@ class ForagingController:
         s = self.sense(obs, dt)
         margin = self.spec.avoid_margin * (self.spec.attend_margin_share if self.mode in ATTENDING else 1.0)
         too_close = self.mode != "avoid" and s.clearance < margin
-        state = self._switch("too close", s) if too_close else self.states[self.mode]
+        if too_close:
+            state = self._switch("too close", s)
+        elif self.headway.stalled(s.pose, s.time):
+            state = self._switch("stuck", s)
+        else:
+            state = self.states[self.mode]
         command, event = state.step(s)
         while command is None:  # handed over at once: the next state acts in this tick
             state = self._switch(event, s)
@@ -698,9 +728,15 @@ class ForagingController:
     def _out(self, v: float, w: float, dt: float, pose: np.ndarray) -> tuple[float, float]:
         """Rate-limited command; one that would swing the head or drive the body into an
         obstacle within the guard's horizon is replaced by the first safe one of: backing off
-        while turning, backing off straight, not turning, standing still (always safe)."""
+        while turning, backing off straight, not turning, turning the other way round,
+        creeping forward (at the backing-off speed), standing still (always safe). Without
+        the last two ways out a robot in a corner where its state's turn and backing off are
+        both refused stood there for the rest of its run (a state keeps asking for the same
+        turn until it is done)."""
         back = -self.spec.back_off_speed
-        v, w, _ = self._guard.first_safe(pose, [(v, w, 0.0), (back, w, 0.0), (back, 0.0, 0.0), (v, 0.0, 0.0)])
+        ways_out = [(back, w), (back, 0.0), (v, 0.0), (0.0, -w), (-back, 0.0)]
+        candidates = [(v, w, 0.0)] + [(a, b, 0.0) for a, b in ways_out if (a, b) != (0.0, 0.0)]  # not standing yet
+        v, w, _ = self._guard.first_safe(pose, candidates)
         return self._limit(v, w, dt=dt)
 
 
@@ -799,8 +835,6 @@ _APPROACH_TIMEOUT = 12.0  #: an exploration that has not reached its landmark by
 _TURN_CLEARANCE = 0.02  #: the driver turns towards a landmark only as far as the head stays this clear [m]
 _MAKE_ROOM = 0.3  #: where the head cannot swing round to face a landmark, back away up to this far first [m]
 _SKIP_AHEAD = 0.1  #: blocked on its path, the driver looks this much further along it per decision [m]
-_STALL_TIME = 3.0  #: driving, a robot that has neither moved `_HEADWAY` nor turned `_TURNED` for this long is blocked [s]
-_HEADWAY, _TURNED = 0.1, 0.3  #: [m], [rad]
 
 
 class TeleopDriver:
@@ -823,8 +857,8 @@ class TeleopDriver:
     that share of the run, along the loop moved ``off_route_offset`` to the left of travel
     (less where that would not be clear). A key that would bring the body or the head
     closer than the `SafetyGuard` allows is not pressed (a tap is tried), or released.
-    Blocked on its path (no key towards it is safe, or no headway for `_STALL_TIME`), the
-    driver looks further along the path and makes its way round (`_way_round`).
+    Blocked on its path (no key towards it is safe, or no `Headway` for 3 s), the driver
+    looks further along the path and makes its way round (`_way_round`).
     """
 
     def __init__(self, spec: RunSpec, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
@@ -848,7 +882,7 @@ class TeleopDriver:
         self.visited: dict[int, float] = {}  #: landmark -> lap count when it was explored
         self.mode, self.turning = "drive", False
         self.target_landmark, self.until, self.approach_from = -1, 0.0, np.zeros(2)
-        self.headway = (np.zeros(3), 0.0)  #: the pose where the drive last made headway, and when
+        self.headway = Headway()  #: is the drive getting anywhere?
         self.contacts_left = 0  #: samples with contact still to record in the current hold
         self.touched = False  #: whisker deflection at full protraction seen since the last decision
         self.released = ""  #: the key the guard released since the last decision
@@ -977,9 +1011,8 @@ class TeleopDriver:
     def _decide(self, t: float, pose: np.ndarray) -> tuple[str, float]:
         """The key to press next and how long (inf: until the next decision)."""
         pos, yaw = pose[:2], float(pose[2])
-        last, _ = self.headway
-        if self.mode != "drive" or np.hypot(*(pos - last[:2])) > _HEADWAY or abs(_wrap(yaw - last[2])) > _TURNED:
-            self.headway = (pose.copy(), t)
+        if self.mode != "drive":
+            self.headway.restart(pose, t)
         if self.mode == "hold":
             self.contacts_left -= int(self.touched)
             if self.contacts_left > 0 and t < self.until:
@@ -1045,8 +1078,9 @@ class TeleopDriver:
             ranked = ["u" if err > 0 else "o", self._turn_key(err), *translation]  # forward and turn
         else:
             ranked = [self._turn_key(err), *translation]
+        stalled = self.headway.stalled(pose, t)
         key, duration = self._pick(pose, ranked)
-        if (key == "k" and self._standing()) or t - self.headway[1] >= _STALL_TIME:
+        if (key == "k" and self._standing()) or stalled:
             return self._way_round(pose)
         return key, duration
 
