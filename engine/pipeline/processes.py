@@ -8,6 +8,7 @@ import ctypes
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -28,9 +29,17 @@ def process_identity(pid: int) -> str:
     return f"{pid}:{start}"
 
 
+#: multiprocessing's resource tracker (a process of its own) reports the semaphores that a
+#: Ctrl-C left to it, and cleans them up: its report would follow the one-line interrupt
+#: message, so it is silenced, by a -W option that the tracker inherits
+TRACKER_REPORT = "ignore:resource_tracker:UserWarning:multiprocessing.resource_tracker"
+
+
 def worker_pool(workers: int, blas_threads: int | None = None) -> ProcessPoolExecutor:
     """A pool of spawned worker processes that end with the process that made it
     (`die_with_parent`), each limited to ``blas_threads`` BLAS threads when given."""
+    if TRACKER_REPORT not in sys.warnoptions:
+        sys.warnoptions.append(TRACKER_REPORT)  # passed on as -W to the processes started from now on
     return ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=_start_worker,
                                initargs=(process_identity(os.getpid()), blas_threads))
 
