@@ -7,10 +7,10 @@ Each table in RESULTS.md sits between ``<!-- table NAME -->`` and ``<!-- /table 
 exactly what this script prints for NAME (`tests/test_results_doc.py` checks it), so no
 number in the text can drift from the files `vitaplace sweep` and `vitaplace sensitivity`
 wrote: ``sweep.csv`` (statistics over seeds per world x method x direction x value),
-``sweep-diff.csv`` (paired differences between methods, with the sign-flip p) and
-``sensitivity.csv`` (per seed, max F1 rescored under other ground truths), ``stalls.csv``
-(`stalls.py`: where the drives stand still), and each seed's
-``manifest.json`` and ``report.md`` (copied into ``seeds/seed-N/``), in
+``sweep-diff.csv`` (paired differences between methods, with the sign-flip p),
+``sweep-seeds.csv`` (every value per seed) and ``sensitivity.csv`` (per seed, max F1
+rescored under other ground truths), and each seed's ``manifest.json`` and ``report.md``
+(copied into ``seeds/seed-N/``), in
 ``paper-cpu-sweep/`` (penetration touch model) and ``paper-cpu-physical-sweep/`` (physical
 whiskers). Proportions are printed in percent, intervals are the percentile bootstrap over
 seeds unless a column says otherwise.
@@ -248,19 +248,32 @@ def sensitivity() -> str:
     return markdown(header, body)
 
 
-#: a drive that stays this many samples within `stalls.py`'s radius (0.25 m) is stuck
+#: a drive that stays this many samples within 0.25 m is stuck (the pipeline warns from a
+#: quarter of a run, 150 of these 600 samples)
 STALL_SAMPLES = 100
+
+
+def _longest_stay(rows: dict[tuple[str, ...], dict[str, str]], seed: str, world: str, drive: str) -> int:
+    """Samples of the longest stay of ``drive`` ("query" or "reference") in ``world`` at ``seed``."""
+    key = (seed, world, "L", "query-to-reference")
+    count = "n_queries" if drive == "query" else "n_references"
+    share = float(rows[(*key, f"difficulty.{drive}_longest_stay_share")]["value"])
+    return round(share * float(rows[(*key, count)]["value"]))
 
 
 def stalls() -> str:
     """Per world and touch model: how many of the 12 evaluation drives (6 seeds x query and
     reference) stay within 0.25 m for at least `STALL_SAMPLES` consecutive samples, and the
-    longest such stay (``stalls.csv``, written by docs/results/stalls.py from the sweep)."""
+    longest stay: each evaluation's ``difficulty.query_longest_stay_share`` and
+    ``difficulty.reference_longest_stay_share`` (``sweep-seeds.csv``, method L, query to
+    reference; the drives are the same for every method) times its sample counts."""
     body = []
     for study in STUDIES:
-        rows = read(study, "stalls.csv")
+        rows = _index(read(study, "sweep-seeds.csv"), "seed", "environment", "method", "direction", "metric")
         for world in WORLDS:
-            stays = [(int(r["longest_stay"]), r["seed"], r["drive"]) for r in rows if r["environment"] == world]
+            seeds = sorted({key[0] for key in rows}, key=int)
+            stays = [(_longest_stay(rows, seed, world, drive), seed, drive)
+                     for seed in seeds for drive in ("query", "reference")]
             stuck = sorted((s for s in stays if s[0] >= STALL_SAMPLES), key=lambda s: (int(s[1]), s[2]))
             body.append([world, study, f"{len(stuck)} of {len(stays)}", str(max(s[0] for s in stays)),
                          ", ".join(f"{seed}{drive[0]} ({n})" for n, seed, drive in stuck) or "–"])
