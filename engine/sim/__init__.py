@@ -23,9 +23,10 @@ select_gl_backend()
 #: 2: WhiskEye geometry, routes for its footprint, detours that follow the offset path.
 #: 3: the teleop run kind, the touch_share run attribute, the shared look-ahead guard.
 #: 4: teleop turns at teleop.launch's 0.25 rad/s; holds at a landmark count samples with contact.
-#: 5: a teleop drive blocked on its path finds a way round, and a foraging robot whose turn and
-#:    backing off are both refused turns the other way or creeps forward (both stood still until the run ended).
-SIMULATOR_VERSION = 5
+#: 5: a teleop drive blocked on its path finds a way round (it stood still until the run ended).
+#: 6: a foraging robot whose turn and backing off are refused turns the other way or creeps forward, and
+#:    gives a state up after 3 s without headway (it too stood still until the run ended).
+SIMULATOR_VERSION = 6
 
 _EXPORTS = {
     "EnvironmentSpecError": "environment",
