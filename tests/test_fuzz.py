@@ -216,6 +216,9 @@ def _finished_folder(folder: Path, seed: int) -> None:
 @example(file="results.json", key="recall_at_k", value=None, whole=False, reseal=True)
 @example(file="results.json", key="auc", value={"\r": False}, whole=False, reseal=True)  # a line break in a field's name
 @example(file="results.json", key="n_queries", value=None, whole=False, reseal=True)  # sized the block bootstrap
+@example(file="results.json", key="recall_at_k", value={"": None}, whole=False, reseal=True)  # K not a number
+@example(file="results.json", key="recall_at_k", value=1, whole=False, reseal=True)  # not a mapping
+@example(file="results.json", key="max_f1", value=4.752060766250472e+161, whole=False, reseal=True)  # overflowed the bootstrap
 def test_any_mutated_aggregate_folder_gets_a_clean_answer(capsys, file, key, value, whole, reseal):
     import json
 

@@ -29,7 +29,7 @@ from vitaplace.engine.evaluation.evaluate import load_curve
 from vitaplace.engine.pipeline.keys import content_hash
 from vitaplace.engine.pipeline.outdir import MANIFEST, RESULTS_JSON
 from vitaplace.engine.evaluation.figures import write_pr_bands
-from vitaplace.engine.evaluation.summary import write_summary
+from vitaplace.engine.evaluation.summary import bounds, write_summary
 
 REQUIRED = (completion.RECORD, MANIFEST, RESULTS_JSON, completion.SCENARIO)
 #: identity columns of a result row: non-empty text
@@ -74,8 +74,9 @@ def _finite(value: Any) -> bool:
 
 def check_row(row: Any, where: str) -> dict[str, Any]:
     """``row`` if it is a result row: text identity columns, a finite ``max_f1``, a whole
-    ``n_queries`` >= 1 (it sizes the block bootstrap's segments), and every other field a
-    finite number, null, a mapping of those (``recall_at_k``) or one of `TEXT_FIELDS`; else
+    ``n_queries`` >= 1 (it sizes the block bootstrap's segments), ``recall_at_k`` null or a
+    mapping from whole K >= 1, and every other field a finite number (inside [0, 1] for a
+    proportion), null, a mapping of those (``difficulty``) or one of `TEXT_FIELDS`; else
     AggregateError naming ``where`` and the field."""
     if not isinstance(row, dict):
         raise AggregateError(f"{where}: a {type(row).__name__}, expected a result row (a JSON object)")
@@ -87,14 +88,22 @@ def check_row(row: Any, where: str) -> dict[str, Any]:
     queries = row.get("n_queries")
     if not (_finite(queries) and queries == int(queries) and queries >= 1):
         raise AggregateError(f"{where}: field 'n_queries' is {queries!r:.60}, expected a whole number of queries (>= 1)")
+    recall_at_k = row.get("recall_at_k")
+    if recall_at_k is not None and not (isinstance(recall_at_k, dict) and all(k.isdecimal() and int(k) >= 1
+                                                                              for k in recall_at_k)):
+        raise AggregateError(f"{where}: field 'recall_at_k' is {recall_at_k!r:.60}, expected a mapping from K "
+                             "(1, 5, ...) to a recall, or null")
     for key, value in row.items():
         if key in IDENTITY or (key in TEXT_FIELDS and isinstance(value, str)):
             continue
         items = value.items() if isinstance(value, dict) else [(None, value)]
         for sub, item in items:
+            name = key if sub is None else f"{key}.{sub}"
             if item is not None and not _finite(item):
-                name = key if sub is None else f"{key}.{sub}"
                 raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a finite number or null")
+            low, high = bounds(f"recall@{sub}" if key == "recall_at_k" else name)
+            if item is not None and not low <= item <= high:
+                raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a number in [{low:g}, {high:g}]")
     return row
 
 
