@@ -996,14 +996,24 @@ class TeleopDriver:
         self.s = laps * path.length + path.cum[i] + frac * path.seg_len[i]
         self.path = path
 
+    @staticmethod
+    def _head(pose: np.ndarray) -> np.ndarray:
+        """The centre (2,) of the head's disc at ``pose``."""
+        return pose[:2] + HEAD_CENTRE * np.array([math.cos(pose[2]), math.sin(pose[2])])
+
+    def _path_direction(self, pose: np.ndarray) -> float:
+        """Direction [rad, robot frame] from the base to the path point ``lookahead`` ahead."""
+        rel = self.path.point(self.s + self.spec.lookahead)[0] - pose[:2]
+        return _wrap(math.atan2(rel[1], rel[0]) - pose[2])
+
     def _landmark_gaps(self, pose: np.ndarray) -> np.ndarray:
         """Clearance (L,) of the head from each landmark [m]."""
-        head = pose[:2] + HEAD_CENTRE * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        head = self._head(pose)
         return self.obstacles.landmark_distance_many(head[None])[0] - HEAD_RADIUS
 
     def _bearing(self, pose: np.ndarray, i: int) -> float:
         """Direction [rad, robot frame] from the base to the point of landmark ``i`` nearest the head."""
-        head = pose[:2] + HEAD_CENTRE * np.array([math.cos(pose[2]), math.sin(pose[2])])
+        head = self._head(pose)
         dist, grad = self.obstacles.query(head[None], landmark=i)
         rel = head - dist[0] * grad[0] - pose[:2]
         return _wrap(math.atan2(rel[1], rel[0]) - pose[2])
@@ -1066,9 +1076,7 @@ class TeleopDriver:
         self._progress(pos)
         if path is self.loop and self._start_visit(t, pose):
             return self._decide(t, pose)
-        target = self.path.point(self.s + self.spec.lookahead)[0]
-        rel = target - pos
-        direction = _wrap(math.atan2(rel[1], rel[0]) - yaw)  # of the path ahead, robot frame
+        direction = self._path_direction(pose)
         err = _wrap(self._facing(pos) - yaw)
         self.turning = abs(err) > (0.5 if self.turning else 1.0) * self.tolerance
         translation = self._translation_keys(direction)
@@ -1092,12 +1100,9 @@ class TeleopDriver:
         only when none of these is safe. Without this the driver would stand, or dither, there
         until the run ends: each decision would see the same blocked keys."""
         self.s += _SKIP_AHEAD
-        yaw = float(pose[2])
-        rel = self.path.point(self.s + self.spec.lookahead)[0] - pose[:2]
-        direction = _wrap(math.atan2(rel[1], rel[0]) - yaw)
-        head = pose[:2] + HEAD_CENTRE * np.array([math.cos(yaw), math.sin(yaw)])
-        _, grad = self.obstacles.query(head[None])
-        away = _wrap(math.atan2(grad[0, 1], grad[0, 0]) - yaw)
+        direction = self._path_direction(pose)
+        _, grad = self.obstacles.query(self._head(pose)[None])
+        away = _wrap(math.atan2(grad[0, 1], grad[0, 0]) - pose[2])
         turn = [self._turn_key(direction)] if self.outward is None else []
         return self._pick(pose, [*turn, *self._translation_keys(direction), *self._translation_keys(away)])
 
