@@ -383,22 +383,28 @@ def test_bad_recorded_runs_in_a_scenario_are_one_line(tmp_path, capsys, case):
     assert not (tmp_path / "out" / "cache" / "models").exists()  # refused before any method was fitted
 
 
+def _rewrite_run(path, **changes) -> None:
+    """Rewrite the run file ``path`` with some of its fields (images, poses, xy, attrs, ...) replaced."""
+    from vitaplace.engine.data.dataset import Run
+
+    run = open_run(path)
+    fields = dict(images=run.images, theta=run.theta, xy=run.xy, poses=run.poses, times=run.times,
+                  deflection=run.deflection, name=run.name, attrs=run.attrs)
+    write_run(path, Run.from_arrays(**{**fields, **changes}))
+
+
 def test_a_run_stuck_in_one_place_reaches_the_user(tmp_path, monkeypatch):
     """A query that stands at one pose for samples 2-6 (5 of its 8; the route's samples are
     0.29 m apart, beyond the 0.25 m radius) warns in the log, manifest.json and report.md, and
     its longest-stay share (5/8) is in the difficulty; the reference is not warned about. The
     runs are tiny, so the sample floor is lowered to 4 (the share, 1/4, is the shipped one)."""
-    from vitaplace.engine.data.dataset import Run
     from vitaplace.engine.pipeline import runner
 
     monkeypatch.setattr(runner, "STUCK_SAMPLES", 4)
     scenario = recorded_scenario(tmp_path)
-    run = open_run(tmp_path / "query.h5")
-    poses = run.poses.copy()
+    poses = open_run(tmp_path / "query.h5").poses.copy()
     poses[2:7] = poses[2]
-    write_run(tmp_path / "query.h5", Run.from_arrays(
-        images=run.images, theta=run.theta, xy=run.xy, poses=poses, times=run.times, deflection=run.deflection,
-        name=run.name, attrs=run.attrs))
+    _rewrite_run(tmp_path / "query.h5", poses=poses)
     out = tmp_path / "out"
     assert main(["run", str(scenario), "--out", str(out), "--no-progress"]) == 0
     message = ("run E1/query: the robot stayed within 0.25 m of one place for 5 of its 8 samples, from sample 2 "
@@ -420,16 +426,12 @@ def test_collisions_and_a_training_run_in_no_world_reach_the_user(tmp_path):
     the reference route shifted 5 cm sideways, facing the same way: each query's nearest
     reference is 5 cm and 0 degrees away. Touch: whisker 0 of query samples 0 and 1 deflected,
     nothing in the reference run (touch shares 2/8 and 0)."""
-    from vitaplace.engine.data.dataset import Run
-
     scenario = recorded_scenario(tmp_path)
     for name, touched, collisions in (("query", [0, 1], 3), ("ref", [], 0)):
         run = open_run(tmp_path / f"{name}.h5")
         xy = np.zeros_like(run.xy)
         xy[touched, 0, 0] = 0.5
-        write_run(tmp_path / f"{name}.h5", Run.from_arrays(
-            images=run.images, theta=run.theta, xy=xy, poses=run.poses, times=run.times, deflection=run.deflection,
-            name=run.name, attrs={**run.attrs, "body_collision_instants": collisions}))
+        _rewrite_run(tmp_path / f"{name}.h5", xy=xy, attrs={**run.attrs, "body_collision_instants": collisions})
     out = tmp_path / "out"
     assert main(["run", str(scenario), "--out", str(out), "--no-progress"]) == 0
     message = ("run E1/query: the robot's body or head touched a landmark or wall at 3 whisk-series instant(s) "
