@@ -28,18 +28,18 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from vitaplace.engine import __version__
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 
 if TYPE_CHECKING:
     from vitaplace.engine.data.dataset import Run
-    from vitaplace.engine.features import FeatureExtractor
+    from vitaplace.engine.extension.features import FeatureExtractor
     from vitaplace.engine.config.scenario import Scenario
 
 #: names imported on first use, so that ``import vitaplace`` (and every ``vitaplace.engine``
 #: import, the command line's included) stays cheap
 _LAZY = {
     "Run": "vitaplace.engine.data.dataset", "open_run": "vitaplace.engine.data.dataset",
-    "FeatureExtractor": "vitaplace.engine.features", "Features": "vitaplace.engine.features",
+    "FeatureExtractor": "vitaplace.engine.extension.features", "Features": "vitaplace.engine.extension.features",
     "Scenario": "vitaplace.engine.config.scenario", "STAGES": "vitaplace.engine.pipeline.runner",
 }
 
@@ -96,7 +96,7 @@ def run(
     runs in parallel (default: one per core; 1 in a script without a ``__main__`` guard).
     Stage messages go to the ``vitaplace`` logger (``logging.basicConfig(level="INFO")``
     shows them)."""
-    from vitaplace.engine.pipeline.outdir import OutputLock, remove_stale_temporaries, writable_dir
+    from vitaplace.engine.outputs.outdir import claimed
     from vitaplace.engine.config.loading import load_scenario as load
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.runner import STAGES, Pipeline
@@ -109,10 +109,7 @@ def run(
         log.info("%s calls vitaplace.run outside `if __name__ == \"__main__\":`; simulating in this process "
                  "(guard the call for parallel simulation workers)", script)
         workers = 1
-    folder = writable_dir(Path(out) if out is not None else Path("runs") / loaded.name)
-    with OutputLock(folder):
-        for path in remove_stale_temporaries(folder):
-            log.info("removed %s, left by an interrupted run", path)
+    with claimed(Path(out) if out is not None else Path("runs") / loaded.name) as folder:
         return run_stages(Pipeline(loaded, resolved, folder, force=force, progress=progress, workers=workers), until)
 
 
@@ -178,7 +175,7 @@ def simulate(
 
 def extractors() -> list[str]:
     """The names of the installed feature extractors (``vitaplace plugins`` lists them too)."""
-    from vitaplace.engine.plugins import discover
+    from vitaplace.engine.extension.registry import discover
 
     return discover().names()
 
@@ -187,7 +184,7 @@ def fit_extractor(plugin: str, train: Run, params: Mapping[str, Any] | None = No
     """A new extractor of ``plugin`` (e.g. ``"handcrafted"``, ``"mupnet"``) with ``params``
     (the scenario's ``methods.N.params``), fitted on the run ``train``. Its ``transform(run)``
     gives features and ``distance(query, reference)`` the distance matrix."""
-    from vitaplace.engine.plugins import discover
+    from vitaplace.engine.extension.registry import discover
 
     extractor = discover().create(plugin, params)
     extractor.progress = progress

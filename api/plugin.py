@@ -3,16 +3,18 @@
     from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, hookimpl
 
 This module is the stable home of these names: they stay importable from here whatever
-module of the engine defines them. The engine paths that docs/plugins.md's example uses
-(``vitaplace.engine.data.dataset.Run``, ``vitaplace.engine.features.FeatureExtractor``, ...) keep
-working too and name the same objects. `vitaplace.testing.check_extractor` checks a plugin
-against the interface's contract.
+module of the engine defines them, and the shipped plugins import them from here. The engine
+paths that plugins written against earlier docs use (``vitaplace.engine.dataset.Run``,
+``vitaplace.engine.features.FeatureExtractor``, ``vitaplace.engine.hookspecs.hookimpl``,
+``vitaplace.engine.plugins.discover``) keep working too and name the same objects.
+`vitaplace.testing.check_extractor` checks a plugin against the interface's contract.
 """
 
 from __future__ import annotations
 
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.features import ExtractorParams, ExtractorParamsError, FeatureExtractor, Features, warn_once
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.engine.extension.features import ExtractorParams, ExtractorParamsError, FeatureExtractor, Features, warn_once
+from vitaplace.engine.extension.hookspecs import hookimpl
+from vitaplace.engine.extension.registry import discover
 
-__all__ = ["ExtractorParams", "ExtractorParamsError", "FeatureExtractor", "Features", "Run", "hookimpl", "warn_once"]
+__all__ = ["ExtractorParams", "ExtractorParamsError", "FeatureExtractor", "Features", "Run", "discover", "hookimpl", "warn_once"]

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.features import FeatureExtractor, Features
+from vitaplace.engine.extension.features import FeatureExtractor, Features
 
 __all__ = [
     "ATOL", "CHECKS", "RTOL", "ContractError", "check_distance_before_fit", "check_distance_output",

@@ -327,6 +327,6 @@ def cuda_main(args, pc) -> dict:
 
 def _save(path: str | None, out: dict) -> None:
     if path:
-        from vitaplace.engine.atomic import write_text_atomic
+        from vitaplace.engine.base.atomic import write_text_atomic
 
         write_text_atomic(path, json.dumps(out, indent=2))

@@ -1,41 +1,10 @@
-"""Pluggy hook specifications of the ``vitaplace`` namespace (documented in docs/plugins.md)."""
+"""Import path kept for plugins written against earlier docs: the plugin hooks lives in
+`vitaplace.engine.extension.hookspecs`; plugins import what they need from `vitaplace.plugin`."""
 
-from __future__ import annotations
+from typing import Any
 
-from collections.abc import Callable
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
-
-import pluggy
-
-from vitaplace.engine.features import FeatureExtractor
-
-if TYPE_CHECKING:
-    from vitaplace.engine.config.scenario import Scenario
-
-PROJECT = "vitaplace"
-#: Entry-point group through which packages (built-in ones included) contribute plugins.
-ENTRY_POINT_GROUP = "vitaplace.features"
-
-hookspec = pluggy.HookspecMarker(PROJECT)
-hookimpl = pluggy.HookimplMarker(PROJECT)
+from vitaplace.engine.extension import hookspecs as _home
 
 
-@hookspec
-def vitaplace_register_features(register: Callable[[type[FeatureExtractor]], None]) -> None:
-    """Contribute feature extractors: call ``register(ExtractorClass)`` once per extractor.
-
-    One plugin module may register several extractors. Each class needs a unique ``name``.
-    """
-
-
-@hookspec
-def vitaplace_run_finished(out: Path, scenario: Scenario, rows: list[dict[str, Any]], stage: str) -> None:
-    """A scenario's pipeline finished: every stage up to ``stage`` is done and ``out`` holds
-    its outputs (manifest.json, scenario.resolved.yaml; from the evaluate stage on
-    results.json/.csv with ``rows``, their rows; after the report stage report.md and
-    figures/). For trackers and notifications (e.g. `vitaplace.plugins.mlflow_tracking`).
-
-    Called in the process that ran the pipeline (for a sweep: once per seed, in its worker).
-    An exception is logged as a warning naming the plugin and does not fail the run.
-    """
+def __getattr__(name: str) -> Any:
+    return getattr(_home, name)

@@ -45,7 +45,7 @@ from typing import NamedTuple
 
 import warp as wp
 
-from vitaplace.engine.pipeline.cpus import usable_cpus
+from vitaplace.engine.base.cpus import usable_cpus
 from vitaplace.kernels.reference import ACTIVATIONS
 
 __all__ = [

@@ -26,7 +26,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.plugin import hookimpl
 
 #: the environment variable that turns tracking on: the MLflow experiment's name
 EXPERIMENT_ENV = "VITAPLACE_MLFLOW"

@@ -24,8 +24,8 @@ PLUGIN = '''
 import os
 import numpy as np
 from scipy.spatial.distance import cdist
-from vitaplace.engine.features import FeatureExtractor
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.engine.extension.features import FeatureExtractor
+from vitaplace.engine.extension.hookspecs import hookimpl
 
 
 class Oracle(FeatureExtractor):

@@ -226,6 +226,15 @@ def test_quickstart_writes_every_output(quickstart_run):
     assert manifest["packages"]["numpy"] == np.__version__ and manifest["packages"]["mujoco"]
 
 
+def test_the_manifest_says_how_training_ended_for_the_methods_that_train(quickstart_run):
+    """TINY trains L for 2 epochs (epochs=2): the manifest's ``training`` holds MuPNet's summary
+    of that, in both runs (the second finds the fit cached); ViTa-SLAM (H) trains nothing."""
+    _, first, second = quickstart_run
+    for manifest in (first, second):
+        assert set(manifest["training"]) == {"L"}
+        assert manifest["training"]["L"]["max_epochs"] == 2 and 1 <= manifest["training"]["L"]["epochs"] <= 2
+
+
 def test_second_run_reuses_every_stage(quickstart_run):
     _, first, second = quickstart_run
     assert [(r["stage"], r["item"]) for r in second["stages"]] == [(r["stage"], r["item"]) for r in first["stages"]]
@@ -314,8 +323,8 @@ ORACLE_PLUGIN = '''
 from pathlib import Path
 import numpy as np
 from scipy.spatial.distance import cdist
-from vitaplace.engine.features import FeatureExtractor
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.engine.extension.features import FeatureExtractor
+from vitaplace.engine.extension.hookspecs import hookimpl
 
 
 class Oracle(FeatureExtractor):
@@ -441,7 +450,7 @@ def test_extractor_outputs_are_checked_with_one_line():
 
 
 def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path):
-    from vitaplace.engine.pipeline.outdir import OutputDirError, OutputLock
+    from vitaplace.engine.outputs.outdir import OutputDirError, OutputLock
 
     out = tmp_path / "out"
     out.mkdir()
@@ -449,7 +458,7 @@ def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path
         pass
     holder = subprocess.Popen(
         [sys.executable, "-c",
-         "import time\nfrom pathlib import Path\nfrom vitaplace.engine.pipeline.outdir import OutputLock\n"
+         "import time\nfrom pathlib import Path\nfrom vitaplace.engine.outputs.outdir import OutputLock\n"
          f"with OutputLock(Path({str(out)!r})):\n    print('locked', flush=True)\n    time.sleep(30)\n"],
         stdout=subprocess.PIPE, text=True,
     )
@@ -469,7 +478,7 @@ def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path
 
 
 def test_temporaries_left_by_an_interrupted_run_are_removed(tmp_path):
-    from vitaplace.engine.pipeline.outdir import remove_stale_temporaries
+    from vitaplace.engine.outputs.outdir import remove_stale_temporaries
 
     (tmp_path / "cache" / "models").mkdir(parents=True)
     part = tmp_path / "evaluations" / ".summary.json.abc.part"
@@ -691,7 +700,7 @@ def test_until_runs_the_stages_up_to_and_including_the_one_named(tmp_path):
     """``until="fit"``: the runs are simulated and the method fitted, nothing transformed or
     evaluated; the completion record covers the manifest alone (no results, no report)."""
     from vitaplace.engine.config.loading import load_scenario
-    from vitaplace.engine.pipeline import completion
+    from vitaplace.engine.outputs import completion
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.runner import Pipeline
 
@@ -883,8 +892,7 @@ def _copy_without_cache(out: Path, to: Path) -> Path:
 def test_report_is_rebuilt_from_a_copy_of_the_output_folder_alone(quiet_json_run, tmp_path, monkeypatch, capsys):
     """`vitaplace report COPY` on a copy without the cache, the report and the figures, with
     no plugin to be found: report.md byte for byte as the run wrote it, and the same figures."""
-    from vitaplace.engine import plugins
-
+    from vitaplace.engine.extension import registry as plugins
     out, _ = quiet_json_run
     copy = _copy_without_cache(out, tmp_path / "copy")
     monkeypatch.setattr(plugins, "discover", lambda *a, **k: pytest.fail("the report looked for plugins"))
@@ -925,7 +933,7 @@ def test_report_of_a_damaged_output_folder_is_one_line_naming_the_file(quiet_jso
 def test_the_report_key_follows_what_the_report_reads_and_nothing_else(quiet_json_run, tmp_path):
     """The report stage's key (a hash of `report_key_inputs`) changes with a manifest entry the
     report prints or a file it draws, not with the manifest's timings and stage records."""
-    from vitaplace.engine.evaluation.report import report_key_inputs
+    from vitaplace.engine.report.report import report_key_inputs
 
     copy = _copy_without_cache(quiet_json_run[0], tmp_path / "copy")
     before = report_key_inputs(copy)
@@ -962,8 +970,7 @@ def test_results_csv_has_precision_recall_f1_at_max_f1_without_fixed_delta(quiet
 
 def test_figures_label_colour_bars_and_keep_legends_off_the_data(tmp_path, monkeypatch):
     from vitaplace.engine.evaluation import evaluate as ev
-    from vitaplace.engine.evaluation import figures
-
+    from vitaplace.engine.report import figures
     drawn = []
     monkeypatch.setattr(figures, "_save", lambda fig, stem: drawn.append(fig) or [])
     t = np.linspace(0, 2 * np.pi, 30)
@@ -1008,7 +1015,7 @@ def test_report_gives_the_distribution_of_test_time_inference_steps(quickstart_r
     """MuPNet's features record each sample's inference steps and whether it stopped before
     the cap; the report's table is their median, 90th percentile, maximum and share at the cap
     (TINY: max_steps 20), recomputed here from the saved features."""
-    from vitaplace.engine.features import load_features
+    from vitaplace.engine.extension.features import load_features
 
     out, _, _ = quickstart_run
     report = (out / "report.md").read_text()

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from vitaplace.engine.config.memory import run_bytes
-from vitaplace.engine.config.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR, environment_files, shipped_file
+from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR, environment_files, shipped_file
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.robot import RobotSpec
@@ -38,3 +38,20 @@ def test_shipped_files_are_found_by_name_in_their_own_folder():
     assert shipped_file("../quickstart", (ENVIRONMENTS_DIR,)) is None  # nothing outside the folder
     assert environment_files()["e1"] == ENVIRONMENTS_DIR / "e1.yaml"
     assert not any(name.startswith("base") for name in environment_files())
+
+
+def test_environment_and_scenario_files_are_told_apart_by_their_schemas_own_keys():
+    """`vitaplace validate/simulate FILE` decides from the top-level keys whether FILE is an
+    environment or a scenario: the keys of one schema that the other lacks (old names too)."""
+    from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR
+    from vitaplace.engine.cli.main import _is_environment_file, own_top_level_keys
+
+    environment_keys, scenario_keys = own_top_level_keys()
+    # the shared ones (name, description) belong to neither; the rename of scoring is a scenario's
+    assert {"arena", "landmarks", "route", "start"} <= environment_keys
+    assert {"train", "evaluations", "methods", "scoring", "evaluation", "robot", "seed"} <= scenario_keys
+    assert not environment_keys & scenario_keys and not {"name", "description"} & (environment_keys | scenario_keys)
+    environments, scenarios = sorted(ENVIRONMENTS_DIR.glob("*.yaml")), sorted(SCENARIOS_DIR.glob("*.yaml"))
+    assert len(environments) >= 3 and len(scenarios) >= 3
+    assert all(_is_environment_file(str(path)) for path in environments)
+    assert not any(_is_environment_file(str(path)) for path in scenarios)

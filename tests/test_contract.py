@@ -19,7 +19,7 @@ import pytest
 from scipy.spatial.distance import cdist
 
 import vitaplace.plugin
-from vitaplace.engine.plugins import discover
+from vitaplace.engine.extension.registry import discover
 from vitaplace.testing import CHECKS, ContractError, check_extractor, synthetic_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -33,8 +33,8 @@ TINY_MUPNET = {"image_size": [6, 8], "visual_layers": [8], "tactile_layers": [4]
 #: added: plugins written against it must keep working wherever the engine moves these names
 LEGACY_IMPORTS = """
 from vitaplace.engine.dataset import Run
-from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.engine.extension.features import ExtractorParams, FeatureExtractor, Features
+from vitaplace.engine.extension.hookspecs import hookimpl
 """
 
 

@@ -8,9 +8,9 @@ import sys
 import pytest
 import yaml
 
-from vitaplace.engine.pipeline import cpus
+from vitaplace.engine.base import cpus
 import vitaplace.engine.cli.sweep as sweep
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 
 
 @pytest.fixture
@@ -80,7 +80,7 @@ def test_a_pool_worker_keeps_its_share_when_its_seed_asks_for_the_allocation():
     """The driver set 2 BLAS threads; a worker's initializer caps it at 1, and the seed's own
     call for every usable CPU (2) must not raise it again: a cap only goes down."""
     env = {k: v for k, v in os.environ.items() if k not in (*cpus.THREAD_ENVS, cpus.OVERRIDE_ENV)}
-    code = (f"import os\nfrom vitaplace.engine.pipeline.cpus import limit_blas_threads\n"
+    code = (f"import os\nfrom vitaplace.engine.base.cpus import limit_blas_threads\n"
             f"print('CAPS', limit_blas_threads(1), limit_blas_threads(2))\n{BLAS_THREADS}")
     result = subprocess.run([sys.executable, "-c", code], env={**env, "OPENBLAS_NUM_THREADS": "2"},
                             capture_output=True, text=True, timeout=120)

@@ -15,18 +15,16 @@ OUTSIDE_CITATIONS = ("/".join(["..", "shared", ""]), " ".join(["DESIGN", "§"]))
 
 
 def test_scenario_reference_is_current():
-    from vitaplace.engine.config import schema_docs
-
+    from vitaplace.engine.cli import schema_docs
     committed = (ROOT / "docs" / "SCENARIOS.md").read_text()
     assert committed == schema_docs.markdown(), (
-        "docs/SCENARIOS.md is out of date: python -m vitaplace.engine.config.schema_docs docs/SCENARIOS.md"
+        "docs/SCENARIOS.md is out of date: python -m vitaplace.engine.cli.schema_docs docs/SCENARIOS.md"
     )
 
 
 def test_every_schema_field_has_a_description():
     """One way to document a schema field: Field(description=...), read by the generator."""
-    from vitaplace.engine.config import schema_docs
-
+    from vitaplace.engine.cli import schema_docs
     undocumented = [f"{model.__name__}.{name}" for _, model, _ in schema_docs.SECTIONS
                     for name, field in model.model_fields.items() if not field.description]
     assert not undocumented, undocumented
@@ -35,8 +33,7 @@ def test_every_schema_field_has_a_description():
 def test_the_generator_refuses_a_field_without_description():
     import pydantic
 
-    from vitaplace.engine.config import schema_docs
-
+    from vitaplace.engine.cli import schema_docs
     class Documented(pydantic.BaseModel):
         size: int = pydantic.Field(3, gt=0, description="how big | how many")
 

@@ -1,4 +1,4 @@
-"""Tests of vitaplace.engine.evaluation.evaluate and vitaplace.engine.evaluation.figures.
+"""Tests of vitaplace.engine.evaluation.evaluate and vitaplace.engine.report.figures.
 
 Expected values come from hand derivations (comments), scikit-learn, an independent
 per-query loop of the definition (docs/RESULTS.md, evaluation), and an independent re-implementation of
@@ -612,24 +612,21 @@ def _assert_written(paths, tmp_path, stem):
 
 
 def test_plot_matrices(tmp_path, small_case):
-    from vitaplace.engine.evaluation import figures
-
+    from vitaplace.engine.report import figures
     qry, ref, tme, gtm = small_case
     d = ev.decide(tme, gtm, 0.3, 0.5)
     _assert_written(figures.plot_matrices(tmp_path / "mat", tme, gtm, d, "E1"), tmp_path, "mat")
 
 
 def test_plot_pr_curves(tmp_path, small_case):
-    from vitaplace.engine.evaluation import figures
-
+    from vitaplace.engine.report import figures
     _, _, tme, gtm = small_case
     curves = {"mupnet": ev.pr_curve(tme, gtm, 0.3), "oracle": ev.pr_curve(gtm, gtm, 0.3)}
     _assert_written(figures.plot_pr_curves(tmp_path / "pr", curves, "E1"), tmp_path, "pr")
 
 
 def test_plot_trajectories(tmp_path, small_case):
-    from vitaplace.engine.evaluation import figures
-
+    from vitaplace.engine.report import figures
     qry, ref, tme, gtm = small_case
     d = ev.decide(tme, gtm, 0.3, 0.8)
     arena = {
@@ -646,8 +643,7 @@ def test_plot_trajectories(tmp_path, small_case):
 
 
 def test_plot_energy(tmp_path):
-    from vitaplace.engine.evaluation import figures
-
+    from vitaplace.engine.report import figures
     energy = {"visual/1": [100.0, 40.0, 20.0, 15.0], "tactile/1": [50.0, 30.0, 0.0, 9.0], "joint": []}
     _assert_written(figures.plot_energy(tmp_path / "energy", energy), tmp_path, "energy")
     _assert_written(figures.plot_energy(tmp_path / "empty", {}), tmp_path, "empty")
@@ -705,7 +701,7 @@ def test_the_training_world_is_the_one_evaluation_in_the_training_environment(tm
 def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp_path):
     """E1 (in the training run's world, e1) holds the training matrices above, E2 the other
     ones: every row of a method gets the F1 at E1's max-F1 threshold (0.3), per direction."""
-    from vitaplace.engine.pipeline.outdir import evaluation_dir
+    from vitaplace.engine.outputs.outdir import evaluation_dir
     from vitaplace.engine.pipeline.runner import Pipeline
 
     scenario = _scenario(_train_in("e1"), [("E2", "e2"), ("E1", "e1")])

@@ -192,7 +192,7 @@ def _finished_folder(folder: Path, seed: int) -> None:
     and the completion record written last."""
     import json
 
-    from vitaplace.engine.pipeline import completion
+    from vitaplace.engine.outputs import completion
     from vitaplace.engine.evaluation.evaluate import evaluate_pair
 
     poses = np.stack([np.linspace(0, 2, 6), np.zeros(6), np.zeros(6)], axis=1)
@@ -222,8 +222,7 @@ def _finished_folder(folder: Path, seed: int) -> None:
 def test_any_mutated_aggregate_folder_gets_a_clean_answer(capsys, file, key, value, whole, reseal):
     import json
 
-    from vitaplace.engine.pipeline import completion
-
+    from vitaplace.engine.outputs import completion
     root = Path(tempfile.mkdtemp())
     try:
         for seed in (0, 1):

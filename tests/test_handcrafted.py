@@ -13,9 +13,9 @@ import numpy as np
 import pluggy
 import pytest
 
-from vitaplace.engine import hookspecs
+from vitaplace.engine.extension import hookspecs
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.features import ExtractorParamsError
+from vitaplace.engine.extension.features import ExtractorParamsError
 from vitaplace.plugins import handcrafted
 from vitaplace.plugins.handcrafted import HandcraftedExtractor, pfh, sda, template_distance, templates
 from vitaplace.plugins.handcrafted.pfh import pfh_batch

@@ -1,5 +1,7 @@
-"""Lint: the package's import graph has no cycle; no function is longer than `MAX_FUNCTION_LINES`;
-the plugin API keeps its documented import paths.
+"""Lint: the package's folders are floors (`LAYERS`: a module imports only from its own floor's
+package or from lower floors, never from a sibling on its floor); the import graph has no
+cycle; no function is longer than `MAX_FUNCTION_LINES`; the plugin API keeps its documented
+import paths.
 
 Every ``import`` in engine/, kernels/, plugins/ and api/ counts: module-level ones, those
 inside functions (imported lazily) and those under ``if TYPE_CHECKING:`` (a cycle of type-only
@@ -12,16 +14,52 @@ from __future__ import annotations
 
 import ast
 import re
+import sys
 from pathlib import Path
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
 ROOT = Path(__file__).resolve().parent.parent
-#: source folder -> the package it installs as (pyproject's package-dir)
-PACKAGES = {"api": "vitaplace", "engine": "vitaplace.engine", "kernels": "vitaplace.kernels",
-            "plugins": "vitaplace.plugins"}
+
+
+def source_packages(root: Path) -> dict[str, str]:
+    """Source folder -> the package it installs as: pyproject.toml's ``package-dir``, less the
+    folders that hold no Python code (the shipped scenarios)."""
+    package_dir = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+    return {folder: package for package, folder in package_dir.items() if any((root / folder).rglob("*.py"))}
+
+
+PACKAGES = source_packages(ROOT)
+#: The floors of the package, lowest first. A module belongs to the longest entry that is its
+#: name or a package above it (``vitaplace`` and ``vitaplace.engine`` name those two modules
+#: alone: the API and the version). It may import its own entry and lower floors; the entries
+#: of one floor are siblings that do not import each other. docs/DESIGN.md draws them.
+LAYERS: list[tuple[str, ...]] = [
+    ("vitaplace.scenarios",),  # the shipped scenario and environment files
+    ("vitaplace.engine.base", "vitaplace.engine"),  # errors, atomic writes, CPUs, YAML files; the version
+    ("vitaplace.kernels", "vitaplace.engine.outputs"),  # Warp kernels; the output-folder contract
+    ("vitaplace.engine.data", "vitaplace.engine.network"),  # run files; the predictive-coding network
+    ("vitaplace.engine.sim", "vitaplace.engine.extension"),  # the simulator; the extractor interface, hooks, registry
+    ("vitaplace.plugin", "vitaplace.testing"),  # the plugin API and its contract suite
+    ("vitaplace.plugins", "vitaplace.engine.config"),  # the shipped plugins; scenarios
+    ("vitaplace.engine.evaluation",),  # metrics: matching, PR curves, difficulty
+    ("vitaplace.engine.report",),  # one run's report, from its output folder
+    ("vitaplace.engine.pipeline",),  # the stages and their orchestration
+    ("vitaplace.engine.study",),  # across runs: aggregate, sensitivity, statistics
+    ("vitaplace.engine.cli",),
+    # the Python API, and the engine paths kept for plugins written against earlier docs
+    ("vitaplace", "vitaplace.engine.dataset", "vitaplace.engine.features", "vitaplace.engine.hookspecs",
+     "vitaplace.engine.plugins"),
+]
+#: entries that name one module, not a package and what is under it
+EXACT = {"vitaplace", "vitaplace.engine"}
 #: the longest a function of the package may be (decorators and docstring included)
 MAX_FUNCTION_LINES = 80
 
@@ -92,6 +130,77 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
+def entry_of(module: str, layers: list[tuple[str, ...]], exact: set[str]) -> str | None:
+    """The `layers` entry ``module`` belongs to: the longest that is its name or, unless in
+    ``exact``, a package above it; None when there is none."""
+    found = [e for floor in layers for e in floor
+             if module == e or (e not in exact and module.startswith(e + "."))]
+    return max(found, key=len, default=None)
+
+
+def upward_imports(graph: dict[str, set[str]], layers: list[tuple[str, ...]], exact: set[str]) -> list[str]:
+    """One line per import that breaks the floors: from a module to a higher floor, to a
+    sibling on its own floor, or of a module that no entry places."""
+    floor = {entry: i for i, entry_floor in enumerate(layers) for entry in entry_floor}
+    broken = []
+    for module in sorted(graph):
+        here = entry_of(module, layers, exact)
+        if here is None:
+            broken.append(f"{module} is on no floor (add it to LAYERS)")
+            continue
+        for name in sorted(graph[module]):
+            there = entry_of(name, layers, exact)
+            if there is None or there == here:
+                continue
+            if floor[there] > floor[here]:
+                broken.append(f"{module} (floor {floor[here]}, {here}) imports {name} from the higher floor "
+                              f"{floor[there]} ({there})")
+            elif floor[there] == floor[here]:
+                broken.append(f"{module} ({here}) imports {name} from its sibling {there} on floor {floor[here]}")
+    return broken
+
+
+def test_every_module_stands_on_its_floor():
+    graph = import_graph(module_files(ROOT, PACKAGES))
+    assert upward_imports(graph, LAYERS, EXACT) == []
+    declared = {entry for floor in LAYERS for entry in floor}
+    assert declared <= set(graph) | {m.rsplit(".", 1)[0] for m in graph}  # no entry names a module that is gone
+
+
+def test_an_upward_a_sibling_and_an_unplaced_import_are_each_named(tmp_path):
+    package = tmp_path / "pkg"
+    for folder in ("low", "mid_a", "mid_b", "top"):
+        (package / folder).mkdir(parents=True)
+        (package / folder / "__init__.py").write_text("")
+    (package / "__init__.py").write_text("")
+    (package / "low" / "x.py").write_text("def f():\n    from pkg.top import t\n")  # lazy, still upward
+    (package / "mid_a" / "a.py").write_text("from pkg.low import x\nfrom ..mid_b import b\n")  # down: fine; sibling
+    (package / "mid_b" / "b.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import pkg.top.t\n")
+    (package / "top" / "t.py").write_text("import pkg.low.x\nimport pkg.mid_a.a\n")  # down: fine
+    (package / "stray.py").write_text("")
+    layers = [("pkg.low", "pkg"), ("pkg.mid_a", "pkg.mid_b"), ("pkg.top",)]
+    graph = import_graph(module_files(tmp_path, {"pkg": "pkg"}))
+    assert upward_imports(graph, layers, {"pkg"}) == [
+        "pkg.low.x (floor 0, pkg.low) imports pkg.top from the higher floor 2 (pkg.top)",
+        "pkg.low.x (floor 0, pkg.low) imports pkg.top.t from the higher floor 2 (pkg.top)",
+        "pkg.mid_a.a (pkg.mid_a) imports pkg.mid_b from its sibling pkg.mid_b on floor 1",
+        "pkg.mid_a.a (pkg.mid_a) imports pkg.mid_b.b from its sibling pkg.mid_b on floor 1",
+        "pkg.mid_b.b (floor 1, pkg.mid_b) imports pkg.top.t from the higher floor 2 (pkg.top)",
+        "pkg.stray is on no floor (add it to LAYERS)",
+    ]
+    # the same tree with the upward imports gone passes
+    (package / "low" / "x.py").write_text("import os\n")
+    (package / "mid_a" / "a.py").write_text("from pkg.low import x\n")
+    (package / "mid_b" / "b.py").write_text("")
+    (package / "stray.py").unlink()
+    assert upward_imports(import_graph(module_files(tmp_path, {"pkg": "pkg"})), layers, {"pkg"}) == []
+
+
+def test_the_package_map_is_pyprojects():
+    assert PACKAGES == {"api": "vitaplace", "engine": "vitaplace.engine", "kernels": "vitaplace.kernels",
+                        "plugins": "vitaplace.plugins", "scenarios": "vitaplace.scenarios"}
+
+
 def test_the_package_has_no_import_cycle():
     graph = import_graph(module_files(ROOT, PACKAGES))
     assert len(graph) > 60  # the walk found the package (not an empty folder)
@@ -122,18 +231,53 @@ def test_modules_that_only_import_each_other_one_way_have_no_cycle(tmp_path):
 
 
 def test_every_import_docs_plugins_md_shows_works():
-    """Plugins written against docs/plugins.md keep working: each ``from vitaplace... import``
-    line of its examples imports (``vitaplace.engine.dataset`` re-exports `Run` from
-    ``vitaplace.engine.data.dataset``)."""
+    """Plugins written against docs/plugins.md work: each ``from vitaplace... import`` line of
+    its examples imports, and every one imports from the stable home `vitaplace.plugin` (or
+    the contract suite `vitaplace.testing`)."""
     lines = sorted(set(re.findall(r"^from vitaplace[\w.]* import [^\n]+$", (ROOT / "docs" / "plugins.md").read_text(),
                                   re.MULTILINE)))
-    assert any("vitaplace.engine.dataset import Run" in line for line in lines)
+    assert any("vitaplace.plugin import" in line and "FeatureExtractor" in line for line in lines)
     for line in lines:
+        assert line.startswith(("from vitaplace.plugin import", "from vitaplace.testing import")), line
         exec(line, {})  # noqa: S102 - the documented line itself
-    from vitaplace.engine.data.dataset import Run as RunFile
-    from vitaplace.engine.dataset import Run
 
-    assert Run is RunFile
+
+#: the engine paths plugins written against earlier docs import from -> the modules now holding them
+LEGACY_PLUGIN_PATHS = {
+    "vitaplace.engine.dataset": "vitaplace.engine.data.dataset",
+    "vitaplace.engine.features": "vitaplace.engine.extension.features",
+    "vitaplace.engine.hookspecs": "vitaplace.engine.extension.hookspecs",
+    "vitaplace.engine.plugins": "vitaplace.engine.extension.registry",
+}
+
+
+def test_the_plugin_paths_of_earlier_docs_give_the_same_objects():
+    import importlib
+
+    import vitaplace.plugin
+
+    for legacy, home in LEGACY_PLUGIN_PATHS.items():
+        old, new = importlib.import_module(legacy), importlib.import_module(home)
+        for name in vitaplace.plugin.__all__:
+            if hasattr(new, name):
+                assert getattr(old, name) is getattr(new, name) is getattr(vitaplace.plugin, name), (legacy, name)
+    from vitaplace.engine.dataset import Run
+    from vitaplace.engine.features import FeatureExtractor, warn_once
+    from vitaplace.engine.hookspecs import hookimpl
+    from vitaplace.engine.plugins import Registry, discover
+
+    assert (Run, FeatureExtractor, warn_once, hookimpl, discover) == (
+        vitaplace.plugin.Run, vitaplace.plugin.FeatureExtractor, vitaplace.plugin.warn_once, vitaplace.plugin.hookimpl,
+        vitaplace.plugin.discover)
+    assert isinstance(discover(), Registry)
+
+
+def test_the_shipped_plugins_import_the_plugin_api_from_its_home():
+    graph = import_graph(module_files(ROOT, PACKAGES))
+    for module in (m for m in graph if m.startswith("vitaplace.plugins.")):
+        reached = graph[module] & {"vitaplace.engine.extension.features", "vitaplace.engine.extension.hookspecs",
+                                   "vitaplace.engine.extension.registry", *LEGACY_PLUGIN_PATHS}
+        assert not reached, f"{module} imports {sorted(reached)}: import them from vitaplace.plugin"
 
 
 def long_functions(root: Path, limit: int = MAX_FUNCTION_LINES) -> list[str]:

@@ -13,8 +13,8 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.features import ExtractorParamsError
-from vitaplace.engine.plugins import discover
+from vitaplace.engine.extension.features import ExtractorParamsError
+from vitaplace.engine.extension.registry import discover
 
 N = 80  # samples per run
 H, W = 8, 10  # image size

@@ -18,10 +18,10 @@ import numpy as np
 import pluggy
 import pytest
 
-from vitaplace.engine import hookspecs
+from vitaplace.engine.extension import hookspecs
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.features import ExtractorParamsError, FeatureExtractor
-from vitaplace.engine.plugins import ONLY_ENV, PluginError, discover
+from vitaplace.engine.extension.features import ExtractorParamsError, FeatureExtractor
+from vitaplace.engine.extension.registry import ONLY_ENV, PluginError, discover
 
 TESTS = Path(__file__).resolve().parent
 ROOT = TESTS.parent
@@ -63,8 +63,8 @@ def write_plugin(directory: Path, module: str, body: str) -> str:
 EXTRACTOR_PLUGIN = """
     from pathlib import Path
     import numpy as np
-    from vitaplace.engine.features import FeatureExtractor
-    from vitaplace.engine.hookspecs import hookimpl
+    from vitaplace.engine.extension.features import FeatureExtractor
+    from vitaplace.engine.extension.hookspecs import hookimpl
 
     class Constant(FeatureExtractor):
         name = {name!r}
@@ -362,7 +362,7 @@ def test_mupnet_params_errors_name_extractor_and_key():
 
 
 def hook_names() -> list[str]:
-    """Every hookspec of engine/hookspecs.py, found by introspection (two ways, which must agree)."""
+    """Every hookspec of engine/extension/hookspecs.py, found by introspection (two ways, which must agree)."""
     pm = pluggy.PluginManager(hookspecs.PROJECT)
     pm.add_hookspecs(hookspecs)
     from_manager = sorted(name for name in vars(pm.hook) if not name.startswith("_"))
@@ -492,7 +492,7 @@ def test_the_scenario_seed_reaches_the_methods_seed():
         scenario, resolved = load_scenario("quickstart", [f"seed={seed}"])
         pipeline = Pipeline(scenario, resolved, Path("unused"))
         learned = scenario.methods[0]
-        keys[seed] = pipeline.method_params(learned)["seed"]
+        keys[seed] = pipeline.params_for(learned)["seed"]
     assert keys[0] != keys[1]
     scenario, resolved = load_scenario("quickstart", ["methods.0.params.seed=7"])
-    assert Pipeline(scenario, resolved, Path("unused")).method_params(scenario.methods[0])["seed"] == 7
+    assert Pipeline(scenario, resolved, Path("unused")).params_for(scenario.methods[0])["seed"] == 7

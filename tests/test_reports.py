@@ -15,7 +15,7 @@ import pytest
 import yaml
 
 from vitaplace.engine.evaluation import evaluate as ev
-from vitaplace.engine.evaluation import figures
+from vitaplace.engine.report import figures
 from vitaplace.engine.data.dataset import Run, write_run
 
 
@@ -79,7 +79,7 @@ def test_the_pr_band_figure_says_what_its_band_is_whatever_its_title(tmp_path, d
 
 def _facts(features: dict[str, dict[str, dict]]) -> dict[str, dict[str, dict]]:
     """The manifest's ``features`` entry for these feature arrays (method -> run -> arrays)."""
-    from vitaplace.engine.evaluation.report import feature_facts
+    from vitaplace.engine.extension.features import feature_facts
 
     return {m: {label: feature_facts(f) for label, f in by_label.items()} for m, by_label in features.items()}
 
@@ -95,7 +95,7 @@ def _facts(features: dict[str, dict[str, dict]]) -> dict[str, dict[str, dict]]:
     ],
 )
 def test_the_report_warns_when_most_test_time_inferences_hit_the_cap(tmp_path, capped_per_run, expected):
-    from vitaplace.engine.evaluation.report import _cap_warnings
+    from vitaplace.engine.report.report import _cap_warnings
 
     def run(capped: int) -> dict:
         stopped = np.ones(10, dtype=bool)
@@ -126,7 +126,8 @@ def _recorded(path: Path, n: int = 10, rng=None) -> Path:
 
 def test_inputs_name_recorded_files_and_features_that_carried_nothing(tmp_path):
     from vitaplace.engine.data.dataset import open_run
-    from vitaplace.engine.evaluation.report import _inputs_section, run_facts
+    from vitaplace.engine.data.dataset import run_facts
+    from vitaplace.engine.report.report import _inputs_section
 
     query = _recorded(tmp_path / "query.h5")
     h = {"profile": np.ones((10, 4, 4)), "pfh": np.zeros((10, 8)), "sda": np.zeros((10, 24))}

@@ -7,8 +7,10 @@ the cases each describes.
 import hashlib
 import json
 
-from vitaplace.engine.pipeline import checksum, completion
-from vitaplace.engine.pipeline.outdir import LOCK_NAME, remove_stale_temporaries
+from vitaplace.engine.outputs import checksum
+
+from vitaplace.engine.outputs import completion
+from vitaplace.engine.outputs.outdir import LOCK_NAME, remove_stale_temporaries
 
 
 def test_digest_of_a_folder_is_that_of_its_names_and_contents_in_order(tmp_path):
@@ -63,3 +65,29 @@ def test_stale_temporaries_are_removed_and_the_lock_is_kept(tmp_path):
     removed = remove_stale_temporaries(tmp_path)
     assert sorted(removed) == sorted([part, tmp_path / "models" / ".mupnet.123"])
     assert (tmp_path / LOCK_NAME).exists() and (tmp_path / "features" / "a.npz").exists() and not part.exists()
+
+
+def test_claiming_a_folder_locks_it_logs_the_command_in_then_cleans(tmp_path, caplog):
+    import logging
+
+    import pytest
+
+    from vitaplace.engine.outputs.outdir import OutputDirError, OutputLock, claimed
+
+    out = tmp_path / "out"
+    (out / "cache").mkdir(parents=True)
+    stale = out / "cache" / ".results.json.1234.part"
+    stale.write_text("half")
+    seen = []
+    with caplog.at_level(logging.INFO, logger="vitaplace"):
+        with claimed(out, lambda folder: seen.append((folder, stale.exists()))) as folder:
+            assert folder == out and seen == [(out, True)]  # the callback runs before the cleaning
+            assert not stale.exists()
+            with pytest.raises(OutputDirError, match="another vitaplace run"), OutputLock(out):
+                pass  # held while inside
+    assert f"removed {stale}, left by an interrupted run" in caplog.text
+    with OutputLock(out):  # released on leaving
+        pass
+    (tmp_path / "file").write_text("")
+    with pytest.raises(OutputDirError, match="exists and is not a directory"), claimed(tmp_path / "file"):
+        pass

@@ -14,7 +14,7 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.cli.main import main  # noqa: E402
-from vitaplace.engine.evaluation.sensitivity import rescore  # noqa: E402
+from vitaplace.engine.study.sensitivity import rescore  # noqa: E402
 
 ENV_E1 = Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml"
 

@@ -33,6 +33,6 @@ def test_a_seed_redraws_the_training_run_both_drives_and_each_network():
     assert all(runs[label] != other[label] for label in runs)
     assert len(set(runs.values())) == len(runs)  # both drives of a world differ too
     learned = [m for m in first.scenario.methods if m.plugin == "mupnet"]
-    inits = [first.method_params(m)["seed"] for m in learned]
+    inits = [first.params_for(m)["seed"] for m in learned]
     assert len(set(inits)) == len(inits)
-    assert all(first.method_params(m)["seed"] != second.method_params(m)["seed"] for m in learned)
+    assert all(first.params_for(m)["seed"] != second.params_for(m)["seed"] for m in learned)

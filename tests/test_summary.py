@@ -17,8 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vitaplace.engine.evaluation import evaluate as ev
-from vitaplace.engine.evaluation import resample, summary
-
+from vitaplace.engine.evaluation import resample
+from vitaplace.engine.study import summary
 #: t(0.975, 2) and t(0.975, 1) from a printed table of Student's t quantiles
 T_2, T_1 = 4.302653, 12.706205
 INTERVALS = ("t", "boot", "block")
@@ -336,8 +336,7 @@ def test_rows_without_saved_matrices_have_no_block_interval(tmp_path, few_replic
 
 
 def test_the_pr_band_figure_says_what_its_line_and_band_are(monkeypatch, tmp_path):
-    from vitaplace.engine.evaluation import figures
-
+    from vitaplace.engine.report import figures
     legends = []
     monkeypatch.setattr(figures, "_save", lambda fig, stem: legends.append(fig.legends[0].get_title().get_text()) or [])
     curve = ev.pr_curve(np.array([[0.1, 0.9], [0.8, 0.2]]), np.array([[0.0, 1.0], [1.0, 0.0]]), 0.3)

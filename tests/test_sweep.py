@@ -31,8 +31,8 @@ ENV_E1 = Path(__file__).resolve().parent.parent / "scenarios" / "environments" /
 FAILING_PLUGIN = '''
 import numpy as np
 from scipy.spatial.distance import cdist
-from vitaplace.engine.features import ExtractorParams, FeatureExtractor
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.engine.extension.features import ExtractorParams, FeatureExtractor
+from vitaplace.engine.extension.hookspecs import hookimpl
 
 
 class Params(ExtractorParams):
@@ -246,7 +246,7 @@ def test_slurm_settings_reach_the_sbatch_script(tmp_path, monkeypatch):
     from submitit.slurm.slurm import _make_sbatch_string
 
     import vitaplace.engine.cli.slurm as slurm
-    from vitaplace.engine.errors import UserError
+    from vitaplace.engine.base.errors import UserError
 
     from vitaplace.engine.cli.main import build_parser
 
@@ -507,7 +507,7 @@ def _curve(recall, precision):
 
 
 def test_interpolated_precision_is_the_best_precision_at_or_beyond_each_recall():
-    from vitaplace.engine.evaluation.figures import interpolated_precision
+    from vitaplace.engine.report.figures import interpolated_precision
 
     # points (recall, precision): (0.2, 1.0), (0.5, 0.8), (0.5, 0.9), (1.0, 0.5), in threshold order
     curve = _curve([0.5, 0.2, 1.0, 0.5], [0.8, 1.0, 0.5, 0.9])
@@ -520,7 +520,7 @@ def test_interpolated_precision_is_the_best_precision_at_or_beyond_each_recall()
 def test_pr_band_figures_are_written_per_environment_from_the_seed_folders(tmp_path):
     import dataclasses
 
-    from vitaplace.engine.evaluation.figures import write_pr_bands
+    from vitaplace.engine.report.figures import write_pr_bands
 
     rows = []
     for seed in (0, 1):
@@ -561,8 +561,7 @@ def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
 def reseal(folder: Path) -> None:
     """Write the folder's completion record anew over what it holds now: as if its own run had
     produced the damaged files (a buggy plugin, a bad disk), so the row checks must catch them."""
-    from vitaplace.engine.pipeline import completion
-
+    from vitaplace.engine.outputs import completion
     files = json.loads((folder / completion.RECORD).read_text())["files"]
     completion.write(folder, [folder / name for name in files])
 
@@ -621,7 +620,7 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     """Finish seed 2, rerun it with another tau and kill the rerun during simulate: the folder
     holds the old results beside the new resolved scenario, and no completion record."""
     from vitaplace.engine.config.scenario import Scenario
-    from vitaplace.engine.pipeline import completion
+    from vitaplace.engine.outputs import completion
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.runner import Pipeline
 

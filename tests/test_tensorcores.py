@@ -361,7 +361,7 @@ def test_mupnet_refuses_tensor_core_precision_without_cuda_at_validation(monkeyp
     """``precision: bf16`` on a machine without CUDA (or with backend numpy) fails when the
     scenario is validated, in one line naming the extractor and the key; float32 is fine."""
     from vitaplace.engine.network import backends
-    from vitaplace.engine.features import ExtractorParamsError
+    from vitaplace.engine.extension.features import ExtractorParamsError
     from vitaplace.plugins.mupnet import MupnetExtractor
 
     monkeypatch.setattr(backends, "cuda_available", lambda: False)

@@ -14,7 +14,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.data.dataset import Run, write_run  # noqa: E402
-from vitaplace.engine.data.video import MAX_FRAMES, frame_indices  # noqa: E402
+from vitaplace.engine.sim.video import MAX_FRAMES, frame_indices  # noqa: E402
 
 #: matplotlib's tab:red, which marks touching whiskers and contacts
 RED = np.array([214, 39, 40])

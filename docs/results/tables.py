@@ -25,7 +25,7 @@ import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
-from vitaplace.engine.evaluation.summary import describe, difference_bounds, sign_flip_p
+from vitaplace.engine.study.summary import describe, difference_bounds, sign_flip_p
 
 HERE = Path(__file__).resolve().parent
 #: touch model -> the sweep folder of its scenario

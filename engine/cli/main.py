@@ -21,9 +21,9 @@ from pathlib import Path
 from typing import TextIO
 
 from vitaplace.engine import __version__
-from vitaplace.engine.pipeline.cpus import limit_blas_threads, usable_cpus
-from vitaplace.engine.errors import UserError
-from vitaplace.engine.pipeline.outdir import OutputLock, remove_stale_temporaries, writable_dir
+from vitaplace.engine.base.cpus import limit_blas_threads, usable_cpus
+from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.outputs.outdir import claimed, writable_dir
 
 EXIT_USER_ERROR = 2
 EXIT_SEEDS_FAILED = 1
@@ -175,7 +175,7 @@ def _view(args: argparse.Namespace) -> int:
 
 def _video(args: argparse.Namespace) -> int:
     from vitaplace.engine.data.dataset import open_run
-    from vitaplace.engine.data.video import write_video
+    from vitaplace.engine.sim.video import write_video
 
     if args.fps <= 0 or (args.step is not None and args.step < 1):
         raise UserError("--fps must be > 0 and --step >= 1")
@@ -220,7 +220,6 @@ def _console_logging(level: int) -> None:
 
 def _setup_logging(out: Path) -> None:
     """Also log to ``out/log.txt`` (every message the logger passes, whatever -q says)."""
-    writable_dir(out)
     file_handler = logging.FileHandler(out / "log.txt")
     file_handler.setFormatter(logging.Formatter("%(asctime)s %(message)s"))
     logging.getLogger("vitaplace").addHandler(file_handler)
@@ -248,12 +247,8 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
 
     args.force = _forced(args.force, until, args.command)
     scenario, resolved = load_scenario(args.scenario, args.overrides)
-    out = writable_dir(args.out or Path("runs") / scenario.name)
     log = logging.getLogger("vitaplace")
-    with OutputLock(out):
-        _setup_logging(out)
-        for path in remove_stale_temporaries(out):
-            log.info("removed %s, left by an interrupted run", path)
+    with claimed(args.out or Path("runs") / scenario.name, _setup_logging) as out:
         rows = run_stages(Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress), until)
     for row in rows:
         log.info(
@@ -269,15 +264,14 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
 
 def _report_folder(args: argparse.Namespace) -> int:
     """`vitaplace report OUT`: report.md and the figures rebuilt from a run's output folder alone."""
-    from vitaplace.engine.evaluation.report import rebuild_report
+    from vitaplace.engine.report.report import rebuild_report
 
     given = [flag for flag, value in (("--set", args.overrides), ("--force", args.force), ("--out", args.out),
                                       ("--json", args.json)) if value]
     if given:
         raise UserError(f"{' '.join(given)}: apply to a scenario; `vitaplace report {args.scenario}` rebuilds the report "
                         "of that output folder from its files as they are")
-    out = writable_dir(Path(args.scenario))
-    with OutputLock(out):
+    with claimed(Path(args.scenario)) as out:
         path = rebuild_report(out)
     print(f"wrote {path} and its figures")
     return 0
@@ -303,16 +297,20 @@ def _simulate_environment(args: argparse.Namespace) -> int:
     return 0
 
 
-#: Top-level keys only environment files have, and only scenario files have.
-ENVIRONMENT_KEYS = {"arena", "materials", "landmarks", "route", "route_facing", "start", "background_rgb", "lighting",
-                    "boards"}
-SCENARIO_KEYS = {"seed", "robot", "train", "evaluations", "methods", "scoring", "evaluation"}
+def own_top_level_keys() -> tuple[set[str], set[str]]:
+    """The top-level keys only environment files have and those only scenario files have
+    (old names included), from the two schemas."""
+    from vitaplace.engine.config.scenario import RENAMED_KEYS, Scenario
+    from vitaplace.engine.sim.environment import EnvironmentSpec
+
+    environment, scenario = set(EnvironmentSpec.model_fields), set(Scenario.model_fields) | set(RENAMED_KEYS)
+    return environment - scenario, scenario - environment
 
 
 def _is_environment_file(name: str) -> bool:
     """Whether ``name`` is an environment file (or a shipped environment's name), not a scenario."""
-    from vitaplace.engine.config.configfile import ConfigError, load_yaml, read_yaml
-    from vitaplace.engine.config.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR, shipped_file
+    from vitaplace.engine.base.configfile import ConfigError, load_yaml, read_yaml
+    from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR, shipped_file
 
     path = Path(name)
     if not path.exists() and not path.suffix and shipped_file(name, (ENVIRONMENTS_DIR,)):
@@ -326,11 +324,12 @@ def _is_environment_file(name: str) -> bool:
             data = read_yaml(path)  # its own keys; load_environment then says what is wrong with 'extends'
         except ConfigError:
             return False  # reported by the scenario loader
-    return bool(ENVIRONMENT_KEYS & data.keys()) and not SCENARIO_KEYS & data.keys()
+    environment_keys, scenario_keys = own_top_level_keys()
+    return bool(environment_keys & data.keys()) and not scenario_keys & data.keys()
 
 
 def _plugins() -> int:
-    from vitaplace.engine.plugins import discover
+    from vitaplace.engine.extension.registry import discover
 
     registry = discover()
     rows = []
@@ -395,7 +394,7 @@ def _import(args: argparse.Namespace) -> int:
 
 def _sweep(args: argparse.Namespace) -> int:
     from vitaplace.engine.cli.slurm import settings_from_args
-    from vitaplace.engine.evaluation.summary import cell
+    from vitaplace.engine.study.summary import cell
     from vitaplace.engine.cli.sweep import check_placement, load_sweep_scenario, run_sweep
 
     if args.cpus_per_job <= 0 or args.gpus_per_job < 0:
@@ -405,12 +404,8 @@ def _sweep(args: argparse.Namespace) -> int:
     slurm = settings_from_args(args)
     check_placement(args.workers, args.ray, slurm, args.gpus_per_job)
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
-    out = writable_dir(args.out or Path("runs") / f"{scenario.name}-sweep")
     log = logging.getLogger("vitaplace")
-    with OutputLock(out):
-        _setup_logging(out)
-        for path in remove_stale_temporaries(out):
-            log.info("removed %s, left by an interrupted run", path)
+    with claimed(args.out or Path("runs") / f"{scenario.name}-sweep", _setup_logging) as out:
         outcome = run_sweep(
             scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress,
             _forced(args.force, "report", "sweep"),
@@ -428,7 +423,7 @@ def _sweep(args: argparse.Namespace) -> int:
 
 
 def _aggregate(args: argparse.Namespace) -> int:
-    from vitaplace.engine.evaluation.aggregate import aggregate_runs
+    from vitaplace.engine.study.aggregate import aggregate_runs
 
     out, record = aggregate_runs(args.folders, args.out)
     print(f"summary of {len(record['seeds'])} seeds in {out / 'sweep.md'}")
@@ -436,7 +431,7 @@ def _aggregate(args: argparse.Namespace) -> int:
 
 
 def _sensitivity(args: argparse.Namespace) -> int:
-    from vitaplace.engine.evaluation.sensitivity import write_sensitivity
+    from vitaplace.engine.study.sensitivity import write_sensitivity
 
     grid = {"taus": args.tau, "heading_tolerance_deg": args.heading_tolerance}
     out, record = write_sensitivity(args.folder, args.out, **{k: v for k, v in grid.items() if v is not None})

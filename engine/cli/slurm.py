@@ -18,11 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 
 log = logging.getLogger("vitaplace")
 
-CLUSTERS = ("slurm", "local")
 #: sbatch options with an option of their own in `vitaplace sweep`
 OWN_OPTIONS = {"partition": "--partition", "time": "--time", "mem": "--mem", "cpus-per-task": "--cpus-per-job",
                "gpus-per-node": "--gpus-per-job", "array": "(one array per sweep)",

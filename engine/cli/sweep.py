@@ -8,7 +8,7 @@ and runs the whole pipeline into ``OUT/seed-<s>``; all jobs share the stage cach
 ``OUT/seed-<s>/error.txt``; the driver reports it in one line and goes on with the others.
 
 When every job has ended, the summary of the seeds that succeeded is written
-(`vitaplace.engine.evaluation.summary`). `run_sweep` returns which seeds failed; the CLI exits 1 when
+(`vitaplace.engine.study.summary`). `run_sweep` returns which seeds failed; the CLI exits 1 when
 any did (2 stays for user errors found before any job starts).
 
 ``OUT`` must be storage every worker shares for the seed folders and the cache to land in
@@ -41,10 +41,10 @@ from typing import Any
 
 import yaml
 
-from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.pipeline.cpus import limit_blas_threads, usable_cpus
-from vitaplace.engine.errors import UserError
-from vitaplace.engine.pipeline.outdir import SEED_ERROR, cache_dir, seed_dir
+from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.base.cpus import limit_blas_threads, usable_cpus
+from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.outputs.outdir import SEED_ERROR, cache_dir, seed_dir
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
 from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.cli.slurm import SlurmSettings, run_array
@@ -200,7 +200,7 @@ def run_seed_reported(job: SeedJob) -> dict[str, Any]:
 def gpu_overrides(scenario: Scenario) -> list[str]:
     """``--set`` assignments giving every method whose extractor has a ``backend`` parameter
     its GPU backend (``cuda``, else ``warp``), unless the scenario chose one other than auto."""
-    from vitaplace.engine.plugins import discover
+    from vitaplace.engine.extension.registry import discover
 
     registry = discover()
     overrides = []
@@ -360,7 +360,7 @@ def installation() -> dict[str, Any]:
     from importlib.metadata import entry_points
 
     import vitaplace.engine
-    from vitaplace.engine.hookspecs import ENTRY_POINT_GROUP
+    from vitaplace.engine.extension.hookspecs import ENTRY_POINT_GROUP
     from vitaplace.engine.pipeline.provenance import git_commit
 
     plugins = sorted(
@@ -468,12 +468,12 @@ def run_sweep(
 ) -> SweepOutcome:
     """Run every seed, locally (process pool), on Ray or as a SLURM array (``slurm``; its
     settings then give the CPUs and GPUs), and write the summary of those that succeeded into
-    ``out`` (`vitaplace.engine.evaluation.summary`). A failed seed does not stop the others."""
+    ``out`` (`vitaplace.engine.study.summary`). A failed seed does not stop the others."""
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
-    from vitaplace.engine.evaluation.figures import write_pr_bands
-    from vitaplace.engine.evaluation.summary import write_summary
+    from vitaplace.engine.report.figures import write_pr_bands
+    from vitaplace.engine.study.summary import write_summary
 
     check_placement(workers, ray_address, slurm, gpus_per_job)
     out = Path(os.path.abspath(out))

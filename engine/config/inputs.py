@@ -10,7 +10,7 @@ from pathlib import Path
 
 from vitaplace.engine.config.scenario import MIN_EVALUATION_SAMPLES, RecordedRuns, Scenario, ScenarioError
 from vitaplace.engine.data.dataset import DatasetError, Run, open_run
-from vitaplace.engine.pipeline.checksum import digest
+from vitaplace.engine.outputs.checksum import digest
 from vitaplace.engine.sim.environment import load_environment
 from vitaplace.engine.sim.plausibility import ImplausibleRun, check_run
 

@@ -7,8 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
-from vitaplace.engine.features import ExtractorParamsError
-from vitaplace.engine.plugins import PluginError, discover
+from vitaplace.engine.extension.features import ExtractorParamsError
+from vitaplace.engine.extension.registry import PluginError, discover
 
 
 def check_methods(path: Path, scenario: Scenario) -> list[tuple[Any, Any]]:

@@ -37,7 +37,7 @@ from typing import Annotated, Any
 
 import pydantic
 
-from vitaplace.engine.config.configfile import ConfigError
+from vitaplace.engine.base.configfile import ConfigError
 from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.robot import RobotSpec

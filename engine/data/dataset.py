@@ -37,12 +37,12 @@ import h5py
 import numpy as np
 
 from vitaplace.engine import __version__
-from vitaplace.engine.atomic import atomic_path
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.atomic import atomic_path
+from vitaplace.engine.base.errors import UserError
 
 SCHEMA_VERSION = 1
 
-#: field name -> (dtype, trailing shape description used in error messages)
+#: field name -> the dtype it is stored and read as (shapes: `_check_shapes`)
 FIELDS: dict[str, np.dtype] = {
     "images": np.dtype(np.uint8),
     "theta": np.dtype(np.float32),
@@ -385,3 +385,10 @@ def _check_field(f: Any, key: str, where: str) -> None:
             f"{where}: field '{key}' declares shape {item.shape} but the file does not hold its data "
             "(truncated or forged); re-record or re-import the run"
         )
+
+
+def run_facts(run: Run) -> dict[str, int]:
+    """What the manifest (``runs``) and the report say about a run: samples, whisker contacts and
+    deflection samples per whisk cycle."""
+    return {"samples": len(run), "whisker_contacts": int(run.contact_offsets[-1]),
+            "deflection_samples": int(run.deflection.shape[1])}

@@ -42,8 +42,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.atomic import atomic_path
-from vitaplace.engine.pipeline.outdir import DECISIONS, DECISIONS_CSV, MATRICES, PR_CURVE
+from vitaplace.engine.base.atomic import atomic_path
+from vitaplace.engine.outputs.outdir import DECISIONS, DECISIONS_CSV, MATRICES, PR_CURVE
 
 __all__ = [
     "DIFFICULTY_KEYS",
@@ -590,7 +590,7 @@ def evaluate_pair(
 ) -> dict:
     """Everything about one query run against one reference run, written to ``folder``:
     the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM and
-    the poses, so that other ground truths can be scored later: `vitaplace.engine.evaluation.sensitivity`), the
+    the poses, so that other ground truths can be scored later: `vitaplace.engine.study.sensitivity`), the
     decisions at the F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR
     curve (``pr_curve.npz``); returns the summary (`evaluate`) with ``heading_tolerance_deg``
     and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks, when given)

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 from vitaplace.engine.evaluation.evaluate import evaluate, pr_curve
-from vitaplace.engine.pipeline.outdir import MATRICES, evaluation_dir
+from vitaplace.engine.outputs.outdir import MATRICES, evaluation_dir
 
 #: replicates per evaluation
 RESAMPLES = 1000

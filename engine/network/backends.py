@@ -41,7 +41,7 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 from vitaplace.kernels import reference
 
 BACKENDS = ("auto", "numpy", "warp")

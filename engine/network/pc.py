@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from vitaplace.engine.atomic import atomic_path, write_text_atomic
+from vitaplace.engine.base.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.network.backends import Backend, get_backend
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 
 FORMAT_VERSION = 1
 LATENT_INIT = 0.1

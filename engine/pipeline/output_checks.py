@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from vitaplace.engine.errors import UserError
-from vitaplace.engine.features import Features
+from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.extension.features import Features
 
 
 class StageError(UserError, RuntimeError):

@@ -16,7 +16,7 @@ from concurrent.futures import ProcessPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
-from vitaplace.engine.pipeline.cpus import limit_blas_threads
+from vitaplace.engine.base.cpus import limit_blas_threads
 
 
 def process_identity(pid: int) -> str:

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from vitaplace.engine import __version__
-from vitaplace.engine.pipeline.cpus import usable_cpus
+from vitaplace.engine.base.cpus import usable_cpus
 
 #: distributions whose version can change a result
 PACKAGES = ("numpy", "scipy", "scikit-learn", "mujoco", "warp-lang", "pluggy", "h5py", "pydantic")

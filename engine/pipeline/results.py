@@ -9,8 +9,8 @@ import json
 from pathlib import Path
 from typing import Any
 
-from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.pipeline.outdir import RESULTS_CSV, RESULTS_JSON
+from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.outputs.outdir import RESULTS_CSV, RESULTS_JSON
 
 
 RESULT_COLUMNS = (

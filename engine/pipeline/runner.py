@@ -1,13 +1,16 @@
 """The scenario pipeline's stages: simulate -> fit -> transform -> evaluate -> report, cached per stage
 (`vitaplace.engine.pipeline.orchestrate.run_stages` runs them in order).
 
-Every stage's output lives under ``OUT/cache`` named by a hash of everything it depends on
+Every stage's output is named by a hash of everything it depends on
 (config, upstream keys, format versions, the code digest of the plugin that runs it) and of
 the digests of the upstream outputs it reads, as DVC does: a re-run skips finished stages,
 an interrupted run resumes with the first missing output, and ``force`` redoes named stages
 and, when their output changed, every stage downstream that reads it (an identical output
 leaves the downstream keys, and so their cached work, as they were). A run ends by writing
-its completion record (`vitaplace.engine.pipeline.completion`).
+its completion record (`vitaplace.engine.outputs.completion`). Where each output lives
+(`vitaplace.engine.outputs.outdir`): runs, models and features in the cache (``OUT/cache``, or
+the sweep's shared one), each evaluation under ``OUT/evaluations``, the report and what it is
+built from in ``OUT`` itself.
 """
 
 from __future__ import annotations
@@ -26,17 +29,20 @@ from typing import Any
 
 import numpy as np
 
-from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import EvaluationPair, Method, Scenario, ScenarioError, TrainingData, training_world_evaluation
-from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run
+from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run, run_facts
 from vitaplace.engine.evaluation import evaluate as ev
-from vitaplace.engine.features import FeatureExtractor, load_features, save_features, warn_once
-from vitaplace.engine.pipeline import checksum, outdir
-from vitaplace.engine.pipeline.cpus import usable_cpus
-from vitaplace.engine.pipeline.keys import content_hash
+from vitaplace.engine.extension.features import FeatureExtractor, feature_facts, load_features, save_features, warn_once
+from vitaplace.engine.outputs import checksum
+from vitaplace.engine.outputs import outdir
+from vitaplace.engine.base.cpus import usable_cpus
+from vitaplace.engine.outputs.keys import content_hash
 from vitaplace.engine.pipeline.output_checks import check_distance, check_features
+from vitaplace.engine.pipeline.records import (EvaluateRecord, FitRecord, RunRecord, SimulateRecord, StageRecord,
+                                              TransformRecord)
 from vitaplace.engine.pipeline.simulation import SimulationJob, simulate_here, simulations_in_workers
-from vitaplace.engine.plugins import Registry, discover
+from vitaplace.engine.extension.registry import Registry, discover, plugin_distributions
 from vitaplace.engine.sim import SIMULATOR_VERSION
 from vitaplace.engine.sim.environment import load_environment
 from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_seconds
@@ -49,20 +55,6 @@ STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate
 STUCK_SHARE, STUCK_SAMPLES = 0.25, 50
 
 log = logging.getLogger("vitaplace")
-
-
-@dataclass
-class StageRecord:
-    """One stage of one item: what keyed it (the keys of its inputs), where its output is,
-    and whether it ran or came from the cache."""
-
-    stage: str
-    item: str
-    key: str
-    status: str  # "ran" or "cached"
-    seconds: float
-    inputs: list[str] = field(default_factory=list)  # keys of the upstream outputs it was made from
-    output: str = ""  # its output, relative to the output directory when inside it
 
 
 @dataclass
@@ -216,7 +208,7 @@ class Pipeline:
         seconds = round(time.perf_counter() - start, 3)
         self.state.records.append(StageRecord("simulate", label, key, "recorded", seconds, [], str(path)))
 
-    def simulate(self) -> None:
+    def simulate(self) -> SimulateRecord:
         """Record every run not cached yet; several runs are recorded by parallel processes."""
         jobs = []
         for label, (entry, seed) in self.runs().items():
@@ -245,6 +237,11 @@ class Pipeline:
                     self.state.records[-1].seconds = round(simulated[1], 3)
         self.warn_collisions()
         self.warn_stays()
+        return SimulateRecord(
+            datasets=dict(self.state.datasets), recorded={label: str(path) for label, path in self.recorded.items()},
+            run_seeds={label: seed for label, (_, seed) in self.runs().items() if label not in self.recorded},
+            runs={label: run_facts(self.open(label)) for label in self.runs()},
+        )
 
     def warn_collisions(self) -> None:
         """Warn (log, manifest.json, report.md) about every run in which the robot's body or
@@ -276,8 +273,8 @@ class Pipeline:
         return self.opened[label]
 
     # ------------------------------------------------------------------ fit / transform
-    def method_params(self, method: Method) -> dict[str, Any]:
-        """The method's parameters, with ``seed`` derived from the scenario seed when the
+    def params_for(self, method: Method) -> dict[str, Any]:
+        """The parameters handed to the method's plugin: the scenario's, with ``seed`` derived from the scenario seed when the
         extractor takes one and the scenario does not set it (so every scenario seed also
         changes the method's initialisation)."""
         params = dict(method.params)
@@ -289,23 +286,24 @@ class Pipeline:
     def model_key(self, method: Method) -> str:
         return content_hash(
             "fit", STAGE_VERSION["fit"], method.plugin, self.registry.version_of(method.plugin),
-            self.registry.code_digest(method.plugin), self.method_params(method), self.state.datasets["train"],
+            self.registry.code_digest(method.plugin), self.params_for(method), self.state.datasets["train"],
             self.dataset_digest("train"),
         )
 
     def model_dir(self, method: Method) -> Path:
         return outdir.model_dir(self.cache, method.name, self.model_key(method))
 
-    def fit(self) -> None:
+    def fit(self) -> FitRecord:
         for method in self.scenario.methods:
             directory = self.model_dir(method)
             directory.parent.mkdir(parents=True, exist_ok=True)
             self.stage("fit", method.name, self.model_key(method), directory, partial(self._fit, method, directory),
                        [self.state.datasets["train"]])
+        return FitRecord({m.name: s for m in self.scenario.methods if (s := self.training_record(m)["summary"])})
 
     def _fit(self, method: Method, directory: Path) -> None:
         """Fit ``method`` on the training run and save it into ``directory`` (atomically)."""
-        extractor = self.registry.create(method.plugin, self.method_params(method))
+        extractor = self.registry.create(method.plugin, self.params_for(method))
         extractor.progress = self.progress
         extractor.fit(self.open("train"))
         tmp = Path(tempfile.mkdtemp(prefix=f".{directory.name}.", dir=directory.parent))
@@ -319,15 +317,16 @@ class Pipeline:
             raise
         self.extractors[method.name] = extractor
         record = {"history": extractor.training_history(), "summary": extractor.training_summary()}
-        write_text_atomic(self.training_path(method), json.dumps(record))
+        write_text_atomic(self.training_file(method), json.dumps(record))
 
-    def training_path(self, method: Method) -> Path:
-        """Where the fit stage records how training went (read by the report and the manifest)."""
+    def training_file(self, method: Method) -> Path:
+        """Where the fit stage records how training went, beside the model in the cache (the
+        report reads its copy, `outdir.training_path`)."""
         return outdir.training_file(self.model_dir(method))
 
     def training_record(self, method: Method) -> dict[str, Any]:
         """``{"history": per-epoch curves, "summary": how training ended}`` saved by the fit stage."""
-        path = self.training_path(method)
+        path = self.training_file(method)
         return json.loads(path.read_text()) if path.exists() else {"history": {}, "summary": {}}
 
     def extractor(self, method: Method) -> FeatureExtractor:
@@ -343,13 +342,15 @@ class Pipeline:
     def features_path(self, method: Method, label: str) -> Path:
         return outdir.features_file(self.cache, method.name, label, self.features_key(method, label))
 
-    def transform(self) -> None:
+    def transform(self) -> TransformRecord:
         labels = [label for label in self.runs() if label != "train"]
         for method in self.scenario.methods:
             for label in labels:
                 path = self.features_path(method, label)
                 self.stage("transform", f"{method.name} {label}", self.features_key(method, label), path,
                            partial(self._transform, method, label, path), [self.model_key(method), self.state.datasets[label]])
+        return TransformRecord({m.name: {label: feature_facts(load_features(self.features_path(m, label))) for label in labels}
+                                for m in self.scenario.methods})
 
     def _transform(self, method: Method, label: str, path: Path) -> None:
         """The features of run ``label`` by the fitted ``method``, checked, saved to ``path``."""
@@ -363,9 +364,9 @@ class Pipeline:
         pairs = [("query-to-reference", "query", "reference"), ("reference-to-query", "reference", "query")]
         return [p for p in pairs if d in (p[0], "both")]
 
-    def evaluate(self) -> list[dict[str, Any]]:
+    def evaluate(self) -> EvaluateRecord:
         settings = self.scenario.scoring
-        rows = []
+        rows, files = [], []
         for e in self.scenario.evaluations:
             for method in self.scenario.methods:
                 for direction, q, r in self.directions():
@@ -382,8 +383,9 @@ class Pipeline:
                                [qpath.stem, rpath.stem])
                     summary = json.loads((folder / outdir.SUMMARY).read_text())
                     rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
+                    files += [folder / outdir.SUMMARY, folder / outdir.PR_CURVE]
         self.add_f1_at_training_threshold(rows)
-        return rows
+        return EvaluateRecord(rows, files)
 
     def _evaluate(self, method: Method, query: str, reference: str, folder: Path) -> None:
         """Score ``method``'s distances from the ``query`` run's samples to the ``reference``
@@ -430,13 +432,27 @@ class Pipeline:
             if history:
                 write_text_atomic(outdir.training_path(self.out, method.name), json.dumps(history))
 
-    def method_parameters(self) -> dict[str, dict[str, Any]]:
-        """Per method: its plugin, the parameters the scenario sets (with the derived seed) and
-        the plugin's defaults for the others."""
+    def method_settings(self) -> dict[str, dict[str, Any]]:
+        """Per method, as the manifest records it: its plugin, the parameters handed to it
+        (`params_for`: the scenario's, with the derived seed) and the plugin's defaults for the
+        others."""
         out = {}
         for method in self.scenario.methods:
-            given = self.method_params(method)
+            given = self.params_for(method)
             full = self.registry.get(method.plugin).validate_params(given).model_dump(mode="json")
             out[method.name] = {"plugin": method.plugin, "params": {k: full[k] for k in full if k in given},
                                 "defaults": {k: v for k, v in full.items() if k not in given}}
         return out
+
+    def run_record(self, until: str, simulated: SimulateRecord) -> RunRecord:
+        """The record of this run up to ``until``, its later stages' records still to come."""
+        return RunRecord(out=self.out, scenario=self.scenario.name, seed=self.scenario.seed, until=until,
+                         methods=self.method_settings(), training_world=training_world_evaluation(self.scenario)[1],
+                         plugins=plugin_distributions(self.registry), simulate=simulated)
+
+    def close_record(self, record: RunRecord, seconds: float) -> RunRecord:
+        """``record`` with every stage item's record, the runs' warnings so far and the time."""
+        record.stages = list(self.state.records)
+        record.warnings = {label: dict(run.warnings) for label, run in self.opened.items() if run.warnings}
+        record.seconds = round(seconds, 3)
+        return record

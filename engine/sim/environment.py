@@ -24,8 +24,8 @@ import numpy as np
 import pydantic
 from pydantic import BaseModel, ConfigDict, Field
 
-from vitaplace.engine.config.configfile import ConfigError, format_validation_error, load_yaml
-from vitaplace.engine.config.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file
+from vitaplace.engine.base.configfile import ConfigError, format_validation_error, load_yaml
+from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file
 from vitaplace.engine.sim.clearance import route_collision
 
 __all__ = [
@@ -96,9 +96,6 @@ class MaterialSpec(_Model):
     texuniform: bool = Field(False, description="texture repeats per metre rather than per face")
     specular: Annotated[float, Field(ge=0, le=1)] = Field(0.1, description="specular reflection")
     shininess: Annotated[float, Field(ge=0, le=1)] = Field(0.2, description="specular exponent (0-1)")
-
-
-WALLS = ("north", "south", "east", "west")
 
 
 class PanelSpec(_Model):

@@ -14,7 +14,7 @@ import ctypes.util
 import os
 import sys
 
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 
 _LIBS = {"egl": ("EGL", "libEGL.so.1"), "osmesa": ("OSMesa", "libOSMesa.so.8")}
 

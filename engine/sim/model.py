@@ -37,7 +37,6 @@ class SimModel:
     servo_act: np.ndarray  #: (24,) actuator ids of the protraction servos
     whisker_of_geom: np.ndarray  #: (ngeom,) whisker index of a geom, -1 for other geoms
     whisker_body: np.ndarray  #: (24,) body id of each whisker
-    camera_id: int
     is_body_geom: np.ndarray  #: (ngeom,) bool: chassis / head geoms
     #: (steps_per_cycle,) servo target applied during each physics step of a whisk cycle
     whisk_command: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
@@ -193,7 +192,6 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
         servo_act=np.array([aid(f"{n}_servo") for n in names]),
         whisker_of_geom=whisker_of_geom,
         whisker_body=np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]),
-        camera_id=mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, "eye"),
         is_body_geom=np.isin(np.arange(m.ngeom), [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in ("chassis", "head")]),
         layout=layout,
     )

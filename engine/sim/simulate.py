@@ -30,7 +30,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.sim.controllers import Observation, RunSpec, make_controller
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.glsetup import STATE as GL_STATE

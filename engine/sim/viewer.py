@@ -15,7 +15,7 @@ from pathlib import Path
 
 import mujoco
 
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.model import SimModel, build_model
 from vitaplace.engine.sim.robot import ROBOT_GROUP, RobotSpec

@@ -7,8 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from vitaplace.engine.features import FeatureExtractor
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.plugin import FeatureExtractor, hookimpl
 
 from .extractor import HandcraftedExtractor, HandcraftedParams
 from .pfh import pfh, pfh_batch

@@ -23,11 +23,10 @@ import numpy as np
 import pydantic
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features, warn_once
+from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
 
-from .pfh import pfh_batch
+from .pfh import pfh_batch, subsample
 from .profile import TemplateMaker, template_distance
 from .sda import sda
 
@@ -96,13 +95,6 @@ class HandcraftedParams(ExtractorParams):
         if self.max_shift >= self.grid[1]:
             raise ValueError(f"max_shift ({self.max_shift}) must be smaller than the grid width ({self.grid[1]})")
         return self
-
-
-def _sample_index(n: int, limit: int) -> np.ndarray:
-    """At most ``limit`` evenly spaced indices of ``range(n)`` (deterministic)."""
-    if n <= limit:
-        return np.arange(n)
-    return np.unique(np.linspace(0, n - 1, limit).round().astype(np.int64))
 
 
 def _spread(distances: np.ndarray) -> float:
@@ -201,7 +193,7 @@ class HandcraftedExtractor(FeatureExtractor):
 
     def fit(self, train: Run) -> None:
         features = self.transform(train)
-        idx = _sample_index(len(train), self.params.sigma_samples)
+        idx = subsample(len(train), self.params.sigma_samples)
         sample = {key: value[idx] for key, value in features.items()}
         terms = self.term_distances(sample, sample)
         self.sigmas = {key: _spread(d) for key, d in terms.items()}

@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from vitaplace.engine.data.dataset import Run
+from vitaplace.plugin import Run
 
 #: Pairs whose points are closer than this [m] are skipped (coincident contacts).
 EPS_DISTANCE = 1e-9

@@ -33,7 +33,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.pipeline.cpus import usable_cpus
+from vitaplace.engine.base.cpus import usable_cpus
 
 #: Mean of a normalised template (OpenRatSLAM ``vt_normalisation``).
 TARGET_MEAN = 0.4

@@ -1,6 +1,6 @@
 """Built-in plugin: learned MuPNet features (``mupnet``)."""
 
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.plugin import hookimpl
 from vitaplace.plugins.mupnet.extractor import MupnetExtractor
 
 

@@ -13,9 +13,7 @@ import numpy as np
 import pydantic
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.dataset import Run
-from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
-from vitaplace.engine.hookspecs import hookimpl
+from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, hookimpl
 
 
 class MeanColourParams(ExtractorParams):

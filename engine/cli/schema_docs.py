@@ -1,7 +1,7 @@
 """docs/SCENARIOS.md, generated from the pydantic schemas, so the reference cannot drift.
 
-    python -m vitaplace.engine.config.schema_docs docs/SCENARIOS.md     # regenerate
-    python -m vitaplace.engine.config.schema_docs                       # print
+    python -m vitaplace.engine.cli.schema_docs docs/SCENARIOS.md     # regenerate
+    python -m vitaplace.engine.cli.schema_docs                       # print
 
 Every schema field documents itself with ``Field(description=...)``, the one way fields are
 documented: a table row is the field's type, default, constraints and description as pydantic
@@ -124,7 +124,7 @@ def markdown() -> str:
     parts = [
         "# Scenario and environment reference",
         "",
-        "Generated from the pydantic schemas by `python -m vitaplace.engine.config.schema_docs docs/SCENARIOS.md`;",
+        "Generated from the pydantic schemas by `python -m vitaplace.engine.cli.schema_docs docs/SCENARIOS.md`;",
         "`tests/test_docs.py` fails when this file is out of date. Unknown keys are errors everywhere.",
         "Units: metres, seconds, degrees in files (radians inside), colours in [0, 1].",
         "",

@@ -18,8 +18,8 @@ import json
 from collections.abc import Iterable
 from pathlib import Path
 
-from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.pipeline.checksum import digest
+from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.outputs.checksum import digest
 
 RECORD = "completed.json"
 SCENARIO = "scenario.resolved.yaml"

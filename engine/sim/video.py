@@ -21,7 +21,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from vitaplace.engine.data.dataset import TOUCH_THRESHOLD, Run
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 
 log = logging.getLogger("vitaplace")
 

@@ -22,14 +22,14 @@ from typing import Any
 
 import yaml
 
-from vitaplace.engine.pipeline import completion
+from vitaplace.engine.outputs import completion
 from vitaplace.engine.config.scenario import RENAMED_KEYS
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.evaluation.evaluate import load_curve
-from vitaplace.engine.pipeline.keys import content_hash
-from vitaplace.engine.pipeline.outdir import MANIFEST, RESULTS_JSON
-from vitaplace.engine.evaluation.figures import write_pr_bands
-from vitaplace.engine.evaluation.summary import bounds, write_summary
+from vitaplace.engine.outputs.keys import content_hash
+from vitaplace.engine.outputs.outdir import MANIFEST, RESULTS_JSON
+from vitaplace.engine.report.figures import write_pr_bands
+from vitaplace.engine.study.summary import bounds, write_summary
 
 REQUIRED = (completion.RECORD, MANIFEST, RESULTS_JSON, completion.SCENARIO)
 #: identity columns of a result row: non-empty text
@@ -121,7 +121,7 @@ def curve_path(row: dict[str, Any]) -> str:
 
 def validate_run_folder(folder: Path) -> RunFolder:
     """Everything `vitaplace aggregate` reads from one run folder, validated: a completion
-    record (`vitaplace.engine.pipeline.completion`) that matches the resolved scenario, the manifest,
+    record (`vitaplace.engine.outputs.completion`) that matches the resolved scenario, the manifest,
     the results and every row's PR curve; each result row checked (`check_row`). Raises
     AggregateError, one line naming the folder or the file (and field) at fault."""
     folder = Path(folder)

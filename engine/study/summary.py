@@ -63,7 +63,7 @@ import numpy as np
 from scipy import stats
 
 from vitaplace.engine.evaluation import resample
-from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.base.atomic import write_text_atomic
 
 #: columns naming what a result row is about, not values
 IDENTITY = ("seed", "environment", "method", "direction")

@@ -16,12 +16,15 @@ holder's pid (where ``fcntl`` is missing, e.g. Windows, runs are not locked).
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
 
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 
 try:
     import fcntl
@@ -177,3 +180,18 @@ def arena_path(out: Path, environment: str) -> Path:
 def training_path(out: Path, method: str) -> Path:
     """The per-epoch training curves (JSON) of ``method``."""
     return Path(out) / "training" / f"{method}.json"
+
+
+@contextmanager
+def claimed(out: Path, before_cleaning: Callable[[Path], None] | None = None) -> Iterator[Path]:
+    """``with claimed(out) as out:`` - the one way a command or the Python API takes an output
+    folder: ``out`` made a writable directory (`writable_dir`), held by this process
+    (`OutputLock`, else OutputDirError), then ``before_cleaning(out)`` if given (the command
+    line's log file) and what interrupted writes left removed, each logged."""
+    out = writable_dir(Path(out))
+    with OutputLock(out):
+        if before_cleaning is not None:
+            before_cleaning(out)
+        for path in remove_stale_temporaries(out):
+            logging.getLogger("vitaplace").info("removed %s, left by an interrupted run", path)
+        yield out

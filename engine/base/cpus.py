@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import os
 
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.errors import UserError
 
 #: environment variable that caps the CPUs vitaplace uses (worker pools, BLAS threads, compile threads)
 OVERRIDE_ENV = "VITAPLACE_CPUS"

@@ -15,7 +15,7 @@ Input: one finished run folder, or a sweep folder (its ``seed-*`` run folders, e
 validated as `vitaplace aggregate` does). Output, written atomically into the folder (or
 ``--out``): ``sensitivity.csv`` (one row per seed x environment x method x direction x τ x
 heading tolerance), ``sensitivity.md`` (mean ± std over seeds with the percentile bootstrap
-interval over seeds, `vitaplace.engine.evaluation.summary.describe`) and ``sensitivity.json`` (both).
+interval over seeds, `vitaplace.engine.study.summary.describe`) and ``sensitivity.json`` (both).
 """
 
 from __future__ import annotations
@@ -28,17 +28,18 @@ from typing import Any
 
 import numpy as np
 
-from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.errors import UserError
-from vitaplace.engine.evaluation.aggregate import RunFolder, curve_path, validate_run_folder
+from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.config.scenario import ScoringSettings
+from vitaplace.engine.study.aggregate import RunFolder, curve_path, validate_run_folder
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve
-from vitaplace.engine.pipeline.outdir import MATRICES
-from vitaplace.engine.evaluation.summary import bounds, cell, csv_text, describe, interval, json_safe
+from vitaplace.engine.outputs.outdir import MATRICES
+from vitaplace.engine.study.summary import bounds, cell, csv_text, describe, interval, json_safe
 
 #: revisit tolerances τ [m] of the default grid
 TAUS = (0.2, 0.3, 0.5)
-#: heading tolerance [deg] of the default grid beside position only (None)
-HEADING_TOLERANCE_DEG = 30.0
+#: heading tolerance [deg] of the default grid beside position only (None): the scoring default
+HEADING_TOLERANCE_DEG = ScoringSettings.model_fields["heading_tolerance_deg"].default
 #: the scores recomputed per ground truth (both proportions in [0, 1])
 METRICS = ("max_f1", "recall_at_100_precision")
 COLUMNS = ("seed", "environment", "method", "direction", "tau", "heading_tolerance_deg", "n_revisit", *METRICS)

@@ -17,15 +17,13 @@ from typing import Any
 import numpy as np
 import yaml
 
-from vitaplace.engine.pipeline import completion
+from vitaplace.engine.outputs import completion
 from vitaplace.engine.evaluation import evaluate as ev
-from vitaplace.engine.evaluation import figures
-from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.pipeline.checksum import digest
-from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.errors import UserError
-from vitaplace.engine.features import Features
-from vitaplace.engine.pipeline.outdir import (
+from vitaplace.engine.report import figures
+from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.outputs.checksum import digest
+from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.outputs.outdir import (
     DECISIONS, FIGURES, MANIFEST, MATRICES, PR_CURVE, REPORT, RESULTS_JSON,
     arena_path, evaluation_dir, poses_path, training_path,
 )
@@ -119,28 +117,6 @@ def _methods_section(methods: dict[str, dict[str, Any]]) -> list[str]:
         lines += [f"- **{name}** (`{method['plugin']}`): {_params_text(method['params'])}; "
                   f"defaults: {_params_text(method['defaults'])}"]
     return lines + [""]
-
-
-def run_facts(run: Run) -> dict[str, int]:
-    """What the report says about a run (manifest ``runs``): samples, whisker contacts and
-    deflection samples per whisk cycle."""
-    return {"samples": len(run), "whisker_contacts": int(run.contact_offsets[-1]),
-            "deflection_samples": int(run.deflection.shape[1])}
-
-
-def feature_facts(features: Features) -> dict[str, Any]:
-    """What the report says about one method's features of one run (manifest ``features``):
-    its feature arrays (float, one row of at least one column per sample), those that are
-    all zero, and, for features that record test-time inference (``inference_steps``,
-    ``inference_stopped``), the step counts' median, 90th percentile and largest value, the
-    samples that hit the step cap and the number of samples."""
-    arrays = sorted(k for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2)
-    facts: dict[str, Any] = {"arrays": arrays, "zero": [k for k in arrays if not features[k].any()]}
-    if "inference_steps" in features and "inference_stopped" in features:
-        steps, stopped = features["inference_steps"], features["inference_stopped"].astype(bool)
-        facts["inference"] = {"median": float(np.median(steps)), "p90": float(np.percentile(steps, 90)),
-                              "max": steps.max().item(), "capped": int((~stopped).sum()), "samples": int(stopped.size)}
-    return facts
 
 
 def inference_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:

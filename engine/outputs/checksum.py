@@ -14,7 +14,7 @@ import hashlib
 import json
 from pathlib import Path
 
-from vitaplace.engine.atomic import write_text_atomic
+from vitaplace.engine.base.atomic import write_text_atomic
 
 _CHUNK = 1 << 22
 

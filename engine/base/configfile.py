@@ -21,8 +21,8 @@ from typing import Any
 import pydantic
 import yaml
 
-from vitaplace.engine.config.shipped import shipped_file
-from vitaplace.engine.errors import UserError
+from vitaplace.engine.base.shipped import shipped_file
+from vitaplace.engine.base.errors import UserError
 
 log = logging.getLogger("vitaplace")
 

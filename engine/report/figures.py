@@ -20,9 +20,9 @@ from matplotlib.lines import Line2D
 from matplotlib.collections import LineCollection
 from matplotlib.patches import Circle, Polygon, Rectangle
 
-from vitaplace.engine.atomic import atomic_path
+from vitaplace.engine.base.atomic import atomic_path
 from vitaplace.engine.evaluation.evaluate import Decisions, PRCurve
-from vitaplace.engine.pipeline.outdir import PR_CURVE, evaluation_dir
+from vitaplace.engine.outputs.outdir import PR_CURVE, evaluation_dir
 
 __all__ = ["plot_energy", "plot_matrices", "plot_pr_curves", "plot_trajectories", "OUTCOME_COLOURS"]
 

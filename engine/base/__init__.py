@@ -1,0 +1,1 @@
+"""The bottom floor: errors, atomic writes, the CPUs a process may use, YAML files with key paths, shipped files."""

@@ -1,0 +1,151 @@
+"""The feature-extractor interface every place-recognition front end implements.
+
+An extractor turns a recorded `Run` into per-sample features and compares two feature
+sets with a template-match error (TME, lower = more similar). Evaluation only ever talks
+to this interface, so learned, hand-crafted and third-party methods are interchangeable.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import pydantic
+
+from vitaplace.engine.base.atomic import atomic_path
+from vitaplace.engine.base.configfile import show_key
+from vitaplace.engine.data.dataset import Run
+from vitaplace.engine.base.errors import UserError
+
+#: Features of one run: named arrays whose first axis is the sample index.
+Features = dict[str, np.ndarray]
+
+
+class ExtractorParamsError(UserError, ValueError):
+    """Invalid extractor parameters; the message names the extractor and the key."""
+
+
+class ExtractorParams(pydantic.BaseModel):
+    """Base of every extractor's parameter schema: unknown keys are errors, and so are
+    infinite or NaN numbers (an infinite range or rate voids a run without failing it)."""
+
+    model_config = pydantic.ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class FeatureExtractor(ABC):
+    """A place-recognition front end: ``fit`` on a training run, ``transform`` runs, ``distance``.
+
+    Subclasses set ``name`` and ``Params`` (a subclass of `ExtractorParams`).
+    """
+
+    name: ClassVar[str]
+    Params: ClassVar[type[ExtractorParams]] = ExtractorParams
+    #: Whether long fit/transform calls may show progress bars (the runner sets it).
+    progress: bool = True
+
+    def __init__(self, params: Mapping[str, Any] | None = None) -> None:
+        self.params = self.validate_params(params or {})
+
+    @classmethod
+    def validate_params(cls, params: Mapping[str, Any]) -> ExtractorParams:
+        """Parse ``params`` with the extractor's schema; raise one clear error per bad key."""
+        try:
+            return cls.Params.model_validate(dict(params))
+        except pydantic.ValidationError as exc:
+            problems = "; ".join(
+                f"{'.'.join(show_key(p) for p in err['loc']) or '(params)'}: {err['msg']}" for err in exc.errors()
+            )
+            raise ExtractorParamsError(f"extractor '{cls.name}': {problems}") from None
+
+    @classmethod
+    def memory_bytes(cls, params: ExtractorParams, train_samples: int) -> tuple[int, str, str]:
+        """Memory the method needs beyond the recorded runs, for ``train_samples`` training
+        samples: (bytes, the parameter that drives it, what needs it), checked against the
+        machine before any compute. The default: nothing worth counting."""
+        return 0, "", "nothing"
+
+    @abstractmethod
+    def fit(self, train: Run) -> None:
+        """Learn whatever the method needs (weights, scalers, distance scales) from a training run."""
+
+    @abstractmethod
+    def transform(self, run: Run) -> Features:
+        """Per-sample features of ``run``."""
+
+    @abstractmethod
+    def distance(self, query: Features, reference: Features) -> np.ndarray:
+        """Template-match error matrix, shape (n_query, n_reference), lower = more similar."""
+
+    def training_history(self) -> dict[str, list[float]]:
+        """Per-epoch training curves to plot (e.g. energy per layer); empty when not iterative."""
+        return {}
+
+    def training_summary(self) -> dict[str, object]:
+        """How training ended, for the manifest (e.g. epochs run, converged or not); empty when
+        not iterative."""
+        return {}
+
+    def save(self, directory: str | Path) -> None:
+        """Write parameters and fitted state to ``directory`` (created if needed)."""
+        directory = Path(directory)
+        directory.mkdir(parents=True, exist_ok=True)
+        (directory / "params.json").write_text(json.dumps(self.params.model_dump(mode="json"), indent=2))
+        self.save_state(directory)
+
+    @classmethod
+    def load(cls, directory: str | Path) -> FeatureExtractor:
+        """Rebuild a fitted extractor saved by `save`."""
+        directory = Path(directory)
+        extractor = cls(json.loads((directory / "params.json").read_text()))
+        extractor.load_state(directory)
+        return extractor
+
+    @abstractmethod
+    def save_state(self, directory: Path) -> None:
+        """Write the fitted state (everything `fit` learned) into ``directory``."""
+
+    @abstractmethod
+    def load_state(self, directory: Path) -> None:
+        """Read the fitted state written by `save_state`."""
+
+
+def save_features(path: str | Path, features: Features) -> None:
+    """Write features to an ``.npz`` file atomically."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
+            np.savez(f, **features)
+
+
+def load_features(path: str | Path) -> Features:
+    with np.load(path) as data:
+        return {key: data[key] for key in data.files}
+
+
+def warn_once(run: Run, feature: str, message: str) -> None:
+    """Warn, once per run and feature, that ``feature`` cannot use ``run``'s data (e.g. a
+    recorded run without contacts): logged on the ``vitaplace`` logger and kept in
+    ``run.warnings``, which the runner copies into manifest.json."""
+    if feature in run.warnings:
+        return
+    run.warnings[feature] = message
+    logging.getLogger("vitaplace").warning(message)
+
+
+def feature_facts(features: Features) -> dict[str, Any]:
+    """What the manifest (``features``) and the report say about one method's features of one run:
+    its feature arrays (float, one row of at least one column per sample), those that are
+    all zero, and, for features that record test-time inference (``inference_steps``,
+    ``inference_stopped``), the step counts' median, 90th percentile and largest value, the
+    samples that hit the step cap and the number of samples."""
+    arrays = sorted(k for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2)
+    facts: dict[str, Any] = {"arrays": arrays, "zero": [k for k in arrays if not features[k].any()]}
+    if "inference_steps" in features and "inference_stopped" in features:
+        steps, stopped = features["inference_steps"], features["inference_stopped"].astype(bool)
+        facts["inference"] = {"median": float(np.median(steps)), "p90": float(np.percentile(steps, 90)),
+                              "max": steps.max().item(), "capped": int((~stopped).sum()), "samples": int(stopped.size)}
+    return facts

@@ -1,0 +1,1 @@
+"""The output-folder contract: file names and layout, folder digests, completion records, cache keys."""

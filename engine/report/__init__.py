@@ -1,0 +1,1 @@
+"""One run's report: report.md and its figures, rendered from the output folder alone."""

@@ -1,0 +1,1 @@
+"""Across runs: aggregate over seeds, the sensitivity grid, the summary statistics."""
