@@ -300,6 +300,20 @@ def budget() -> str:
                     body)
 
 
+def warnings() -> str:
+    """Every warning in each seed's manifest.json (``warnings``: run -> check -> message; the
+    same lines are under Warnings in its report.md)."""
+    body = []
+    for study, folder in STUDIES.items():
+        found = []
+        for path in sorted(folder.glob("seeds/seed-*/manifest.json"), key=lambda p: int(p.parent.name.split("-")[1])):
+            for run, checks in json.loads(path.read_text())["warnings"].items():
+                for check, message in checks.items():
+                    found.append([study, path.parent.name.split("-")[1], run, f"`{check}`", message])
+        body += found or [[study, "–", "–", "–", "none"]]
+    return markdown(["touch model", "seed", "run", "check", "warning"], body)
+
+
 TABLES: dict[str, Callable[[], str]] = {
     "difficulty": difficulty,
     "six-penetration": lambda: six_methods("penetration"),
@@ -315,6 +329,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "sensitivity": sensitivity,
     "budget": budget,
     "stalls": stalls,
+    "warnings": warnings,
 }
 
 
