@@ -57,3 +57,19 @@ def test_the_committed_study_holds_six_methods_five_seeds_and_bounded_intervals(
                 assert not math.isnan(a) and not math.isnan(b), (name, row)
                 assert low <= a <= b <= high, (name, interval, row)
     assert all(0 < float(row["p_sign_flip"]) <= 1 for row in rows(study, "sweep-diff.csv"))
+
+
+def test_the_decomposition_of_l_minus_h_adds_up_and_its_touch_term_matches_the_paired_differences():
+    """The decomposition table's third term, computed per seed in tables.py, is the
+    difference of the summaries' L - L-V and H - H-V, and the terms add up to L - H."""
+    tables = tables_module()
+    for study in tables.STUDIES:
+        for direction in tables.DIRECTIONS:
+            for world in tables.WORLDS:
+                def mean(a: str, b: str) -> float:
+                    return float(tables._difference(study, world, direction, a, b)["mean"])
+                per_seed, stats, p = tables.interaction(study, world, direction)
+                assert len(per_seed) >= 5 and stats["n"] == len(per_seed)
+                assert stats["mean"] == pytest.approx(mean("L", "L-V") - mean("H", "H-V"), abs=1e-12)
+                assert mean("L", "H") == pytest.approx(mean("L-V", "H-V") + stats["mean"], abs=1e-12)
+                assert stats["t_low"] <= stats["mean"] <= stats["t_high"] and 0 < p <= 1

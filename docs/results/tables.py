@@ -183,6 +183,54 @@ def pairs(comparisons: Sequence[tuple[str, str]]) -> Callable[[], str]:
     return table
 
 
+def _per_seed(study: str, metric: str = "max_f1") -> dict[tuple[str, str, str], dict[int, float]]:
+    """``{(world, method, direction): {seed: value}}`` of ``metric`` from ``sweep-seeds.csv``."""
+    values: dict[tuple[str, str, str], dict[int, float]] = {}
+    for r in read(study, "sweep-seeds.csv"):
+        if r["metric"] == metric:
+            values.setdefault((r["environment"], r["method"], r["direction"]), {})[int(r["seed"])] = float(r["value"])
+    return values
+
+
+def interaction(study: str, world: str, direction: str) -> tuple[list[float], dict[str, float], float]:
+    """What touch costs L less than H, (L - L-V) - (H - H-V), max F1, per seed from
+    ``sweep-seeds.csv`` (the summaries hold no paired statistics of it): the per-seed values,
+    their `describe` (mean, std, t and bootstrap intervals; no block interval, the block
+    replicates are not committed) and their sign-flip p."""
+    values = _per_seed(study)
+    cells = [values[(world, m, direction)] for m in ("L", "L-V", "H", "H-V")]
+    seeds = sorted(set.intersection(*(set(c) for c in cells)))
+    assert all(set(c) == set(seeds) for c in cells), (study, world, direction, "methods differ in their seeds")
+    lv, vv, h, hv = cells
+    d = [(lv[s] - vv[s]) - (h[s] - hv[s]) for s in seeds]
+    low, high = difference_bounds("max_f1")  # a difference of two such differences lies in [-2, 2]
+    return d, describe(d, (low - high, high - low)), sign_flip_p(d)
+
+
+def _paired_cell(r: dict[str, str], p: str | float) -> str:
+    return f"{pct(r['mean'])} {pct_interval(r)}, t {pct_interval(r, 't')}, p={p_value(p)}"
+
+
+def decomposition() -> str:
+    """L - H = (L-V - H-V) + [(L - L-V) - (H - H-V)], max F1, per world, direction and touch
+    model: what vision contributes and what touch costs L less than H (negative: more). Each
+    term's mean over seeds [bootstrap 95 %], its t 95 % interval and sign-flip p; the first
+    two from ``sweep-diff.csv``, the third computed per seed (`interaction`). The means add
+    up exactly; their rounded values may differ by 0.1."""
+    body = []
+    for study in STUDIES:
+        for direction, arrow in DIRECTIONS.items():
+            for world in WORLDS:
+                cells = [world, study, arrow]
+                for a, b in (("L", "H"), ("L-V", "H-V")):
+                    r = _difference(study, world, direction, a, b)
+                    cells.append(_paired_cell(r, r["p_sign_flip"]))
+                _, stats, p = interaction(study, world, direction)
+                body.append([*cells, _paired_cell({k: str(v) for k, v in stats.items()}, p)])
+    return markdown(["world", "touch model", "direction", "L − H, points", "= L-V − H-V (vision)",
+                     "+ (L − L-V) − (H − H-V) (touch)"], body)
+
+
 def transfer() -> str:
     """Max F1 against the F1 at the threshold that maximises F1 on E1 (the same method's E1
     evaluation), E2 and E3, query to reference, penetration: does E1's threshold carry over?"""
@@ -300,6 +348,20 @@ def budget() -> str:
                     body)
 
 
+def warnings() -> str:
+    """Every warning in each seed's manifest.json (``warnings``: run -> check -> message; the
+    same lines are under Warnings in its report.md)."""
+    body = []
+    for study, folder in STUDIES.items():
+        found = []
+        for path in sorted(folder.glob("seeds/seed-*/manifest.json"), key=lambda p: int(p.parent.name.split("-")[1])):
+            for run, checks in json.loads(path.read_text())["warnings"].items():
+                for check, message in checks.items():
+                    found.append([study, path.parent.name.split("-")[1], run, f"`{check}`", message])
+        body += found or [[study, "–", "–", "–", "none"]]
+    return markdown(["touch model", "seed", "run", "check", "warning"], body)
+
+
 TABLES: dict[str, Callable[[], str]] = {
     "difficulty": difficulty,
     "six-penetration": lambda: six_methods("penetration"),
@@ -309,12 +371,14 @@ TABLES: dict[str, Callable[[], str]] = {
     "overall": overall,
     "touch-adds": pairs((("L", "L-V"), ("H", "H-V"))),
     "learned-vs-handcrafted": pairs((("L", "H"), ("L", "H-V"), ("L-V", "H-V"))),
+    "decomposition": decomposition,
     "transfer": transfer,
     "transfer-differences": transfer_differences,
     "recall-at-full-precision": recall_at_full_precision,
     "sensitivity": sensitivity,
     "budget": budget,
     "stalls": stalls,
+    "warnings": warnings,
 }
 
 
