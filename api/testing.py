@@ -9,7 +9,13 @@
 `check_extractor` runs every check of `CHECKS` on a small synthetic run (`synthetic_run`)
 and raises `ContractError` at the first broken rule; its message names the check and the
 extractor. Each check is a function ``check_...(cls, params, run)`` that can also be run
-alone (e.g. parametrised with pytest over `CHECKS`). Features and distances computed twice
+alone: `parametrize_with_checks` makes each check of each extractor a test of its own, with
+an id naming both (as scikit-learn's ``parametrize_with_checks``):
+
+    @parametrize_with_checks([("mine", MyExtractor, {"my_param": 2})])
+    def test_contract(extractor, params, check):
+        check(extractor, params, synthetic_run())
+ Features and distances computed twice
 count as the same within `RTOL` / `ATOL` (batch sizes may change the order of float sums).
 """
 
@@ -17,7 +23,7 @@ from __future__ import annotations
 
 import copy
 import tempfile
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -28,7 +34,8 @@ from vitaplace.engine.extension.features import FeatureExtractor, Features
 __all__ = [
     "ATOL", "CHECKS", "RTOL", "ContractError", "check_distance_before_fit", "check_distance_output",
     "check_extractor", "check_features_output", "check_fit_leaves_params", "check_same_seed_same_features",
-    "check_save_load_round_trip", "check_transform_before_fit", "check_transform_subset", "synthetic_run",
+    "check_save_load_round_trip", "check_transform_before_fit", "check_transform_subset", "parametrize_with_checks",
+    "synthetic_run",
 ]
 
 RTOL = 1e-5
@@ -262,3 +269,16 @@ def check_extractor(cls: type[FeatureExtractor], params: RawParams = None, run: 
     run = synthetic_run() if run is None else run
     for check in CHECKS:
         check(cls, copy.deepcopy(params), run)  # a check changing its params must not hide it from the next
+
+
+def parametrize_with_checks(extractors: Sequence[tuple[str, type[FeatureExtractor], RawParams]]) -> Any:
+    """A pytest ``parametrize`` mark over every check of `CHECKS` for each ``(name, class,
+    params)`` of ``extractors``: the test takes ``extractor``, ``params`` and ``check`` and
+    runs ``check(extractor, params, run)``; each test's id is ``NAME-CHECK`` (e.g.
+    ``handcrafted-check_save_load_round_trip``), so a report names the broken rule."""
+    import pytest  # only where the checks are run as tests
+
+    return pytest.mark.parametrize("extractor, params, check", [
+        pytest.param(cls, copy.deepcopy(params), check, id=f"{name}-{check.__name__}")
+        for name, cls, params in extractors for check in CHECKS
+    ])

@@ -391,7 +391,7 @@ MUTANTS = [
     m("testing: the subset check compares the rows in the wrong order", "testing",
       "    problems = _differences({key: np.asarray(value)[index] for key, value in whole.items()}, part)",
       "    problems = _differences({key: np.asarray(value)[index[::-1]] for key, value in whole.items()}, part)",
-      *t("contract", "test_shipped_extractors_keep_the_contract[handcrafted]")),
+      *t("contract", "test_shipped_extractors_keep_the_contract[handcrafted-check_transform_subset]")),
     m("provenance: a changed checkout reported clean", "provenance",
       "    return bool(result.stdout.strip())", "    return False",
       *t("reports", "test_git_dirty_tells_a_changed_checkout_from_a_clean_one")),

@@ -20,7 +20,7 @@ from scipy.spatial.distance import cdist
 
 import vitaplace.plugin
 from vitaplace.engine.extension.registry import discover
-from vitaplace.testing import CHECKS, ContractError, check_extractor, synthetic_run
+from vitaplace.testing import CHECKS, ContractError, check_extractor, parametrize_with_checks, synthetic_run
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE_DIR = ROOT / "tests" / "plugin_example"
@@ -33,23 +33,37 @@ TINY_MUPNET = {"image_size": [6, 8], "visual_layers": [8], "tactile_layers": [4]
 #: added: plugins written against it must keep working wherever the engine moves these names
 LEGACY_IMPORTS = """
 from vitaplace.engine.dataset import Run
-from vitaplace.engine.extension.features import ExtractorParams, FeatureExtractor, Features
-from vitaplace.engine.extension.hookspecs import hookimpl
+from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
+from vitaplace.engine.hookspecs import hookimpl
 """
 
 
 # --------------------------------------------------------------------------- shipped extractors
 
 
-@pytest.mark.parametrize("plugin, params", [
-    pytest.param("handcrafted", {"grid": [6, 8], "max_shift": 2}, id="handcrafted"),
-    pytest.param("handcrafted", {"grid": [6, 8], "max_shift": 2, "use_visual": False, "sigma_samples": 3},
-                 id="handcrafted-tactile"),
-    pytest.param("mupnet", {**TINY_MUPNET, "backend": "numpy"}, id="mupnet-numpy"),
-    pytest.param("mupnet", {**TINY_MUPNET, "backend": "warp"}, id="mupnet-warp"),
+SHIPPED = discover()
+
+
+@parametrize_with_checks([
+    ("handcrafted", SHIPPED.get("handcrafted"), {"grid": [6, 8], "max_shift": 2}),
+    ("handcrafted-tactile", SHIPPED.get("handcrafted"),
+     {"grid": [6, 8], "max_shift": 2, "use_visual": False, "sigma_samples": 3}),
+    ("mupnet-numpy", SHIPPED.get("mupnet"), {**TINY_MUPNET, "backend": "numpy"}),
+    ("mupnet-warp", SHIPPED.get("mupnet"), {**TINY_MUPNET, "backend": "warp"}),
 ])
-def test_shipped_extractors_keep_the_contract(plugin, params):
-    check_extractor(discover().get(plugin), params)
+def test_shipped_extractors_keep_the_contract(extractor, params, check):
+    check(extractor, params, synthetic_run())
+
+
+def test_each_check_of_each_shipped_extractor_is_a_test_of_its_own(request):
+    """Per-check ids: 4 configurations x every check, each id naming both."""
+    ids = [item.callspec.id for item in request.session.items
+           if getattr(item, "originalname", "") == "test_shipped_extractors_keep_the_contract"]
+    if not ids:
+        pytest.skip("the parametrised test was deselected")
+    expected = {f"{name}-{check.__name__}" for name in ("handcrafted", "handcrafted-tactile", "mupnet-numpy", "mupnet-warp")
+                for check in CHECKS}
+    assert set(ids) == expected and len(ids) == 4 * len(CHECKS)
 
 
 def test_the_example_plugin_as_documented_keeps_the_contract(monkeypatch):

@@ -82,8 +82,8 @@ def test_pfh_value_on_a_bins_upper_edge_goes_to_the_last_bin():
     np.testing.assert_allclose(hist, expected)
 
 
-def test_pfh_invariant_to_rigid_motion_and_sums_to_100():
-    rng = np.random.default_rng(1)
+def test_pfh_invariant_to_rigid_motion_and_sums_to_100(seed):
+    rng = np.random.default_rng(seed)
     for k in (2, 5, 30):
         points, normals = random_contacts(rng, k)
         rot = random_rotation(rng)
@@ -113,8 +113,8 @@ def test_pfh_zero_for_fewer_than_two_contacts_and_degenerate_pairs():
     np.testing.assert_allclose(hist, expected, atol=1e-4)
 
 
-def test_pfh_caps_contacts_and_batch_matches_single():
-    rng = np.random.default_rng(2)
+def test_pfh_caps_contacts_and_batch_matches_single(seed):
+    rng = np.random.default_rng(seed)
     counts = [0, 1, 3, 200]
     sets = [random_contacts(rng, k) for k in counts]
     run = small_run(
@@ -200,8 +200,8 @@ def test_sda_per_axis_with_a_threshold():
     assert slopes[0, 2] == 0.0 and slopes[0, 5] == 0.0
 
 
-def test_sda_vectorised_over_samples():
-    rng = np.random.default_rng(3)
+def test_sda_vectorised_over_samples(seed):
+    rng = np.random.default_rng(seed)
     d = rng.normal(scale=0.01, size=(7, 9, 5, 2))
     d[2, :, 1] = 0.0  # one whisker without contact
     slopes = sda(d, threshold=0.005)
@@ -222,8 +222,8 @@ def test_sda_vectorised_over_samples():
 # Visual intensity profile
 
 
-def test_profile_block_average_grey_and_crop():
-    rng = np.random.default_rng(4)
+def test_profile_block_average_grey_and_crop(seed):
+    rng = np.random.default_rng(seed)
     img = rng.integers(0, 256, size=(2, 80, 128, 3), dtype=np.uint8)
     t = templates(img, grid=(40, 64), crop_fraction=0.5, normalise=False)
     assert t.shape == (2, 40, 64) and t.dtype == np.float32
@@ -263,8 +263,8 @@ def test_profile_non_integer_and_small_images():
         np.testing.assert_allclose(templates(const), 0.4, atol=1e-6)
 
 
-def test_profile_normalisation_mean():
-    rng = np.random.default_rng(5)
+def test_profile_normalisation_mean(seed):
+    rng = np.random.default_rng(seed)
     img = rng.integers(0, 256, size=(4, 120, 160, 3), dtype=np.uint8)
     img[1] //= 8  # a dark frame
     t = templates(img)
@@ -276,8 +276,8 @@ def test_profile_normalisation_mean():
     assert np.array_equal(templates(np.zeros((1, 48, 64, 3), dtype=np.uint8)), np.zeros((1, 40, 64)))
 
 
-def test_profile_horizontal_shift_is_tolerated():
-    rng = np.random.default_rng(6)
+def test_profile_horizontal_shift_is_tolerated(seed):
+    rng = np.random.default_rng(seed)
     k = 3  # cells; one cell = 10 pixels of a 640-wide frame
     wide = rng.integers(0, 256, size=(480, 640 + 10 * k, 3), dtype=np.uint8)
     a = wide[None, :, :640]
@@ -313,8 +313,8 @@ def loop_distance(q: np.ndarray, r: np.ndarray, max_shift: int) -> np.ndarray:
 
 
 @pytest.mark.parametrize("threads, block", [(1, (128, 64)), (2, (2, 3))])
-def test_profile_distance_matches_loop(threads, block):
-    rng = np.random.default_rng(7)
+def test_profile_distance_matches_loop(threads, block, seed):
+    rng = np.random.default_rng(seed)
     q = rng.random((5, 4, 12)).astype(np.float32)
     r = rng.random((7, 4, 12)).astype(np.float32)
     r[3] = np.roll(q[1], 2, axis=1)  # a shifted copy, so one minimum is at s != 0
@@ -441,9 +441,9 @@ def test_extractor_sigmas_are_pairwise_spreads():
     assert d[i, j] == pytest.approx(expected, rel=1e-5)
 
 
-def test_extractor_zero_sigma_and_subsampled_fit():
+def test_extractor_zero_sigma_and_subsampled_fit(seed):
     # No contacts and no deflection: PFH and SDA are all zero, their sigmas fall back to 1.
-    rng = np.random.default_rng(9)
+    rng = np.random.default_rng(seed)
     run = small_run(30, images=rng.integers(0, 256, size=(30, 16, 16, 3), dtype=np.uint8))
     extractor = HandcraftedExtractor({"sigma_samples": 10, "batch_size": 7})
     extractor.fit(run)

@@ -136,10 +136,10 @@ def test_predict_leaky_relu_slope_is_runtime_parameter(device):
 @pytest.mark.parametrize("splits", [None, 1, 3], ids=["auto", "fused", "split3"])
 @pytest.mark.parametrize("with_above", [True, False], ids=["E_above", "top"])
 @pytest.mark.parametrize("shape", SHAPES, ids=SHAPE_IDS)
-def test_latent_update_matches_reference(shape, with_above, splits, device):
+def test_latent_update_matches_reference(shape, with_above, splits, device, seed):
     b, n_l, n_below = shape
     Y, W, _ = layer(shape, seed=2)
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(seed)
     G = rng.standard_normal((b, n_below)).astype(np.float32)
     E_above = rng.standard_normal((b, n_l)).astype(np.float32) if with_above else None
     eta = 0.05
@@ -153,10 +153,10 @@ def test_latent_update_matches_reference(shape, with_above, splits, device):
 
 
 @pytest.mark.parametrize("splits", [1, 3], ids=["fused", "split3"])
-def test_latent_update_mask_leaves_inactive_rows_alone(splits, device):
+def test_latent_update_mask_leaves_inactive_rows_alone(splits, device, seed):
     b, n_l, n_below = 9, 33, 17
     Y, W, _ = layer((b, n_l, n_below), seed=14)
-    rng = np.random.default_rng(15)
+    rng = np.random.default_rng(seed)
     G = rng.standard_normal((b, n_below)).astype(np.float32)
     E_above = rng.standard_normal((b, n_l)).astype(np.float32)
     mask = np.array([1, 0, 1, 1, 0, 0, 1, 0, 1], dtype=np.int32)
@@ -172,10 +172,10 @@ def test_latent_update_mask_leaves_inactive_rows_alone(splits, device):
 
 
 @pytest.mark.parametrize("first_above", [True, False], ids=["E_above_first", "no_E_above"])
-def test_latent_update_accumulates_modalities(first_above, device):
+def test_latent_update_accumulates_modalities(first_above, device, seed):
     """Joint layer: two (G, W) pairs (different n_below) accumulated into one Y."""
     b, n_l = 17, 65
-    rng = np.random.default_rng(4)
+    rng = np.random.default_rng(seed)
     Y = rng.standard_normal((b, n_l)).astype(np.float32)
     W1 = (rng.standard_normal((n_l, 129)) / 8).astype(np.float32)
     G1 = rng.standard_normal((b, 129)).astype(np.float32)
@@ -195,10 +195,10 @@ def test_latent_update_accumulates_modalities(first_above, device):
 
 
 @pytest.mark.parametrize("shape", SHAPES, ids=SHAPE_IDS)
-def test_weight_update_matches_reference(shape, device):
+def test_weight_update_matches_reference(shape, device, seed):
     b, n_l, n_below = shape
     Y, W, _ = layer(shape, seed=5)
-    G = np.random.default_rng(6).standard_normal((b, n_below)).astype(np.float32)
+    G = np.random.default_rng(seed).standard_normal((b, n_below)).astype(np.float32)
     eta = 0.05
     wW = to_wp(W, device)
     wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), eta)
@@ -206,10 +206,10 @@ def test_weight_update_matches_reference(shape, device):
 
 
 @pytest.mark.parametrize("shape", SHAPES, ids=SHAPE_IDS)
-def test_weight_update_keeps_the_transpose(shape, device):
+def test_weight_update_keeps_the_transpose(shape, device, seed):
     b, n_l, n_below = shape
     Y, W, _ = layer(shape, seed=16)
-    G = np.random.default_rng(17).standard_normal((b, n_below)).astype(np.float32)
+    G = np.random.default_rng(seed).standard_normal((b, n_below)).astype(np.float32)
     wW, wWt = to_wp(W, device), poisoned((n_below, n_l), device)
     wk.weight_update(wW, to_wp(Y, device), to_wp(G, device), 0.05, Wt=wWt)
     expected = ref.weight_step(*f64(W, Y, G), 0.05)
@@ -367,8 +367,8 @@ def test_reference_activation_closed_forms():
 
 
 @pytest.mark.parametrize("name", ref.ACTIVATIONS)
-def test_reference_derivative_vs_central_differences(name):
-    rng = np.random.default_rng(10)
+def test_reference_derivative_vs_central_differences(name, seed):
+    rng = np.random.default_rng(seed)
     a = rng.uniform(-3, 3, size=200)
     a = a[np.abs(a) > 1e-3]  # away from the leaky ReLU kink
     h = 1e-6
@@ -377,10 +377,10 @@ def test_reference_derivative_vs_central_differences(name):
 
 
 @pytest.mark.parametrize("name", ref.ACTIVATIONS)
-def test_reference_steps_are_gradient_steps_of_the_energy(name):
+def test_reference_steps_are_gradient_steps_of_the_energy(name, seed):
     """latent_step / weight_step are Y - eta dF/dY and W - eta dF/dW for
     F = ||X - phi(Y W)||^2 + ||Y - P_above||^2 (E_above = Y - P_above), by finite differences."""
-    rng = np.random.default_rng(11)
+    rng = np.random.default_rng(seed)
     Y = rng.standard_normal((2, 3))
     W = rng.standard_normal((3, 4)) / 2
     X = rng.random((2, 4))

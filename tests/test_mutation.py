@@ -5,6 +5,7 @@ occurs exactly once in its module, and every test a mutant names exists.
 """
 
 import ast
+import os
 import importlib.util
 import sys
 from pathlib import Path
@@ -52,3 +53,21 @@ def test_every_named_test_exists(mutation):
                 tree = ast.parse((ROOT / file).read_text())
                 defined[file] = {f.name for f in tree.body if isinstance(f, ast.FunctionDef)}
             assert not name or name in defined[file], f"{mt.name}: {node} does not exist"
+
+
+def test_a_known_defect_is_marked_bug_and_fails_while_xfail_stops_the_session(tmp_path):
+    """The suite's conftest refuses ``xfail``; a ``bug``-marked test runs and fails like any other."""
+    import subprocess
+    import sys
+
+    tests = Path(__file__).resolve().parent
+    (tmp_path / "test_defects.py").write_text(
+        "import pytest\n\n@pytest.mark.bug('adds wrong')\ndef test_known():\n    assert 1 + 1 == 3\n")
+    run = [sys.executable, "-m", "pytest", "-q", "-p", "conftest", "--rootdir", str(tmp_path), "-c", str(tests.parent / "pyproject.toml")]
+    env = {**os.environ, "PYTHONPATH": str(tests)}
+    bug = subprocess.run([*run, str(tmp_path / "test_defects.py")], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert bug.returncode == 1 and "1 failed" in bug.stdout, bug.stdout + bug.stderr
+    (tmp_path / "test_defects.py").write_text(
+        "import pytest\n\n@pytest.mark.xfail\ndef test_hidden():\n    assert 1 + 1 == 3\n")
+    hidden = subprocess.run([*run, str(tmp_path / "test_defects.py")], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert hidden.returncode == 4 and "xfail hides a known defect" in hidden.stdout + hidden.stderr, hidden.stdout + hidden.stderr
