@@ -6,7 +6,7 @@
 #      tree there as the package vitaplace, nothing built. Otherwise pip install -e ".[test]"
 #      torch pytest-xdist;
 #   2. look for a CUDA device; without one, say so (DIR/no-cuda.txt), run what the CPU can:
-#      the emulated tensor-core tests (tests/test_tensorcores.py), write the summary, exit 3;
+#      the emulated tensor-core tests (tests/kernels/test_tensorcores.py), write the summary, exit 3;
 #   3. run the CUDA half of the kernel, network and tensor-core tests (pytest -m cuda);
 #   4. benchmark the training minibatch in float32, tf32 and bf16: cuBLAS GEMMs vs the
 #      PyTorch step vs the Warp backend of the same precision, then >= 50 epochs of
@@ -64,13 +64,13 @@ nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.sm,clocks.max.sm 
 if ! "$python" -c "import sys; from vitaplace.engine.network.backends import cuda_available; sys.exit(not cuda_available())"; then
     echo "no CUDA device found (no NVIDIA driver, or Warp sees no GPU): only the CPU-runnable parts ran" \
         | tee "$dir/no-cuda.txt"
-    stage cpu-tests 600 "$python" -m pytest -q -p no:cacheprovider tests/test_tensorcores.py
+    stage cpu-tests 600 "$python" -m pytest -q -p no:cacheprovider tests/kernels/test_tensorcores.py
     "$python" bench/gpu_summary.py "$dir" > "$dir/SUMMARY.md"
     cat "$dir/SUMMARY.md"
     exit 3
 fi
 stage tests 180 "$python" -m pytest -q -p no:cacheprovider -m cuda -n "$jobs" \
-    tests/test_kernels.py tests/test_pc.py tests/test_tensorcores.py
+    tests/kernels/test_kernels.py tests/kernels/test_pc.py tests/kernels/test_tensorcores.py
 stage bench 300 "$python" bench/pc_step.py --device cuda --repeat 5 --epochs 50 --json "$dir/bench.json"
 "$python" bench/gpu_summary.py "$dir" > "$dir/SUMMARY.md" || status=1
 cat "$dir/SUMMARY.md"

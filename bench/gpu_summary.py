@@ -98,7 +98,7 @@ def summary(dir_: Path) -> str:
         out.append("")
 
     for log, title in (("tests.log", "CUDA tests (`pytest -m cuda`)"),
-                       ("cpu-tests.log", "CPU tests (tests/test_tensorcores.py, emulated tensor cores)")):
+                       ("cpu-tests.log", "CPU tests (tests/kernels/test_tensorcores.py, emulated tensor cores)")):
         path = dir_ / log
         if path.exists():
             lines = [line for line in path.read_text().splitlines() if line.strip()]

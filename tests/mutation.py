@@ -40,8 +40,16 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGET = 0.90
-#: Folders of the package whose modules need mutants; a module over MIN_LINES lines needs one.
-PACKAGE_DIRS = ("engine", "kernels", "plugins", "api")
+try:
+    import tomllib
+except ImportError:  # Python 3.10: the same parser from PyPI (pip install tomli)
+    import tomli as tomllib
+
+#: pyproject.toml's package-dir: package -> its source folder
+PACKAGE_DIR = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
+#: Folders of the package whose modules need mutants (those holding Python code); a module over
+#: MIN_LINES lines needs one.
+PACKAGE_DIRS = tuple(folder for folder in PACKAGE_DIR.values() if any((ROOT / folder).rglob("*.py")))
 MIN_LINES = 40
 
 #: Every mutated module by key; a mutant names its module by key, so a moved file is one line here.
@@ -128,9 +136,14 @@ def m(name: str, module: str, old: str, new: str, *tests: str) -> Mutant:
     return Mutant(name, module, old, new, tests)
 
 
+#: test file key (``cli`` for test_cli.py) -> its path, in whichever tier folder of tests/ it is
+TEST_FILES = {path.stem.removeprefix("test_"): path.relative_to(ROOT).as_posix()
+              for path in sorted((ROOT / "tests").rglob("test_*.py"))}
+
+
 def t(file: str, *names: str) -> tuple[str, ...]:
-    """Node ids of tests ``names`` in ``tests/test_<file>.py``."""
-    return tuple(f"tests/test_{file}.py::{name}" for name in names)
+    """Node ids of tests ``names`` in the test file ``test_<file>.py`` (`TEST_FILES`)."""
+    return tuple(f"{TEST_FILES[file]}::{name}" for name in names)
 
 PFH_NORMALISE = "    return (counts * (100.0 / counts.sum())).astype(np.float32)"
 PC_TRAINED = (*t("pc", *(f"{name}[numpy]" for name in (
@@ -157,7 +170,7 @@ MUTANTS = [
     m("pc: energy history not divided by the samples", "pc",
       "history.energy[name].append(total / n)", "history.energy[name].append(total)", *PC_TRAINED),
     m("pc: Glorot limit uses fan_in only", "pc",
-      "limit = math.sqrt(6.0 / (fan_in + fan_out))", "limit = math.sqrt(6.0 / fan_in)", "tests/test_pc.py"),
+      "limit = math.sqrt(6.0 / (fan_in + fan_out))", "limit = math.sqrt(6.0 / fan_in)", "tests/kernels/test_pc.py"),
     m("numpy backend: weight update skips the last partial chunk", "backends",
       "        for i in range(0, n_l, step):", "        for i in range(0, n_l - n_l % step if n_l > step else n_l, step):",
       *t("pc", "test_numpy_backend_matches_the_reference_on_wide_layers")),
@@ -194,19 +207,19 @@ MUTANTS = [
       *t("kernels", "test_reference_derivative_vs_central_differences")),
     # --- evaluation
     m("evaluate: accept with < instead of <=", "evaluate",
-      "    accepted = best_tme <= delta", "    accepted = best_tme < delta", "tests/test_evaluate.py"),
+      "    accepted = best_tme <= delta", "    accepted = best_tme < delta", "tests/components/test_evaluate.py"),
     m("evaluate: precision defined as 0 with nothing accepted", "evaluate",
-      "    precision = _safe_div(tp, tp + fp, 1.0)", "    precision = _safe_div(tp, tp + fp, 0.0)", "tests/test_evaluate.py"),
+      "    precision = _safe_div(tp, tp + fp, 1.0)", "    precision = _safe_div(tp, tp + fp, 0.0)", "tests/components/test_evaluate.py"),
     m("evaluate: recall over queries instead of revisits", "evaluate",
       "    recall = _safe_div(tp, np.full_like(tp, n_revisit), 0.0)",
-      "    recall = _safe_div(tp, np.full_like(tp, int(tme_a.shape[0])), 0.0)", "tests/test_evaluate.py"),
+      "    recall = _safe_div(tp, np.full_like(tp, int(tme_a.shape[0])), 0.0)", "tests/components/test_evaluate.py"),
     m("evaluate: revisit tolerance exclusive", "evaluate",
-      "    has_revisit = gtm_a.min(axis=1) <= tau", "    has_revisit = gtm_a.min(axis=1) < tau", "tests/test_evaluate.py"),
+      "    has_revisit = gtm_a.min(axis=1) <= tau", "    has_revisit = gtm_a.min(axis=1) < tau", "tests/components/test_evaluate.py"),
     m("evaluate: ground truth ignores y", "evaluate",
       'gtm = cdist(q[:, :2], r[:, :2], metric="euclidean")', 'gtm = cdist(q[:, :1], r[:, :1], metric="euclidean")',
-      "tests/test_evaluate.py"),
+      "tests/components/test_evaluate.py"),
     m("evaluate: recall at 100 % precision taken at 90 %", "evaluate",
-      "full = self.precision >= 1.0", "full = self.precision >= 0.9", "tests/test_evaluate.py"),
+      "full = self.precision >= 1.0", "full = self.precision >= 0.9", "tests/components/test_evaluate.py"),
     m("evaluate: a stay measured step by step, not from its first sample", "evaluate",
       "        away = np.flatnonzero(np.hypot(*(xy[i:] - xy[i]).T) > radius)",
       "        away = np.flatnonzero(np.hypot(*np.diff(xy[i:], axis=0, prepend=xy[i:i + 1]).T) > radius)",
@@ -229,39 +242,39 @@ MUTANTS = [
       *t("cli", "test_cache_redoes_exactly_what_a_change_touches")),
     # --- the hand-crafted front end
     m("pfh: upper-edge values beyond the last bin", "handcrafted.pfh",
-      "    return np.clip(idx, 0, bins - 1)", "    return np.clip(idx, 0, bins)", "tests/test_handcrafted.py"),
+      "    return np.clip(idx, 0, bins - 1)", "    return np.clip(idx, 0, bins)", "tests/components/test_handcrafted.py"),
     m("pfh: histogram normalised to 1 instead of 100", "handcrafted.pfh",
-      PFH_NORMALISE, PFH_NORMALISE.replace("100", "1"), "tests/test_handcrafted.py"),
+      PFH_NORMALISE, PFH_NORMALISE.replace("100", "1"), "tests/components/test_handcrafted.py"),
     m("sda: per_axis ignores the threshold", "handcrafted.sda",
-      "        positive = d > threshold  # (N, S, W, 2)", "        positive = d > 0  # (N, S, W, 2)", "tests/test_handcrafted.py"),
+      "        positive = d > threshold  # (N, S, W, 2)", "        positive = d > 0  # (N, S, W, 2)", "tests/components/test_handcrafted.py"),
     m("sda: magnitude slope inverted", "handcrafted.sda",
       "        return _slope(delta[..., 1], delta[..., 0]).astype(np.float32)\n    if mode",
-      "        return _slope(delta[..., 0], delta[..., 1]).astype(np.float32)\n    if mode", "tests/test_handcrafted.py"),
+      "        return _slope(delta[..., 0], delta[..., 1]).astype(np.float32)\n    if mode", "tests/components/test_handcrafted.py"),
     m("profile: grey is the brightest channel, not the mean of R, G, B", "handcrafted.profile",
       "grey = images[:, : self.rows].astype(np.float32).mean(axis=-1)",
-      "grey = images[:, : self.rows].astype(np.float32).max(axis=-1)", "tests/test_handcrafted.py"),
+      "grey = images[:, : self.rows].astype(np.float32).max(axis=-1)", "tests/components/test_handcrafted.py"),
     m("handcrafted: no warning for a run without contacts", "handcrafted.extractor",
-      "if n and int(run.contact_offsets[-1]) == 0:", "if n and int(run.contact_offsets[-1]) < 0:", "tests/test_matimport.py"),
+      "if n and int(run.contact_offsets[-1]) == 0:", "if n and int(run.contact_offsets[-1]) < 0:", "tests/components/test_matimport.py"),
     # --- recorded runs: `vitaplace import`, run files and `dataset:` in scenarios
     m("matimport: v7.3 arrays not transposed back", "matimport",
       "        return data.T.astype(_CLASSES[declared], copy=False) if declared in _CLASSES else data.T",
-      "        return data.astype(_CLASSES[declared], copy=False) if declared in _CLASSES else data", "tests/test_matimport.py"),
+      "        return data.astype(_CLASSES[declared], copy=False) if declared in _CLASSES else data", "tests/components/test_matimport.py"),
     m("matimport: boards and columns swapped in the whisker index", "matimport",
       "theta_run = np.transpose(theta, (2, 1, 0)).reshape(n, 24)",
-      "theta_run = np.transpose(theta, (2, 0, 1)).reshape(n, 24)", "tests/test_matimport.py"),
+      "theta_run = np.transpose(theta, (2, 0, 1)).reshape(n, 24)", "tests/components/test_matimport.py"),
     m("matimport: pose_return.mat not looked for", "matimport",
-      "for f in POSE_FILES if (folder / f).is_file()", "for f in POSE_FILES[:1] if (folder / f).is_file()", "tests/test_matimport.py"),
+      "for f in POSE_FILES if (folder / f).is_file()", "for f in POSE_FILES[:1] if (folder / f).is_file()", "tests/components/test_matimport.py"),
     m("matimport: NaN in theta or xy not named by file and variable", "matimport",
       "        raise DatasetError(f\"{path}: variable '{name}' holds no samples; expected {_EXPECTED[kind]}\")\n"
       "    _check_finite(arr, path, name)",
       "        raise DatasetError(f\"{path}: variable '{name}' holds no samples; expected {_EXPECTED[kind]}\")",
-      "tests/test_matimport.py"),
+      "tests/components/test_matimport.py"),
     m("runner: recorded runs not checked before the stages", "runner",
-      "        run = open_run(path)\n        run.validate()\n", "        run = open_run(path)\n", "tests/test_matimport.py"),
+      "        run = open_run(path)\n        run.validate()\n", "        run = open_run(path)\n", "tests/components/test_matimport.py"),
     m("scenario: recorded evaluation runs not relative to the scenario file", "config.loading",
-      '            fix(entry.get("datasets"), ("query", "reference"))', "            pass", "tests/test_matimport.py"),
+      '            fix(entry.get("datasets"), ("query", "reference"))', "            pass", "tests/components/test_matimport.py"),
     m("features: unusable-data warning repeated for every method", "features",
-      "    if feature in run.warnings:\n        return\n", "", "tests/test_matimport.py"),
+      "    if feature in run.warnings:\n        return\n", "", "tests/components/test_matimport.py"),
     m("dataset: NaN in a float field not refused", "dataset",
       'if data.dtype.kind != "f" or data.size == 0:', 'if data.dtype.kind != "i" or data.size == 0:',
       *t("dataset", "test_nan_values_are_reported_with_field_and_sample", "test_nan_in_memory_is_rejected")),
@@ -303,10 +316,10 @@ MUTANTS = [
       *t("sim", "test_penetration_whiskers_pass_through_and_report_the_plugin_formula")),
     m("worlds: panels on the wrong side of the wall", "sim.build",
       "            face = np.array([cx, cy]) + inward[:2] * t / 2  # centre of the wall's inner face",
-      "            face = np.array([cx, cy]) - inward[:2] * t / 2  # centre of the wall's inner face", "tests/test_worlds.py"),
+      "            face = np.array([cx, cy]) - inward[:2] * t / 2  # centre of the wall's inner face", "tests/components/test_worlds.py"),
     m("worlds: landmark height offset ignored", "sim.build",
       "shape = dict(type=_GEOM.mjGEOM_BOX, pos=(x, y, lm.z + lm.size[2] / 2)",
-      "shape = dict(type=_GEOM.mjGEOM_BOX, pos=(x, y, lm.size[2] / 2)", "tests/test_worlds.py"),
+      "shape = dict(type=_GEOM.mjGEOM_BOX, pos=(x, y, lm.size[2] / 2)", "tests/components/test_worlds.py"),
     m("robot: camera at the base centre's side instead of cam0's", "sim.robot",
       "CAMERA_POS = (0.5166, 0.0573, 0.315)", "CAMERA_POS = (0.5166, 0.0, 0.315)",
       *t("sim", "test_camera_projects_a_known_point_where_the_whiskeye_pinhole_model_says",
@@ -513,11 +526,11 @@ MUTANTS = [
 EQUIVALENT = [
     (m("pc: top-down error applied with every edge below", "pc",
        "above = self.edge_above.get(e.upper) if self.first_below[e.upper] == e.name else None",
-       "above = self.edge_above.get(e.upper)", "tests/test_pc.py"),
+       "above = self.edge_above.get(e.upper)", "tests/kernels/test_pc.py"),
      "only a node with several edges below and one above would see it twice; in MuPNet's tree the "
      "joint node is the only one with several edges below, and it has none above"),
     (m("pc: energies also computed on the first predict of a minibatch", "pc",
-       "        self.predict_all(energy=steps == 0)", "        self.predict_all(energy=True)", "tests/test_pc.py"),
+       "        self.predict_all(energy=steps == 0)", "        self.predict_all(energy=True)", "tests/kernels/test_pc.py"),
      "the row energies of that predict are overwritten by the last one before anything reads them"),
     (m("runner: a recorded run's key ignores its content", "runner",
        'key = content_hash("recorded", STAGE_VERSION["simulate"], digest)',
@@ -578,11 +591,8 @@ class Workspace:
             if source.is_file():
                 (self.repo / name).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copy2(source, self.repo / name)
-        import tomllib  # Python >= 3.11 for a run; --check, --list and tests/test_mutation.py work on 3.10
-
         site = folder / "site"
-        package_dir = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-dir"]
-        for package, directory in sorted(package_dir.items(), key=lambda item: item[0].count(".")):
+        for package, directory in sorted(PACKAGE_DIR.items(), key=lambda item: item[0].count(".")):
             target = site.joinpath(*package.split("."))
             if package.count(".") == 0:  # the top package: its files, subpackages get links below
                 target.mkdir(parents=True)

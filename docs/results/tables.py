@@ -4,7 +4,7 @@
     python docs/results/tables.py six-penetration
 
 Each table in RESULTS.md sits between ``<!-- table NAME -->`` and ``<!-- /table -->`` and is
-exactly what this script prints for NAME (`tests/test_results_doc.py` checks it), so no
+exactly what this script prints for NAME (`tests/layout/test_results_doc.py` checks it), so no
 number in the text can drift from the files `vitaplace sweep` and `vitaplace sensitivity`
 wrote: ``sweep.csv`` (statistics over seeds per world x method x direction x value),
 ``sweep-diff.csv`` (paired differences between methods, with the sign-flip p),

@@ -5,7 +5,7 @@
 
 Every schema field documents itself with ``Field(description=...)``, the one way fields are
 documented: a table row is the field's type, default, constraints and description as pydantic
-holds them, and a field without a description is an error. `tests/test_docs.py` checks the
+holds them, and a field without a description is an error. `tests/layout/test_docs.py` checks the
 committed file equals what this module generates.
 """
 
@@ -125,7 +125,7 @@ def markdown() -> str:
         "# Scenario and environment reference",
         "",
         "Generated from the pydantic schemas by `python -m vitaplace.engine.cli.schema_docs docs/SCENARIOS.md`;",
-        "`tests/test_docs.py` fails when this file is out of date. Unknown keys are errors everywhere.",
+        "`tests/layout/test_docs.py` fails when this file is out of date. Unknown keys are errors everywhere.",
         "Units: metres, seconds, degrees in files (radians inside), colours in [0, 1].",
         "",
         "Beyond each key's own range, `vitaplace validate` checks what needs the arena and the robot",

@@ -6,7 +6,7 @@ from pathlib import Path
 from vitaplace.engine.pipeline.runner import Pipeline
 from vitaplace.engine.config.loading import load_scenario
 
-SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 SIX = ["L", "L-V", "L-T", "H", "H-V", "H-T"]
 
 

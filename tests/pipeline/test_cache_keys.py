@@ -16,7 +16,7 @@ from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-ENV_E1 = Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml"
+ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
 
 #: Test-only extractor: the true positions as features; with ``ORACLE_ORDER=reversed`` (read at
 #: transform time) the query run's in reverse order, which pairs each query with the wrong place.

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
@@ -60,7 +60,7 @@ def test_a_known_defect_is_marked_bug_and_fails_while_xfail_stops_the_session(tm
     import subprocess
     import sys
 
-    tests = Path(__file__).resolve().parent
+    tests = Path(__file__).resolve().parents[1]
     (tmp_path / "test_defects.py").write_text(
         "import pytest\n\n@pytest.mark.bug('adds wrong')\ndef test_known():\n    assert 1 + 1 == 3\n")
     run = [sys.executable, "-m", "pytest", "-q", "-p", "conftest", "--rootdir", str(tmp_path), "-c", str(tests.parent / "pyproject.toml")]

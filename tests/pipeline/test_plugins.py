@@ -23,7 +23,7 @@ from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.extension.features import ExtractorParamsError, FeatureExtractor
 from vitaplace.engine.extension.registry import ONLY_ENV, PluginError, discover
 
-TESTS = Path(__file__).resolve().parent
+TESTS = Path(__file__).resolve().parents[1]
 ROOT = TESTS.parent
 EXAMPLE_DIR = TESTS / "plugin_example"
 EXAMPLE_MODULE = EXAMPLE_DIR / "vitaplace_example_plugin" / "__init__.py"

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: How a file would cite the design brief and its folder that live outside the repository
 #: (built from parts, so this test does not match itself).
 OUTSIDE_CITATIONS = ("/".join(["..", "shared", ""]), " ".join(["DESIGN", "§"]))

@@ -22,7 +22,7 @@ import vitaplace.plugin
 from vitaplace.engine.extension.registry import discover
 from vitaplace.testing import CHECKS, ContractError, check_extractor, parametrize_with_checks, synthetic_run
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE_DIR = ROOT / "tests" / "plugin_example"
 
 #: mupnet small enough to fit in a fraction of a second

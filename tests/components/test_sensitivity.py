@@ -16,7 +16,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.study.sensitivity import rescore  # noqa: E402
 
-ENV_E1 = Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml"
+ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
 
 # Three references on the x axis; r2 faces the other way (yaw pi).
 REFERENCES = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, math.pi]])

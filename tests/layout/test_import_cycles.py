@@ -14,19 +14,17 @@ from __future__ import annotations
 
 import ast
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
+import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+tomllib = pytest.importorskip("tomllib")  # Python >= 3.11, as tests/study/test_packaging.py
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def source_packages(root: Path) -> dict[str, str]:

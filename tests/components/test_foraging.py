@@ -21,7 +21,7 @@ from vitaplace.engine.sim.environment import EnvironmentSpec  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
 from vitaplace.engine.sim.simulate import RunSpec, run_hash  # noqa: E402
 
-E1 = str(Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml")
+E1 = str(Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml")
 #: defaults used below: speed 0.15 m/s, turn-rate limit 90 deg/s, avoid_margin 0.06 m
 SPEC = RunSpec(kind="foraging", n_samples=1)
 W_MAX = math.pi / 2

@@ -15,7 +15,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.cli.main import main  # noqa: E402
 
-SCENARIOS = Path(__file__).resolve().parent.parent / "scenarios"
+SCENARIOS = Path(__file__).resolve().parents[2] / "scenarios"
 ENV_E1 = str(SCENARIOS / "environments" / "e1.yaml")
 
 #: The quickstart scenario, sized down so the whole pipeline runs in seconds.
@@ -677,7 +677,7 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     query_off_route 0.5 the last half of the query run (and only that, and never the
     reference run) runs off_route_offset (0.6 m, facing outward: towards the centre) away from
     E1's route, farther than tau = 0.3, so those queries have no match. (The teleop kind's
-    detours, spread along the run: tests/test_teleop.py.)"""
+    detours, spread along the run: tests/components/test_teleop.py.)"""
     from vitaplace.engine.data.dataset import open_run
     from vitaplace.engine.config.loading import load_scenario
     from vitaplace.engine.pipeline.orchestrate import run_stages

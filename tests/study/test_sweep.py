@@ -1,4 +1,4 @@
-"""Sweeps and their summary (its statistics: tests/test_summary.py): a failing seed that
+"""Sweeps and their summary (its statistics: tests/components/test_summary.py): a failing seed that
 leaves the others and a partial summary (process pool and Ray), jobs that read nothing from
 the driver's files, and `vitaplace aggregate` reproducing a sweep from its seed folders."""
 
@@ -24,7 +24,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import vitaplace.engine.cli.sweep as sweep  # noqa: E402
 from vitaplace.engine.cli.main import main  # noqa: E402
 
-ENV_E1 = Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml"
+ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
 
 #: Test-only extractor: features are the true positions (fast, exact); ``fit`` fails when the
 #: method's seed is ``fail_for``, so one scenario seed of a sweep fails and the others do not.
@@ -181,7 +181,7 @@ def test_aggregate_refuses_other_scenarios_and_unfinished_runs(local_sweep, tmp_
 def documented_slurm_command() -> list[str]:
     """The arguments of the `vitaplace sweep --slurm` command docs/SCALE.md shows, after
     checking that the rest of its shell block only sets MUJOCO_GL."""
-    text = (Path(__file__).resolve().parent.parent / "docs" / "SCALE.md").read_text()
+    text = (Path(__file__).resolve().parents[2] / "docs" / "SCALE.md").read_text()
     (block,) = [b for b in re.findall(r"```bash\n(.*?)```", text, re.S) if "--slurm" in b]
     lines = [line for line in block.replace("\\\n", " ").splitlines() if line.strip()]
     assert lines[:-1] == ["export MUJOCO_GL=egl"], lines

@@ -661,7 +661,7 @@ def test_curve_and_decisions_round_trip_through_files(tmp_path):
 
 
 
-ENVIRONMENTS = Path(__file__).resolve().parent.parent / "scenarios" / "environments"
+ENVIRONMENTS = Path(__file__).resolve().parents[2] / "scenarios" / "environments"
 
 
 def _scenario(train: dict, evaluations: list[tuple[str, str]]):

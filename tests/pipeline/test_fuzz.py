@@ -18,7 +18,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.cli.main import main  # noqa: E402
 
-E1 = str(Path(__file__).resolve().parent.parent / "scenarios" / "environments" / "e1.yaml")
+E1 = str(Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml")
 VALID = {
     "name": "t",
     "train": {"environment": E1, "run": {"kind": "foraging", "n_samples": 5}},
