@@ -15,6 +15,7 @@ import os
 import sys
 
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.base.libraries import first_loadable
 
 _LIBS = {"egl": ("EGL", "libEGL.so.1"), "osmesa": ("OSMesa", "libOSMesa.so.8")}
 
@@ -34,15 +35,7 @@ STATE: dict[str, str | None] = {"chosen": None, "reason": None}
 
 def _loadable(backend: str) -> bool:
     short, soname = _LIBS[backend]
-    for name in (ctypes.util.find_library(short), soname):
-        if not name:
-            continue
-        try:
-            ctypes.CDLL(name)
-            return True
-        except OSError:
-            continue
-    return False
+    return first_loadable((ctypes.util.find_library(short), soname)) is not None
 
 
 def select_gl_backend() -> str | None:

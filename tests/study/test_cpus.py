@@ -85,3 +85,13 @@ def test_a_pool_worker_keeps_its_share_when_its_seed_asks_for_the_allocation():
     result = subprocess.run([sys.executable, "-c", code], env={**env, "OPENBLAS_NUM_THREADS": "2"},
                             capture_output=True, text=True, timeout=120)
     assert "CAPS 1 1" in result.stdout and "BLAS [1] 1" in result.stdout, result.stdout + result.stderr
+
+
+def test_the_first_library_the_loader_finds_is_loaded_and_none_when_none_is():
+    import ctypes
+
+    from vitaplace.engine.base.libraries import first_loadable
+
+    libc = first_loadable([None, "", "libvitaplace-missing.so.9", "libc.so.6"])
+    assert isinstance(libc, ctypes.CDLL) and libc._name == "libc.so.6"
+    assert first_loadable(["libvitaplace-missing.so.9", None]) is None and first_loadable([]) is None
