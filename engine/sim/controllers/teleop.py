@@ -1,0 +1,377 @@
+"""Teleoperation (``teleop``, `TeleopDriver`): ViTa-SLAM's keyboard teleoperation emulated -
+one key at a time from its key set, stop-and-go, along the run's own jittered copy of the
+environment's loop from a random start, exploring the tactile landmarks it passes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from vitaplace.engine.data.dataset import TOUCH_THRESHOLD
+from vitaplace.engine.sim.clearance import (
+    HEAD_CENTRE,
+    HEAD_RADIUS,
+    ROUTE_LOOKAHEAD,
+    ROUTE_MIN_CLEARANCE,
+    Route,
+    footprint_clearance,
+    loop_clearance,
+)
+from vitaplace.engine.sim.controllers.common import Limiter as _Limiter
+from vitaplace.engine.sim.controllers.common import Observation
+from vitaplace.engine.sim.controllers.common import wrap as _wrap
+from vitaplace.engine.sim.controllers.safety import Headway, SafetyGuard
+from vitaplace.engine.sim.controllers.settings import TELEOP_SPEED, RunSpec
+from vitaplace.engine.sim.environment import EnvironmentSpec
+
+#: ViTa-SLAM's keyboard teleoperation (whiskeye_controller/src/teleop.py): each key sets the
+#: multipliers of the forward speed, the leftward (strafe) speed and the turn rate; "k", like
+#: any key not bound, stops the robot.
+TELEOP_KEYS: dict[str, tuple[int, int, int]] = {
+    "i": (1, 0, 0), "o": (1, 0, -1), "j": (0, 0, 1), "l": (0, 0, -1), "u": (1, 0, 1),
+    ",": (-1, 0, 0), ".": (-1, 0, 1), "m": (-1, 0, -1),
+    "O": (1, -1, 0), "J": (0, 1, 0), "L": (0, -1, 0), "U": (1, 1, 0), ">": (-1, -1, 0), "M": (-1, 1, 0),
+    "k": (0, 0, 0),
+}  # (I and < repeat i and ,)
+#: teleop.launch's ``turn``: the turn keys' rate [rad/s] (kept when the operator lowers only the
+#: linear speed with teleop.py's x key to `TELEOP_SPEED`)
+TELEOP_TURN = 0.25
+
+#: directions [deg] of the translation keys in the robot frame (0: forward, 90: left)
+_TRANSLATION_KEYS = {"i": 0.0, "U": 45.0, "J": 90.0, "M": 135.0, ",": 180.0, ">": -135.0, "L": -90.0, "O": -45.0}
+_TAP = 0.2  #: a key tapped where holding it would be unsafe: pressed this long [s]
+_STANDING = 0.02  #: the base counts as standing below this speed [m/s]
+_HOLD_PATIENCE = 3  #: a hold waiting for its contacts ends after this many whisk cycles per contact
+_LEAVE_GAP = 0.15  #: after a hold, back off until the head is this far from the landmark [m]
+_APPROACH_TIMEOUT = 12.0  #: an exploration that has not reached its landmark by then is given up [s]
+_TURN_CLEARANCE = 0.02  #: the driver turns towards a landmark only as far as the head stays this clear [m]
+_MAKE_ROOM = 0.3  #: where the head cannot swing round to face a landmark, back away up to this far first [m]
+_SKIP_AHEAD = 0.1  #: blocked on its path, the driver looks this much further along it per decision [m]
+
+
+class TeleopDriver:
+    """An emulated keyboard teleoperator (ViTa-SLAM's ``teleop.py``, see docs/SIMULATION.md).
+
+    Every ``decision_interval`` it looks at the robot and picks one key of `TELEOP_KEYS`:
+    the key's speeds are the run's speed (the nominal speed after a few q/z presses) and
+    `TELEOP_TURN` times the same speed steps as the turn rate. A new key is pressed
+    ``reaction_delay`` after the decision; the old one is released at once, so the robot
+    stops in between (the Gazebo plugin zeroes every command after one update: no key, no
+    motion). The driver follows its own copy of the environment's loop (waypoints moved
+    by smooth random offsets, ``path_jitter``), from a random start point, facing as the
+    environment's ``route_facing`` says, with a constant heading bias and a heading
+    tolerance before it turns. A tactile landmark it passes (``visit_range``,
+    ``visit_bearing_deg``; once per lap) is explored: turn to face it, drive up until the
+    whiskers bend at full protraction with the head within ``touch_gap``, hold still for
+    ``hold_cycles`` whisk cycles, back off, go on (at once where it cannot get the whiskers
+    onto it). With
+    ``off_route_fraction`` the run makes ``detour_count`` detours at random times, together
+    that share of the run, along the loop moved ``off_route_offset`` to the left of travel
+    (less where that would not be clear). A key that would bring the body or the head
+    closer than the `SafetyGuard` allows is not pressed (a tap is tried), or released.
+    Blocked on its path (no key towards it is safe, or no `Headway` for 3 s), the driver
+    looks further along the path and makes its way round (`_way_round`).
+    """
+
+    def __init__(self, spec: RunSpec, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
+        self.spec, self.rng, self.obstacles = spec, rng, env.obstacles
+        self.guard = SafetyGuard(env.obstacles, 0.25 * spec.avoid_margin, braking=spec.max_accel)
+        self.centre = np.mean(env.route, axis=0)
+        self.outward = self.centre if env.route_facing == "outward" else None
+        k = int(rng.integers(-spec.speed_steps, spec.speed_steps + 1))
+        steps = 1.1**k if k >= 0 else 0.9**-k  # q/z scale speed and turn alike
+        self.speed, self.turn = spec.speed * steps, TELEOP_TURN * steps
+        self.bias = math.radians(spec.heading_bias_deg) * float(np.clip(rng.normal(), -2.0, 2.0))
+        self.tolerance = math.radians(spec.heading_tolerance_deg)
+        base = Route(env.route)
+        jitter = self._smooth_offsets(base)
+        self.loop = self._clear_offset_route(base, jitter)
+        self.detour = self._clear_offset_route(base, jitter + spec.off_route_offset) if spec.off_route_fraction else None
+        self.detours = self._plan_detours(sample_period)
+        self.path = self.loop
+        self.s = float(rng.uniform(0.0, self.loop.length))
+        self.tactile = [i for i, lm in enumerate(env.landmarks) if lm.tactile]
+        self.visited: dict[int, float] = {}  #: landmark -> lap count when it was explored
+        self.mode, self.turning = "drive", False
+        self.target_landmark, self.until, self.approach_from = -1, 0.0, np.zeros(2)
+        self.headway = Headway()  #: is the drive getting anywhere?
+        self.contacts_left = 0  #: samples with contact still to record in the current hold
+        self.touched = False  #: whisker deflection at full protraction seen since the last decision
+        self.released = ""  #: the key the guard released since the last decision
+        self.sample_period = sample_period
+        self.key, self.press_from, self.press_until, self.next_decision = "k", 0.0, 0.0, 0.0
+        self._limit = _Limiter(spec.max_accel, 4.0, spec.max_accel)
+        self._last_t: float | None = None
+
+    # ------------------------------------------------------------------ the run's own loop
+    def _smooth_offsets(self, base: Route) -> np.ndarray:
+        """Offsets (n,) of the waypoints across the loop: white noise smoothed along the loop
+        (Gaussian, 0.5 m), scaled to std ``path_jitter``."""
+        raw = self.rng.normal(size=len(base.points))
+        along = np.abs(base.cum[:-1, None] - base.cum[None, :-1])
+        along = np.minimum(along, base.length - along)
+        smooth = np.exp(-0.5 * (along / 0.5) ** 2) @ raw
+        return self.spec.path_jitter * smooth / max(float(np.std(smooth)), 1e-9)
+
+    def _clear_offset_route(self, base: Route, offsets: np.ndarray) -> Route:
+        """``base`` with its waypoints moved ``offsets`` to the left; where the robot would come
+        closer than `ROUTE_MIN_CLEARANCE` to something, the offsets of the segment's waypoints
+        shrink (the base loop itself is clear: `route_collision`)."""
+        normals = base.waypoint_normals()
+        offsets = np.array(offsets, dtype=float)
+        for _ in range(30):
+            route = Route(base.points + offsets[:, None] * normals)
+            s, clearance = loop_clearance(self.obstacles, route, self.outward)
+            bad = np.unique(route.segment_of(s[clearance < ROUTE_MIN_CLEARANCE]))
+            if not len(bad):
+                return route
+            offsets[np.concatenate([bad, (bad + 1) % len(offsets)])] *= 0.7
+        return base
+
+    def _plan_detours(self, sample_period: float) -> list[tuple[float, float]]:
+        """``detour_count`` windows [t0, t1) of simulation time, together ``off_route_fraction``
+        of the recorded run, at random places (uniform gaps between them)."""
+        spec = self.spec
+        if not spec.off_route_fraction:
+            return []
+        duration = spec.n_samples * sample_period
+        piece = spec.off_route_fraction * duration / spec.detour_count
+        gaps = self.rng.dirichlet(np.ones(spec.detour_count + 1)) * (duration - piece * spec.detour_count)
+        starts = spec.warmup_cycles * sample_period + np.cumsum(gaps[:-1]) + piece * np.arange(spec.detour_count)
+        return [(float(t0), float(t0 + piece)) for t0 in starts]
+
+    def in_detour(self, t: float) -> bool:
+        return any(t0 <= t < t1 for t0, t1 in self.detours)
+
+    def start_pose(self) -> tuple[float, float, float]:
+        if self.spec.start is not None:
+            x, y, yaw = self.spec.start
+            self.s, _ = self.loop.project(np.array([x, y]))
+            return (x, y, math.radians(yaw))
+        p, _ = self.loop.point(self.s)
+        yaw = self._facing(p) + float(self.rng.uniform(-1.0, 1.0)) * self.tolerance
+        return (float(p[0]), float(p[1]), yaw)
+
+    def _facing(self, pos: np.ndarray) -> float:
+        """The heading the driver wants at ``pos`` on its path: away from the loop's centre, or
+        towards the path ahead; plus the run's bias."""
+        if self.outward is not None:
+            rel = pos - self.outward
+        else:
+            rel = self.path.point(self.s + self.spec.lookahead)[0] - pos
+        return math.atan2(rel[1], rel[0]) + self.bias
+
+    # ------------------------------------------------------------------ keys
+    def _command(self, key: str) -> tuple[float, float, float]:
+        x, y, th = TELEOP_KEYS[key]
+        return (x * self.speed, th * self.turn, y * self.speed)
+
+    def _translation_keys(self, direction: float) -> list[str]:
+        """Translation keys moving within 90 deg of ``direction`` [rad, robot frame], best first."""
+        off = {k: abs(_wrap(math.radians(a) - direction)) for k, a in _TRANSLATION_KEYS.items()}
+        return [k for k in sorted(off, key=off.get) if off[k] < math.pi / 2]
+
+    def _turn_key(self, err: float) -> str:
+        return "j" if err > 0 else "l"
+
+    def _current(self) -> tuple[float, float]:
+        """The base's commanded forward and leftward speed now (after the rate limit)."""
+        return (float(self._limit.state[0]), float(self._limit.state[2]))
+
+    def _standing(self) -> bool:
+        return max(abs(v) for v in self._current()) < _STANDING
+
+    def _pick(self, pose: np.ndarray, ranked: list[str], hold: bool = True) -> tuple[str, float]:
+        """The first of ``ranked`` that is safe to hold (with ``hold``), else the first safe to
+        tap, else stop (a key the guard has just released is not pressed again at once). A tap
+        from standstill is checked as pressed `_TAP` (the robot stands through the reaction
+        delay); otherwise as held from now to its release."""
+        delay = self.spec.reaction_delay
+        tap = (_TAP if self._standing() else delay + _TAP, _TAP)
+        for horizon, duration in ((delay + SafetyGuard.HORIZON, math.inf), tap) if hold else (tap,):
+            for key in (k for k in ranked if k != self.released):
+                if self.guard.safe(pose, *self._command(key), horizon=horizon, current=self._current()):
+                    return key, duration
+        return "k", math.inf
+
+    # ------------------------------------------------------------------ decisions
+    def _progress(self, pos: np.ndarray) -> None:
+        cand = self.s + np.linspace(-0.1, 0.6, 29)
+        d = np.linalg.norm(self.path.at(cand) - pos[None], axis=1)
+        self.s = max(self.s, float(cand[int(np.argmin(d))]))
+
+    def _switch_path(self, path: Route) -> None:
+        """Follow ``path`` from the same place along the loop (same waypoint, same fraction of its segment)."""
+        i = int(self.path.segment_of(self.s))
+        frac = (self.s % self.path.length - self.path.cum[i]) / self.path.seg_len[i]
+        laps = math.floor(self.s / self.path.length)
+        self.s = laps * path.length + path.cum[i] + frac * path.seg_len[i]
+        self.path = path
+
+    @staticmethod
+    def _head(pose: np.ndarray) -> np.ndarray:
+        """The centre (2,) of the head's disc at ``pose``."""
+        return pose[:2] + HEAD_CENTRE * np.array([math.cos(pose[2]), math.sin(pose[2])])
+
+    def _path_direction(self, pose: np.ndarray) -> float:
+        """Direction [rad, robot frame] from the base to the path point ``lookahead`` ahead."""
+        rel = self.path.point(self.s + self.spec.lookahead)[0] - pose[:2]
+        return _wrap(math.atan2(rel[1], rel[0]) - pose[2])
+
+    def _landmark_gaps(self, pose: np.ndarray) -> np.ndarray:
+        """Clearance (L,) of the head from each landmark [m]."""
+        head = self._head(pose)
+        return self.obstacles.landmark_distance_many(head[None])[0] - HEAD_RADIUS
+
+    def _bearing(self, pose: np.ndarray, i: int) -> float:
+        """Direction [rad, robot frame] from the base to the point of landmark ``i`` nearest the head."""
+        head = self._head(pose)
+        dist, grad = self.obstacles.query(head[None], landmark=i)
+        rel = head - dist[0] * grad[0] - pose[:2]
+        return _wrap(math.atan2(rel[1], rel[0]) - pose[2])
+
+    def _decide(self, t: float, pose: np.ndarray) -> tuple[str, float]:
+        """The key to press next and how long (inf: until the next decision)."""
+        pos, yaw = pose[:2], float(pose[2])
+        if self.mode != "drive":
+            self.headway.restart(pose, t)
+        if self.mode == "hold":
+            self.contacts_left -= int(self.touched)
+            if self.contacts_left > 0 and t < self.until:
+                if self.touched:
+                    return "k", math.inf
+                bearing = self._bearing(pose, self.target_landmark)
+                return self._pick(pose, self._translation_keys(bearing)[:3], hold=False)  # tap back onto it
+            self.mode, self.until = "leave", t + 6.0
+        if self.mode == "leave":
+            if self._landmark_gaps(pose)[self.target_landmark] < _LEAVE_GAP and t < self.until:
+                away = self._bearing(pose, self.target_landmark) + math.pi
+                return self._pick(pose, self._translation_keys(away))
+            self.mode = "drive"
+        if self.mode == "approach":
+            i = self.target_landmark
+            bearing = self._bearing(pose, i)
+            if t >= self.until:  # could not get there: give up
+                self.mode, self.until = "leave", t + 6.0
+                return "k", math.inf
+            gap = self._landmark_gaps(pose)[i]
+            whisking = self.touched and gap <= self.spec.touch_gap
+            if abs(bearing) > 0.5 * self.tolerance and not whisking:  # face it
+                room = self._room_to_turn(pose, bearing)
+                cramped = abs(room) < abs(bearing) - 0.5 * self.tolerance
+                if cramped and np.linalg.norm(pos - self.approach_from) < _MAKE_ROOM:  # back away first
+                    key, duration = self._pick(pose, self._translation_keys(bearing + math.pi)[:3])
+                    if key != "k":
+                        return key, duration
+                if abs(room) > 0.5 * self.tolerance:  # as far as the head can swing round here
+                    key, duration = self._pick(pose, [self._turn_key(room)])
+                    if key != "k":
+                        return key, duration
+            if not whisking:
+                # then drive up to it until the whiskers touch it, and as close as touch_gap
+                key, duration = self._pick(pose, self._translation_keys(bearing)[:3])
+                if key != "k":
+                    return key, duration
+                if not self._standing():  # stop first: from standstill, taps may still be safe
+                    return "k", math.inf
+                if not self.touched:  # no closer, and the whiskers do not reach it: go on
+                    self.mode, self.until = "leave", t + 6.0
+                    return "k", math.inf
+            lo, hi = self.spec.hold_cycles
+            self.contacts_left = int(self.rng.integers(lo, hi + 1)) - int(self.touched)
+            self.mode, self.until = "hold", t + _HOLD_PATIENCE * self.contacts_left * self.sample_period
+            return "k", math.inf
+        # ---- drive along the path (the loop or, in a detour window, the offset loop)
+        path = self.detour if self.detour is not None and self.in_detour(t) else self.loop
+        if path is not self.path:
+            self._switch_path(path)
+        self._progress(pos)
+        if path is self.loop and self._start_visit(t, pose):
+            return self._decide(t, pose)
+        direction = self._path_direction(pose)
+        err = _wrap(self._facing(pos) - yaw)
+        self.turning = abs(err) > (0.5 if self.turning else 1.0) * self.tolerance
+        translation = self._translation_keys(direction)
+        if not self.turning:
+            ranked = translation
+        elif self.outward is None and abs(err) < 3 * self.tolerance and translation[:1] == ["i"]:
+            ranked = ["u" if err > 0 else "o", self._turn_key(err), *translation]  # forward and turn
+        else:
+            ranked = [self._turn_key(err), *translation]
+        stalled = self.headway.stalled(pose, t)
+        key, duration = self._pick(pose, ranked)
+        if (key == "k" and self._standing()) or stalled:
+            return self._way_round(pose)
+        return key, duration
+
+    def _way_round(self, pose: np.ndarray) -> tuple[str, float]:
+        """Blocked: standing with no key towards the path ahead safe, or dithering without
+        headway (the path bends round something the head is up against, or its target lies
+        under the head, which reaches 0.58 m ahead). Look `_SKIP_AHEAD` further along the path
+        and turn or move towards it, else move away from the obstacle nearest the head; stand
+        only when none of these is safe. Without this the driver would stand, or dither, there
+        until the run ends: each decision would see the same blocked keys."""
+        self.s += _SKIP_AHEAD
+        direction = self._path_direction(pose)
+        _, grad = self.obstacles.query(self._head(pose)[None])
+        away = _wrap(math.atan2(grad[0, 1], grad[0, 0]) - pose[2])
+        turn = [self._turn_key(direction)] if self.outward is None else []
+        return self._pick(pose, [*turn, *self._translation_keys(direction), *self._translation_keys(away)])
+
+    def _room_to_turn(self, pose: np.ndarray, bearing: float) -> float:
+        """How far [rad] the robot can turn in place towards ``bearing`` (robot frame) with the
+        body and the head `_TURN_CLEARANCE` clear all the way."""
+        steps = np.arange(1, int(abs(bearing) / math.radians(5.0)) + 1) * math.radians(5.0) * np.sign(bearing)
+        if not len(steps):
+            return 0.0
+        clear = footprint_clearance(self.obstacles, np.repeat(pose[None, :2], len(steps), axis=0), pose[2] + steps)
+        blocked = np.flatnonzero(clear < _TURN_CLEARANCE)
+        return float(steps[blocked[0] - 1]) if len(blocked) and blocked[0] > 0 else (0.0 if len(blocked) else bearing)
+
+    def _start_visit(self, t: float, pose: np.ndarray) -> bool:
+        """Explore the tactile landmark that the robot is passing: the head is within
+        ``visit_range`` of it, as close as the path ahead will bring it (0.3 m further on the
+        head would be no closer), and it lies ahead or to the side (``visit_bearing_deg``);
+        not again within half a lap."""
+        if not self.tactile:
+            return False
+        gaps = self._landmark_gaps(pose)
+        ahead = self.path.point(self.s + ROUTE_LOOKAHEAD)[0]
+        gaps_ahead = self._landmark_gaps(np.array([*ahead, self._facing(ahead)]))
+        laps = self.s / self.path.length
+        for i in sorted(self.tactile, key=lambda j: gaps[j]):
+            if gaps[i] > self.spec.visit_range:
+                break
+            passing = gaps_ahead[i] >= gaps[i] and laps - self.visited.get(i, -math.inf) >= 0.5
+            if passing and abs(self._bearing(pose, i)) <= math.radians(self.spec.visit_bearing_deg):
+                self.visited[i] = laps
+                self.mode, self.target_landmark, self.until = "approach", i, t + _APPROACH_TIMEOUT
+                self.approach_from = pose[:2].copy()
+                return True
+        return False
+
+    def __call__(self, obs: Observation) -> tuple[float, float, float]:
+        t = obs.time
+        dt = 0.0 if self._last_t is None else t - self._last_t
+        self._last_t = t
+        # what the driver sees between decisions: are the whiskers bent by something at full
+        # protraction (the end of a whisk cycle, when a sample is taken)?
+        cycles = t / self.sample_period
+        if abs(cycles - round(cycles)) < 1e-6:
+            self.touched |= float(np.max(obs.deflection, initial=0.0)) > TOUCH_THRESHOLD
+        if t >= self.next_decision - 1e-9:
+            self.next_decision = t + self.spec.decision_interval
+            key, duration = self._decide(t, obs.pose)
+            self.touched, self.released = False, ""
+            if key != self.key or math.isfinite(duration) or t >= self.press_until:
+                # release, then press the new key after the reaction delay (a tap is a new press)
+                self.key, self.press_from = key, t + self.spec.reaction_delay
+            self.press_until = self.press_from + duration
+        command = (0.0, 0.0, 0.0)
+        if self.press_from <= t + 1e-9 < self.press_until:
+            command = self._command(self.key)
+            horizon = min(SafetyGuard.HORIZON, self.press_until - t)
+            if not self.guard.safe(obs.pose, *command, horizon=horizon, current=self._current()):
+                command, self.press_until, self.released = (0.0, 0.0, 0.0), t, self.key  # it would hit something
+        return self._limit(*command, dt=dt)
