@@ -25,6 +25,7 @@ import pytest
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.data.dataset import FIELDS  # noqa: E402
+from vitaplace.engine.sim.controllers import run_spec  # noqa: E402
 from vitaplace.engine.sim.environment import load_environment  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
 from vitaplace.engine.sim.simulate import simulate_run  # noqa: E402
@@ -59,13 +60,6 @@ EXPECTED: dict[str, str] = {
 }
 
 
-def run_settings(data: dict):
-    """The run settings of ``data`` (whatever the settings model is called)."""
-    from vitaplace.engine.sim import controllers
-
-    return controllers.run_spec(data) if hasattr(controllers, "run_spec") else controllers.RunSpec(**data)
-
-
 def digest(run) -> str:
     h = hashlib.sha256()
     for key in sorted(FIELDS):
@@ -79,12 +73,12 @@ def digest(run) -> str:
 @pytest.mark.parametrize("label", sorted(RUNS))
 def test_a_short_run_re_simulates_bit_identically(label):
     env, settings, seed = RUNS[label]
-    run = simulate_run(load_environment(env), run_settings(settings), seed, ROBOT, progress=False)
+    run = simulate_run(load_environment(env), run_spec(settings), seed, ROBOT, progress=False)
     assert digest(run) == EXPECTED[label], run.attrs["controller_modes"]
 
 
 if __name__ == "__main__":  # print the digests (to record them with the old code)
     for label in sorted(RUNS):
         env, settings, seed = RUNS[label]
-        run = simulate_run(load_environment(env), run_settings(settings), seed, ROBOT, progress=False)
+        run = simulate_run(load_environment(env), run_spec(settings), seed, ROBOT, progress=False)
         print(f'    "{label}": "{digest(run)}",  # {run.attrs["controller_modes"]}')

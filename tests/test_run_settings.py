@@ -11,10 +11,13 @@ away from the defaults."""
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
+import yaml
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -23,6 +26,15 @@ from vitaplace.engine.config.scenario import EvaluationPair  # noqa: E402
 from vitaplace.engine.pipeline.keys import content_hash  # noqa: E402
 from vitaplace.engine.pipeline.runner import STAGE_VERSION, seed_for  # noqa: E402
 from vitaplace.engine.sim import SIMULATOR_VERSION  # noqa: E402
+from vitaplace.engine.sim.controllers import (  # noqa: E402
+    RUN_KINDS,
+    V6_DEFAULTS,
+    ForagingRun,
+    key_form,
+    nest_legacy_gains,
+    recorded_run_spec,
+    run_spec,
+)
 from vitaplace.engine.sim.environment import load_environment  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
 from vitaplace.engine.sim.simulate import run_hash  # noqa: E402
@@ -66,12 +78,6 @@ SHIPPED_KEYS: dict[str, tuple[str, str]] = {
 }
 
 
-def settings(data: dict):
-    from vitaplace.engine.sim import controllers
-
-    return controllers.run_spec(data) if hasattr(controllers, "run_spec") else controllers.RunSpec(**data)
-
-
 def shipped_keys() -> dict[str, tuple[str, str]]:
     """The keys of every simulated run of every shipped scenario, computed as the pipeline does."""
     keys = {}
@@ -84,9 +90,8 @@ def shipped_keys() -> dict[str, tuple[str, str]]:
         for label, (entry, seed) in runs.items():
             env = load_environment(entry.environment)
             run = entry.run_for(label.rsplit("/", 1)[1]) if isinstance(entry, EvaluationPair) else entry.run
-            dumped = run.canonical() if hasattr(run, "canonical") else run.model_dump(mode="json")
             key = content_hash("simulate", STAGE_VERSION["simulate"], SIMULATOR_VERSION,
-                               [env.model_dump(mode="json"), dumped], scenario.robot.model_dump(mode="json"), seed)
+                               [env.model_dump(mode="json"), key_form(run)], scenario.robot.model_dump(mode="json"), seed)
             keys[f"{path.stem}:{label}"] = (key, run_hash(env, run, scenario.robot, seed))
     return keys
 
@@ -99,4 +104,93 @@ def test_the_runs_of_every_shipped_scenario_keep_their_cache_keys_and_run_hashes
 def test_runs_set_away_from_the_defaults_keep_their_run_hashes(name):
     """The old code's run hash of each recorded example, for the same settings given today."""
     old = OLD[name]
-    assert run_hash(load_environment("e1"), settings(old["given"]), RobotSpec(), 0) == old["run_hash_e1_seed0"]
+    assert run_hash(load_environment("e1"), run_spec(nest_legacy_gains(old["given"])), RobotSpec(), 0) == old["run_hash_e1_seed0"]
+
+
+@pytest.mark.parametrize("name", sorted(OLD))
+def test_the_settings_stored_in_an_old_run_file_load_and_parse(tmp_path, name):
+    """A run file written before the split, the way the old code wrote it (`write_run` with
+    the old flat dump as ``attrs["run"]``): it opens, its settings parse, their key form is
+    that flat dump exactly, and its run hash is the one recorded."""
+    from vitaplace.engine.data.dataset import Run, open_run, write_run
+
+    old = OLD[name]
+    n = 2
+    run = Run.from_arrays(images=np.zeros((n, 4, 6, 3), np.uint8), theta=np.zeros((n, 24), np.float32),
+                          xy=np.zeros((n, 24, 2), np.float32), poses=np.zeros((n, 3)), name="old",
+                          attrs={"seed": 0, "run_key": old["run_hash_e1_seed0"], "run": old["dump"]})
+    back = open_run(write_run(tmp_path / "old.h5", run))
+    spec = recorded_run_spec(back.attrs["run"])
+    assert spec.kind == old["dump"]["kind"] and key_form(spec) == old["dump"]
+    assert run_hash(load_environment("e1"), spec, RobotSpec(), 0) == back.attrs["run_key"]
+    assert recorded_run_spec(spec.model_dump(mode="json")) == spec  # a new file's exact dump, too
+
+
+def test_the_version_6_defaults_are_each_kinds_own_defaults():
+    """`key_form` fills in a field that a kind lacks from `V6_DEFAULTS`: each kind that has the
+    field must default to the same value (speed aside: teleop's is the keys' speed), or the
+    key form of its default runs would drift from the old dump."""
+    for kind, model in RUN_KINDS.items():
+        for name, field in model.model_fields.items():
+            if name in V6_DEFAULTS and not (kind == "teleop" and name == "speed"):
+                default = json.loads(json.dumps(field.default))
+                assert default == V6_DEFAULTS[name], (kind, name)
+
+
+def write_scenario(tmp_path: Path, train_run: dict, query_run: dict | None = None) -> Path:
+    path = tmp_path / "old.yaml"
+    path.write_text(yaml.safe_dump({
+        "name": "old",
+        "train": {"environment": "e1", "run": train_run},
+        "evaluations": [{"name": "E1", "environment": "e1", "run": query_run or {"kind": "route", "n_samples": 8}}],
+        "methods": [{"name": "H", "plugin": "handcrafted"}],
+    }))
+    return path
+
+
+def test_a_scenario_with_the_old_flat_foraging_gains_loads_with_one_warning(tmp_path, caplog):
+    """``run:`` with gains at its top level (before ``gains:``) is read with them under
+    ``gains``; one one-line warning names the file and the key paths."""
+    path = write_scenario(tmp_path, {"kind": "foraging", "n_samples": 5, "leave_time": 2.0, "avoid_turn_gain": 4.0,
+                                     "wander_turn_deg": 25.0})
+    with caplog.at_level(logging.WARNING, logger="vitaplace"):
+        scenario, _ = load_scenario(path)
+    assert isinstance(scenario.train.run, ForagingRun)
+    assert (scenario.train.run.gains.leave_time, scenario.train.run.gains.avoid_turn_gain) == (2.0, 4.0)
+    assert scenario.train.run.wander_turn_deg == 25.0  # not a gain: where it always was
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1 and "\n" not in warnings[0]
+    assert str(path) in warnings[0] and "train.run.leave_time, train.run.avoid_turn_gain" in warnings[0]
+    assert key_form(scenario.train.run) == key_form(run_spec(kind="foraging", n_samples=5, wander_turn_deg=25.0,
+                                                             gains={"leave_time": 2.0, "avoid_turn_gain": 4.0}))
+
+
+def test_a_gain_both_flat_and_under_gains_is_refused(tmp_path):
+    from vitaplace.engine.config.scenario import ScenarioError
+
+    path = write_scenario(tmp_path, {"kind": "foraging", "n_samples": 5, "leave_time": 2.0, "gains": {"leave_time": 3.0}})
+    with pytest.raises(ScenarioError, match=r"train\.run: leave_time given both at the top level and under 'gains'"):
+        load_scenario(path)
+
+
+@pytest.mark.parametrize("kind, key", [("teleop", "lateral_noise"), ("route", "orbit_radius"), ("foraging", "lookahead"),
+                                       ("teleop", "max_turn_rate_deg"), ("route", "visit_range")])
+def test_a_key_that_is_not_a_setting_of_the_runs_kind_is_refused_naming_its_path(tmp_path, kind, key):
+    """Each kind has only the keys its controller uses: another kind's key had no effect
+    before the split and is an error now, naming the key path and the kind's valid keys."""
+    from vitaplace.engine.config.scenario import ScenarioError
+
+    run = {"kind": kind, "n_samples": 8, key: 0.5}
+    path = write_scenario(tmp_path, run if kind == "foraging" else {"kind": "foraging", "n_samples": 5},
+                          None if kind == "foraging" else run)
+    prefix = "train.run" if kind == "foraging" else "evaluations.0.run"
+    with pytest.raises(ScenarioError, match=rf"{prefix}\.{key}: unknown key"):
+        load_scenario(path)
+
+
+def test_each_kind_has_only_its_own_fields():
+    fields = {kind: set(model.model_fields) for kind, model in RUN_KINDS.items()}
+    assert "gains" in fields["foraging"] and not {"lookahead", "lateral_noise", "visit_range"} & fields["foraging"]
+    assert not {"max_turn_rate_deg", "lateral_noise", "orbit_radius", "gains"} & fields["teleop"]
+    assert fields["orbit"] - fields["route"] == {"orbit_radius", "orbit_centre"}
+    assert run_spec(kind="teleop", n_samples=3).speed == 0.3 and run_spec(kind="route", n_samples=3).speed == 0.15

@@ -63,10 +63,27 @@ from vitaplace.engine.sim.controllers.foraging import (
 )
 from vitaplace.engine.sim.controllers.route import RouteFollower
 from vitaplace.engine.sim.controllers.safety import Headway, SafetyGuard
-from vitaplace.engine.sim.controllers.settings import FORAGING_GAIN, TELEOP_SPEED, RunSpec
+from vitaplace.engine.sim.controllers.settings import (
+    RUN_KINDS,
+    TELEOP_SPEED,
+    V6_DEFAULTS,
+    ForagingGains,
+    ForagingRun,
+    OrbitRun,
+    RouteRun,
+    RunSpec,
+    TeleopRun,
+    key_form,
+    legacy_gain_paths,
+    nest_legacy_gains,
+    recorded_run_spec,
+    run_spec,
+)
 from vitaplace.engine.sim.controllers.teleop import TELEOP_KEYS, TELEOP_TURN, TeleopDriver
 
 __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "TeleopDriver", "make_controller",
            "SafetyGuard", "Headway", "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore",
            "Leave", "Avoid", "TRANSITIONS", "ATTENDING", "PROBE_AHEAD", "HEAD_REACH", "TELEOP_KEYS", "TELEOP_TURN",
-           "TELEOP_SPEED", "FORAGING_GAIN"]
+           "TELEOP_SPEED", "ForagingGains", "ForagingRun", "TeleopRun", "RouteRun", "OrbitRun",
+           "run_spec", "recorded_run_spec", "key_form", "legacy_gain_paths", "nest_legacy_gains",
+           "RUN_KINDS", "V6_DEFAULTS"]

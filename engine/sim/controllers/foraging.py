@@ -17,7 +17,7 @@ from vitaplace.engine.sim.controllers.common import Limiter as _Limiter
 from vitaplace.engine.sim.controllers.common import OU as _OU
 from vitaplace.engine.sim.controllers.common import wrap as _wrap
 from vitaplace.engine.sim.controllers.safety import Headway, SafetyGuard
-from vitaplace.engine.sim.controllers.settings import RunSpec
+from vitaplace.engine.sim.controllers.settings import ForagingRun
 from vitaplace.engine.sim.environment import ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS
 
@@ -92,7 +92,7 @@ class ForagingState(ABC):
 
     name = ""
 
-    def __init__(self, spec: RunSpec, attention: Attention) -> None:
+    def __init__(self, spec: ForagingRun, attention: Attention) -> None:
         self.spec, self.attention = spec, attention
         self.max_turn = math.radians(spec.max_turn_rate_deg)
 
@@ -119,8 +119,8 @@ class Wander(ForagingState):
             return None, "touch"
         spec = self.spec
         w = s.wander_turn
-        if s.ahead_distance < spec.wander_steer_range and not len(s.contacts):
-            w += spec.wander_steer_gain * _wrap(math.atan2(s.ahead_escape[1], s.ahead_escape[0]) - s.yaw)
+        if s.ahead_distance < spec.gains.wander_steer_range and not len(s.contacts):
+            w += spec.gains.wander_steer_gain * _wrap(math.atan2(s.ahead_escape[1], s.ahead_escape[0]) - s.yaw)
         return (spec.speed, self._turn(w)), ""
 
 
@@ -138,14 +138,14 @@ class Orient(ForagingState):
 
     def step(self, s: Surroundings) -> tuple[Command | None, str]:
         spec, attention = self.spec, self.attention
-        attention.follow(s, spec.contact_weight)
+        attention.follow(s, spec.gains.contact_weight)
         err = attention.bearing(s)
         reach = HEAD_CENTRE + HEAD_RADIUS + spec.avoid_margin
         dist = attention.distance(s)
-        v = float(np.clip(spec.orient_back_gain * (dist - reach), -spec.orient_back_speed, 0.0))
-        slow = float(np.clip((dist - HEAD_REACH) / (reach - HEAD_REACH), spec.orient_slow_share, 1.0))
-        w = self._turn(spec.orient_turn_gain * err * slow)
-        return (v, w), "facing" if abs(err) < math.radians(spec.orient_done_deg) else ""
+        v = float(np.clip(spec.gains.orient_back_gain * (dist - reach), -spec.gains.orient_back_speed, 0.0))
+        slow = float(np.clip((dist - HEAD_REACH) / (reach - HEAD_REACH), spec.gains.orient_slow_share, 1.0))
+        w = self._turn(spec.gains.orient_turn_gain * err * slow)
+        return (v, w), "facing" if abs(err) < math.radians(spec.gains.orient_done_deg) else ""
 
 
 class Explore(ForagingState):
@@ -158,7 +158,7 @@ class Explore(ForagingState):
 
     name = "explore"
 
-    def __init__(self, spec: RunSpec, attention: Attention, rng: np.random.Generator) -> None:
+    def __init__(self, spec: ForagingRun, attention: Attention, rng: np.random.Generator) -> None:
         super().__init__(spec, attention)
         self.rng = rng
         self.until = 0.0  #: end of the bout [s]
@@ -170,16 +170,16 @@ class Explore(ForagingState):
 
     def step(self, s: Surroundings) -> tuple[Command | None, str]:
         spec, attention = self.spec, self.attention
-        attention.follow(s, spec.contact_weight)
+        attention.follow(s, spec.gains.contact_weight)
         if s.time >= self.until:
             return None, "bout over"
         side, margin = attention.side, spec.avoid_margin
-        err = _wrap(attention.bearing(s) - side * math.radians(spec.explore_bearing_deg))
-        reach_err = attention.distance(s) - (HEAD_CENTRE + spec.explore_reach)
-        w = spec.explore_bearing_gain * err + spec.explore_distance_gain * reach_err * side
+        err = _wrap(attention.bearing(s) - side * math.radians(spec.gains.explore_bearing_deg))
+        reach_err = attention.distance(s) - (HEAD_CENTRE + spec.gains.explore_reach)
+        w = spec.gains.explore_bearing_gain * err + spec.gains.explore_distance_gain * reach_err * side
         if s.head_gap < margin:  # snout too close: steer away from the object's side
-            w -= side * spec.explore_snout_gain * (margin - s.head_gap)
-        v = spec.explore_speed_share * spec.speed * float(np.clip((s.head_gap - 0.25 * margin) / margin, 0.0, 1.0))
+            w -= side * spec.gains.explore_snout_gain * (margin - s.head_gap)
+        v = spec.gains.explore_speed_share * spec.speed * float(np.clip((s.head_gap - 0.25 * margin) / margin, 0.0, 1.0))
         return (v, self._turn(w)), ""
 
 
@@ -192,7 +192,7 @@ class Leave(ForagingState):
 
     name = "leave"
 
-    def __init__(self, spec: RunSpec, attention: Attention, rng: np.random.Generator) -> None:
+    def __init__(self, spec: ForagingRun, attention: Attention, rng: np.random.Generator) -> None:
         super().__init__(spec, attention)
         self.rng = rng
         self.until = 0.0  #: earliest end [s]
@@ -200,19 +200,19 @@ class Leave(ForagingState):
 
     def enter(self, s: Surroundings) -> None:
         spec = self.spec
-        self.until = s.time + spec.leave_time
+        self.until = s.time + spec.gains.leave_time
         self.attention.refractory_until = s.time + spec.refractory_time
         away = s.pos - self.attention.target
-        self.heading = math.atan2(away[1], away[0]) + float(self.rng.uniform(-spec.leave_jitter, spec.leave_jitter))
+        self.heading = math.atan2(away[1], away[0]) + float(self.rng.uniform(-spec.gains.leave_jitter, spec.gains.leave_jitter))
 
     def step(self, s: Surroundings) -> tuple[Command | None, str]:
         spec = self.spec
         err = _wrap(self.heading - s.yaw)
-        w = self._turn(spec.leave_turn_gain * err)
-        v = 0.0 if abs(err) > math.radians(spec.leave_drive_deg) else spec.speed
+        w = self._turn(spec.gains.leave_turn_gain * err)
+        v = 0.0 if abs(err) > math.radians(spec.gains.leave_drive_deg) else spec.speed
         if s.head_gap < spec.avoid_margin:
-            v = -spec.back_off_speed
-        done = s.time >= self.until and abs(err) < math.radians(spec.leave_done_deg)
+            v = -spec.gains.back_off_speed
+        done = s.time >= self.until and abs(err) < math.radians(spec.gains.leave_done_deg)
         return (v, w), "turned away" if done else ""
 
 
@@ -227,7 +227,7 @@ class Avoid(ForagingState):
 
     name = "avoid"
 
-    def __init__(self, spec: RunSpec, attention: Attention, obstacles: ObstacleMap) -> None:
+    def __init__(self, spec: ForagingRun, attention: Attention, obstacles: ObstacleMap) -> None:
         super().__init__(spec, attention)
         self.obstacles = obstacles
         self.heading = 0.0  #: the escape heading [rad]
@@ -247,16 +247,16 @@ class Avoid(ForagingState):
     def step(self, s: Surroundings) -> tuple[Command | None, str]:
         spec = self.spec
         margin = spec.avoid_margin
-        if s.clearance >= margin + spec.avoid_release_gap and s.ahead_distance > spec.avoid_release_ahead:
+        if s.clearance >= margin + spec.gains.avoid_release_gap and s.ahead_distance > spec.gains.avoid_release_ahead:
             return None, "clear"
         err = _wrap(self.heading - s.yaw)
-        if abs(err) < math.radians(spec.avoid_drive_deg):
-            v = spec.avoid_speed_share * spec.speed * float(np.clip((s.head_gap - 0.5 * margin) / margin, 0.0, 1.0))
+        if abs(err) < math.radians(spec.gains.avoid_drive_deg):
+            v = spec.gains.avoid_speed_share * spec.speed * float(np.clip((s.head_gap - 0.5 * margin) / margin, 0.0, 1.0))
             if v == 0.0:  # blocked in this direction too: look for another way out
                 self.heading = self._escape_heading(s.pos, s.yaw + math.pi / 6)
         else:
-            v = -spec.back_off_speed if s.clearance < 0.5 * margin else 0.0  # make room to turn
-        return (v, self._turn(spec.avoid_turn_gain * err)), ""
+            v = -spec.gains.back_off_speed if s.clearance < 0.5 * margin else 0.0  # make room to turn
+        return (v, self._turn(spec.gains.avoid_turn_gain * err)), ""
 
 
 #: (state, event) -> next state of the foraging controller
@@ -280,7 +280,7 @@ class ForagingController:
     """Tactile-attention foraging (see the module docstring): a state machine over `Wander`,
     `Orient`, `Explore`, `Leave` and `Avoid` with the transitions `TRANSITIONS`."""
 
-    spec: RunSpec
+    spec: ForagingRun
     obstacles: ObstacleMap
     rng: np.random.Generator
     mode: str = "wander"  #: the name of the current state
@@ -294,9 +294,9 @@ class ForagingController:
                 Leave(spec, self.attention, self.rng), Avoid(spec, self.attention, self.obstacles),
             )
         }
-        self._wander = _OU(self.rng, math.radians(spec.wander_turn_deg), spec.wander_turn_time, x0=0.0)
+        self._wander = _OU(self.rng, math.radians(spec.wander_turn_deg), spec.gains.wander_turn_time, x0=0.0)
         self._limit = _Limiter(spec.max_accel, 4.0)
-        self._guard = SafetyGuard(self.obstacles, spec.guard_margin_share * spec.avoid_margin)
+        self._guard = SafetyGuard(self.obstacles, spec.gains.guard_margin_share * spec.avoid_margin)
         self.headway = Headway()  #: is the robot getting anywhere?
         self._last_t: float | None = None
 
@@ -329,7 +329,7 @@ class ForagingController:
         dt = 0.0 if self._last_t is None else obs.time - self._last_t
         self._last_t = obs.time
         s = self.sense(obs, dt)
-        margin = self.spec.avoid_margin * (self.spec.attend_margin_share if self.mode in ATTENDING else 1.0)
+        margin = self.spec.avoid_margin * (self.spec.gains.attend_margin_share if self.mode in ATTENDING else 1.0)
         too_close = self.mode != "avoid" and s.clearance < margin
         if too_close:
             state = self._switch("too close", s)
@@ -353,7 +353,7 @@ class ForagingController:
         the last two ways out a robot in a corner where its state's turn and backing off are
         both refused stood there for the rest of its run (a state keeps asking for the same
         turn until it is done)."""
-        back = -self.spec.back_off_speed
+        back = -self.spec.gains.back_off_speed
         ways_out = [(back, w), (back, 0.0), (v, 0.0), (0.0, -w), (-back, 0.0)]
         candidates = [(v, w, 0.0)] + [(a, b, 0.0) for a, b in ways_out if (a, b) != (0.0, 0.0)]  # not standing yet
         v, w, _ = self._guard.first_safe(pose, candidates)

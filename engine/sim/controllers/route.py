@@ -14,7 +14,7 @@ from vitaplace.engine.sim.controllers.common import Limiter as _Limiter
 from vitaplace.engine.sim.controllers.common import Observation
 from vitaplace.engine.sim.controllers.common import OU as _OU
 from vitaplace.engine.sim.controllers.common import wrap as _wrap
-from vitaplace.engine.sim.controllers.settings import RunSpec
+from vitaplace.engine.sim.controllers.settings import OrbitRun, RouteRun
 from vitaplace.engine.sim.environment import ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS
 
@@ -25,7 +25,7 @@ class RouteFollower:
     direction of travel, or (``outward`` given) driven sideways with the camera facing away
     from that point."""
 
-    spec: RunSpec
+    spec: RouteRun | OrbitRun
     route: Route
     obstacles: ObstacleMap
     rng: np.random.Generator

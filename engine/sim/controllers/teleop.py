@@ -22,7 +22,7 @@ from vitaplace.engine.sim.controllers.common import Limiter as _Limiter
 from vitaplace.engine.sim.controllers.common import Observation
 from vitaplace.engine.sim.controllers.common import wrap as _wrap
 from vitaplace.engine.sim.controllers.safety import Headway, SafetyGuard
-from vitaplace.engine.sim.controllers.settings import TELEOP_SPEED, RunSpec
+from vitaplace.engine.sim.controllers.settings import TELEOP_SPEED, TeleopRun
 from vitaplace.engine.sim.environment import EnvironmentSpec
 
 #: ViTa-SLAM's keyboard teleoperation (whiskeye_controller/src/teleop.py): each key sets the
@@ -74,7 +74,7 @@ class TeleopDriver:
     looks further along the path and makes its way round (`_way_round`).
     """
 
-    def __init__(self, spec: RunSpec, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
+    def __init__(self, spec: TeleopRun, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
         self.spec, self.rng, self.obstacles = spec, rng, env.obstacles
         self.guard = SafetyGuard(env.obstacles, 0.25 * spec.avoid_margin, braking=spec.max_accel)
         self.centre = np.mean(env.route, axis=0)
