@@ -292,3 +292,22 @@ def test_first_key_waits_for_the_reaction_delay_and_is_one_of_the_keys():
     assert driver.key != "k" and (v, w, lateral) != (0.0, 0.0, 0.0)
     assert {round(abs(v), 9), round(abs(lateral), 9)} <= {0.0, round(driver.speed, 9)}
     assert abs(w) == pytest.approx(0.0) or abs(w) == pytest.approx(TELEOP_TURN * driver.speed / 0.3)
+
+
+def test_the_teleoperators_modes_switch_by_their_transition_table():
+    """Like the foraging states: every mode is reachable from ``drive`` and leads back to it,
+    and a mode entered through the table sets its own clock (leave: `LEAVE_TIME`)."""
+    from vitaplace.engine.sim.controllers.teleop_modes import LEAVE_TIME, TELEOP_TRANSITIONS
+
+    driver, _ = make_controller(load_environment("e1"), run_spec(kind="teleop", n_samples=2), np.random.default_rng(0))
+    assert set(driver.modes) == {"drive", "approach", "hold", "leave"} == {m for _, m in TELEOP_TRANSITIONS.items()}
+    reached, todo = {"drive"}, ["drive"]
+    while todo:
+        mode = todo.pop()
+        for (src, _), dst in TELEOP_TRANSITIONS.items():
+            if src == mode and dst not in reached:
+                reached.add(dst)
+                todo.append(dst)
+    assert reached == set(driver.modes)
+    driver.modes["leave"].enter(10.0, np.zeros(3))
+    assert driver.until == 10.0 + LEAVE_TIME == 16.0

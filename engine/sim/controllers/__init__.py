@@ -20,13 +20,15 @@ Foraging (inspired by rodent exploration; Mitchinson & Prescott's "orient" behav
 
 Each mode is a `ForagingState` (`Wander`, `Orient`, `Explore`, `Leave`, `Avoid`) whose step
 returns a command and an event; `TRANSITIONS` maps (state, event) to the next state. Their
-gains and thresholds are `RunSpec` fields (docs/SCENARIOS.md), defaulting to the values the
-controller always used.
+gains and thresholds are the foraging run's nested ``gains`` (`ForagingGains`,
+docs/SCENARIOS.md), defaulting to the values the controller always used.
 
 Teleoperation (``teleop``, `TeleopDriver`): ViTa-SLAM's keyboard teleoperation emulated -
 one key at a time from its key set, stop-and-go, along the run's own jittered copy of the
-environment's loop from a random start, exploring the tactile landmarks it passes. Foraging
-and teleop share one look-ahead `SafetyGuard` that keeps the body and the head off obstacles.
+environment's loop from a random start, exploring the tactile landmarks it passes. Its modes
+(`Drive`, `Approach`, `Hold`, `Leave`: `TeleopMode`) switch by `TELEOP_TRANSITIONS`, as the
+foraging states do. Foraging and teleop share one look-ahead `SafetyGuard` that keeps the
+body and the head off obstacles.
 
 Route following (``route``): pure pursuit along the environment's closed waypoint loop,
 facing the direction of travel.
@@ -43,6 +45,11 @@ follow the same path closely but never see the same frame. With ``off_route_frac
 the final fraction of the run leaves the path, ``off_route_offset`` metres across it (to
 the left of the direction of travel; for the orbit, towards the centre), so those places are
 not revisits and true negatives occur.
+
+The package, one module per concern: `common` (the `Observation`, noise, the rate limiter),
+`safety` (`SafetyGuard`, `Headway`), `settings` (the run settings per kind: `RunSpec`,
+`run_spec`, `key_form`), `foraging`, `teleop` and `teleop_modes`, `route` (route and orbit),
+`factory` (`make_controller`). This module re-exports their public names.
 """
 
 from vitaplace.engine.sim.controllers.common import HEAD_REACH, Observation
@@ -80,10 +87,12 @@ from vitaplace.engine.sim.controllers.settings import (
     run_spec,
 )
 from vitaplace.engine.sim.controllers.teleop import TELEOP_KEYS, TELEOP_TURN, TeleopDriver
+from vitaplace.engine.sim.controllers.teleop_modes import TELEOP_TRANSITIONS, Approach, Drive, Hold, TeleopMode
 
 __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "TeleopDriver", "make_controller",
            "SafetyGuard", "Headway", "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore",
            "Leave", "Avoid", "TRANSITIONS", "ATTENDING", "PROBE_AHEAD", "HEAD_REACH", "TELEOP_KEYS", "TELEOP_TURN",
            "TELEOP_SPEED", "ForagingGains", "ForagingRun", "TeleopRun", "RouteRun", "OrbitRun",
            "run_spec", "recorded_run_spec", "key_form", "legacy_gain_paths", "nest_legacy_gains",
-           "RUN_KINDS", "V6_DEFAULTS"]
+           "RUN_KINDS", "V6_DEFAULTS",
+           "TeleopMode", "Drive", "Approach", "Hold", "TELEOP_TRANSITIONS"]

@@ -23,6 +23,7 @@ from vitaplace.engine.sim.controllers.common import Observation
 from vitaplace.engine.sim.controllers.common import wrap as _wrap
 from vitaplace.engine.sim.controllers.safety import Headway, SafetyGuard
 from vitaplace.engine.sim.controllers.settings import TELEOP_SPEED, TeleopRun
+from vitaplace.engine.sim.controllers.teleop_modes import TELEOP_TRANSITIONS, Approach, Drive, Hold, Leave, TeleopMode
 from vitaplace.engine.sim.environment import EnvironmentSpec
 
 #: ViTa-SLAM's keyboard teleoperation (whiskeye_controller/src/teleop.py): each key sets the
@@ -42,11 +43,7 @@ TELEOP_TURN = 0.25
 _TRANSLATION_KEYS = {"i": 0.0, "U": 45.0, "J": 90.0, "M": 135.0, ",": 180.0, ">": -135.0, "L": -90.0, "O": -45.0}
 _TAP = 0.2  #: a key tapped where holding it would be unsafe: pressed this long [s]
 _STANDING = 0.02  #: the base counts as standing below this speed [m/s]
-_HOLD_PATIENCE = 3  #: a hold waiting for its contacts ends after this many whisk cycles per contact
-_LEAVE_GAP = 0.15  #: after a hold, back off until the head is this far from the landmark [m]
-_APPROACH_TIMEOUT = 12.0  #: an exploration that has not reached its landmark by then is given up [s]
 _TURN_CLEARANCE = 0.02  #: the driver turns towards a landmark only as far as the head stays this clear [m]
-_MAKE_ROOM = 0.3  #: where the head cannot swing round to face a landmark, back away up to this far first [m]
 _SKIP_AHEAD = 0.1  #: blocked on its path, the driver looks this much further along it per decision [m]
 
 
@@ -93,7 +90,8 @@ class TeleopDriver:
         self.s = float(rng.uniform(0.0, self.loop.length))
         self.tactile = [i for i, lm in enumerate(env.landmarks) if lm.tactile]
         self.visited: dict[int, float] = {}  #: landmark -> lap count when it was explored
-        self.mode, self.turning = "drive", False
+        self.mode, self.turning = "drive", False  #: the current mode's name (`TeleopMode`); turning while driving
+        self.modes: dict[str, TeleopMode] = {mode.name: mode(self) for mode in (Drive, Approach, Hold, Leave)}
         self.target_landmark, self.until, self.approach_from = -1, 0.0, np.zeros(2)
         self.headway = Headway()  #: is the drive getting anywhere?
         self.contacts_left = 0  #: samples with contact still to record in the current hold
@@ -232,78 +230,19 @@ class TeleopDriver:
         return _wrap(math.atan2(rel[1], rel[0]) - pose[2])
 
     def _decide(self, t: float, pose: np.ndarray) -> tuple[str, float]:
-        """The key to press next and how long (inf: until the next decision)."""
-        pos, yaw = pose[:2], float(pose[2])
-        if self.mode != "drive":
-            self.headway.restart(pose, t)
-        if self.mode == "hold":
-            self.contacts_left -= int(self.touched)
-            if self.contacts_left > 0 and t < self.until:
-                if self.touched:
-                    return "k", math.inf
-                bearing = self._bearing(pose, self.target_landmark)
-                return self._pick(pose, self._translation_keys(bearing)[:3], hold=False)  # tap back onto it
-            self.mode, self.until = "leave", t + 6.0
-        if self.mode == "leave":
-            if self._landmark_gaps(pose)[self.target_landmark] < _LEAVE_GAP and t < self.until:
-                away = self._bearing(pose, self.target_landmark) + math.pi
-                return self._pick(pose, self._translation_keys(away))
-            self.mode = "drive"
-        if self.mode == "approach":
-            i = self.target_landmark
-            bearing = self._bearing(pose, i)
-            if t >= self.until:  # could not get there: give up
-                self.mode, self.until = "leave", t + 6.0
-                return "k", math.inf
-            gap = self._landmark_gaps(pose)[i]
-            whisking = self.touched and gap <= self.spec.touch_gap
-            if abs(bearing) > 0.5 * self.tolerance and not whisking:  # face it
-                room = self._room_to_turn(pose, bearing)
-                cramped = abs(room) < abs(bearing) - 0.5 * self.tolerance
-                if cramped and np.linalg.norm(pos - self.approach_from) < _MAKE_ROOM:  # back away first
-                    key, duration = self._pick(pose, self._translation_keys(bearing + math.pi)[:3])
-                    if key != "k":
-                        return key, duration
-                if abs(room) > 0.5 * self.tolerance:  # as far as the head can swing round here
-                    key, duration = self._pick(pose, [self._turn_key(room)])
-                    if key != "k":
-                        return key, duration
-            if not whisking:
-                # then drive up to it until the whiskers touch it, and as close as touch_gap
-                key, duration = self._pick(pose, self._translation_keys(bearing)[:3])
-                if key != "k":
-                    return key, duration
-                if not self._standing():  # stop first: from standstill, taps may still be safe
-                    return "k", math.inf
-                if not self.touched:  # no closer, and the whiskers do not reach it: go on
-                    self.mode, self.until = "leave", t + 6.0
-                    return "k", math.inf
-            lo, hi = self.spec.hold_cycles
-            self.contacts_left = int(self.rng.integers(lo, hi + 1)) - int(self.touched)
-            self.mode, self.until = "hold", t + _HOLD_PATIENCE * self.contacts_left * self.sample_period
-            return "k", math.inf
-        # ---- drive along the path (the loop or, in a detour window, the offset loop)
-        path = self.detour if self.detour is not None and self.in_detour(t) else self.loop
-        if path is not self.path:
-            self._switch_path(path)
-        self._progress(pos)
-        if path is self.loop and self._start_visit(t, pose):
-            return self._decide(t, pose)
-        direction = self._path_direction(pose)
-        err = _wrap(self._facing(pos) - yaw)
-        self.turning = abs(err) > (0.5 if self.turning else 1.0) * self.tolerance
-        translation = self._translation_keys(direction)
-        if not self.turning:
-            ranked = translation
-        elif self.outward is None and abs(err) < 3 * self.tolerance and translation[:1] == ["i"]:
-            ranked = ["u" if err > 0 else "o", self._turn_key(err), *translation]  # forward and turn
-        else:
-            ranked = [self._turn_key(err), *translation]
-        stalled = self.headway.stalled(pose, t)
-        key, duration = self._pick(pose, ranked)
-        if (key == "k" and self._standing()) or stalled:
-            return self._way_round(pose)
-        return key, duration
+        """The key to press next and how long (inf: until the next decision): the current
+        mode's, after the transitions (`TELEOP_TRANSITIONS`) its events call for; a mode that
+        hands over lets the next one decide at once. Away from the path the driver's
+        `Headway` restarts (it counts only while driving)."""
+        while True:
+            if self.mode != "drive":
+                self.headway.restart(pose, t)
+            press, event = self.modes[self.mode].decide(t, pose)
+            if event:
+                self.mode = TELEOP_TRANSITIONS[(self.mode, event)]
+                self.modes[self.mode].enter(t, pose)
+            if press is not None:
+                return press
 
     def _way_round(self, pose: np.ndarray) -> tuple[str, float]:
         """Blocked: standing with no key towards the path ahead safe, or dithering without
@@ -345,9 +284,7 @@ class TeleopDriver:
                 break
             passing = gaps_ahead[i] >= gaps[i] and laps - self.visited.get(i, -math.inf) >= 0.5
             if passing and abs(self._bearing(pose, i)) <= math.radians(self.spec.visit_bearing_deg):
-                self.visited[i] = laps
-                self.mode, self.target_landmark, self.until = "approach", i, t + _APPROACH_TIMEOUT
-                self.approach_from = pose[:2].copy()
+                self.visited[i], self.target_landmark = laps, i
                 return True
         return False
 
