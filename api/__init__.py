@@ -164,12 +164,12 @@ def simulate(
     """Simulate one run of the WhiskEye in ``environment`` (a YAML file or a shipped name such
     as ``"e1"``) and return it in memory (``vitaplace.engine.data.dataset.write_run`` saves it).
     ``kind``: foraging, route or orbit; ``run_settings``: any other run key
-    (docs/SCENARIOS.md), e.g. ``lateral_noise=0.05``. Runs in this process."""
-    from vitaplace.engine.sim.controllers import RunSpec
+    of that kind (docs/SCENARIOS.md), e.g. ``lateral_noise=0.05`` or ``gains={"leave_time": 2.0}``. Runs in this process."""
+    from vitaplace.engine.sim.controllers import run_spec
     from vitaplace.engine.sim.environment import load_environment
     from vitaplace.engine.sim.simulate import simulate_run
 
-    spec = RunSpec(kind=kind, n_samples=n_samples, **run_settings)
+    spec = run_spec(kind=kind, n_samples=n_samples, **run_settings)
     return simulate_run(load_environment(environment), spec, seed=seed, progress=progress, name=f"{Path(environment).stem}-{kind}")
 
 

@@ -24,7 +24,7 @@ import argparse
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vitaplace.engine.sim import RobotSpec, RunSpec, load_environment, simulate_run
+from vitaplace.engine.sim import RobotSpec, load_environment, run_spec, simulate_run
 
 
 def nearest(query: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -47,7 +47,7 @@ def main() -> None:
     for world in args.worlds.split(","):
         env = load_environment(world)
         for kind in args.kinds.split(","):
-            spec = RunSpec(kind=kind, n_samples=args.samples)
+            spec = run_spec(kind=kind, n_samples=args.samples)
             ref, query = (simulate_run(env, spec, seed, robot) for seed in (ref_seed, query_seed))
             dist, dyaw = nearest(query.poses, ref.poses)
             matched = dist < 0.3

@@ -30,14 +30,14 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 def one_run(args: tuple[str, int, int, str, str]) -> dict:
     env_name, n, seed, out_dir, tactile_model = args
     from vitaplace.engine.data.dataset import write_run
-    from vitaplace.engine.sim import RobotSpec, RunSpec, load_environment
+    from vitaplace.engine.sim import RobotSpec, load_environment, run_spec
     from vitaplace.engine.sim.simulate import simulate_run
 
     env = load_environment(env_name)
     stats: dict = {}
     c0 = time.process_time()
     robot = RobotSpec(tactile_model=tactile_model)
-    run = simulate_run(env, RunSpec(kind="foraging", n_samples=n), seed=seed, robot=robot, progress=False, stats=stats)
+    run = simulate_run(env, run_spec(kind="foraging", n_samples=n), seed=seed, robot=robot, progress=False, stats=stats)
     stats["cpu_s"] = time.process_time() - c0
     t0 = time.perf_counter()
     path = write_run(Path(out_dir) / f"bench_{seed}.h5", run)

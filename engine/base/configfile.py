@@ -187,11 +187,10 @@ def _is_model(tp: Any) -> bool:
 
 
 def _tags(model: type[pydantic.BaseModel]) -> tuple[Any, ...]:
-    """The values of a model's ``type: Literal[...]`` field: its tags in a discriminated union."""
-    field = model.model_fields.get("type")
-    if field is None or typing.get_origin(field.annotation) is not typing.Literal:
-        return ()
-    return typing.get_args(field.annotation)
+    """The values of a model's ``type`` or ``kind`` field (``Literal[...]``): its tags in a
+    discriminated union (landmarks on ``type``, run settings on ``kind``)."""
+    fields = (model.model_fields.get(name) for name in ("type", "kind"))
+    return next((typing.get_args(f.annotation) for f in fields if f and typing.get_origin(f.annotation) is typing.Literal), ())
 
 
 def _resolve(tp: Any, loc: tuple[Any, ...]) -> tuple[type[pydantic.BaseModel] | None, list[Any] | None]:

@@ -281,7 +281,7 @@ def _simulate_environment(args: argparse.Namespace) -> int:
     """`vitaplace simulate ENV.yaml`: one foraging run of an environment file."""
     from vitaplace.engine.data.dataset import write_run
     from vitaplace.engine.sim.environment import load_environment
-    from vitaplace.engine.sim.simulate import RunSpec, simulate_run
+    from vitaplace.engine.sim.simulate import run_spec, simulate_run
 
     if args.force or args.overrides:
         raise UserError(
@@ -289,7 +289,7 @@ def _simulate_environment(args: argparse.Namespace) -> int:
             "records its run anew (its settings: --samples, --seed)"
         )
     environment = load_environment(args.scenario)
-    spec = RunSpec(kind="foraging", n_samples=args.samples or 200)
+    spec = run_spec(kind="foraging", n_samples=args.samples or 200)
     run = simulate_run(environment, spec, seed=args.seed, progress=not args.no_progress, name=Path(args.scenario).stem)
     out = writable_dir(args.out or Path("runs") / "datasets")
     path = write_run(out / f"{Path(args.scenario).stem}-foraging-seed{args.seed}.h5", run)

@@ -20,7 +20,7 @@ import pydantic
 from pydantic_core import PydanticUndefined
 
 from vitaplace.engine.config.scenario import EvaluationPair, ScoringSettings, Method, RecordedRuns, Scenario, TrainingData
-from vitaplace.engine.sim.controllers import RunSpec
+from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, TeleopRun
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
     BoardSpec,
@@ -45,7 +45,11 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("train: TrainingData", TrainingData, "the training run"),
     ("evaluations[]: EvaluationPair", EvaluationPair, "one evaluation environment (two runs, simulated or recorded)"),
     ("evaluations[].datasets: RecordedRuns", RecordedRuns, "an evaluation's two recorded runs (docs/DATA.md)"),
-    ("run: RunSpec", RunSpec, "how the robot moves in a recorded run"),
+    ("run (kind: foraging): ForagingRun", ForagingRun, "a foraging run (training); each kind has only its own keys"),
+    ("run.gains: ForagingGains", ForagingGains, "the gains and thresholds of the foraging states"),
+    ("run (kind: teleop): TeleopRun", TeleopRun, "an emulated keyboard teleoperator's drive (evaluation)"),
+    ("run (kind: route): RouteRun", RouteRun, "noisy laps of the environment's route"),
+    ("run (kind: orbit): OrbitRun", OrbitRun, "noisy laps of a circle, facing outward"),
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),
     ("methods[]: Method", Method, "a feature extractor to compare"),
     ("methods[].params for plugin mupnet", MupnetParams, "the learned MuPNet features"),

@@ -38,7 +38,7 @@ from typing import Annotated, Any
 import pydantic
 
 from vitaplace.engine.base.configfile import ConfigError
-from vitaplace.engine.sim.controllers import RunSpec
+from vitaplace.engine.sim.controllers import RunSpec, legacy_gain_paths, nest_legacy_gains
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.robot import RobotSpec
 
@@ -200,6 +200,28 @@ def rename_legacy_keys(data: dict[str, Any], where: str) -> dict[str, Any]:
                     f"{where}: both '{old}' and '{new}' are set; '{old}' is the old name of '{new}', keep only '{new}'"
                 )
             data[current_key(old, where)] = data.pop(old)
+    return nest_legacy_run_gains(data, where)
+
+
+def nest_legacy_run_gains(data: dict[str, Any], where: str) -> dict[str, Any]:
+    """``data`` with the foraging gains that a ``run:`` gives at its top level (the form
+    before ``run.gains``) moved under ``gains``, with one warning naming ``where`` and their
+    key paths; a gain given in both places is a ScenarioError."""
+    runs = {"train.run": data.get("train")}
+    evaluations = data.get("evaluations")
+    for i, entry in enumerate(evaluations if isinstance(evaluations, list) else []):
+        runs[f"evaluations.{i}.run"] = entry
+    paths = []
+    for prefix, entry in runs.items():
+        if isinstance(entry, dict) and legacy_gain_paths(entry.get("run")):
+            paths += [f"{prefix}.{key}" for key in legacy_gain_paths(entry["run"])]
+            try:
+                entry["run"] = nest_legacy_gains(entry["run"])
+            except ValueError as exc:
+                raise ScenarioError(f"{where}: {prefix}: {exc}") from None
+    if paths:
+        log.warning("%s: the foraging gains %s are now under 'run.gains'; read from there (move them)", where,
+                    ", ".join(paths))
     return data
 
 

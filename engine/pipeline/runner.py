@@ -44,6 +44,7 @@ from vitaplace.engine.pipeline.records import (EvaluateRecord, FitRecord, RunRec
 from vitaplace.engine.pipeline.simulation import SimulationJob, simulate_here, simulations_in_workers
 from vitaplace.engine.extension.registry import Registry, discover, plugin_distributions
 from vitaplace.engine.sim import SIMULATOR_VERSION
+from vitaplace.engine.sim.controllers import key_form
 from vitaplace.engine.sim.environment import load_environment
 from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_seconds
 
@@ -218,7 +219,7 @@ class Pipeline:
             assert entry.environment is not None and entry.run is not None  # validated: simulated
             environment = load_environment(entry.environment)
             run = entry.run_for(label.rsplit("/", 1)[1]) if isinstance(entry, EvaluationPair) else entry.run
-            spec = [environment.model_dump(mode="json"), run.model_dump(mode="json")]
+            spec = [environment.model_dump(mode="json"), key_form(run)]  # the version-6 key form: keys stay valid
             key = content_hash("simulate", STAGE_VERSION["simulate"], SIMULATOR_VERSION, spec,
                                self.scenario.robot.model_dump(mode="json"), seed)
             self.state.datasets[label] = key

@@ -30,7 +30,7 @@ class SimulationJob:
     label: str
     #: the environment file
     environment: str
-    #: the run and robot settings (`RunSpec`, `RobotSpec` as dicts)
+    #: the run and robot settings (`RunSpec`, `RobotSpec` as dicts; `run_spec` reads the former)
     run: dict[str, Any]
     robot: dict[str, Any]
     seed: int
@@ -46,10 +46,10 @@ def simulate_to_file(job: SimulationJob, progress: bool) -> tuple[int, float]:
     """Simulate ``job``'s run and write its run file (a top-level function: runs in worker
     processes); returns its number of samples and the seconds it took."""
     from vitaplace.engine.sim.robot import RobotSpec
-    from vitaplace.engine.sim.simulate import RunSpec, simulate_run
+    from vitaplace.engine.sim.simulate import run_spec, simulate_run
 
     start = time.perf_counter()
-    simulated = simulate_run(load_environment(job.environment), RunSpec(**job.run), seed=job.seed,
+    simulated = simulate_run(load_environment(job.environment), run_spec(job.run), seed=job.seed,
                              robot=RobotSpec(**job.robot), progress=progress, name=job.label)
     simulated.attrs["run_key"] = job.key
     write_run(job.path, simulated)

@@ -6,9 +6,9 @@ below are imported lazily, so ``load_environment`` does not pull in MuJoCo.
 
 Main entry points::
 
-    from vitaplace.engine.sim import load_environment, simulate_run, RobotSpec, RunSpec
+    from vitaplace.engine.sim import load_environment, simulate_run, RobotSpec, run_spec
     env = load_environment("e1")
-    run = simulate_run(env, RunSpec(kind="foraging", n_samples=100), seed=0)
+    run = simulate_run(env, run_spec(kind="foraging", n_samples=100), seed=0)
 """
 
 from importlib import import_module
@@ -35,6 +35,7 @@ _EXPORTS = {
     "environment_files": "environment",
     "RobotSpec": "robot",
     "RunSpec": "simulate",
+    "run_spec": "simulate",
     "simulate_run": "simulate",
     "GLUnavailableError": "render",
 }

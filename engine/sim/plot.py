@@ -100,15 +100,15 @@ def _trajectory_figures(
     import matplotlib.pyplot as plt
 
     from vitaplace.engine.sim.environment import load_environment
-    from vitaplace.engine.sim.simulate import RunSpec, simulate_run
+    from vitaplace.engine.sim.simulate import run_spec, simulate_run
 
     written: list[Path] = []
     frames: dict[str, np.ndarray] = {}
     for name in ("e1", "e2", "e3"):
         env = load_environment(name)
-        forage = simulate_run(env, RunSpec(kind="foraging", n_samples=foraging_samples), seed=0, progress=False)
-        query = simulate_run(env, RunSpec(kind="teleop", n_samples=drive_samples), seed=1, progress=False)
-        ref = simulate_run(env, RunSpec(kind="teleop", n_samples=drive_samples), seed=2, progress=False)
+        forage = simulate_run(env, run_spec(kind="foraging", n_samples=foraging_samples), seed=0, progress=False)
+        query = simulate_run(env, run_spec(kind="teleop", n_samples=drive_samples), seed=1, progress=False)
+        ref = simulate_run(env, run_spec(kind="teleop", n_samples=drive_samples), seed=2, progress=False)
         fig, ax = plt.subplots(figsize=(5.5, 5.5))
         plot_environment(
             env.top_view(),

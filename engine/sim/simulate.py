@@ -31,22 +31,23 @@ from tqdm.auto import tqdm
 
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.base.errors import UserError
-from vitaplace.engine.sim.controllers import Observation, RunSpec, make_controller
+from vitaplace.engine.sim.controllers import Observation, RunSpec, key_form, make_controller, run_spec
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.glsetup import STATE as GL_STATE
 from vitaplace.engine.sim.model import SimModel, build_model
 from vitaplace.engine.sim.render import Camera
 from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec
 
-__all__ = ["RobotSpec", "RunSpec", "simulate_run", "Simulator", "run_hash"]
+__all__ = ["RobotSpec", "RunSpec", "run_spec", "simulate_run", "Simulator", "run_hash"]
 
 
 def run_hash(environment: EnvironmentSpec, run: RunSpec, robot: RobotSpec, seed: int) -> str:
-    """Content hash of everything that determines a simulated run."""
+    """Content hash of everything that determines a simulated run (the run's settings in their
+    version-6 key form, `key_form`, so that hashes stay valid)."""
     payload = json.dumps(
         {
             "environment": environment.model_dump(mode="json"),
-            "run": run.model_dump(mode="json"),
+            "run": key_form(run),
             "robot": robot.model_dump(mode="json"),
             "seed": int(seed),
         },

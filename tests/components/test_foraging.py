@@ -15,15 +15,15 @@ import yaml
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
 from vitaplace.engine.cli.main import main  # noqa: E402
-from vitaplace.engine.sim.controllers import FORAGING_GAIN, HEAD_REACH, TRANSITIONS, Attention, Avoid, Explore, ForagingController, Leave, Observation, Orient, Surroundings, Wander
+from vitaplace.engine.sim.controllers import HEAD_REACH, TRANSITIONS, Attention, Avoid, Explore, ForagingController, Leave, Observation, Orient, Surroundings, Wander, ForagingGains, key_form
 from vitaplace.engine.sim.clearance import HEAD_CENTRE, HEAD_RADIUS
 from vitaplace.engine.sim.environment import EnvironmentSpec  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
-from vitaplace.engine.sim.simulate import RunSpec, run_hash  # noqa: E402
+from vitaplace.engine.sim.simulate import run_hash, run_spec  # noqa: E402
 
 E1 = str(Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml")
 #: defaults used below: speed 0.15 m/s, turn-rate limit 90 deg/s, avoid_margin 0.06 m
-SPEC = RunSpec(kind="foraging", n_samples=1)
+SPEC = run_spec(kind="foraging", n_samples=1)
 W_MAX = math.pi / 2
 NO_CONTACTS = np.zeros((0, 3))
 
@@ -242,30 +242,34 @@ def test_while_attending_avoid_waits_for_half_the_margin():
 
 
 # ---------------------------------------------------------------------- the gains in the schema
-GAINS = sorted(name for name, field in RunSpec.model_fields.items() if FORAGING_GAIN in field.metadata)
+GAINS = sorted(ForagingGains.model_fields)
 
 
 def test_every_gain_is_documented_and_bounded():
     assert len(GAINS) >= 20
     for name in GAINS:
-        field = RunSpec.model_fields[name]
+        field = ForagingGains.model_fields[name]
         bounds = {type(m).__name__ for m in field.metadata}
         assert field.description and {"Gt", "Ge"} & bounds and "Le" in bounds, name
 
 
-def test_gains_at_their_defaults_leave_the_run_hash_as_it_was():
-    dumped = SPEC.model_dump(mode="json")
-    assert not set(GAINS) & set(dumped)
+def test_the_dump_holds_every_gain_and_gains_at_their_defaults_leave_the_run_hash_as_it_was():
+    """The dump is exact (``gains`` with all of them); the key form, like the dump of simulator
+    version 6, leaves out the gains at their defaults, so the run hash is as it was."""
+    assert set(SPEC.model_dump(mode="json")["gains"]) == set(GAINS)
+    assert not set(GAINS) & set(key_form(SPEC))
     env, robot = open_arena(4.0), RobotSpec()
-    explicit = RunSpec(kind="foraging", n_samples=1, avoid_turn_gain=3.0, leave_jitter=0.8)
+    explicit = run_spec(kind="foraging", n_samples=1, gains={"avoid_turn_gain": 3.0, "leave_jitter": 0.8})
     assert run_hash(env, explicit, robot, 0) == run_hash(env, SPEC, robot, 0)
 
 
 @pytest.mark.parametrize("name", GAINS)
 def test_a_changed_gain_is_in_the_dump_round_trips_and_changes_the_hash(name):
-    spec = RunSpec(kind="foraging", n_samples=1, **{name: 0.5 * RunSpec.model_fields[name].default})
+    half = 0.5 * ForagingGains.model_fields[name].default
+    spec = run_spec(kind="foraging", n_samples=1, gains={name: half})
     dumped = spec.model_dump(mode="json")
-    assert name in dumped and RunSpec.model_validate(dumped) == spec
+    assert dumped["gains"][name] == half and run_spec(dumped) == spec
+    assert key_form(spec)[name] == half  # at the top level, as simulator version 6 dumped it
     env, robot = open_arena(4.0), RobotSpec()
     assert run_hash(env, spec, robot, 0) != run_hash(env, SPEC, robot, 0)
 
@@ -283,11 +287,11 @@ def test_a_gain_out_of_range_is_refused_in_one_line_naming_its_key_path(tmp_path
     path = tmp_path / "scenario.yaml"
     path.write_text(yaml.safe_dump({
         "name": "t",
-        "train": {"environment": E1, "run": {"kind": "foraging", "n_samples": 5, key: value}},
+        "train": {"environment": E1, "run": {"kind": "foraging", "n_samples": 5, "gains": {key: value}}},
         "evaluations": [{"name": "E1", "environment": E1, "run": {"kind": "route", "n_samples": 5}}],
         "methods": [{"name": "H", "plugin": "handcrafted"}],
     }))
     assert main(["validate", str(path)]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"vitaplace: error: {path}: train.run.{key}: ")
+    assert len(lines) == 1 and lines[0].startswith(f"vitaplace: error: {path}: train.run.gains.{key}: ")
     assert message in lines[0]

@@ -27,7 +27,7 @@ from vitaplace.engine.sim.environment import (  # noqa: E402
     load_environment,
 )
 from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec  # noqa: E402
-from vitaplace.engine.sim.simulate import RunSpec, Simulator, simulate_run  # noqa: E402
+from vitaplace.engine.sim.simulate import Simulator, run_spec, simulate_run  # noqa: E402
 
 ENVS = sorted(environment_files())
 RIGHT = slice(0, 8)  # boards 0-1, the right side of the head
@@ -114,7 +114,7 @@ def test_route_keeps_body_and_head_clear_of_obstacles(name):
 def test_one_lap_of_the_e1_route_touches_every_landmark_without_collision(e1):
     """E1's route (driven sideways, facing the walls) brings the whiskers onto both boxes and
     the cylinder, and never the body or head (one lap: ~8.5 m at 0.3 m/s)."""
-    run = simulate_run(e1, RunSpec(kind="route", n_samples=60, speed=0.3), seed=4, progress=False)
+    run = simulate_run(e1, run_spec(kind="route", n_samples=60, speed=0.3), seed=4, progress=False)
     assert run.attrs["body_collision_instants"] == 0
     points = run._get("contact_points")
     for lm_name, lm in zip(e1.landmark_names(), e1.landmarks):
@@ -127,7 +127,7 @@ def test_orbit_faces_outward_on_its_circle_and_goes_off_route_when_asked(e1):
     """The orbit stays within a few cm of its 1 m circle, faces away from the centre (the
     camera towards the walls) and goes round counter-clockwise; with off_route_fraction the
     final part runs off_route_offset closer to the centre."""
-    spec = RunSpec(kind="orbit", n_samples=40, speed=0.3)
+    spec = run_spec(kind="orbit", n_samples=40, speed=0.3)
     run = simulate_run(e1, spec, seed=2, progress=False)
     r = np.hypot(run.poses[:, 0], run.poses[:, 1])
     phi = np.arctan2(run.poses[:, 1], run.poses[:, 0])
@@ -237,7 +237,7 @@ def test_samples_are_taken_at_maximum_protraction(bare_sim):
     assert np.allclose(np.degrees(last[-1]), 60.0, atol=0.3)
     assert np.allclose(np.degrees(last.min(axis=0)), -60.0, atol=0.3)
     # and the recorded samples of a run
-    run = simulate_run(load_environment("e1"), RunSpec(kind="route", n_samples=2), seed=0, progress=False)
+    run = simulate_run(load_environment("e1"), run_spec(kind="route", n_samples=2), seed=0, progress=False)
     assert np.allclose(np.degrees(run.theta), 60.0, atol=1.0)
 
 
@@ -351,7 +351,7 @@ def test_missing_gl_gives_one_clear_error():
 
 # ---------------------------------------------------------------------- runs
 def test_same_scenario_and_seed_give_identical_runs(e1):
-    spec = RunSpec(kind="foraging", n_samples=6)
+    spec = run_spec(kind="foraging", n_samples=6)
     a = simulate_run(e1, spec, seed=3, progress=False)
     b = simulate_run(e1, spec, seed=3, progress=False)
     c = simulate_run(e1, spec, seed=4, progress=False)
@@ -373,7 +373,7 @@ def test_same_scenario_and_seed_give_identical_runs(e1):
 
 
 def test_two_route_runs_differ_but_follow_the_route(e1):
-    spec = RunSpec(kind="route", n_samples=60)
+    spec = run_spec(kind="route", n_samples=60)
     a = simulate_run(e1, spec, seed=1, progress=False, name="query")
     b = simulate_run(e1, spec, seed=2, progress=False, name="reference")
     route = Route(e1.route)
@@ -411,7 +411,7 @@ def test_a_foraging_robot_whose_turn_is_refused_turns_the_other_way_then_gives_t
     the leave state up for wandering."""
     from vitaplace.engine.sim.controllers import ForagingController, Observation
 
-    controller = ForagingController(RunSpec(kind="foraging", n_samples=2), e1.obstacles, np.random.default_rng(0))
+    controller = ForagingController(run_spec(kind="foraging", n_samples=2), e1.obstacles, np.random.default_rng(0))
     pose = np.array([0.687, -2.474, -0.315])
     nothing = dict(contacts=np.zeros((0, 3)), deflection=np.zeros(N_WHISKERS))
     controller(Observation(time=0.0, pose=pose, **nothing))  # starts wandering; now, leaving:
@@ -429,7 +429,7 @@ def test_a_foraging_robot_whose_turn_is_refused_turns_the_other_way_then_gives_t
 
 
 def test_foraging_touches_things_and_never_drives_into_them(e1):
-    run = simulate_run(e1, RunSpec(kind="foraging", n_samples=120), seed=5, progress=False)
+    run = simulate_run(e1, run_spec(kind="foraging", n_samples=120), seed=5, progress=False)
     assert run.attrs["body_collision_instants"] == 0
     assert np.diff(run.contact_offsets).sum() > 0
     # the foraging state machine goes through every mode in 60 s
@@ -439,15 +439,15 @@ def test_foraging_touches_things_and_never_drives_into_them(e1):
 
 def test_run_spec_validation():
     with pytest.raises(ValueError):
-        RunSpec(kind="foraging", n_samples=0)
+        run_spec(kind="foraging", n_samples=0)
     with pytest.raises(ValueError):
-        RunSpec(kind="dance", n_samples=3)
+        run_spec(kind="dance", n_samples=3)
     with pytest.raises(ValueError):
-        RunSpec(kind="route", n_samples=3, colour="red")
+        run_spec(kind="route", n_samples=3, colour="red")
     with pytest.raises(ValueError, match="whole number of timesteps"):
         RobotSpec(whisk_hz=3.0, timestep=0.002)
     with pytest.raises(ValueError, match="no route"):
-        simulate_run(EnvironmentSpec(name="empty"), RunSpec(kind="route", n_samples=1), seed=0, progress=False)
+        simulate_run(EnvironmentSpec(name="empty"), run_spec(kind="route", n_samples=1), seed=0, progress=False)
 
 
 def test_shipped_environment_files_are_packaged():
@@ -458,7 +458,7 @@ def test_shipped_environment_files_are_packaged():
 def test_simulated_run_round_trips_through_hdf5(e1, tmp_path):
     from vitaplace.engine.data.dataset import open_run, write_run
 
-    run = simulate_run(e1, RunSpec(kind="route", n_samples=3), seed=9, progress=False, name="r")
+    run = simulate_run(e1, run_spec(kind="route", n_samples=3), seed=9, progress=False, name="r")
     back = open_run(write_run(tmp_path / "r.h5", run))
     for key in ("images", "theta", "xy", "deflection", "poses", "times", "contact_offsets"):
         assert np.array_equal(getattr(back, key), getattr(run, key)), key
@@ -554,7 +554,7 @@ def test_penetration_whiskers_pass_through_and_report_the_plugin_formula(bare_si
 
 # ---------------------------------------------------------------------- the sensor contract
 def test_stored_xy_is_the_deflection_at_maximum_protraction_and_yaw_is_wrapped(e1):
-    run = simulate_run(e1, RunSpec(kind="route", n_samples=4), seed=3, progress=False)
+    run = simulate_run(e1, run_spec(kind="route", n_samples=4), seed=3, progress=False)
     # the series' last instant is the sample instant (maximum protraction)
     np.testing.assert_array_equal(run.xy, run.deflection[:, -1])
     assert np.all(run.poses[:, 2] >= -math.pi) and np.all(run.poses[:, 2] < math.pi)
@@ -566,7 +566,7 @@ def test_route_noise_processes_have_the_documented_standard_deviations(e1):
     must be within 5 % (the estimate's own error is ~2 % for 2000 correlation times)."""
     from vitaplace.engine.sim.controllers import make_controller
 
-    spec = RunSpec(kind="route", n_samples=2, lateral_noise=0.05, heading_noise_deg=4.0, speed_noise=0.2)
+    spec = run_spec(kind="route", n_samples=2, lateral_noise=0.05, heading_noise_deg=4.0, speed_noise=0.2)
     ctrl, _ = make_controller(e1, spec, np.random.default_rng(0))
     for process, sigma in ((ctrl._lateral, 0.05), (ctrl._heading, math.radians(4.0)), (ctrl._speed, 0.2)):
         samples = np.array([process.step(0.1) for _ in range(200_000)])
@@ -587,7 +587,7 @@ def test_unstable_physics_fails_the_run_naming_it(e1):
     # the run itself must still fail, for instabilities validation cannot foresee
     robot = RobotSpec.model_construct(**{**RobotSpec().model_dump(), "spring_stiffness": 1e30})
     with pytest.raises(SimulationError, match=r"run 'bad': the simulation was unstable .*BADQACC"):
-        simulate_run(e1, RunSpec(kind="route", n_samples=3), seed=0, robot=robot, progress=False, name="bad")
+        simulate_run(e1, run_spec(kind="route", n_samples=3), seed=0, robot=robot, progress=False, name="bad")
 
 
 def test_check_plausible_refuses_still_robots_frozen_cameras_and_escapes(e1):
@@ -611,7 +611,7 @@ def test_check_plausible_refuses_still_robots_frozen_cameras_and_escapes(e1):
 
 def test_run_and_robot_numbers_must_be_finite():
     with pytest.raises(ValueError, match="max_accel"):
-        RunSpec(kind="route", n_samples=3, max_accel=float("inf"))
+        run_spec(kind="route", n_samples=3, max_accel=float("inf"))
     with pytest.raises(ValueError, match="spring_stiffness"):
         RobotSpec(spring_stiffness=float("nan"))
 

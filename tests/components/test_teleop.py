@@ -21,7 +21,7 @@ from vitaplace.engine.sim.clearance import ROUTE_MIN_CLEARANCE, Route, loop_clea
 from vitaplace.engine.sim.controllers import TELEOP_TURN, SafetyGuard, make_controller
 from vitaplace.engine.sim.environment import EnvironmentSpec, environment_files, load_environment  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
-from vitaplace.engine.sim.simulate import RunSpec, simulate_run  # noqa: E402
+from vitaplace.engine.sim.simulate import run_spec, simulate_run  # noqa: E402
 
 ENVS = sorted(environment_files())
 #: images are not looked at here: a tiny camera saves rendering time
@@ -32,7 +32,7 @@ N = 200  #: samples per simulated run (100 s)
 @pytest.fixture(scope="module")
 def drives() -> dict[str, object]:
     """One teleop run per shipped world (seed 1), physical whiskers (the default touch model)."""
-    return {name: simulate_run(load_environment(name), RunSpec(kind="teleop", n_samples=N), 1, ROBOT, progress=False)
+    return {name: simulate_run(load_environment(name), run_spec(kind="teleop", n_samples=N), 1, ROBOT, progress=False)
             for name in ENVS}
 
 
@@ -76,8 +76,8 @@ def test_safety_guard_with_braking_follows_the_base_to_a_stop():
 
 def test_both_controllers_use_the_one_guard():
     e1 = load_environment("e1")
-    foraging, _ = make_controller(e1, RunSpec(kind="foraging", n_samples=2), np.random.default_rng(0))
-    driver, _ = make_controller(e1, RunSpec(kind="teleop", n_samples=2), np.random.default_rng(0))
+    foraging, _ = make_controller(e1, run_spec(kind="foraging", n_samples=2), np.random.default_rng(0))
+    driver, _ = make_controller(e1, run_spec(kind="teleop", n_samples=2), np.random.default_rng(0))
     assert type(foraging._guard) is SafetyGuard and type(driver.guard) is SafetyGuard
 
 
@@ -87,7 +87,7 @@ def test_each_seed_draws_its_own_start_speed_loop_and_bias():
     (x1.1) or z (x0.9), the turn rate keeps teleop.launch's 0.25 rad/s per m/s, and every
     jittered loop differs from the shipped one yet keeps the footprint clear."""
     e1 = load_environment("e1")
-    spec = RunSpec(kind="teleop", n_samples=2)
+    spec = run_spec(kind="teleop", n_samples=2)
     allowed = {round(0.3 * f, 9) for f in (0.81, 0.9, 1.0, 1.1, 1.21)}
     base = Route(e1.route)
     starts, speeds = [], set()
@@ -111,7 +111,7 @@ def test_two_teleop_seeds_are_independent_drives_unlike_two_route_runs():
     e1 = load_environment("e1")
     medians = {}
     for kind in ("route", "teleop"):
-        ref, query = (simulate_run(e1, RunSpec(kind=kind, n_samples=150), seed, ROBOT, progress=False) for seed in (1, 2))
+        ref, query = (simulate_run(e1, run_spec(kind=kind, n_samples=150), seed, ROBOT, progress=False) for seed in (1, 2))
         medians[kind] = float(np.median(_nearest_m(query.poses, ref.poses)))
         if kind == "teleop":
             assert np.linalg.norm(ref.poses[0, :2] - query.poses[0, :2]) > 0.5
@@ -144,7 +144,7 @@ def test_a_hold_lasts_until_its_contacts_are_recorded_and_nudges_back_onto_the_l
     contact counts and the driver stands ("k"); a sample without is not counted and the driver
     taps the key towards the box ("i", facing it); once the hold's contacts are in, it leaves."""
     e1 = load_environment("e1")
-    driver, _ = make_controller(e1, RunSpec(kind="teleop", n_samples=N), np.random.default_rng(0), 0.5)
+    driver, _ = make_controller(e1, run_spec(kind="teleop", n_samples=N), np.random.default_rng(0), 0.5)
     east = [lm.name for lm in e1.landmarks].index("box_east")
     pose = np.array([1.638 - 0.05 - math.hypot(0.08, 0.08) - 0.5, 0.0, 0.0])  # head disc 0.05 m from the face
     driver.mode, driver.target_landmark, driver.until, driver.contacts_left = "hold", east, 100.0, 2
@@ -171,7 +171,7 @@ def test_a_driver_blocked_on_its_path_presses_a_safe_key_instead_of_standing():
     """At the pose where that drive froze, standing, with no landmark to explore: the driver
     presses a key (not "k") that the guard lets it press, and looks further along its path."""
     e3 = load_environment("e3")
-    driver, _ = make_controller(e3, RunSpec(kind="teleop", n_samples=600), np.random.default_rng(STUCK_SEED), 0.5)
+    driver, _ = make_controller(e3, run_spec(kind="teleop", n_samples=600), np.random.default_rng(STUCK_SEED), 0.5)
     driver.s, driver.tactile = STUCK_S, ()
     key, duration = driver._decide(150.0, STUCK_POSE)
     assert key != "k"
@@ -187,7 +187,7 @@ def test_a_driver_without_headway_for_3_s_looks_further_along_its_path():
     e3 = load_environment("e3")
     s0 = {}
     for stalled_for in (0.0, 3.0):
-        driver, _ = make_controller(e3, RunSpec(kind="teleop", n_samples=600), np.random.default_rng(STUCK_SEED), 0.5)
+        driver, _ = make_controller(e3, run_spec(kind="teleop", n_samples=600), np.random.default_rng(STUCK_SEED), 0.5)
         point, tangent = driver.loop.point(1.0)
         pose = np.array([*point, math.atan2(tangent[1], tangent[0])])
         driver.s, driver.tactile = 1.0, ()
@@ -206,7 +206,7 @@ def test_a_drive_started_where_one_froze_moves_on():
     left the 0.25 m disc around the pose for good, and it ends more than 0.5 m away. The old
     driver never moved: the simulation failed its plausibility check."""
     start = (*STUCK_POSE[:2], math.degrees(STUCK_POSE[2]))
-    run = simulate_run(load_environment("e3"), RunSpec(kind="teleop", n_samples=60, visit_range=0.01, start=start),
+    run = simulate_run(load_environment("e3"), run_spec(kind="teleop", n_samples=60, visit_range=0.01, start=start),
                        STUCK_SEED, RobotSpec(camera_width=16, camera_height=12, tactile_model="penetration"),
                        progress=False)
     length, first = longest_stay(run.poses[:, :2], 0.25)
@@ -221,7 +221,7 @@ def test_detours_are_spread_along_the_run_with_the_requested_share():
     robot drives the loop moved up to 0.6 m inward, clearly further from the shipped loop than
     elsewhere."""
     e1 = load_environment("e1")
-    spec = RunSpec(kind="teleop", n_samples=N, off_route_fraction=0.3, detour_count=3)
+    spec = run_spec(kind="teleop", n_samples=N, off_route_fraction=0.3, detour_count=3)
     driver, _ = make_controller(e1, spec, np.random.default_rng(3), 0.5)
     windows = driver.detours
     assert len(windows) == 3
@@ -282,7 +282,7 @@ def test_first_key_waits_for_the_reaction_delay_and_is_one_of_the_keys():
     from vitaplace.engine.sim.controllers import Observation
 
     e1 = load_environment("e1")
-    driver, start = make_controller(e1, RunSpec(kind="teleop", n_samples=2, max_accel=100.0), np.random.default_rng(5))
+    driver, start = make_controller(e1, run_spec(kind="teleop", n_samples=2, max_accel=100.0), np.random.default_rng(5))
     seen = []
     for k in range(5):  # ticks at 0.5 (decision), 0.6, 0.7 (waiting), 0.8, 0.9 (pressed)
         obs = Observation(time=0.5 + 0.1 * k, pose=np.array(start), contacts=np.zeros((0, 3)), deflection=np.zeros(24))
@@ -292,3 +292,22 @@ def test_first_key_waits_for_the_reaction_delay_and_is_one_of_the_keys():
     assert driver.key != "k" and (v, w, lateral) != (0.0, 0.0, 0.0)
     assert {round(abs(v), 9), round(abs(lateral), 9)} <= {0.0, round(driver.speed, 9)}
     assert abs(w) == pytest.approx(0.0) or abs(w) == pytest.approx(TELEOP_TURN * driver.speed / 0.3)
+
+
+def test_the_teleoperators_modes_switch_by_their_transition_table():
+    """Like the foraging states: every mode is reachable from ``drive`` and leads back to it,
+    and a mode entered through the table sets its own clock (leave: `LEAVE_TIME`)."""
+    from vitaplace.engine.sim.controllers.teleop import LEAVE_TIME, TELEOP_TRANSITIONS
+
+    driver, _ = make_controller(load_environment("e1"), run_spec(kind="teleop", n_samples=2), np.random.default_rng(0))
+    assert set(driver.modes) == {"drive", "approach", "hold", "leave"} == {m for _, m in TELEOP_TRANSITIONS.items()}
+    reached, todo = {"drive"}, ["drive"]
+    while todo:
+        mode = todo.pop()
+        for (src, _), dst in TELEOP_TRANSITIONS.items():
+            if src == mode and dst not in reached:
+                reached.add(dst)
+                todo.append(dst)
+    assert reached == set(driver.modes)
+    driver.modes["leave"].enter(10.0, np.zeros(3))
+    assert driver.until == 10.0 + LEAVE_TIME == 16.0

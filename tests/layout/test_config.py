@@ -7,7 +7,7 @@ import pytest
 from vitaplace.engine.config.memory import run_bytes
 from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR, environment_files, shipped_file
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.sim.controllers import RunSpec
+from vitaplace.engine.sim.controllers import run_spec
 from vitaplace.engine.sim.robot import RobotSpec
 
 
@@ -17,7 +17,7 @@ def test_run_bytes_covers_the_arrays_of_the_run_with_the_robots_whiskers(monkeyp
     plus at most 64 bytes a sample for the rest (poses, times), for the robot's whisker count."""
     monkeypatch.setattr(RobotSpec, "n_whiskers", property(lambda self: whiskers))
     robot = RobotSpec(camera_width=10, camera_height=8, deflection_samples=3)
-    spec = RunSpec(kind="foraging", n_samples=7)
+    spec = run_spec(kind="foraging", n_samples=7)
     n, s = spec.n_samples, robot.deflection_samples
     run = Run.from_arrays(
         images=np.zeros((n, 8, 10, 3), np.uint8), theta=np.zeros((n, whiskers), np.float32),

@@ -298,3 +298,12 @@ def test_no_function_of_the_package_is_over_80_lines(tmp_path):
     body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES - 1))
     (tmp_path / "engine" / "long.py").write_text(f"def fits():\n{body}\n\ndef too_long():\n{body}    return 0\n")
     assert long_functions(tmp_path) == [f"engine/long.py:{MAX_FUNCTION_LINES + 3} too_long ({MAX_FUNCTION_LINES + 1} lines)"]
+
+
+def test_every_package_folder_is_installed():
+    """A subpackage missing from pyproject.toml's ``packages`` works in an editable install and
+    is absent from a wheel (``pip install .``, the README's quickstart): every folder holding an
+    ``__init__.py`` under the source folders is listed, and nothing else is."""
+    installed = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    found = sorted({module for module, file in module_files(ROOT, PACKAGES).items() if file.name == "__init__.py"})
+    assert sorted(installed) == found

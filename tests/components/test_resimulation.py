@@ -1,0 +1,84 @@
+"""Bit-identical re-simulation: short runs of every kind, re-simulated, give exactly the
+arrays they gave before ``engine/sim/controllers`` was split into a package (issue 28).
+
+`EXPECTED` holds SHA-256 digests recorded with the pre-refactor code (commit c786d7a,
+``engine/sim/controllers.py`` in one module) on the development machine (MuJoCo from the
+project's pinned environment, EGL rendering). A digest covers every array field of the
+`Run` (`FIELDS`, sorted by name: name, dtype, shape and the raw C-order bytes of each) and
+the controller's mode counts (``attrs["controller_modes"]``), so any change to a pose, a
+command's effect, a deflection, a contact or a pixel changes it. A different MuJoCo build or
+renderer may legitimately give other digests: record them again with the old code then.
+
+The runs: foraging in E2 and E3 (seeds whose 40 samples visit all five states), teleop in
+E1 (a detour and a landmark visit: approach, hold, leave), E2 and E3 (three detours, a
+visit), route and orbit with and without an off-route part."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from vitaplace.engine.data.dataset import FIELDS  # noqa: E402
+from vitaplace.engine.sim.controllers import run_spec  # noqa: E402
+from vitaplace.engine.sim.environment import load_environment  # noqa: E402
+from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
+from vitaplace.engine.sim.simulate import simulate_run  # noqa: E402
+
+#: a tiny camera keeps the rendering cheap; its pixels are still digested
+ROBOT = RobotSpec(camera_width=16, camera_height=12)
+
+#: label -> (environment, run settings, seed)
+RUNS: dict[str, tuple[str, dict, int]] = {
+    "foraging-e2": ("e2", {"kind": "foraging", "n_samples": 40}, 2),
+    "foraging-e3": ("e3", {"kind": "foraging", "n_samples": 40}, 1),
+    "teleop-e1-detour-visit": ("e1", {"kind": "teleop", "n_samples": 40, "off_route_fraction": 0.3, "detour_count": 1}, 0),
+    "teleop-e2": ("e2", {"kind": "teleop", "n_samples": 40}, 1),
+    "teleop-e3-detours": ("e3", {"kind": "teleop", "n_samples": 40, "off_route_fraction": 0.3, "detour_count": 3}, 3),
+    "route-e1-off-route": ("e1", {"kind": "route", "n_samples": 30, "off_route_fraction": 0.3}, 0),
+    "route-e3": ("e3", {"kind": "route", "n_samples": 30}, 1),
+    "orbit-e1-off-route": ("e1", {"kind": "orbit", "n_samples": 30, "off_route_fraction": 0.3}, 0),
+    "orbit-e2": ("e2", {"kind": "orbit", "n_samples": 30}, 1),
+}
+
+#: digests recorded with commit c786d7a's code (before the controllers package)
+EXPECTED: dict[str, str] = {
+    "foraging-e2": "c2a4cfe09c89604c25fbbecaa63dbb7b711af7da4770cd46de1662942db19b93",  # {'avoid': 47, 'wander': 89, 'orient': 16, 'explore': 46, 'leave': 2}
+    "foraging-e3": "e74e89e329506b6f39b1c74437b0fc0c37c24098bdc193185c11a23ce4f21b8e",  # {'avoid': 61, 'wander': 27, 'orient': 7, 'explore': 89, 'leave': 16}
+    "orbit-e1-off-route": "f4166fd423099a87d78ac6eaa8749760ab87d6fc5d2eca56c5ef3e63948e7ab4",  # {'orbit': 150}
+    "orbit-e2": "4dbbaed27041860e898aa96ae7ac2ea7cc46a005cf94c5403a1ad6ffacff293f",  # {'orbit': 150}
+    "route-e1-off-route": "73f0d3229569b0fef44dbb614615a712359a806ce4724715863deb7ada6a8b08",  # {'route': 150}
+    "route-e3": "d10971ba89b89a66d6e13c611da0b69f924b23a0f5d83c8984ebc310ac613466",  # {'route': 150}
+    "teleop-e1-detour-visit": "f0884549f77e744e91dfdddea1e1131e02167634adc315b229273b8ce49c2ad4",  # {'approach': 65, 'hold': 15, 'leave': 10, 'drive': 110}
+    "teleop-e2": "15de9e850cce13072bde8a3f54c077292bde9e30744da00b83c8ad5520d44fc5",  # {'approach': 110, 'hold': 35, 'leave': 25, 'drive': 30}
+    "teleop-e3-detours": "617ca68a3425a9f865587311b3d8c2e69eb6ab15fd7c00fdcd38e5fbf8629f2c",  # {'approach': 135, 'leave': 65}
+}
+
+
+def digest(run) -> str:
+    h = hashlib.sha256()
+    for key in sorted(FIELDS):
+        data = np.ascontiguousarray(run._get(key))
+        h.update(f"{key}|{data.dtype.str}|{data.shape}|".encode())
+        h.update(data.tobytes())
+    h.update(json.dumps(run.attrs["controller_modes"], sort_keys=True).encode())
+    return h.hexdigest()
+
+
+@pytest.mark.parametrize("label", sorted(RUNS))
+def test_a_short_run_re_simulates_bit_identically(label):
+    env, settings, seed = RUNS[label]
+    run = simulate_run(load_environment(env), run_spec(settings), seed, ROBOT, progress=False)
+    assert digest(run) == EXPECTED[label], run.attrs["controller_modes"]
+
+
+if __name__ == "__main__":  # print the digests (to record them with the old code)
+    for label in sorted(RUNS):
+        env, settings, seed = RUNS[label]
+        run = simulate_run(load_environment(env), run_spec(settings), seed, ROBOT, progress=False)
+        print(f'    "{label}": "{digest(run)}",  # {run.attrs["controller_modes"]}')
