@@ -38,7 +38,8 @@ from typing import Annotated, Any
 import pydantic
 
 from vitaplace.engine.base.configfile import ConfigError
-from vitaplace.engine.sim.controllers import RunSpec, legacy_gain_paths, nest_legacy_gains
+from vitaplace.engine.sim.controllers import (RENAMED_RUN_KEYS, RunSpec, legacy_gain_paths, nest_legacy_gains,
+                                              rename_legacy_run_keys)
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.robot import RobotSpec
 
@@ -211,8 +212,14 @@ def nest_legacy_run_gains(data: dict[str, Any], where: str) -> dict[str, Any]:
     evaluations = data.get("evaluations")
     for i, entry in enumerate(evaluations if isinstance(evaluations, list) else []):
         runs[f"evaluations.{i}.run"] = entry
-    paths = []
+    paths, renamed = [], []
     for prefix, entry in runs.items():
+        if isinstance(entry, dict) and isinstance(entry.get("run"), dict):
+            try:
+                entry["run"], old = rename_legacy_run_keys(entry["run"])
+            except ValueError as exc:
+                raise ScenarioError(f"{where}: {prefix}: {exc}") from None
+            renamed += [f"{prefix}.{key}" for key in old]
         if isinstance(entry, dict) and legacy_gain_paths(entry.get("run")):
             paths += [f"{prefix}.{key}" for key in legacy_gain_paths(entry["run"])]
             try:
@@ -222,6 +229,9 @@ def nest_legacy_run_gains(data: dict[str, Any], where: str) -> dict[str, Any]:
     if paths:
         log.warning("%s: the foraging gains %s are now under 'run.gains'; read from there (move them)", where,
                     ", ".join(paths))
+    for path in renamed:
+        new = RENAMED_RUN_KEYS[path.rsplit(".", 1)[1]]
+        log.warning("%s: '%s' is now called '%s'; read as '%s' (rename it there)", where, path, new, new)
     return data
 
 

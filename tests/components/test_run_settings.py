@@ -30,6 +30,7 @@ from vitaplace.engine.sim.controllers import (  # noqa: E402
     RUN_KINDS,
     V6_DEFAULTS,
     ForagingRun,
+    TeleopRun,
     key_form,
     nest_legacy_gains,
     recorded_run_spec,
@@ -194,3 +195,31 @@ def test_each_kind_has_only_its_own_fields():
     assert not {"max_turn_rate_deg", "lateral_noise", "orbit_radius", "gains"} & fields["teleop"]
     assert fields["orbit"] - fields["route"] == {"orbit_radius", "orbit_centre"}
     assert run_spec(kind="teleop", n_samples=3).speed == 0.3 and run_spec(kind="route", n_samples=3).speed == 0.15
+
+
+def test_the_teleoperators_old_heading_tolerance_is_read_as_its_turn_threshold(tmp_path, caplog):
+    """``heading_tolerance_deg`` was also the ground truth's heading gate (``scoring``); the
+    teleoperator's is now ``turn_threshold_deg``: the old name loads with one one-line
+    warning naming the file and key path, keeps the run's key (the version-6 name), and an old
+    run file's settings parse to it."""
+    path = write_scenario(tmp_path, {"kind": "foraging", "n_samples": 5},
+                          {"kind": "teleop", "n_samples": 8, "heading_tolerance_deg": 12.0})
+    with caplog.at_level(logging.WARNING, logger="vitaplace"):
+        scenario, _ = load_scenario(path)
+    run = scenario.evaluations[0].run
+    assert isinstance(run, TeleopRun) and run.turn_threshold_deg == 12.0
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(warnings) == 1 and "\n" not in warnings[0]
+    assert str(path) in warnings[0] and "'evaluations.0.run.heading_tolerance_deg' is now called 'turn_threshold_deg'" in warnings[0]
+    flat = key_form(run)
+    assert flat["heading_tolerance_deg"] == 12.0 and "turn_threshold_deg" not in flat
+    assert recorded_run_spec(flat).turn_threshold_deg == 12.0
+
+
+def test_both_names_of_the_turn_threshold_are_refused(tmp_path):
+    from vitaplace.engine.config.scenario import ScenarioError
+
+    path = write_scenario(tmp_path, {"kind": "foraging", "n_samples": 5},
+                          {"kind": "teleop", "n_samples": 8, "heading_tolerance_deg": 12.0, "turn_threshold_deg": 9.0})
+    with pytest.raises(ScenarioError, match=r"evaluations\.0\.run: both 'heading_tolerance_deg' and 'turn_threshold_deg'"):
+        load_scenario(path)

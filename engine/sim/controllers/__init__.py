@@ -71,6 +71,7 @@ from vitaplace.engine.sim.controllers.foraging import (
 from vitaplace.engine.sim.controllers.route import RouteFollower
 from vitaplace.engine.sim.controllers.safety import Headway, SafetyGuard
 from vitaplace.engine.sim.controllers.settings import (
+    RENAMED_RUN_KEYS,
     RUN_KINDS,
     TELEOP_SPEED,
     V6_DEFAULTS,
@@ -84,6 +85,7 @@ from vitaplace.engine.sim.controllers.settings import (
     legacy_gain_paths,
     nest_legacy_gains,
     recorded_run_spec,
+    rename_legacy_run_keys,
     run_spec,
 )
 from vitaplace.engine.sim.controllers.teleop import TELEOP_KEYS, TELEOP_TURN, TeleopDriver
@@ -94,5 +96,5 @@ __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "Tel
            "Leave", "Avoid", "TRANSITIONS", "ATTENDING", "PROBE_AHEAD", "HEAD_REACH", "TELEOP_KEYS", "TELEOP_TURN",
            "TELEOP_SPEED", "ForagingGains", "ForagingRun", "TeleopRun", "RouteRun", "OrbitRun",
            "run_spec", "recorded_run_spec", "key_form", "legacy_gain_paths", "nest_legacy_gains",
-           "RUN_KINDS", "V6_DEFAULTS",
+           "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "RUN_KINDS", "V6_DEFAULTS",
            "TeleopMode", "Drive", "Approach", "Hold", "TELEOP_TRANSITIONS"]

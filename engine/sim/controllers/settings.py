@@ -30,7 +30,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 __all__ = ["RunSpec", "ForagingGains", "ForagingRun", "TeleopRun", "RouteRun", "OrbitRun", "run_spec",
-           "recorded_run_spec", "key_form", "V6_DEFAULTS", "TELEOP_SPEED", "RUN_KINDS"]
+           "recorded_run_spec", "key_form", "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "V6_DEFAULTS", "TELEOP_SPEED", "RUN_KINDS"]
 
 #: the teleop keys' nominal speed [m/s] for the WhiskEye (see docs/SIMULATION.md)
 TELEOP_SPEED = 0.3
@@ -189,8 +189,9 @@ class TeleopRun(_OffPath):
     reaction_delay: float = Field(
         0.25, ge=0, le=2, description="from a decision to the new key's press; the robot stands meanwhile [s]"
     )
-    heading_tolerance_deg: float = Field(
-        10.0, gt=0, le=90, description="heading error the teleoperator lets pass before it turns [deg]"
+    turn_threshold_deg: float = Field(
+        10.0, gt=0, le=90, description="heading error the teleoperator lets pass before it turns [deg] "
+        "(before: heading_tolerance_deg, a name the ground truth's gate also had)"
     )
     heading_bias_deg: float = Field(5.0, ge=0, le=45, description="std of the run's constant heading bias [deg]")
     path_jitter: float = Field(
@@ -269,10 +270,16 @@ V6_DEFAULTS: dict[str, Any] = {
 }
 
 
+#: run settings renamed since version 6: old name -> new name (read with a warning; `key_form`
+#: writes the old name, so keys stay valid)
+RENAMED_RUN_KEYS = {"heading_tolerance_deg": "turn_threshold_deg"}
+
+
 def key_form(run: ForagingRun | TeleopRun | RouteRun | OrbitRun) -> dict[str, Any]:
     """The run's settings in the version-6 key format (JSON values): what cache keys and run
     hashes are computed from. Equal to the old flat dump, so keys stay valid."""
     own = run.model_dump(mode="json", exclude={"gains"})
+    own = {old: own.pop(new) for old, new in RENAMED_RUN_KEYS.items() if new in own} | own
     flat = {**V6_DEFAULTS, **own}
     if isinstance(run, ForagingRun):
         default = ForagingGains()
@@ -298,11 +305,22 @@ def nest_legacy_gains(run: dict[str, Any]) -> dict[str, Any]:
     return {**rest, "gains": {**nested, **moved} if isinstance(nested, dict) else nested}
 
 
+def rename_legacy_run_keys(run: dict[str, Any]) -> tuple[dict[str, Any], list[str]]:
+    """``run`` with its settings of an old name (`RENAMED_RUN_KEYS`) under the new one, and the
+    old names found; both names at once is a ValueError."""
+    found = [old for old in RENAMED_RUN_KEYS if old in run]
+    both = [old for old in found if RENAMED_RUN_KEYS[old] in run]
+    if both:
+        raise ValueError(f"both '{both[0]}' and '{RENAMED_RUN_KEYS[both[0]]}' are set; '{both[0]}' is the old name "
+                         f"of '{RENAMED_RUN_KEYS[both[0]]}', keep only '{RENAMED_RUN_KEYS[both[0]]}'")
+    return {RENAMED_RUN_KEYS.get(k, k): v for k, v in run.items()}, found
+
+
 def recorded_run_spec(data: dict[str, Any]) -> ForagingRun | TeleopRun | RouteRun | OrbitRun:
     """The settings stored in a run file (``attrs["run"]``), of any version: the flat dict of
     files recorded before the settings were split per kind has its gains nested and the
     fields of other kinds left out (they had no effect on the run)."""
-    data = nest_legacy_gains(dict(data))
+    data, _ = rename_legacy_run_keys(nest_legacy_gains(dict(data)))
     model = RUN_KINDS.get(data.get("kind"))  # type: ignore[arg-type]
     if model is not None:
         data = {k: v for k, v in data.items() if k in model.model_fields}

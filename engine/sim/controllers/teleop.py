@@ -251,7 +251,7 @@ class TeleopDriver:
         steps = 1.1**k if k >= 0 else 0.9**-k  # q/z scale speed and turn alike
         self.speed, self.turn = spec.speed * steps, TELEOP_TURN * steps
         self.bias = math.radians(spec.heading_bias_deg) * float(np.clip(rng.normal(), -2.0, 2.0))
-        self.tolerance = math.radians(spec.heading_tolerance_deg)
+        self.tolerance = math.radians(spec.turn_threshold_deg)
         base = Route(env.route)
         jitter = self._smooth_offsets(base)
         self.loop = self._clear_offset_route(base, jitter)
