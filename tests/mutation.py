@@ -214,7 +214,7 @@ MUTANTS = [
       "            if length >= max(STUCK_SAMPLES, STUCK_SHARE * len(run.poses)):",
       "            if length > len(run.poses):", *t("matimport", "test_a_run_stuck_in_one_place_reaches_the_user")),
     m("aggregate: a proportion outside [0, 1] accepted", "aggregate",
-      "            if item is not None and not low <= item <= high:", "            if False:",
+      "    if item is not None and not low <= item <= high:", "    if False:",
       *t("fuzz", "test_any_mutated_aggregate_folder_gets_a_clean_answer")),
     m("aggregate: a null n_queries accepted", "aggregate",
       "    if not (_finite(queries) and queries == int(queries) and queries >= 1):", "    if False:",
