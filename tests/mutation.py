@@ -107,6 +107,8 @@ MODULES = {
     "api": "api/__init__.py",
     "testing": "api/testing.py",
     "sensitivity": "engine/evaluation/sensitivity.py",
+    "difficulty": "engine/evaluation/difficulty.py",
+    "pairfiles": "engine/evaluation/pairfiles.py",
 }
 
 
@@ -206,10 +208,16 @@ MUTANTS = [
       "tests/test_evaluate.py"),
     m("evaluate: recall at 100 % precision taken at 90 %", "evaluate",
       "full = self.precision >= 1.0", "full = self.precision >= 0.9", "tests/test_evaluate.py"),
-    m("evaluate: a stay measured step by step, not from its first sample", "evaluate",
+    m("difficulty: a stay measured step by step, not from its first sample", "difficulty",
       "        away = np.flatnonzero(np.hypot(*(xy[i:] - xy[i]).T) > radius)",
       "        away = np.flatnonzero(np.hypot(*np.diff(xy[i:], axis=0, prepend=xy[i:i + 1]).T) > radius)",
       *t("evaluate", "test_longest_stay_hand_cases")),
+    m("difficulty: chance level averaged over every query, not those with a true match", "difficulty",
+      '"chance_r1": float(true_match[matched].mean(axis=1).mean()),',
+      '"chance_r1": float(true_match.mean(axis=1).mean()),', *t("evaluate", "test_difficulty_hand_case")),
+    m("pairfiles: decisions.csv's has_revisit column holds the accepted flags", "pairfiles",
+      "                        int(bool(decisions.has_revisit[i])),",
+      "                        int(bool(decisions.accepted[i])),", *t("evaluate", "test_export_decisions_csv")),
     m("runner: stuck runs not warned about", "runner",
       "            if length >= max(STUCK_SAMPLES, STUCK_SHARE * len(run.poses)):",
       "            if length > len(run.poses):", *t("matimport", "test_a_run_stuck_in_one_place_reaches_the_user")),

@@ -25,7 +25,7 @@ import yaml
 from vitaplace.engine.pipeline import completion
 from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.errors import UserError
-from vitaplace.engine.evaluation.evaluate import load_curve
+from vitaplace.engine.evaluation.pairfiles import load_curve
 from vitaplace.engine.pipeline.keys import content_hash
 from vitaplace.engine.pipeline.outdir import MANIFEST, RESULTS_JSON
 from vitaplace.engine.evaluation.figures import write_pr_bands
