@@ -109,6 +109,8 @@ MODULES = {
     "sensitivity": "engine/evaluation/sensitivity.py",
     "difficulty": "engine/evaluation/difficulty.py",
     "pairfiles": "engine/evaluation/pairfiles.py",
+    "tensorcores": "engine/network/tensorcores.py",
+    "selection": "engine/network/selection.py",
 }
 
 
@@ -171,6 +173,13 @@ MUTANTS = [
       "            np.maximum(G, self.dtype.type(0.0), out=G)  # G = phi'(A)", *PC_GRADIENTS, *PC_AGREE),
     m("numpy backend: a stopped sample keeps counting steps", "backends",
       "        active &= ~done\n        steps += active", "        steps += active\n        active &= ~done", *PC_TRAINED),
+    m("tensorcores: a write does not wait for the streams that read the buffer", "tensorcores",
+      "            for reader in self._readers.get(key, ()):\n                need(reader)",
+      "            for reader in ():\n                need(reader)",
+      *t("tensorcores", "test_stream_order_waits_for_writers_and_for_readers_of_what_it_writes")),
+    m("selection: a tensor-core precision with the numpy backend not refused", "selection",
+      '    if backend == "numpy":\n        raise BackendError(', '    if False:\n        raise BackendError(',
+      *t("tensorcores", "test_tensor_core_precisions_need_cuda_and_not_numpy")),
     # --- the Warp kernels
     m("kernels: stop test <= instead of <", "kernels.warp_kernels",
       "if not (row_energy[e, r] < limits[e]):", "if not (row_energy[e, r] <= limits[e]):", *t("kernels", "test_stop_converged_hand_case")),

@@ -24,7 +24,8 @@ from scipy.spatial.distance import cdist
 from tqdm.auto import tqdm
 
 from vitaplace.engine.atomic import write_text_atomic
-from vitaplace.engine.network.backends import BackendError, check_precision, get_backend
+from vitaplace.engine.network.backends import BackendError
+from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
 from vitaplace.engine.network.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
