@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.evaluation import resample
 from vitaplace.engine.study import summary
 def main() -> None:
@@ -40,7 +41,7 @@ def main() -> None:
             tme = ev.ground_truth_matrix(query, ref) + rng.normal(0.0, 0.5, (args.n, args.n)) ** 2
             folder = Path(tmp) / f"seed-{seed}" / "evaluations" / "E1" / f"M{method}" / "q"
             folder.mkdir(parents=True)
-            row = ev.evaluate_pair(folder, tme, query, ref, 0.3)
+            row = evaluate_pair(folder, tme, query, ref, 0.3)
             rows.append({"seed": seed, "environment": "E1", "method": f"M{method}", "direction": "q", **row})
         folders = {s: Path(tmp) / f"seed-{s}" for s in {r["seed"] for r in rows}}
         start = time.perf_counter()

@@ -61,7 +61,7 @@ else
 fi
 nvidia-smi --query-gpu=name,driver_version,memory.total,clocks.sm,clocks.max.sm --format=csv > "$dir/nvidia-smi.csv" 2>&1 \
     || rm -f "$dir/nvidia-smi.csv"
-if ! "$python" -c "import sys; from vitaplace.engine.network.backends import cuda_available; sys.exit(not cuda_available())"; then
+if ! "$python" -c "import sys; from vitaplace.engine.network.selection import cuda_available; sys.exit(not cuda_available())"; then
     echo "no CUDA device found (no NVIDIA driver, or Warp sees no GPU): only the CPU-runnable parts ran" \
         | tee "$dir/no-cuda.txt"
     stage cpu-tests 600 "$python" -m pytest -q -p no:cacheprovider tests/kernels/test_tensorcores.py

@@ -158,7 +158,7 @@ def _breakdown(name: str, impl, prob, repeat: int, sync: Callable[[], None]) -> 
 def warp_backend(precision: str):
     """The project's CUDA backend in ``precision``: Warp's tile GEMMs for float32 (the
     default path), cuBLAS GEMMs with fused Warp epilogues for tf32 and bf16."""
-    from vitaplace.engine.network.backends import get_backend
+    from vitaplace.engine.network.selection import get_backend
 
     return get_backend("warp", "cuda", precision=precision)
 
@@ -225,7 +225,8 @@ def cuda_main(args, pc) -> dict:
     import torch
     import warp as wp
 
-    from vitaplace.engine.network.backends import PRECISIONS, CublasBackend, WarpBackend
+    from vitaplace.engine.network.backends import PRECISIONS, WarpBackend
+    from vitaplace.engine.network.tensorcores import CublasBackend
 
     if not torch.cuda.is_available():
         raise SystemExit("--device cuda: PyTorch sees no CUDA device")

@@ -14,7 +14,7 @@ import pytest
 
 @functools.cache
 def cuda_present() -> bool:
-    from vitaplace.engine.network.backends import cuda_available
+    from vitaplace.engine.network.selection import cuda_available
 
     return cuda_available()
 

@@ -213,24 +213,32 @@ def _poses(folder: Path, layout: str | None = None) -> tuple[Path, np.ndarray]:
     return path, poses
 
 
-def _images(raw: np.ndarray, path: Path, name: str = "images", image_range: str | None = None) -> np.ndarray:
-    """N x H x W x 3 uint8 frames from the variable ``name`` of ``path`` (range: module docstring)."""
-    where = f"{path}: variable '{name}'"
-    arr = raw
-    if arr.dtype == object:  # cell array of frames
-        frames = [np.asarray(x) for x in arr.ravel()]
-        if not frames or any(fr.ndim != 3 or fr.shape[2] != 3 for fr in frames):
-            shapes = sorted({fr.shape for fr in frames})[:3]
-            raise DatasetError(f"{where} is a cell array of frames of shape {shapes}, expected H x W x 3 frames")
-        if len({fr.shape for fr in frames}) != 1:
-            raise DatasetError(f"{where}: the frames of the cell array differ in size, expected all H x W x 3 alike")
-        arr = np.stack(frames)
-    elif arr.ndim == 4 and arr.shape[2] == 3:
-        arr = np.transpose(arr, (3, 0, 1, 2))  # H x W x 3 x N -> N x H x W x 3
-    elif arr.ndim == 3 and arr.shape[2] == 3:
-        arr = arr[None]  # a single frame
-    elif not (arr.ndim == 4 and arr.shape[3] == 3):
+def _cell_frames(arr: np.ndarray, where: str) -> np.ndarray:
+    """N x H x W x 3 from a cell array of H x W x 3 frames, all of one size."""
+    frames = [np.asarray(x) for x in arr.ravel()]
+    if not frames or any(fr.ndim != 3 or fr.shape[2] != 3 for fr in frames):
+        shapes = sorted({fr.shape for fr in frames})[:3]
+        raise DatasetError(f"{where} is a cell array of frames of shape {shapes}, expected H x W x 3 frames")
+    if len({fr.shape for fr in frames}) != 1:
+        raise DatasetError(f"{where}: the frames of the cell array differ in size, expected all H x W x 3 alike")
+    return np.stack(frames)
+
+
+def _frames(raw: np.ndarray, where: str) -> np.ndarray:
+    """``raw`` as N x H x W x 3 (from a cell array, H x W x 3 x N, one H x W x 3 frame or N x H x W x 3)."""
+    if raw.dtype == object:  # cell array of frames
+        return _cell_frames(raw, where)
+    if raw.ndim == 4 and raw.shape[2] == 3:
+        return np.transpose(raw, (3, 0, 1, 2))  # H x W x 3 x N -> N x H x W x 3
+    if raw.ndim == 3 and raw.shape[2] == 3:
+        return raw[None]  # a single frame
+    if not (raw.ndim == 4 and raw.shape[3] == 3):
         raise DatasetError(f"{where} has shape {raw.shape}, expected {_EXPECTED['images']}")
+    return raw
+
+
+def _check_frame_values(arr: np.ndarray, path: Path, name: str, where: str) -> None:
+    """At least one frame, of a numeric class, finite, every value inside [0, 255]."""
     if len(arr) == 0:
         raise DatasetError(f"{where} holds no frames, expected {_EXPECTED['images']}")
     if arr.dtype.kind not in "uif":
@@ -240,6 +248,13 @@ def _images(raw: np.ndarray, path: Path, name: str = "images", image_range: str 
     outside = int(np.count_nonzero((arr < 0) | (arr > 255)))
     if outside:
         raise DatasetError(f"{where} has {outside} value(s) outside both [0, 1] and [0, 255]; expected uint8 or float in [0, 1]")
+
+
+def _images(raw: np.ndarray, path: Path, name: str = "images", image_range: str | None = None) -> np.ndarray:
+    """N x H x W x 3 uint8 frames from the variable ``name`` of ``path`` (range: module docstring)."""
+    where = f"{path}: variable '{name}'"
+    arr = _frames(raw, where)
+    _check_frame_values(arr, path, name, where)
     if image_range is None:
         image_range = _image_range(arr, where)
     if image_range == "0-1":

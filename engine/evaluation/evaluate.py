@@ -26,44 +26,28 @@ Conventions (single-best-match VPR, as VPR_Tutorial's ``createPR(..., matching='
   (our recall denominator counts all queries with a revisit).
 * A threshold that must transfer: `f1_at_threshold_of` scores a pair at the threshold that
   maximised F1 on another pair (the runner: the training world's evaluation), unchanged.
-* `difficulty` measures the pair itself (nearest reference pose, chance level, touch),
-  whatever the method.
+* `vitaplace.engine.evaluation.difficulty` measures the pair itself (nearest reference pose,
+  chance level, touch, longest stay), whatever the method; `vitaplace.engine.evaluation.pairfiles`
+  writes a pair's files (`evaluate_pair`) and reads them back.
 """
 
 from __future__ import annotations
 
-import csv
-import dataclasses
-import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.spatial.distance import cdist
 
-from vitaplace.engine.base.atomic import atomic_path
-from vitaplace.engine.outputs.outdir import DECISIONS, DECISIONS_CSV, MATRICES, PR_CURVE
-
 __all__ = [
-    "DIFFICULTY_KEYS",
-    "STAY_RADIUS",
     "Decisions",
     "PRCurve",
     "decide",
-    "difficulty",
     "evaluate",
-    "export_decisions_csv",
-    "export_matrices_npz",
-    "longest_stay",
     "f1_at_threshold_of",
     "ground_truth_matrix",
     "pr_curve",
     "recall_at_k",
-    "save_curve_and_decisions",
-    "evaluate_pair",
-    "load_curve",
-    "load_decisions",
 ]
 
 
@@ -145,80 +129,6 @@ def ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg: flo
     if need_yaw:
         gtm[_heading_difference_deg(q[:, 2][:, None], r[:, 2][None, :]) > heading_tolerance_deg] = np.inf
     return gtm
-
-
-#: the keys of `difficulty`'s result, in order
-DIFFICULTY_KEYS = (
-    "nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg", "chance_r1",
-    "query_touch_share", "reference_touch_share", "query_longest_stay_share", "reference_longest_stay_share",
-)
-#: a run "stays" in one place while its samples remain this close to the stay's first one [m]
-STAY_RADIUS = 0.25
-
-
-def longest_stay(xy, radius: float = STAY_RADIUS) -> tuple[int, int]:
-    """(length, first index) of the longest stretch of consecutive samples of the (N, 2)
-    positions ``xy`` that stay within ``radius`` of the stretch's first sample (ties: the
-    earliest). A drive that stops to whisk a landmark stays a few samples; one that got stuck
-    stays for the rest of its run."""
-    xy = np.asarray(xy, dtype=float)
-    best = (0, 0)
-    for i in range(len(xy)):
-        away = np.flatnonzero(np.hypot(*(xy[i:] - xy[i]).T) > radius)
-        best = max(best, (int(away[0]) if len(away) else len(xy) - i, -i))
-    return best[0], -best[1]
-
-
-def difficulty(
-    query_poses, reference_poses, gtm, tau: float, query_touch=None, reference_touch=None
-) -> dict[str, float | None]:
-    """How hard an evaluation pair is, whatever the method (`DIFFICULTY_KEYS`, plain floats).
-
-    Over the queries with a true match (``min_j gtm[i, j] <= tau``): each query's nearest
-    reference *by position* (ties -> lowest index), its distance (median ``nearest_ref_median_m``
-    and 90th percentile ``nearest_ref_p90_m``, numpy's linear interpolation) and its wrapped
-    heading difference (median ``nearest_ref_heading_median_deg``); ``chance_r1`` the mean
-    share of references that are true matches (recall@1 of a uniformly random guess).
-    These four are None when no query has a true match (the heading median also when the
-    poses are (N, 2), without yaw). ``query_touch_share`` and
-    ``reference_touch_share``: the share of samples with touch (the boolean masks given, one
-    value per sample, e.g. `Run.touch_mask`; None when no mask is given).
-    ``query_longest_stay_share`` and ``reference_longest_stay_share``: the `longest_stay`
-    of each run as a share of its samples (a stuck drive shows as a large share).
-    """
-    tau = _check_tau(tau)
-    q = _check_poses(query_poses, "query_poses", need_yaw=False)
-    r = _check_poses(reference_poses, "reference_poses", need_yaw=False)
-    gtm_a = np.asarray(gtm, dtype=float)
-    if gtm_a.shape != (len(q), len(r)) or np.isnan(gtm_a).any():
-        raise ValueError(f"gtm must be a NaN-free queries x references ({len(q)}, {len(r)}) matrix, got shape {gtm_a.shape}")
-    per_run = {}
-    for role, mask, n in (("query", query_touch, len(q)), ("reference", reference_touch, len(r))):
-        if mask is None:
-            per_run[f"{role}_touch_share"] = None
-            continue
-        mask = np.asarray(mask, dtype=bool)
-        if mask.shape != (n,):
-            raise ValueError(f"{role}_touch must hold one value per {role} sample ({n}), got shape {mask.shape}")
-        per_run[f"{role}_touch_share"] = float(mask.mean())
-    for role, poses in (("query", q), ("reference", r)):
-        per_run[f"{role}_longest_stay_share"] = longest_stay(poses[:, :2])[0] / len(poses)
-    true_match = gtm_a <= tau
-    matched = true_match.any(axis=1)
-    if not matched.any():
-        return {**dict.fromkeys(DIFFICULTY_KEYS[:4]), **per_run}
-    position = cdist(q[matched, :2], r[:, :2], metric="euclidean")
-    nearest = np.argmin(position, axis=1)
-    distance = position[np.arange(len(nearest)), nearest]
-    with_yaw = min(q.shape[1], r.shape[1]) >= 3
-    heading = _heading_difference_deg(q[matched, 2], r[nearest, 2]) if with_yaw else None
-    return {
-        "nearest_ref_median_m": float(np.median(distance)),
-        "nearest_ref_p90_m": float(np.percentile(distance, 90)),
-        "nearest_ref_heading_median_deg": None if heading is None else float(np.median(heading)),
-        "chance_r1": float(true_match[matched].mean(axis=1).mean()),
-        **per_run,
-    }
 
 
 # --------------------------------------------------------------------------- decisions
@@ -497,115 +407,6 @@ def evaluate(
             }
         )
     return out
-
-
-# --------------------------------------------------------------------------- exports
-
-
-def export_decisions_csv(
-    path: str | os.PathLike,
-    decisions: Decisions,
-    extra_columns: Mapping[str, Sequence] | None = None,
-) -> None:
-    """Write one row per query (atomically): query, best_match, best_tme, best_gtm,
-    has_revisit (0/1), accepted (0/1), outcome ('TP', 'FP', 'FP+FN', 'FN', 'TN'), then any
-    ``extra_columns`` (each a sequence with one value per query)."""
-    n = decisions.n_queries
-    extra = dict(extra_columns or {})
-    for name, col in extra.items():
-        if len(col) != n:
-            raise ValueError(f"extra column {name!r} has {len(col)} values, expected {n} (one per query)")
-    header = ["query", "best_match", "best_tme", "best_gtm", "has_revisit", "accepted", "outcome", *extra]
-    outcome = decisions.outcome
-    with atomic_path(path) as tmp:
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
-            w = csv.writer(fh)
-            w.writerow(header)
-            for i in range(n):
-                w.writerow(
-                    [
-                        i,
-                        int(decisions.best_match[i]),
-                        repr(float(decisions.best_tme[i])),
-                        repr(float(decisions.best_gtm[i])),
-                        int(bool(decisions.has_revisit[i])),
-                        int(bool(decisions.accepted[i])),
-                        outcome[i],
-                        *(extra[k][i] for k in extra),
-                    ]
-                )
-
-
-def export_matrices_npz(path: str | os.PathLike, tme, gtm, **extra) -> None:
-    """Save ``tme`` and ``gtm`` (and any extra named arrays) to a compressed ``.npz``, atomically."""
-    tme_a = np.asarray(tme)
-    gtm_a = np.asarray(gtm)
-    if tme_a.shape != gtm_a.shape:
-        raise ValueError(f"tme and gtm must have the same shape: tme {tme_a.shape} vs gtm {gtm_a.shape}")
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as fh:  # file object: numpy would append '.npz' to a bare name
-            np.savez_compressed(fh, tme=tme_a, gtm=gtm_a, **{k: np.asarray(v) for k, v in extra.items()})
-
-
-def save_curve_and_decisions(folder: str | os.PathLike, curve: PRCurve, decisions: Decisions) -> None:
-    """``pr_curve.npz`` and ``decisions.npz`` in ``folder``, every field, atomically: what
-    the report reads back with `load_curve` and `load_decisions`."""
-    folder = Path(folder)
-    for name, obj in ((PR_CURVE, curve), (DECISIONS, decisions)):
-        with atomic_path(folder / name) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **{k: np.asarray(v) for k, v in dataclasses.asdict(obj).items()})
-
-
-def _load(cls, path: str | os.PathLike):
-    with np.load(path) as data:
-        values = {}
-        for f in dataclasses.fields(cls):
-            arr = data[f.name]
-            values[f.name] = arr.item() if arr.ndim == 0 else arr
-        return cls(**values)
-
-
-def load_curve(path: str | os.PathLike) -> PRCurve:
-    """The PRCurve `save_curve_and_decisions` wrote."""
-    return _load(PRCurve, path)
-
-
-def load_decisions(path: str | os.PathLike) -> Decisions:
-    """The Decisions `save_curve_and_decisions` wrote."""
-    return _load(Decisions, path)
-
-
-def evaluate_pair(
-    folder: str | os.PathLike,
-    tme: np.ndarray,
-    query_poses: np.ndarray,
-    reference_poses: np.ndarray,
-    tau: float,
-    delta: float | None = None,
-    ks: Sequence[int] = (1, 5, 10),
-    *,
-    heading_tolerance_deg: float | None = None,
-    query_touch: np.ndarray | None = None,
-    reference_touch: np.ndarray | None = None,
-) -> dict:
-    """Everything about one query run against one reference run, written to ``folder``:
-    the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM and
-    the poses, so that other ground truths can be scored later: `vitaplace.engine.study.sensitivity`), the
-    decisions at the F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR
-    curve (``pr_curve.npz``); returns the summary (`evaluate`) with ``heading_tolerance_deg``
-    and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks, when given)
-    added."""
-    folder = Path(folder)
-    gtm = ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg)
-    curve = pr_curve(tme, gtm, tau)
-    summary = evaluate(tme, gtm, tau, delta, tuple(ks), curve=curve)
-    summary["heading_tolerance_deg"] = heading_tolerance_deg
-    summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
-    decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
-    export_matrices_npz(folder / MATRICES, tme, gtm, query_poses=query_poses, reference_poses=reference_poses)
-    export_decisions_csv(folder / DECISIONS_CSV, decisions)
-    save_curve_and_decisions(folder, curve, decisions)
-    return summary
 
 
 def f1_at_threshold_of(source: PRCurve, tme, gtm, tau: float) -> float:

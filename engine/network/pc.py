@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from vitaplace.engine.base.atomic import atomic_path, write_text_atomic
-from vitaplace.engine.network.backends import Backend, get_backend
+from vitaplace.engine.network.backends import Backend
+from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.base.errors import UserError
 
 FORMAT_VERSION = 1

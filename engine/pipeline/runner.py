@@ -33,11 +33,13 @@ from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import EvaluationPair, Method, Scenario, ScenarioError, TrainingData, training_world_evaluation
 from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run, run_facts
 from vitaplace.engine.evaluation import evaluate as ev
-from vitaplace.engine.extension.features import FeatureExtractor, feature_facts, load_features, save_features, warn_once
+from vitaplace.engine.evaluation.difficulty import STAY_RADIUS, longest_stay
+from vitaplace.engine.evaluation.pairfiles import evaluate_pair, load_curve
 from vitaplace.engine.outputs import checksum
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.base.cpus import usable_cpus
 from vitaplace.engine.outputs.keys import content_hash
+from vitaplace.engine.extension.features import FeatureExtractor, feature_facts, load_features, save_features, warn_once
 from vitaplace.engine.pipeline.output_checks import check_distance, check_features
 from vitaplace.engine.pipeline.records import (EvaluateRecord, FitRecord, RunRecord, SimulateRecord, StageRecord,
                                               TransformRecord)
@@ -256,15 +258,15 @@ class Pipeline:
                           f"whisk-series instant(s) (body_collision_instants): it was not driven clear of the world")
 
     def warn_stays(self) -> None:
-        """Warn about every run whose robot stayed in one place (`ev.longest_stay`) for at
+        """Warn about every run whose robot stayed in one place (`longest_stay`) for at
         least `STUCK_SHARE` of its samples, and at least `STUCK_SAMPLES`: a stuck drive, whose
         samples repeat one place and would make that world's scores unrepresentative."""
         for label in self.runs():
             run = self.open(label)
-            length, start = ev.longest_stay(run.poses[:, :2])
+            length, start = longest_stay(run.poses[:, :2])
             if length >= max(STUCK_SAMPLES, STUCK_SHARE * len(run.poses)):
                 warn_once(run, "longest_stay",
-                          f"run {label}: the robot stayed within {ev.STAY_RADIUS} m of one place for {length} of its "
+                          f"run {label}: the robot stayed within {STAY_RADIUS} m of one place for {length} of its "
                           f"{len(run.poses)} samples, from sample {start} (longest_stay): it got stuck there")
 
     def open(self, label: str) -> Run:
@@ -397,7 +399,7 @@ class Pipeline:
         distances = self.extractor(method).distance(load_features(self.features_path(method, query)),
                                                     load_features(self.features_path(method, reference)))
         tme = check_distance(distances, (len(q), len(r)), f"evaluate {query.split('/')[0]} {method.name}")
-        summary = ev.evaluate_pair(
+        summary = evaluate_pair(
             folder, tme, q.poses, r.poses, settings.tau, query_touch=q.touch_mask(), reference_touch=r.touch_mask(),
             delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg, ks=tuple(settings.recall_k),
         )
@@ -413,7 +415,7 @@ class Pipeline:
             row["f1_at_e1_threshold"] = row["e1_threshold"] = None
             if source is None:
                 continue
-            curve = ev.load_curve(outdir.evaluation_dir(self.out, source, row["method"], row["direction"]) / outdir.PR_CURVE)
+            curve = load_curve(outdir.evaluation_dir(self.out, source, row["method"], row["direction"]) / outdir.PR_CURVE)
             with np.load(outdir.evaluation_dir(self.out, row["environment"], row["method"], row["direction"]) / outdir.MATRICES) as m:
                 row["f1_at_e1_threshold"] = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row["tau"])
             row["e1_threshold"] = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None

@@ -183,7 +183,7 @@ def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str 
 def write_pr_bands(out: Path, folders: Mapping[int, Path], rows: Sequence[Mapping]) -> list[Path]:
     """``pr-bands-<environment>-<direction>`` figures in ``out`` from the seed run folders'
     saved curves (``evaluations/ENV/METHOD/DIRECTION/pr_curve.npz``)."""
-    from vitaplace.engine.evaluation.evaluate import load_curve
+    from vitaplace.engine.evaluation.pairfiles import load_curve
 
     groups: dict[tuple[str, str], dict[str, list[PRCurve]]] = {}
     for row in sorted(rows, key=lambda r: r["seed"]):

@@ -18,7 +18,8 @@ import numpy as np
 import yaml
 
 from vitaplace.engine.outputs import completion
-from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
+from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
 from vitaplace.engine.report import figures
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.outputs.checksum import digest
@@ -230,7 +231,7 @@ def _samples_and_difficulty(manifest: dict[str, Any], rows: list[dict[str, Any]]
         "distance from each query to its nearest reference pose by position (median, 90th percentile) and the "
         "heading difference to it (median); chance R@1 is the mean share of references that are true matches (a "
         "random guess's recall@1). Touch: the share of samples with a whisker deflected at the sampling instant. "
-        f"Longest stay: the longest stretch of consecutive samples within {ev.STAY_RADIUS} m of its first, as a share "
+        f"Longest stay: the longest stretch of consecutive samples within {STAY_RADIUS} m of its first, as a share "
         "of the run (a drive whisking a landmark stays a few samples; a stuck one, much of the run).",
         "",
         difficulty_table(rows),
@@ -271,8 +272,8 @@ def _evaluation_sections(out: Path, rows: list[dict[str, Any]]) -> list[str]:
             folder = evaluation_dir(out, environment, method, direction)
             with np.load(folder / MATRICES) as m:
                 tme, gtm = m["tme"], m["gtm"]
-            curves[method if one_direction else f"{method} {direction}"] = ev.load_curve(folder / PR_CURVE)
-            decisions = ev.load_decisions(folder / DECISIONS)
+            curves[method if one_direction else f"{method} {direction}"] = load_curve(folder / PR_CURVE)
+            decisions = load_decisions(folder / DECISIONS)
             stem = f"{environment}-{method}-{direction}"
             figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{environment} {method}")
             query, reference = direction.split("-to-")

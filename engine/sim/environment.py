@@ -345,32 +345,54 @@ class EnvironmentSpec(_Model):
 
     @pydantic.model_validator(mode="after")
     def _check(self) -> EnvironmentSpec:
-        hx, hy = self.arena.half_x, self.arena.half_y
+        self._check_landmarks()
+        self._check_arena_materials()
+        self._check_walls()
+        self._check_route()
+        self._check_start()
+        return self
+
+    def _check_landmarks(self) -> None:
+        """Unique names, inside the arena, known materials (in that order, landmark by landmark)."""
         names: set[str] = set()
         for i, lm in enumerate(self.landmarks):
             name = lm.name or f"{lm.type}{i}"
             if name in names:
                 raise ValueError(f"landmarks.{i}.name: duplicate landmark name {name!r}")
             names.add(name)
-            r = _bounding_radius(lm)
-            if abs(lm.pos[0]) + r > hx + 1e-9 or abs(lm.pos[1]) + r > hy + 1e-9:
-                # exact test on the footprint (the bounding circle is conservative)
-                poly = _footprint_world(lm)
-                if np.any(np.abs(poly[:, 0]) > hx + 1e-9) or np.any(np.abs(poly[:, 1]) > hy + 1e-9):
-                    raise ValueError(
-                        f"landmarks.{i}.pos: landmark {name!r} sticks out of the {2 * hx:g} x {2 * hy:g} m arena"
-                    )
+            self._check_landmark_inside(i, name, lm)
             if lm.material is not None and lm.material not in self.materials:
                 raise ValueError(f"landmarks.{i}.material: unknown material {lm.material!r}")
+
+    def _check_landmark_inside(self, i: int, name: str, lm: BoxLandmark | CylinderLandmark | RockLandmark) -> None:
+        hx, hy = self.arena.half_x, self.arena.half_y
+        r = _bounding_radius(lm)
+        if abs(lm.pos[0]) + r > hx + 1e-9 or abs(lm.pos[1]) + r > hy + 1e-9:
+            # exact test on the footprint (the bounding circle is conservative)
+            poly = _footprint_world(lm)
+            if np.any(np.abs(poly[:, 0]) > hx + 1e-9) or np.any(np.abs(poly[:, 1]) > hy + 1e-9):
+                raise ValueError(
+                    f"landmarks.{i}.pos: landmark {name!r} sticks out of the {2 * hx:g} x {2 * hy:g} m arena"
+                )
+
+    def _check_arena_materials(self) -> None:
         for key in ("wall_material", "floor_material"):
             if getattr(self.arena, key) not in self.materials:
                 raise ValueError(f"arena.{key}: unknown material {getattr(self.arena, key)!r}")
+
+    def _check_walls(self) -> None:
+        """Each wall's own material is known and its panel fits on the wall."""
+        hx, hy = self.arena.half_x, self.arena.half_y
         for wall, spec in self.arena.walls.items():
             if spec.material is not None and spec.material not in self.materials:
                 raise ValueError(f"arena.walls.{wall}.material: unknown material {spec.material!r}")
             length = 2 * (hx if wall in ("north", "south") else hy)
             if spec.panel is not None and abs(spec.panel.offset) + spec.panel.width / 2 > length / 2:
                 raise ValueError(f"arena.walls.{wall}.panel: wider than the {length:g} m wall")
+
+    def _check_route(self) -> None:
+        """Waypoints inside the arena, none or at least 2 of them, and a loop the robot can drive."""
+        hx, hy = self.arena.half_x, self.arena.half_y
         for i, (x, y) in enumerate(self.route):
             if abs(x) >= hx or abs(y) >= hy:
                 raise ValueError(f"route.{i}: waypoint ({x}, {y}) is outside the arena")
@@ -380,9 +402,10 @@ class EnvironmentSpec(_Model):
             problem = route_collision(self.route, self.route_facing, self.obstacles)
             if problem is not None:
                 raise ValueError(problem)
-        if abs(self.start[0]) >= hx or abs(self.start[1]) >= hy:
+
+    def _check_start(self) -> None:
+        if abs(self.start[0]) >= self.arena.half_x or abs(self.start[1]) >= self.arena.half_y:
             raise ValueError("start: start position is outside the arena")
-        return self
 
     # ------------------------------------------------------------------ geometry
     def landmark_names(self) -> list[str]:

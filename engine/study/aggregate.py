@@ -25,7 +25,7 @@ import yaml
 from vitaplace.engine.outputs import completion
 from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.base.errors import UserError
-from vitaplace.engine.evaluation.evaluate import load_curve
+from vitaplace.engine.evaluation.pairfiles import load_curve
 from vitaplace.engine.outputs.keys import content_hash
 from vitaplace.engine.outputs.outdir import MANIFEST, RESULTS_JSON
 from vitaplace.engine.report.figures import write_pr_bands
@@ -72,38 +72,65 @@ def _finite(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def check_row(row: Any, where: str) -> dict[str, Any]:
-    """``row`` if it is a result row: text identity columns, a finite ``max_f1``, a whole
-    ``n_queries`` >= 1 (it sizes the block bootstrap's segments), ``recall_at_k`` null or a
-    mapping from whole K >= 1, and every other field a finite number (inside [0, 1] for a
-    proportion), null, a mapping of those (``difficulty``) or one of `TEXT_FIELDS`; else
-    AggregateError naming ``where`` and the field."""
-    if not isinstance(row, dict):
-        raise AggregateError(f"{where}: a {type(row).__name__}, expected a result row (a JSON object)")
+def _check_identity(row: dict[str, Any], where: str) -> None:
     for key in IDENTITY:
         if not isinstance(row.get(key), str) or not row[key]:
             raise AggregateError(f"{where}: field '{key}' is {row.get(key)!r}, expected a non-empty name")
+
+
+def _check_headline(row: dict[str, Any], where: str) -> None:
     if not _finite(row.get(HEADLINE)):
         raise AggregateError(f"{where}: field '{HEADLINE}' is {row.get(HEADLINE)!r}, expected a finite number")
+
+
+def _check_queries(row: dict[str, Any], where: str) -> None:
     queries = row.get("n_queries")
     if not (_finite(queries) and queries == int(queries) and queries >= 1):
         raise AggregateError(f"{where}: field 'n_queries' is {queries!r:.60}, expected a whole number of queries (>= 1)")
+
+
+def _check_recall_keys(row: dict[str, Any], where: str) -> None:
     recall_at_k = row.get("recall_at_k")
     if recall_at_k is not None and not (isinstance(recall_at_k, dict) and all(k.isdecimal() and int(k) >= 1
                                                                               for k in recall_at_k)):
         raise AggregateError(f"{where}: field 'recall_at_k' is {recall_at_k!r:.60}, expected a mapping from K "
                              "(1, 5, ...) to a recall, or null")
+
+
+def _check_number(key: str, sub: Any, item: Any, where: str) -> None:
+    """One metric value ``item`` (``row[key]``, or ``row[key][sub]`` of a mapping): finite or
+    null, and inside its `bounds`."""
+    name = key if sub is None else f"{key}.{sub}"
+    if item is not None and not _finite(item):
+        raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a finite number or null")
+    low, high = bounds(f"recall@{sub}" if key == "recall_at_k" else name)
+    if item is not None and not low <= item <= high:
+        raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a number in [{low:g}, {high:g}]")
+
+
+def _check_metrics(row: dict[str, Any], where: str) -> None:
     for key, value in row.items():
         if key in IDENTITY or (key in TEXT_FIELDS and isinstance(value, str)):
             continue
         items = value.items() if isinstance(value, dict) else [(None, value)]
         for sub, item in items:
-            name = key if sub is None else f"{key}.{sub}"
-            if item is not None and not _finite(item):
-                raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a finite number or null")
-            low, high = bounds(f"recall@{sub}" if key == "recall_at_k" else name)
-            if item is not None and not low <= item <= high:
-                raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a number in [{low:g}, {high:g}]")
+            _check_number(key, sub, item, where)
+
+
+#: the checks of `check_row`, in the order they run (the first failing one raises)
+ROW_CHECKS = (_check_identity, _check_headline, _check_queries, _check_recall_keys, _check_metrics)
+
+
+def check_row(row: Any, where: str) -> dict[str, Any]:
+    """``row`` if it is a result row: text identity columns, a finite ``max_f1``, a whole
+    ``n_queries`` >= 1 (it sizes the block bootstrap's segments), ``recall_at_k`` null or a
+    mapping from whole K >= 1, and every other field a finite number (inside [0, 1] for a
+    proportion), null, a mapping of those (``difficulty``) or one of `TEXT_FIELDS`; else
+    AggregateError naming ``where`` and the field (`ROW_CHECKS`, in order)."""
+    if not isinstance(row, dict):
+        raise AggregateError(f"{where}: a {type(row).__name__}, expected a result row (a JSON object)")
+    for check in ROW_CHECKS:
+        check(row, where)
     return row
 
 

@@ -24,7 +24,8 @@ from scipy.spatial.distance import cdist
 from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.engine.network.backends import BackendError, check_precision, get_backend
+from vitaplace.engine.network.backends import BackendError
+from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run
 from vitaplace.engine.network.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
 

@@ -20,6 +20,9 @@ from hypothesis import strategies as st
 from sklearn.metrics import average_precision_score, precision_recall_curve
 
 from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation.difficulty import difficulty, longest_stay
+from vitaplace.engine.evaluation.pairfiles import (evaluate_pair, export_decisions_csv, export_matrices_npz, load_curve,
+                                                    load_decisions, save_curve_and_decisions)
 
 # --------------------------------------------------------------------------- hand case
 # 5 queries x 4 references, tau = 1.0.
@@ -221,7 +224,7 @@ DIFF_RTOUCH = np.array([False, False, False, True])
 
 def test_difficulty_hand_case():
     gtm = ev.ground_truth_matrix(DIFF_QRY, DIFF_REF, heading_tolerance_deg=30)
-    d = ev.difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, DIFF_QTOUCH, DIFF_RTOUCH)
+    d = difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, DIFF_QTOUCH, DIFF_RTOUCH)
     assert list(d) == [
         "nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg", "chance_r1",
         "query_touch_share", "reference_touch_share", "query_longest_stay_share", "reference_longest_stay_share",
@@ -250,7 +253,7 @@ def test_difficulty_hand_case():
 ])
 def test_longest_stay_hand_cases(xs, expected):
     xy = np.stack([np.array(xs), np.zeros(len(xs))], axis=1)
-    assert ev.longest_stay(xy, 0.25) == expected
+    assert longest_stay(xy, 0.25) == expected
 
 
 def test_difficulty_position_only_counts_the_query_that_faces_back():
@@ -260,7 +263,7 @@ def test_difficulty_position_only_counts_the_query_that_faces_back():
     # Distances 0.02, 0.08, 0.1, 0 -> median 0.05; headings 0, 100, 20, 180 -> median 60;
     # chance mean(3/4, 3/4, 2/4, 3/4) = 11/16.
     gtm = ev.ground_truth_matrix(DIFF_QRY, DIFF_REF)
-    d = ev.difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, DIFF_QTOUCH, DIFF_RTOUCH)
+    d = difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, DIFF_QTOUCH, DIFF_RTOUCH)
     assert d["nearest_ref_median_m"] == pytest.approx(0.05)
     assert d["nearest_ref_heading_median_deg"] == pytest.approx(60.0)
     assert d["chance_r1"] == pytest.approx(11 / 16)
@@ -268,7 +271,7 @@ def test_difficulty_position_only_counts_the_query_that_faces_back():
 
 def test_difficulty_without_any_true_match_is_none_but_touch_is_measured():
     gtm = ev.ground_truth_matrix(DIFF_QRY, DIFF_REF, heading_tolerance_deg=30)
-    d = ev.difficulty(DIFF_QRY, DIFF_REF, gtm, 0.01, DIFF_QTOUCH, DIFF_RTOUCH)
+    d = difficulty(DIFF_QRY, DIFF_REF, gtm, 0.01, DIFF_QTOUCH, DIFF_RTOUCH)
     assert d == {
         "nearest_ref_median_m": None, "nearest_ref_p90_m": None, "nearest_ref_heading_median_deg": None,
         "chance_r1": None, "query_touch_share": pytest.approx(0.4), "reference_touch_share": pytest.approx(0.25),
@@ -278,19 +281,19 @@ def test_difficulty_without_any_true_match_is_none_but_touch_is_measured():
 
 def test_evaluate_pair_writes_difficulty_and_tolerance_into_the_summary(tmp_path):
     tme = np.ones((len(DIFF_QRY), len(DIFF_REF)))
-    summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY, DIFF_REF, 0.3, query_touch=DIFF_QTOUCH,
-                               reference_touch=DIFF_RTOUCH, heading_tolerance_deg=30)
+    summary = evaluate_pair(tmp_path, tme, DIFF_QRY, DIFF_REF, 0.3, query_touch=DIFF_QTOUCH,
+                            reference_touch=DIFF_RTOUCH, heading_tolerance_deg=30)
     assert summary["heading_tolerance_deg"] == 30
     assert summary["n_revisit"] == 3  # q0, q1, q2 (see the hand case above)
     assert summary["difficulty"]["chance_r1"] == pytest.approx(5 / 12)
     assert summary["difficulty"]["query_touch_share"] == pytest.approx(0.4)
     json.dumps(summary)
     # without touch masks (and without a tolerance: q4 counts, see the position-only case) touch is not measured
-    summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY, DIFF_REF, 0.3)
+    summary = evaluate_pair(tmp_path, tme, DIFF_QRY, DIFF_REF, 0.3)
     assert summary["heading_tolerance_deg"] is None and summary["n_revisit"] == 4
     assert summary["difficulty"]["query_touch_share"] is None and summary["difficulty"]["reference_touch_share"] is None
     # positions only, (N, 2): no heading to measure
-    summary = ev.evaluate_pair(tmp_path, tme, DIFF_QRY[:, :2], DIFF_REF[:, :2], 0.3)
+    summary = evaluate_pair(tmp_path, tme, DIFF_QRY[:, :2], DIFF_REF[:, :2], 0.3)
     assert summary["difficulty"]["nearest_ref_median_m"] == pytest.approx(0.05)  # as the position-only case
     assert summary["difficulty"]["nearest_ref_heading_median_deg"] is None
 
@@ -344,9 +347,9 @@ def test_f1_at_the_training_threshold_when_the_training_world_accepts_nothing():
         (lambda: ev.recall_at_k(np.zeros((2, 2)), np.zeros((2, 2)), 1.0, ks=(0,)), "K"),
         (lambda: ev.ground_truth_matrix(np.zeros((2, 2)), np.zeros((2, 2)), heading_tolerance_deg=30), "yaw"),
         (lambda: ev.ground_truth_matrix(np.zeros((2, 3)), np.zeros((2, 3)), heading_tolerance_deg=-1), "heading_tol"),
-        (lambda: ev.difficulty(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 2)), 1.0, [True], [True, True]),
+        (lambda: difficulty(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 2)), 1.0, [True], [True, True]),
          "query_touch"),
-        (lambda: ev.difficulty(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 3)), 1.0, [1, 1], [1, 1]), "gtm"),
+        (lambda: difficulty(np.zeros((2, 3)), np.zeros((2, 3)), np.zeros((2, 3)), 1.0, [1, 1], [1, 1]), "gtm"),
     ],
 )
 def test_bad_inputs(call, match):
@@ -398,7 +401,7 @@ def test_evaluate_summary_hand_case_is_json():
 def test_export_decisions_csv(tmp_path):
     d = ev.decide(HAND_TME, HAND_GTM, HAND_TAU, 0.5)
     path = tmp_path / "sub" / "decisions.csv"
-    ev.export_decisions_csv(path, d, extra_columns={"label": list("abcde")})
+    export_decisions_csv(path, d, extra_columns={"label": list("abcde")})
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["outcome"] for r in rows] == ["TP", "FP+FN", "FP", "FN", "TN"]
@@ -413,7 +416,7 @@ def test_export_decisions_csv(tmp_path):
 
 def test_export_matrices_npz(tmp_path):
     path = tmp_path / "m.npz"
-    ev.export_matrices_npz(path, HAND_TME, HAND_GTM)
+    export_matrices_npz(path, HAND_TME, HAND_GTM)
     with np.load(path) as z:
         np.testing.assert_array_equal(z["tme"], HAND_TME)
         np.testing.assert_array_equal(z["gtm"], HAND_GTM)
@@ -652,8 +655,8 @@ def test_plot_energy(tmp_path):
 def test_curve_and_decisions_round_trip_through_files(tmp_path):
     curve = ev.pr_curve(HAND_TME, HAND_GTM, HAND_TAU)
     decisions = ev.decide(HAND_TME, HAND_GTM, HAND_TAU, curve.delta_at_max_f1)
-    ev.save_curve_and_decisions(tmp_path, curve, decisions)
-    back, back_d = ev.load_curve(tmp_path / "pr_curve.npz"), ev.load_decisions(tmp_path / "decisions.npz")
+    save_curve_and_decisions(tmp_path, curve, decisions)
+    back, back_d = load_curve(tmp_path / "pr_curve.npz"), load_decisions(tmp_path / "decisions.npz")
     np.testing.assert_allclose(back.precision, HAND_P)
     assert (back.max_f1, back.delta_at_max_f1, back.auc, back.n_revisit) == (curve.max_f1, curve.delta_at_max_f1,
                                                                             curve.auc, 3)
@@ -711,8 +714,8 @@ def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp
         folder = evaluation_dir(tmp_path, env, "H", "query-to-reference")
         folder.mkdir(parents=True)
         curve = ev.pr_curve(tme, gtm, 1.0)
-        ev.save_curve_and_decisions(folder, curve, ev.decide(tme, gtm, 1.0, curve.delta_at_max_f1))
-        ev.export_matrices_npz(folder / "matrices.npz", tme, gtm)
+        save_curve_and_decisions(folder, curve, ev.decide(tme, gtm, 1.0, curve.delta_at_max_f1))
+        export_matrices_npz(folder / "matrices.npz", tme, gtm)
         rows.append({"environment": env, "method": "H", "direction": "query-to-reference", "tau": 1.0})
     pipeline.add_f1_at_training_threshold(rows)
     assert [row["f1_at_e1_threshold"] for row in rows] == [pytest.approx(1 / 2), pytest.approx(2 / 3)]

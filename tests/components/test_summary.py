@@ -17,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.evaluation import resample
 from vitaplace.engine.study import summary
 #: t(0.975, 2) and t(0.975, 1) from a printed table of Student's t quantiles
@@ -280,7 +281,7 @@ def evaluation(folder: Path, seed: int, method: str, noise: float, n: int = 40) 
     tme = ev.ground_truth_matrix(query, ref) + rng.normal(0.0, noise, (n, n)) ** 2
     path = folder / f"seed-{seed}" / "evaluations" / "E1" / method / "q"
     path.mkdir(parents=True)
-    row = ev.evaluate_pair(path, tme, query, ref, 0.3, delta=DELTA, ks=(1, 5))
+    row = evaluate_pair(path, tme, query, ref, 0.3, delta=DELTA, ks=(1, 5))
     return {"seed": seed, "environment": "E1", "method": method, "direction": "q", **row}
 
 

@@ -16,7 +16,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
-from vitaplace.engine.evaluation.evaluate import longest_stay
+from vitaplace.engine.evaluation.difficulty import longest_stay
 from vitaplace.engine.sim.clearance import ROUTE_MIN_CLEARANCE, Route, loop_clearance
 from vitaplace.engine.sim.controllers import TELEOP_TURN, SafetyGuard, make_controller
 from vitaplace.engine.sim.environment import EnvironmentSpec, environment_files, load_environment  # noqa: E402

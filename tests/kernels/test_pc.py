@@ -12,7 +12,8 @@ import pytest
 from scipy.spatial.distance import cdist
 
 from conftest import cuda_present
-from vitaplace.engine.network.backends import NumpyBackend, get_backend
+from vitaplace.engine.network.backends import NumpyBackend
+from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.pc import Network, NetworkError
 
 #: The behavioural tests (inference lowers the energy, training lowers the error, samples stop

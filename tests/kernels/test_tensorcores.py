@@ -21,15 +21,9 @@ import ctypes
 import numpy as np
 import pytest
 
-from vitaplace.engine.network.backends import (
-    PRECISIONS,
-    BackendError,
-    CublasBackend,
-    NumpyBackend,
-    check_precision,
-    get_backend,
-    row_major_gemm,
-)
+from vitaplace.engine.network.backends import PRECISIONS, BackendError, NumpyBackend
+from vitaplace.engine.network.selection import check_precision, get_backend
+from vitaplace.engine.network.tensorcores import CublasBackend, row_major_gemm
 from vitaplace.engine.network.pc import LATENT_INIT, Network
 from vitaplace.plugins.mupnet.extractor import MupnetParams
 
@@ -259,7 +253,7 @@ def test_stream_order_waits_for_writers_and_for_readers_of_what_it_writes():
     """Hand-traced hazards: read-after-write and write-after-read across streams wait,
     reads after reads and anything on one stream do not; a join moves the other stream's
     accesses to the joining one."""
-    from vitaplace.engine.network.backends import StreamOrder
+    from vitaplace.engine.network.tensorcores import StreamOrder
 
     main, side = object(), object()
     order = StreamOrder()
@@ -287,9 +281,9 @@ def test_tensor_core_precisions_need_cuda_and_not_numpy():
 
 
 def test_tensor_core_precisions_without_cuda_are_refused(monkeypatch):
-    from vitaplace.engine.network import backends
+    from vitaplace.engine.network import selection
 
-    monkeypatch.setattr(backends, "cuda_available", lambda: False)
+    monkeypatch.setattr(selection, "cuda_available", lambda: False)
     for precision in ("tf32", "bf16"):
         with pytest.raises(BackendError, match=f"precision '{precision}' needs a CUDA device and none was found"):
             get_backend("auto", precision=precision)
@@ -301,7 +295,7 @@ def test_tensor_core_precisions_without_cuda_are_refused(monkeypatch):
 
 @pytest.fixture
 def cuda():
-    from vitaplace.engine.network.backends import cuda_available
+    from vitaplace.engine.network.selection import cuda_available
 
     if not cuda_available():
         pytest.skip("no CUDA device")
@@ -360,11 +354,11 @@ def test_paper_shape_training_energy_stays_in_band_of_float32(cuda, precision):
 def test_mupnet_refuses_tensor_core_precision_without_cuda_at_validation(monkeypatch):
     """``precision: bf16`` on a machine without CUDA (or with backend numpy) fails when the
     scenario is validated, in one line naming the extractor and the key; float32 is fine."""
-    from vitaplace.engine.network import backends
+    from vitaplace.engine.network import selection
     from vitaplace.engine.extension.features import ExtractorParamsError
     from vitaplace.plugins.mupnet import MupnetExtractor
 
-    monkeypatch.setattr(backends, "cuda_available", lambda: False)
+    monkeypatch.setattr(selection, "cuda_available", lambda: False)
     assert MupnetExtractor.validate_params({"precision": "float32"}).precision == "float32"
     for params, why in (({"precision": "bf16"}, "precision 'bf16' needs a CUDA device and none was found"),
                         ({"precision": "tf32", "backend": "numpy"}, "backend 'numpy' computes in float32 only")):

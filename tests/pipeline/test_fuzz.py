@@ -193,7 +193,7 @@ def _finished_folder(folder: Path, seed: int) -> None:
     import json
 
     from vitaplace.engine.outputs import completion
-    from vitaplace.engine.evaluation.evaluate import evaluate_pair
+    from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 
     poses = np.stack([np.linspace(0, 2, 6), np.zeros(6), np.zeros(6)], axis=1)
     tme = np.abs(np.subtract.outer(np.arange(6.0), np.arange(6.0))) + 0.1 * seed

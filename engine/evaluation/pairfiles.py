@@ -1,0 +1,134 @@
+"""The files of one evaluation pair: `evaluate_pair` scores a query run against a reference
+run and writes ``matrices.npz``, ``decisions.csv``, ``decisions.npz`` and ``pr_curve.npz``
+(every write atomic); `load_curve` and `load_decisions` read the last two back.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from vitaplace.engine.base.atomic import atomic_path
+from vitaplace.engine.evaluation.difficulty import difficulty
+from vitaplace.engine.evaluation.evaluate import Decisions, PRCurve, decide, evaluate, ground_truth_matrix, pr_curve
+from vitaplace.engine.outputs.outdir import DECISIONS, DECISIONS_CSV, MATRICES, PR_CURVE
+
+__all__ = [
+    "export_decisions_csv",
+    "export_matrices_npz",
+    "save_curve_and_decisions",
+    "evaluate_pair",
+    "load_curve",
+    "load_decisions",
+]
+
+
+def export_decisions_csv(
+    path: str | os.PathLike,
+    decisions: Decisions,
+    extra_columns: Mapping[str, Sequence] | None = None,
+) -> None:
+    """Write one row per query (atomically): query, best_match, best_tme, best_gtm,
+    has_revisit (0/1), accepted (0/1), outcome ('TP', 'FP', 'FP+FN', 'FN', 'TN'), then any
+    ``extra_columns`` (each a sequence with one value per query)."""
+    n = decisions.n_queries
+    extra = dict(extra_columns or {})
+    for name, col in extra.items():
+        if len(col) != n:
+            raise ValueError(f"extra column {name!r} has {len(col)} values, expected {n} (one per query)")
+    header = ["query", "best_match", "best_tme", "best_gtm", "has_revisit", "accepted", "outcome", *extra]
+    outcome = decisions.outcome
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="", encoding="utf-8") as fh:
+            w = csv.writer(fh)
+            w.writerow(header)
+            for i in range(n):
+                w.writerow(
+                    [
+                        i,
+                        int(decisions.best_match[i]),
+                        repr(float(decisions.best_tme[i])),
+                        repr(float(decisions.best_gtm[i])),
+                        int(bool(decisions.has_revisit[i])),
+                        int(bool(decisions.accepted[i])),
+                        outcome[i],
+                        *(extra[k][i] for k in extra),
+                    ]
+                )
+
+
+def export_matrices_npz(path: str | os.PathLike, tme, gtm, **extra) -> None:
+    """Save ``tme`` and ``gtm`` (and any extra named arrays) to a compressed ``.npz``, atomically."""
+    tme_a = np.asarray(tme)
+    gtm_a = np.asarray(gtm)
+    if tme_a.shape != gtm_a.shape:
+        raise ValueError(f"tme and gtm must have the same shape: tme {tme_a.shape} vs gtm {gtm_a.shape}")
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as fh:  # file object: numpy would append '.npz' to a bare name
+            np.savez_compressed(fh, tme=tme_a, gtm=gtm_a, **{k: np.asarray(v) for k, v in extra.items()})
+
+
+def save_curve_and_decisions(folder: str | os.PathLike, curve: PRCurve, decisions: Decisions) -> None:
+    """``pr_curve.npz`` and ``decisions.npz`` in ``folder``, every field, atomically: what
+    the report reads back with `load_curve` and `load_decisions`."""
+    folder = Path(folder)
+    for name, obj in ((PR_CURVE, curve), (DECISIONS, decisions)):
+        with atomic_path(folder / name) as tmp, open(tmp, "wb") as f:
+            np.savez(f, **{k: np.asarray(v) for k, v in dataclasses.asdict(obj).items()})
+
+
+def _load(cls, path: str | os.PathLike):
+    with np.load(path) as data:
+        values = {}
+        for f in dataclasses.fields(cls):
+            arr = data[f.name]
+            values[f.name] = arr.item() if arr.ndim == 0 else arr
+        return cls(**values)
+
+
+def load_curve(path: str | os.PathLike) -> PRCurve:
+    """The PRCurve `save_curve_and_decisions` wrote."""
+    return _load(PRCurve, path)
+
+
+def load_decisions(path: str | os.PathLike) -> Decisions:
+    """The Decisions `save_curve_and_decisions` wrote."""
+    return _load(Decisions, path)
+
+
+def evaluate_pair(
+    folder: str | os.PathLike,
+    tme: np.ndarray,
+    query_poses: np.ndarray,
+    reference_poses: np.ndarray,
+    tau: float,
+    delta: float | None = None,
+    ks: Sequence[int] = (1, 5, 10),
+    *,
+    heading_tolerance_deg: float | None = None,
+    query_touch: np.ndarray | None = None,
+    reference_touch: np.ndarray | None = None,
+) -> dict:
+    """Everything about one query run against one reference run, written to ``folder``:
+    the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM and
+    the poses, so that other ground truths can be scored later: `vitaplace.engine.study.sensitivity`), the
+    decisions at the F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR
+    curve (``pr_curve.npz``); returns the summary (`evaluate`) with ``heading_tolerance_deg``
+    and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks, when given)
+    added."""
+    folder = Path(folder)
+    gtm = ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg)
+    curve = pr_curve(tme, gtm, tau)
+    summary = evaluate(tme, gtm, tau, delta, tuple(ks), curve=curve)
+    summary["heading_tolerance_deg"] = heading_tolerance_deg
+    summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
+    decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
+    export_matrices_npz(folder / MATRICES, tme, gtm, query_poses=query_poses, reference_poses=reference_poses)
+    export_decisions_csv(folder / DECISIONS_CSV, decisions)
+    save_curve_and_decisions(folder, curve, decisions)
+    return summary
