@@ -26,19 +26,28 @@ The tensor-core backend (precision tf32 or bf16) is `vitaplace.engine.network.te
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple, Protocol
+from typing import Any, Literal, NamedTuple, Protocol, get_args
 
 import numpy as np
 
 from vitaplace.engine.base.errors import UserError
 from vitaplace.kernels import reference
 
-#: GEMM precisions: float32 everywhere; tf32 and bf16 run on CUDA tensor cores (`tensorcores.CublasBackend`).
-PRECISIONS = ("float32", "tf32", "bf16")
+#: GEMM precisions: float32 everywhere; tf32 and bf16 run on CUDA tensor cores
+#: (`tensorcores.CublasBackend`). The one spelling of them: MuPNet's ``precision`` parameter is this type.
+Precision = Literal["float32", "tf32", "bf16"]
+PRECISIONS: tuple[str, ...] = get_args(Precision)
 
 
 class BackendError(UserError, RuntimeError):
     """A backend or precision this machine cannot run (one line)."""
+
+
+def known_precision(precision: str) -> str:
+    """``precision`` if it is one of `PRECISIONS`, else a one-line BackendError naming them."""
+    if precision not in PRECISIONS:
+        raise BackendError(f"unknown precision '{precision}'; valid: {', '.join(PRECISIONS)}")
+    return precision
 
 
 class Backend(Protocol):

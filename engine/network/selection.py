@@ -6,10 +6,10 @@ with no NVIDIA driver).
 
 from __future__ import annotations
 
-import ctypes
 import sys
 
-from vitaplace.engine.network.backends import PRECISIONS, Backend, BackendError, NumpyBackend, WarpBackend
+from vitaplace.engine.base.libraries import first_loadable
+from vitaplace.engine.network.backends import Backend, BackendError, NumpyBackend, WarpBackend, known_precision
 from vitaplace.engine.network.tensorcores import CublasBackend
 
 __all__ = ["BACKENDS", "check_precision", "cuda_available", "get_backend"]
@@ -21,13 +21,7 @@ def _cuda_driver_loads() -> bool:
     """Whether the NVIDIA driver library can be loaded (the dynamic loader's own search,
     so LD_LIBRARY_PATH counts), without initialising anything."""
     names = ("nvcuda.dll",) if sys.platform == "win32" else ("libcuda.so.1", "libcuda.so", "libcuda.dylib")
-    for name in names:
-        try:
-            ctypes.CDLL(name)
-            return True
-        except OSError:
-            continue
-    return False
+    return first_loadable(names) is not None
 
 
 def cuda_available() -> bool:
@@ -48,9 +42,7 @@ def cuda_available() -> bool:
 
 def check_precision(precision: str, backend: str = "auto") -> None:
     """Raise a one-line BackendError unless ``precision`` can run here with ``backend``."""
-    if precision not in PRECISIONS:
-        raise BackendError(f"unknown precision '{precision}'; valid: {', '.join(PRECISIONS)}")
-    if precision == "float32":
+    if known_precision(precision) == "float32":
         return
     if backend == "numpy":
         raise BackendError(f"precision '{precision}' runs on CUDA tensor cores; backend 'numpy' computes in float32 only")

@@ -20,7 +20,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from vitaplace.engine.network.backends import PRECISIONS, BackendError, WarpBackend
+from vitaplace.engine.base.libraries import first_loadable
+from vitaplace.engine.network.backends import BackendError, WarpBackend, known_precision
 
 __all__ = ["Cublas", "CublasBackend", "StreamOrder", "row_major_gemm"]
 
@@ -42,17 +43,11 @@ _WORKSPACE_BYTES = 32 << 20
 
 def _load_cublas() -> ctypes.CDLL:
     """libcublas from the loader's path, or from the ``nvidia`` wheels (PyTorch's own)."""
-    for name in ("libcublas.so.13", "libcublas.so.12", "libcublas.so"):
-        try:
-            return ctypes.CDLL(name)
-        except OSError:
-            continue
-    for base in site.getsitepackages() + [site.getusersitepackages()] + sys.path:
-        for path in sorted(glob.glob(f"{base}/nvidia/**/libcublas.so*", recursive=True), reverse=True):
-            try:
-                return ctypes.CDLL(path)
-            except OSError:
-                continue
+    wheels = (path for base in site.getsitepackages() + [site.getusersitepackages()] + sys.path
+              for path in sorted(glob.glob(f"{base}/nvidia/**/libcublas.so*", recursive=True), reverse=True))
+    found = first_loadable(("libcublas.so.13", "libcublas.so.12", "libcublas.so")) or first_loadable(wheels)
+    if found is not None:
+        return found
     raise BackendError("precision tf32/bf16 needs libcublas and none was found; pip install nvidia-cublas "
                        "(it comes with PyTorch's CUDA wheels)")
 
@@ -169,8 +164,7 @@ class CublasBackend(WarpBackend):
 
     def __init__(self, precision: str = "bf16", device: str | None = None, blas: Any = None,
                  small_edges_beside: int = 0) -> None:
-        if precision not in PRECISIONS:
-            raise BackendError(f"unknown precision '{precision}'; valid: {', '.join(PRECISIONS)}")
+        known_precision(precision)
         super().__init__(device)
         if blas is None:
             if not self._device.is_cuda:

@@ -24,7 +24,7 @@ from scipy.spatial.distance import cdist
 from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.engine.network.backends import BackendError
+from vitaplace.engine.network.backends import BackendError, Precision
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run
 from vitaplace.engine.network.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
@@ -97,7 +97,7 @@ class MupnetParams(ExtractorParams):
     backend: Literal["auto", "numpy", "warp"] = Field(
         "auto", description="auto (warp on CUDA, numpy otherwise), numpy or warp"
     )
-    precision: Literal["float32", "tf32", "bf16"] = Field(
+    precision: Precision = Field(
         "float32", description="GEMM precision: float32, or on CUDA tensor cores tf32 or bf16 operands "
         "(float32 accumulation, weights and latents)",
     )

@@ -367,3 +367,19 @@ def test_mupnet_refuses_tensor_core_precision_without_cuda_at_validation(monkeyp
         message = str(info.value)
         assert "'mupnet'" in message and "precision" in message and why in message
         assert "\n" not in message
+
+
+def test_the_precisions_are_spelled_once():
+    """MuPNet's ``precision`` parameter is the backends' `Precision` type, whose values are
+    `PRECISIONS`, and an unknown one is refused by the one check every path uses."""
+    from typing import get_args
+
+    from vitaplace.engine.network.backends import Precision, known_precision
+    from vitaplace.engine.network.selection import check_precision
+    from vitaplace.plugins.mupnet import MupnetExtractor
+
+    assert MupnetExtractor.Params.model_fields["precision"].annotation is Precision
+    assert get_args(Precision) == PRECISIONS == ("float32", "tf32", "bf16")
+    for check in (known_precision, check_precision):
+        with pytest.raises(BackendError, match=r"^unknown precision 'fp16'; valid: float32, tf32, bf16$"):
+            check("fp16")
