@@ -436,7 +436,7 @@ def _sensitivity(args: argparse.Namespace) -> int:
     grid = {"taus": args.tau, "heading_tolerance_deg": args.heading_tolerance}
     out, record = write_sensitivity(args.folder, args.out, **{k: v for k, v in grid.items() if v is not None})
     print(f"sensitivity of {len(record['seeds'])} seed(s) in {out / 'sensitivity.md'}")
-    return 0
+    return EXIT_SEEDS_FAILED if record["failed"] else 0
 
 
 def main(argv: list[str] | None = None) -> int:
