@@ -21,6 +21,8 @@ from __future__ import annotations
 import ast
 import json
 import logging
+import numbers
+import os
 import sys
 from collections.abc import Iterable, Mapping, Sequence
 from importlib import import_module
@@ -61,14 +63,55 @@ log = logging.getLogger("vitaplace")
 
 
 def _assignments(overrides: Overrides) -> list[str]:
-    """``--set`` assignments from a mapping of key paths to values (JSON is YAML) or a list of them."""
+    """``--set`` assignments from a mapping of key paths to values (JSON is YAML) or a list of
+    them; anything else is a UserError."""
     if overrides is None:
         return []
     if isinstance(overrides, Mapping):
-        return [f"{key}={json.dumps(value)}" for key, value in overrides.items()]
+        if not all(isinstance(key, str) for key in overrides):
+            raise UserError(f"overrides: keys {list(overrides)!r:.80}: expected key paths as text, e.g. 'seed'")
+        return [f"{key}={_yaml_value(key, value)}" for key, value in overrides.items()]
     if isinstance(overrides, str):
         return [overrides]
-    return list(overrides)
+    if isinstance(overrides, (list, tuple)) and all(isinstance(item, str) for item in overrides):
+        return list(overrides)
+    raise UserError(f"overrides: {overrides!r:.80}: expected a mapping of key paths to values or a list of "
+                    "'key.path=YAML' strings")
+
+
+def _yaml_value(key: str, value: Any) -> str:
+    """``value`` as JSON (which YAML reads): numpy numbers and arrays as numbers and lists, paths
+    as text; anything else JSON cannot hold (a set, an object) is a UserError naming ``key``."""
+    try:
+        return json.dumps(value, default=_plain)
+    except (TypeError, ValueError) as exc:
+        raise UserError(f"overrides[{key!r}]: {exc}; expected numbers, text, booleans, None, and lists and "
+                        "mappings of them") from None
+
+
+def _plain(value: Any) -> Any:
+    """A numpy number or array, or a path, as what JSON holds; TypeError for anything else."""
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} values have no YAML form")
+
+
+def _path(value: Any, name: str) -> str | Path:
+    """``value`` if it is a path (text or path-like), else UserError naming argument ``name``."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, os.PathLike):
+        return Path(value)
+    raise UserError(f"{name}={value!r:.80}: expected a path or a name (text)")
+
+
+def _whole(value: Any, name: str, low: int) -> int:
+    """``value`` if it is a whole number >= ``low`` (not a bool), else UserError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
+        raise UserError(f"{name}={value!r:.80}: expected a whole number >= {low}")
+    return int(value)
 
 
 def load_scenario(scenario: str | Path, overrides: Overrides = None) -> Scenario:
@@ -77,7 +120,7 @@ def load_scenario(scenario: str | Path, overrides: Overrides = None) -> Scenario
     `UserError` (one line naming file, key path and problem) for anything invalid."""
     from vitaplace.engine.config.loading import load_scenario as load
 
-    return load(scenario, _assignments(overrides))[0]
+    return load(_path(scenario, "scenario"), _assignments(overrides))[0]
 
 
 def run(
@@ -103,7 +146,10 @@ def run(
 
     if until not in STAGES:
         raise UserError(f"until={until!r}: expected one of {', '.join(STAGES)}")
-    loaded, resolved = load(scenario, _assignments(overrides))
+    if workers is not None:
+        workers = _whole(workers, "workers", 1)
+    out = None if out is None else _path(out, "out")
+    loaded, resolved = load(_path(scenario, "scenario"), _assignments(overrides))
     script = unguarded_script() if workers is None else None
     if script is not None:
         log.info("%s calls vitaplace.run outside `if __name__ == \"__main__\":`; simulating in this process "
@@ -149,12 +195,17 @@ def _is_main_guard(test: ast.expr) -> bool:
 
 
 def read_results(out: str | Path) -> list[dict[str, Any]]:
-    """The result rows of the run in folder ``out`` (its results.json): one per environment x
-    method x direction, with ``max_f1``, ``auc``, ``recall_at_k``, ... (docs/RESULTS.md)."""
-    path = Path(out) / "results.json"
-    if not path.is_file():
-        raise UserError(f"{path}: no results here; run the scenario up to the evaluate stage first")
-    return json.loads(path.read_text())
+    """The result rows of the finished run in folder ``out`` (its results.json): one per
+    environment x method x direction, with ``max_f1``, ``auc``, ``recall_at_k``, ...
+    (docs/RESULTS.md). The folder must be complete as `vitaplace aggregate` requires
+    (`vitaplace.engine.study.aggregate.validate_run_folder`: its completion record matching
+    its files, every row well formed); else UserError, one line."""
+    from vitaplace.engine.study.aggregate import validate_run_folder
+
+    folder = Path(_path(out, "out"))
+    if not (folder / "results.json").is_file():
+        raise UserError(f"{folder / 'results.json'}: no results here; run the scenario up to the evaluate stage first")
+    return [{k: v for k, v in row.items() if k != "seed"} for row in validate_run_folder(folder).rows]  # untagged
 
 
 def simulate(
@@ -165,11 +216,22 @@ def simulate(
     as ``"e1"``) and return it in memory (``vitaplace.engine.data.dataset.write_run`` saves it).
     ``kind``: foraging, route or orbit; ``run_settings``: any other run key
     of that kind (docs/SCENARIOS.md), e.g. ``lateral_noise=0.05`` or ``gains={"leave_time": 2.0}``. Runs in this process."""
-    from vitaplace.engine.sim.controllers import run_spec
+    import pydantic
+
+    from vitaplace.engine.base.configfile import format_validation_error
+    from vitaplace.engine.sim.controllers import RunSpec
     from vitaplace.engine.sim.environment import load_environment
     from vitaplace.engine.sim.simulate import simulate_run
 
-    spec = run_spec(kind=kind, n_samples=n_samples, **run_settings)
+    class Settings(pydantic.BaseModel):  # errors then name run.KEY and the kind's valid keys
+        run: RunSpec
+
+    environment, seed = _path(environment, "environment"), _whole(seed, "seed", 0)
+    try:
+        spec = Settings(run={"kind": kind, "n_samples": n_samples, **run_settings}).run
+    except pydantic.ValidationError as exc:
+        message = format_validation_error("simulate", exc, Settings)  # keys as the arguments' names
+        raise UserError(message.replace("simulate: run.", "simulate: ", 1).replace("simulate: run:", "simulate: kind:", 1)) from None
     return simulate_run(load_environment(environment), spec, seed=seed, progress=progress, name=f"{Path(environment).stem}-{kind}")
 
 
@@ -184,8 +246,13 @@ def fit_extractor(plugin: str, train: Run, params: Mapping[str, Any] | None = No
     """A new extractor of ``plugin`` (e.g. ``"handcrafted"``, ``"mupnet"``) with ``params``
     (the scenario's ``methods.N.params``), fitted on the run ``train``. Its ``transform(run)``
     gives features and ``distance(query, reference)`` the distance matrix."""
+    from vitaplace.engine.data.dataset import Run
     from vitaplace.engine.extension.registry import discover
 
+    if not isinstance(train, Run):
+        raise UserError(f"train={train!r:.80}: expected a Run (vitaplace.open_run(path) reads a run file)")
+    if params is not None and not isinstance(params, Mapping):
+        raise UserError(f"params={params!r:.80}: expected a mapping of parameter names to values, or None")
     extractor = discover().create(plugin, params)
     extractor.progress = progress
     extractor.fit(train)

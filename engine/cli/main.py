@@ -162,7 +162,7 @@ def _add_viewing_commands(sub: argparse._SubParsersAction, common: argparse.Argu
                        help="animate a recorded run: camera frames, top view with trajectory, whisker contacts")
     p.add_argument("run", type=Path, help="run file (HDF5), e.g. from `vitaplace simulate ENV.yaml`")
     p.add_argument("--out", type=Path, help="the video to write, .gif (always) or .mp4 (needs ffmpeg); default RUN.gif")
-    p.add_argument("--fps", type=float, default=5.0, help="frames per second (default 5; one sample per 0.5 s whisk cycle)")
+    p.add_argument("--fps", type=float, default=5.0, help="frames per second, 0.1 to 50 (default 5; one sample per 0.5 s whisk cycle)")
     p.add_argument("--step", type=int, help="draw every STEP-th sample (default 1, or larger to keep to 300 frames)")
 
 
@@ -177,8 +177,8 @@ def _video(args: argparse.Namespace) -> int:
     from vitaplace.engine.data.dataset import open_run
     from vitaplace.engine.sim.video import write_video
 
-    if args.fps <= 0 or (args.step is not None and args.step < 1):
-        raise UserError("--fps must be > 0 and --step >= 1")
+    if args.step is not None and args.step < 1:
+        raise UserError(f"--step {args.step}: expected a whole number >= 1")
     path, frames = write_video(open_run(args.run), args.out or args.run.with_suffix(".gif"), args.fps, args.step)
     print(f"wrote {frames} frames to {path}")
     return 0
@@ -436,7 +436,7 @@ def _sensitivity(args: argparse.Namespace) -> int:
     grid = {"taus": args.tau, "heading_tolerance_deg": args.heading_tolerance}
     out, record = write_sensitivity(args.folder, args.out, **{k: v for k, v in grid.items() if v is not None})
     print(f"sensitivity of {len(record['seeds'])} seed(s) in {out / 'sensitivity.md'}")
-    return 0
+    return EXIT_SEEDS_FAILED if record["failed"] else 0
 
 
 def main(argv: list[str] | None = None) -> int:

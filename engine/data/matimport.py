@@ -157,7 +157,10 @@ def _check_real(arr: Any, where: str) -> None:
 
 
 def _check_finite(arr: np.ndarray, path: Path, name: str) -> None:
-    """DatasetError naming file and variable when a sample (last axis) holds NaN or inf."""
+    """DatasetError naming file and variable when there are no samples (last axis) or one
+    holds NaN or inf."""
+    if arr.shape[-1] == 0:
+        raise DatasetError(f"{path}: variable '{name}' holds no samples; expected at least one")
     bad = ~np.isfinite(arr.reshape(-1, arr.shape[-1])).all(axis=0)
     if bad.any():
         raise DatasetError(

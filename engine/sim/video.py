@@ -22,12 +22,16 @@ from matplotlib.figure import Figure
 
 from vitaplace.engine.data.dataset import TOUCH_THRESHOLD, Run
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.outputs.outdir import writable_dir
 
 log = logging.getLogger("vitaplace")
 
 #: at most this many frames unless a step is given (a long run is subsampled evenly)
 MAX_FRAMES = 300
 FORMATS = (".gif", ".mp4")
+#: frames per second a video may have: a GIF stores each frame's duration in whole
+#: hundredths of a second, so 50 fps (2/100 s) is the fastest it holds and 0.1 fps (10 s a frame) the slowest allowed
+FPS_RANGE = (0.1, 50.0)
 
 
 def frame_indices(n_samples: int, step: int | None = None) -> np.ndarray:
@@ -47,6 +51,20 @@ def _writer(suffix: str, fps: float) -> animation.AbstractMovieWriter:
     raise UserError(f"video: unknown format {suffix!r}; expected {' or '.join(FORMATS)}")
 
 
+def check_video(run: Run, path: Path, fps: float) -> None:
+    """UserError, one line, unless ``run`` has samples, ``fps`` is inside `FPS_RANGE` (so
+    finite) and ``path`` can be written (not a folder, its folder writable): checked
+    before anything is drawn."""
+    low, high = FPS_RANGE
+    if not (isinstance(fps, (int, float)) and low <= fps <= high):
+        raise UserError(f"--fps {fps}: expected frames per second in [{low:g}, {high:g}]")
+    if len(run) == 0:
+        raise UserError(f"{run.name}: the run has no samples; nothing to animate")
+    if path.is_dir():
+        raise UserError(f"--out {path}: is a folder; expected the video file to write (e.g. {path / 'run.gif'})")
+    writable_dir(path.parent)
+
+
 def _top_view(run: Run) -> dict | None:
     """The arena of a simulated run (its recorded environment), None for imported runs."""
     from vitaplace.engine.sim.environment import EnvironmentSpec
@@ -56,11 +74,12 @@ def _top_view(run: Run) -> dict | None:
 
 
 def write_video(run: Run, path: str | os.PathLike, fps: float = 5.0, step: int | None = None) -> tuple[Path, int]:
-    """Animate ``run`` into ``path`` (.gif or .mp4, written atomically); returns the path and
-    the number of frames (`frame_indices`)."""
+    """Animate ``run`` into ``path`` (.gif or .mp4, written atomically) after `check_video`;
+    returns the path and the number of frames (`frame_indices`)."""
     from vitaplace.engine.sim.plot import plot_environment
 
     path = Path(path)
+    check_video(run, path, fps)
     writer = _writer(path.suffix.lower(), fps)
     frames = frame_indices(len(run), step)
     poses, times, deflection = run.poses, run.times, np.linalg.norm(run.xy, axis=2)

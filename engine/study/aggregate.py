@@ -27,7 +27,7 @@ from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.evaluation.pairfiles import load_curve
 from vitaplace.engine.outputs.keys import content_hash
-from vitaplace.engine.outputs.outdir import MANIFEST, RESULTS_JSON
+from vitaplace.engine.outputs.outdir import MANIFEST, RESULTS_JSON, writable_dir
 from vitaplace.engine.report.figures import write_pr_bands
 from vitaplace.engine.study.summary import bounds, write_summary
 
@@ -183,27 +183,44 @@ def validate_run_folder(folder: Path) -> RunFolder:
     return RunFolder(folder, seed, manifest["scenario"], scenario_identity(resolved), [{**r, "seed": seed} for r in rows])
 
 
+def one_scenario(runs: Sequence[RunFolder]) -> dict[int, Path]:
+    """Seed -> folder of ``runs`` (validated run folders) when they hold one scenario (the
+    same name, the same `scenario_identity`) and each seed once; else AggregateError naming
+    the folder at fault. The one check of a set of run folders (aggregate, sensitivity)."""
+    seen: dict[int, Path] = {}
+    for run in runs:
+        if run.scenario != runs[0].scenario or run.identity != runs[0].identity:
+            raise AggregateError(
+                f"{run.folder}: scenario '{run.scenario}' differs from {runs[0].folder}'s '{runs[0].scenario}' "
+                "(beyond the seed); only runs of one scenario go together"
+            )
+        if run.seed in seen:
+            raise AggregateError(f"{run.folder}: seed {run.seed} again (also {seen[run.seed]})")
+        seen[run.seed] = run.folder
+    return seen
+
+
+def check_recorded(run: RunFolder, names: Sequence[str]) -> None:
+    """AggregateError unless each of ``names`` (paths in the run folder) is a file its
+    completion record names with the digest it has now."""
+    wrong = completion.problem(run.folder, names)
+    if wrong:
+        raise AggregateError(f"{run.folder}: not a finished run: {wrong}")
+
+
 def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Path, dict[str, Any]]:
     """Check that ``folders`` are finished runs of one scenario with distinct seeds
     (`validate_run_folder`, every folder before anything is written) and write their summary
     into ``out`` (default: their common parent folder). Returns (out, sweep.json)."""
     runs = [validate_run_folder(Path(f)) for f in folders]
     first = runs[0]
-    seen: dict[int, Path] = {}
-    for run in runs:
-        if run.scenario != first.scenario or run.identity != first.identity:
-            raise AggregateError(
-                f"{run.folder}: scenario '{run.scenario}' differs from {first.folder}'s '{first.scenario}' "
-                "(beyond the seed); aggregate runs of one scenario only"
-            )
-        if run.seed in seen:
-            raise AggregateError(f"{run.folder}: seed {run.seed} again (also {seen[run.seed]})")
-        seen[run.seed] = run.folder
+    seen = one_scenario(runs)
     if out is None:
         parents = {run.folder.resolve().parent for run in runs}
         if len(parents) != 1:
             raise AggregateError("the run folders are in different parent folders: give --out")
         out = parents.pop()
+    out = writable_dir(Path(out))
     rows = [row for run in runs for row in run.rows]
     info = {"scenario": first.scenario, "seeds": sorted(seen), "failed": {},
             "folders": {str(s): str(f) for s, f in sorted(seen.items())}}

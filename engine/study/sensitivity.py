@@ -11,8 +11,10 @@ with a true match). Both match directions are scored where the run evaluated bot
 (``scoring.direction: both``); the TME of one direction is never transposed into the
 other, since a method's distance need not be symmetric.
 
-Input: one finished run folder, or a sweep folder (its ``seed-*`` run folders, each
-validated as `vitaplace aggregate` does). Output, written atomically into the folder (or
+Input: one finished run folder, or a sweep folder (its ``seed-*`` run folders), validated
+as `vitaplace aggregate` validates them (`validate_run_folder`, then `one_scenario`: one
+scenario, each seed once), each ``matrices.npz`` against the digest in ``completed.json``
+too; a failed seed (the sweep's ``error.txt``) is left out with one line. Output, written atomically into the folder (or
 ``--out``): ``sensitivity.csv`` (one row per seed x environment x method x direction x τ x
 heading tolerance), ``sensitivity.md`` (mean ± std over seeds with the percentile bootstrap
 interval over seeds, `vitaplace.engine.study.summary.describe`) and ``sensitivity.json`` (both).
@@ -21,6 +23,7 @@ interval over seeds, `vitaplace.engine.study.summary.describe`) and ``sensitivit
 from __future__ import annotations
 
 import json
+import logging
 import math
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -31,9 +34,9 @@ import numpy as np
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.config.scenario import ScoringSettings
-from vitaplace.engine.study.aggregate import RunFolder, curve_path, validate_run_folder
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve
-from vitaplace.engine.outputs.outdir import MATRICES
+from vitaplace.engine.outputs.outdir import MATRICES, RESULTS_JSON, SEED_ERROR, writable_dir
+from vitaplace.engine.study.aggregate import RunFolder, check_recorded, curve_path, one_scenario, validate_run_folder
 from vitaplace.engine.study.summary import bounds, cell, csv_text, describe, interval, json_safe
 
 #: revisit tolerances τ [m] of the default grid
@@ -42,6 +45,8 @@ TAUS = (0.2, 0.3, 0.5)
 HEADING_TOLERANCE_DEG = ScoringSettings.model_fields["heading_tolerance_deg"].default
 #: the scores recomputed per ground truth (both proportions in [0, 1])
 METRICS = ("max_f1", "recall_at_100_precision")
+log = logging.getLogger("vitaplace")
+
 COLUMNS = ("seed", "environment", "method", "direction", "tau", "heading_tolerance_deg", "n_revisit", *METRICS)
 
 
@@ -49,30 +54,63 @@ class SensitivityError(UserError):
     """A folder whose saved evaluations cannot be rescored; the message names the file."""
 
 
-def run_folders(folder: Path) -> list[RunFolder]:
-    """The validated run folders under ``folder``: itself when it is a run folder (it has
-    ``results.json``), else its ``seed-*`` subfolders (a sweep)."""
+def run_folders(folder: Path) -> tuple[list[RunFolder], dict[int, str]]:
+    """(the validated run folders under ``folder``, seed -> why for the failed seeds left out):
+    ``folder`` itself when it is a run folder (it has ``results.json``), else its ``seed-*``
+    subfolders (a sweep), which must hold one scenario, each seed once (`one_scenario`). A
+    seed folder with the sweep's ``error.txt`` is a failed seed: left out with one log line."""
     folder = Path(folder)
-    if (folder / "results.json").is_file():
-        return [validate_run_folder(folder)]
+    if (folder / RESULTS_JSON).is_file():
+        return [validate_run_folder(folder)], {}
     seeds = sorted(p for p in folder.glob("seed-*") if p.is_dir())
     if not seeds:
         raise SensitivityError(f"{folder}: neither a run folder (no results.json) nor a sweep folder (no seed-*/)")
-    return [validate_run_folder(p) for p in seeds]
+    failed = {}
+    for path in seeds:
+        if (path / SEED_ERROR).is_file():
+            why = _last_line(path / SEED_ERROR)
+            failed[path.name] = why
+            log.error("%s failed, left out: %s (traceback in %s)", path.name, why, path / SEED_ERROR)
+    runs = [validate_run_folder(p) for p in seeds if p.name not in failed]
+    if not runs:
+        raise SensitivityError(f"{folder}: every seed folder failed ({', '.join(failed)}); nothing to rescore")
+    one_scenario(runs)
+    return runs, failed
+
+
+def _last_line(path: Path) -> str:
+    """The last non-empty line of a text file (a traceback's exception), or why it cannot be read."""
+    try:
+        lines = path.read_text(errors="replace").strip().splitlines()
+    except OSError as exc:
+        return f"{path.name} unreadable ({exc.strerror or exc})"
+    return lines[-1] if lines else f"{path.name} is empty"
 
 
 def load_evaluation(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(TME, query poses, reference poses) saved in one evaluation's ``matrices.npz``."""
+    """(TME, query poses, reference poses) saved in one evaluation's ``matrices.npz``: a
+    finite queries x references TME and finite (x, y, yaw) rows of each; else SensitivityError."""
     try:
         with np.load(path) as saved:
-            if "query_poses" not in saved or "reference_poses" not in saved:
-                raise SensitivityError(
-                    f"{path}: no query_poses/reference_poses (saved since evaluate stage version 4); "
-                    "run the scenario again into the same folder to re-evaluate from the cache"
-                )
-            return saved["tme"], saved["query_poses"], saved["reference_poses"]
-    except (OSError, ValueError, KeyError) as exc:
+            names = set(saved.files)
+            if {"query_poses", "reference_poses"} <= names:
+                tme, query, reference = (np.asarray(saved[k], dtype=np.float64)
+                                         for k in ("tme", "query_poses", "reference_poses"))
+    except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many kinds on a damaged file
         raise SensitivityError(f"{path}: unreadable matrices ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+    if not {"query_poses", "reference_poses"} <= names:
+        raise SensitivityError(
+            f"{path}: no query_poses/reference_poses (saved since evaluate stage version 4); "
+            "run the scenario again into the same folder to re-evaluate from the cache"
+        )
+    for name, poses in (("query_poses", query), ("reference_poses", reference)):
+        if poses.ndim != 2 or poses.shape[1] != 3 or not np.isfinite(poses).all():
+            raise SensitivityError(f"{path}: {name} of shape {poses.shape} (or not finite), expected finite N x 3 "
+                                   "(x, y, yaw)")
+    if tme.shape != (len(query), len(reference)) or not np.isfinite(tme).all():
+        raise SensitivityError(f"{path}: tme of shape {tme.shape} (or not finite), expected a finite "
+                               f"{len(query)} x {len(reference)} matrix (queries x references)")
+    return tme, query, reference
 
 
 def rescore(tme: np.ndarray, query_poses: np.ndarray, reference_poses: np.ndarray, taus: Sequence[float],
@@ -96,9 +134,11 @@ def sensitivity_rows(runs: Sequence[RunFolder], taus: Sequence[float] = TAUS,
     out = []
     for run in sorted(runs, key=lambda r: r.seed):
         for row in run.rows:
-            path = run.folder / Path(curve_path(row)).parent / MATRICES
+            name = str(Path(curve_path(row)).parent / MATRICES)
+            path = run.folder / name
             if not path.is_file():
                 raise SensitivityError(f"{path}: missing; the evaluation's matrices are needed")
+            check_recorded(run, [name])
             identity = {"seed": run.seed, **{k: row[k] for k in ("environment", "method", "direction")}}
             out += [{**identity, **scored} for scored in rescore(*load_evaluation(path), taus, heading_tolerances)]
     return out
@@ -137,19 +177,23 @@ def write_sensitivity(folder: Path, out: Path | None = None, taus: Sequence[floa
                       heading_tolerance_deg: float = HEADING_TOLERANCE_DEG) -> tuple[Path, dict[str, Any]]:
     """Rescore every saved evaluation of the run or sweep ``folder`` (`sensitivity_rows`) and
     write sensitivity.csv, .md and .json into ``out`` (default ``folder``), atomically, after
-    every folder was read. Returns (out, what sensitivity.json holds)."""
+    every folder was read (``out`` checked writable first). Returns (out, what sensitivity.json
+    holds; its ``failed``: the failed seed folders left out, by name, with why)."""
     if not taus or any(not math.isfinite(t) or t <= 0 for t in taus):
         raise SensitivityError(f"--tau {' '.join(map(str, taus))}: expected positive distances in metres")
     if not 0 <= heading_tolerance_deg <= 180:
         raise SensitivityError(f"--heading-tolerance {heading_tolerance_deg}: expected degrees in [0, 180]")
-    runs = run_folders(folder)
+    if not Path(folder).is_dir():
+        raise SensitivityError(f"{folder}: not a folder; expected a finished run folder or a sweep folder (seed-*/)")
+    out = writable_dir(Path(folder) if out is None else Path(out))
+    runs, failed = run_folders(folder)
     rows = sensitivity_rows(runs, taus, (heading_tolerance_deg, None))
     summary = summarise(rows)
-    out = Path(folder) if out is None else Path(out)
     write_text_atomic(out / "sensitivity.csv", csv_text(rows, COLUMNS))
     seeds = sorted({r.seed for r in runs})
     write_text_atomic(out / "sensitivity.md", markdown(summary, f"{runs[0].scenario}: sensitivity, {len(seeds)} seed(s)"))
     record = {"scenario": runs[0].scenario, "seeds": seeds, "taus": list(taus),
-              "heading_tolerances_deg": [heading_tolerance_deg, None], "rows": rows, "summary": summary}
+              "heading_tolerances_deg": [heading_tolerance_deg, None], "failed": failed, "rows": rows,
+              "summary": summary}
     write_text_atomic(out / "sensitivity.json", json.dumps(json_safe(record), indent=2))
     return out, record

@@ -83,6 +83,17 @@ def test_sample_count_mismatch(tmp_path):
         import_mat(tmp_path)
 
 
+def test_an_empty_pose_array_is_one_line(tmp_path, capsys):
+    from vitaplace.engine.cli.main import main
+
+    write_layout(tmp_path)
+    scipy.io.savemat(tmp_path / "poses.mat", {"poses": np.zeros((0, 3))})
+    assert main(["import", str(tmp_path), "--out", str(tmp_path / "run.h5")]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == f"vitaplace: error: {tmp_path / 'poses.mat'}: variable 'poses' holds no samples; expected at least one"
+    assert not (tmp_path / "run.h5").exists()
+
+
 def test_ambiguous_and_garbage_files(tmp_path):
     write_layout(tmp_path)
     scipy.io.savemat(tmp_path / "xy.mat", {"a": np.zeros((2, 4, 6, 7)), "b": np.zeros(3)})

@@ -15,6 +15,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.study.sensitivity import rescore  # noqa: E402
+from conftest import reseal  # noqa: E402
 
 ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
 
@@ -111,6 +112,7 @@ def test_user_errors_are_one_line(run_folder, tmp_path, capsys):
     matrices = old / "evaluations" / "E1" / "H" / "query-to-reference" / "matrices.npz"
     with np.load(matrices) as saved:
         np.savez_compressed(matrices, tme=saved["tme"], gtm=saved["gtm"])  # as evaluate stage 3 saved it
+    reseal(old)  # its run recorded the file as it saved it
     cases = {
         "no query_poses": ["sensitivity", str(old)],
         "expected positive distances": ["sensitivity", str(run_folder), "--tau", "0", "--out", str(tmp_path)],
@@ -122,3 +124,122 @@ def test_user_errors_are_one_line(run_folder, tmp_path, capsys):
         lines = capsys.readouterr().err.strip().splitlines()
         assert len(lines) == 1 and message in lines[0], lines
     assert not (old / "sensitivity.csv").exists()
+
+
+Q2R = Path("evaluations") / "E1" / "H" / "query-to-reference" / "matrices.npz"
+
+
+def _one_line(capsys, message: str) -> str:
+    """The one line of stderr, which must contain ``message`` and no traceback."""
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err and message in lines[0], lines
+    return lines[0]
+
+
+def _other_scenario(run_folder: Path, folder: Path) -> Path:
+    """A finished run of another scenario (tau 0.4), as its own run would have sealed it."""
+    import yaml
+
+    shutil.copytree(run_folder, folder)
+    resolved = yaml.safe_load((folder / "scenario.resolved.yaml").read_text())
+    resolved["scoring"]["tau"] = 0.4
+    (folder / "scenario.resolved.yaml").write_text(yaml.safe_dump(resolved))
+    reseal(folder)
+    return folder
+
+
+def test_a_sweep_folder_holds_one_scenario_each_seed_once(run_folder, tmp_path, capsys):
+    """As `aggregate`: a seed folder copied under another name is seed 0 twice; a run of
+    another scenario among the seeds is refused, naming it; nothing is written."""
+    twice = tmp_path / "twice"
+    shutil.copytree(run_folder, twice / "seed-0")
+    shutil.copytree(run_folder, twice / "seed-7")
+    assert main(["sensitivity", str(twice)]) == 2
+    line = _one_line(capsys, "seed 0 again")
+    assert str(twice / "seed-7") in line
+    mixed = tmp_path / "mixed"
+    shutil.copytree(run_folder, mixed / "seed-0")
+    _other_scenario(run_folder, mixed / "seed-1")
+    assert main(["sensitivity", str(mixed)]) == 2
+    assert str(mixed / "seed-1") in _one_line(capsys, "differs from")
+    assert not list(tmp_path.rglob("sensitivity.*"))
+
+
+def test_matrices_changed_since_the_run_are_refused(run_folder, tmp_path, capsys):
+    """A TME replaced by another of the same keys and shape no longer has the digest
+    completed.json recorded for it; nor has a truncated file."""
+    for case in ("replaced", "truncated"):
+        folder = tmp_path / case
+        shutil.copytree(run_folder, folder)
+        path = folder / Q2R
+        if case == "replaced":
+            with np.load(path) as saved:
+                arrays = dict(saved)
+            np.savez_compressed(path, **{**arrays, "tme": arrays["tme"][::-1].copy()})
+        else:
+            path.write_bytes(path.read_bytes()[:100])
+        assert main(["sensitivity", str(folder)]) == 2
+        _one_line(capsys, f"not a finished run: {Q2R} is not the file its finished run recorded")
+        assert not (folder / "sensitivity.csv").exists()
+
+
+def _rewrite(path: Path, **arrays) -> None:
+    with np.load(path) as saved:
+        np.savez_compressed(path, **{**dict(saved), **arrays})
+
+
+# damaged matrices, recorded so in completed.json (as if the run itself had written them)
+DAMAGED = {
+    "truncated": (lambda p: p.write_bytes(p.read_bytes()[:100]), "unreadable matrices (BadZipFile"),
+    "a 3 x 3 TME": (lambda p: _rewrite(p, tme=np.zeros((3, 3))), "tme of shape (3, 3) (or not finite), expected a finite 5 x 5"),
+    "an all-NaN TME": (lambda p: _rewrite(p, tme=np.full((5, 5), np.nan)), "tme of shape (5, 5) (or not finite)"),
+    "NaN poses": (lambda p: _rewrite(p, query_poses=np.full((5, 3), np.nan)),
+                  "query_poses of shape (5, 3) (or not finite), expected finite N x 3"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(DAMAGED))
+def test_damaged_matrices_recorded_so_are_one_line(run_folder, tmp_path, capsys, case):
+    damage, message = DAMAGED[case]
+    folder = tmp_path / "run"
+    shutil.copytree(run_folder, folder)
+    damage(folder / Q2R)
+    reseal(folder)
+    assert main(["sensitivity", str(folder)]) == 2
+    assert str(folder / Q2R) in _one_line(capsys, message)
+    assert not (folder / "sensitivity.csv").exists()
+
+
+def test_a_failed_seed_is_left_out_with_one_line(run_folder, tmp_path, capsys):
+    """A seed folder holding the sweep's error.txt (a failed seed) is left out, in one line,
+    exit 1, as `sweep` does; the others are rescored as if it were not there."""
+    sweep = tmp_path / "sweep"
+    shutil.copytree(run_folder, sweep / "seed-0")
+    (sweep / "seed-1").mkdir()
+    (sweep / "seed-1" / "error.txt").write_text("Traceback (most recent call last):\n  ...\nValueError: injected\n")
+    assert main(["sensitivity", str(sweep)]) == 1
+    _one_line(capsys, "seed-1 failed, left out: ValueError: injected")
+    assert main(["sensitivity", str(run_folder), "--out", str(tmp_path / "single")]) == 0
+    assert (sweep / "sensitivity.csv").read_bytes() == (tmp_path / "single" / "sensitivity.csv").read_bytes()
+    import json
+
+    assert json.loads((sweep / "sensitivity.json").read_text())["failed"] == {"seed-1": "ValueError: injected"}
+
+
+def test_an_out_that_cannot_be_written_is_one_line_before_reading(run_folder, tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    for out in (blocker, blocker / "sub"):
+        assert main(["sensitivity", str(run_folder), "--out", str(out)]) == 2
+        _one_line(capsys, f"--out {out}")
+    assert blocker.read_text() == ""
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_out_is_one_line(run_folder, tmp_path, capsys):
+    out = tmp_path / "ro"
+    out.mkdir()
+    out.chmod(0o500)
+    assert main(["sensitivity", str(run_folder), "--out", str(out)]) == 2
+    _one_line(capsys, f"--out {out}: cannot write there")

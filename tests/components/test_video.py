@@ -71,6 +71,68 @@ def test_video_step_and_an_mp4_without_ffmpeg(tmp_path, capsys, monkeypatch):
     assert len(err) == 1 and "ffmpeg" in err[0] and not (tmp_path / "v.mp4").exists()
 
 
+def _empty_run(tmp_path):
+    """A recorded run of no samples."""
+    return write_run(tmp_path / "empty.h5", Run.from_arrays(
+        images=np.zeros((0, 12, 16, 3), dtype=np.uint8), theta=np.zeros((0, 24)), xy=np.zeros((0, 24, 2)),
+        poses=np.zeros((0, 3)), name="empty"))
+
+
+# what `vitaplace video` refuses in one line before drawing anything: (arguments after RUN, message)
+REFUSED = {
+    "fps nan": (["--fps", "nan"], "--fps nan: expected frames per second in [0.1, 50]"),
+    "fps inf": (["--fps", "inf"], "--fps inf: expected frames per second in [0.1, 50]"),
+    "fps 1e-9": (["--fps", "1e-9"], "--fps 1e-09: expected frames per second in [0.1, 50]"),
+    "fps 0": (["--fps", "0"], "--fps 0.0: expected frames per second in [0.1, 50]"),
+    "fps above 50": (["--fps", "50.5"], "--fps 50.5: expected frames per second in [0.1, 50]"),
+    "step 0": (["--step", "0"], "--step 0: expected a whole number >= 1"),
+    "out under a file": (["--out", "{tmp}/file/v.gif"], "--out {tmp}/file: exists and is not a directory"),
+    "out a folder": (["--out", "{tmp}/folder"], "--out {tmp}/folder: is a folder"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(REFUSED))
+def test_video_refuses_bad_settings_in_one_line_before_drawing(tmp_path, capsys, case):
+    path = _run(tmp_path)
+    (tmp_path / "file").write_text("")
+    (tmp_path / "folder").mkdir()
+    args, message = REFUSED[case]
+    before = sorted(tmp_path.rglob("*"))
+    assert main(["video", str(path), *(a.format(tmp=tmp_path) for a in args)]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err and message.format(tmp=tmp_path) in lines[0], lines
+    assert sorted(tmp_path.rglob("*")) == before  # nothing written, not even a temporary folder
+
+
+def test_a_run_without_samples_is_one_line(tmp_path, capsys):
+    assert main(["video", str(_empty_run(tmp_path))]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "empty: the run has no samples" in err[0] and not (tmp_path / "empty.gif").exists()
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_a_read_only_out_is_one_line(tmp_path, capsys):
+    path = _run(tmp_path)
+    (tmp_path / "ro").mkdir()
+    (tmp_path / "ro").chmod(0o500)
+    assert main(["video", str(path), "--out", str(tmp_path / "ro" / "v.gif")]) == 2
+    assert "cannot write there" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("fps", [0.1, 50])
+def test_the_fps_range_ends_give_their_frame_durations(tmp_path, fps):
+    """A GIF frame lasts 1000 / fps ms: 10 s at 0.1 fps, 20 ms at 50 fps (two hundredths)."""
+    out = tmp_path / "v.gif"
+    assert main(["-q", "video", str(_run(tmp_path, n=3)), "--fps", str(fps), "--out", str(out)]) == 0
+    gif = Image.open(out)
+    durations = []
+    for k in range(gif.n_frames):
+        gif.seek(k)
+        durations.append(gif.info["duration"])
+    assert durations == [1000 / fps] * 3
+
+
 @pytest.mark.parametrize("n, step, expected", [(5, None, 5), (MAX_FRAMES, None, MAX_FRAMES), (MAX_FRAMES + 1, None, 151),
                                                (1000, None, 250), (1000, 1, 1000), (7, 3, 3)])
 def test_frame_indices(n, step, expected):

@@ -45,6 +45,112 @@ def test_read_results_of_a_folder_without_results_is_one_line(tmp_path):
         vitaplace.read_results(tmp_path)
 
 
+ENV_E1 = ROOT / "scenarios" / "environments" / "e1.yaml"
+TINY = {
+    "name": "tiny",
+    "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 5}},
+    "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 5}}],
+    "methods": [{"name": "H", "plugin": "handcrafted"}],
+}
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> tuple[Path, Path, list]:
+    """(scenario file, output folder, the rows `run` returned) of a tiny run up to the evaluate stage."""
+    import yaml
+
+    tmp = tmp_path_factory.mktemp("api")
+    scenario = tmp / "tiny.yaml"
+    scenario.write_text(yaml.safe_dump(TINY))
+    out = tmp / "run"
+    return scenario, out, vitaplace.run(scenario, out=out, until="evaluate", workers=1)
+
+
+def test_read_results_gives_the_rows_of_a_finished_folder(finished):
+    _, out, rows = finished
+    assert rows and vitaplace.read_results(out) == rows
+
+
+def test_read_results_refuses_a_folder_whose_rerun_was_killed(finished, tmp_path, monkeypatch):
+    """A rerun with another tau killed during simulate leaves the old results.json beside the
+    new scenario.resolved.yaml, and no completed.json: read_results refuses, as aggregate does."""
+    import shutil
+
+    from vitaplace.engine.pipeline.runner import Pipeline
+
+    scenario, out, _ = finished
+    folder = tmp_path / "run"
+    shutil.copytree(out, folder)
+
+    def killed(self):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(Pipeline, "simulate", killed)
+    with pytest.raises(KeyboardInterrupt):
+        vitaplace.run(scenario, {"scoring.tau": 0.4}, out=folder, workers=1)
+    assert (folder / "results.json").is_file()  # the old run's
+    with pytest.raises(vitaplace.UserError, match=r"incomplete run folder \(no completed\.json\)"):
+        vitaplace.read_results(folder)
+
+
+def test_read_results_of_a_damaged_results_file_is_one_line(finished, tmp_path):
+    import shutil
+
+    from conftest import reseal
+
+    _, out, _ = finished
+    folder = tmp_path / "run"
+    shutil.copytree(out, folder)
+    path = folder / "results.json"
+    path.write_bytes(path.read_bytes()[:40])
+    with pytest.raises(vitaplace.UserError, match=r"results\.json is not the file its finished run recorded"):
+        vitaplace.read_results(folder)
+    reseal(folder)  # as if the run itself had written it truncated
+    with pytest.raises(vitaplace.UserError, match=r"results\.json: unreadable \(JSONDecodeError"):
+        vitaplace.read_results(folder)
+
+
+def _numpy_and_paths():
+    import numpy as np
+
+    return {"seed": np.int64(7), "scoring.recall_k": np.array([1, 5]), "name": Path("named")}
+
+
+def test_numpy_values_and_paths_in_overrides_are_their_plain_values():
+    scenario = vitaplace.load_scenario("quickstart", _numpy_and_paths())
+    assert (scenario.seed, scenario.scoring.recall_k, scenario.name) == (7, [1, 5], "named")
+
+
+BAD_CALLS = {
+    "a set value": (lambda: vitaplace.load_scenario("quickstart", {"scoring.recall_k": {1, 5}}),
+                    r"overrides\['scoring\.recall_k'\]: set values have no YAML form"),
+    "an object value": (lambda: vitaplace.load_scenario("quickstart", {"seed": object()}),
+                        r"overrides\['seed'\]: object values have no YAML form"),
+    "overrides a number": (lambda: vitaplace.load_scenario("quickstart", 5), r"overrides: 5: expected a mapping"),
+    "overrides a list of numbers": (lambda: vitaplace.run("quickstart", [1, 2]), r"overrides: \[1, 2\]: expected"),
+    "a key that is not text": (lambda: vitaplace.load_scenario("quickstart", {1: 2}), r"overrides: keys \[1\]"),
+    "workers as text": (lambda: vitaplace.run("quickstart", workers="2"), r"workers='2': expected a whole number >= 1"),
+    "no workers": (lambda: vitaplace.run("quickstart", workers=0), r"workers=0: expected a whole number >= 1"),
+    "a scenario that is no path": (lambda: vitaplace.load_scenario(5), r"scenario=5: expected a path"),
+    "run's scenario no path": (lambda: vitaplace.run(["quickstart"]), r"scenario=\['quickstart'\]: expected a path"),
+    "out no path": (lambda: vitaplace.read_results(3), r"out=3: expected a path"),
+    "an unknown kind": (lambda: vitaplace.simulate("e1", kind="flying"), r"simulate: kind: Input tag 'flying' found using 'kind' does not match any of the expected tags: 'foraging', 'teleop', 'route', 'orbit'"),
+    "samples as text": (lambda: vitaplace.simulate("e1", n_samples="many"), r"simulate: n_samples: "),
+    "an unknown run setting": (lambda: vitaplace.simulate("e1", wobble=3), r"simulate: wobble: unknown key"),
+    "a negative seed": (lambda: vitaplace.simulate("e1", seed=-1), r"seed=-1: expected a whole number >= 0"),
+    "an environment that is no path": (lambda: vitaplace.simulate(3), r"environment=3: expected a path"),
+    "fit on a path": (lambda: vitaplace.fit_extractor("handcrafted", "runs/train.h5"), r"train='runs/train\.h5': expected a Run"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CALLS))
+def test_bad_arguments_are_one_line_user_errors(case):
+    call, message = BAD_CALLS[case]
+    with pytest.raises(vitaplace.UserError, match=message) as info:
+        call()
+    assert "\n" not in str(info.value)
+
+
 def test_overrides_as_a_mapping_or_as_set_strings_mean_the_same():
     as_mapping = vitaplace.load_scenario("quickstart", {"seed": 7, "methods.1.params": {"grid": [4, 8]}})
     as_strings = vitaplace.load_scenario("quickstart", ["seed=7", "methods.1.params={grid: [4, 8]}"])

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import install_plugin
+from conftest import install_plugin, reseal
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -558,14 +558,6 @@ def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
 # --------------------------------------------------------------------------- run folders that prove they are finished
 
 
-def reseal(folder: Path) -> None:
-    """Write the folder's completion record anew over what it holds now: as if its own run had
-    produced the damaged files (a buggy plugin, a bad disk), so the row checks must catch them."""
-    from vitaplace.engine.outputs import completion
-    files = json.loads((folder / completion.RECORD).read_text())["files"]
-    completion.write(folder, [folder / name for name in files])
-
-
 def _rows(folder: Path, change) -> None:
     path = folder / "results.json"
     rows = json.loads(path.read_text())
@@ -665,3 +657,16 @@ def test_slurm_time_limits_by_hand(text, minutes):
     from vitaplace.engine.cli.slurm import parse_time
 
     assert parse_time(text) == minutes
+
+
+def test_aggregate_out_that_cannot_be_written_is_one_line(local_sweep, tmp_path, capsys):
+    """--out an existing file or a folder under one: one line naming it, before anything is written."""
+    out, _ = local_sweep
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    for target in (blocker, blocker / "sub"):
+        assert main(["aggregate", str(out / "seed-0"), "--out", str(target)]) == 2
+        err = capsys.readouterr().err
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and "Traceback" not in err and f"--out {target}" in lines[0], lines
+    assert blocker.read_text() == ""
