@@ -7,7 +7,9 @@
 # A device call carries at most 64 MiB with the working tree, so the parts go into numbered
 # folders .gpu-carry-1, .gpu-carry-2, ... (git-ignored), one per call: every call but the last
 # only carries its folder (the machine keeps it while it stays warm, 30 s), the last carries
-# its own and runs the check. The script prints those calls.
+# its own and runs the check. The recorded runs of bench/gpu_runs.sh (.gpu-carry-runs/, for the
+# convergence stage) travel with the last call: run that script first, so that their size is
+# left free in every part. The script prints those calls.
 # Usage: bench/gpu_wheels.sh [MiB per call, default 64]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -34,11 +36,13 @@ with zipfile.ZipFile(wheel) as zin, zipfile.ZipFile(f"{tmp}/warp.zip", "w", zipf
         if not item.filename.startswith(drop):
             zout.writestr(item, zin.read(item.filename))
 PY
-rm -rf .gpu-carry-*
+rm -rf .gpu-carry-[0-9]*
+runs_bytes=0 runs_dir=
+if [ -d .gpu-carry-runs ]; then runs_bytes=$(du -sb .gpu-carry-runs | cut -f1); runs_dir=.gpu-carry-runs; fi
 tree_bytes=$(git ls-files -z | xargs -0 du -cb 2>/dev/null | tail -1 | cut -f1)
 others=$(du -cb "$tmp"/*.whl | tail -1 | cut -f1)
 others=$((others - $(du -b "$tmp"/warp_lang-*.whl | cut -f1)))
-budget=$((limit_mib * 1048576 - tree_bytes - others - 2 * 1048576))  # 2 MiB to spare
+budget=$((limit_mib * 1048576 - tree_bytes - others - runs_bytes - 2 * 1048576))  # 2 MiB to spare
 size=$(du -b "$tmp/warp.zip" | cut -f1)
 parts=$(( (size + budget - 1) / budget ))
 split -n "$parts" -d -a 2 "$tmp/warp.zip" "$tmp/warp.zip.part-"
@@ -50,10 +54,14 @@ echo "$parts $(sha256sum < "$tmp/warp.zip" | cut -d' ' -f1)" > ".gpu-carry-$part
 for w in "$tmp"/*.whl; do
     case "$(basename "$w")" in warp_lang-*) ;; *) cp "$w" ".gpu-carry-$parts/" ;; esac
 done
-du -sh .gpu-carry-*
+du -sb .gpu-carry-* | awk '{printf "%-18s %10d bytes  %6.2f MiB\n", $2, $1, $1 / 1048576}'
+echo "working tree: $tree_bytes bytes; the last call carries $(du -cb .gpu-carry-"$parts" $runs_dir \
+    | tail -1 | cut -f1) bytes of carry folders with it (limit $limit_mib MiB)"
+last="\".gpu-carry-$parts\""
+[ -z "$runs_dir" ] || last="$last, \"$runs_dir\""
 echo
 echo "device calls (the run tool), back to back:"
 for i in $(seq 1 $((parts - 1))); do
     echo "  run(carry=[\".gpu-carry-$i\"], command=\"ls .gpu-carry-$i\", timeout_s=60)"
 done
-echo "  run(carry=[\".gpu-carry-$parts\"], command=\"bench/gpu_check.sh \$OUT/gpu-check\", timeout_s=600)"
+echo "  run(carry=[$last], command=\"bench/gpu_check.sh \$OUT/gpu-check\", timeout_s=600)"
