@@ -59,6 +59,18 @@ unpack_carried() {  # the carry folders of bench/gpu_wheels.sh -> a private site
     [ "$(sha256sum < /tmp/vitaplace-warp.zip | cut -d' ' -f1)" = "$sum" ] || return 1
     unzip -q -o /tmp/vitaplace-warp.zip -d "$site" || return 1
     for wheel in .gpu-carry-[0-9]*/*.whl; do unzip -q -o "$wheel" -d "$site" || return 1; done
+    # the pipeline's dependencies (bench/gpu_wheels.sh, deps/): only those whose module the device lacks
+    local module
+    for wheel in .gpu-carry-[0-9]*/deps/*.whl; do
+        [ -e "$wheel" ] || continue
+        case "$(basename "$wheel")" in
+            fonttools-*) module=fontTools ;; pillow-*) module=PIL ;; python_dateutil-*) module=dateutil ;;
+            pyyaml-*|PyYAML-*) module=yaml ;; *) module="$(basename "$wheel" | cut -d- -f1)" ;;
+        esac
+        "$python" -c "import $module" 2> /dev/null && continue
+        unzip -q -o "$wheel" -d "$site" || return 1
+        echo "$module" >> "$dir/carried-deps.txt"
+    done
     for pkg in engine kernels plugins scenarios; do ln -sfn "$PWD/$pkg" "$site/vitaplace/$pkg"; done
     for module in api/*.py; do ln -sfn "$PWD/$module" "$site/vitaplace/$(basename "$module")"; done
     # a distribution record, so that importlib.metadata finds vitaplace's plugin entry points

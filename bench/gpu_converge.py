@@ -245,6 +245,17 @@ def run(runs: Path, out_dir: Path, budget: float, epochs: int, max_steps: int, w
         device = "cuda" if cuda_available() else "cpu"
     except Exception as exc:  # noqa: BLE001 - recorded, not fatal: the pipeline says what is missing
         device = f"unknown ({type(exc).__name__}: {exc})"
+    missing = []
+    for module in ("h5py", "matplotlib", "pluggy", "pydantic", "scipy", "threadpoolctl", "tqdm", "warp", "yaml"):
+        try:
+            __import__(module)
+        except ImportError:
+            missing.append(module)
+    if missing:
+        _write_json(record_path, {"error": f"the pipeline cannot run here: no module {', '.join(missing)} "
+                                           "(bench/gpu_wheels.sh carries their wheels in deps/; scipy is not carried)"})
+        print(f"missing modules: {', '.join(missing)}", file=sys.stderr)
+        return 1
     record = {"scenario": carried["scenario"], "runs_commit": carried["git_commit"], "tiny_runs": carried["tiny"],
               "epochs_cap": epochs, "max_steps": max_steps, "budget_s": budget, "device": device,
               "criterion": "converge_window 20, converge_tol 0.01 (paper-cpu.yaml)",
