@@ -1,10 +1,12 @@
 #!/usr/bin/env python
 """Markdown summary of a bench/gpu_check.sh run: ``python bench/gpu_summary.py DIR``.
 
-Reads DIR/nvidia-smi.csv, stages.txt, no-cuda.txt, bench.json, sweep.json and tests.log
-(whichever exist) and prints the device, the minibatch in every precision against cuBLAS
-and PyTorch, the targets, the timed training per precision (seconds per epoch, energy
-band against float32), the tile sweep and the CUDA test result.
+Reads DIR/nvidia-smi.csv, stages.txt, no-cuda.txt, bench.json, sweep.json, converge.json and
+tests.log (whichever exist) and prints the device, the minibatch in every precision against
+cuBLAS and PyTorch, the targets, the timed training per precision (seconds per epoch, energy
+band against float32), the tile sweep, the convergence check at study size
+(bench/gpu_converge.py: per seed, method and world the max F1, epochs run, converged, share of
+samples settled before the step cap) and the CUDA test result.
 """
 
 from __future__ import annotations
@@ -63,6 +65,36 @@ def _bench_section(bench: dict) -> list[str]:
     return out
 
 
+def _f1(value: float | None) -> str:
+    return "-" if value is None else f"{value:.3f}"
+
+
+def _converge_section(conv: dict) -> list[str]:
+    out = ["## Convergence check at study size (issue 34)", ""]
+    if "error" in conv:
+        return out + [conv["error"], ""]
+    tiny = " **Tiny plumbing run** (small recorded runs: the numbers mean nothing)." if conv.get("tiny_runs") else ""
+    out += [f"{conv['scenario']}, methods L, L-V, L-T on the carried recorded runs (simulated at commit "
+            f"{conv['runs_commit'][:10]}), epoch cap {conv['epochs_cap']} (stopped by the energy criterion: "
+            f"{conv['criterion']}), test-time step cap {conv['max_steps']}, device {conv['device']}, budget "
+            f"{conv['budget_s']:.0f} s.{tiny} Seeds carried: {', '.join(conv['seeds_carried'])}; max F1 from each "
+            "method's own results.json, epochs and converged from its manifest's training record, settled = share "
+            "of the world's query and reference samples whose inference stopped before the cap.", ""]
+    for seed, result in conv.get("seeds", {}).items():
+        methods = result.get("methods", {})
+        detail = ", ".join(f"{m} {r['status']} ({r['seconds']:.0f} s)" for m, r in methods.items())
+        out.append(f"- seed {seed}: {result.get('status', '?')}" + (f"; {detail}" if detail else ""))
+    out += ["", "| seed | method | world | max F1 q->r | max F1 r->q | epochs run | converged | settled before cap |",
+            "|---|---|---|---|---|---|---|---|"]
+    for r in conv.get("rows", []):
+        out.append(f"| {r['seed']} | {r['method']} | {r['environment']} | {_f1(r['max_f1_query_to_reference'])} | "
+                   f"{_f1(r['max_f1_reference_to_query'])} | {r['epochs']} of {r['max_epochs']} | "
+                   f"{'yes' if r['converged'] else 'no'} | {r['settled_share']:.1%} ({r['samples'] - r['capped']} of "
+                   f"{r['samples']}) |")
+    out.append("")
+    return out
+
+
 def summary(dir_: Path) -> str:
     out = ["# GPU check", ""]
     smi = dir_ / "nvidia-smi.csv"
@@ -96,6 +128,10 @@ def summary(dir_: Path) -> str:
             out.append(f"| {r['kernel']} | {precision} | {r['tm']}x{r['tn']}x{r['tk']} | {r['block_dim']} | "
                        f"{r['mathdx']} | {r['splits']} | {us} | {tf} | {'-' if base is None else f'{base:.1f}'} |")
         out.append("")
+
+    conv = _load(dir_ / "converge.json")
+    if conv:
+        out += _converge_section(conv)
 
     for log, title in (("tests.log", "CUDA tests (`pytest -m cuda`)"),
                        ("cpu-tests.log", "CPU tests (tests/kernels/test_tensorcores.py, emulated tensor cores)")):
