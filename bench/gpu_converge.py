@@ -241,7 +241,7 @@ def run(runs: Path, out_dir: Path, budget: float, epochs: int, max_steps: int, w
         print(f"no recorded runs in {runs}: {exc}", file=sys.stderr)
         return 1
     try:
-        from vitaplace.engine.network.backends import cuda_available
+        from vitaplace.engine.network.selection import cuda_available
         device = "cuda" if cuda_available() else "cpu"
     except Exception as exc:  # noqa: BLE001 - recorded, not fatal: the pipeline says what is missing
         device = f"unknown ({type(exc).__name__}: {exc})"

@@ -48,6 +48,9 @@ def test_rows_are_the_pipelines_own(stage):
     tmp, record = stage
     assert record["tiny_runs"] is True and record["epochs_cap"] == EPOCHS and record["max_steps"] == MAX_STEPS
     assert record["seeds"]["0"]["status"] == "done"
+    from vitaplace.engine.network.selection import cuda_available
+
+    assert record["device"] == ("cuda" if cuda_available() else "cpu")  # found, not "unknown (ImportError ...)"
     rows = {(r["method"], r["environment"]): r for r in record["rows"]}
     assert sorted(rows) == sorted((m, w) for m in METHODS for w in WORLDS)
     for method in METHODS:
