@@ -352,9 +352,9 @@ def test_a_changed_run_file_reruns_what_depends_on_it(tmp_path):
                    ("evaluate", "E1 H query-to-reference"), ("evaluate", "E1 H2 query-to-reference")}, ran
 
 
-def _nan_in_run_file(tmp_path, data):
+def _nan_in_run_file(tmp_path, data, field="poses"):
     with h5py.File(tmp_path / "query.h5", "r+") as f:
-        f["poses"][2, 0] = np.nan
+        f[field][2, ...] = np.nan
 
 
 BAD_RECORDED_SCENARIOS = {
@@ -374,6 +374,9 @@ BAD_RECORDED_SCENARIOS = {
         r"evaluations\.0\.datasets\.reference: an evaluation run needs at least 5 samples, .*short\.h5 has 4",
     ),
     "NaN in a run file": (_nan_in_run_file, r"query\.h5: field 'poses' has NaN or infinite values \(1 rows, first at index 2\)"),
+    # no stage reads a run's times: only the check of a recorded run before the stages finds this
+    "NaN in a run file's times": (lambda t, d: _nan_in_run_file(t, d, "times"),
+                                  r"query\.h5: field 'times' has NaN or infinite values \(1 rows, first at index 2\)"),
 }
 
 
