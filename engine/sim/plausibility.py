@@ -53,8 +53,8 @@ def _arena(env: EnvironmentSpec) -> str:
 
 def check_run(env: EnvironmentSpec, run: RunSpec, robot: RobotSpec) -> None:
     """Raise `ImplausibleRun` naming the first setting of ``run`` that cannot be right in ``env``."""
-    if run.kind == "route" and len(env.route) < 2:
-        raise ImplausibleRun("kind", f"a route run needs the environment's route; {env.name!r} has none")
+    if run.kind in ("route", "teleop") and len(env.route) < 2:  # both drive along the environment's loop
+        raise ImplausibleRun("kind", f"a {run.kind} run needs the environment's route; {env.name!r} has none")
     if run.start is not None and _outside(np.array([run.start[:2]]), env)[0]:
         raise ImplausibleRun("start", f"({run.start[0]:g}, {run.start[1]:g}) puts the robot (radius {BODY_RADIUS} m) "
                              f"outside {_arena(env)}")

@@ -1059,6 +1059,20 @@ def test_implausible_settings_are_refused_at_validate_naming_the_key(capsys, cas
     assert len(lines) == 1 and lines[0].startswith("vitaplace: error: ") and message in lines[0], lines
 
 
+@pytest.mark.parametrize("kind", ["teleop", "route"])
+def test_a_run_along_the_route_in_an_environment_without_one_is_refused_at_validate(tmp_path, capsys, kind):
+    """Teleop drives and route runs follow the environment's loop: in an environment without
+    one they are refused in one line naming the evaluation's key and the environment (a teleop
+    evaluation used to pass validate and die in its simulation worker)."""
+    (tmp_path / "open.yaml").write_text(f"extends: {SCENARIOS / 'environments' / 'e1.yaml'}\nname: e1-open\nroute: []\n")
+    argv = ["validate", "quickstart", "--set", f"evaluations.0.environment={tmp_path / 'open.yaml'}",
+            "--set", f"evaluations.0.run={{kind: {kind}, n_samples: 10}}"]
+    assert main(argv) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vitaplace: error: "), lines
+    assert f"evaluations.0.run.kind: a {kind} run needs the environment's route; 'e1-open' has none" in lines[0], lines
+
+
 def test_settings_just_inside_the_arena_are_valid(capsys):
     """The arena of e1 is 6.05 m wide, the body's radius 0.23 m: 3.025 - 0.23 = 2.795 m is the
     farthest the base's centre can be from the middle."""
