@@ -56,6 +56,9 @@ STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate
 
 #: a run that stays in one place this long (share of its samples, and samples) is warned about
 STUCK_SHARE, STUCK_SAMPLES = 0.25, 50
+#: an evaluation with fewer queries that have a true match is warned about: below 10, one
+#: query's decision moves recall by more than 10 points, too coarse to compare methods by
+MIN_REVISITS = 10
 
 log = logging.getLogger("vitaplace")
 
@@ -388,7 +391,23 @@ class Pipeline:
                     rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
                     files += [folder / outdir.SUMMARY, folder / outdir.PR_CURVE]
         self.add_f1_at_training_threshold(rows)
+        self.warn_few_revisits(rows)
         return EvaluateRecord(rows, files)
+
+    def warn_few_revisits(self, rows: list[dict[str, Any]]) -> None:
+        """Warn (log, manifest.json, report.md; on the run whose samples are the queries) about
+        every evaluation direction in which fewer than `MIN_REVISITS` queries have a true
+        match: with none, its max F1 of 0 says nothing about a method."""
+        for row in rows:
+            n, queries = row["n_revisit"], row["n_queries"]
+            if n >= MIN_REVISITS:
+                continue
+            side = "query" if row["direction"] == "query-to-reference" else "reference"
+            what = ("none of its {q} queries has" if n == 0 else "only {n} of its {q} queries have").format(n=n, q=queries)
+            warn_once(self.open(f"{row['environment']}/{side}"), f"revisits {row['direction']}",
+                      f"evaluation {row['environment']} {row['direction']}: {what} a true match within tau = "
+                      f"{row['tau']:g} m (n_revisit < {MIN_REVISITS}): its max F1 and recall rest on too few samples "
+                      "to compare methods by")
 
     def _evaluate(self, method: Method, query: str, reference: str, folder: Path) -> None:
         """Score ``method``'s distances from the ``query`` run's samples to the ``reference``

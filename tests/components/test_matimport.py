@@ -433,6 +433,25 @@ def test_a_run_stuck_in_one_place_reaches_the_user(tmp_path, monkeypatch):
         assert row["difficulty"]["reference_longest_stay_share"] == pytest.approx(1 / 8)
 
 
+@pytest.mark.parametrize("tau, expected", [
+    (0.01, "none of its 8 queries has a true match within tau = 0.01 m"),  # the query runs 5 cm beside the reference
+    (0.3, "only 8 of its 8 queries have a true match within tau = 0.3 m"),  # all 8, still fewer than 10
+])
+def test_an_evaluation_with_too_few_revisits_reaches_the_user(tmp_path, tau, expected):
+    """An evaluation direction whose queries have fewer than MIN_REVISITS (10) true matches
+    warns in the log, manifest.json (on the run whose samples are the queries) and report.md:
+    with none, "max F1 0.00 %" said nothing with exit 0."""
+    scenario = recorded_scenario(tmp_path)
+    out = tmp_path / "out"
+    assert main(["run", str(scenario), "--out", str(out), "--no-progress", "--set", f"scoring.tau={tau}"]) == 0
+    message = f"evaluation E1 query-to-reference: {expected} (n_revisit < 10)"
+    assert message in (out / "log.txt").read_text()
+    warnings = json.loads((out / "manifest.json").read_text())["warnings"]
+    assert warnings["E1/query"]["revisits query-to-reference"].startswith(message)
+    assert message in (out / "report.md").read_text().split("## Warnings", 1)[1]
+    assert {row["n_revisit"] for row in json.loads((out / "results.json").read_text())} == {0 if tau < 0.05 else 8}
+
+
 def test_collisions_and_a_training_run_in_no_world_reach_the_user(tmp_path):
     """A run whose robot touched the world (``body_collision_instants`` > 0) warns in the log,
     manifest.json and report.md; a recorded training run is in no known world, so no
