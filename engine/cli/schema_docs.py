@@ -136,7 +136,7 @@ def markdown() -> str:
         "together (`engine/sim/plausibility.py`), each refusal naming its key: a run's `start` and its",
         "`orbit_centre` inside the arena; the orbit (`orbit_radius`) and the off-route detour",
         "(`off_route_offset`, when `off_route_fraction` or `query_off_route` is set) keep the robot's",
-        "body (radius 0.23 m) inside the walls; `control_hz` at least `robot.whisk_hz`; a `route` run",
+        "body (radius 0.23 m) inside the walls; `control_hz` at least `robot.whisk_hz`; a `route` or `teleop` run",
         "needs an environment with a route. Infinite or NaN numbers are refused everywhere, method",
         "parameters included. A scenario whose simulation is estimated to take more than 10 minutes",
         "on one core says so (`validate`, and `run` before it starts; progress lines while it runs).",

@@ -201,31 +201,31 @@ def rename_legacy_keys(data: dict[str, Any], where: str) -> dict[str, Any]:
                     f"{where}: both '{old}' and '{new}' are set; '{old}' is the old name of '{new}', keep only '{new}'"
                 )
             data[current_key(old, where)] = data.pop(old)
-    return nest_legacy_run_gains(data, where)
+    return current_run_settings(data, where)
 
 
-def nest_legacy_run_gains(data: dict[str, Any], where: str) -> dict[str, Any]:
-    """``data`` with the foraging gains that a ``run:`` gives at its top level (the form
-    before ``run.gains``) moved under ``gains``, with one warning naming ``where`` and their
-    key paths; a gain given in both places is a ScenarioError."""
+def current_run_settings(data: dict[str, Any], where: str) -> dict[str, Any]:
+    """``data`` with each ``run:``'s settings of an old name under the new one
+    (`RENAMED_RUN_KEYS`) and the foraging gains given at its top level (the form before
+    ``run.gains``) moved under ``gains``, each with one warning naming ``where`` and the key
+    paths; a setting given in both forms is a ScenarioError."""
     runs = {"train.run": data.get("train")}
     evaluations = data.get("evaluations")
     for i, entry in enumerate(evaluations if isinstance(evaluations, list) else []):
         runs[f"evaluations.{i}.run"] = entry
     paths, renamed = [], []
     for prefix, entry in runs.items():
-        if isinstance(entry, dict) and isinstance(entry.get("run"), dict):
-            try:
-                entry["run"], old = rename_legacy_run_keys(entry["run"])
-            except ValueError as exc:
-                raise ScenarioError(f"{where}: {prefix}: {exc}") from None
-            renamed += [f"{prefix}.{key}" for key in old]
-        if isinstance(entry, dict) and legacy_gain_paths(entry.get("run")):
-            paths += [f"{prefix}.{key}" for key in legacy_gain_paths(entry["run"])]
-            try:
-                entry["run"] = nest_legacy_gains(entry["run"])
-            except ValueError as exc:
-                raise ScenarioError(f"{where}: {prefix}: {exc}") from None
+        run = entry.get("run") if isinstance(entry, dict) else None
+        if not isinstance(run, dict):
+            continue
+        try:
+            run, old = rename_legacy_run_keys(run)
+            gains = legacy_gain_paths(run)
+            entry["run"] = nest_legacy_gains(run)
+        except ValueError as exc:
+            raise ScenarioError(f"{where}: {prefix}: {exc}") from None
+        renamed += [f"{prefix}.{key}" for key in old]
+        paths += [f"{prefix}.{key}" for key in gains]
     if paths:
         log.warning("%s: the foraging gains %s are now under 'run.gains'; read from there (move them)", where,
                     ", ".join(paths))

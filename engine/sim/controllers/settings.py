@@ -279,7 +279,9 @@ def key_form(run: ForagingRun | TeleopRun | RouteRun | OrbitRun) -> dict[str, An
     """The run's settings in the version-6 key format (JSON values): what cache keys and run
     hashes are computed from. Equal to the old flat dump, so keys stay valid."""
     own = run.model_dump(mode="json", exclude={"gains"})
-    own = {old: own.pop(new) for old, new in RENAMED_RUN_KEYS.items() if new in own} | own
+    for old, new in RENAMED_RUN_KEYS.items():
+        if new in own:
+            own[old] = own.pop(new)
     flat = {**V6_DEFAULTS, **own}
     if isinstance(run, ForagingRun):
         default = ForagingGains()

@@ -16,6 +16,7 @@ The modes keep their state on the driver (``target_landmark``, ``until``,
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
 
 import numpy as np
 
@@ -46,7 +47,7 @@ _APPROACH_TIMEOUT = 12.0  #: an exploration that has not reached its landmark by
 _MAKE_ROOM = 0.3  #: where the head cannot swing round to face a landmark, back away up to this far first [m]
 
 
-class TeleopMode:
+class TeleopMode(ABC):
     """One mode of the teleoperator; `decide` returns (key or None, event)."""
 
     name = ""
@@ -57,8 +58,9 @@ class TeleopMode:
     def enter(self, t: float, pose: np.ndarray) -> None:
         """Called when the driver switches to this mode."""
 
+    @abstractmethod
     def decide(self, t: float, pose: np.ndarray) -> tuple[Press | None, str]:
-        raise NotImplementedError
+        """The key to press (None: hand over at once) and the event for `TELEOP_TRANSITIONS`."""
 
 
 class Drive(TeleopMode):
