@@ -30,6 +30,10 @@ environment's loop from a random start, exploring the tactile landmarks it passe
 foraging states do. Foraging and teleop share one look-ahead `SafetyGuard` that keeps the
 body and the head off obstacles.
 
+Station drives (``stations``, `StationDriver`): the same teleoperator, whisking the same K
+tactile stations (each derived from a named landmark: `stations_of`) in every drive, from
+jittered approach poses, so that a touched query has a touched true match.
+
 Route following (``route``): pure pursuit along the environment's closed waypoint loop,
 facing the direction of travel.
 
@@ -48,7 +52,8 @@ not revisits and true negatives occur.
 
 The package, one module per concern: `common` (the `Observation`, noise, the rate limiter),
 `safety` (`SafetyGuard`, `Headway`), `settings` (the run settings per kind: `RunSpec`,
-`run_spec`, `key_form`), `foraging`, `teleop` (the driver and its modes), `route` (route and orbit),
+`run_spec`, `key_form`), `foraging`, `teleop` (the driver and its modes), `stations` (the station
+driver, its stations), `route` (route and orbit),
 `factory` (`make_controller`). This module re-exports their public names.
 """
 
@@ -80,6 +85,7 @@ from vitaplace.engine.sim.controllers.settings import (
     OrbitRun,
     RouteRun,
     RunSpec,
+    StationsRun,
     TeleopRun,
     key_form,
     legacy_gain_paths,
@@ -88,6 +94,7 @@ from vitaplace.engine.sim.controllers.settings import (
     rename_legacy_run_keys,
     run_spec,
 )
+from vitaplace.engine.sim.controllers.stations import STATION_TRANSITIONS, Station, StationDriver, ToStation, stations_of
 from vitaplace.engine.sim.controllers.teleop import TELEOP_KEYS, TELEOP_TURN, TeleopDriver
 from vitaplace.engine.sim.controllers.teleop import TELEOP_TRANSITIONS, Approach, Drive, Hold, TeleopMode
 
@@ -97,4 +104,5 @@ __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "Tel
            "TELEOP_SPEED", "ForagingGains", "ForagingRun", "TeleopRun", "RouteRun", "OrbitRun",
            "run_spec", "recorded_run_spec", "key_form", "legacy_gain_paths", "nest_legacy_gains",
            "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "RUN_KINDS", "V6_DEFAULTS",
-           "TeleopMode", "Drive", "Approach", "Hold", "TELEOP_TRANSITIONS"]
+           "TeleopMode", "Drive", "Approach", "Hold", "TELEOP_TRANSITIONS", "StationsRun", "StationDriver", "Station",
+           "ToStation", "STATION_TRANSITIONS", "stations_of"]

@@ -1,6 +1,6 @@
 """The settings of a run: one model per run kind, a discriminated union on ``kind``.
 
-`RunSpec` names "the settings of a run": `ForagingRun`, `TeleopRun`, `RouteRun` or
+`RunSpec` names "the settings of a run": `ForagingRun`, `TeleopRun`, `StationsRun`, `RouteRun` or
 `OrbitRun`, chosen by ``kind``, each with only the fields its controller (and the
 simulation loop) uses; the foraging states' gains and thresholds are the nested
 `ForagingGains` (``gains:``). A model's dump is exact: every field, gains included.
@@ -29,7 +29,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
-__all__ = ["RunSpec", "ForagingGains", "ForagingRun", "TeleopRun", "RouteRun", "OrbitRun", "run_spec",
+__all__ = ["RunSpec", "ForagingGains", "ForagingRun", "TeleopRun", "StationsRun", "RouteRun", "OrbitRun", "run_spec",
            "recorded_run_spec", "key_form", "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "V6_DEFAULTS", "TELEOP_SPEED", "RUN_KINDS"]
 
 #: the teleop keys' nominal speed [m/s] for the WhiskEye (see docs/SIMULATION.md)
@@ -179,11 +179,10 @@ class ForagingRun(_Run):
         return self
 
 
-class TeleopRun(_OffPath):
-    """An emulated keyboard teleoperator driving its own copy of the environment's route and
-    whisking its landmarks (evaluation runs: independent drives): `TeleopDriver`."""
+class _Teleoperated(_OffPath):
+    """The fields of the kinds an emulated keyboard teleoperator drives (teleop, stations):
+    its keys, its own copy of the route, its approaches to landmarks and its detours."""
 
-    kind: Literal["teleop"] = Field(description="teleop: an emulated keyboard teleoperator (evaluation)")
     speed: float = Field(TELEOP_SPEED, gt=0, le=1.0, description="the keys' nominal speed [m/s]")
     decision_interval: float = Field(0.5, gt=0, le=5, description="how often the teleoperator reconsiders its key [s]")
     reaction_delay: float = Field(
@@ -200,12 +199,6 @@ class TeleopRun(_OffPath):
     speed_steps: int = Field(
         2, ge=0, le=5, description="the run's speed is the keys' speed after k presses of q (x1.1) or z (x0.9), |k| <= this"
     )
-    visit_range: float = Field(
-        0.5, ge=0, le=2, description="a tactile landmark this close to the head [m] is explored (turn, approach, hold)"
-    )
-    visit_bearing_deg: float = Field(
-        90.0, ge=0, le=180, description="... and its nearest point lies at most this far from the heading [deg]"
-    )
     touch_gap: float = Field(
         0.06, gt=0, le=0.2, description="an explored landmark is approached until the whiskers touch it and the head is this close [m]"
     )
@@ -213,10 +206,56 @@ class TeleopRun(_OffPath):
     detour_count: int = Field(3, ge=1, le=50, description="detours that the off-route share is split into")
 
     @model_validator(mode="after")
-    def _check(self) -> TeleopRun:
+    def _check(self) -> _Teleoperated:
         lo, hi = self.hold_cycles
         if not 1 <= lo <= hi:
             raise ValueError("hold_cycles must be [min, max] with 1 <= min <= max")
+        return self
+
+
+class TeleopRun(_Teleoperated):
+    """An emulated keyboard teleoperator driving its own copy of the environment's route and
+    whisking its landmarks (evaluation runs: independent drives): `TeleopDriver`."""
+
+    kind: Literal["teleop"] = Field(description="teleop: an emulated keyboard teleoperator (evaluation)")
+    visit_range: float = Field(
+        0.5, ge=0, le=2, description="a tactile landmark this close to the head [m] is explored (turn, approach, hold)"
+    )
+    visit_bearing_deg: float = Field(
+        90.0, ge=0, le=180, description="... and its nearest point lies at most this far from the heading [deg]"
+    )
+
+
+class StationsRun(_Teleoperated):
+    """The teleoperator of `TeleopRun` whisking K tactile stations, the same for every drive
+    in the environment, from jittered approach poses instead of the landmarks it happens to
+    pass: `StationDriver` (docs/SIMULATION.md, "Station drives")."""
+
+    kind: Literal["stations"] = Field(description="stations: the teleoperator whisks the same K tactile stations "
+                                      "in every drive (evaluation)")
+    stations: list[str] | None = Field(
+        None, min_length=1, description="names of the landmarks whose stations are whisked (tactile landmarks of the "
+        "environment); null: every tactile landmark, in the environment's order"
+    )
+    station_count: int | None = Field(
+        None, ge=1, description="K: the first K of those stations are whisked; null: all of them"
+    )
+    station_jitter: float = Field(
+        0.05, ge=0, le=0.5, description="each approach starts within this distance of its station's point, uniform "
+        "in the disc (drawn per visit) [m]"
+    )
+    station_heading_jitter_deg: float = Field(
+        5.0, ge=0, le=45, description="each approach faces the landmark's nearest point plus a uniform angle within "
+        "+-this (drawn per visit) [deg]"
+    )
+    hold_cycles: tuple[int, int] = Field((4, 6), description="whisk cycles with contact held at each station [min, max]")
+
+    @model_validator(mode="after")
+    def _check_stations(self) -> StationsRun:
+        if self.stations is not None and len(set(self.stations)) != len(self.stations):
+            raise ValueError(f"stations must name each landmark once, got {self.stations}")
+        if self.stations is not None and self.station_count is not None and self.station_count > len(self.stations):
+            raise ValueError(f"station_count {self.station_count} is more than the {len(self.stations)} stations named")
         return self
 
 
@@ -243,12 +282,14 @@ class OrbitRun(RouteRun):
 
 
 #: the settings of a run: one model per ``kind``
-RunSpec = Annotated[ForagingRun | TeleopRun | RouteRun | OrbitRun, Field(discriminator="kind")]
-RUN_KINDS: dict[str, type[_Run]] = {"foraging": ForagingRun, "teleop": TeleopRun, "route": RouteRun, "orbit": OrbitRun}
-_ADAPTER: TypeAdapter[ForagingRun | TeleopRun | RouteRun | OrbitRun] = TypeAdapter(RunSpec)
+AnyRun = ForagingRun | TeleopRun | StationsRun | RouteRun | OrbitRun
+RunSpec = Annotated[AnyRun, Field(discriminator="kind")]
+RUN_KINDS: dict[str, type[_Run]] = {"foraging": ForagingRun, "teleop": TeleopRun, "stations": StationsRun, "route": RouteRun,
+                                     "orbit": OrbitRun}
+_ADAPTER: TypeAdapter[AnyRun] = TypeAdapter(RunSpec)
 
 
-def run_spec(data: Any = None, **fields: Any) -> ForagingRun | TeleopRun | RouteRun | OrbitRun:
+def run_spec(data: Any = None, **fields: Any) -> AnyRun:
     """The settings of a run from a mapping and/or keywords: ``run_spec(kind="route", n_samples=8)``."""
     return _ADAPTER.validate_python({**(data or {}), **fields})
 
@@ -275,7 +316,7 @@ V6_DEFAULTS: dict[str, Any] = {
 RENAMED_RUN_KEYS = {"heading_tolerance_deg": "turn_threshold_deg"}
 
 
-def key_form(run: ForagingRun | TeleopRun | RouteRun | OrbitRun) -> dict[str, Any]:
+def key_form(run: AnyRun) -> dict[str, Any]:
     """The run's settings in the version-6 key format (JSON values): what cache keys and run
     hashes are computed from. Equal to the old flat dump, so keys stay valid."""
     own = run.model_dump(mode="json", exclude={"gains"})
@@ -318,7 +359,7 @@ def rename_legacy_run_keys(run: dict[str, Any]) -> tuple[dict[str, Any], list[st
     return {RENAMED_RUN_KEYS.get(k, k): v for k, v in run.items()}, found
 
 
-def recorded_run_spec(data: dict[str, Any]) -> ForagingRun | TeleopRun | RouteRun | OrbitRun:
+def recorded_run_spec(data: dict[str, Any]) -> AnyRun:
     """The settings stored in a run file (``attrs["run"]``), of any version: the flat dict of
     files recorded before the settings were split per kind has its gains nested and the
     fields of other kinds left out (they had no effect on the run)."""

@@ -108,6 +108,8 @@ class Approach(TeleopMode):
     closer and the whiskers do not reach it."""
 
     name = "approach"
+    #: the translation keys towards the landmark it tries, best first (the rest: a tap, or stop)
+    ranked_keys = 3
 
     def enter(self, t: float, pose: np.ndarray) -> None:
         d = self.driver
@@ -127,7 +129,7 @@ class Approach(TeleopMode):
         if whisking:
             return STOP, "reached"
         # then drive up to it until the whiskers touch it, and as close as touch_gap
-        key, duration = d._pick(pose, d._translation_keys(bearing)[:3])
+        key, duration = d._pick(pose, d._translation_keys(bearing)[: self.ranked_keys])
         if key != "k":
             return (key, duration), ""
         if not d._standing():  # stop first: from standstill, taps may still be safe
@@ -243,6 +245,9 @@ class TeleopDriver:
     Blocked on its path (no key towards it is safe, or no `Headway` for 3 s), the driver
     looks further along the path and makes its way round (`_way_round`).
     """
+
+    #: (mode, event) -> next mode; a driver with other modes (`StationDriver`) has its own table
+    transitions = TELEOP_TRANSITIONS
 
     def __init__(self, spec: TeleopRun, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
         self.spec, self.rng, self.obstacles = spec, rng, env.obstacles
@@ -404,7 +409,7 @@ class TeleopDriver:
 
     def _decide(self, t: float, pose: np.ndarray) -> tuple[str, float]:
         """The key to press next and how long (inf: until the next decision): the current
-        mode's, after the transitions (`TELEOP_TRANSITIONS`) its events call for; a mode that
+        mode's, after the transitions (`transitions`) its events call for; a mode that
         hands over lets the next one decide at once. Away from the path the driver's
         `Headway` restarts (it counts only while driving)."""
         while True:
@@ -412,7 +417,7 @@ class TeleopDriver:
                 self.headway.restart(pose, t)
             press, event = self.modes[self.mode].decide(t, pose)
             if event:
-                self.mode = TELEOP_TRANSITIONS[(self.mode, event)]
+                self.mode = self.transitions[(self.mode, event)]
                 self.modes[self.mode].enter(t, pose)
             if press is not None:
                 return press
