@@ -20,7 +20,7 @@ import pydantic
 from pydantic_core import PydanticUndefined
 
 from vitaplace.engine.config.scenario import EvaluationPair, ScoringSettings, Method, RecordedRuns, Scenario, TrainingData
-from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, TeleopRun
+from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, StationsRun, TeleopRun
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
     BoardSpec,
@@ -48,6 +48,8 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("run (kind: foraging): ForagingRun", ForagingRun, "a foraging run (training); each kind has only its own keys"),
     ("run.gains: ForagingGains", ForagingGains, "the gains and thresholds of the foraging states"),
     ("run (kind: teleop): TeleopRun", TeleopRun, "an emulated keyboard teleoperator's drive (evaluation)"),
+    ("run (kind: stations): StationsRun", StationsRun,
+     "the teleoperator whisking the same K tactile stations in every drive (evaluation)"),
     ("run (kind: route): RouteRun", RouteRun, "noisy laps of the environment's route"),
     ("run (kind: orbit): OrbitRun", OrbitRun, "noisy laps of a circle, facing outward"),
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),

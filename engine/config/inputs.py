@@ -1,7 +1,7 @@
 """Checks of a validated scenario's runs against what they name: recorded run files (there,
 readable, long enough, shaped like the training run, query and reference distinct) and
 environments (there, and the runs plausible in them; ``scoring.tau`` below each arena's
-diagonal)."""
+diagonal); a stations run's approach jitter within the ground truth's tolerances."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from pathlib import Path
 from vitaplace.engine.config.scenario import MIN_EVALUATION_SAMPLES, RecordedRuns, Scenario, ScenarioError
 from vitaplace.engine.data.dataset import DatasetError, Run, open_run
 from vitaplace.engine.outputs.checksum import digest
+from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import load_environment
 from vitaplace.engine.sim.plausibility import ImplausibleRun, check_run
 
@@ -39,6 +40,8 @@ def check_runs(path: Path, scenario: Scenario) -> int:
         if not entry.environment.is_file():
             raise ScenarioError(f"{path}: {where}.environment: no such file {str(entry.environment)!r}")
         env = load_environment(entry.environment)
+        if entry.run is not None and where != "train":
+            _check_station_jitter(path, where, entry.run, scenario)
         if entry.run is not None:
             runs = [entry.run_for(role) for role in ("query", "reference")] if where != "train" else [entry.run]
             for run in runs:
@@ -53,6 +56,23 @@ def check_runs(path: Path, scenario: Scenario) -> int:
                 f"{env.name}: every pair of poses would count as a revisit"
             )
     return train_samples
+
+
+def _check_station_jitter(path: Path, where: str, run: RunSpec, scenario: Scenario) -> None:
+    """Two station drives approach a station up to twice its jitter apart (each within it of
+    the station): that must stay within ``scoring.tau`` and the heading tolerance, or a
+    touched query could have no true match at its own station."""
+    if run.kind != "stations":
+        return
+    tau, heading = scenario.scoring.tau, scenario.scoring.heading_tolerance_deg
+    if 2 * run.station_jitter > tau:
+        raise ScenarioError(f"{path}: {where}.run.station_jitter: {run.station_jitter:g} m lets two drives approach a "
+                            f"station {2 * run.station_jitter:g} m apart, more than scoring.tau = {tau:g} m; at most "
+                            f"{tau / 2:g} m")
+    if heading is not None and 2 * run.station_heading_jitter_deg > heading:
+        raise ScenarioError(f"{path}: {where}.run.station_heading_jitter_deg: {run.station_heading_jitter_deg:g} deg "
+                            f"lets two drives face a station {2 * run.station_heading_jitter_deg:g} deg apart, more "
+                            f"than scoring.heading_tolerance_deg = {heading:g}; at most {heading / 2:g} deg")
 
 
 def _recorded(path: Path, where: str, file: Path, minimum: int) -> Run:

@@ -147,7 +147,7 @@ class EvaluationPair(_RunSource):
         self._check_source("datasets", self.datasets is not None, environment_allowed=True)
         if self.query_off_route and (self.run is None or self.run.kind == "foraging"):
             raise ValueError(
-                "query_off_route needs a simulated teleop, route or orbit run (not recorded runs, not foraging)"
+                "query_off_route needs a simulated teleop, stations, route or orbit run (not recorded runs, not foraging)"
             )
         return self
 

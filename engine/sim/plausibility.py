@@ -8,7 +8,9 @@ scenario knows both (`vitaplace.engine.config.loading.load_scenario`):
 * ``orbit_centre`` inside the arena, and the orbit of ``orbit_radius`` with the body inside it;
 * ``off_route_offset`` (when a part of the run is driven off the path): the detoured path
   (the route or orbit moved that far to the left of travel) with the body inside the arena;
-* ``control_hz`` at least ``whisk_hz``: the controller acts at least once per sample.
+* ``control_hz`` at least ``whisk_hz``: the controller acts at least once per sample;
+* a stations run: the environment has a route and tactile landmarks, ``stations`` names
+  tactile landmarks of it, ``station_count`` is no more than there are (`station_indices`).
 
 `estimated_seconds` says how long a run takes on one core, from the simulator's measured
 rates (docs/PERFORMANCE.md), so a long simulation is announced with an estimate.
@@ -22,6 +24,7 @@ import numpy as np
 
 from vitaplace.engine.sim.clearance import Route
 from vitaplace.engine.sim.controllers import RunSpec
+from vitaplace.engine.sim.controllers.stations import StationError, station_indices
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.robot import BODY_RADIUS, RobotSpec
 
@@ -55,6 +58,11 @@ def check_run(env: EnvironmentSpec, run: RunSpec, robot: RobotSpec) -> None:
     """Raise `ImplausibleRun` naming the first setting of ``run`` that cannot be right in ``env``."""
     if run.kind in ("route", "teleop") and len(env.route) < 2:  # both drive along the environment's loop
         raise ImplausibleRun("kind", f"a {run.kind} run needs the environment's route; {env.name!r} has none")
+    if run.kind == "stations":
+        try:
+            station_indices(env, run)
+        except StationError as exc:
+            raise ImplausibleRun(exc.key, str(exc)) from None
     if run.start is not None and _outside(np.array([run.start[:2]]), env)[0]:
         raise ImplausibleRun("start", f"({run.start[0]:g}, {run.start[1]:g}) puts the robot (radius {BODY_RADIUS} m) "
                              f"outside {_arena(env)}")

@@ -233,7 +233,7 @@ class StationsRun(_Teleoperated):
 
     kind: Literal["stations"] = Field(description="stations: the teleoperator whisks the same K tactile stations "
                                       "in every drive (evaluation)")
-    stations: list[str] | None = Field(
+    station_landmarks: list[str] | None = Field(
         None, min_length=1, description="names of the landmarks whose stations are whisked (tactile landmarks of the "
         "environment); null: every tactile landmark, in the environment's order"
     )
@@ -252,10 +252,10 @@ class StationsRun(_Teleoperated):
 
     @model_validator(mode="after")
     def _check_stations(self) -> StationsRun:
-        if self.stations is not None and len(set(self.stations)) != len(self.stations):
-            raise ValueError(f"stations must name each landmark once, got {self.stations}")
-        if self.stations is not None and self.station_count is not None and self.station_count > len(self.stations):
-            raise ValueError(f"station_count {self.station_count} is more than the {len(self.stations)} stations named")
+        if self.station_landmarks is not None and len(set(self.station_landmarks)) != len(self.station_landmarks):
+            raise ValueError(f"station_landmarks must name each landmark once, got {self.station_landmarks}")
+        if self.station_landmarks is not None and self.station_count is not None and self.station_count > len(self.station_landmarks):
+            raise ValueError(f"station_count {self.station_count} is more than the {len(self.station_landmarks)} landmarks named")
         return self
 
 

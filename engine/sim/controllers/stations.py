@@ -39,7 +39,7 @@ from vitaplace.engine.sim.controllers.teleop import STOP, Approach, Drive, Hold,
 from vitaplace.engine.sim.environment import EnvironmentSpec
 
 __all__ = ["Station", "StationError", "StationDriver", "ToStation", "StationApproach", "STATION_TRANSITIONS", "stations_of",
-           "station_landmarks", "approach_clearance"]
+           "station_indices", "approach_clearance"]
 
 AT_STATION = 0.03  #: the driver has arrived within this distance of its (jittered) station point [m]
 _TO_STATION_TIMEOUT = 12.0  #: a station not reached by then is approached from where the robot is [s]
@@ -66,26 +66,26 @@ class Station:
     facing: float  #: yaw [rad] from the point to the landmark's outline point nearest it
 
 
-def station_landmarks(env: EnvironmentSpec, spec: StationsRun) -> list[int]:
+def station_indices(env: EnvironmentSpec, spec: StationsRun) -> list[int]:
     """The indices of the landmarks whose stations ``spec`` whisks: the first ``station_count``
-    of ``stations`` (default: every tactile landmark, in the environment's order); a
+    of ``station_landmarks`` (default: every tactile landmark, in the environment's order); a
     `StationError` naming the setting when they do not fit ``env``."""
     names = env.landmark_names()
     tactile = [name for name, lm in zip(names, env.landmarks) if lm.tactile]
     if len(env.route) < 2 or not tactile:
         raise StationError("kind", f"a stations run needs the environment's route and tactile landmarks; "
                            f"{env.name!r} has {len(env.route)} route waypoints and {len(tactile)} tactile landmarks")
-    chosen = spec.stations if spec.stations is not None else tactile
+    chosen = spec.station_landmarks if spec.station_landmarks is not None else tactile
     for name in chosen:
         if name not in names:
-            raise StationError("stations", f"{name!r} names no landmark of {env.name!r} (its landmarks: "
+            raise StationError("station_landmarks", f"{name!r} names no landmark of {env.name!r} (its landmarks: "
                                f"{', '.join(names)})")
         if name not in tactile:
-            raise StationError("stations", f"{name!r} of {env.name!r} is not tactile: the whiskers cannot touch it")
+            raise StationError("station_landmarks", f"{name!r} of {env.name!r} is not tactile: the whiskers cannot touch it")
     count = len(chosen) if spec.station_count is None else spec.station_count
     if count > len(chosen):
         raise StationError("station_count", f"{count} stations asked for, but {env.name!r} has only {len(chosen)} "
-                           f"{'named' if spec.stations is not None else 'tactile'} landmarks to make them from")
+                           f"{'named' if spec.station_landmarks is not None else 'tactile'} landmarks to make them from")
     return [names.index(name) for name in chosen[:count]]
 
 
@@ -97,7 +97,7 @@ def stations_of(env: EnvironmentSpec, spec: StationsRun) -> list[Station]:
     directions = np.arctan2(loop[:, 1] - centre[1], loop[:, 0] - centre[0])
     names = env.landmark_names()
     out = []
-    for i in station_landmarks(env, spec):
+    for i in station_indices(env, spec):
         rel = np.asarray(env.landmarks[i].pos, dtype=float) - centre
         towards = math.atan2(rel[1], rel[0])
         point = loop[int(np.argmin(np.abs(np.angle(np.exp(1j * (directions - towards))))))]
@@ -117,7 +117,8 @@ def approach_clearance(env: EnvironmentSpec, station: Station, gap: float, step:
     start = np.asarray(station.point)
     head = (start + HEAD_CENTRE * heading)[None]
     head_gap = env.obstacles.landmark_distance_many(head)[0, station.landmark] - HEAD_RADIUS
-    travel = np.arange(0.0, max(head_gap - gap, 0.0) + step / 2, step)
+    distance = max(head_gap - gap, 0.0)
+    travel = np.append(np.arange(0.0, distance, step), distance)
     xy = start + travel[:, None] * heading
     return float(footprint_clearance(env.obstacles, xy, np.full(len(xy), station.facing)).min())
 
