@@ -145,23 +145,34 @@ def test_each_station_is_whisked_at_the_sampling_instant_and_a_touched_query_the
 
 
 def test_the_station_drivers_modes_switch_by_their_transition_table():
-    """drive --landmark--> to_station --arrived--> approach, at the station's point: a driver
-    whose progress along its loop reaches a station goes there, and arrives within
-    AT_STATION of its jittered point."""
+    """drive --landmark--> to_station --arrived--> approach: a driver whose progress along its
+    loop has just passed a station (0.2 m, less than the 0.5 m it looks back) goes there, to
+    a point within station_jitter of it, and arrives within AT_STATION of that point."""
     env = load_environment(WORLD)
     driver, _ = make_controller(env, run_spec(kind="stations", n_samples=N), np.random.default_rng(3), 0.5)
     assert STATION_TRANSITIONS[("drive", "landmark")] == "to_station"
-    driver.s = driver.station_s[2] - 0.1  # just before the west station
+    driver.s = driver.station_s[2] + 0.2  # just past the west station
     point = np.asarray(driver.stations[2].point)
-    pose = np.array([*point, math.pi])
-    driver._decide(1.0, pose)
+    driver._decide(1.0, np.array([*point, math.pi]))
     assert driver.mode == "to_station" and driver.station.name == "west"
     assert np.linalg.norm(driver.station_target - point) <= driver.spec.station_jitter
     at_target = np.array([*driver.station_target, math.pi])
     driver._decide(1.5, at_target)
     assert driver.mode == "approach" and driver.arrivals[-1][1] == 2
-    driver._decide(2.0, at_target)  # not again while visiting it
-    assert driver.mode == "approach"
+
+
+def test_the_approach_faces_the_landmark_off_by_the_visits_heading_offset():
+    """At touch-alike-boxes' east station (0.87, 0) facing east, the east box's nearest point
+    (1.638, 0) lies straight ahead of the head: bearing 0. With this visit's heading offset
+    0.05 rad the driver's bearing is 0.05 rad, so its approach turns until the box lies
+    0.05 rad to the right."""
+    env = load_environment("touch-alike-boxes")
+    driver, _ = make_controller(env, run_spec(kind="stations", n_samples=N), np.random.default_rng(0), 0.5)
+    pose = np.array([0.87, 0.0, 0.0])
+    driver.heading_offset = 0.0
+    assert driver._bearing(pose, 0) == pytest.approx(0.0, abs=1e-3)
+    driver.heading_offset = 0.05
+    assert driver._bearing(pose, 0) == pytest.approx(0.05, abs=1e-3)
 
 
 # ---------------------------------------------------------------------- bad settings
@@ -191,7 +202,9 @@ def _scenario(tmp_path: Path, run: dict, environment: str = "e1", scoring: dict 
     ({"station_jitter": 0.1}, {"tau": 0.15}, r"evaluations\.0\.run\.station_jitter: .*scoring\.tau = 0\.15 m"),
     ({"station_heading_jitter_deg": 20}, None,
      r"evaluations\.0\.run\.station_heading_jitter_deg: 20 deg .* scoring\.heading_tolerance_deg = 30"),
-])
+], ids=["unknown landmark", "more stations than landmarks", "no station", "more stations than named", "named twice",
+        "jitter out of range", "heading jitter out of range", "jitter over half tau", "jitter over half a smaller tau",
+        "heading jitter over half the tolerance"])
 def test_bad_station_settings_are_refused_naming_the_key(tmp_path, run, scoring, message):
     with pytest.raises(ScenarioError, match=message):
         load_scenario(_scenario(tmp_path, run, scoring=scoring))
