@@ -79,6 +79,7 @@ def make_doc_images(out_dir: str | Path, foraging_samples: int = 600, drive_samp
     out.mkdir(parents=True, exist_ok=True)
     written, frames = _trajectory_figures(out, foraging_samples, drive_samples)
     written.append(_camera_frames_figure(out, frames))
+    written.append(_touch_worlds_figure(out, drive_samples))
     written.extend(_robot_figures(out))
     written.append(_whisker_figure(out))
     return written
@@ -181,6 +182,31 @@ def _robot_figures(out: Path) -> list[Path]:
         fig.figimage(img)
         written.append(_save(fig, out / fname, dpi=100))
     return written
+
+
+TOUCH_WORLDS = ("touch-alike-boxes", "touch-alike-shapes", "touch-distinct-boxes", "touch-distinct-shapes")
+
+
+def _touch_worlds_figure(out: Path, drive_samples: int) -> Path:
+    """Top views of the four touch worlds, each with two station drives (seeds 1 and 2) and
+    its stations (``touch_worlds_top.png``)."""
+    import matplotlib.pyplot as plt
+
+    from vitaplace.engine.sim.controllers import stations_of
+    from vitaplace.engine.sim.environment import load_environment
+    from vitaplace.engine.sim.simulate import run_spec, simulate_run
+
+    spec = run_spec(kind="stations", n_samples=drive_samples)
+    fig, axes = plt.subplots(2, 2, figsize=(10, 10))
+    for ax, name in zip(axes.ravel(), TOUCH_WORLDS):
+        env = load_environment(name)
+        drives = {f"station drive {label} (seed {seed})": simulate_run(env, spec, seed=seed, progress=False).poses
+                  for label, seed in (("A", 1), ("B", 2))}
+        plot_environment(env.top_view(), drives, ax=ax, title=name)
+        for st in stations_of(env, spec):
+            ax.plot(*st.point, marker=(3, 0, math.degrees(st.facing) - 90), color="black", markersize=9, ls="none")
+    fig.tight_layout()
+    return _save(fig, out / "touch_worlds_top.png", dpi=90)
 
 
 def _whisker_figure(out: Path) -> Path:

@@ -1,4 +1,5 @@
-"""E1, E2, E3 against the original Gazebo worlds, and the visual aliasing they were built for.
+"""E1, E2, E3 against the original Gazebo worlds, the visual aliasing they were built for, and the
+design of the four touch worlds (appearance x shape).
 
 The expected numbers are written here from the original files — aalto-intelligent-
 robotics/ViTa-SLAM, commit 8c0d62e, src/whiskeye_gazebo/worlds/ICRA20_dataset_generation_
@@ -175,3 +176,49 @@ def test_model_xml_compiles_to_the_same_model():
     assert (x.nbody, x.ngeom, x.njnt, x.nu, x.nmesh) == (m.nbody, m.ngeom, m.njnt, m.nu, m.nmesh)
     for key in ("geom_size", "geom_pos", "geom_quat", "geom_contype", "geom_conaffinity", "body_mass", "jnt_range"):
         np.testing.assert_allclose(getattr(x, key), getattr(m, key), rtol=1e-5, atol=1e-6, err_msg=key)
+
+
+# ---------------------------------------------------------------------- the touch worlds
+TOUCH = {("alike", "boxes"): "touch-alike-boxes", ("alike", "shapes"): "touch-alike-shapes",
+         ("distinct", "boxes"): "touch-distinct-boxes", ("distinct", "shapes"): "touch-distinct-shapes"}
+
+
+def _geometry(env) -> list[dict]:
+    return [lm.model_dump(mode="json", exclude={"rgba", "material"}) for lm in env.landmarks]
+
+
+def _appearance(env) -> tuple:
+    walls = env.arena.model_dump(mode="json")["walls"]
+    colours = [lm.material or tuple(lm.rgba) for lm in env.landmarks]
+    return walls, colours
+
+
+def test_the_touch_worlds_cross_appearance_and_shape():
+    """Two worlds of a shape column share landmarks (all but colour) and route; two of an
+    appearance row share walls, panels and landmark colours. Look alike: four identical walls
+    and panels, all landmarks one colour; look different: four panel colours, each landmark in
+    its wall's. Feel alike: four identical boxes; feel different: four landmark shapes (box,
+    a box turned 45 deg, rock, cylinder). Every landmark's nearest point is E1's 1.638 m from
+    the centre (the rock's within 1 cm)."""
+    worlds = {key: load_environment(name) for key, name in TOUCH.items()}
+    for shape in ("boxes", "shapes"):
+        a, d = worlds[("alike", shape)], worlds[("distinct", shape)]
+        assert _geometry(a) == _geometry(d) and a.route == d.route
+    for look in ("alike", "distinct"):
+        assert _appearance(worlds[(look, "boxes")]) == _appearance(worlds[(look, "shapes")])
+    walls, colours = _appearance(worlds[("alike", "boxes")])
+    assert len({str(w) for w in walls.values()}) == 1 and len(set(colours)) == 1
+    walls, colours = _appearance(worlds[("distinct", "boxes")])
+    panels = {side: tuple(w["panel"]["rgba"]) for side, w in walls.items()}
+    assert len(set(panels.values())) == 4 and len(set(colours)) == 4
+    env = worlds[("distinct", "boxes")]
+    for lm in env.landmarks:
+        assert tuple(lm.rgba) == panels[lm.name]  # each landmark in its wall's colour (the names are the sides)
+    boxes = [(lm.type, tuple(lm.size), lm.yaw) for lm in worlds[("alike", "boxes")].landmarks]
+    assert len(set(boxes)) == 1 and boxes[0] == ("box", (1.0, 1.0, 0.3), 0.0)
+    shapes = [(lm.type, getattr(lm, "yaw", 0.0)) for lm in worlds[("alike", "shapes")].landmarks]
+    assert shapes == [("box", 0.0), ("box", 45.0), ("rock", 0.0), ("cylinder", 0.0)]
+    for env in worlds.values():
+        assert len(env.landmarks) >= 4 and all(lm.tactile for lm in env.landmarks)
+        nearest = env.obstacles.landmark_distance_many(np.zeros((1, 2)))[0]
+        assert nearest == pytest.approx(1.638, abs=0.01)
