@@ -54,8 +54,8 @@ class ArchitectureParams(InputParams):
         10, description="passes over the training run (the maximum when converge_window > 0)"
     )
     converge_window: pydantic.NonNegativeInt = Field(
-        0, description="stop once the training energy fell by less than converge_tol over this many epochs "
-        "(0: run all epochs)",
+        0, description="stop once the training energy (the autoencoder: its reconstruction error) fell by less "
+        "than converge_tol over this many epochs (0: run all epochs)",
     )
     converge_tol: float = Field(
         0.01, gt=0, lt=1, description="relative improvement of the training energy over converge_window epochs "

@@ -202,3 +202,16 @@ def test_the_methods_of_the_shipped_scenarios_keep_their_parameter_keys(name):
     pipeline = Pipeline(scenario, resolved, Path(tempfile.mkdtemp()))
     keys = {f"{name}:{m.name}": content_hash(m.plugin, pipeline.params_for(m)) for m in scenario.methods}
     assert keys == {k: v for k, v in METHOD_PARAMS_KEYS.items() if k.startswith(f"{name}:")}
+
+
+def test_the_controls_scenario_holds_the_studys_six_methods_unchanged():
+    """paper-cpu-controls.yaml adds methods after paper-cpu.yaml's six: those keep their
+    names, plugins, parameters and derived seeds (so their keys), and the new ones use the
+    cycle input or the autoencoder."""
+    keys = {}
+    for name in ("paper-cpu", "paper-cpu-controls"):
+        scenario, resolved = load_scenario(ROOT / "scenarios" / f"{name}.yaml")
+        pipeline = Pipeline(scenario, resolved, Path(tempfile.mkdtemp()))
+        keys[name] = [(m.name, content_hash(m.plugin, pipeline.params_for(m))) for m in scenario.methods]
+    assert keys["paper-cpu-controls"][:6] == keys["paper-cpu"]
+    assert [name for name, _ in keys["paper-cpu-controls"][6:]] == ["L-cycle", "L-T-cycle", "A", "A-V", "A-T", "A-cycle"]
