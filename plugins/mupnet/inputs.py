@@ -185,9 +185,10 @@ def report_out_of_range(run: Run, values: np.ndarray, fitted: TactileRange, para
     beyond = float(np.maximum(scaled - 1, -scaled)[outside].max())
     rows = outside.any(axis=1)
     touch = touched(run, params)
+    kind = "instant" if params.tactile_input == "instant" else f"cycle, {params.cycle_points} points"
     warn_once(
-        run, f"{who} tactile range ({params.tactile_input})",
-        f"{who} (tactile_input {params.tactile_input}): {int(rows.sum())} of {len(run)} samples of run {run.name!r} "
+        run, f"{who} tactile range ({kind})",
+        f"{who} (tactile_input {kind}): {int(rows.sum())} of {len(run)} samples of run {run.name!r} "
         f"({int((rows & touch).sum())} of its {int(touch.sum())} touched samples) have tactile values outside the "
         f"training run's range ({int(outside.sum())} values in {int(outside.any(axis=0).sum())} of "
         f"{values.shape[1]} channels, up to {beyond:.3g} scaled units beyond [0, 1]); they are not clipped",

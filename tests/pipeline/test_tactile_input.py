@@ -170,7 +170,7 @@ def test_the_cycle_input_reaches_the_network_and_out_of_range_tests_are_reported
     assert extractor.network.sizes["tactile.0"] == 24 * 17
     features = extractor.transform(test)
     assert np.isfinite(features["latent"]).all()
-    message = test.warnings["mupnet tactile range (cycle)"]
+    message = test.warnings["mupnet tactile range (cycle, 8 points)"]
     assert "of 12 samples of run 'test' (3 of its 3 touched samples)" in message
     extractor.save(tmp_path / "m")
     loaded = mupnet_class.load(tmp_path / "m")
