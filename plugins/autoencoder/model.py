@@ -51,7 +51,7 @@ class Autoencoder:
     def __init__(self, sizes: Mapping[str, list[int]], joint: int, *, activation: str, slope: float,
                  encoder: Encoder, seed: int, dtype: type = np.float32) -> None:
         self.sizes = {m: list(s) for m, s in sizes.items()}
-        self.joint, self.activation, self.slope, self.encoder = joint, activation, slope, encoder
+        self.activation, self.slope, self.encoder = activation, slope, encoder
         self.dtype = np.dtype(dtype)
         rng = np.random.default_rng(seed)
         # the decoder drawn as MuPNet's Network draws its edges: every stack bottom up, then the joint edges
@@ -85,6 +85,7 @@ class Autoencoder:
             stacks[m] = []
             for l in range(1, len(s)):
                 h = self._dense(h, self.encoder_weight(f"{m}.{l}"), stacks[m])
+            # the stack's top and its share of the joint pre-activation (phi is applied to the sum)
             stacks[m].append(Layer(h, h @ self.encoder_weight(f"joint.{m}")))
             total = total + stacks[m][-1].a
         return self._phi(total), total
@@ -94,11 +95,6 @@ class Autoencoder:
         for l in range(len(self.sizes[m]) - 1, 0, -1):
             y = self._dense(y, self.weights[f"{m}.{l}"], layers)
         return y
-
-    def reconstruct(self, inputs: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
-        """Each modality's reconstruction of its input from the joint code."""
-        z = self.encode(inputs)
-        return {m: self._decode(z, m, []) for m in self.sizes}
 
     def _backward(self, layers: list[Layer], weights: list[np.ndarray], grad: np.ndarray,
                   into: list[np.ndarray], to_input: bool = True) -> np.ndarray | None:
