@@ -20,7 +20,6 @@ keeps the model's dtype (float32 for runs, float64 for the gradient checks).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Literal
