@@ -36,6 +36,7 @@ from vitaplace.engine.sim.environment import (
     WallSpec,
 )
 from vitaplace.engine.sim.robot import RobotSpec
+from vitaplace.plugins.autoencoder.extractor import AutoencoderParams
 from vitaplace.plugins.handcrafted.extractor import HandcraftedParams
 from vitaplace.plugins.mupnet.extractor import MupnetParams
 
@@ -55,6 +56,7 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),
     ("methods[]: Method", Method, "a feature extractor to compare"),
     ("methods[].params for plugin mupnet", MupnetParams, "the learned MuPNet features"),
+    ("methods[].params for plugin autoencoder", AutoencoderParams, "MuPNet's architecture trained by backprop"),
     ("methods[].params for plugin handcrafted", HandcraftedParams, "the ViTa-SLAM front end"),
     ("scoring: ScoringSettings", ScoringSettings, "how features are scored"),
     ("Environment file: EnvironmentSpec", EnvironmentSpec, "an environment YAML (scenarios/environments)"),

@@ -1,10 +1,11 @@
 """MuPNet features: the joint latent of the multi-modal predictive-coding network.
 
-``fit`` scales the inputs (images to [0, 1] after resampling to the network's image size,
-theta + xy min-max fitted on the training run), trains the network, and ``transform``
-infers the joint latent of every sample with frozen weights (a progress bar over the
-samples unless ``progress`` is off, then one log line: samples, step cap, seconds).
-Distance: L2.
+``fit`` scales the inputs (`vitaplace.plugins.mupnet.inputs`: images to [0, 1] after
+resampling to the network's image size, the tactile input chosen by ``tactile_input``
+min-max fitted on the training run), trains the network, and ``transform`` infers the joint
+latent of every sample with frozen weights (a progress bar over the samples unless
+``progress`` is off, then one log line: samples, step cap, seconds); tactile values outside
+the training range are reported once per run. Distance: L2.
 """
 
 from __future__ import annotations
@@ -19,35 +20,24 @@ from typing import Literal
 import numpy as np
 import pydantic
 from pydantic import Field
-from scipy.ndimage import zoom
 from scipy.spatial.distance import cdist
 from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.network.backends import BackendError, Precision
 from vitaplace.engine.network.selection import check_precision, get_backend
-from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run
+from vitaplace.plugin import FeatureExtractor, Features, Run
 from vitaplace.engine.network.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
+from vitaplace.plugins.mupnet.inputs import InputParams, TactileRange, raw_inputs, report_out_of_range
 
-Modality = Literal["visual", "tactile"]
 log = logging.getLogger("vitaplace.mupnet")
 #: a test-time joint latent longer than this many times the longest training one has diverged
 DIVERGED_FACTOR = 10.0
 
 
-class MupnetParams(ExtractorParams):
-    """Network, training and test-time inference settings (defaults: the MuPNet paper/code).
+class ArchitectureParams(InputParams):
+    """The layers, activation and training length MuPNet and its backprop control share."""
 
-    The one definition of these settings: the engine's network and training configurations
-    are built from them (`network_config`, `training_config`)."""
-
-    modalities: list[Modality] = Field(
-        default_factory=lambda: ["visual", "tactile"], min_length=1,
-        description="modalities fed to the network (an ablation leaves one out)",
-    )
-    image_size: tuple[pydantic.PositiveInt, pydantic.PositiveInt] = Field(
-        (45, 80), description="(rows, columns) the camera frames are resampled to"
-    )
     visual_layers: list[pydantic.PositiveInt] = Field(
         default_factory=lambda: [1000, 300], min_length=1,
         description="latent layer sizes of the visual stack, bottom first",
@@ -56,6 +46,31 @@ class MupnetParams(ExtractorParams):
         default_factory=lambda: [100], min_length=1, description="latent layer sizes of the tactile stack, bottom first"
     )
     joint_size: pydantic.PositiveInt = Field(200, description="size of the joint latent: the place feature")
+    activation: Literal["leaky_relu", "tanh", "sigmoid", "linear"] = Field(
+        "leaky_relu", description="leaky_relu, tanh, sigmoid or linear"
+    )
+    slope: pydantic.NonNegativeFloat = Field(0.2, description="negative slope of the leaky ReLU")
+    epochs: pydantic.PositiveInt = Field(
+        10, description="passes over the training run (the maximum when converge_window > 0)"
+    )
+    converge_window: pydantic.NonNegativeInt = Field(
+        0, description="stop once the training energy (the autoencoder: its reconstruction error) fell by less "
+        "than converge_tol over this many epochs (0: run all epochs)",
+    )
+    converge_tol: float = Field(
+        0.01, gt=0, lt=1, description="relative improvement of the training energy over converge_window epochs "
+        "that still counts as progress",
+    )
+    batch_size: pydantic.PositiveInt = Field(150, description="samples per minibatch")
+    seed: int = Field(0, description="network initialisation and minibatch order")
+
+
+class MupnetParams(ArchitectureParams):
+    """Network, training and test-time inference settings (defaults: the MuPNet paper/code).
+
+    The one definition of these settings: the engine's network and training configurations
+    are built from them (`network_config`, `training_config`)."""
+
     eta_y_visual: pydantic.PositiveFloat = Field(4e-4, description="latent step size of the visual layers")
     eta_y_tactile: pydantic.PositiveFloat = Field(4e-3, description="latent step size of the tactile layers")
     eta_y_joint: pydantic.PositiveFloat = Field(4e-4, description="latent step size of the joint layer")
@@ -71,29 +86,8 @@ class MupnetParams(ExtractorParams):
     threshold_joint: pydantic.NonNegativeFloat = Field(
         1e-3, description="test-time stop: mean squared error of the joint layer's predictions"
     )
-    activation: Literal["leaky_relu", "tanh", "sigmoid", "linear"] = Field(
-        "leaky_relu", description="leaky_relu, tanh, sigmoid or linear"
-    )
-    slope: pydantic.NonNegativeFloat = Field(0.2, description="negative slope of the leaky ReLU")
-    epochs: pydantic.PositiveInt = Field(
-        10, description="passes over the training run (the maximum when converge_window > 0)"
-    )
-    converge_window: pydantic.NonNegativeInt = Field(
-        0, description="stop once the training energy fell by less than converge_tol over this many epochs "
-        "(0: run all epochs)",
-    )
-    converge_tol: float = Field(
-        0.01, gt=0, lt=1, description="relative improvement of the training energy over converge_window epochs "
-        "that still counts as progress",
-    )
-    batch_size: pydantic.PositiveInt = Field(150, description="samples per minibatch")
     inference_steps: pydantic.PositiveInt = Field(20, description="T latent steps per minibatch before the weight step")
     max_steps: pydantic.PositiveInt = Field(3000, description="test-time inference step cap")
-    tactile_min_range: pydantic.NonNegativeFloat = Field(
-        0.05,
-        description="floor on each tactile channel's min-max range before scaling (theta and xy units): a channel "
-        "that barely moved in training is not blown up to unit range",
-    )
     backend: Literal["auto", "numpy", "warp"] = Field(
         "auto", description="auto (warp on CUDA, numpy otherwise), numpy or warp"
     )
@@ -101,7 +95,6 @@ class MupnetParams(ExtractorParams):
         "float32", description="GEMM precision: float32, or on CUDA tensor cores tf32 or bf16 operands "
         "(float32 accumulation, weights and latents)",
     )
-    seed: int = Field(0, description="network initialisation and minibatch order")
 
     def network_config(self, tactile_size: int) -> NetworkConfig:
         """The engine's network configuration for inputs of ``image_size`` RGB frames and
@@ -138,22 +131,6 @@ class MupnetParams(ExtractorParams):
             raise ValueError(str(exc)) from None
         return value
 
-    @pydantic.field_validator("modalities")
-    @classmethod
-    def _distinct(cls, value: list[str]) -> list[str]:
-        if len(set(value)) != len(value):
-            raise ValueError("modalities must not repeat")
-        return value
-
-
-def resample_images(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Bilinear resampling of a (N, H, W, 3) uint8 stack to (N, h, w, 3) float32 in [0, 255]."""
-    n, h, w, _ = images.shape
-    if (h, w) == tuple(size):
-        return images.astype(np.float32)
-    factors = (1.0, size[0] / h, size[1] / w, 1.0)
-    return zoom(images.astype(np.float32), factors, order=1, grid_mode=True, mode="nearest")
-
 
 class MupnetExtractor(FeatureExtractor):
     """Learned visuo-tactile place features: the joint latent of MuPNet."""
@@ -170,6 +147,8 @@ class MupnetExtractor(FeatureExtractor):
         self.train_norm_max = math.inf
         #: training stopped because the energy converged (converge_window), not at the epoch cap
         self.converged = False
+        #: the tactile channels' training range (None without the tactile modality)
+        self.tactile_range: TactileRange | None = None
 
     @classmethod
     def memory_bytes(cls, params: MupnetParams, train_samples: int) -> tuple[int, str, str]:
@@ -185,17 +164,8 @@ class MupnetExtractor(FeatureExtractor):
         return p.backend if p.precision == "float32" else get_backend(p.backend, precision=p.precision)
 
     def raw_inputs(self, run: Run) -> dict[str, np.ndarray]:
-        """Unscaled network inputs: flattened resampled RGB and theta + xy per sample."""
-        inputs = {}
-        if "visual" in self.params.modalities:
-            batches = [
-                resample_images(run.image_batch(i, i + 512), self.params.image_size).reshape(-1)
-                for i in range(0, len(run), 512)
-            ]
-            inputs["visual"] = np.concatenate(batches).reshape(len(run), -1)
-        if "tactile" in self.params.modalities:
-            inputs["tactile"] = np.concatenate([run.theta, run.xy.reshape(len(run), -1)], axis=1).astype(np.float32)
-        return inputs
+        """Unscaled network inputs (`inputs.raw_inputs`)."""
+        return raw_inputs(run, self.params)
 
     def scaled_inputs(self, run: Run) -> dict[str, np.ndarray]:
         assert self.network is not None
@@ -204,13 +174,12 @@ class MupnetExtractor(FeatureExtractor):
     def fit(self, train: Run) -> None:
         p = self.params
         raw = self.raw_inputs(train)
-        self.network = Network(p.network_config(train.n_whiskers * 3), seed=p.seed, backend=self._backend())
+        self.network = Network(p.network_config(p.tactile_size(train.n_whiskers)), seed=p.seed, backend=self._backend())
         if "visual" in raw:
             self.network.set_scaler("visual", np.zeros(1, np.float32), np.full(1, 1 / 255, np.float32))
         if "tactile" in raw:
-            low, high = raw["tactile"].min(axis=0), raw["tactile"].max(axis=0)
-            span = np.maximum(high - low, p.tactile_min_range)
-            self.network.set_scaler("tactile", low, np.where(span > 0, 1 / np.where(span > 0, span, 1), 0))
+            self.tactile_range = TactileRange.fit(raw["tactile"], p)
+            self.network.set_scaler("tactile", *self.tactile_range.scaler())
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
         training = p.training_config()
         minibatches = training.epochs * math.ceil(len(train) / training.batch_size)
@@ -234,7 +203,10 @@ class MupnetExtractor(FeatureExtractor):
     def transform(self, run: Run) -> Features:
         if self.network is None:
             raise RuntimeError("mupnet: fit() or load() before transform()")
-        inputs = self.scaled_inputs(run)
+        raw = self.raw_inputs(run)
+        if self.tactile_range is not None:
+            report_out_of_range(run, raw["tactile"], self.tactile_range, self.params, self.name)
+        inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
         start = time.perf_counter()
         with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress, leave=False) as bar:
             result = self.network.infer(inputs, max_steps=self.params.max_steps, on_progress=bar.update)
@@ -268,6 +240,8 @@ class MupnetExtractor(FeatureExtractor):
         write_text_atomic(directory / "energy.json", json.dumps(self.energy))
         write_text_atomic(directory / "latent_norm.json", json.dumps({"train_max": self.train_norm_max}))
         write_text_atomic(directory / "training.json", json.dumps({"converged": self.converged}))
+        if self.tactile_range is not None:
+            self.tactile_range.save(directory)
 
     def load_state(self, directory: Path) -> None:
         self.network = Network.load(directory / "network", backend=self._backend())
@@ -277,3 +251,4 @@ class MupnetExtractor(FeatureExtractor):
         self.converged = bool(json.loads(training.read_text())["converged"]) if training.exists() else False
         norm = directory / "latent_norm.json"
         self.train_norm_max = json.loads(norm.read_text())["train_max"] if norm.exists() else math.inf
+        self.tactile_range = TactileRange.load(directory) if "tactile" in self.params.modalities else None

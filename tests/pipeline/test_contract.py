@@ -28,6 +28,9 @@ EXAMPLE_DIR = ROOT / "tests" / "plugin_example"
 #: mupnet small enough to fit in a fraction of a second
 TINY_MUPNET = {"image_size": [6, 8], "visual_layers": [8], "tactile_layers": [4], "joint_size": 3, "epochs": 2,
                "batch_size": 4, "inference_steps": 5, "max_steps": 50}
+#: the backprop control at the same size
+TINY_AUTOENCODER = {"image_size": [6, 8], "visual_layers": [8], "tactile_layers": [4], "joint_size": 3, "epochs": 2,
+                    "batch_size": 4}
 
 #: the imports of the example plugin in docs/plugins.md as it was when `vitaplace.plugin` was
 #: added: plugins written against it must keep working wherever the engine moves these names
@@ -50,20 +53,25 @@ SHIPPED = discover()
      {"grid": [6, 8], "max_shift": 2, "use_visual": False, "sigma_samples": 3}),
     ("mupnet-numpy", SHIPPED.get("mupnet"), {**TINY_MUPNET, "backend": "numpy"}),
     ("mupnet-warp", SHIPPED.get("mupnet"), {**TINY_MUPNET, "backend": "warp"}),
+    ("mupnet-cycle", SHIPPED.get("mupnet"), {**TINY_MUPNET, "backend": "numpy", "tactile_input": "cycle"}),
+    ("autoencoder", SHIPPED.get("autoencoder"), TINY_AUTOENCODER),
+    ("autoencoder-tied-cycle", SHIPPED.get("autoencoder"),
+     {**TINY_AUTOENCODER, "encoder": "tied", "tactile_input": "cycle"}),
 ])
 def test_shipped_extractors_keep_the_contract(extractor, params, check):
     check(extractor, params, synthetic_run())
 
 
 def test_each_check_of_each_shipped_extractor_is_a_test_of_its_own(request):
-    """Per-check ids: 4 configurations x every check, each id naming both."""
+    """Per-check ids: 7 configurations x every check, each id naming both."""
     ids = [item.callspec.id for item in request.session.items
            if getattr(item, "originalname", "") == "test_shipped_extractors_keep_the_contract"]
     if not ids:
         pytest.skip("the parametrised test was deselected")
-    expected = {f"{name}-{check.__name__}" for name in ("handcrafted", "handcrafted-tactile", "mupnet-numpy", "mupnet-warp")
-                for check in CHECKS}
-    assert set(ids) == expected and len(ids) == 4 * len(CHECKS)
+    names = ("handcrafted", "handcrafted-tactile", "mupnet-numpy", "mupnet-warp", "mupnet-cycle", "autoencoder",
+             "autoencoder-tied-cycle")
+    expected = {f"{name}-{check.__name__}" for name in names for check in CHECKS}
+    assert set(ids) == expected and len(ids) == len(names) * len(CHECKS)
 
 
 def test_the_example_plugin_as_documented_keeps_the_contract(monkeypatch):

@@ -322,6 +322,8 @@ def test_the_fitted_network_is_built_from_the_params(fitted):
     ("eta_y_visual", "-1", "Input should be greater than 0"),
     ("converge_tol", "1.5", "Input should be less than 1"),
     ("activation", "relu", "Input should be 'leaky_relu', 'tanh', 'sigmoid' or 'linear'"),
+    ("tactile_input", "sweep", "Input should be 'instant' or 'cycle'"),
+    ("cycle_points", "0", "Input should be greater than 0"),
 ])
 def test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path(capsys, key, value, message):
     from vitaplace.engine.cli.main import main

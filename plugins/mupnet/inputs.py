@@ -1,0 +1,195 @@
+"""The network inputs MuPNet and its backprop control (the ``autoencoder`` plugin) share.
+
+* visual: the camera frame resampled (bilinear) to ``image_size`` and scaled to [0, 1];
+* tactile, by ``tactile_input``:
+
+  - ``instant`` (the paper's): theta and xy at the instant of maximum protraction, ``3 W``
+    values (W theta, then x, y of each whisker);
+  - ``cycle``: the xy deflection series of the whole whisk cycle at ``cycle_points`` (P)
+    phase points per whisker (`cycle_series`), then one contact flag per whisker: 1 when its
+    deflection ``|xy|`` exceeded the touch threshold (0.01 rad) at any of the cycle's S
+    samples (`contact_flags`), ``W (2 P + 1)`` values. Theta is left out: it is the
+    commanded protraction, not a reading of the world.
+
+Each tactile channel is min-max scaled on the training run, ``(x - low) / max(high - low,
+floor)``, the floor ``tactile_min_range`` for measured channels and 1 for the contact flags
+(their own range). Test values outside a channel's training range are not clipped: they are
+counted and reported once per run (`report_out_of_range`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import pydantic
+from pydantic import Field
+from scipy.ndimage import zoom
+
+from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.data.dataset import TOUCH_THRESHOLD
+from vitaplace.plugin import ExtractorParams, Run, warn_once
+
+Modality = Literal["visual", "tactile"]
+TactileInput = Literal["instant", "cycle"]
+#: the file a fitted extractor keeps its tactile channels' training range in
+RANGE_FILE = "tactile_range.json"
+
+
+class InputParams(ExtractorParams):
+    """What the network is fed and how it is scaled."""
+
+    modalities: list[Modality] = Field(
+        default_factory=lambda: ["visual", "tactile"], min_length=1,
+        description="modalities fed to the network (an ablation leaves one out)",
+    )
+    image_size: tuple[pydantic.PositiveInt, pydantic.PositiveInt] = Field(
+        (45, 80), description="(rows, columns) the camera frames are resampled to"
+    )
+    tactile_input: TactileInput = Field(
+        "instant", description="instant: theta and xy at maximum protraction (3 values per whisker, the paper's); "
+        "cycle: the xy deflection series of the whisk cycle at cycle_points phase points plus a contact flag "
+        "per whisker (2 cycle_points + 1 values per whisker; docs/MUPNET.md)",
+    )
+    cycle_points: pydantic.PositiveInt = Field(
+        8, description="phase points of the whisk cycle the deflection series is interpolated at "
+        "(tactile_input cycle; the last is maximum protraction)",
+    )
+    tactile_min_range: pydantic.NonNegativeFloat = Field(
+        0.05,
+        description="floor on each tactile channel's min-max range before scaling (theta and xy units): a channel "
+        "that barely moved in training is not blown up to unit range",
+    )
+
+    @pydantic.field_validator("modalities")
+    @classmethod
+    def _distinct(cls, value: list[str]) -> list[str]:
+        if len(set(value)) != len(value):
+            raise ValueError("modalities must not repeat")
+        return value
+
+    def tactile_size(self, n_whiskers: int) -> int:
+        """Tactile channels for ``n_whiskers`` whiskers."""
+        return n_whiskers * (3 if self.tactile_input == "instant" else 2 * self.cycle_points + 1)
+
+
+def resample_images(images: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Bilinear resampling of a (N, H, W, 3) uint8 stack to (N, h, w, 3) float32 in [0, 255]."""
+    n, h, w, _ = images.shape
+    if (h, w) == tuple(size):
+        return images.astype(np.float32)
+    factors = (1.0, size[0] / h, size[1] / w, 1.0)
+    return zoom(images.astype(np.float32), factors, order=1, grid_mode=True, mode="nearest")
+
+
+def cycle_series(deflection: np.ndarray, points: int) -> np.ndarray:
+    """(N, P, W, 2) float32: a (N, S, W, 2) deflection series at P phase points.
+
+    Sample s of the series is taken at phase (s + 1) / S of the cycle, phase point k at
+    (k + 1) / P, i.e. at position ``(k + 1) S / P - 1`` of the series: linear interpolation
+    between its two neighbours, the first sample held before it. The last point is the
+    sample instant (maximum protraction); a single-sample series gives P copies of it."""
+    d = np.asarray(deflection, dtype=np.float64)
+    samples = d.shape[1]
+    position = np.clip(np.arange(1, points + 1) * samples / points - 1, 0, samples - 1)
+    below = np.floor(position).astype(int)
+    above = np.minimum(below + 1, samples - 1)
+    weight = (position - below)[None, :, None, None]
+    return (d[:, below] * (1 - weight) + d[:, above] * weight).astype(np.float32)
+
+
+def contact_flags(deflection: np.ndarray) -> np.ndarray:
+    """(N, W) float32: 1 where a whisker's deflection ``|xy|`` exceeded the touch threshold
+    at some sample of the (N, S, W, 2) series, else 0."""
+    return (np.linalg.norm(deflection, axis=3) > TOUCH_THRESHOLD).any(axis=1).astype(np.float32)
+
+
+def tactile_values(run: Run, params: InputParams) -> np.ndarray:
+    """(N, tactile_size) float32 unscaled tactile input of every sample of ``run``."""
+    n = len(run)
+    if params.tactile_input == "instant":
+        return np.concatenate([run.theta, run.xy.reshape(n, -1)], axis=1).astype(np.float32)
+    if run.deflection.shape[1] < 2:
+        warn_once(run, "tactile cycle", f"run {run.name} has a single deflection sample per whisk cycle: "
+                  "tactile_input 'cycle' repeats the instant's deflection at every phase point")
+    series = cycle_series(run.deflection, params.cycle_points).reshape(n, -1)
+    return np.concatenate([series, contact_flags(run.deflection)], axis=1)
+
+
+def touched(run: Run, params: InputParams) -> np.ndarray:
+    """(N,) bool: samples with a touch in what the tactile input covers (the instant, or the cycle)."""
+    return run.touch_mask() if params.tactile_input == "instant" else contact_flags(run.deflection).any(axis=1)
+
+
+def raw_inputs(run: Run, params: InputParams) -> dict[str, np.ndarray]:
+    """Unscaled network inputs of the chosen modalities: flattened resampled RGB, tactile values."""
+    inputs = {}
+    if "visual" in params.modalities:
+        batches = [
+            resample_images(run.image_batch(i, i + 512), params.image_size).reshape(-1)
+            for i in range(0, len(run), 512)
+        ]
+        inputs["visual"] = np.concatenate(batches).reshape(len(run), -1)
+    if "tactile" in params.modalities:
+        inputs["tactile"] = tactile_values(run, params)
+    return inputs
+
+
+@dataclass
+class TactileRange:
+    """Each tactile channel's range on the training run and the floor of its scaling span."""
+
+    low: np.ndarray
+    high: np.ndarray
+    floor: np.ndarray
+
+    @classmethod
+    def fit(cls, values: np.ndarray, params: InputParams) -> TactileRange:
+        """The range of (N, C) training ``values``; floors per `InputParams.tactile_input`."""
+        floor = np.full(values.shape[1], params.tactile_min_range, np.float32)
+        if params.tactile_input == "cycle":
+            floor[-(values.shape[1] // (2 * params.cycle_points + 1)):] = 1.0  # the contact flags
+        return cls(values.min(axis=0), values.max(axis=0), floor)
+
+    def scaler(self) -> tuple[np.ndarray, np.ndarray]:
+        """(offset, scale): channels are fed as ``(x - offset) * scale``."""
+        span = np.maximum(self.high - self.low, self.floor)
+        return self.low, np.where(span > 0, 1 / np.where(span > 0, span, 1), 0).astype(np.float32)
+
+    def outside(self, values: np.ndarray) -> np.ndarray:
+        """(N, C) bool: values outside their channel's training range."""
+        return (values < self.low) | (values > self.high)
+
+    def save(self, directory: Path) -> None:
+        data = {"low": self.low.tolist(), "high": self.high.tolist(), "floor": self.floor.tolist()}
+        write_text_atomic(directory / RANGE_FILE, json.dumps(data))
+
+    @classmethod
+    def load(cls, directory: Path) -> TactileRange:
+        data = json.loads((directory / RANGE_FILE).read_text())
+        return cls(*(np.asarray(data[key], np.float32) for key in ("low", "high", "floor")))
+
+
+def report_out_of_range(run: Run, values: np.ndarray, fitted: TactileRange, params: InputParams, who: str) -> None:
+    """Warn once per run (`warn_once`: log, manifest, report) when some of ``run``'s tactile
+    ``values`` lie outside the training range: how many samples (and touched samples), values
+    and channels, and how far beyond it in scaled units. Nothing is clipped."""
+    outside = fitted.outside(values)
+    if not outside.any():
+        return
+    offset, scale = fitted.scaler()
+    scaled = (values - offset) * scale
+    beyond = float(np.maximum(scaled - 1, -scaled)[outside].max())
+    rows = outside.any(axis=1)
+    touch = touched(run, params)
+    kind = "instant" if params.tactile_input == "instant" else f"cycle, {params.cycle_points} points"
+    warn_once(
+        run, f"{who} tactile range ({kind})",
+        f"{who} (tactile_input {kind}): {int(rows.sum())} of {len(run)} samples of run {run.name!r} "
+        f"({int((rows & touch).sum())} of its {int(touch.sum())} touched samples) have tactile values outside the "
+        f"training run's range ({int(outside.sum())} values in {int(outside.any(axis=0).sum())} of "
+        f"{values.shape[1]} channels, up to {beyond:.3g} scaled units beyond [0, 1]); they are not clipped",
+    )
