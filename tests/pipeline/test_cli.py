@@ -209,7 +209,8 @@ def test_quickstart_writes_every_output(quickstart_run):
     difficulties = [row["difficulty"] for row in rows]
     assert list(difficulties[0]) == ["nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg",
                                      "chance_r1", "query_touch_share", "reference_touch_share",
-                                     "query_longest_stay_share", "reference_longest_stay_share"]
+                                     "query_longest_stay_share", "reference_longest_stay_share",
+                                     "touch_both_share", "touch_one_side_share", "touch_correspondence"]
     assert difficulties[0] == difficulties[1]  # a property of the evaluation pair, not of the method
     for method in ("L", "H"):
         folder = out / "evaluations" / "E1" / method / "query-to-reference"
