@@ -57,7 +57,7 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("methods[].params for plugin mupnet", MupnetParams, "the learned MuPNet features"),
     ("methods[].params for plugin handcrafted", HandcraftedParams, "the ViTa-SLAM front end"),
     ("scoring: ScoringSettings", ScoringSettings, "how features are scored"),
-    ("scoring.complementarity[]: ComplementarityPair", ComplementarityPair, "a vision-only and a touch-only method"),
+    ("scoring.complementarity[]: ComplementarityPair", ComplementarityPair, "one pair, named by the scenario"),
     ("Environment file: EnvironmentSpec", EnvironmentSpec, "an environment YAML (scenarios/environments)"),
     ("arena: ArenaSpec", ArenaSpec, "walls and floor"),
     ("arena.walls.<wall>: WallSpec", WallSpec, "one wall's look"),
