@@ -29,10 +29,10 @@ from typing import Any
 import numpy as np
 
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.extension.features import FeatureExtractor, Features
+from vitaplace.engine.extension.features import TACTILE, VISUAL, FeatureExtractor, Features
 
 __all__ = [
-    "ATOL", "CHECKS", "RTOL", "ContractError", "check_distance_before_fit", "check_distance_output",
+    "ATOL", "CHECKS", "RTOL", "ContractError", "check_declared_senses", "check_distance_before_fit", "check_distance_output",
     "check_extractor", "check_features_output", "check_fit_leaves_params", "check_same_seed_same_features",
     "check_save_load_round_trip", "check_transform_before_fit", "check_transform_subset", "parametrize_with_checks",
     "synthetic_run",
@@ -246,6 +246,15 @@ def check_fit_leaves_params(cls: type[FeatureExtractor], params: RawParams, run:
                     "fit learns in attributes of its own")
 
 
+def check_declared_senses(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
+    """``modalities`` (optional) says None (unknown) or a non-empty set of `VISUAL` and
+    `TACTILE`: the senses by which the pipeline pairs vision-only and touch-only methods."""
+    senses = cls.modalities(cls.validate_params(params or {}))
+    if senses is not None and not (isinstance(senses, (set, frozenset)) and senses and senses <= {VISUAL, TACTILE}):
+        raise _fail(check_declared_senses, cls, f"modalities returned {senses!r}, expected None (unknown) or a "
+                    f"non-empty set of {VISUAL!r} and {TACTILE!r}")
+
+
 #: every check, in the order `check_extractor` runs them
 CHECKS: tuple[Callable[[type[FeatureExtractor], RawParams, Run], None], ...] = (
     check_features_output,
@@ -256,6 +265,7 @@ CHECKS: tuple[Callable[[type[FeatureExtractor], RawParams, Run], None], ...] = (
     check_distance_before_fit,
     check_same_seed_same_features,
     check_fit_leaves_params,
+    check_declared_senses,
 )
 
 

@@ -1,4 +1,4 @@
-"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|plugins|sweep|aggregate|import|view|video``.
+"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|difficulty|plugins|sweep|aggregate|import|view|video``.
 
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
@@ -6,7 +6,7 @@ A sweep in which some seeds failed writes the summary of the others and exits wi
 
 Every command takes ``-v`` (debug messages too) or ``-q`` (warnings and errors only, no
 progress bars), before or after its name; messages go to stderr (and ``OUT/log.txt``, which
-keeps every info line), so ``run --json`` leaves only the results' JSON on stdout. With
+keeps every info line), so ``run --json`` (and ``difficulty --json``) leaves only the JSON on stdout. With
 shtab installed (``pip install "vitaplace[completion]"``), ``vitaplace --print-completion
 bash`` prints a shell completion script.
 """
@@ -41,7 +41,7 @@ def _verbosity() -> argparse.ArgumentParser:
     return parent
 
 
-def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True) -> None:
+def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True, out_name: str = "<scenario name>") -> None:
     parser.add_argument("scenario", help="scenario YAML file, or the name of a built-in one (e.g. quickstart)")
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
@@ -49,7 +49,7 @@ def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True) -> Non
         "list, e.g. --set 'methods+={name: L2, plugin: mupnet}' (VALUE is YAML; repeatable)",
     )
     if out:
-        parser.add_argument("--out", type=Path, help="output directory (default: runs/<scenario name>)")
+        parser.add_argument("--out", type=Path, help=f"output directory (default: runs/{out_name})")
         parser.add_argument(
             "--force", action="append", nargs="?", const="all", default=[], metavar="STAGE",
             help="redo a stage even if cached: simulate, fit, transform, evaluate, report (repeatable); "
@@ -82,6 +82,14 @@ def build_parser() -> argparse.ArgumentParser:
         if name == "simulate":
             p.add_argument("--samples", type=int, help="environment file only: number of samples (default 200)")
             p.add_argument("--seed", type=int, default=0, help="environment file only: run seed")
+    p = sub.add_parser(
+        "difficulty", parents=[common],
+        help="whether touch can matter: the touch measures and H-V/H-T complementarity of every evaluation against "
+        "its gates, with the hand-crafted methods only (the scenario's methods are not run)",
+    )
+    _add_scenario_args(p, out_name="<scenario name>-difficulty")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON row per evaluation and direction on stdout (difficulty, complementarity, gates)")
     p = sub.add_parser(
         "validate", parents=[common],
         help="check a scenario or an environment file (or a shipped one by name) without running anything",
@@ -259,6 +267,25 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
         log.info("results in %s", out / ("report.md" if until == "report" else "results.csv"))
     if getattr(args, "json", False):
         print(json.dumps(rows, indent=2))
+    return 0
+
+
+def _difficulty(args: argparse.Namespace) -> int:
+    """`vitaplace difficulty SCENARIO`: the stages up to the evaluation with the hand-crafted
+    family (`vitaplace.engine.cli.difficulty`), then each evaluation's measures against its
+    gates; exit 0 whether or not the gates are met."""
+    from vitaplace.engine.cli.difficulty import difficulty_rows, family_overrides, table
+    from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.outputs.outdir import COMPLEMENTARITY
+    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.pipeline.runner import Pipeline
+
+    args.force = _forced(args.force, "evaluate", args.command)
+    scenario, resolved = load_scenario(args.scenario, [*args.overrides, *family_overrides()])
+    with claimed(args.out or Path("runs") / f"{scenario.name}-difficulty", _setup_logging) as out:
+        rows = run_stages(Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress), "evaluate")
+        measured = difficulty_rows(scenario, rows, json.loads((out / COMPLEMENTARITY).read_text()))
+    print(json.dumps(measured, indent=2) if args.json else table(measured))
     return 0
 
 
@@ -471,6 +498,8 @@ def _main(argv: list[str] | None) -> int:
             return _import(args)
         if args.command in ("view", "video"):
             return _view(args) if args.command == "view" else _video(args)
+        if args.command == "difficulty":
+            return _difficulty(args)
         if args.command == "report" and Path(args.scenario).is_dir():
             return _report_folder(args)
         if args.command == "simulate" and _is_environment_file(args.scenario):

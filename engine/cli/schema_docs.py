@@ -19,7 +19,8 @@ from pathlib import Path
 import pydantic
 from pydantic_core import PydanticUndefined
 
-from vitaplace.engine.config.scenario import EvaluationPair, ScoringSettings, Method, RecordedRuns, Scenario, TrainingData
+from vitaplace.engine.config.scenario import (ComplementarityPair, EvaluationPair, Gates, Method, RecordedRuns, Scenario,
+                                             ScoringSettings, TrainingData)
 from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, StationsRun, TeleopRun
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
@@ -46,6 +47,7 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("train: TrainingData", TrainingData, "the training run"),
     ("evaluations[]: EvaluationPair", EvaluationPair, "one evaluation environment (two runs, simulated or recorded)"),
     ("evaluations[].datasets: RecordedRuns", RecordedRuns, "an evaluation's two recorded runs (docs/DATA.md)"),
+    ("evaluations[].gates: Gates", Gates, "what `vitaplace difficulty` checks an evaluation against"),
     ("run (kind: foraging): ForagingRun", ForagingRun, "a foraging run (training); each kind has only its own keys"),
     ("run.gains: ForagingGains", ForagingGains, "the gains and thresholds of the foraging states"),
     ("run (kind: teleop): TeleopRun", TeleopRun, "an emulated keyboard teleoperator's drive (evaluation)"),
@@ -59,6 +61,7 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("methods[].params for plugin autoencoder", AutoencoderParams, "MuPNet's architecture trained by backprop"),
     ("methods[].params for plugin handcrafted", HandcraftedParams, "the ViTa-SLAM front end"),
     ("scoring: ScoringSettings", ScoringSettings, "how features are scored"),
+    ("scoring.complementarity[]: ComplementarityPair", ComplementarityPair, "one pair, named by the scenario"),
     ("Environment file: EnvironmentSpec", EnvironmentSpec, "an environment YAML (scenarios/environments)"),
     ("arena: ArenaSpec", ArenaSpec, "walls and floor"),
     ("arena.walls.<wall>: WallSpec", WallSpec, "one wall's look"),

@@ -1,5 +1,6 @@
-"""The scenario's methods checked against the installed plugins: each names a registered
-feature extractor and gives parameters that extractor accepts."""
+"""The scenario's methods checked against the installed plugins (each names a registered
+feature extractor and gives parameters that extractor accepts), and which of them pair as
+vision-only and touch-only (`complementarity_pairs`)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ from pathlib import Path
 from typing import Any
 
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
-from vitaplace.engine.extension.features import ExtractorParamsError
-from vitaplace.engine.extension.registry import PluginError, discover
+from vitaplace.engine.extension.features import TACTILE, VISUAL, ExtractorParamsError
+from vitaplace.engine.extension.registry import PluginError, Registry, discover
 
 
 def check_methods(path: Path, scenario: Scenario) -> list[tuple[Any, Any]]:
@@ -24,3 +25,19 @@ def check_methods(path: Path, scenario: Scenario) -> list[tuple[Any, Any]]:
         except ExtractorParamsError as exc:
             raise ScenarioError(f"{path}: methods.{i}.params: {exc}") from None
     return checked
+
+
+def complementarity_pairs(scenario: Scenario, registry: Registry) -> list[tuple[str, str]]:
+    """The (vision method, touch method) pairs whose complementarity is measured: every
+    vision-only with every touch-only method of the same plugin, as the plugin declares its
+    configurations' senses (`FeatureExtractor.modalities`; one that says nothing is never
+    paired), in the order of ``methods``, then the pairs ``scoring.complementarity`` names;
+    each pair once."""
+    senses = {}
+    for method in scenario.methods:
+        extractor = registry.get(method.plugin)
+        senses[method.name] = (method.plugin, extractor.modalities(extractor.validate_params(method.params)))
+    found = [(v, t) for v, (v_plugin, v_senses) in senses.items() for t, (t_plugin, t_senses) in senses.items()
+             if v_plugin == t_plugin and v_senses == {VISUAL} and t_senses == {TACTILE}]
+    found += [(pair.vision, pair.touch) for pair in scenario.scoring.complementarity]
+    return list(dict.fromkeys(found))

@@ -118,6 +118,24 @@ SafeName = Annotated[str, pydantic.StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1
 MIN_EVALUATION_SAMPLES = 5
 
 
+class Gates(Strict):
+    """What an evaluation must show for touch to be able to matter there (`vitaplace difficulty`
+    prints each against its value, MISSED when it is not met); every gate is optional."""
+
+    touch_correspondence_min: float | None = pydantic.Field(
+        None, ge=0, le=1, allow_inf_nan=False,
+        description="least share of the touched queries with a true match whose nearest true match is touched "
+        "(difficulty.touch_correspondence)",
+    )
+    rescue_min: float | None = pydantic.Field(
+        None, ge=0, le=1, allow_inf_nan=False,
+        description="least share of H-V's recall@1 failures that H-T gets right (complementarity rescue)",
+    )
+    hv_max_f1_max: float | None = pydantic.Field(
+        None, ge=0, le=1, allow_inf_nan=False, description="most max F1 of H-V (vision alone must not solve it)",
+    )
+
+
 class EvaluationPair(_RunSource):
     """An evaluation: two simulated runs (in the shipped scenarios: independent teleoperated
     drives) or two recorded runs (query and reference)."""
@@ -140,6 +158,9 @@ class EvaluationPair(_RunSource):
         None,
         description="recorded query and reference runs instead of simulated ones (no run key then; environment "
         "optional: it only draws the arena in the report and bounds tau)",
+    )
+    gates: Gates = pydantic.Field(
+        Gates(), description="the values `vitaplace difficulty` checks this evaluation against (scores no method)",
     )
 
     @pydantic.model_validator(mode="after")
@@ -235,6 +256,13 @@ def current_run_settings(data: dict[str, Any], where: str) -> dict[str, Any]:
     return data
 
 
+class ComplementarityPair(Strict):
+    """A vision-only and a touch-only method whose complementarity is measured (by name)."""
+
+    vision: str = pydantic.Field(description="the vision-only method (a name under methods)")
+    touch: str = pydantic.Field(description="the touch-only method (a name under methods)")
+
+
 class ScoringSettings(Strict):
     tau: float = pydantic.Field(
         0.3, gt=0, allow_inf_nan=False, description="ground-truth revisit tolerance [m], below the arena's diagonal"
@@ -251,6 +279,11 @@ class ScoringSettings(Strict):
     direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = pydantic.Field(
         "query-to-reference",
         description="which run queries which: query-to-reference, the reverse, or both",
+    )
+    complementarity: list[ComplementarityPair] = pydantic.Field(
+        [],
+        description="vision-only and touch-only methods to measure the complementarity of, besides the pairs "
+        "found by themselves (one plugin's vision-only and touch-only configurations; complementarity.json)",
     )
 
 
@@ -282,6 +315,15 @@ class Scenario(Strict):
             names = [item.name for item in items]
             if len(set(names)) != len(names):
                 raise ValueError(f"{what}: names must be unique, got {names}")
+        methods = [m.name for m in self.methods]
+        for i, pair in enumerate(self.scoring.complementarity):
+            for role in ("vision", "touch"):
+                if getattr(pair, role) not in methods:
+                    raise ValueError(f"scoring.complementarity.{i}.{role}: no method '{getattr(pair, role)}' "
+                                     f"(methods: {', '.join(methods)})")
+            if pair.vision == pair.touch:
+                raise ValueError(f"scoring.complementarity.{i}: vision and touch are the same method '{pair.vision}'; "
+                                 "expected two different methods")
         return self
 
 

@@ -1,6 +1,8 @@
 """How hard an evaluation pair is, whatever the method: the nearest reference pose of each
-query with a true match, the chance level of recall@1, the share of samples with touch, and
-the longest stretch a run stayed in one place (`longest_stay`: a stuck drive).
+query with a true match, the chance level of recall@1, the share of samples with touch,
+whether touch is shared by a query and its true match (`touch_at_true_matches`: whether
+touch *can* matter), and the longest stretch a run stayed in one place (`longest_stay`: a
+stuck drive).
 
 The pose and threshold conventions are `vitaplace.engine.evaluation.evaluate`'s.
 """
@@ -12,14 +14,17 @@ from scipy.spatial.distance import cdist
 
 from vitaplace.engine.evaluation.evaluate import _check_poses, _check_tau, _heading_difference_deg
 
-__all__ = ["DIFFICULTY_KEYS", "STAY_RADIUS", "difficulty", "longest_stay"]
+__all__ = ["DIFFICULTY_KEYS", "STAY_RADIUS", "TOUCH_PAIR_KEYS", "difficulty", "longest_stay", "touch_at_true_matches"]
 
 
 #: the keys of `difficulty`'s result, in order
 DIFFICULTY_KEYS = (
     "nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg", "chance_r1",
     "query_touch_share", "reference_touch_share", "query_longest_stay_share", "reference_longest_stay_share",
+    "touch_both_share", "touch_one_side_share", "touch_correspondence",
 )
+#: the keys of `touch_at_true_matches`'s result (the last three of `DIFFICULTY_KEYS`)
+TOUCH_PAIR_KEYS = DIFFICULTY_KEYS[-3:]
 #: a run "stays" in one place while its samples remain this close to the stay's first one [m]
 STAY_RADIUS = 0.25
 
@@ -35,6 +40,30 @@ def longest_stay(xy, radius: float = STAY_RADIUS) -> tuple[int, int]:
         away = np.flatnonzero(np.hypot(*(xy[i:] - xy[i]).T) > radius)
         best = max(best, (int(away[0]) if len(away) else len(xy) - i, -i))
     return best[0], -best[1]
+
+
+def touch_at_true_matches(query_xy, reference_xy, true_match, query_touch, reference_touch) -> dict[str, float | None]:
+    """Whether touch is shared by a query and its true match (`TOUCH_PAIR_KEYS`).
+
+    A *true-match pair* is each query that has a true match (a row of the boolean
+    ``true_match`` with a True) with its pose-nearest true match: the reference nearest by
+    position among those with ``true_match`` (ties -> lowest index). Over those pairs,
+    ``touch_both_share`` is the share touched on both sides and ``touch_one_side_share`` the
+    share touched on exactly one side (both None when no query has a true match);
+    ``touch_correspondence`` is, among the touched queries that have a true match, the share
+    whose pose-nearest true match is touched (None when no touched query has one). The touch
+    masks hold one bool per sample (`Run.touch_mask`); all three are None without them.
+    """
+    matched = true_match.any(axis=1)
+    if query_touch is None or reference_touch is None or not matched.any():
+        return dict.fromkeys(TOUCH_PAIR_KEYS)
+    position = np.where(true_match[matched], cdist(query_xy[matched], reference_xy), np.inf)
+    q_touch, r_touch = query_touch[matched], reference_touch[np.argmin(position, axis=1)]
+    return {
+        "touch_both_share": float((q_touch & r_touch).mean()),
+        "touch_one_side_share": float((q_touch ^ r_touch).mean()),
+        "touch_correspondence": float(r_touch[q_touch].mean()) if q_touch.any() else None,
+    }
 
 
 def difficulty(
@@ -53,6 +82,8 @@ def difficulty(
     value per sample, e.g. `Run.touch_mask`; None when no mask is given).
     ``query_longest_stay_share`` and ``reference_longest_stay_share``: the `longest_stay`
     of each run as a share of its samples (a stuck drive shows as a large share).
+    ``touch_both_share``, ``touch_one_side_share`` and ``touch_correspondence``: whether
+    touch is shared by a query and its true match (`touch_at_true_matches`).
     """
     tau = _check_tau(tau)
     q = _check_poses(query_poses, "query_poses", need_yaw=False)
@@ -60,18 +91,19 @@ def difficulty(
     gtm_a = np.asarray(gtm, dtype=float)
     if gtm_a.shape != (len(q), len(r)) or np.isnan(gtm_a).any():
         raise ValueError(f"gtm must be a NaN-free queries x references ({len(q)}, {len(r)}) matrix, got shape {gtm_a.shape}")
-    per_run = {}
+    per_run, masks = {}, {}
     for role, mask, n in (("query", query_touch, len(q)), ("reference", reference_touch, len(r))):
         if mask is None:
-            per_run[f"{role}_touch_share"] = None
+            per_run[f"{role}_touch_share"] = masks[role] = None
             continue
-        mask = np.asarray(mask, dtype=bool)
+        masks[role] = mask = np.asarray(mask, dtype=bool)
         if mask.shape != (n,):
             raise ValueError(f"{role}_touch must hold one value per {role} sample ({n}), got shape {mask.shape}")
         per_run[f"{role}_touch_share"] = float(mask.mean())
     for role, poses in (("query", q), ("reference", r)):
         per_run[f"{role}_longest_stay_share"] = longest_stay(poses[:, :2])[0] / len(poses)
     true_match = gtm_a <= tau
+    per_run.update(touch_at_true_matches(q[:, :2], r[:, :2], true_match, masks["query"], masks["reference"]))
     matched = true_match.any(axis=1)
     if not matched.any():
         return {**dict.fromkeys(DIFFICULTY_KEYS[:4]), **per_run}

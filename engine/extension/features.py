@@ -24,6 +24,8 @@ from vitaplace.engine.base.errors import UserError
 
 #: Features of one run: named arrays whose first axis is the sample index.
 Features = dict[str, np.ndarray]
+#: the senses an extractor configuration may declare it uses (`FeatureExtractor.modalities`)
+VISUAL, TACTILE = "visual", "tactile"
 
 
 class ExtractorParamsError(UserError, ValueError):
@@ -68,6 +70,14 @@ class FeatureExtractor(ABC):
         samples: (bytes, the parameter that drives it, what needs it), checked against the
         machine before any compute. The default: nothing worth counting."""
         return 0, "", "nothing"
+
+    @classmethod
+    def modalities(cls, params: ExtractorParams) -> frozenset[str] | None:
+        """The senses the features of this extractor with ``params`` use: a set of `VISUAL`
+        and `TACTILE`, or None for "unknown" (the default). The pipeline pairs a vision-only
+        and a touch-only configuration of one extractor to measure their complementarity
+        (docs/plugins.md); a plugin that does not say is never paired by itself."""
+        return None
 
     @abstractmethod
     def fit(self, train: Run) -> None:

@@ -1,7 +1,8 @@
 """The output directory a run writes to: its layout, checked writable up front, locked
 against a second run, and cleared of temporaries an interrupted run left behind.
 
-Layout (every path relative to OUT): ``results.json``/``results.csv``, ``manifest.json``,
+Layout (every path relative to OUT): ``results.json``/``results.csv``, ``complementarity.json``,
+``manifest.json``,
 ``report.md`` with ``figures/``, per evaluation x method x direction
 ``evaluations/ENV/METHOD/DIRECTION/`` (`evaluation_dir`), and what the report reads besides:
 ``poses/ENV.npz`` (the evaluation's query and reference poses), ``arenas/ENV.json`` (its
@@ -107,8 +108,8 @@ class OutputLock:
 # What a run writes into its output folder OUT, and where; every module that reads or writes
 # these files names them through here.
 #
-#   OUT/manifest.json, results.json, results.csv, report.md, figures/, completed.json,
-#       scenario.resolved.yaml
+#   OUT/manifest.json, results.json, results.csv, complementarity.json, report.md, figures/,
+#       completed.json, scenario.resolved.yaml
 #   OUT/evaluations/ENV/METHOD/DIRECTION/summary.json, pr_curve.npz, decisions.npz,
 #       decisions.csv, matrices.npz
 #   OUT/cache/datasets/LABEL-KEY.h5, models/METHOD-KEY/, models/METHOD-KEY.training.json,
@@ -120,6 +121,8 @@ class OutputLock:
 MANIFEST = "manifest.json"
 RESULTS_JSON = "results.json"
 RESULTS_CSV = "results.csv"
+#: per evaluation, direction and vision-only / touch-only pair: what touch rescues
+COMPLEMENTARITY = "complementarity.json"
 REPORT = "report.md"
 FIGURES = "figures"
 #: in an evaluation folder (`evaluation_dir`)

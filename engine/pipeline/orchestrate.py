@@ -36,7 +36,7 @@ def run_stages(pipeline: Pipeline, until: str = "report") -> list[dict[str, Any]
         record.transform = pipeline.transform()
     if stop >= STAGES.index("evaluate"):
         record.evaluate = pipeline.evaluate()
-        write_results(out, record.evaluate.rows)
+        write_results(out, record.evaluate.rows, record.evaluate.complementarity)
     if stop >= STAGES.index("report"):
         record.report = report_stage(pipeline, record, started)
     write_manifest(pipeline.close_record(record, time.perf_counter() - started))

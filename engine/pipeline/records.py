@@ -52,11 +52,13 @@ class TransformRecord:
 
 @dataclass(frozen=True)
 class EvaluateRecord:
-    """The result rows, and the files of each evaluation folder readers outside the pipeline
-    use (its summary and PR curve)."""
+    """The result rows, the complementarity of each vision-only / touch-only pair per
+    evaluation and direction, and the files of each evaluation folder readers outside the
+    pipeline use (its summary and PR curve)."""
 
     rows: list[dict[str, Any]]
     files: list[Path]
+    complementarity: list[dict[str, Any]] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,8 @@ class RunRecord:
         from (`vitaplace.engine.report.report.report_files`)."""
         files = [self.out / outdir.MANIFEST]
         if self.evaluate is not None:
-            files += [self.out / outdir.RESULTS_JSON, self.out / outdir.RESULTS_CSV, *self.evaluate.files]
+            files += [self.out / outdir.RESULTS_JSON, self.out / outdir.RESULTS_CSV, self.out / outdir.COMPLEMENTARITY,
+                      *self.evaluate.files]
         if self.report is not None:
             files += self.report.files
         return [f for f in dict.fromkeys(files) if f.name != completion.SCENARIO]

@@ -1,5 +1,6 @@
-"""The result rows of a run: results.json (everything) and results.csv (one row per
-environment x method x direction)."""
+"""The result rows of a run: results.json (everything), results.csv (one row per
+environment x method x direction) and complementarity.json (one record per environment x
+direction x vision-only / touch-only pair)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.engine.outputs.outdir import RESULTS_CSV, RESULTS_JSON
+from vitaplace.engine.outputs.outdir import COMPLEMENTARITY, RESULTS_CSV, RESULTS_JSON
 
 
 RESULT_COLUMNS = (
@@ -29,10 +30,13 @@ def csv_row(row: dict[str, Any]) -> dict[str, Any]:
             "recall": row["recall_at_max_f1"], "f1": row["max_f1"]}
 
 
-def write_results(out: Path, rows: list[dict[str, Any]]) -> None:
-    """results.json (everything) and results.csv (one row per environment x method x direction;
-    `csv_row`: delta, precision, recall, F1 at the fixed delta, else at the max-F1 one)."""
+def write_results(out: Path, rows: list[dict[str, Any]], complementarity: list[dict[str, Any]]) -> None:
+    """results.json (everything), results.csv (one row per environment x method x direction;
+    `csv_row`: delta, precision, recall, F1 at the fixed delta, else at the max-F1 one) and
+    complementarity.json (the records of `Pipeline.complementarity`, a list, empty when no
+    pair ran)."""
     write_text_atomic(out / RESULTS_JSON, json.dumps(rows, indent=2))
+    write_text_atomic(out / COMPLEMENTARITY, json.dumps(complementarity, indent=2))
     ks = sorted({k for row in rows for k in row.get("recall_at_k", {})}, key=int)
     buffer = io.StringIO()
     writer = csv.writer(buffer)

@@ -34,7 +34,9 @@ from vitaplace.engine.config.scenario import EvaluationPair, Method, Scenario, S
 from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run, run_facts
 from vitaplace.engine.evaluation import evaluate as ev
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS, longest_stay
-from vitaplace.engine.evaluation.pairfiles import evaluate_pair, load_curve
+from vitaplace.engine.config.methods import complementarity_pairs
+from vitaplace.engine.evaluation.complementarity import complementarity
+from vitaplace.engine.evaluation.pairfiles import evaluate_pair, load_curve, load_decisions
 from vitaplace.engine.outputs import checksum
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.base.cpus import usable_cpus
@@ -52,7 +54,7 @@ from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 5, "report": 7}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 6, "report": 8}
 
 #: a run that stays in one place this long (share of its samples, and samples) is warned about
 STUCK_SHARE, STUCK_SAMPLES = 0.25, 50
@@ -381,7 +383,8 @@ class Pipeline:
                     key = content_hash(
                         "evaluate", STAGE_VERSION["evaluate"], self.model_key(method), qpath.name, rpath.name,
                         [self.output_digest(p) for p in (qpath, rpath)],
-                        [self.dataset_digest(f"{e.name}/{side}") for side in (q, r)], settings.model_dump(),
+                        [self.dataset_digest(f"{e.name}/{side}") for side in (q, r)],
+                        settings.model_dump(exclude={"complementarity"}),  # pairs methods, scores none
                     )
                     folder = outdir.evaluation_dir(self.out, e.name, method.name, direction)
                     work = partial(self._evaluate, method, f"{e.name}/{q}", f"{e.name}/{r}", folder)
@@ -392,7 +395,22 @@ class Pipeline:
                     files += [folder / outdir.SUMMARY, folder / outdir.PR_CURVE]
         self.add_f1_at_training_threshold(rows)
         self.warn_few_revisits(rows)
-        return EvaluateRecord(rows, files)
+        return EvaluateRecord(rows, files, self.complementarity())
+
+    def complementarity(self) -> list[dict[str, Any]]:
+        """Per evaluation, direction and (vision, touch) pair of `complementarity_pairs`:
+        what the touch method gets right of the vision method's wrong best matches
+        (`vitaplace.engine.evaluation.complementarity`), from the two evaluations' decisions."""
+        pairs = complementarity_pairs(self.scenario, self.registry)
+        records = []
+        for e in self.scenario.evaluations:
+            for direction, _, _ in self.directions():
+                for vision, touch in pairs:
+                    decisions = [load_decisions(outdir.evaluation_dir(self.out, e.name, m, direction) / outdir.DECISIONS)
+                                 for m in (vision, touch)]
+                    records.append({"environment": e.name, "direction": direction, "vision": vision, "touch": touch,
+                                    **complementarity(*decisions)})
+        return records
 
     def warn_few_revisits(self, rows: list[dict[str, Any]]) -> None:
         """Warn (log, manifest.json, report.md; on the run whose samples are the queries) about

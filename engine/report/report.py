@@ -18,14 +18,14 @@ import numpy as np
 import yaml
 
 from vitaplace.engine.outputs import completion
-from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
+from vitaplace.engine.evaluation.difficulty import STAY_RADIUS, TOUCH_PAIR_KEYS
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
 from vitaplace.engine.report import figures
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.outputs.checksum import digest
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.outputs.outdir import (
-    DECISIONS, FIGURES, MANIFEST, MATRICES, PR_CURVE, REPORT, RESULTS_JSON,
+    COMPLEMENTARITY, DECISIONS, FIGURES, MANIFEST, MATRICES, PR_CURVE, REPORT, RESULTS_JSON,
     arena_path, evaluation_dir, poses_path, training_path,
 )
 
@@ -91,8 +91,9 @@ def difficulty_table(rows: list[dict[str, Any]]) -> str:
     """Markdown table of each evaluation pair's ``difficulty`` (per environment x direction)."""
     lines = [
         "| environment | direction | nearest ref. median m | nearest ref. 90th pct. m | nearest ref. heading median ° "
-        "| chance R@1 % | query touch % | reference touch % | query longest stay % | reference longest stay % |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| chance R@1 % | query touch % | reference touch % | query longest stay % | reference longest stay % "
+        "| touch both sides % | touch one side % | touch correspondence % |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in _per_pair(rows):
         d = row["difficulty"]
@@ -101,9 +102,46 @@ def difficulty_table(rows: list[dict[str, Any]]) -> str:
             _number(d["nearest_ref_p90_m"], 3), _number(d["nearest_ref_heading_median_deg"], 1),
             _pct(d["chance_r1"]), _pct(d["query_touch_share"]), _pct(d["reference_touch_share"]),
             _pct(d.get("query_longest_stay_share")), _pct(d.get("reference_longest_stay_share")),
+            *(_pct(d.get(k)) for k in TOUCH_PAIR_KEYS),  # None in the rows of older runs
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
+
+
+def complementarity_table(records: list[dict[str, Any]]) -> str:
+    """Markdown table of the complementarity records (complementarity.json): per evaluation,
+    direction and vision-only / touch-only pair, the recalls@1, the vision method's wrong best
+    matches, how many of them the touch method gets right, and the oracle's recall@1."""
+    lines = [
+        "| environment | direction | vision | touch | revisits | vision R@1 % | touch R@1 % | vision wrong "
+        "| rescued by touch | rescued % | oracle R@1 % |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for c in records:
+        cells = [c["environment"], c["direction"], c["vision"], c["touch"], str(c["n_revisit"]), _pct(c["vision_r1"]),
+                 _pct(c["touch_r1"]), str(c["vision_wrong"]), str(c["rescued"]), _pct(c["rescue"]), _pct(c["oracle_r1"])]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _complementarity_section(out: Path) -> list[str]:
+    """The complementarity table, when a vision-only and a touch-only method ran (none in
+    the folders of older runs, which have no complementarity.json)."""
+    path = out / COMPLEMENTARITY
+    records = _read_json(path, "the complementarity records a `vitaplace run` writes") if path.is_file() else []
+    if not records:
+        return []
+    return [
+        "## Complementarity",
+        "",
+        "Whether touch rescues vision, per vision-only and touch-only pair: over the queries with a true match "
+        "(revisits), each method's recall@1 at its single best match; the vision method's wrong best matches, how "
+        "many of those the touch method gets right (rescued) and their share; the oracle takes whichever of the "
+        "two is right, the ceiling of any fusion that picks one of their matches.",
+        "",
+        complementarity_table(records),
+        "",
+    ]
 
 
 def _params_text(params: dict[str, Any]) -> str:
@@ -232,7 +270,10 @@ def _samples_and_difficulty(manifest: dict[str, Any], rows: list[dict[str, Any]]
         "heading difference to it (median); chance R@1 is the mean share of references that are true matches (a "
         "random guess's recall@1). Touch: the share of samples with a whisker deflected at the sampling instant. "
         f"Longest stay: the longest stretch of consecutive samples within {STAY_RADIUS} m of its first, as a share "
-        "of the run (a drive whisking a landmark stays a few samples; a stuck one, much of the run).",
+        "of the run (a drive whisking a landmark stays a few samples; a stuck one, much of the run). Whether touch "
+        "can matter: pair each query that has a true match with its nearest true match by position; touch both "
+        "sides and one side are the shares of those pairs touched on both sides and on exactly one; touch "
+        "correspondence is, among the touched queries that have a true match, the share whose pair is touched.",
         "",
         difficulty_table(rows),
         "",
@@ -312,11 +353,12 @@ def _provenance_section(manifest: dict[str, Any]) -> list[str]:
 
 
 def report_files(out: Path, rows: list[dict[str, Any]], methods: list[str]) -> list[Path]:
-    """Every file the report reads besides the manifest: results, resolved scenario, each
+    """Every file the report reads besides the manifest: results, complementarity (when
+    there), resolved scenario, each
     row's evaluation files, each evaluation's poses and (if simulated) arena, each method's
     training curves (if recorded)."""
     out = Path(out)
-    files = [out / RESULTS_JSON, out / completion.SCENARIO]
+    files = [out / RESULTS_JSON, out / completion.SCENARIO] + [p for p in [out / COMPLEMENTARITY] if p.is_file()]
     files += [evaluation_dir(out, r["environment"], r["method"], r["direction"]) / name
               for r in rows for name in EVALUATION_FILES]
     for environment in dict.fromkeys(r["environment"] for r in rows):
@@ -366,6 +408,7 @@ def write_report(out: Path) -> None:
         *_header(manifest, description, rows),
         *_warnings_section(manifest),
         *_samples_and_difficulty(manifest, rows),
+        *_complementarity_section(out),
         *_methods_section(manifest["methods"]),
         *_inference_section(manifest),
         *_evaluation_sections(out, rows),

@@ -24,7 +24,7 @@ import pydantic
 from scipy.spatial.distance import cdist
 
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
+from vitaplace.plugin import TACTILE, VISUAL, ExtractorParams, FeatureExtractor, Features, Run, warn_once
 
 from .pfh import pfh_batch, subsample
 from .profile import TemplateMaker, template_distance
@@ -118,6 +118,11 @@ class HandcraftedExtractor(FeatureExtractor):
         super().__init__(params)
         #: Fitted distance scales per feature name; None until `fit` or `load_state`.
         self.sigmas: dict[str, float] | None = None
+
+    @classmethod
+    def modalities(cls, params: HandcraftedParams) -> frozenset[str]:  # type: ignore[override]
+        """The profile term is vision, the PFH and SDA terms touch."""
+        return frozenset([VISUAL] * params.use_visual + [TACTILE] * params.use_tactile)
 
     # -- features -------------------------------------------------------------------------
 

@@ -151,6 +151,11 @@ class MupnetExtractor(FeatureExtractor):
         self.tactile_range: TactileRange | None = None
 
     @classmethod
+    def modalities(cls, params: MupnetParams) -> frozenset[str]:  # type: ignore[override]
+        """The modalities fed to the network."""
+        return frozenset(params.modalities)
+
+    @classmethod
     def memory_bytes(cls, params: MupnetParams, train_samples: int) -> tuple[int, str, str]:
         """The first visual layer's weights (W and its transposed copy) and the training images."""
         h, w = params.image_size

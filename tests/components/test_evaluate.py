@@ -213,6 +213,11 @@ def test_a_reference_facing_away_is_no_true_match_for_every_metric():
 # chance_r1 = mean(2/4, 1/4, 2/4) = 5/12. Touch: queries 2 of 5, references 1 of 4.
 # Longest stay (within 0.25 m of its first sample): queries q0-q2 (q1 0.082 m, q2 0.128 m
 # from q0; q3 far), 3 of 5; references r0-r2 (0.1 m, 0.2 m; r3 far), 3 of 4.
+# True-match pairs (each query with a true match, with its nearest true match by position):
+# q0-r0 (0.02 < r1 0.08), q1-r2 (its only one; r0 is nearer but faces 100 deg off),
+# q2-r1 (0.1 < r0 0.141). Touched: q0 and q4 (no true match), r3 (no pair): q0-r0 is touched
+# on one side only -> both 0/3, one side 1/3; of the touched queries with a pair (q0) none
+# has a touched partner -> correspondence 0/1.
 DEG = math.pi / 180
 DIFF_REF = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.2, 90 * DEG], [5.0, 0.0, 0.0]])
 DIFF_QRY = np.array(
@@ -228,6 +233,7 @@ def test_difficulty_hand_case():
     assert list(d) == [
         "nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg", "chance_r1",
         "query_touch_share", "reference_touch_share", "query_longest_stay_share", "reference_longest_stay_share",
+        "touch_both_share", "touch_one_side_share", "touch_correspondence",
     ]
     assert d == {
         "nearest_ref_median_m": pytest.approx(0.08),
@@ -238,8 +244,38 @@ def test_difficulty_hand_case():
         "reference_touch_share": pytest.approx(0.25),
         "query_longest_stay_share": pytest.approx(0.6),
         "reference_longest_stay_share": pytest.approx(0.75),
+        "touch_both_share": 0.0,
+        "touch_one_side_share": pytest.approx(1 / 3),
+        "touch_correspondence": 0.0,
     }
     assert all(type(v) is float for v in d.values())  # JSON-ready
+
+
+@pytest.mark.parametrize("query_touch, reference_touch, expected", [
+    # pairs q0-r0, q1-r2, q2-r1 (the hand case above). q0, q1, q4 touched; r1, r2 touched:
+    # q0-r0 one side, q1-r2 both, q2-r1 one side -> both 1/3, one side 2/3; touched queries
+    # with a pair q0, q1 (q4 has none): r2 touched, r0 not -> correspondence 1/2. (Pairing
+    # q1 with its nearest reference r0 instead would give both 0, one side 3/3.)
+    ([1, 1, 0, 0, 1], [0, 1, 1, 0], (1 / 3, 2 / 3, 1 / 2)),
+    # only q3 and q4 touched, neither has a true match: correspondence None; the pairs'
+    # references r0, r2, r1 -> r2, r1 touched: one side 2/3, both 0
+    ([0, 0, 0, 1, 1], [0, 1, 1, 0], (0.0, 2 / 3, None)),
+    # everything touched: every pair both sides, every touched query's partner touched
+    ([1, 1, 1, 1, 1], [1, 1, 1, 1], (1.0, 0.0, 1.0)),
+])
+def test_touch_at_true_matches_hand_cases(query_touch, reference_touch, expected):
+    gtm = ev.ground_truth_matrix(DIFF_QRY, DIFF_REF, heading_tolerance_deg=30)
+    d = difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, np.array(query_touch, bool), np.array(reference_touch, bool))
+    got = (d["touch_both_share"], d["touch_one_side_share"], d["touch_correspondence"])
+    assert got == tuple(pytest.approx(v) if v is not None else None for v in expected)
+
+
+def test_touch_at_true_matches_needs_both_masks_and_a_true_match():
+    gtm = ev.ground_truth_matrix(DIFF_QRY, DIFF_REF, heading_tolerance_deg=30)
+    keys = ("touch_both_share", "touch_one_side_share", "touch_correspondence")
+    for masks in ((None, None), (DIFF_QTOUCH, None), (None, DIFF_RTOUCH)):
+        d = difficulty(DIFF_QRY, DIFF_REF, gtm, 0.3, *masks)
+        assert [d[k] for k in keys] == [None] * 3
 
 
 @pytest.mark.parametrize("xs, expected", [
@@ -276,6 +312,7 @@ def test_difficulty_without_any_true_match_is_none_but_touch_is_measured():
         "nearest_ref_median_m": None, "nearest_ref_p90_m": None, "nearest_ref_heading_median_deg": None,
         "chance_r1": None, "query_touch_share": pytest.approx(0.4), "reference_touch_share": pytest.approx(0.25),
         "query_longest_stay_share": pytest.approx(0.6), "reference_longest_stay_share": pytest.approx(0.75),
+        "touch_both_share": None, "touch_one_side_share": None, "touch_correspondence": None,
     }
 
 

@@ -17,6 +17,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation.difficulty import TOUCH_PAIR_KEYS
 from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.evaluation import resample
 from vitaplace.engine.study import summary
@@ -188,6 +189,22 @@ def test_counts_thresholds_and_difficulty_are_per_method_and_never_compared():
     compared = md.split("## Paired differences")[1].split("## Per method")[0]
     assert "max_f1" in compared and "n_queries" not in compared and "delta_at_max_f1" not in compared
     assert "| E1 | H | q | delta_at_max_f1 | 2 | 0.35 | 0.3 | 0.4 |" in md
+
+
+def test_the_touch_pair_measures_are_descriptors_and_seeds_of_older_runs_lack_them():
+    # seed 0 an older run (no touch pairs), seed 1 no touched query with a true match
+    # (correspondence null), seed 2 all three: n counts the seeds that have a value
+    rows = rows_for({"H": [0.5, 0.6, 0.7]}, [0, 1, 2])
+    rows[0]["difficulty"] = {"chance_r1": 0.1}
+    rows[1]["difficulty"] = {"chance_r1": 0.1, "touch_both_share": 0.25, "touch_one_side_share": 0.5,
+                             "touch_correspondence": None}
+    rows[2]["difficulty"] = {"chance_r1": 0.1, "touch_both_share": 0.75, "touch_one_side_share": 0.0,
+                             "touch_correspondence": 0.5}
+    table = {r["metric"]: r for r in summary.summarise(summary.seed_rows(rows))}
+    assert {k: table[f"difficulty.{k}"]["n"] for k in TOUCH_PAIR_KEYS} == {
+        "touch_both_share": 2, "touch_one_side_share": 2, "touch_correspondence": 1}
+    assert all(table[f"difficulty.{k}"]["kind"] == "descriptor" for k in TOUCH_PAIR_KEYS)
+    assert table["difficulty.touch_both_share"]["mean"] == pytest.approx(0.5)
 
 
 def test_every_numeric_value_is_summarised_and_settings_are_not():

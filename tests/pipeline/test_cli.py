@@ -99,6 +99,22 @@ BAD = {
         r"methods\.0\.params: extractor 'handcrafted': grid",
     ),
     "missing key": (lambda d: d.pop("methods"), r"methods: required key is missing"),
+    "complementarity of an unknown method": (
+        lambda d: d["scoring"].update(complementarity=[{"vision": "H", "touch": "HT"}]),
+        r"scoring\.complementarity\.0\.touch: no method 'HT' \(methods: H\)",
+    ),
+    "complementarity of one method with itself": (
+        lambda d: d["scoring"].update(complementarity=[{"vision": "H", "touch": "H"}]),
+        r"scoring\.complementarity\.0: vision and touch are the same method 'H'",
+    ),
+    "gate over 1": (
+        lambda d: d["evaluations"][0].update(gates={"rescue_min": 1.5}),
+        r"evaluations\.0\.gates\.rescue_min: .*less than or equal to 1",
+    ),
+    "unknown gate": (
+        lambda d: d["evaluations"][0].update(gates={"rescue": 0.5}),
+        r"evaluations\.0\.gates\.rescue: unknown key; did you mean 'rescue_min'",
+    ),
     "evaluations not a list": (lambda d: d.update(evaluations=True), r"evaluations: Input should be a valid list"),
 }
 
@@ -209,7 +225,8 @@ def test_quickstart_writes_every_output(quickstart_run):
     difficulties = [row["difficulty"] for row in rows]
     assert list(difficulties[0]) == ["nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg",
                                      "chance_r1", "query_touch_share", "reference_touch_share",
-                                     "query_longest_stay_share", "reference_longest_stay_share"]
+                                     "query_longest_stay_share", "reference_longest_stay_share",
+                                     "touch_both_share", "touch_one_side_share", "touch_correspondence"]
     assert difficulties[0] == difficulties[1]  # a property of the evaluation pair, not of the method
     for method in ("L", "H"):
         folder = out / "evaluations" / "E1" / method / "query-to-reference"

@@ -308,6 +308,13 @@ BROKEN = [
     (broken("given-changing", __init__=_init_keeping_the_given_params, fit=_fit_changing_the_given_params),
      "check_fit_leaves_params", r"fit changed the parameters it was given: \{'seed': 1, 'dims': \[2\]\} became "
                                 r"\{'seed': 1, 'dims': \[2, 3\]\}"),
+    (broken("odd-senses", modalities=classmethod(lambda cls, params: frozenset({"visual", "smell"}))),
+     "check_declared_senses", r"modalities returned frozenset\(\{'.*'\}\), expected None \(unknown\) or a "
+                              r"non-empty set of 'visual' and 'tactile'"),
+    (broken("no-senses", modalities=classmethod(lambda cls, params: frozenset())),
+     "check_declared_senses", r"modalities returned frozenset\(\), expected None"),
+    (broken("listed-senses", modalities=classmethod(lambda cls, params: ["visual"])),
+     "check_declared_senses", r"modalities returned \['visual'\], expected None"),
 ]
 
 

@@ -277,3 +277,36 @@ def test_tracking_is_off_unless_asked_and_never_fails_a_run(tmp_path, monkeypatc
     monkeypatch.setitem(sys.modules, "mlflow", broken)
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
     assert "plugin 'mlflow (vitaplace)': its run-finished hook raised ConnectionError: tracking server down" in caplog.text
+
+
+def test_the_difficulty_table_shows_the_touch_pairs_and_older_rows_without_them():
+    from vitaplace.engine.report.report import difficulty_table
+
+    old = {"nearest_ref_median_m": 0.1, "nearest_ref_p90_m": 0.2, "nearest_ref_heading_median_deg": 5.0,
+           "chance_r1": 0.1, "query_touch_share": 0.5, "reference_touch_share": 0.25}  # a run of an older version
+    new = {**old, "query_longest_stay_share": 0.1, "reference_longest_stay_share": 0.2, "touch_both_share": 0.125,
+           "touch_one_side_share": 0.5, "touch_correspondence": None}
+    rows = [{"environment": "E1", "direction": "query-to-reference", "difficulty": old},
+            {"environment": "E2", "direction": "query-to-reference", "difficulty": new}]
+    lines = difficulty_table(rows).splitlines()
+    assert lines[0].endswith("| touch both sides % | touch one side % | touch correspondence % |")
+    assert lines[2].endswith("| – | – | – | – | – |")  # longest stays and touch pairs: not measured then
+    assert lines[3].endswith("| 10.00 | 20.00 | 12.50 | 50.00 | – |")
+
+
+def test_the_complementarity_table_and_its_absence_in_older_folders(tmp_path):
+    from vitaplace.engine.report.report import _complementarity_section
+
+    assert _complementarity_section(tmp_path) == []  # an older run's folder: no complementarity.json
+    (tmp_path / "complementarity.json").write_text("[]")
+    assert _complementarity_section(tmp_path) == []  # no vision-only / touch-only pair ran
+    record = {"environment": "E1", "direction": "query-to-reference", "vision": "H-V", "touch": "H-T",
+              "n_revisit": 4, "vision_r1": 0.5, "touch_r1": 0.25, "vision_wrong": 2, "rescued": 1, "rescue": 0.5,
+              "oracle_r1": 0.75}
+    (tmp_path / "complementarity.json").write_text(json.dumps([record, {**record, "vision_wrong": 0, "rescued": 0,
+                                                                         "rescue": None}]))
+    section = _complementarity_section(tmp_path)
+    assert section[0] == "## Complementarity"
+    table = section[4].splitlines()
+    assert table[2] == "| E1 | query-to-reference | H-V | H-T | 4 | 50.00 | 25.00 | 2 | 1 | 50.00 | 75.00 |"
+    assert table[3] == "| E1 | query-to-reference | H-V | H-T | 4 | 50.00 | 25.00 | 0 | 0 | – | 75.00 |"

@@ -1,0 +1,91 @@
+"""`vitaplace difficulty`: the hand-crafted family alone on a scenario's evaluations, its
+touch measures and complementarity against each evaluation's gates."""
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from vitaplace.engine.cli.difficulty import GATES, gate_results  # noqa: E402
+from vitaplace.engine.cli.main import main  # noqa: E402
+from vitaplace.engine.config.scenario import Gates  # noqa: E402
+
+ENV_E1 = str(Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml")
+
+
+@pytest.mark.parametrize("gates, values, expected", [
+    # nothing declared: every gate "-" (met None), the values still reported
+    ({}, {"touch_correspondence": 0.5, "rescue": 0.2, "hv_max_f1": 0.9}, (None, None, None)),
+    # the bound itself meets a gate: 0.7 >= 0.7, 0.25 >= 0.25, 0.85 <= 0.85
+    ({"touch_correspondence_min": 0.7, "rescue_min": 0.25, "hv_max_f1_max": 0.85},
+     {"touch_correspondence": 0.7, "rescue": 0.25, "hv_max_f1": 0.85}, (True, True, True)),
+    # just past each bound: missed
+    ({"touch_correspondence_min": 0.7, "rescue_min": 0.25, "hv_max_f1_max": 0.85},
+     {"touch_correspondence": 0.69, "rescue": 0.24, "hv_max_f1": 0.86}, (False, False, False)),
+    # no value (no touched query with a true match; vision never wrong): a declared gate is missed
+    ({"touch_correspondence_min": 0.0, "rescue_min": 0.0}, {"touch_correspondence": None, "rescue": None,
+                                                           "hv_max_f1": 0.1}, (False, False, None)),
+])
+def test_gates_by_hand(gates, values, expected):
+    results = gate_results(Gates(**gates), values)
+    assert list(results) == list(GATES)
+    assert tuple(r["met"] for r in results.values()) == expected
+    assert [r["value"] for r in results.values()] == [values[measure] for measure, _ in GATES.values()]
+    assert [r["gate"] for r in results.values()] == [gates.get(g) for g in GATES]
+
+
+def test_difficulty_runs_the_handcrafted_family_alone_and_prints_gates(tmp_path, capsys):
+    scenario = {
+        "name": "d",
+        "train": {"environment": ENV_E1, "run": {"kind": "foraging", "n_samples": 5}},
+        "evaluations": [{"name": "E1", "environment": ENV_E1, "run": {"kind": "route", "n_samples": 8},
+                         "gates": {"touch_correspondence_min": 0.0, "hv_max_f1_max": 0.0}}],
+        # a learned method and a pair of its own: neither is run (no fit of L)
+        "methods": [{"name": "L", "plugin": "mupnet"}, {"name": "L-V", "plugin": "mupnet"}],
+        "scoring": {"tau": 0.3, "complementarity": [{"vision": "L-V", "touch": "L"}]},
+    }
+    path = tmp_path / "d.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    out = tmp_path / "out"
+    assert main(["-q", "difficulty", str(path), "--out", str(out), "--json", "--no-progress"]) == 0
+    rows = json.loads(capsys.readouterr().out)  # stdout holds the JSON and nothing else
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert list(manifest["methods"]) == ["H", "H-V", "H-T"]
+    assert not any(r["stage"] == "fit" and r["item"].startswith("L") for r in manifest["stages"])
+    assert [(r["environment"], r["direction"]) for r in rows] == [("E1", "query-to-reference")]
+    row = rows[0]
+    results = {r["method"]: r for r in json.loads((out / "results.json").read_text())}
+    assert row["difficulty"] == results["H"]["difficulty"] and row["hv_max_f1"] == results["H-V"]["max_f1"]
+    # the complementarity by a plain loop over the two evaluations' matrices
+    right = {}
+    for method in ("H-V", "H-T"):
+        with np.load(out / "evaluations" / "E1" / method / "query-to-reference" / "matrices.npz") as m:
+            tme, gtm = m["tme"], m["gtm"]
+        revisit = [i for i in range(len(tme)) if gtm[i].min() <= 0.3]
+        right[method] = {i for i in revisit if gtm[i, int(np.argmin(tme[i]))] <= 0.3}
+    wrong = set(revisit) - right["H-V"]
+    c = row["complementarity"]
+    assert (c["vision"], c["touch"], c["n_revisit"]) == ("H-V", "H-T", len(revisit))
+    assert (c["vision_r1"], c["touch_r1"]) == (len(right["H-V"]) / len(revisit), len(right["H-T"]) / len(revisit))
+    assert (c["vision_wrong"], c["rescued"]) == (len(wrong), len(wrong & right["H-T"]))
+    assert c["oracle_r1"] == pytest.approx(len(right["H-V"] | right["H-T"]) / len(revisit))
+    assert json.loads((out / "complementarity.json").read_text()) == [
+        {"environment": "E1", "direction": "query-to-reference", **c}]
+    gates = row["gates"]
+    touch = row["difficulty"]["touch_correspondence"]
+    assert gates["touch_correspondence_min"] == {"gate": 0.0, "value": touch, "met": touch is not None}
+    assert gates["rescue_min"]["met"] is None  # not declared
+    assert gates["hv_max_f1_max"]["met"] == (row["hv_max_f1"] <= 0.0)
+    # without --json: the table, a missed gate as MISSED with its value, an undeclared one as "-" (cached: quick)
+    assert main(["-q", "difficulty", str(path), "--out", str(out), "--no-progress"]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].startswith("| evaluation | direction | touch both sides |") and len(table) == 3
+    cells = table[2].split(" | ")
+    assert cells[5].endswith("(-)")
+    f1 = f"{100 * row['hv_max_f1']:.1f} % (<= 0.0 %) |"
+    assert cells[6] == (f1 if row["hv_max_f1"] <= 0.0 else f"MISSED {f1}")
