@@ -38,6 +38,7 @@ from typing import Annotated, Any
 import pydantic
 
 from vitaplace.engine.base.configfile import ConfigError
+from vitaplace.engine.sim.condition import Condition
 from vitaplace.engine.sim.controllers import (RENAMED_RUN_KEYS, RunSpec, legacy_gain_paths, nest_legacy_gains,
                                               rename_legacy_run_keys)
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
@@ -136,6 +137,14 @@ class EvaluationPair(_RunSource):
         "off_route_offset across it; route, orbit: the final part; teleop: detours spread along the "
         "run), so some queries have no true match",
     )
+    query_condition: Condition | None = pydantic.Field(
+        None,
+        description="the lighting and camera state the query run is recorded under, instead of the run's "
+        "`condition` (docs/SIMULATION.md, Conditions): a revisit in another season, at night, with a dirty lens",
+    )
+    reference_condition: Condition | None = pydantic.Field(
+        None, description="the same for the reference run",
+    )
     datasets: RecordedRuns | None = pydantic.Field(
         None,
         description="recorded query and reference runs instead of simulated ones (no run key then; environment "
@@ -149,15 +158,23 @@ class EvaluationPair(_RunSource):
             raise ValueError(
                 "query_off_route needs a simulated teleop, route or orbit run (not recorded runs, not foraging)"
             )
+        conditions = [k for k in ("query_condition", "reference_condition") if getattr(self, k) is not None]
+        if conditions and self.run is None:
+            raise ValueError(f"{conditions[0]} needs simulated runs ('environment' and 'run'), not recorded ones")
         return self
 
     def run_for(self, role: str) -> RunSpec:
         """The simulated run of ``role`` ("query" or "reference"): the query's carries the
-        partial-revisit detour (``query_off_route``)."""
+        partial-revisit detour (``query_off_route``); each carries its role's condition
+        (``query_condition``, ``reference_condition``) when one is given."""
         assert self.run is not None  # validated: simulated
+        update: dict[str, Any] = {}
         if role == "query" and self.query_off_route:
-            return self.run.model_copy(update={"off_route_fraction": self.query_off_route})
-        return self.run
+            update["off_route_fraction"] = self.query_off_route
+        condition = self.query_condition if role == "query" else self.reference_condition
+        if condition is not None:
+            update["condition"] = condition
+        return self.run.model_copy(update=update) if update else self.run
 
     def recorded(self) -> dict[str, Path]:
         """``{"query": file, "reference": file}`` for recorded runs, else empty."""
