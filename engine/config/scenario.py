@@ -119,6 +119,23 @@ SafeName = Annotated[str, pydantic.StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1
 MIN_EVALUATION_SAMPLES = 5
 
 
+class QueryDropout(Strict):
+    """Sensors lost at query time: shares of the query run's samples without the camera or
+    without the whiskers (disjoint: a sample loses at most one)."""
+
+    camera: float = pydantic.Field(0.0, ge=0, le=1, allow_inf_nan=False,
+                                   description="share of the query samples without a camera frame")
+    whiskers: float = pydantic.Field(0.0, ge=0, le=1, allow_inf_nan=False,
+                                     description="share of the query samples without whisker signals and contacts")
+
+    @pydantic.model_validator(mode="after")
+    def _at_most_all(self) -> QueryDropout:
+        if self.camera + self.whiskers > 1:
+            raise ValueError(f"camera + whiskers is {self.camera + self.whiskers:g}: a sample loses at most one "
+                             "sensor, so the shares sum to at most 1")
+        return self
+
+
 class EvaluationPair(_RunSource):
     """An evaluation: two simulated runs (in the shipped scenarios: independent teleoperated
     drives) or two recorded runs (query and reference)."""
@@ -144,6 +161,12 @@ class EvaluationPair(_RunSource):
     )
     reference_condition: Condition | None = pydantic.Field(
         None, description="the same for the reference run",
+    )
+    query_dropout: QueryDropout | None = pydantic.Field(
+        None,
+        description="sensor drop-out at query time: these shares of the query samples, drawn from the scenario "
+        "seed, lack the camera or the whiskers, and each method describes them by the sensor left "
+        "(docs/plugins.md, Missing modalities); give the evaluation a name of its own",
     )
     datasets: RecordedRuns | None = pydantic.Field(
         None,
