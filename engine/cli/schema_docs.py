@@ -19,7 +19,9 @@ from pathlib import Path
 import pydantic
 from pydantic_core import PydanticUndefined
 
-from vitaplace.engine.config.scenario import EvaluationPair, ScoringSettings, Method, RecordedRuns, Scenario, TrainingData
+from vitaplace.engine.config.scenario import (EvaluationPair, Method, QueryDropout, RecordedRuns, Scenario, ScoringSettings,
+                                              TrainingData)
+from vitaplace.engine.sim.condition import CameraCondition, Condition, LightCondition, Occlusion
 from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, TeleopRun
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
@@ -45,11 +47,18 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("train: TrainingData", TrainingData, "the training run"),
     ("evaluations[]: EvaluationPair", EvaluationPair, "one evaluation environment (two runs, simulated or recorded)"),
     ("evaluations[].datasets: RecordedRuns", RecordedRuns, "an evaluation's two recorded runs (docs/DATA.md)"),
+    ("evaluations[].query_dropout: QueryDropout", QueryDropout,
+     "sensors lost at query time (docs/plugins.md, Missing modalities)"),
     ("run (kind: foraging): ForagingRun", ForagingRun, "a foraging run (training); each kind has only its own keys"),
     ("run.gains: ForagingGains", ForagingGains, "the gains and thresholds of the foraging states"),
     ("run (kind: teleop): TeleopRun", TeleopRun, "an emulated keyboard teleoperator's drive (evaluation)"),
     ("run (kind: route): RouteRun", RouteRun, "noisy laps of the environment's route"),
     ("run (kind: orbit): OrbitRun", OrbitRun, "noisy laps of a circle, facing outward"),
+    ("run.condition, evaluations[].query_condition, evaluations[].reference_condition: Condition", Condition,
+     "the lighting and camera state a simulated run is recorded under (docs/SIMULATION.md, Conditions)"),
+    ("condition.light: LightCondition", LightCondition, "how the environment's lights differ"),
+    ("condition.camera: CameraCondition", CameraCondition, "how each frame is degraded: blur, exposure, noise, occlusion"),
+    ("condition.camera.occlusion: Occlusion", Occlusion, "the part of the image blanked"),
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),
     ("methods[]: Method", Method, "a feature extractor to compare"),
     ("methods[].params for plugin mupnet", MupnetParams, "the learned MuPNet features"),
