@@ -493,6 +493,10 @@ MUTANTS = [
     m("dropout: the contract suite never asks an extractor that handles missing modalities", "testing",
       '    if not getattr(cls, "handles_missing", False):\n        return\n', "    return\n",
       *t("contract", "test_each_rule_bites[peeking]")),
+    m("dropout: the report swaps the lost sensors", "report",
+      "{_pct(shares.get('camera', 0.0))} | {_pct(shares.get('whiskers', 0.0))}",
+      "{_pct(shares.get('whiskers', 0.0))} | {_pct(shares.get('camera', 0.0))}",
+      *t("dropout_run", "test_a_query_drop_out_is_drawn_recorded_used_and_keyed")),
     # --- configuration, plugins, reports
     m("inputs: query and reference compared by path, not content", "config.inputs",
       "if digest(datasets.query) == digest(datasets.reference):", "if datasets.query == datasets.reference:",

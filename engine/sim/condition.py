@@ -65,8 +65,9 @@ class LightCondition(_Settings):
 class Occlusion(_Settings):
     """A part of the image blanked (set to 0), e.g. a lens covered from one edge."""
 
-    share: float = Field(0.0, ge=0, le=1, description="share of the image's rows (top, bottom) or columns "
-                         "(left, right) blanked, rounded to whole pixels")
+    share: float = Field(0.0, ge=0, lt=1, description="share of the image's rows (top, bottom) or columns "
+                         "(left, right) blanked, rounded to whole pixels; below 1 (a camera that sees nothing is "
+                         "a lost one: an evaluation's query_dropout)")
     side: Literal["top", "bottom", "left", "right"] = Field("bottom", description="the edge the blanked part starts at")
 
 

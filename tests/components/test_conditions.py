@@ -82,7 +82,8 @@ def test_occlusion_blanks_the_stated_part_and_nothing_else(side, rows, cols):
     expected = image.copy()
     expected[rows, cols] = 0
     assert np.array_equal(out, expected)
-    assert np.array_equal(degrade(image, CameraCondition(occlusion=Occlusion(share=1.0, side=side)), noise_rng(0)),
+    # share 0.96: round(9.6) = 10 rows, round(11.52) = 12 columns: all of it
+    assert np.array_equal(degrade(image, CameraCondition(occlusion=Occlusion(share=0.96, side=side)), noise_rng(0)),
                           np.zeros_like(image))
 
 
@@ -185,7 +186,11 @@ BAD = {
     "zero exposure": ("evaluations.0.query_condition={camera: {exposure: 0}}",
                       "evaluations.0.query_condition.camera.exposure: Input should be greater than 0"),
     "occlusion over 1": ("evaluations.0.query_condition={camera: {occlusion: {share: 1.5}}}",
-                         "evaluations.0.query_condition.camera.occlusion.share: Input should be less than or equal to 1"),
+                         "evaluations.0.query_condition.camera.occlusion.share: Input should be less than 1"),
+    "all occluded": ("evaluations.0.query_condition={camera: {occlusion: {share: 1}}}",
+                     "evaluations.0.query_condition.camera.occlusion.share: Input should be less than 1"),
+    "negative occlusion": ("evaluations.0.query_condition={camera: {occlusion: {share: -0.1}}}",
+                           "evaluations.0.query_condition.camera.occlusion.share: Input should be greater than or equal to 0"),
     "an unknown side": ("evaluations.0.query_condition={camera: {occlusion: {share: 0.2, side: middle}}}",
                         "evaluations.0.query_condition.camera.occlusion.side: Input should be 'top', 'bottom', 'left' or 'right'"),
     "an unknown key": ("evaluations.0.query_condition={light: {brightness: 2}}",

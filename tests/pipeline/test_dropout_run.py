@@ -36,6 +36,8 @@ def test_a_query_drop_out_is_drawn_recorded_used_and_keyed(tmp_path):
     rows = json.loads((out / "results.json").read_text())
     assert {row["method"] for row in rows} == {"L", "H"}
     assert all(row["query_dropout"] == {"camera": 0.3, "whiskers": 0.2} for row in rows)
+    report = (out / "report.md").read_text()
+    assert "## Query drop-out" in report and "| E1 | 30.00 | 20.00 |" in report
     (query,) = (out / "cache" / "features").glob("H-E1-query-*.npz")
     features = load_features(query)
     assert np.flatnonzero(features["missing_camera"]).tolist() == record["camera"]
