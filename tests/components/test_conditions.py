@@ -215,3 +215,20 @@ def test_a_condition_of_recorded_runs_is_refused(tmp_path, capsys):
     assert main(argv) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "query_condition needs simulated runs" in lines[0], lines
+
+
+def test_a_condition_survives_the_simulation_job_and_the_run_file():
+    """The simulate stage hands a run's settings to its worker as a dict (`run_spec` reads it
+    back) and stores them in the run file's attributes as JSON (`recorded_run_spec`)."""
+    import json
+
+    from vitaplace.engine.sim.controllers import recorded_run_spec
+
+    scenario, _ = load_scenario("quickstart", overrides=[
+        "evaluations.0.query_condition={light: {direction: [1, 0, -0.5]}, camera: {occlusion: {share: 0.25, side: left}}}"])
+    query = scenario.evaluations[0].run_for("query")
+    assert run_spec(query.model_dump()) == query
+    assert recorded_run_spec(json.loads(json.dumps(query.model_dump(mode="json")))) == query
+    plain, _ = load_scenario("quickstart")
+    assert key_form(scenario.evaluations[0].run_for("reference")) == key_form(plain.evaluations[0].run_for("reference"))
+    assert key_form(query) != key_form(plain.evaluations[0].run_for("query"))
