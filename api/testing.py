@@ -34,6 +34,9 @@ from vitaplace.engine.extension.features import TACTILE, VISUAL, FeatureExtracto
 __all__ = [
     "ATOL", "CHECKS", "RTOL", "ContractError", "check_declared_senses", "check_distance_before_fit", "check_distance_output",
     "check_extractor", "check_features_output", "check_fit_leaves_params", "check_same_seed_same_features",
+    "ATOL", "CHECKS", "RTOL", "ContractError", "check_distance_before_fit", "check_distance_output",
+    "check_extractor", "check_features_output", "check_fit_leaves_params", "check_missing_modalities",
+    "check_same_seed_same_features",
     "check_save_load_round_trip", "check_transform_before_fit", "check_transform_subset", "parametrize_with_checks",
     "synthetic_run",
 ]
@@ -253,6 +256,45 @@ def check_declared_senses(cls: type[FeatureExtractor], params: RawParams, run: R
     if senses is not None and not (isinstance(senses, (set, frozenset)) and senses and senses <= {VISUAL, TACTILE}):
         raise _fail(check_declared_senses, cls, f"modalities returned {senses!r}, expected None (unknown) or a "
                     f"non-empty set of {VISUAL!r} and {TACTILE!r}")
+def _other_lost_data(run: Run, lost: Mapping[str, np.ndarray]) -> Run:
+    """``run`` with other data where its samples lack a sensor: the lost frames inverted, the
+    lost whisker signals negated and their contacts mirrored through the origin."""
+    camera, whiskers = lost["camera"], lost["whiskers"]
+    points, normals = run._get("contact_points").copy(), run._get("contact_normals").copy()
+    owner = np.repeat(np.arange(len(run)), np.diff(run.contact_offsets))
+    points[whiskers[owner]] *= -1
+    normals[whiskers[owner]] *= -1
+    sign = np.where(whiskers, -1.0, 1.0)
+    other = Run.from_arrays(
+        images=np.where(camera[:, None, None, None], 255 - run.images, run.images), theta=run.theta * sign[:, None],
+        xy=run.xy * sign[:, None, None], deflection=run.deflection * sign[:, None, None, None], poses=run.poses,
+        times=run.times, contact_points=points, contact_normals=normals, contact_offsets=run.contact_offsets,
+        name=run.name, attrs=run.attrs)
+    other.missing = dict(lost)
+    return other
+
+
+def check_missing_modalities(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
+    """An extractor that declares ``handles_missing`` describes a sample that lacks a sensor
+    (`Run.lacks`) without that sensor's data: changing the lost frames and whisker data of
+    such samples changes neither the features nor the distances. Extractors that do not
+    declare it are not asked (scenarios with a query drop-out refuse them)."""
+    if not getattr(cls, "handles_missing", False):
+        return
+    extractor = _fitted(cls, params, run)
+    index = np.arange(len(run))
+    lost = {"camera": index % 3 == 1, "whiskers": index % 3 == 2}
+    query = run.subset(slice(None))
+    query.missing = dict(lost)
+    features, changed = extractor.transform(query), extractor.transform(_other_lost_data(query, lost))
+    problems = _differences(features, changed)
+    if problems:
+        raise _fail(check_missing_modalities, cls, "declares handles_missing, but changing the data of the sensors "
+                    f"samples lack (Run.lacks) changed the features: {'; '.join(problems)}")
+    reference = extractor.transform(run)
+    if not _same_distances(extractor.distance(features, reference), extractor.distance(changed, reference)):
+        raise _fail(check_missing_modalities, cls, "declares handles_missing, but changing the data of the sensors "
+                    "samples lack (Run.lacks) changed the distances")
 
 
 #: every check, in the order `check_extractor` runs them
@@ -266,6 +308,7 @@ CHECKS: tuple[Callable[[type[FeatureExtractor], RawParams, Run], None], ...] = (
     check_same_seed_same_features,
     check_fit_leaves_params,
     check_declared_senses,
+    check_missing_modalities,
 )
 
 

@@ -19,8 +19,9 @@ from pathlib import Path
 import pydantic
 from pydantic_core import PydanticUndefined
 
-from vitaplace.engine.config.scenario import (ComplementarityPair, EvaluationPair, Gates, Method, RecordedRuns, Scenario,
-                                             ScoringSettings, TrainingData)
+from vitaplace.engine.config.scenario import (ComplementarityPair, EvaluationPair, Gates, Method, QueryDropout, RecordedRuns,
+                                              Scenario, ScoringSettings, TrainingData)
+from vitaplace.engine.sim.condition import CameraCondition, Condition, LightCondition, Occlusion
 from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, StationsRun, TeleopRun
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
@@ -48,6 +49,8 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("evaluations[]: EvaluationPair", EvaluationPair, "one evaluation environment (two runs, simulated or recorded)"),
     ("evaluations[].datasets: RecordedRuns", RecordedRuns, "an evaluation's two recorded runs (docs/DATA.md)"),
     ("evaluations[].gates: Gates", Gates, "what `vitaplace difficulty` checks an evaluation against"),
+    ("evaluations[].query_dropout: QueryDropout", QueryDropout,
+     "sensors lost at query time (docs/plugins.md, Missing modalities)"),
     ("run (kind: foraging): ForagingRun", ForagingRun, "a foraging run (training); each kind has only its own keys"),
     ("run.gains: ForagingGains", ForagingGains, "the gains and thresholds of the foraging states"),
     ("run (kind: teleop): TeleopRun", TeleopRun, "an emulated keyboard teleoperator's drive (evaluation)"),
@@ -55,6 +58,11 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
      "the teleoperator whisking the same K tactile stations in every drive (evaluation)"),
     ("run (kind: route): RouteRun", RouteRun, "noisy laps of the environment's route"),
     ("run (kind: orbit): OrbitRun", OrbitRun, "noisy laps of a circle, facing outward"),
+    ("run.condition, evaluations[].query_condition, evaluations[].reference_condition: Condition", Condition,
+     "the lighting and camera state a simulated run is recorded under (docs/SIMULATION.md, Conditions)"),
+    ("condition.light: LightCondition", LightCondition, "how the environment's lights differ"),
+    ("condition.camera: CameraCondition", CameraCondition, "how each frame is degraded: blur, exposure, noise, occlusion"),
+    ("condition.camera.occlusion: Occlusion", Occlusion, "the part of the image blanked"),
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),
     ("methods[]: Method", Method, "a feature extractor to compare"),
     ("methods[].params for plugin mupnet", MupnetParams, "the learned MuPNet features"),

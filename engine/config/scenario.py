@@ -38,6 +38,7 @@ from typing import Annotated, Any
 import pydantic
 
 from vitaplace.engine.base.configfile import ConfigError
+from vitaplace.engine.sim.condition import Condition
 from vitaplace.engine.sim.controllers import (RENAMED_RUN_KEYS, RunSpec, legacy_gain_paths, nest_legacy_gains,
                                               rename_legacy_run_keys)
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
@@ -134,6 +135,21 @@ class Gates(Strict):
     hv_max_f1_max: float | None = pydantic.Field(
         None, ge=0, le=1, allow_inf_nan=False, description="most max F1 of H-V (vision alone must not solve it)",
     )
+class QueryDropout(Strict):
+    """Sensors lost at query time: shares of the query run's samples without the camera or
+    without the whiskers (disjoint: a sample loses at most one)."""
+
+    camera: float = pydantic.Field(0.0, ge=0, le=1, allow_inf_nan=False,
+                                   description="share of the query samples without a camera frame")
+    whiskers: float = pydantic.Field(0.0, ge=0, le=1, allow_inf_nan=False,
+                                     description="share of the query samples without whisker signals and contacts")
+
+    @pydantic.model_validator(mode="after")
+    def _at_most_all(self) -> QueryDropout:
+        if self.camera + self.whiskers > 1:
+            raise ValueError(f"camera + whiskers is {self.camera + self.whiskers:g}: a sample loses at most one "
+                             "sensor, so the shares sum to at most 1")
+        return self
 
 
 class EvaluationPair(_RunSource):
@@ -154,6 +170,20 @@ class EvaluationPair(_RunSource):
         "off_route_offset across it; route, orbit: the final part; teleop: detours spread along the "
         "run), so some queries have no true match",
     )
+    query_condition: Condition | None = pydantic.Field(
+        None,
+        description="the lighting and camera state the query run is recorded under, instead of the run's "
+        "`condition` (docs/SIMULATION.md, Conditions): a revisit in another season, at night, with a dirty lens",
+    )
+    reference_condition: Condition | None = pydantic.Field(
+        None, description="the same for the reference run",
+    )
+    query_dropout: QueryDropout | None = pydantic.Field(
+        None,
+        description="sensor drop-out at query time: these shares of the query samples, drawn from the scenario "
+        "seed, lack the camera or the whiskers, and each method describes them by the sensor left "
+        "(docs/plugins.md, Missing modalities); give the evaluation a name of its own",
+    )
     datasets: RecordedRuns | None = pydantic.Field(
         None,
         description="recorded query and reference runs instead of simulated ones (no run key then; environment "
@@ -170,15 +200,23 @@ class EvaluationPair(_RunSource):
             raise ValueError(
                 "query_off_route needs a simulated teleop, stations, route or orbit run (not recorded runs, not foraging)"
             )
+        conditions = [k for k in ("query_condition", "reference_condition") if getattr(self, k) is not None]
+        if conditions and self.run is None:
+            raise ValueError(f"{conditions[0]} needs simulated runs ('environment' and 'run'), not recorded ones")
         return self
 
     def run_for(self, role: str) -> RunSpec:
         """The simulated run of ``role`` ("query" or "reference"): the query's carries the
-        partial-revisit detour (``query_off_route``)."""
+        partial-revisit detour (``query_off_route``); each carries its role's condition
+        (``query_condition``, ``reference_condition``) when one is given."""
         assert self.run is not None  # validated: simulated
+        update: dict[str, Any] = {}
         if role == "query" and self.query_off_route:
-            return self.run.model_copy(update={"off_route_fraction": self.query_off_route})
-        return self.run
+            update["off_route_fraction"] = self.query_off_route
+        condition = self.query_condition if role == "query" else self.reference_condition
+        if condition is not None:
+            update["condition"] = condition
+        return self.run.model_copy(update=update) if update else self.run
 
     def recorded(self) -> dict[str, Path]:
         """``{"query": file, "reference": file}`` for recorded runs, else empty."""

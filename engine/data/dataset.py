@@ -56,6 +56,10 @@ FIELDS: dict[str, np.dtype] = {
 }
 
 
+#: the sensors a sample can lack (`Run.missing`, `Run.lacks`): the camera's frame, and the
+#: whiskers' signals (theta, xy, the deflection series) and contacts
+SENSORS = ("camera", "whiskers")
+
 #: a whisker deflection |xy| above this counts as touch at the sampling instant (the same
 #: threshold for both touch models and for imported recordings)
 TOUCH_THRESHOLD = 0.01
@@ -79,6 +83,10 @@ class Run:
     path: Path | None = None
     #: feature -> warning about data of this run that feature cannot use (`features.warn_once`); not stored
     warnings: dict[str, str] = field(default_factory=dict, repr=False)
+    #: sensor (`SENSORS`) -> (N,) bool, True where the sample lacks that sensor (a drop-out at query
+    #: time, set by the pipeline: `dropout_masks`); its data is still there, an extractor must not
+    #: use it (docs/plugins.md, Missing modalities). Not stored; read it through `lacks`.
+    missing: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     @classmethod
     def from_arrays(
@@ -177,6 +185,13 @@ class Run:
         imported runs alike (both touch models and real whiskers record ``xy``)."""
         return np.linalg.norm(self.xy, axis=2).max(axis=1) > threshold
 
+    def lacks(self, sensor: str) -> np.ndarray:
+        """(N,) bool: the samples that lack ``sensor`` ("camera" or "whiskers"); all False
+        when nothing dropped out."""
+        if sensor not in SENSORS:
+            raise ValueError(f"unknown sensor {sensor!r}; sensors: {', '.join(SENSORS)}")
+        return self.missing.get(sensor, np.zeros(len(self), dtype=bool))
+
     def validate(self) -> None:
         """Read every numeric field once (images excepted): NaN or infinite values raise
         `DatasetError` naming the field and the first bad sample."""
@@ -197,7 +212,8 @@ class Run:
         return self._get("contact_points")[lo:hi], self._get("contact_normals")[lo:hi]
 
     def subset(self, index: np.ndarray | slice) -> Run:
-        """A new in-memory run holding the samples selected by ``index`` (contacts re-packed)."""
+        """A new in-memory run holding the samples selected by ``index`` (contacts re-packed, the
+        drop-out masks selected too)."""
         idx = np.arange(len(self))[index]
         points, normals, counts = [], [], [0]
         for i in idx:
@@ -205,7 +221,7 @@ class Run:
             points.append(p)
             normals.append(nrm)
             counts.append(len(p))
-        return Run.from_arrays(
+        run = Run.from_arrays(
             images=self.images[idx],
             theta=self.theta[idx],
             xy=self.xy[idx],
@@ -218,6 +234,22 @@ class Run:
             name=self.name,
             attrs=self.attrs,
         )
+        run.missing = {sensor: mask[idx] for sensor, mask in self.missing.items()}
+        return run
+
+
+def dropout_masks(n: int, shares: Mapping[str, float], seed: int) -> dict[str, np.ndarray]:
+    """Which of ``n`` samples lack each sensor: ``round(share * n)`` samples per sensor of
+    ``shares`` (sensor -> share in [0, 1], summing to at most 1), disjoint (a sample loses at
+    most one sensor), taken in `SENSORS` order from one permutation drawn from ``seed``."""
+    order = np.random.default_rng(seed).permutation(n)
+    masks, start = {}, 0
+    for sensor in SENSORS:
+        count = min(int(round(shares.get(sensor, 0.0) * n)), n - start)
+        mask = np.zeros(n, dtype=bool)
+        mask[order[start:start + count]] = True
+        masks[sensor], start = mask, start + count
+    return masks
 
 
 def _check_finite(data: np.ndarray, key: str, where: str) -> None:

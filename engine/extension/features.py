@@ -49,6 +49,11 @@ class FeatureExtractor(ABC):
     Params: ClassVar[type[ExtractorParams]] = ExtractorParams
     #: Whether long fit/transform calls may show progress bars (the runner sets it).
     progress: bool = True
+    #: Whether ``transform`` and ``distance`` honour missing modalities: samples of a run that lack
+    #: the camera or the whiskers (`Run.lacks`, a query drop-out) are described by the sensors they
+    #: have, never by the missing one's data. An extractor that leaves it False is refused, in one
+    #: line at validate, by any evaluation with a ``query_dropout`` (docs/plugins.md).
+    handles_missing: ClassVar[bool] = False
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         self.params = self.validate_params(params or {})

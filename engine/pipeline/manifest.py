@@ -33,6 +33,8 @@ def manifest_of(run: RunRecord) -> dict[str, Any]:
         "methods": run.methods,
         "seconds": run.seconds,
     }
+    if simulated.dropout:
+        manifest["dropout"] = simulated.dropout
     if run.transform is not None:
         manifest["features"] = run.transform.features
     return manifest

@@ -33,6 +33,8 @@ class SimulateRecord:
     recorded: dict[str, str]  # run label -> the recorded file given for it (not simulated)
     run_seeds: dict[str, int]  # simulated run label -> its seed
     runs: dict[str, dict[str, int]]  # run label -> `vitaplace.engine.data.dataset.run_facts`
+    #: query run label -> its drop-out: seed and the samples lacking each sensor (`Pipeline.dropout_record`)
+    dropout: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

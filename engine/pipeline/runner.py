@@ -31,7 +31,7 @@ import numpy as np
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import EvaluationPair, Method, Scenario, ScenarioError, TrainingData, training_world_evaluation
-from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, open_run, run_facts
+from vitaplace.engine.data.dataset import SCHEMA_VERSION, Run, dropout_masks, open_run, run_facts
 from vitaplace.engine.evaluation import evaluate as ev
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS, longest_stay
 from vitaplace.engine.config.methods import complementarity_pairs
@@ -199,6 +199,29 @@ class Pipeline:
             return self.recorded[label]
         return outdir.dataset_file(self.cache, label, self.state.datasets[label])
 
+    def dropout_of(self, label: str, samples: int) -> dict[str, np.ndarray]:
+        """The drop-out masks of run ``label`` of ``samples`` samples (`dropout_masks`): for the
+        query run of an evaluation with a ``query_dropout``, drawn from a seed of the scenario
+        seed and the evaluation's place; empty for every other run."""
+        for i, e in enumerate(self.scenario.evaluations):
+            if e.query_dropout is not None and label == f"{e.name}/query":
+                return dropout_masks(samples, e.query_dropout.model_dump(), self.dropout_seed(i))
+        return {}
+
+    def dropout_seed(self, index: int) -> int:
+        """The seed that draws the query drop-out of evaluation ``index`` (its runs' are 1 and 2)."""
+        return seed_for(self.scenario.seed, index + 1, 3)
+
+    def dropout_record(self) -> dict[str, dict[str, Any]]:
+        """Per query run with a drop-out: its seed and the samples that lack each sensor."""
+        record = {}
+        for i, e in enumerate(self.scenario.evaluations):
+            if e.query_dropout is not None:
+                masks = self.open(f"{e.name}/query").missing
+                record[f"{e.name}/query"] = {"seed": self.dropout_seed(i),
+                                             **{sensor: np.flatnonzero(m).tolist() for sensor, m in masks.items()}}
+        return record
+
     def use_recorded(self, label: str) -> None:
         """A recorded run instead of a simulation: open and check it (format, shapes, finite
         values); its key is the file's SHA-256, so a changed file re-runs what depends on it."""
@@ -207,6 +230,7 @@ class Pipeline:
         run = open_run(path)
         run.validate()
         run.name = label  # warnings and errors name the run as the scenario does
+        run.missing = self.dropout_of(label, len(run))
         self.opened[label] = run
         digest = checksum.digest(path)
         key = content_hash("recorded", STAGE_VERSION["simulate"], digest)
@@ -248,7 +272,7 @@ class Pipeline:
         return SimulateRecord(
             datasets=dict(self.state.datasets), recorded={label: str(path) for label, path in self.recorded.items()},
             run_seeds={label: seed for label, (_, seed) in self.runs().items() if label not in self.recorded},
-            runs={label: run_facts(self.open(label)) for label in self.runs()},
+            runs={label: run_facts(self.open(label)) for label in self.runs()}, dropout=self.dropout_record(),
         )
 
     def warn_collisions(self) -> None:
@@ -277,7 +301,9 @@ class Pipeline:
     def open(self, label: str) -> Run:
         """The recorded run ``label``, opened once per pipeline (its fields load lazily, once)."""
         if label not in self.opened:
-            self.opened[label] = open_run(self.dataset_path(label))
+            run = open_run(self.dataset_path(label))
+            run.missing = self.dropout_of(label, len(run))
+            self.opened[label] = run
         return self.opened[label]
 
     # ------------------------------------------------------------------ fit / transform
@@ -344,8 +370,12 @@ class Pipeline:
         return self.extractors[method.name]
 
     def features_key(self, method: Method, label: str) -> str:
+        """The transform's key: the model's and the run's, and the run's drop-out when it has one."""
+        missing = self.open(label).missing
+        dropout = [{sensor: np.flatnonzero(mask).tolist() for sensor, mask in missing.items()}] if missing else []
         return content_hash("transform", STAGE_VERSION["transform"], self.model_key(method),
-                            self.output_digest(self.model_dir(method)), self.state.datasets[label], self.dataset_digest(label))
+                            self.output_digest(self.model_dir(method)), self.state.datasets[label], self.dataset_digest(label),
+                            *dropout)
 
     def features_path(self, method: Method, label: str) -> Path:
         return outdir.features_file(self.cache, method.name, label, self.features_key(method, label))
@@ -391,7 +421,8 @@ class Pipeline:
                     self.stage("evaluate", f"{e.name} {method.name} {direction}", key, folder, work,
                                [qpath.stem, rpath.stem])
                     summary = json.loads((folder / outdir.SUMMARY).read_text())
-                    rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary})
+                    rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary,
+                                 **self.dropout_row(e)})
                     files += [folder / outdir.SUMMARY, folder / outdir.PR_CURVE]
         self.add_f1_at_training_threshold(rows)
         self.warn_few_revisits(rows)
@@ -411,6 +442,14 @@ class Pipeline:
                     records.append({"environment": e.name, "direction": direction, "vision": vision, "touch": touch,
                                     **complementarity(*decisions)})
         return records
+
+    def dropout_row(self, e: EvaluationPair) -> dict[str, Any]:
+        """``query_dropout`` of a results row: the shares of the query samples that lacked each
+        sensor (as drawn: whole samples); nothing for an evaluation without drop-out."""
+        if e.query_dropout is None:
+            return {}
+        missing = self.open(f"{e.name}/query").missing
+        return {"query_dropout": {sensor: float(mask.mean()) if len(mask) else 0.0 for sensor, mask in missing.items()}}
 
     def warn_few_revisits(self, rows: list[dict[str, Any]]) -> None:
         """Warn (log, manifest.json, report.md; on the run whose samples are the queries) about

@@ -280,6 +280,25 @@ def _samples_and_difficulty(manifest: dict[str, Any], rows: list[dict[str, Any]]
     ]
 
 
+def _dropout_section(rows: list[dict[str, Any]]) -> list[str]:
+    """The evaluations whose query samples lost a sensor (``query_dropout`` of their rows)."""
+    lost = {row["environment"]: row["query_dropout"] for row in rows if "query_dropout" in row}
+    if not lost:
+        return []
+    table = ["| evaluation | without camera % | without whiskers % |", "|---|---|---|"]
+    table += [f"| {name} | {_pct(shares.get('camera', 0.0))} | {_pct(shares.get('whiskers', 0.0))} |"
+              for name, shares in lost.items()]
+    return [
+        "## Query drop-out",
+        "",
+        "Shares of each evaluation's query samples that lacked a sensor, drawn from the scenario seed (manifest.json, "
+        "`dropout`, lists the samples); each method described them by the sensor left.",
+        "",
+        *table,
+        "",
+    ]
+
+
 def _inference_section(manifest: dict[str, Any]) -> list[str]:
     inference = inference_table(manifest["features"])
     if not inference:
@@ -409,6 +428,7 @@ def write_report(out: Path) -> None:
         *_warnings_section(manifest),
         *_samples_and_difficulty(manifest, rows),
         *_complementarity_section(out),
+        *_dropout_section(rows),
         *_methods_section(manifest["methods"]),
         *_inference_section(manifest),
         *_evaluation_sections(out, rows),

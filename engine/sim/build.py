@@ -25,6 +25,7 @@ from collections.abc import Sequence
 import mujoco
 import numpy as np
 
+from vitaplace.engine.sim.condition import LightCondition, light_rgb
 from vitaplace.engine.sim.environment import (
     BIT_BODY,
     BIT_WHISKER,
@@ -58,10 +59,12 @@ _GEOM = mujoco.mjtGeom
 _RGB = mujoco.mjtTextureRole.mjTEXROLE_RGB
 
 
-def model_spec(env: EnvironmentSpec, robot: RobotSpec, offscreen: tuple[int, int] = (0, 0)) -> mujoco.MjSpec:
+def model_spec(env: EnvironmentSpec, robot: RobotSpec, offscreen: tuple[int, int] = (0, 0),
+               light: LightCondition | None = None) -> mujoco.MjSpec:
     """The uncompiled model of ``env`` with the robot in it (base at the origin).
 
-    ``offscreen`` (width, height) enlarges the offscreen render buffer beyond the robot's image.
+    ``offscreen`` (width, height) enlarges the offscreen render buffer beyond the robot's image;
+    ``light`` changes the environment's lights (a run's condition, `engine/sim/condition.py`).
     The actuator gains are placeholders; `build_model` sets them from the compiled inertias.
     """
     spec = mujoco.MjSpec()
@@ -73,7 +76,7 @@ def model_spec(env: EnvironmentSpec, robot: RobotSpec, offscreen: tuple[int, int
         name="sky", type=mujoco.mjtTexture.mjTEXTURE_SKYBOX, builtin=mujoco.mjtBuiltin.mjBUILTIN_FLAT,
         rgb1=env.background_rgb, rgb2=env.background_rgb, width=8, height=8,
     )
-    _add_lighting(spec, env.lighting)
+    _add_lighting(spec, env.lighting, light)
     _add_world(spec, env)
     _add_robot(spec, robot)
     return spec
@@ -101,22 +104,25 @@ def _set_options(spec: mujoco.MjSpec, env: EnvironmentSpec, robot: RobotSpec, of
     vis.map.zfar = 3.0
 
 
-def _add_lighting(spec: mujoco.MjSpec, lighting: LightingSpec) -> None:
-    """The camera-mounted headlight (diffuse only), an ambient-only light and the suns."""
+def _add_lighting(spec: mujoco.MjSpec, lighting: LightingSpec, condition: LightCondition | None = None) -> None:
+    """The camera-mounted headlight (diffuse only), an ambient-only light and the suns, each
+    level scaled and tinted by the run's light ``condition`` (`light_rgb`) and the suns along
+    its direction when it gives one."""
     head = spec.visual.headlight
     head.ambient = (0.0, 0.0, 0.0)
-    head.diffuse = [lighting.headlight] * 3
+    head.diffuse = light_rgb(lighting.headlight, condition)
     head.specular = (0.0, 0.0, 0.0)
     head.active = 1 if lighting.headlight > 0 else 0
     sun = dict(type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=(0.0, 0.0, 5.0))
     spec.worldbody.add_light(
         name="ambient", dir=(0.0, 0.0, -1.0), diffuse=(0.0, 0.0, 0.0), specular=(0.0, 0.0, 0.0),
-        ambient=[lighting.ambient] * 3, castshadow=False, **sun,
+        ambient=light_rgb(lighting.ambient, condition), castshadow=False, **sun,
     )
+    direction = None if condition is None else condition.direction
     for k, light in enumerate(lighting.lights):
         spec.worldbody.add_light(
-            name=f"sun{k}", dir=light.direction, diffuse=[light.diffuse] * 3, specular=[light.specular] * 3,
-            castshadow=lighting.shadows, **sun,
+            name=f"sun{k}", dir=direction or light.direction, diffuse=light_rgb(light.diffuse, condition),
+            specular=light_rgb(light.specular, condition), castshadow=lighting.shadows, **sun,
         )
 
 

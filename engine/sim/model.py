@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from vitaplace.engine.sim.build import model_spec
+from vitaplace.engine.sim.condition import LightCondition
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec, whisker_layout
 
@@ -154,11 +155,13 @@ class SimModel:
         return out
 
 
-def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen: tuple[int, int] = (0, 0)) -> SimModel:
-    """Compile ``env`` + robot and derive actuator gains from the compiled inertias."""
+def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen: tuple[int, int] = (0, 0),
+                light: LightCondition | None = None) -> SimModel:
+    """Compile ``env`` + robot (its lights changed by ``light``, a run's condition) and derive
+    actuator gains from the compiled inertias."""
     robot = robot or RobotSpec()
     try:
-        spec = model_spec(env, robot, offscreen)
+        spec = model_spec(env, robot, offscreen, light)
         m = spec.compile()
     except ValueError as exc:
         raise ValueError(f"environment {env.name!r}: MuJoCo could not compile the model: {exc}") from None

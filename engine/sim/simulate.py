@@ -31,6 +31,7 @@ from tqdm.auto import tqdm
 
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.sim.condition import Condition, degrade, noise_rng
 from vitaplace.engine.sim.controllers import Observation, RunSpec, key_form, make_controller, run_spec
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.glsetup import STATE as GL_STATE
@@ -60,13 +61,18 @@ class Simulator:
     """Steps one robot in one environment, whisk cycle by whisk cycle.
 
     Lower-level than `simulate_run` (which is what the scenario runner calls); tests and
-    benchmarks use it to place the robot and read its sensors directly.
+    benchmarks use it to place the robot and read its sensors directly. ``condition`` (a run's
+    lighting and camera state, `engine/sim/condition.py`) changes the model's lights and
+    degrades every rendered frame, its noise drawn from ``seed``'s camera stream (`noise_rng`).
     """
 
-    def __init__(self, environment: EnvironmentSpec, robot: RobotSpec | None = None, camera: bool = True) -> None:
+    def __init__(self, environment: EnvironmentSpec, robot: RobotSpec | None = None, camera: bool = True,
+                 condition: Condition | None = None, seed: int = 0) -> None:
         self.robot = robot or RobotSpec()
         self.env = environment
-        self.sim: SimModel = build_model(environment, self.robot)
+        self.condition = condition or Condition()
+        self._noise = noise_rng(seed)
+        self.sim: SimModel = build_model(environment, self.robot, light=self.condition.light)
         self.model = self.sim.model
         self.data = self.sim.new_data((0.0, 0.0, 0.0))
         self.camera = Camera(self.model, self.robot.camera_width, self.robot.camera_height) if camera else None
@@ -131,7 +137,9 @@ class Simulator:
     def render(self, out: np.ndarray | None = None) -> np.ndarray:
         if self.camera is None:
             raise RuntimeError("this Simulator was created with camera=False")
-        return self.camera.render(self.data, out=out)
+        image = self.camera.render(self.data, out=out)
+        image[...] = degrade(image, self.condition.camera, self._noise)
+        return image
 
     def close(self) -> None:
         if self.camera is not None:
@@ -343,7 +351,7 @@ def simulate_run(
     """
     robot = robot or RobotSpec()
     wall0 = time.perf_counter()
-    sim = Simulator(environment, robot)
+    sim = Simulator(environment, robot, condition=run.condition, seed=seed)
     rng = np.random.default_rng(seed)
     controller, start = make_controller(environment, run, rng, robot.whisk_period)
     sim.reset(start)

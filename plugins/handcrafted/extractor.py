@@ -10,6 +10,13 @@ over the enabled modalities, with |dV| the shift-tolerant profile distance and e
 the standard deviation of that term's pairwise distances (i != j) on the training run
 (the paper's alpha, beta, gamma), estimated on at most ``sigma_samples`` evenly spaced
 training samples.
+
+Missing modalities (`Run.lacks`: a query drop-out): a sample without the camera has no
+profile, one without the whiskers no PFH and SDA (their rows are zeros, and the features
+carry ``missing_camera`` and ``missing_whiskers``). A pair's error then sums the terms both
+samples have and scales the sum to all K enabled terms, as Gower's distance treats missing
+variables: eps = K / |present| * sum over the present terms (0 when none is present), so
+pairs with and without a drop-out are on one scale.
 """
 
 from __future__ import annotations
@@ -31,6 +38,8 @@ from .profile import TemplateMaker, template_distance
 from .sda import sda
 
 STATE_FILE = "handcrafted_state.json"
+#: the sensor each feature comes from (`Run.lacks`)
+SENSOR_OF = {"profile": "camera", "pfh": "whiskers", "sda": "whiskers"}
 STATE_VERSION = 1
 
 PositiveInt = Annotated[int, pydantic.Field(ge=1)]
@@ -107,11 +116,18 @@ def _spread(distances: np.ndarray) -> float:
     return sigma if np.isfinite(sigma) and sigma > 0 else 1.0
 
 
+def _has(features: Features, sensor: str, samples: int) -> np.ndarray:
+    """(n,) 1/0: the samples of ``features`` that have ``sensor`` (all, without drop-out)."""
+    missing = features.get(f"missing_{sensor}")
+    return np.ones(samples) if missing is None else 1.0 - np.asarray(missing, dtype=np.float64)
+
+
 class HandcraftedExtractor(FeatureExtractor):
     """ViTa-SLAM's hand-crafted front end: intensity profile + PFH + SDA, sigma-weighted."""
 
     name: ClassVar[str] = "handcrafted"
     Params: ClassVar[type[ExtractorParams]] = HandcraftedParams
+    handles_missing: ClassVar[bool] = True
     params: HandcraftedParams
 
     def __init__(self, params: Mapping[str, Any] | None = None) -> None:
@@ -155,6 +171,10 @@ class HandcraftedExtractor(FeatureExtractor):
                           "SDA features are all zero")
             features["pfh"] = pfh_batch(run, p.pfh_bins, p.max_points)
             features["sda"] = sda(run.deflection, p.sda_threshold, p.sda_mode)
+        if run.missing:
+            for key in list(features):
+                features[key][run.lacks(SENSOR_OF[key])] = 0
+            features.update({f"missing_{sensor}": run.lacks(sensor) for sensor in ("camera", "whiskers")})
         return features
 
     # -- distances ------------------------------------------------------------------------
@@ -187,12 +207,16 @@ class HandcraftedExtractor(FeatureExtractor):
             raise RuntimeError(f"extractor '{self.name}' is not fitted: call fit() or load() first")
         terms = self.term_distances(query, reference)
         total: np.ndarray | None = None
+        present: np.ndarray | None = None
         for key, d in terms.items():
             sigma = self.sigmas[key]
             scaled = d / sigma if np.isfinite(sigma) and sigma > 0 else d  # a zero sigma counts as 1
-            total = scaled if total is None else total + scaled
-        assert total is not None  # at least one modality is enabled (validated)
-        return total
+            both = np.outer(_has(query, SENSOR_OF[key], len(d)), _has(reference, SENSOR_OF[key], d.shape[1]))
+            total = scaled * both if total is None else total + scaled * both
+            present = both.astype(np.float64) if present is None else present + both
+        assert total is not None and present is not None  # at least one modality is enabled (validated)
+        scaled_up = np.where(present > 0, total * len(terms) / np.maximum(present, 1), 0.0)
+        return np.where(present == len(terms), total, scaled_up)  # without drop-out: the sum itself, bit for bit
 
     # -- fitting and state ----------------------------------------------------------------
 

@@ -6,6 +6,13 @@ min-max fitted on the training run), trains the network, and ``transform`` infer
 latent of every sample with frozen weights (a progress bar over the samples unless
 ``progress`` is off, then one log line: samples, step cap, seconds); tactile values outside
 the training range are reported once per run. Distance: L2.
+
+Missing modalities (`Run.lacks`: a query drop-out): a sample without the camera is inferred
+from its tactile input alone, one without the whiskers from its visual input alone - the
+missing modality's input is not clamped and its edges are left out of the energy, so its
+errors never reach the joint layer (`Network.infer` with that modality omitted; the samples
+are inferred in groups of equal presence). A sample with none of the network's modalities
+keeps the joint latent's start (0.1), with a warning.
 """
 
 from __future__ import annotations
@@ -26,13 +33,15 @@ from tqdm.auto import tqdm
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.network.backends import BackendError, Precision
 from vitaplace.engine.network.selection import check_precision, get_backend
-from vitaplace.plugin import FeatureExtractor, Features, Run
-from vitaplace.engine.network.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
+from vitaplace.plugin import FeatureExtractor, Features, Run, warn_once
+from vitaplace.engine.network.pc import LATENT_INIT, JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
 from vitaplace.plugins.mupnet.inputs import InputParams, TactileRange, raw_inputs, report_out_of_range
 
 log = logging.getLogger("vitaplace.mupnet")
 #: a test-time joint latent longer than this many times the longest training one has diverged
 DIVERGED_FACTOR = 10.0
+#: the sensor each modality comes from (`Run.lacks`)
+SENSOR_OF = {"visual": "camera", "tactile": "whiskers"}
 
 
 class ArchitectureParams(InputParams):
@@ -132,12 +141,23 @@ class MupnetParams(ArchitectureParams):
         return value
 
 
+def presence_groups(run: Run, modalities: list[str]) -> list[tuple[list[str], np.ndarray]]:
+    """The samples of ``run`` grouped by the modalities (of ``modalities``) they have: (the
+    modalities present, the samples' indices) per group; one group of every sample without
+    drop-out."""
+    has = np.stack([~run.lacks(SENSOR_OF[m]) for m in modalities], axis=1)
+    kinds, group = np.unique(has, axis=0, return_inverse=True)
+    return [([m for m, h in zip(modalities, kind) if h], np.flatnonzero(group.reshape(-1) == k))
+            for k, kind in enumerate(kinds)]
+
+
 class MupnetExtractor(FeatureExtractor):
     """Learned visuo-tactile place features: the joint latent of MuPNet."""
 
     name = "mupnet"
     Params = MupnetParams
     params: MupnetParams
+    handles_missing = True
 
     def __init__(self, params=None) -> None:
         super().__init__(params)
@@ -214,13 +234,12 @@ class MupnetExtractor(FeatureExtractor):
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
         start = time.perf_counter()
         with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress, leave=False) as bar:
-            result = self.network.infer(inputs, max_steps=self.params.max_steps, on_progress=bar.update)
+            latent, steps, stopped = self._infer(run, inputs, bar.update)
         log.info(
             "mupnet: test-time inference of %d samples of run %r (step cap %d, %d reached it, at most %d steps) "
-            "in %.1f s", len(run), run.name, self.params.max_steps, int((~result.stopped).sum()),
-            int(result.steps_per_sample.max(initial=0)), time.perf_counter() - start,
+            "in %.1f s", len(run), run.name, self.params.max_steps, int((~stopped).sum()),
+            int(steps.max(initial=0)), time.perf_counter() - start,
         )
-        latent = result.latents["joint"]
         diverged = np.linalg.norm(latent, axis=1) > DIVERGED_FACTOR * self.train_norm_max
         if diverged.any():
             where = np.flatnonzero(diverged)
@@ -232,8 +251,29 @@ class MupnetExtractor(FeatureExtractor):
             )
         # per sample: inference steps taken, and whether its errors fell under their thresholds
         # before the cap (the report gives their distribution)
-        return {"latent": latent, "diverged": diverged, "inference_steps": result.steps_per_sample,
-                "inference_stopped": result.stopped}
+        return {"latent": latent, "diverged": diverged, "inference_steps": steps, "inference_stopped": stopped}
+
+    def _infer(self, run: Run, inputs: dict[str, np.ndarray], on_progress) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Joint latents, steps and stopped flags of every sample, each group of samples
+        (`presence_groups`) inferred from the modalities it has."""
+        assert self.network is not None
+        groups = presence_groups(run, self.params.modalities)
+        if len(groups) == 1 and len(groups[0][0]) == len(self.params.modalities):  # nothing missing
+            result = self.network.infer(inputs, max_steps=self.params.max_steps, on_progress=on_progress)
+            return result.latents["joint"], result.steps_per_sample, result.stopped
+        latent = np.full((len(run), self.params.joint_size), LATENT_INIT, dtype=np.float32)
+        steps, stopped = np.zeros(len(run), dtype=np.int64), np.ones(len(run), dtype=bool)
+        for present, index in groups:
+            if not present:
+                warn_once(run, "mupnet: no modality", f"run {run.name}: {len(index)} samples have none of mupnet's "
+                          f"modalities ({', '.join(self.params.modalities)}): their joint latent is its start, "
+                          f"{LATENT_INIT}")
+                on_progress(len(index))
+                continue
+            result = self.network.infer({m: inputs[m][index] for m in present}, max_steps=self.params.max_steps,
+                                        on_progress=on_progress)
+            latent[index], steps[index], stopped[index] = result.latents["joint"], result.steps_per_sample, result.stopped
+        return latent, steps, stopped
 
     def distance(self, query: Features, reference: Features) -> np.ndarray:
         return cdist(query["latent"], reference["latent"])

@@ -19,7 +19,8 @@ Cache keys and run hashes are computed from `key_form`: the version-6 key format
 flat dict the single ``RunSpec`` of simulator version 6 dumped - the run's own fields, the
 fields of the other kinds at their `V6_DEFAULTS`, and the foraging gains that differ from
 their defaults (those at their defaults were left out, so that keys of runs recorded
-before the gains were settings stayed valid). So every key computed before the split is
+before the gains were settings stayed valid) - with the run's ``condition`` added only when
+it changes something (`is_default`). So every key computed before the split is
 unchanged; changing a default therefore needs a SIMULATOR_VERSION bump.
 """
 
@@ -28,6 +29,8 @@ from __future__ import annotations
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
+
+from vitaplace.engine.sim.condition import Condition, is_default
 
 __all__ = ["RunSpec", "ForagingGains", "ForagingRun", "TeleopRun", "StationsRun", "RouteRun", "OrbitRun", "run_spec",
            "recorded_run_spec", "key_form", "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "V6_DEFAULTS", "TELEOP_SPEED", "RUN_KINDS"]
@@ -144,6 +147,10 @@ class _Run(_Settings):
         "quarter of it)"
     )
     control_hz: float = Field(10.0, gt=0, le=500, description="controller update rate (rounded to deflection samples) [Hz]")
+    condition: Condition | None = Field(
+        None, description="the lighting and camera state the run is recorded under (docs/SIMULATION.md, Conditions); "
+        "null: the environment's lights and a clean camera"
+    )
 
 
 class _OffPath(_Run):
@@ -319,7 +326,9 @@ RENAMED_RUN_KEYS = {"heading_tolerance_deg": "turn_threshold_deg"}
 def key_form(run: AnyRun) -> dict[str, Any]:
     """The run's settings in the version-6 key format (JSON values): what cache keys and run
     hashes are computed from. Equal to the old flat dump, so keys stay valid."""
-    own = run.model_dump(mode="json", exclude={"gains"})
+    own = run.model_dump(mode="json", exclude={"gains", "condition"})
+    if not is_default(run.condition):
+        own["condition"] = run.condition.model_dump(mode="json")  # type: ignore[union-attr]
     for old, new in RENAMED_RUN_KEYS.items():
         if new in own:
             own[old] = own.pop(new)
