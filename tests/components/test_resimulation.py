@@ -89,6 +89,16 @@ EXPECTED: dict[str, list[dict[str, str]]] = {
         "teleop-e1-detour-visit": "26dacc6d1191acd8bd5daa4515a9e073e92d4f99f16512d8c7fb087e85e40240",  # {'approach': 65, 'hold': 15, 'leave': 10, 'drive': 110}
         "teleop-e2": "649cb4250d8483951ba171b713b1c7950955d6c555ca48cf26a9a370bb5b761f",  # {'approach': 110, 'hold': 35, 'leave': 25, 'drive': 30}
         "teleop-e3-detours": "e9b6e51986c40e2979e7ad188975c66a7b9e76e1b2e4743c5d63e189cead4c7d",  # {'approach': 135, 'leave': 65}
+    }, {  # the same versions on an AMD EPYC machine (AVX-512), recorded with c786d7a's code on it
+        "foraging-e2": "8965d51e38a59199cde90cf7b16ef6a0d4b41d3500636328340ab87744273f21",  # {'avoid': 47, 'wander': 89, 'orient': 16, 'explore': 46, 'leave': 2}
+        "foraging-e3": "67598640d57865be8b410be14affc630846053cb9aa5a4e9c475db4cfeeb6bf6",  # {'avoid': 65, 'wander': 27, 'orient': 1, 'explore': 42, 'leave': 65}
+        "orbit-e1-off-route": "4617a78e32d4550b9656d53527909fb54ca3e3eff706d2385c1e16d04372d447",  # {'orbit': 150}
+        "orbit-e2": "20bab3ace88741af422acd16464e4774d89c65e2656769b5006e96454a2301f7",  # {'orbit': 150}
+        "route-e1-off-route": "3c02672bcf99d27a84412dabbe483522e63e8d8b7f5c522d0d76863d427c7bf6",  # {'route': 150}
+        "route-e3": "11224a5ff3798dd8c43bbc213d4a350336ec3aa3c0cb276e135b6b310a408fed",  # {'route': 150}
+        "teleop-e1-detour-visit": "e5a5a4286d76a3366b588234e2e270872c3a38ac74d8af5d23bc466d34074bdf",  # {'approach': 65, 'hold': 15, 'leave': 10, 'drive': 110}
+        "teleop-e2": "bdbef68c2503a86af407bcbc3a374ec4b8d582e1ae9241c47d95c160a776553c",  # {'approach': 110, 'hold': 35, 'leave': 25, 'drive': 30}
+        "teleop-e3-detours": "5ba0070eab43bbc7637334c9cb8431d22b1e81a0605715bc7b424b603f0a51e3",  # {'approach': 135, 'leave': 65}
     }],
 }
 
