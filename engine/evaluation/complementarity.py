@@ -35,8 +35,8 @@ def complementarity(vision: Decisions, touch: Decisions) -> dict[str, Any]:
     if vision.n_queries != touch.n_queries or not np.array_equal(vision.has_revisit, touch.has_revisit):
         raise ValueError("the vision and touch decisions must be of the same queries and ground truth")
     revisit = np.asarray(vision.has_revisit, dtype=bool)
-    vision_right = revisit & (vision.best_gtm <= vision.tau)
-    touch_right = revisit & (touch.best_gtm <= touch.tau)
+    vision_right = revisit & vision.correct
+    touch_right = revisit & touch.correct
     wrong = revisit & ~vision_right
     n, n_wrong, rescued = int(revisit.sum()), int(wrong.sum()), int((wrong & touch_right).sum())
 

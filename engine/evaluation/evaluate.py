@@ -168,6 +168,12 @@ class Decisions:
         }
 
     @property
+    def correct(self) -> np.ndarray:
+        """Per query: its best match is a true match, and it has an answer (a finite best
+        distance; a query no reference can be compared with is never right)."""
+        return (self.best_gtm <= self.tau) & np.isfinite(self.best_tme)
+
+    @property
     def outcome(self) -> np.ndarray:
         """Per-query label: 'TP', 'FP', 'FP+FN' (accepted, wrong, a revisit existed), 'FN', 'TN'."""
         out = np.full(self.n_queries, "TN", dtype=object)
@@ -184,7 +190,9 @@ def _best(tme: np.ndarray, gtm: np.ndarray, tau: float):
     best_tme = tme[rows, best_match]
     best_gtm = gtm[rows, best_match]
     has_revisit = gtm.min(axis=1) <= tau
-    correct = best_gtm <= tau  # implies has_revisit
+    # a query whose every distance is +inf has no answer (a method that cannot compare it,
+    # e.g. vision only without its camera): never accepted, never correct
+    correct = (best_gtm <= tau) & np.isfinite(best_tme)  # implies has_revisit
     return best_match, best_tme, best_gtm, has_revisit, correct
 
 
@@ -196,7 +204,7 @@ def decide(tme, gtm, tau: float, delta: float) -> Decisions:
     if np.isnan(delta):
         raise ValueError("delta must not be NaN")
     best_match, best_tme, best_gtm, has_revisit, correct = _best(tme_a, gtm_a, tau)
-    accepted = best_tme <= delta
+    accepted = (best_tme <= delta) & np.isfinite(best_tme)
     tp = accepted & correct
     fp = accepted & ~correct
     fn = has_revisit & ~tp
@@ -291,7 +299,7 @@ def pr_curve(tme, gtm, tau: float, deltas: Iterable[float] | None = None) -> PRC
     tau = _check_tau(tau)
     _, best_tme, _, has_revisit, correct = _best(tme_a, gtm_a, tau)
     if deltas is None:
-        d = np.concatenate(([-np.inf], np.unique(best_tme)))
+        d = np.concatenate(([-np.inf], np.unique(best_tme[np.isfinite(best_tme)])))
     else:
         d = np.asarray(deltas if isinstance(deltas, np.ndarray) else list(deltas), dtype=float).ravel()
         if d.size == 0:
@@ -300,7 +308,7 @@ def pr_curve(tme, gtm, tau: float, deltas: Iterable[float] | None = None) -> PRC
             raise ValueError("deltas must not contain NaN")
     # TP(delta) = #correct best matches with best_tme <= delta, FP likewise for wrong ones.
     tme_correct = np.sort(best_tme[correct])
-    tme_wrong = np.sort(best_tme[~correct])
+    tme_wrong = np.sort(best_tme[~correct & np.isfinite(best_tme)])  # no answer: never accepted
     tp = np.searchsorted(tme_correct, d, side="right").astype(np.int64)
     fp = np.searchsorted(tme_wrong, d, side="right").astype(np.int64)
     n_revisit = int(has_revisit.sum())
@@ -344,7 +352,7 @@ def recall_at_k(tme, gtm, tau: float, ks: Sequence[int] = (1, 5, 10)) -> dict[in
     t = tme_a[has_revisit]
     g = gtm_a[has_revisit]
     order = np.argsort(t, axis=1, kind="stable")[:, :kmax]
-    hit = np.take_along_axis(g, order, axis=1) <= tau
+    hit = (np.take_along_axis(g, order, axis=1) <= tau) & np.isfinite(np.take_along_axis(t, order, axis=1))
     hit_upto = np.logical_or.accumulate(hit, axis=1)  # hit within the first k candidates
     return {k: float(hit_upto[:, min(k, n_ref) - 1].mean()) for k in ks_list}
 

@@ -15,8 +15,10 @@ Missing modalities (`Run.lacks`: a query drop-out): a sample without the camera 
 profile, one without the whiskers no PFH and SDA (their rows are zeros, and the features
 carry ``missing_camera`` and ``missing_whiskers``). A pair's error then sums the terms both
 samples have and scales the sum to all K enabled terms, as Gower's distance treats missing
-variables: eps = K / |present| * sum over the present terms (0 when none is present), so
-pairs with and without a drop-out are on one scale.
+variables: eps = K / |present| * sum over the present terms, so pairs with and without a
+drop-out are on one scale. A pair that shares no term (H-V and a query without its camera)
+cannot be compared: its distance is +inf, never a match (not 0, which would be the best
+match of every such query).
 """
 
 from __future__ import annotations
@@ -215,7 +217,7 @@ class HandcraftedExtractor(FeatureExtractor):
             total = scaled * both if total is None else total + scaled * both
             present = both.astype(np.float64) if present is None else present + both
         assert total is not None and present is not None  # at least one modality is enabled (validated)
-        scaled_up = np.where(present > 0, total * len(terms) / np.maximum(present, 1), 0.0)
+        scaled_up = np.where(present > 0, total * len(terms) / np.maximum(present, 1), np.inf)
         return np.where(present == len(terms), total, scaled_up)  # without drop-out: the sum itself, bit for bit
 
     # -- fitting and state ----------------------------------------------------------------

@@ -12,7 +12,9 @@ from its tactile input alone, one without the whiskers from its visual input alo
 missing modality's input is not clamped and its edges are left out of the energy, so its
 errors never reach the joint layer (`Network.infer` with that modality omitted; the samples
 are inferred in groups of equal presence). A sample with none of the network's modalities
-keeps the joint latent's start (0.1), with a warning.
+(L-V without its camera) keeps the joint latent's start (0.1), is flagged ``uninformed``
+and is at distance +inf from every sample: never a match (its latent says nothing of it),
+with a warning.
 """
 
 from __future__ import annotations
@@ -151,6 +153,12 @@ def presence_groups(run: Run, modalities: list[str]) -> list[tuple[list[str], np
             for k, kind in enumerate(kinds)]
 
 
+def _uninformed(features: Features) -> np.ndarray:
+    """The samples inferred from none of the network's modalities (all False without a drop-out)."""
+    flags = features.get("uninformed")
+    return np.zeros(len(features["latent"]), bool) if flags is None else np.asarray(flags, bool)
+
+
 class MupnetExtractor(FeatureExtractor):
     """Learned visuo-tactile place features: the joint latent of MuPNet."""
 
@@ -251,7 +259,10 @@ class MupnetExtractor(FeatureExtractor):
             )
         # per sample: inference steps taken, and whether its errors fell under their thresholds
         # before the cap (the report gives their distribution)
-        return {"latent": latent, "diverged": diverged, "inference_steps": steps, "inference_stopped": stopped}
+        features = {"latent": latent, "diverged": diverged, "inference_steps": steps, "inference_stopped": stopped}
+        if run.missing:  # samples with none of the network's modalities (a query drop-out)
+            features["uninformed"] = ~np.any([~run.lacks(SENSOR_OF[m]) for m in self.params.modalities], axis=0)
+        return features
 
     def _infer(self, run: Run, inputs: dict[str, np.ndarray], on_progress) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Joint latents, steps and stopped flags of every sample, each group of samples
@@ -267,7 +278,7 @@ class MupnetExtractor(FeatureExtractor):
             if not present:
                 warn_once(run, "mupnet: no modality", f"run {run.name}: {len(index)} samples have none of mupnet's "
                           f"modalities ({', '.join(self.params.modalities)}): their joint latent is its start, "
-                          f"{LATENT_INIT}")
+                          f"{LATENT_INIT}, and they are never a match (distance +inf)")
                 on_progress(len(index))
                 continue
             result = self.network.infer({m: inputs[m][index] for m in present}, max_steps=self.params.max_steps,
@@ -276,7 +287,10 @@ class MupnetExtractor(FeatureExtractor):
         return latent, steps, stopped
 
     def distance(self, query: Features, reference: Features) -> np.ndarray:
-        return cdist(query["latent"], reference["latent"])
+        d = cdist(query["latent"], reference["latent"])
+        d[_uninformed(query), :] = np.inf
+        d[:, _uninformed(reference)] = np.inf
+        return d
 
     def save_state(self, directory: Path) -> None:
         if self.network is None:

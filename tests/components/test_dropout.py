@@ -211,3 +211,36 @@ def test_a_method_that_cannot_handle_missing_modalities_is_refused(capsys, monke
     assert len(lines) == 1 and ("evaluations.0.query_dropout: method H's extractor 'handcrafted' does not handle "
                                 "missing modalities") in lines[0], lines
     assert main(["validate", "quickstart"]) == 0  # without drop-out it is welcome
+
+
+# --------------------------------------------------------------------------- nothing left to compare
+
+
+def test_a_handcrafted_pair_that_shares_no_term_is_never_a_match():
+    """H-V (profile only) and a query without its camera share no term: distance +inf, never
+    0 (0 would make that query's best match its first reference, accepted at any threshold)."""
+    ext = HandcraftedExtractor({"grid": [2, 8], "max_shift": 0, "use_tactile": False})
+    ext.sigmas = {"profile": 2.0}
+    query = {"profile": np.full((2, 2, 8), 0.7), "missing_camera": np.array([False, True]),
+             "missing_whiskers": np.zeros(2, bool)}
+    reference = {"profile": np.full((1, 2, 8), 0.2)}
+    # query 0: |0.7 - 0.2| per cell, mean over the 2 x 8 profile with no shift: 0.5, / sigma 2 = 0.25
+    np.testing.assert_allclose(ext.distance(query, reference), [[0.25], [np.inf]], rtol=1e-12)
+    np.testing.assert_allclose(ext.distance(reference, query), [[0.25, np.inf]], rtol=1e-12)
+
+
+def test_a_mupnet_sample_with_none_of_its_modalities_is_never_a_match(mupnet):
+    ext, rng = mupnet
+    visual_only = MupnetExtractor({**TINY_NET, "modalities": ["visual"]})
+    visual_only.progress = False
+    visual_only.fit(tiny_run(12, rng))
+    run = tiny_run(5, rng)
+    run.missing = {"camera": np.arange(5) == 3}
+    features = visual_only.transform(run)
+    assert features["uninformed"].tolist() == [False, False, False, True, False]
+    reference = visual_only.transform(tiny_run(4, rng))
+    d = visual_only.distance(features, reference)
+    assert np.isinf(d[3]).all() and np.isfinite(np.delete(d, 3, axis=0)).all()
+    assert np.isinf(visual_only.distance(reference, features)[:, 3]).all()
+    # the joint network keeps the sample: it still has its whiskers
+    assert not ext.transform(run)["uninformed"].any()

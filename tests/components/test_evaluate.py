@@ -757,3 +757,24 @@ def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp
     pipeline.add_f1_at_training_threshold(rows)
     assert [row["f1_at_e1_threshold"] for row in rows] == [pytest.approx(1 / 2), pytest.approx(2 / 3)]
     assert [row["e1_threshold"] for row in rows] == [pytest.approx(0.3)] * 2
+
+
+def test_a_query_that_no_reference_can_be_compared_with_has_no_answer():
+    """Query 1's row is all +inf (a vision-only method and a query without its camera). Its
+    argmin is reference 0, a true match - yet it must count neither as accepted nor as correct.
+
+        query 0: best ref 1 (0.2), gtm 0.1 <= tau 0.3: correct;  query 1: no answer
+        thresholds: -inf (nothing), 0.2 (query 0 accepted): TP 1, FP 0, n_revisit 2
+        -> max F1 at 0.2: P 1, R 1/2, F1 2/3;  recall@1 = recall@2 = 1/2
+    """
+    tme = np.array([[0.5, 0.2], [np.inf, np.inf]])
+    gtm = np.array([[1.0, 0.1], [0.0, 1.0]])
+    curve = ev.pr_curve(tme, gtm, tau=0.3)
+    np.testing.assert_array_equal(curve.deltas, [-np.inf, 0.2])
+    assert curve.tp.tolist() == [0, 1] and curve.fp.tolist() == [0, 0]
+    assert curve.max_f1 == pytest.approx(2 / 3)
+    assert ev.pr_curve(tme, gtm, tau=0.3, deltas=[np.inf]).tp.tolist() == [1]  # even accepting everything
+    assert ev.recall_at_k(tme, gtm, 0.3, ks=(1, 2)) == {1: 0.5, 2: 0.5}
+    d = ev.decide(tme, gtm, tau=0.3, delta=np.inf)
+    assert d.accepted.tolist() == [True, False] and d.tp.tolist() == [True, False] and d.fn.tolist() == [False, True]
+    assert d.correct.tolist() == [True, False]
