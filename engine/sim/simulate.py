@@ -211,6 +211,11 @@ def allocate_samples(n_samples: int, robot: RobotSpec) -> Samples:
     )
 
 
+#: whisk cycles a controller that records only some (`records_sample`) may go without a sample
+#: before the run is an error: four laps of E1's loop at the teleoperator's speed
+MAX_UNRECORDED_CYCLES = 1000
+
+
 class ControlTicks:
     """The controller in the loop: called after each deflection-series instant of a cycle, it
     drives the robot with the controller's command every ``every`` instants, observing the
@@ -252,10 +257,18 @@ def simulate_samples(sim: Simulator, samples: Samples, tick: ControlTicks, warmu
     images, theta, xy, deflection, poses, times, all_points, all_normals, counts = samples
     for _ in range(warmup_cycles):
         sim.cycle()
+    records = getattr(tick.controller, "records_sample", lambda: True)
     bar = tqdm(total=len(poses), unit="sample", desc=name, disable=not progress, smoothing=0.1, leave=False)
     try:
         for k in range(len(poses)):
             series, points, normals = sim.cycle(tick)
+            unrecorded = 0
+            while not records():  # a controller that samples some cycles only (station drives)
+                unrecorded += 1
+                if unrecorded > MAX_UNRECORDED_CYCLES:
+                    raise SimulationError(f"run {name!r}: no sample in {MAX_UNRECORDED_CYCLES} whisk cycles after sample "
+                                          f"{k} (its controller records only some cycles and stopped recording)")
+                series, points, normals = sim.cycle(tick)
             d = sim.data
             deflection[k] = series
             xy[k] = series[-1]

@@ -236,3 +236,32 @@ def test_validate_says_it_in_one_line_with_exit_status_2(tmp_path):
     assert done.returncode == 2
     lines = [line for line in done.stderr.splitlines() if line.strip()]
     assert len(lines) == 1 and "evaluations.0.run.station_landmarks: 'nope' names no landmark" in lines[0], done.stderr
+
+
+# ---------------------------------------------------------------------- sampling at stations only
+
+
+def test_sampling_at_stations_records_only_the_cycles_held_whisking_a_station():
+    """``sample_at: stations``: the drive between stations is simulated, not recorded, so the
+    run's samples are the held cycles only: each within reach of a station (the hold is
+    0.06 m from the landmark, the station's point within 0.5 m of its approach), each whisk
+    cycle of it in the 'hold' mode, and the samples' whiskers touch at the sampling instant
+    (hold waits for contact) far more often than a plain drive's (about 1 in 5 here)."""
+    env = load_environment(WORLD)
+    n = 40
+    run = simulate_run(env, run_spec(kind="stations", n_samples=n, sample_at="stations"), 1, ROBOT, progress=False)
+    points = np.array([st.point for st in stations_of(env, run_spec(kind="stations", n_samples=n))])
+    nearest = np.linalg.norm(run.poses[:, None, :2] - points[None], axis=2).min(axis=1)
+    assert len(run) == n and nearest.max() < 0.5
+    assert run.touch_mask().mean() >= 0.8
+    assert run.attrs["controller_modes"]["hold"] >= n  # ticks in hold: at least one per sample
+    plain = simulate_run(env, run_spec(kind="stations", n_samples=n), 1, ROBOT, progress=False)
+    assert np.linalg.norm(plain.poses[:, None, :2] - points[None], axis=2).min(axis=1).max() > 0.5  # it drives between
+
+
+def test_a_controller_that_stops_recording_is_an_error_not_a_hang(monkeypatch):
+    env = load_environment(WORLD)
+    monkeypatch.setattr(simulate_module, "MAX_UNRECORDED_CYCLES", 5)
+    monkeypatch.setattr("vitaplace.engine.sim.controllers.stations.StationDriver.records_sample", lambda self: False)
+    with pytest.raises(simulate_module.SimulationError, match="no sample in 5 whisk cycles after sample 0"):
+        simulate_run(env, run_spec(kind="stations", n_samples=4), 1, ROBOT, progress=False)

@@ -256,6 +256,11 @@ class StationsRun(_Teleoperated):
         "+-this (drawn per visit) [deg]"
     )
     hold_cycles: tuple[int, int] = Field((4, 6), description="whisk cycles with contact held at each station [min, max]")
+    sample_at: Literal["cycle", "stations"] = Field(
+        "cycle", description="cycle: a sample at the end of every whisk cycle of the drive; stations: only of the "
+        "cycles held whisking a station (the drive between stations is simulated, not recorded): place recognition "
+        "where the robot whisks"
+    )
 
     @model_validator(mode="after")
     def _check_stations(self) -> StationsRun:

@@ -190,6 +190,11 @@ class StationDriver(TeleopDriver):
         self.heading_offset = 0.0  #: this visit's heading jitter [rad]
         self.arrivals: list[tuple[float, int, np.ndarray]] = []
 
+    def records_sample(self) -> bool:
+        """Whether the whisk cycle just ended is a sample: every cycle, or with ``sample_at:
+        stations`` only the cycles held whisking a station."""
+        return self.spec.sample_at == "cycle" or self.mode == "hold"
+
     def _start_visit(self, t: float, pose: np.ndarray) -> bool:
         """Visit a station that the progress along the loop has come within `ROUTE_LOOKAHEAD`
         of (or passed by less than `_PASSED`), not visited in the last half lap."""
