@@ -171,7 +171,7 @@ class Decisions:
     def correct(self) -> np.ndarray:
         """Per query: its best match is a true match, and it has an answer (a finite best
         distance; a query no reference can be compared with is never right)."""
-        return (self.best_gtm <= self.tau) & np.isfinite(self.best_tme)
+        return _correct(self.best_gtm, self.best_tme, self.tau)
 
     @property
     def outcome(self) -> np.ndarray:
@@ -184,15 +184,20 @@ class Decisions:
         return out.astype(str)
 
 
+def _correct(best_gtm: np.ndarray, best_tme: np.ndarray, tau: float) -> np.ndarray:
+    """A best match is correct when it is a true match and the query has an answer: a query
+    whose every distance is +inf (a method that cannot compare it, e.g. vision only without
+    its camera) is never accepted, never correct."""
+    return (best_gtm <= tau) & np.isfinite(best_tme)
+
+
 def _best(tme: np.ndarray, gtm: np.ndarray, tau: float):
     rows = np.arange(tme.shape[0])
     best_match = np.argmin(tme, axis=1)  # ties -> lowest reference index
     best_tme = tme[rows, best_match]
     best_gtm = gtm[rows, best_match]
     has_revisit = gtm.min(axis=1) <= tau
-    # a query whose every distance is +inf has no answer (a method that cannot compare it,
-    # e.g. vision only without its camera): never accepted, never correct
-    correct = (best_gtm <= tau) & np.isfinite(best_tme)  # implies has_revisit
+    correct = _correct(best_gtm, best_tme, tau)  # implies has_revisit
     return best_match, best_tme, best_gtm, has_revisit, correct
 
 

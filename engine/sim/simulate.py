@@ -261,14 +261,13 @@ def simulate_samples(sim: Simulator, samples: Samples, tick: ControlTicks, warmu
     bar = tqdm(total=len(poses), unit="sample", desc=name, disable=not progress, smoothing=0.1, leave=False)
     try:
         for k in range(len(poses)):
-            series, points, normals = sim.cycle(tick)
-            unrecorded = 0
-            while not records():  # a controller that samples some cycles only (station drives)
-                unrecorded += 1
-                if unrecorded > MAX_UNRECORDED_CYCLES:
-                    raise SimulationError(f"run {name!r}: no sample in {MAX_UNRECORDED_CYCLES} whisk cycles after sample "
-                                          f"{k} (its controller records only some cycles and stopped recording)")
+            for _ in range(MAX_UNRECORDED_CYCLES + 1):  # a controller may sample some cycles only (stations)
                 series, points, normals = sim.cycle(tick)
+                if records():
+                    break
+            else:
+                raise SimulationError(f"run {name!r}: no sample in {MAX_UNRECORDED_CYCLES} whisk cycles after sample "
+                                      f"{k} (its controller records only some cycles and stopped recording)")
             d = sim.data
             deflection[k] = series
             xy[k] = series[-1]

@@ -143,11 +143,16 @@ class MupnetParams(ArchitectureParams):
         return value
 
 
+def presence(run: Run, modalities: list[str]) -> np.ndarray:
+    """(samples, modalities) bool: which of ``modalities`` each sample of ``run`` has."""
+    return np.stack([~run.lacks(SENSOR_OF[m]) for m in modalities], axis=1)
+
+
 def presence_groups(run: Run, modalities: list[str]) -> list[tuple[list[str], np.ndarray]]:
     """The samples of ``run`` grouped by the modalities (of ``modalities``) they have: (the
     modalities present, the samples' indices) per group; one group of every sample without
     drop-out."""
-    has = np.stack([~run.lacks(SENSOR_OF[m]) for m in modalities], axis=1)
+    has = presence(run, modalities)
     kinds, group = np.unique(has, axis=0, return_inverse=True)
     return [([m for m, h in zip(modalities, kind) if h], np.flatnonzero(group.reshape(-1) == k))
             for k, kind in enumerate(kinds)]
@@ -261,7 +266,7 @@ class MupnetExtractor(FeatureExtractor):
         # before the cap (the report gives their distribution)
         features = {"latent": latent, "diverged": diverged, "inference_steps": steps, "inference_stopped": stopped}
         if run.missing:  # samples with none of the network's modalities (a query drop-out)
-            features["uninformed"] = ~np.any([~run.lacks(SENSOR_OF[m]) for m in self.params.modalities], axis=0)
+            features["uninformed"] = ~presence(run, self.params.modalities).any(axis=1)
         return features
 
     def _infer(self, run: Run, inputs: dict[str, np.ndarray], on_progress) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -84,6 +84,20 @@ SHIPPED_KEYS: dict[str, tuple[str, str]] = {
     "quickstart:train": ("0c8a35af5f797e30", "7a9272b1af78b891"),
     "quickstart:E1/query": ("3a5b0ecffc88412a", "35445e81e3cc8b71"),
     "quickstart:E1/reference": ("9eb15c1a1ce006a8", "b7db118f0550f96c"),
+    # touch-benchmark.yaml, pinned when it was introduced (station drives sampled at stations)
+    "touch-benchmark:train": ("b0d068ea91472d28", "36300cd135d58a0e"),
+    "touch-benchmark:alike-boxes/query": ("aff5912263315ab6", "3862241c8a136f72"),
+    "touch-benchmark:alike-boxes/reference": ("4581b242f00ddc1b", "ac51df5ce008e0f9"),
+    "touch-benchmark:alike-shapes/query": ("98f61b15dc5b21ff", "9faf77e231bf4ab3"),
+    "touch-benchmark:alike-shapes/reference": ("c71077215daea29c", "20d91833be4979ae"),
+    "touch-benchmark:distinct-boxes/query": ("2035ff3b4ce5ee2b", "db1d089eba2930ea"),
+    "touch-benchmark:distinct-boxes/reference": ("a7e1b99df7dab524", "632f4f6ab7e061f5"),
+    "touch-benchmark:distinct-shapes/query": ("1ccd387c02dad564", "43259876b901ca66"),
+    "touch-benchmark:distinct-shapes/reference": ("f7517d4acec4058b", "115aaff3a470a3e4"),
+    "touch-benchmark:distinct-shapes-dusk/query": ("322c1a6e40cdfd0a", "f6939de8b5af4342"),
+    "touch-benchmark:distinct-shapes-dusk/reference": ("3284621e9610ad33", "9d1c8186ddeea7d3"),
+    "touch-benchmark:distinct-shapes-dropout/query": ("d7852f16e20f26e6", "4637ec4b116311ac"),
+    "touch-benchmark:distinct-shapes-dropout/reference": ("9d47c2052dfc6cf2", "4120f1c6dd679ac9"),
 }
 
 
