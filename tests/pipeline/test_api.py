@@ -134,7 +134,7 @@ BAD_CALLS = {
     "a scenario that is no path": (lambda: vitaplace.load_scenario(5), r"scenario=5: expected a path"),
     "run's scenario no path": (lambda: vitaplace.run(["quickstart"]), r"scenario=\['quickstart'\]: expected a path"),
     "out no path": (lambda: vitaplace.read_results(3), r"out=3: expected a path"),
-    "an unknown kind": (lambda: vitaplace.simulate("e1", kind="flying"), r"simulate: kind: Input tag 'flying' found using 'kind' does not match any of the expected tags: 'foraging', 'teleop', 'route', 'orbit'"),
+    "an unknown kind": (lambda: vitaplace.simulate("e1", kind="flying"), r"simulate: kind: Input tag 'flying' found using 'kind' does not match any of the expected tags: 'foraging', 'teleop', 'stations', 'route', 'orbit'"),
     "samples as text": (lambda: vitaplace.simulate("e1", n_samples="many"), r"simulate: n_samples: "),
     "an unknown run setting": (lambda: vitaplace.simulate("e1", wobble=3), r"simulate: wobble: unknown key"),
     "a negative seed": (lambda: vitaplace.simulate("e1", seed=-1), r"seed=-1: expected a whole number >= 0"),
