@@ -1,5 +1,7 @@
-"""Checks of what an extractor hands back: features with one finite row per sample, a finite
-distance matrix of the expected shape. A failure is a `StageError` naming the stage and item."""
+"""Checks of what an extractor hands back: features with one finite row per sample, a distance
+matrix of the expected shape whose entries are finite or +inf (a pair the method cannot
+compare, e.g. a vision-only method and a query without its camera: never a match). A failure
+is a `StageError` naming the stage and item."""
 
 from __future__ import annotations
 
@@ -40,9 +42,11 @@ def check_features(features: Any, samples: int, what: str) -> Features:
 
 
 def check_distance(tme: Any, shape: tuple[int, int], what: str) -> np.ndarray:
-    """An extractor's ``distance`` output must be a finite (n_query, n_reference) matrix."""
+    """An extractor's ``distance`` output must be an (n_query, n_reference) matrix of finite
+    numbers or +inf (a pair that cannot be compared); NaN and -inf are refused."""
     tme = np.asarray(tme)
     if tme.shape != shape:
         raise StageError(f"{what}: distance returned shape {tme.shape}, expected {shape} (queries x references)")
-    check_finite({"distance": tme}, what)
+    if tme.dtype.kind == "f":
+        check_finite({"distance": np.where(np.isposinf(tme), 0.0, tme)}, what)
     return tme

@@ -464,6 +464,11 @@ def test_extractor_outputs_are_checked_with_one_line():
         check_features([np.zeros(3)], 3, "t")
     with pytest.raises(StageError, match=r"t: distance returned shape \(3, 2\), expected \(2, 3\)"):
         check_distance(np.zeros((3, 2)), (2, 3), "t")
+    cannot_compare = np.array([[0.5, np.inf, 1.0], [np.inf, np.inf, np.inf]])  # +inf: never a match
+    assert check_distance(cannot_compare, (2, 3), "t") is not None
+    for bad in (np.nan, -np.inf):
+        with pytest.raises(StageError, match=r"t: feature 'distance' has NaN or infinite values in 1 samples \(first: 1\)"):
+            check_distance(np.array([[0.5, 1.0, 1.0], [1.0, bad, 1.0]]), (2, 3), "t")
 
 
 def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path):

@@ -18,9 +18,13 @@ from vitaplace.engine.extension.features import load_features  # noqa: E402
 from test_cli import TINY  # noqa: E402
 
 
+#: vision alone: a query without its camera shares no term with any reference (distance +inf)
+VISION_ONLY = "methods+={name: H-V, plugin: handcrafted, params: {use_tactile: false}}"
+
+
 def run(out, dropout: str) -> dict:
     argv = ["run", "quickstart", "--out", str(out), "--no-progress"]
-    for override in [*TINY, f"evaluations.0.query_dropout={dropout}"]:
+    for override in [*TINY, VISION_ONLY, f"evaluations.0.query_dropout={dropout}"]:
         argv += ["--set", override]
     assert main(argv) == 0
     return json.loads((out / "manifest.json").read_text())
@@ -34,7 +38,7 @@ def test_a_query_drop_out_is_drawn_recorded_used_and_keyed(tmp_path):
     assert record["camera"] == np.flatnonzero(masks["camera"]).tolist() and len(record["camera"]) == 3
     assert record["whiskers"] == np.flatnonzero(masks["whiskers"]).tolist() and len(record["whiskers"]) == 2
     rows = json.loads((out / "results.json").read_text())
-    assert {row["method"] for row in rows} == {"L", "H"}
+    assert {row["method"] for row in rows} == {"L", "H", "H-V"}
     assert all(row["query_dropout"] == {"camera": 0.3, "whiskers": 0.2} for row in rows)
     report = (out / "report.md").read_text()
     assert "## Query drop-out" in report and "| E1 | 30.00 | 20.00 |" in report
@@ -42,6 +46,10 @@ def test_a_query_drop_out_is_drawn_recorded_used_and_keyed(tmp_path):
     features = load_features(query)
     assert np.flatnonzero(features["missing_camera"]).tolist() == record["camera"]
     assert np.flatnonzero(features["missing_whiskers"]).tolist() == record["whiskers"]
+    # H-V cannot compare its 3 camera-less queries with anything: their rows are +inf, and
+    # they are never accepted, so they are counted among the 10 queries as missed, not matched
+    tme = np.load(out / "evaluations" / "E1" / "H-V" / "query-to-reference" / "matrices.npz")["tme"]
+    assert np.flatnonzero(np.isposinf(tme).all(axis=1)).tolist() == record["camera"]
 
     again = run(out, "{camera: 0.5}")
     status = {(r["stage"], r["item"]): r["status"] for r in again["stages"]}
