@@ -1,6 +1,7 @@
 """docs/RESULTS.md against the study's committed summaries (docs/results/): every table in
-the text is what docs/results/tables.py computes from them, and the summaries hold what the
-study promises (six methods, at least five seeds, three worlds, both touch models, bounded
+the text is what docs/results/tables.py computes from them (docs/BENCHMARK.md's what
+docs/results/benchmark.py computes from the committed `vitaplace difficulty` run), and the
+summaries hold what the study promises (six methods, at least five seeds, three worlds, both touch models, bounded
 intervals, the sign-flip p, recall at 100 % precision, the F1 at E1's threshold)."""
 
 import csv
@@ -73,3 +74,37 @@ def test_the_decomposition_of_l_minus_h_adds_up_and_its_touch_term_matches_the_p
                 assert stats["mean"] == pytest.approx(mean("L", "L-V") - mean("H", "H-V"), abs=1e-12)
                 assert mean("L", "H") == pytest.approx(mean("L-V", "H-V") + stats["mean"], abs=1e-12)
                 assert stats["t_low"] <= stats["mean"] <= stats["t_high"] and 0 < p <= 1
+
+
+def test_every_table_in_benchmark_md_is_computed_from_the_committed_difficulty_run():
+    spec = importlib.util.spec_from_file_location("benchmark_tables", RESULTS / "benchmark.py")
+    benchmark = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(benchmark)
+    text = (ROOT / "docs" / "BENCHMARK.md").read_text()
+    found = dict(re.findall(r"<!-- table ([\w-]+) -->\n(.*?)\n<!-- /table -->", text, re.S))
+    assert set(found) == set(benchmark.TABLES), "tables in BENCHMARK.md vs docs/results/benchmark.py"
+    for name, table in found.items():
+        assert table == benchmark.TABLES[name](), f"BENCHMARK.md table {name} differs from `python docs/results/benchmark.py`"
+    assert benchmark.written(text) == text
+
+
+def test_the_committed_difficulty_run_checks_every_evaluation_of_the_touch_benchmark_against_its_gates():
+    import json
+
+    import yaml
+
+    scenario = yaml.safe_load((ROOT / "scenarios" / "touch-benchmark.yaml").read_text())
+    run = json.loads((RESULTS / "touch-benchmark-difficulty" / "difficulty.json").read_text())
+    evaluations = [e for e in scenario["evaluations"] for _ in ("query-to-reference", "reference-to-query")]
+    assert [(r["environment"], r["direction"]) for r in run] == [
+        (e["name"], d) for e in scenario["evaluations"] for d in ("query-to-reference", "reference-to-query")]
+    minimum = {"touch_correspondence_min": True, "rescue_min": True, "hv_max_f1_max": False}
+    for row, evaluation in zip(run, evaluations):
+        assert {k: g["gate"] for k, g in row["gates"].items() if g["gate"] is not None} == evaluation["gates"]
+        for name, gate in row["gates"].items():
+            if gate["gate"] is None:
+                assert gate["met"] is None
+            elif gate["value"] is None:  # nothing to measure (vision never wrong) is not a gate met
+                assert gate["met"] is False
+            else:
+                assert gate["met"] == (gate["value"] >= gate["gate"] if minimum[name] else gate["value"] <= gate["gate"])
