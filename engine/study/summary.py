@@ -189,7 +189,10 @@ def describe(values: Sequence[float], limits: tuple[float, float] = (-math.inf, 
         out["t_low"], out["t_high"] = _clip(out["mean"] - half, out["mean"] + half, limits)
         boot = stats.bootstrap((x,), np.mean, n_resamples=SEED_RESAMPLES, confidence_level=LEVEL,
                                method="percentile", random_state=np.random.default_rng(BOOT_SEED))
-        out["boot_low"], out["boot_high"] = _clip(*boot.confidence_interval, limits)
+        # every resample's mean lies within the values' range; its float sum may not (n equal
+        # values gave a low bound one ulp above the high one)
+        inside = (max(limits[0], float(x.min())), min(limits[1], float(x.max())))
+        out["boot_low"], out["boot_high"] = _clip(*boot.confidence_interval, inside)
     if block is not None:
         out["block_low"], out["block_high"] = percentile_interval(block, limits)
     return out

@@ -95,7 +95,8 @@ def finite_intervals(row: dict) -> list[tuple[float, float]]:
 
 
 @pytest.mark.parametrize("values", [[1.0, 1.0], [1.0] * 5, [0.0, 0.0, 0.0], [0.99, 1.0], [0.0, 0.02],
-                                    [0.997, 0.999, 1.0, 1.0, 1.0], [0.607, 0.97]])
+                                    [0.997, 0.999, 1.0, 1.0, 1.0], [0.607, 0.97],
+                                    [0.16984068376742115] * 2])  # its resampled mean's float sum is 1 ulp above it
 def test_no_interval_of_a_proportion_leaves_0_1(values):
     stats = summary.describe(values, summary.bounds("max_f1"), block=np.clip(np.array(values) + 0.01, 0, 1))
     intervals = finite_intervals(stats)
