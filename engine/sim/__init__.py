@@ -26,7 +26,9 @@ select_gl_backend()
 #: 5: a teleop drive blocked on its path finds a way round (it stood still until the run ended).
 #: 6: a foraging robot whose turn and backing off are refused turns the other way or creeps forward, and
 #:    gives a state up after 3 s without headway (it too stood still until the run ended).
-SIMULATOR_VERSION = 6
+#: 7: a foraging avoid that starts where the last one stalled judges its escape headings by the whole
+#:    footprint a step along them (an obstacle at the body's flank kept it dithering there).
+SIMULATOR_VERSION = 7
 
 _EXPORTS = {
     "EnvironmentSpecError": "environment",

@@ -16,10 +16,12 @@ import yaml
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.sim.controllers import HEAD_REACH, TRANSITIONS, Attention, Avoid, Explore, ForagingController, Leave, Observation, Orient, Surroundings, Wander, ForagingGains, key_form
-from vitaplace.engine.sim.clearance import HEAD_CENTRE, HEAD_RADIUS
+from vitaplace.engine.evaluation.difficulty import longest_stay  # noqa: E402
+from vitaplace.engine.sim.clearance import HEAD_CENTRE, HEAD_RADIUS, footprint_clearance
+from vitaplace.engine.sim.environment import load_environment  # noqa: E402
 from vitaplace.engine.sim.environment import EnvironmentSpec  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
-from vitaplace.engine.sim.simulate import run_hash, run_spec  # noqa: E402
+from vitaplace.engine.sim.simulate import run_hash, run_spec, simulate_run  # noqa: E402
 
 E1 = str(Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml")
 #: defaults used below: speed 0.15 m/s, turn-rate limit 90 deg/s, avoid_margin 0.06 m
@@ -239,6 +241,58 @@ def test_while_attending_avoid_waits_for_half_the_margin():
         ctrl.mode, ctrl.states["leave"].until, ctrl.states["leave"].heading = mode, 10.0, 1.0
         ctrl(Observation(time=0.0, pose=np.array([x, 0.0, 0.0]), contacts=NO_CONTACTS, deflection=np.zeros(24)))
         assert ctrl.mode == expected
+
+
+def flank_stuck() -> tuple[Avoid, np.ndarray]:
+    """Where the touch benchmark's training drive (touch-alike-shapes, seed 2968811710) dithered from
+    sample 42 to the end of its run: the north landmark's west corner at the body's right flank, 0.03 m
+    from it, the head far from everything."""
+    env = load_environment("touch-alike-shapes")
+    return Avoid(SPEC, Attention(), env.obstacles), np.array([-0.728, 2.0, 1.958])
+
+
+def step_clearance(state: Avoid, pose: np.ndarray, heading: float) -> float:
+    ahead = pose[:2] + 0.1 * np.array([math.cos(heading), math.sin(heading)])
+    return float(footprint_clearance(state.obstacles, ahead[None], np.array([heading]))[0])
+
+
+def test_an_escape_judged_at_the_head_alone_drives_the_flank_into_the_obstacle():
+    state, pose = flank_stuck()
+    state.enter(Surroundings(**{**vars(around()), "pose": pose}))
+    # every head probe ahead is free enough, so the heading stays the one faced; 0.1 m along it the
+    # body would touch the box (the guard refuses the drive: the dithering)
+    assert state.heading == pytest.approx(pose[2])
+    assert step_clearance(state, pose, state.heading) < 0.0
+
+
+def test_an_avoid_that_starts_where_the_last_got_nowhere_judges_the_whole_footprint():
+    state, pose = flank_stuck()
+    here = Surroundings(**{**vars(around()), "pose": pose})
+    now = float(footprint_clearance(state.obstacles, pose[None, :2], pose[2:])[0])
+    state.failed_at = pose[:2] + 0.05  # within Headway's 0.1 m
+    state.enter(here)
+    assert step_clearance(state, pose, state.heading) > now > 0.0  # a step along it moves away
+    assert state.failed_at is None  # used once
+    state.failed_at = pose[:2] + 0.2  # another place: the head alone, as before
+    state.enter(here)
+    assert state.heading == pytest.approx(pose[2])
+
+
+def test_a_stall_in_avoid_marks_the_place_and_the_next_avoid_there_gets_away():
+    ctrl = ForagingController(SPEC, load_environment("touch-alike-shapes").obstacles, np.random.default_rng(0))
+    pose = flank_stuck()[1]
+    for t in np.arange(0.0, 3.2, 0.1):  # the robot does not move: Headway stalls after 3 s
+        ctrl(Observation(time=float(t), pose=pose, contacts=NO_CONTACTS, deflection=np.zeros(24)))
+    assert ctrl.mode == "avoid"  # stuck -> wander, too close -> avoid again in the same tick
+    assert step_clearance(ctrl.states["avoid"], pose, ctrl.states["avoid"].heading) > 0.03
+
+
+def test_the_touch_benchmark_training_drive_no_longer_stays_at_the_corner():
+    # it stayed within 0.25 m from sample 42 to the end of its run (958 of 1000 samples)
+    run = simulate_run(load_environment("touch-alike-shapes"), run_spec(kind="foraging", n_samples=100),
+                       seed=2968811710, robot=RobotSpec(camera_width=16, camera_height=12))
+    length, start = longest_stay(run.poses[:, :2])
+    assert start + length < len(run.poses)
 
 
 # ---------------------------------------------------------------------- the gains in the schema
