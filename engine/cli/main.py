@@ -120,6 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tau", type=float, nargs="+", help="revisit tolerances in metres (default 0.2 0.3 0.5)")
     p.add_argument("--heading-tolerance", type=float, metavar="DEG",
                    help="heading tolerance scored beside position only (default 30)")
+    p.add_argument("--sequence-length", type=int, metavar="L",
+                   help="score sequences of L queries (SeqSLAM, docs/DESIGN.md) instead of what the run scored")
     p.add_argument("--out", type=Path, help="where sensitivity.csv/.md/.json go (default: DIR)")
     _add_viewing_commands(sub, common)
     _add_completion(parser)
@@ -460,7 +462,7 @@ def _aggregate(args: argparse.Namespace) -> int:
 def _sensitivity(args: argparse.Namespace) -> int:
     from vitaplace.engine.study.sensitivity import write_sensitivity
 
-    grid = {"taus": args.tau, "heading_tolerance_deg": args.heading_tolerance}
+    grid = {"taus": args.tau, "heading_tolerance_deg": args.heading_tolerance, "sequence_length": args.sequence_length}
     out, record = write_sensitivity(args.folder, args.out, **{k: v for k, v in grid.items() if v is not None})
     print(f"sensitivity of {len(record['seeds'])} seed(s) in {out / 'sensitivity.md'}")
     return EXIT_SEEDS_FAILED if record["failed"] else 0

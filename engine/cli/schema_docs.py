@@ -20,7 +20,7 @@ import pydantic
 from pydantic_core import PydanticUndefined
 
 from vitaplace.engine.config.scenario import (ComplementarityPair, EvaluationPair, Gates, Method, QueryDropout, RecordedRuns,
-                                              Scenario, ScoringSettings, TrainingData)
+                                              Scenario, ScoringSettings, SequenceSettings, TrainingData)
 from vitaplace.engine.sim.condition import CameraCondition, Condition, LightCondition, Occlusion
 from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, StationsRun, TeleopRun
 from vitaplace.engine.sim.environment import (
@@ -69,6 +69,7 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("methods[].params for plugin autoencoder", AutoencoderParams, "MuPNet's architecture trained by backprop"),
     ("methods[].params for plugin handcrafted", HandcraftedParams, "the ViTa-SLAM front end"),
     ("scoring: ScoringSettings", ScoringSettings, "how features are scored"),
+    ("scoring.sequence: SequenceSettings", SequenceSettings, "sequence matching (SeqSLAM) of the distances"),
     ("scoring.complementarity[]: ComplementarityPair", ComplementarityPair, "one pair, named by the scenario"),
     ("Environment file: EnvironmentSpec", EnvironmentSpec, "an environment YAML (scenarios/environments)"),
     ("arena: ArenaSpec", ArenaSpec, "walls and floor"),

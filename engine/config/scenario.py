@@ -31,6 +31,7 @@ relative to the scenario file; the pipeline then reads the file instead of simul
 from __future__ import annotations
 
 import logging
+import math
 import typing
 from pathlib import Path
 from typing import Annotated, Any
@@ -301,6 +302,34 @@ class ComplementarityPair(Strict):
     touch: str = pydantic.Field(description="the touch-only method (a name under methods)")
 
 
+class SequenceSettings(Strict):
+    """SeqSLAM-style sequence matching of the distances (`vitaplace.engine.evaluation.sequence`)."""
+
+    length: pydantic.PositiveInt = pydantic.Field(
+        1, description="queries per sequence (the query and the length - 1 before it); 1: single-sample matching"
+    )
+    velocities: tuple[pydantic.PositiveFloat, pydantic.PositiveFloat] = pydantic.Field(
+        (0.8, 1.25), description="[slowest, fastest] relative velocity searched (references per query)"
+    )
+    velocity_steps: pydantic.PositiveInt = pydantic.Field(
+        5, description="velocities tried, evenly spaced over velocities (1: the slowest only)"
+    )
+    window: pydantic.PositiveInt = pydantic.Field(
+        10, description="local contrast: references on either side whose mean and spread normalise an entry"
+    )
+
+    @pydantic.model_validator(mode="after")
+    def _ordered(self) -> SequenceSettings:
+        low, high = self.velocities
+        if not (math.isfinite(low) and math.isfinite(high)) or low > high:
+            raise ValueError(f"velocities: expected [slowest, fastest] with 0 < slowest <= fastest, both finite, "
+                             f"got [{low:g}, {high:g}]")
+        if self.velocity_steps > 1 and low == high:
+            raise ValueError(f"velocities: an empty range [{low:g}, {high:g}] with velocity_steps {self.velocity_steps}; "
+                             "expected slowest < fastest, or velocity_steps 1")
+        return self
+
+
 class ScoringSettings(Strict):
     tau: float = pydantic.Field(
         0.3, gt=0, allow_inf_nan=False, description="ground-truth revisit tolerance [m], below the arena's diagonal"
@@ -317,6 +346,11 @@ class ScoringSettings(Strict):
     direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = pydantic.Field(
         "query-to-reference",
         description="which run queries which: query-to-reference, the reverse, or both",
+    )
+    sequence: SequenceSettings = pydantic.Field(
+        SequenceSettings(),
+        description="sequence matching (SeqSLAM): each query scored by the best straight line of length queries "
+        "through the locally normalised distances; length 1 (the default) matches single samples",
     )
     complementarity: list[ComplementarityPair] = pydantic.Field(
         [],
@@ -362,6 +396,17 @@ class Scenario(Strict):
             if pair.vision == pair.touch:
                 raise ValueError(f"scoring.complementarity.{i}: vision and touch are the same method '{pair.vision}'; "
                                  "expected two different methods")
+        return self
+
+    @pydantic.model_validator(mode="after")
+    def _sequences_fit(self) -> Scenario:
+        """A sequence no longer than any simulated run it is matched on (a recorded run is
+        checked when it is scored)."""
+        length = self.scoring.sequence.length
+        for i, e in enumerate(self.evaluations):
+            if e.run is not None and length > e.run.n_samples:
+                raise ValueError(f"scoring.sequence.length: {length} is longer than evaluation {e.name}'s runs "
+                                 f"(evaluations.{i}.run.n_samples {e.run.n_samples}); expected at most that")
         return self
 
 

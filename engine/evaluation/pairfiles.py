@@ -16,6 +16,7 @@ import numpy as np
 from vitaplace.engine.base.atomic import atomic_path
 from vitaplace.engine.evaluation.difficulty import difficulty
 from vitaplace.engine.evaluation.evaluate import Decisions, PRCurve, decide, evaluate, ground_truth_matrix, pr_curve
+from vitaplace.engine.evaluation.sequence import sequence_scores
 from vitaplace.engine.outputs.outdir import DECISIONS, DECISIONS_CSV, MATRICES, PR_CURVE
 
 __all__ = [
@@ -113,6 +114,7 @@ def evaluate_pair(
     heading_tolerance_deg: float | None = None,
     query_touch: np.ndarray | None = None,
     reference_touch: np.ndarray | None = None,
+    sequence: Mapping[str, object] | None = None,
 ) -> dict:
     """Everything about one query run against one reference run, written to ``folder``:
     the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM and
@@ -120,15 +122,25 @@ def evaluate_pair(
     decisions at the F1-maximising threshold (``decisions.csv``, ``decisions.npz``), the PR
     curve (``pr_curve.npz``); returns the summary (`evaluate`) with ``heading_tolerance_deg``
     and ``difficulty`` (`difficulty`, from the poses and the runs' touch masks, when given)
-    added."""
+    added. With ``sequence`` (`sequence_scores`' settings) the sequence scores are what is
+    scored and saved as ``tme``, the method's own distances as ``distance``, and the summary
+    names the settings (``sequence``: length, velocity_min, velocity_max, velocity_steps,
+    window)."""
     folder = Path(folder)
+    distance = tme
+    if sequence is not None:
+        tme = sequence_scores(distance, **sequence)
     gtm = ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg)
     curve = pr_curve(tme, gtm, tau)
     summary = evaluate(tme, gtm, tau, delta, tuple(ks), curve=curve)
     summary["heading_tolerance_deg"] = heading_tolerance_deg
+    if sequence is not None:  # numbers only, as every field of a results row
+        (slowest, fastest), rest = sequence["velocities"], {k: v for k, v in sequence.items() if k != "velocities"}
+        summary["sequence"] = {**rest, "velocity_min": slowest, "velocity_max": fastest}
     summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
     decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
-    export_matrices_npz(folder / MATRICES, tme, gtm, query_poses=query_poses, reference_poses=reference_poses)
+    extra = {} if sequence is None else {"distance": distance}
+    export_matrices_npz(folder / MATRICES, tme, gtm, query_poses=query_poses, reference_poses=reference_poses, **extra)
     export_decisions_csv(folder / DECISIONS_CSV, decisions)
     save_curve_and_decisions(folder, curve, decisions)
     return summary

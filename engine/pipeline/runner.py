@@ -478,8 +478,20 @@ class Pipeline:
         summary = evaluate_pair(
             folder, tme, q.poses, r.poses, settings.tau, query_touch=q.touch_mask(), reference_touch=r.touch_mask(),
             delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg, ks=tuple(settings.recall_k),
+            sequence=self.sequence_for(query, len(q)),
         )
         write_text_atomic(folder / outdir.SUMMARY, json.dumps(summary, indent=2))
+
+    def sequence_for(self, query: str, n_queries: int) -> dict[str, Any] | None:
+        """The scenario's sequence matching settings (None for single samples), checked against
+        the length of the query run ``query`` (a recorded run's is known only here)."""
+        sequence = self.scenario.scoring.sequence
+        if sequence.length == 1:
+            return None
+        if sequence.length > n_queries:
+            raise ScenarioError(f"scoring.sequence.length: {sequence.length} is longer than run {query} "
+                            f"({n_queries} samples); expected at most that")
+        return sequence.model_dump()
 
     def add_f1_at_training_threshold(self, rows: list[dict[str, Any]]) -> None:
         """``f1_at_e1_threshold`` in every row: F1 at the threshold that maximised the same

@@ -235,7 +235,8 @@ def _header(manifest: dict[str, Any], description: str, rows: list[dict[str, Any
     if description:
         sections += [description.strip(), ""]
     return sections + [
-        f"Place recognition, single best match per query; a true match is {_true_match(tau, heading)}"
+        f"Place recognition, single best match per query{_matching(rows[0].get('sequence'))}; a true match is "
+        f"{_true_match(tau, heading)}"
         + (" (position only)" if heading is None else "")
         + ". P and R are at the δ that maximises F1 in each evaluation; F1 at training δ is the F1 at the δ that "
         f"maximised the method's F1 in the training world's evaluation, applied unchanged. Training world: "
@@ -246,6 +247,15 @@ def _header(manifest: dict[str, Any], description: str, rows: list[dict[str, Any
         results_table(rows),
         "",
     ]
+
+
+def _matching(sequence: dict[str, Any] | None) -> str:
+    """How the distances were matched: single samples (nothing to say) or sequences."""
+    if sequence is None:
+        return ""
+    return (f", scored by sequences of {sequence['length']} queries (SeqSLAM: local contrast over "
+            f"±{sequence['window']} references, the best straight line at {sequence['velocity_steps']} relative "
+            f"velocities in [{sequence['velocity_min']:g}, {sequence['velocity_max']:g}])")
 
 
 def _true_match(tau: float, heading: float | None) -> str:

@@ -33,8 +33,9 @@ import numpy as np
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.errors import UserError
-from vitaplace.engine.config.scenario import ScoringSettings
+from vitaplace.engine.config.scenario import ScoringSettings, SequenceSettings
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve
+from vitaplace.engine.evaluation.sequence import sequence_scores
 from vitaplace.engine.outputs.outdir import MATRICES, RESULTS_JSON, SEED_ERROR, writable_dir
 from vitaplace.engine.study.aggregate import RunFolder, check_recorded, curve_path, one_scenario, validate_run_folder
 from vitaplace.engine.study.summary import bounds, cell, csv_text, describe, interval, json_safe
@@ -87,15 +88,19 @@ def _last_line(path: Path) -> str:
     return lines[-1] if lines else f"{path.name} is empty"
 
 
-def load_evaluation(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def load_evaluation(path: Path, sequence_length: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(TME, query poses, reference poses) saved in one evaluation's ``matrices.npz``: a
-    finite queries x references TME and finite (x, y, yaw) rows of each; else SensitivityError."""
+    finite queries x references TME and finite (x, y, yaw) rows of each; else SensitivityError.
+    With ``sequence_length``, the TME is the sequence score of that length (the other settings
+    at their defaults) of the method's own distances (``distance``, saved when the evaluation
+    matched sequences; else the TME itself)."""
     try:
         with np.load(path) as saved:
             names = set(saved.files)
             if {"query_poses", "reference_poses"} <= names:
+                raw = "distance" if sequence_length is not None and "distance" in names else "tme"
                 tme, query, reference = (np.asarray(saved[k], dtype=np.float64)
-                                         for k in ("tme", "query_poses", "reference_poses"))
+                                         for k in (raw, "query_poses", "reference_poses"))
     except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many kinds on a damaged file
         raise SensitivityError(f"{path}: unreadable matrices ({type(exc).__name__}: {exc})".splitlines()[0]) from None
     if not {"query_poses", "reference_poses"} <= names:
@@ -110,6 +115,10 @@ def load_evaluation(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if tme.shape != (len(query), len(reference)) or not np.isfinite(tme).all():
         raise SensitivityError(f"{path}: tme of shape {tme.shape} (or not finite), expected a finite "
                                f"{len(query)} x {len(reference)} matrix (queries x references)")
+    if sequence_length is not None:
+        if sequence_length > len(query):
+            raise SensitivityError(f"--sequence-length {sequence_length}: longer than the {len(query)} queries of {path}")
+        tme = sequence_scores(tme, sequence_length, **SequenceSettings().model_dump(exclude={"length"}))
     return tme, query, reference
 
 
@@ -128,8 +137,10 @@ def rescore(tme: np.ndarray, query_poses: np.ndarray, reference_poses: np.ndarra
 
 
 def sensitivity_rows(runs: Sequence[RunFolder], taus: Sequence[float] = TAUS,
-                     heading_tolerances: Sequence[float | None] = (HEADING_TOLERANCE_DEG, None)) -> list[dict[str, Any]]:
-    """`rescore` of every evaluation of every run, tagged with seed, environment, method and
+                     heading_tolerances: Sequence[float | None] = (HEADING_TOLERANCE_DEG, None),
+                     sequence_length: int | None = None) -> list[dict[str, Any]]:
+    """`rescore` of every evaluation of every run (of its sequence scores, with
+    ``sequence_length``: `load_evaluation`), tagged with seed, environment, method and
     direction, in seed order."""
     out = []
     for run in sorted(runs, key=lambda r: r.seed):
@@ -140,7 +151,8 @@ def sensitivity_rows(runs: Sequence[RunFolder], taus: Sequence[float] = TAUS,
                 raise SensitivityError(f"{path}: missing; the evaluation's matrices are needed")
             check_recorded(run, [name])
             identity = {"seed": run.seed, **{k: row[k] for k in ("environment", "method", "direction")}}
-            out += [{**identity, **scored} for scored in rescore(*load_evaluation(path), taus, heading_tolerances)]
+            out += [{**identity, **scored} for scored in rescore(*load_evaluation(path, sequence_length), taus,
+                                                                 heading_tolerances)]
     return out
 
 
@@ -174,7 +186,8 @@ def markdown(summary: Sequence[Mapping[str, Any]], title: str) -> str:
 
 
 def write_sensitivity(folder: Path, out: Path | None = None, taus: Sequence[float] = TAUS,
-                      heading_tolerance_deg: float = HEADING_TOLERANCE_DEG) -> tuple[Path, dict[str, Any]]:
+                      heading_tolerance_deg: float = HEADING_TOLERANCE_DEG,
+                      sequence_length: int | None = None) -> tuple[Path, dict[str, Any]]:
     """Rescore every saved evaluation of the run or sweep ``folder`` (`sensitivity_rows`) and
     write sensitivity.csv, .md and .json into ``out`` (default ``folder``), atomically, after
     every folder was read (``out`` checked writable first). Returns (out, what sensitivity.json
@@ -183,17 +196,21 @@ def write_sensitivity(folder: Path, out: Path | None = None, taus: Sequence[floa
         raise SensitivityError(f"--tau {' '.join(map(str, taus))}: expected positive distances in metres")
     if not 0 <= heading_tolerance_deg <= 180:
         raise SensitivityError(f"--heading-tolerance {heading_tolerance_deg}: expected degrees in [0, 180]")
+    if sequence_length is not None and sequence_length < 1:
+        raise SensitivityError(f"--sequence-length {sequence_length}: expected a whole number of queries >= 1")
     if not Path(folder).is_dir():
         raise SensitivityError(f"{folder}: not a folder; expected a finished run folder or a sweep folder (seed-*/)")
     out = writable_dir(Path(folder) if out is None else Path(out))
     runs, failed = run_folders(folder)
-    rows = sensitivity_rows(runs, taus, (heading_tolerance_deg, None))
+    rows = sensitivity_rows(runs, taus, (heading_tolerance_deg, None), sequence_length)
     summary = summarise(rows)
     write_text_atomic(out / "sensitivity.csv", csv_text(rows, COLUMNS))
     seeds = sorted({r.seed for r in runs})
-    write_text_atomic(out / "sensitivity.md", markdown(summary, f"{runs[0].scenario}: sensitivity, {len(seeds)} seed(s)"))
+    matched = "" if sequence_length is None else f", sequences of {sequence_length} queries"
+    write_text_atomic(out / "sensitivity.md", markdown(summary, f"{runs[0].scenario}: sensitivity, {len(seeds)} seed(s){matched}"))
     record = {"scenario": runs[0].scenario, "seeds": seeds, "taus": list(taus),
-              "heading_tolerances_deg": [heading_tolerance_deg, None], "failed": failed, "rows": rows,
+              "heading_tolerances_deg": [heading_tolerance_deg, None], "sequence_length": sequence_length,
+              "failed": failed, "rows": rows,
               "summary": summary}
     write_text_atomic(out / "sensitivity.json", json.dumps(json_safe(record), indent=2))
     return out, record

@@ -68,7 +68,7 @@ from vitaplace.engine.base.atomic import write_text_atomic
 #: columns naming what a result row is about, not values
 IDENTITY = ("seed", "environment", "method", "direction")
 #: settings of the evaluation copied into every row: inputs, not outcomes
-SETTINGS = frozenset({"tau", "delta", "heading_tolerance_deg"})
+SETTINGS = frozenset({"tau", "delta", "heading_tolerance_deg", "sequence"})
 #: metrics that are proportions in [0, 1] (and every ``recall@K``)
 UNIT_METRICS = frozenset({"max_f1", "precision_at_max_f1", "recall_at_max_f1", "auc", "recall_at_100_precision",
                           "precision", "recall", "f1", "f1_at_e1_threshold"})

@@ -1,0 +1,183 @@
+"""Sequence matching (`scoring.sequence`, SeqSLAM): the local contrast and the straight-line
+search against a hand-worked case and a plain-loop reference, +inf distances, length 1 being
+single-sample matching bit for bit, its settings at validate, a run that matches sequences and
+`vitaplace sensitivity --sequence-length` agreeing."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from vitaplace.engine.cli.main import main  # noqa: E402
+from vitaplace.engine.config.scenario import ScoringSettings, SequenceSettings  # noqa: E402
+from vitaplace.engine.evaluation.evaluate import evaluate, ground_truth_matrix  # noqa: E402
+from vitaplace.engine.evaluation.sequence import local_contrast, sequence_scores  # noqa: E402
+
+ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
+
+
+def reference_scores(d: np.ndarray, length: int, velocities: tuple[float, float], steps: int, window: int) -> np.ndarray:
+    """The sequence score written as plainly as it is defined (sequence.py's docstring)."""
+    n_q, n_r = d.shape
+    contrast = np.full(d.shape, np.inf)
+    for i in range(n_q):
+        for j in range(n_r):
+            if not np.isfinite(d[i, j]):
+                continue
+            near = d[i, max(0, j - window): j + window + 1]
+            near = near[np.isfinite(near)]
+            std = near.std()
+            contrast[i, j] = (d[i, j] - near.mean()) / (std if std > 1e-12 * abs(near.mean()) else 1.0)
+    out = np.full(d.shape, np.inf)
+    for v in np.linspace(velocities[0], velocities[1], steps):
+        for i in range(n_q):
+            for j in range(n_r):
+                terms = []
+                for k in range(max(0, i - length + 1), i + 1):
+                    col = int(np.rint(j + v * (k - i)))
+                    if 0 <= col < n_r and np.isfinite(contrast[k, col]):
+                        terms.append(contrast[k, col])
+                if terms:
+                    out[i, j] = min(out[i, j], float(np.mean(terms)))
+    return out
+
+
+def test_length_one_is_the_distance_matrix_itself():
+    d = np.random.default_rng(1).random((7, 9))
+    assert sequence_scores(d, 1) is not None and np.array_equal(sequence_scores(d, 1), d)
+    # a scenario that says length 1 scores (and keys) exactly as one that says nothing
+    assert ScoringSettings(sequence={"length": 1}).model_dump() == ScoringSettings().model_dump()
+
+
+# Six queries along six references (query i's true place is reference i). Every query's own
+# reference is at 0.5, every other at 1.0 - except the last query, which sees reference 1 at
+# 0.4 (an aliased place): alone, its best match is reference 1, wrong.
+ALIASED = np.full((6, 6), 1.0)
+np.fill_diagonal(ALIASED, 0.5)
+ALIASED[5, 1] = 0.4
+
+
+def test_a_sequence_finds_the_match_a_single_sample_misses():
+    assert np.argmin(ALIASED[5]) == 1
+    # window 10 covers each row: rows 0-4 have mean 0.9167 and std 0.18634, so their own
+    # reference is (0.5 - 0.9167) / 0.18634 = -2.236 and the others +0.447; row 5 has mean
+    # 0.8167 and std 0.2609: reference 1 is -1.597, reference 5 -1.214, the others +0.703
+    contrast = local_contrast(ALIASED, 10)
+    assert contrast[0, 0] == pytest.approx(-2.236, abs=1e-3) and contrast[0, 3] == pytest.approx(0.447, abs=1e-3)
+    assert contrast[5, 1] == pytest.approx(-1.597, abs=1e-3) and contrast[5, 5] == pytest.approx(-1.214, abs=1e-3)
+    s = sequence_scores(ALIASED, 3, velocities=(1.0, 1.0), velocity_steps=1, window=10)
+    # the line of length 3 at velocity 1 through (5, 5): (3, 3), (4, 4), (5, 5) -> (-2.236 - 2.236 - 1.214) / 3
+    assert s[5, 5] == pytest.approx(-1.895, abs=1e-3)
+    # through (5, 1): (3, -1) is outside the run, (4, 0) +0.447, (5, 1) -1.597 -> -0.575
+    assert s[5, 1] == pytest.approx(-0.575, abs=1e-3)
+    assert np.argmin(s[5]) == 5
+    gtm = np.abs(np.arange(6)[:, None] - np.arange(6)[None, :]).astype(float)  # metres along the loop
+    assert evaluate(ALIASED, gtm, 0.1)["recall_at_k"]["1"] == pytest.approx(5 / 6)
+    assert evaluate(s, gtm, 0.1)["recall_at_k"]["1"] == 1.0
+
+
+@pytest.mark.parametrize("length, velocities, steps, window", [
+    (2, (1.0, 1.0), 1, 3), (5, (0.8, 1.25), 5, 10), (4, (0.5, 2.0), 4, 2), (7, (1.0, 1.5), 3, 1)])
+def test_sequence_scores_equal_a_plain_loop(seed, length, velocities, steps, window):
+    rng = np.random.default_rng(seed)
+    d = rng.random((17, 23)) * 3
+    d[rng.random(d.shape) < 0.1] = np.inf  # pairs the method cannot compare
+    d[4] = np.inf  # a query without the method's sensor
+    d[9, 3:9] = 0.7  # a flat stretch: a window whose spread is 0
+    got = sequence_scores(d, length, velocities, steps, window)
+    np.testing.assert_allclose(got, reference_scores(d, length, velocities, steps, window), rtol=1e-9, atol=1e-9)
+
+
+def test_a_query_the_method_cannot_compare_is_scored_by_the_sequence_that_ends_at_it():
+    d = ALIASED.copy()
+    d[4] = np.inf  # query 4 lost its sensor
+    s = sequence_scores(d, 3, (1.0, 1.0), 1, 10)
+    # its lines borrow queries 2 and 3: finite wherever one of their references is in the run;
+    # reference 0's line meets references -2 and -1 there (outside) and its own term is +inf
+    assert np.isinf(s[4, 0]) and np.isfinite(s[4, 1:]).all() and np.argmin(s[4]) == 4
+    assert np.isinf(sequence_scores(np.full((4, 4), np.inf), 2, (1.0, 1.0), 1, 3)).all()  # nothing to compare
+
+
+@pytest.mark.parametrize("setting, message", [
+    ("scoring.sequence.length=0", "scoring.sequence.length"),
+    ("scoring.sequence.velocities=[1.5, 0.8]", "scoring.sequence: velocities: expected [slowest, fastest]"),
+    ("scoring.sequence.velocities=[1.0, 1.0]", "scoring.sequence: velocities: an empty range"),
+    ("scoring.sequence.velocities=[0, 1]", "scoring.sequence.velocities"),
+    ("scoring.sequence.window=0", "scoring.sequence.window"),
+    ("scoring.sequence.length=100000", "scoring.sequence.length"),
+])
+def test_bad_sequence_settings_are_one_line_at_validate(capsys, setting, message):
+    assert main(["validate", "quickstart", "--set", setting]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
+
+
+def test_velocities_may_be_one_value_when_one_step_is_tried():
+    assert SequenceSettings(velocities=(1.0, 1.0), velocity_steps=1).velocities == (1.0, 1.0)
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict[str, Path]:
+    """The same tiny scenario (hand-crafted features, 12-sample route drives) run with single
+    samples and with sequences of 3."""
+    tmp = tmp_path_factory.mktemp("sequence")
+    out = {}
+    for name, sequence in (("single", {}), ("seq3", {"sequence": {"length": 3}})):
+        scenario = {
+            "name": "tiny",
+            "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 5}},
+            "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 12}}],
+            "methods": [{"name": "H", "plugin": "handcrafted"}],
+            "scoring": {"tau": 0.3, "direction": "both", **sequence},
+        }
+        path = tmp / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(scenario))
+        out[name] = tmp / name
+        assert main(["run", str(path), "--out", str(out[name]), "--no-progress", "-q"]) == 0
+    return out
+
+
+def test_a_run_that_matches_sequences_scores_the_sequence_of_the_methods_distances(runs):
+    rows = json.loads((runs["seq3"] / "results.json").read_text())
+    assert len(rows) == 2
+    for row in rows:
+        assert row["sequence"] == {"length": 3, "velocity_min": 0.8, "velocity_max": 1.25, "velocity_steps": 5,
+                                   "window": 10}
+        folder = runs["seq3"] / "evaluations" / "E1" / "H" / row["direction"]
+        with np.load(folder / "matrices.npz") as m:
+            scores = sequence_scores(m["distance"], 3)
+            np.testing.assert_array_equal(m["tme"], scores)
+            gtm = ground_truth_matrix(m["query_poses"], m["reference_poses"], 30.0)
+        assert row["max_f1"] == pytest.approx(evaluate(scores, gtm, 0.3)["max_f1"])
+    assert "scored by sequences of 3 queries" in (runs["seq3"] / "report.md").read_text()
+    assert "sequences of" not in (runs["single"] / "report.md").read_text()
+    # the method's own distances are those of the single-sample run
+    for direction in ("query-to-reference", "reference-to-query"):
+        with np.load(runs["seq3"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as a, \
+                np.load(runs["single"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as b:
+            np.testing.assert_array_equal(a["distance"], b["tme"])
+            assert "distance" not in b.files
+
+
+@pytest.mark.parametrize("run", ["single", "seq3"])
+def test_sensitivity_rescores_a_run_as_the_sequence_run_scored_it(runs, tmp_path, run):
+    # from the single-sample run's distances, and from the sequence run's own (not its scores)
+    assert main(["sensitivity", str(runs[run]), "--sequence-length", "3", "--tau", "0.3", "--out", str(tmp_path)]) == 0
+    record = json.loads((tmp_path / "sensitivity.json").read_text())
+    assert record["sequence_length"] == 3
+    for result in json.loads((runs["seq3"] / "results.json").read_text()):
+        (own,) = [r for r in record["rows"] if r["direction"] == result["direction"] and r["heading_tolerance_deg"] == 30.0]
+        assert own["max_f1"] == pytest.approx(result["max_f1"])
+
+
+def test_sensitivity_refuses_a_sequence_length_below_one_in_one_line(runs, tmp_path, capsys):
+    assert main(["sensitivity", str(runs["single"]), "--sequence-length", "0", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--sequence-length" in err
