@@ -37,8 +37,9 @@ GATES = {
 
 def family_overrides() -> list[str]:
     """The ``--set`` assignments that make a scenario's methods `FAMILY` (and drop the pairs
-    its ``scoring.complementarity`` names: H-V and H-T pair by themselves)."""
-    return [f"methods={json.dumps(FAMILY)}", "scoring.complementarity=[]"]
+    its ``scoring.complementarity`` names, H-V and H-T pair by themselves, and its fusions of
+    methods no longer there)."""
+    return [f"methods={json.dumps(FAMILY)}", "scoring.complementarity=[]", "fusions=[]"]
 
 
 def gate_results(gates: Gates, values: dict[str, float | None]) -> dict[str, dict[str, Any]]:

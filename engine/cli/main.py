@@ -400,7 +400,8 @@ def _validate(args: argparse.Namespace) -> int:
     long = f"; simulating its runs takes about {duration(seconds)} on one core (estimate)" if seconds > LONG_SECONDS else ""
     print(
         f"{args.scenario}: valid scenario '{scenario.name}': {len(scenario.evaluations)} evaluation environment(s), "
-        f"methods {', '.join(m.name for m in scenario.methods)}{long}"
+        f"methods {', '.join(m.name for m in scenario.methods)}"
+        + "".join(f", fusion {f.name} ({f.vision} + w {f.touch})" for f in scenario.fusions) + long
     )
     return 0
 

@@ -19,7 +19,7 @@ from pathlib import Path
 import pydantic
 from pydantic_core import PydanticUndefined
 
-from vitaplace.engine.config.scenario import (ComplementarityPair, EvaluationPair, Gates, Method, QueryDropout, RecordedRuns,
+from vitaplace.engine.config.scenario import (ComplementarityPair, EvaluationPair, Fusion, Gates, Method, QueryDropout, RecordedRuns,
                                               Scenario, ScoringSettings, SequenceSettings, TrainingData)
 from vitaplace.engine.sim.condition import CameraCondition, Condition, LightCondition, Occlusion
 from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, StationsRun, TeleopRun
@@ -70,6 +70,7 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("methods[].params for plugin handcrafted", HandcraftedParams, "the ViTa-SLAM front end"),
     ("scoring: ScoringSettings", ScoringSettings, "how features are scored"),
     ("scoring.sequence: SequenceSettings", SequenceSettings, "sequence matching (SeqSLAM) of the distances"),
+    ("fusions[]: Fusion", Fusion, "a late fusion of a vision-only and a touch-only method"),
     ("scoring.complementarity[]: ComplementarityPair", ComplementarityPair, "one pair, named by the scenario"),
     ("Environment file: EnvironmentSpec", EnvironmentSpec, "an environment YAML (scenarios/environments)"),
     ("arena: ArenaSpec", ArenaSpec, "walls and floor"),

@@ -237,6 +237,29 @@ class Method(Strict):
     )
 
 
+class Fusion(Strict):
+    """A late fusion of a vision-only and a touch-only method: d_V / σ_V + w · d_T / σ_T, w chosen
+    on one evaluation (`vitaplace.engine.evaluation.fusion`)."""
+
+    name: SafeName = pydantic.Field(description="label of the fused method in results and figures (H-F, L-F, ...)")
+    vision: str = pydantic.Field(description="the vision-only method (a name under methods)")
+    touch: str = pydantic.Field(description="the touch-only method (a name under methods)")
+    weights: list[pydantic.NonNegativeFloat] = pydantic.Field(
+        [0.0, 0.03, 0.1, 0.3, 1.0, 3.0], min_length=1,
+        description="the grid the touch weight w is chosen from (max F1 on select_on, ties to the smallest)",
+    )
+    select_on: str | None = pydantic.Field(
+        None, description="the evaluation w is chosen on, in each direction (default: the training world's)"
+    )
+
+    @pydantic.field_validator("weights")
+    @classmethod
+    def _finite_distinct(cls, weights: list[float]) -> list[float]:
+        if not all(math.isfinite(w) for w in weights) or len(set(weights)) != len(weights):
+            raise ValueError(f"expected distinct finite weights >= 0, got {weights}")
+        return weights
+
+
 #: Top-level scenario keys renamed since scenario files were first written: old name -> new.
 #: Files (and ``--set`` paths) that use an old name are read under the new one, with a warning.
 RENAMED_KEYS = {"evaluation": "scoring"}
@@ -380,6 +403,9 @@ class Scenario(Strict):
         ScoringSettings(),
         description="how features are scored (an older file's `evaluation:` is read as this, with a warning)",
     )
+    fusions: list[Fusion] = pydantic.Field(
+        [], description="late fusions of two of the methods, scored like a method (docs/DESIGN.md, Late fusion)"
+    )
 
     @pydantic.model_validator(mode="after")
     def _unique_names(self) -> Scenario:
@@ -396,6 +422,28 @@ class Scenario(Strict):
             if pair.vision == pair.touch:
                 raise ValueError(f"scoring.complementarity.{i}: vision and touch are the same method '{pair.vision}'; "
                                  "expected two different methods")
+        return self
+
+    @pydantic.model_validator(mode="after")
+    def _fusions_name_methods(self) -> Scenario:
+        methods, evaluations = [m.name for m in self.methods], [e.name for e in self.evaluations]
+        fused = [f.name for f in self.fusions]
+        for i, f in enumerate(self.fusions):
+            if f.name in methods or fused.count(f.name) > 1:
+                raise ValueError(f"fusions.{i}.name: '{f.name}' is already a method's or another fusion's name; "
+                                 "expected a name of its own")
+            for role in ("vision", "touch"):
+                if getattr(f, role) not in methods:
+                    raise ValueError(f"fusions.{i}.{role}: no method '{getattr(f, role)}' (methods: {', '.join(methods)})")
+            if f.vision == f.touch:
+                raise ValueError(f"fusions.{i}: vision and touch are the same method '{f.vision}'; expected two "
+                                 "different methods")
+            if f.select_on is not None and f.select_on not in evaluations:
+                raise ValueError(f"fusions.{i}.select_on: no evaluation '{f.select_on}' "
+                                 f"(evaluations: {', '.join(evaluations)})")
+            if f.select_on is None and training_world_evaluation(self)[0] is None:
+                raise ValueError(f"fusions.{i}.select_on: no evaluation in the training world to choose the weight "
+                                 f"on ({training_world_evaluation(self)[1]}); name one")
         return self
 
     @pydantic.model_validator(mode="after")

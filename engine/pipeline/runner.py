@@ -42,6 +42,7 @@ from vitaplace.engine.outputs import outdir
 from vitaplace.engine.base.cpus import usable_cpus
 from vitaplace.engine.outputs.keys import content_hash
 from vitaplace.engine.extension.features import FeatureExtractor, feature_facts, load_features, save_features, warn_once
+from vitaplace.engine.pipeline.fusing import evaluate_fusions
 from vitaplace.engine.pipeline.output_checks import check_distance, check_features
 from vitaplace.engine.pipeline.records import (EvaluateRecord, FitRecord, RunRecord, SimulateRecord, StageRecord,
                                               TransformRecord)
@@ -424,6 +425,8 @@ class Pipeline:
                     rows.append({"environment": e.name, "method": method.name, "direction": direction, **summary,
                                  **self.dropout_row(e)})
                     files += [folder / outdir.SUMMARY, folder / outdir.PR_CURVE]
+        fused_rows, fused_files = evaluate_fusions(self)
+        rows, files = rows + fused_rows, files + fused_files
         self.add_f1_at_training_threshold(rows)
         self.warn_few_revisits(rows)
         return EvaluateRecord(rows, files, self.complementarity())

@@ -428,16 +428,37 @@ def report_key_inputs(out: Path) -> dict[str, Any]:
     return {"manifest": manifest, "files": {str(p.relative_to(out)): digest(p) for p in files}}
 
 
+def _fusions_section(rows: list[dict[str, Any]], fusions: list[dict[str, Any]]) -> list[str]:
+    """The late fusions' chosen weights, per fusion and direction (the same in every evaluation)."""
+    settings = {f["name"]: f for f in fusions}
+    chosen = {(r["method"], r["direction"]): r["fusion"] for r in rows if "fusion" in r}
+    if not chosen:
+        return []
+    lines = ["## Late fusions", "",
+             "d = d_V / σ_V + w · d_T / σ_T of a vision-only and a touch-only method (σ: the spread of each one's "
+             "distances where w is chosen), w the weight of the scenario's grid with the largest max F1 on the "
+             "selection evaluation (ties: the smallest), applied unchanged to every evaluation.", "",
+             "| fusion | vision + touch | chosen on | direction | w | σ_V | σ_T | max F1 there |", "|---|---|---|---|---|---|---|---|"]
+    for (name, direction), f in chosen.items():
+        s = settings.get(name, {})
+        lines.append(f"| {name} | {s.get('vision', '?')} + {s.get('touch', '?')} | {s.get('select_on') or 'the training world'} "
+                     f"| {direction} | {f['weight']:g} | {f['sigma_vision']:.4g} | {f['sigma_touch']:.4g} "
+                     f"| {100 * f['selection_max_f1']:.2f} % |")
+    return lines + [""]
+
+
 def write_report(out: Path) -> None:
     """figures/ (PNG + PDF) and report.md for the run in ``out``, from its files alone."""
     out = Path(out)
     manifest, rows = read_inputs(out)
-    description = (yaml.safe_load((out / completion.SCENARIO).read_text()) or {}).get("description", "")
+    resolved = yaml.safe_load((out / completion.SCENARIO).read_text()) or {}
+    description = resolved.get("description", "")
     sections = [
         *_header(manifest, description, rows),
         *_warnings_section(manifest),
         *_samples_and_difficulty(manifest, rows),
         *_complementarity_section(out),
+        *_fusions_section(rows, resolved.get("fusions") or []),
         *_dropout_section(rows),
         *_methods_section(manifest["methods"]),
         *_inference_section(manifest),

@@ -75,8 +75,8 @@ UNIT_METRICS = frozenset({"max_f1", "precision_at_max_f1", "recall_at_max_f1", "
 #: values that describe the evaluation, not the method's score: sample counts and thresholds
 DESCRIPTORS = frozenset({"n_queries", "n_references", "n_revisit", "n_accepted", "tp", "fp", "fn", "tn",
                          "delta_at_max_f1", "e1_threshold"})
-#: nested objects whose every value is a descriptor (``difficulty.<measure>``)
-DESCRIPTOR_GROUPS = ("difficulty",)
+#: nested objects whose every value is a descriptor (``difficulty.<measure>``, a fusion's chosen ``fusion.weight``)
+DESCRIPTOR_GROUPS = ("difficulty", "fusion")
 #: confidence level of the intervals
 LEVEL = 0.95
 #: resamples of the bootstrap over seeds, and the seed of its generator
