@@ -105,6 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--image-range", choices=("0-1", "0-255"),
                    help="range of float images when the data cannot tell (0-1 saturates values above 1)")
     p.add_argument("--pose-layout", choices=("Nx3", "3xN"), help="layout of a 3 x 3 pose array (three samples)")
+    p.add_argument("--tactile-model", choices=("physical", "penetration"), default="physical",
+                   help="what the whiskers' xy are: physical (sprung whiskers, MultiPredNet's Gazebo WhiskEye; the "
+                   "default) or penetration (docs/SIMULATION.md); recorded in the run file")
     _add_sweep_command(sub, common)
     p = sub.add_parser(
         "aggregate", parents=[common],
@@ -413,7 +416,8 @@ def _import(args: argparse.Namespace) -> int:
 
     if args.out.is_dir():
         raise DatasetError(f"--out {args.out}: is a folder; expected the run file to write (e.g. {args.out / 'run.h5'})")
-    run = import_mat(args.source, name=args.name, image_range=args.image_range, pose_layout=args.pose_layout)
+    run = import_mat(args.source, name=args.name, image_range=args.image_range, pose_layout=args.pose_layout,
+                     tactile_model=args.tactile_model)
     try:
         path = write_run(args.out, run)
     except OSError as exc:

@@ -419,6 +419,15 @@ def _check_field(f: Any, key: str, where: str) -> None:
         )
 
 
+def recorded_tactile_model(run: Run) -> str | None:
+    """The tactile model a run file says its whiskers' xy come from (``robot.tactile_model`` of
+    its attributes: simulated runs and `vitaplace import` record it); None for a file that does
+    not say (written before it was recorded)."""
+    robot = run.attrs.get("robot")
+    model = robot.get("tactile_model") if isinstance(robot, dict) else None
+    return model if isinstance(model, str) else None
+
+
 def run_facts(run: Run) -> dict[str, int]:
     """What the manifest (``runs``) and the report say about a run: samples, whisker contacts and
     deflection samples per whisk cycle."""

@@ -279,10 +279,13 @@ def _image_range(arr: np.ndarray, where: str) -> str:
 
 
 def import_mat(
-    directory: str | os.PathLike, name: str | None = None, image_range: str | None = None, pose_layout: str | None = None
+    directory: str | os.PathLike, name: str | None = None, image_range: str | None = None, pose_layout: str | None = None,
+    tactile_model: str = "physical",
 ) -> Run:
     """Read a MultiPredNet/WhiskEye recording folder into an in-memory `Run`; ``image_range``
-    and ``pose_layout`` state what the arrays cannot say (module docstring).
+    and ``pose_layout`` state what the arrays cannot say (module docstring), ``tactile_model``
+    what the whiskers' xy are (recorded as the run's ``robot.tactile_model``: physical, the
+    WhiskEye's sprung whiskers, as MultiPredNet's Gazebo recordings; or penetration).
 
     Raises `DatasetError` naming the file when one is missing, unreadable or misshaped.
     Deflection series and contacts are not part of this layout: the run gets the single
@@ -319,5 +322,6 @@ def import_mat(
             "source": "multiprednet-mat",
             "source_path": str(folder.resolve()),
             "camera": {"width": int(images.shape[2]), "height": int(images.shape[1])},
+            "robot": {"tactile_model": tactile_model},
         },
     )

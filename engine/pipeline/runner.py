@@ -57,13 +57,20 @@ STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
 STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 1, "transform": 2, "evaluate": 6, "report": 8}
 
-#: a run that stays in one place this long (share of its samples, and samples) is warned about
-STUCK_SHARE, STUCK_SAMPLES = 0.25, 50
+#: a run that stays in one place this long (share of its samples, and samples) is warned about:
+#: a quarter of any run, and 10 samples (5 s) at least, so that a short run's stay is found too
+STUCK_SHARE, STUCK_SAMPLES = 0.25, 10
 #: an evaluation with fewer queries that have a true match is warned about: below 10, one
 #: query's decision moves recall by more than 10 points, too coarse to compare methods by
 MIN_REVISITS = 10
 
 log = logging.getLogger("vitaplace")
+
+
+def is_stuck(stay: int, samples: int) -> bool:
+    """Whether a longest stay of ``stay`` samples in a run of ``samples`` is a stuck drive:
+    at least `STUCK_SHARE` of the run and `STUCK_SAMPLES`."""
+    return stay >= max(STUCK_SAMPLES, STUCK_SHARE * samples)
 
 
 @dataclass
@@ -294,7 +301,7 @@ class Pipeline:
         for label in self.runs():
             run = self.open(label)
             length, start = longest_stay(run.poses[:, :2])
-            if length >= max(STUCK_SAMPLES, STUCK_SHARE * len(run.poses)):
+            if is_stuck(length, len(run.poses)):
                 warn_once(run, "longest_stay",
                           f"run {label}: the robot stayed within {STAY_RADIUS} m of one place for {length} of its "
                           f"{len(run.poses)} samples, from sample {start} (longest_stay): it got stuck there")

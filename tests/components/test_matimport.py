@@ -285,13 +285,59 @@ def test_import_into_a_folder_is_one_line(tmp_path, capsys):
 # --------------------------------------------------------------------------- scenarios with recorded runs
 
 
-def import_run(tmp_path, name, poses, seed):
+def import_run(tmp_path, name, poses, seed, *options):
     """Import a v5 recording with the given poses into ``tmp_path/<name>.h5``."""
     folder = tmp_path / "mat" / name
     write_recording(folder, seed=seed, n=len(poses))
     scipy.io.savemat(folder / "poses.mat", {"poses": poses})
-    assert main(["import", str(folder), "--out", str(tmp_path / f"{name}.h5")]) == 0
+    assert main(["import", str(folder), "--out", str(tmp_path / f"{name}.h5"), *options]) == 0
     return tmp_path / f"{name}.h5"
+
+
+def test_an_imported_run_records_its_tactile_model(tmp_path):
+    from vitaplace.engine.data.dataset import recorded_tactile_model
+
+    route = np.zeros((8, 3))
+    assert recorded_tactile_model(open_run(import_run(tmp_path, "a", route, 1))) == "physical"  # the default
+    assert recorded_tactile_model(open_run(import_run(tmp_path, "b", route, 1, "--tactile-model", "penetration"))) == "penetration"
+
+
+def _set_tactile_model(path, model):
+    run = open_run(path)
+    attrs = {k: v for k, v in run.attrs.items() if k != "robot"}
+    _rewrite_run(path, attrs=attrs if model is None else {**attrs, "robot": {"tactile_model": model}})
+
+
+def test_runs_of_two_tactile_models_are_refused_at_validate_naming_both(tmp_path, capsys):
+    scenario = recorded_scenario(tmp_path)
+    _set_tactile_model(tmp_path / "query.h5", "penetration")
+    assert main(["validate", str(scenario)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "tactile_model" in err
+    assert f"the training run {tmp_path / 'train.h5'} has physical" in err
+    assert f"evaluations.0.datasets.query {tmp_path / 'query.h5'} has penetration" in err
+
+
+def test_a_recorded_training_run_and_simulated_evaluations_of_another_model_are_refused(tmp_path, capsys):
+    scenario = recorded_scenario(tmp_path)
+    data = yaml.safe_load(scenario.read_text())
+    data["evaluations"] = [{"name": "E1", "environment": "e1", "run": {"kind": "route", "n_samples": 8}}]
+    data["robot"] = {"tactile_model": "penetration", "camera_width": 16, "camera_height": 12}
+    scenario.write_text(yaml.safe_dump(data))
+    assert main(["validate", str(scenario)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "the simulated runs (robot.tactile_model) has penetration" in err and "has physical" in err, err
+
+
+def test_files_that_do_not_say_are_not_compared_and_a_setting_without_effect_is_warned_about(tmp_path, caplog):
+    scenario = recorded_scenario(tmp_path)
+    _set_tactile_model(tmp_path / "query.h5", None)  # written before run files said
+    assert main(["validate", str(scenario)]) == 0
+    data = yaml.safe_load(scenario.read_text())
+    scenario.write_text(yaml.safe_dump({**data, "robot": {"tactile_model": "penetration"}}))
+    with caplog.at_level("WARNING", logger="vitaplace"):  # every run is recorded: the files say physical
+        assert main(["validate", str(scenario)]) == 0
+    assert "robot.tactile_model (penetration) has no effect: every run is recorded" in caplog.text
 
 
 def recorded_scenario(tmp_path):

@@ -311,3 +311,31 @@ def test_the_teleoperators_modes_switch_by_their_transition_table():
     assert reached == set(driver.modes)
     driver.modes["leave"].enter(10.0, np.zeros(3))
     assert driver.until == 10.0 + LEAVE_TIME == 16.0
+
+
+# ---------------------------------------------------------------------- plausible drives
+@pytest.mark.parametrize("kind, settings, message", [
+    # issue 32's reproduction: a 60-sample query held at one landmark for its whole run
+    ("teleop", {"hold_cycles": [100000, 100000]}, r"hold_cycles: every hold \(100000 whisk cycles at least\) is "
+     "longer than the run's 60 samples"),
+    ("stations", {"hold_cycles": [61, 80]}, r"hold_cycles: every hold \(61"),
+    ("teleop", {"detour_count": 41, "off_route_fraction": 0.3}, "detour_count: 41 detours in a run of 40 samples"),
+])
+def test_holds_and_detours_no_longer_than_the_run(kind, settings, message):
+    samples = 40 if "detour_count" in settings else 60
+    with pytest.raises(ValueError, match=message):
+        run_spec(kind=kind, n_samples=samples, **settings)
+    run_spec(kind=kind, n_samples=samples, **{**settings, **({"hold_cycles": [60, 100000]} if "hold_cycles" in settings
+                                                              else {"detour_count": 40})})  # the run's length is allowed
+
+
+@pytest.mark.parametrize("stay, samples, stuck", [
+    (48, 60, True),  # issue 32: 48 of 60 samples at one landmark (the old floor of 50 let it pass)
+    (12, 200, False),  # a station drive's longest hold
+    (49, 200, False), (50, 200, True),  # a quarter of the run
+    (9, 20, False), (10, 20, True),  # at least 10 samples, however short the run
+])
+def test_a_stuck_drive_is_a_quarter_of_its_run_and_ten_samples(stay, samples, stuck):
+    from vitaplace.engine.pipeline.runner import is_stuck
+
+    assert is_stuck(stay, samples) is stuck

@@ -217,6 +217,12 @@ class _Teleoperated(_OffPath):
         lo, hi = self.hold_cycles
         if not 1 <= lo <= hi:
             raise ValueError("hold_cycles must be [min, max] with 1 <= min <= max")
+        if lo > self.n_samples:  # a long maximum shows as the stuck-run warning (a quarter of the run)
+            raise ValueError(f"hold_cycles: every hold ({lo} whisk cycles at least) is longer than the run's "
+                             f"{self.n_samples} samples; expected min <= n_samples")
+        if self.off_route_fraction > 0 and self.detour_count > self.n_samples:
+            raise ValueError(f"detour_count: {self.detour_count} detours in a run of {self.n_samples} samples; "
+                             "expected at most n_samples")
         return self
 
 
