@@ -157,6 +157,10 @@ def _add_sweep_command(sub: argparse._SubParsersAction, common: argparse.Argumen
     slurm.add_argument("--time", help="time limit of one seed's task, as sbatch reads it (e.g. 04:00:00 or 90)")
     slurm.add_argument("--mem", help="memory of one seed's task, as sbatch reads it (e.g. 16G)")
     slurm.add_argument(
+        "--max-parallel", type=int, metavar="N",
+        help="at most N of the array's tasks at once (sbatch's --array=...%%N; default: every seed at once)",
+    )
+    slurm.add_argument(
         "--sbatch", action="append", default=[], metavar="NAME=VALUE",
         help="any other sbatch option, e.g. --sbatch account=myproject --sbatch qos=high (NAME alone: a flag; "
         "repeatable)",

@@ -465,13 +465,13 @@ def run_sweep(
     marker.write_text("")
     outcome = SweepOutcome(out)
     started = time.perf_counter()
-    if ray_address:
-        ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
-    elif slurm:
-        ended = run_array(run_seed_reported, jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
-    else:
-        ended = _local(jobs, workers or max(1, min(len(jobs), usable_cpus() // max(1, int(cpus_per_job)))))
     try:
+        if ray_address:
+            ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
+        elif slurm:  # sbatch refusing the array is a UserError here: the marker goes all the same
+            ended = run_array(run_seed_reported, jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
+        else:
+            ended = _local(jobs, workers or max(1, min(len(jobs), usable_cpus() // max(1, int(cpus_per_job)))))
         with logging_redirect_tqdm([log]), tqdm(total=len(jobs), desc="seeds", unit="seed", disable=not progress) as bar:
             for job, result, failure in ended:
                 bar.update()
