@@ -9,6 +9,8 @@ import json
 import os
 import re
 import socket
+import time
+from types import SimpleNamespace
 
 import pytest
 import yaml
@@ -88,7 +90,7 @@ def test_installations_differ_by_version_commit_uncommitted_changes_or_plugins()
 def fake_slurm(tmp_path, monkeypatch):
     """Stand-ins for srun, sbatch, squeue and scancel on PATH. ``sbatch`` runs
     ``FOLDER/sbatch.sh`` (the test writes it), ``squeue`` prints ``FOLDER/queue`` (lines
-    ``12_3 RUNNING``) or, when ``FOLDER/squeue.err`` exists, prints that and fails, and
+    ``12_3 RUNNING``; then ``FOLDER/queue.next``, when there is one, replaces it) or, when ``FOLDER/squeue.err`` exists, prints that and fails, and
     ``scancel`` appends its arguments to ``FOLDER/scancelled``. Returns FOLDER."""
     pytest.importorskip("submitit", reason="submitit is not installed (pip install 'vitaplace[slurm]')")
     fake = tmp_path / "fake-slurm"
@@ -97,7 +99,8 @@ def fake_slurm(tmp_path, monkeypatch):
         "srun": "exit 0",
         "sbatch": f'exec sh "{fake}/sbatch.sh" "$@"',
         "squeue": f'if [ -f "{fake}/squeue.err" ]; then cat "{fake}/squeue.err" >&2; exit 1; fi; '
-                  f'cat "{fake}/queue" 2>/dev/null; exit 0',
+                  f'cat "{fake}/queue" 2>/dev/null; [ -f "{fake}/queue.next" ] && mv "{fake}/queue.next" "{fake}/queue"; '
+                  'exit 0',
         "scancel": f'echo "$@" >> "{fake}/scancelled"',
     }
     for name, body in scripts.items():
@@ -158,8 +161,6 @@ def test_a_short_time_limit_and_a_bad_throttle_are_refused_before_anything_runs(
 
 
 def test_a_task_on_a_node_with_other_code_fails_its_seed_in_one_line():
-    from types import SimpleNamespace
-
     from vitaplace.engine.cli.installation import installation
     from vitaplace.engine.cli.slurm import CheckedTask
 
@@ -194,6 +195,14 @@ def test_an_array_is_throttled_watched_by_squeue_alone_and_blocks_a_rerun_while_
 
     monkeypatch.setattr(slurm, "LOST_MARGIN_S", 0.3)
     monkeypatch.setitem(slurm.POLL_S, "slurm", 0.05)
+    polls = []
+
+    def sleep(seconds):  # a driver that would wait forever fails the test within seconds
+        polls.append(seconds)
+        assert len(polls) < 200, "the driver is still waiting for tasks squeue no longer lists"
+        time.sleep(seconds)
+
+    monkeypatch.setattr(slurm, "time", SimpleNamespace(sleep=sleep, monotonic=time.monotonic))
     out = scenario_file.parent / "out"
     folder = out / "slurm"
     (fake_slurm / "queue").write_text("4242_1 RUNNING\n4242_2 RUNNING\n")
@@ -275,7 +284,9 @@ def test_a_task_running_past_its_limit_is_lost_and_an_interrupt_waits_for_the_qu
     assert "1 task(s) of job 7 are still in the queue 0 s after cancelling" in caplog.text
     assert "KillWait" in caplog.text and "a rerun into this OUT is refused" in caplog.text
     caplog.clear()
-    (fake_slurm / "queue").write_text("")
+    monkeypatch.setattr(slurm, "DRAIN_S", 5.0)
+    (fake_slurm / "queue").write_text("7_1 RUNNING\n")
+    (fake_slurm / "queue.next").write_text("")  # gone at the next look
     with caplog.at_level("INFO", logger="vitaplace"):
         slurm.QueueWatch("7", 300.0).drain()
-    assert "the cancelled tasks of job 7 have left the queue" in caplog.text
+    assert "the cancelled tasks of job 7 have left the queue" in caplog.text and "KillWait" not in caplog.text
