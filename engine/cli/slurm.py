@@ -227,10 +227,12 @@ def run_array(
     if slurm:
         check_queue_clear(folder)
     ex = executor(settings, folder, name)
+    before = set(folder.iterdir()) if folder.is_dir() else None
     try:
         with contextlib.redirect_stderr(io.StringIO()):  # submitit prints sbatch's stderr as well
             tasks = ex.map_array(CheckedTask(task, installation()), jobs)
     except (submitit.core.utils.FailedJobError, submitit.core.utils.FailedSubmissionError, OSError) as exc:
+        _remove_new(folder, before)
         message = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
         raise UserError(f"--slurm: sbatch refused the array job: {message or type(exc).__name__}") from None
     array = tasks[0].job_id.split("_")[0] if slurm else " ".join(t.job_id for t in tasks)
@@ -239,6 +241,16 @@ def run_array(
         return _wait(tasks, jobs, POLL_S["local"])
     write_text_atomic(folder / JOB_RECORD, json.dumps({"job": array, "tasks": [t.job_id for t in tasks]}) + "\n")
     return _wait(tasks, jobs, POLL_S["slurm"], QueueWatch(array, settings.time_min * 60.0))
+
+
+def _remove_new(folder: Path, before: set[Path] | None) -> None:
+    """Remove what a refused submission left in ``folder`` (its script and pickled jobs): the
+    files not in ``before``, and ``folder`` itself when it did not exist (``before`` None)."""
+    for path in set(folder.iterdir()) - (before or set()) if folder.is_dir() else ():
+        if path.is_file() or path.is_symlink():
+            path.unlink()
+    if before is None and folder.is_dir() and not any(folder.iterdir()):
+        folder.rmdir()
 
 
 @dataclass

@@ -143,6 +143,7 @@ def test_sbatch_refusing_the_array_is_one_line_with_its_own_message_and_exit_2(c
     assert len(lines) == 1, lines
     assert "--slurm: sbatch refused the array job: " + "; ".join(message.splitlines()) in lines[0], lines
     assert not list(out.glob("seed-*")) and not list(out.glob(".sweep-marker-*"))
+    assert not (out / "slurm").exists()  # no script or pickled job of the refused array left behind
 
 
 def test_a_short_time_limit_and_a_bad_throttle_are_refused_before_anything_runs(scenario_file, capsys):
