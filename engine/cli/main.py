@@ -427,7 +427,7 @@ def _import(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from vitaplace.engine.cli.slurm import settings_from_args
+    from vitaplace.engine.cli.slurm import check_queue_clear, settings_from_args
     from vitaplace.engine.study.summary import cell
     from vitaplace.engine.cli.sweep import check_placement, load_sweep_scenario, run_sweep
 
@@ -439,7 +439,10 @@ def _sweep(args: argparse.Namespace) -> int:
     check_placement(args.workers, args.ray, slurm, args.gpus_per_job)
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
     log = logging.getLogger("vitaplace")
-    with claimed(args.out or Path("runs") / f"{scenario.name}-sweep", _setup_logging) as out:
+    out = Path(args.out or Path("runs") / f"{scenario.name}-sweep")
+    if slurm is not None and slurm.cluster == "slurm":
+        check_queue_clear(out / "slurm")  # before claiming OUT cleans files its tasks may be writing
+    with claimed(out, _setup_logging) as out:
         outcome = run_sweep(
             scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress,
             _forced(args.force, "report", "sweep"),

@@ -138,6 +138,8 @@ def settings_from_args(args: Any) -> SlurmSettings | None:
                         "its limit, which leaves a shorter task no time to run its seed")
     if args.max_parallel is not None and args.max_parallel < 1:
         raise UserError(f"--max-parallel {args.max_parallel}: expected a number of tasks at once, at least 1")
+    if args.max_parallel is not None and args.slurm == "local":
+        raise UserError("--max-parallel: throttles an array on a SLURM cluster; --slurm local starts every task at once")
     return SlurmSettings(args.slurm, minutes, int(args.cpus_per_job), int(args.gpus_per_job),
                          args.partition, args.mem, parse_sbatch(args.sbatch), args.max_parallel)
 
@@ -194,8 +196,10 @@ def queued(array: str) -> dict[str, str] | None:
 
 
 def check_queue_clear(folder: Path) -> None:
-    """Refuse a sweep into the folder whose earlier array (`JOB_RECORD`) still has tasks in
-    the queue: they would go on writing into the same seed folders."""
+    """Refuse a sweep whose array folder ``folder`` (``OUT/slurm``) records an earlier array
+    (`JOB_RECORD`) that still has tasks in the queue: they would go on writing into the same
+    seed folders. Call it before taking ``OUT``, whose cleaning removes the temporary files
+    of writes still under way."""
     record = folder / JOB_RECORD
     if not record.is_file():
         return
@@ -224,8 +228,6 @@ def run_array(
     import submitit
 
     slurm = settings.cluster == "slurm"
-    if slurm:
-        check_queue_clear(folder)
     ex = executor(settings, folder, name)
     before = set(folder.iterdir()) if folder.is_dir() else None
     try:

@@ -153,6 +153,7 @@ def test_a_short_time_limit_and_a_bad_throttle_are_refused_before_anything_runs(
         "--time 0:02:00: at least 5 minutes": ["--slurm", "local", "--time", "0:02:00"],
         "--max-parallel 0: expected a number of tasks at once, at least 1": ["--slurm", "--time", "5", "--max-parallel", "0"],
         "--max-parallel: only with --slurm": ["--max-parallel", "2"],
+        "--max-parallel: throttles an array on a SLURM cluster": ["--slurm", "local", "--time", "5", "--max-parallel", "2"],
     }
     for message, extra in cases.items():
         code = main([*base, *extra])
@@ -226,12 +227,15 @@ def test_an_array_is_throttled_watched_by_squeue_alone_and_blocks_a_rerun_while_
 
     rerun = ["sweep", str(scenario_file), "--seeds", "0", "--out", str(out), "--no-progress", "--slurm", "--time", "10"]
     (fake_slurm / "queue").write_text("4242_2 COMPLETING\n")
+    writing = out / "seed-2" / ".results.json.1a2b.part"  # what task 2 may still be writing
+    writing.parent.mkdir(parents=True)
+    writing.write_text("{")
     capsys.readouterr()
     assert main(rerun) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and (f"--out {out}: 1 task(s) of SLURM job 4242, an earlier sweep into this folder, are "
                                 "still in the queue (COMPLETING)") in lines[0], lines
-    assert not list(out.glob("seed-*"))
+    assert writing.read_text() == "{" and [p.name for p in out.glob("seed-*")] == ["seed-2"]
     (fake_slurm / "squeue.err").write_text("squeue: error: Unable to contact slurm controller (connect failure)\n")
     with pytest.raises(slurm.UserError, match="cannot tell whether SLURM job 4242 .* is still running"):
         slurm.check_queue_clear(folder)
