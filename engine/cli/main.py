@@ -160,6 +160,10 @@ def _add_sweep_command(sub: argparse._SubParsersAction, common: argparse.Argumen
     slurm.add_argument("--time", help="time limit of one seed's task, as sbatch reads it (e.g. 04:00:00 or 90)")
     slurm.add_argument("--mem", help="memory of one seed's task, as sbatch reads it (e.g. 16G)")
     slurm.add_argument(
+        "--max-parallel", type=int, metavar="N",
+        help="at most N of the array's tasks at once (sbatch's --array=...%%N; default: every seed at once)",
+    )
+    slurm.add_argument(
         "--sbatch", action="append", default=[], metavar="NAME=VALUE",
         help="any other sbatch option, e.g. --sbatch account=myproject --sbatch qos=high (NAME alone: a flag; "
         "repeatable)",
@@ -427,7 +431,7 @@ def _import(args: argparse.Namespace) -> int:
 
 
 def _sweep(args: argparse.Namespace) -> int:
-    from vitaplace.engine.cli.slurm import settings_from_args
+    from vitaplace.engine.cli.slurm import check_queue_clear, settings_from_args
     from vitaplace.engine.study.summary import cell
     from vitaplace.engine.cli.sweep import check_placement, load_sweep_scenario, run_sweep
 
@@ -439,7 +443,10 @@ def _sweep(args: argparse.Namespace) -> int:
     check_placement(args.workers, args.ray, slurm, args.gpus_per_job)
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
     log = logging.getLogger("vitaplace")
-    with claimed(args.out or Path("runs") / f"{scenario.name}-sweep", _setup_logging) as out:
+    out = Path(args.out or Path("runs") / f"{scenario.name}-sweep")
+    if slurm is not None and slurm.cluster == "slurm":
+        check_queue_clear(out / "slurm")  # before claiming OUT cleans files its tasks may be writing
+    with claimed(out, _setup_logging) as out:
         outcome = run_sweep(
             scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress,
             _forced(args.force, "report", "sweep"),

@@ -16,9 +16,10 @@ one place: each job reports its host name and whether it sees a marker file the 
 wrote into ``OUT``; the driver warns once when one does not.
 
 Before submitting to Ray, the driver names the cluster's address, runs a probe task on every
-node and refuses a node whose vitaplace version, git commit or installed feature plugins
-differ from its own (`installation`), and refuses resources no node has. SLURM arrays go
-through submitit (`vitaplace.engine.cli.slurm`).
+node and refuses a node whose vitaplace version, git commit, uncommitted changes or installed
+feature plugins differ from its own (`vitaplace.engine.cli.installation`), and refuses
+resources no node has. SLURM arrays go through submitit (`vitaplace.engine.cli.slurm`), each
+task checking its installation the same way.
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.outputs.outdir import SEED_ERROR, cache_dir, seed_dir
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
 from vitaplace.engine.config.loading import load_scenario
+from vitaplace.engine.cli.installation import describe, installation, mismatch
+from vitaplace.engine.cli.ray_auth import init_ray
 from vitaplace.engine.cli.slurm import SlurmSettings, run_array
 
 log = logging.getLogger("vitaplace")
@@ -336,14 +339,14 @@ def connect_ray(address: str) -> tuple[Any, str]:
         if os.environ.get("RAY_ADDRESS", "auto") != "auto":
             _check_reachable(os.environ["RAY_ADDRESS"])
         try:
-            ray.init(address="auto")
+            init_ray(ray, "auto", f"--ray auto (RAY_ADDRESS={os.environ.get('RAY_ADDRESS', 'unset')})")
         except ConnectionError:
             ray.init(address="local")
             how = "no running cluster found; started a local one,"
     else:
         _check_reachable(address)
         try:
-            ray.init(address=address)
+            init_ray(ray, address, f"--ray {address}")
         except ConnectionError as exc:
             raise UserError(f"--ray {address}: {one_line(str(exc))}") from None
     try:
@@ -352,26 +355,6 @@ def connect_ray(address: str) -> tuple[Any, str]:
         where = address
     log.info("Ray: %s cluster %s", how, where)
     return ray, where
-
-
-def installation() -> dict[str, Any]:
-    """What every process of a sweep must share: vitaplace's version and git commit, and the
-    installed feature plugins (entry point = distribution==version)."""
-    from importlib.metadata import entry_points
-
-    import vitaplace.engine
-    from vitaplace.engine.extension.hookspecs import ENTRY_POINT_GROUP
-    from vitaplace.engine.pipeline.provenance import git_commit
-
-    plugins = sorted(
-        f"{ep.name}={ep.dist.name}=={ep.dist.version}" if getattr(ep, "dist", None) else f"{ep.name}=unknown"
-        for ep in entry_points(group=ENTRY_POINT_GROUP)
-    )
-    return {"version": vitaplace.engine.__version__, "commit": git_commit(), "plugins": plugins}
-
-
-def _describe_installation(found: dict[str, Any]) -> str:
-    return f"vitaplace {found['version']} (commit {found['commit'] or 'unknown'}; plugins {', '.join(found['plugins']) or 'none'})"
 
 
 def _probe() -> dict[str, Any]:
@@ -403,12 +386,10 @@ def check_ray_cluster(ray: Any, where: str, cpus: float, gpus: float) -> None:
     except Exception as exc:  # noqa: BLE001 - e.g. vitaplace cannot be imported on a node
         raise UserError(f"--ray {where}: the probe task failed on the cluster: {describe_failure(exc)}") from None
     for theirs in found:
-        if {k: theirs[k] for k in mine} != mine:
-            raise UserError(
-                f"--ray {where}: node {theirs['host']} runs {_describe_installation(theirs)} but this driver runs "
-                f"{_describe_installation(mine)}; install the same vitaplace and plugins on every node"
-            )
-    log.info("Ray: %d node(s) run %s", len(found), _describe_installation(mine))
+        differs = mismatch(mine, theirs, f"node {theirs['host']}")
+        if differs:
+            raise UserError(f"--ray {where}: {differs}")
+    log.info("Ray: %d node(s) run %s", len(found), describe(mine))
 
 
 def _ray(
@@ -484,13 +465,13 @@ def run_sweep(
     marker.write_text("")
     outcome = SweepOutcome(out)
     started = time.perf_counter()
-    if ray_address:
-        ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
-    elif slurm:
-        ended = run_array(run_seed_reported, jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
-    else:
-        ended = _local(jobs, workers or max(1, min(len(jobs), usable_cpus() // max(1, int(cpus_per_job)))))
     try:
+        if ray_address:
+            ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
+        elif slurm:  # sbatch refusing the array is a UserError here: the marker goes all the same
+            ended = run_array(run_seed_reported, jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
+        else:
+            ended = _local(jobs, workers or max(1, min(len(jobs), usable_cpus() // max(1, int(cpus_per_job)))))
         with logging_redirect_tqdm([log]), tqdm(total=len(jobs), desc="seeds", unit="seed", disable=not progress) as bar:
             for job, result, failure in ended:
                 bar.update()
