@@ -274,8 +274,9 @@ class FolderLife(RuleBasedStateMachine):
 
 def _run_machine(site: Path, root: Path, examples: int, steps: int) -> None:
     FolderLife.site, FolderLife.root, FolderLife.references = site, root, {}
+    life = type(f"FolderLife{examples}", (FolderLife,), {})  # settings go on a class of its own, once
     machine = settings(max_examples=examples, stateful_step_count=steps, deadline=None, derandomize=True,
-                       suppress_health_check=list(HealthCheck))(FolderLife).TestCase
+                       suppress_health_check=list(HealthCheck))(life).TestCase
     machine().runTest()
 
 
