@@ -27,7 +27,7 @@ from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.evaluation.pairfiles import load_curve
 from vitaplace.engine.outputs.keys import content_hash
-from vitaplace.engine.outputs.outdir import MANIFEST, RESULTS_JSON, writable_dir
+from vitaplace.engine.outputs.outdir import MANIFEST, MATRICES, RESULTS_JSON, writable_dir
 from vitaplace.engine.report.figures import write_pr_bands
 from vitaplace.engine.study.summary import bounds, write_summary
 
@@ -215,6 +215,8 @@ def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Pa
     runs = [validate_run_folder(Path(f)) for f in folders]
     first = runs[0]
     seen = one_scenario(runs)
+    for run in runs:  # the block bootstrap reads each evaluation's matrices: as the run left them
+        check_recorded(run, [str(Path(curve_path(row)).parent / MATRICES) for row in run.rows])
     if out is None:
         parents = {run.folder.resolve().parent for run in runs}
         if len(parents) != 1:

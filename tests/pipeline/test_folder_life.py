@@ -284,6 +284,12 @@ def test_a_folder_gives_the_clean_numbers_or_refuses_in_one_line(site, tmp_path)
     _run_machine(site, tmp_path, examples=6, steps=5)
 
 
-@pytest.mark.slow
-def test_a_folder_gives_the_clean_numbers_or_refuses_in_one_line_over_many_lives(site, tmp_path):
-    _run_machine(site, tmp_path, examples=50, steps=6)
+def test_aggregate_refuses_matrices_changed_since_the_run_in_one_line(site, tmp_path):
+    """Found by the state machine's longer runs: aggregate's block bootstrap read a corrupted
+    matrices.npz and died with a BadZipFile traceback."""
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(scenario(0.3)))
+    assert main(["evaluate", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "-q"]) == 0
+    matrices = tmp_path / "out" / "evaluations" / "E1" / "P" / "query-to-reference" / "matrices.npz"
+    matrices.write_bytes(matrices.read_bytes()[: matrices.stat().st_size // 2])
+    status, err = cli("aggregate", str(tmp_path / "out"), "--out", str(tmp_path / "summary"))
+    assert refused_in_one_line(status, err) and "matrices.npz" in err, err
