@@ -641,7 +641,7 @@ MUTANTS = [
       "            finite = np.isfinite(term)\n", "            finite = np.isfinite(term) | True\n",
       *t("sequence", "test_a_query_the_method_cannot_compare_is_scored_by_the_sequence_that_ends_at_it")),
     m("pairfiles: the sequence setting ignored", "pairfiles",
-      "        tme = sequence_scores(distance, **sequence)", "        pass",
+      "        tme, extra = sequence_scores(distance, **sequence), {\"distance\": distance}", "        extra = {\"distance\": distance}",
       *t("sequence", "test_a_run_that_matches_sequences_scores_the_sequence_of_the_methods_distances")),
     m("sensitivity: --sequence-length rescores the saved TME, not the method's distances", "sensitivity",
       "raw = \"distance\" if sequence_length is not None and \"distance\" in names else \"tme\"", "raw = \"tme\"",

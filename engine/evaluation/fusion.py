@@ -42,7 +42,7 @@ def fused_distance(vision: np.ndarray, touch: np.ndarray, sigma_vision: float, s
     present = np.zeros(np.shape(vision))
     for term, w in terms:
         here = np.isfinite(term)
-        total += np.where(here, w * np.where(here, term, 0.0), 0.0)
+        total += w * np.where(here, term, 0.0)
         present += w * here
     full = 1.0 + weight
     both = present == full

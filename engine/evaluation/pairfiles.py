@@ -127,9 +127,9 @@ def evaluate_pair(
     names the settings (``sequence``: length, velocity_min, velocity_max, velocity_steps,
     window)."""
     folder = Path(folder)
-    distance = tme
+    distance, extra = tme, {}
     if sequence is not None:
-        tme = sequence_scores(distance, **sequence)
+        tme, extra = sequence_scores(distance, **sequence), {"distance": distance}
     gtm = ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg)
     curve = pr_curve(tme, gtm, tau)
     summary = evaluate(tme, gtm, tau, delta, tuple(ks), curve=curve)
@@ -139,7 +139,6 @@ def evaluate_pair(
         summary["sequence"] = {**rest, "velocity_min": slowest, "velocity_max": fastest}
     summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
     decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
-    extra = {} if sequence is None else {"distance": distance}
     export_matrices_npz(folder / MATRICES, tme, gtm, query_poses=query_poses, reference_poses=reference_poses, **extra)
     export_decisions_csv(folder / DECISIONS_CSV, decisions)
     save_curve_and_decisions(folder, curve, decisions)

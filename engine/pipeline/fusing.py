@@ -21,7 +21,6 @@ from vitaplace.engine.config.scenario import Fusion, Scenario, training_world_ev
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve
 from vitaplace.engine.evaluation.fusion import choose_weight, fused_distance
-from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.evaluation.sequence import sequence_scores
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.outputs.keys import content_hash
@@ -42,6 +41,7 @@ class Evaluating(Protocol):
     def stage(self, stage: str, item: str, key: str, output: Path, work: Any, inputs: Any = ()) -> Any: ...
     def sequence_for(self, query: str, n_queries: int) -> dict[str, Any] | None: ...
     def dropout_row(self, e: Any) -> dict[str, Any]: ...
+    def score(self, folder: Path, tme: np.ndarray, query: str, reference: str) -> dict[str, Any]: ...
 
 
 def method_distances(out: Path, environment: str, method: str, direction: str) -> np.ndarray:
@@ -52,7 +52,9 @@ def method_distances(out: Path, environment: str, method: str, direction: str) -
 
 def selection(runner: Evaluating, fusion: Fusion) -> str:
     """The evaluation ``fusion``'s weight is chosen on (validated to exist)."""
-    return fusion.select_on or str(training_world_evaluation(runner.scenario)[0])
+    chosen = fusion.select_on or training_world_evaluation(runner.scenario)[0]
+    assert chosen is not None  # the scenario's validation makes sure there is one
+    return chosen
 
 
 def chosen_weight(runner: Evaluating, fusion: Fusion, direction: str, query: str, reference: str) -> dict[str, Any]:
@@ -73,16 +75,10 @@ def chosen_weight(runner: Evaluating, fusion: Fusion, direction: str, query: str
 
 def _evaluate(runner: Evaluating, fusion: Fusion, choice: dict[str, Any], environment: str, direction: str,
               query: str, reference: str, folder: Path) -> None:
-    settings = runner.scenario.scoring
     folder.mkdir(parents=True, exist_ok=True)
-    q, r = runner.open(f"{environment}/{query}"), runner.open(f"{environment}/{reference}")
     vision, touch = (method_distances(runner.out, environment, m, direction) for m in (fusion.vision, fusion.touch))
     fused = fused_distance(vision, touch, choice["sigma_vision"], choice["sigma_touch"], choice["weight"])
-    summary = evaluate_pair(
-        folder, fused, q.poses, r.poses, settings.tau, query_touch=q.touch_mask(), reference_touch=r.touch_mask(),
-        delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg, ks=tuple(settings.recall_k),
-        sequence=runner.sequence_for(f"{environment}/{query}", len(q)),
-    )
+    summary = runner.score(folder, fused, f"{environment}/{query}", f"{environment}/{reference}")
     summary["fusion"] = choice
     write_text_atomic(folder / outdir.SUMMARY, json.dumps(summary, indent=2))
 

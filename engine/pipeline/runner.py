@@ -479,18 +479,23 @@ class Pipeline:
     def _evaluate(self, method: Method, query: str, reference: str, folder: Path) -> None:
         """Score ``method``'s distances from the ``query`` run's samples to the ``reference``
         run's into ``folder`` (summary, curves, matrices)."""
-        settings = self.scenario.scoring
         folder.mkdir(parents=True, exist_ok=True)
         q, r = self.open(query), self.open(reference)
         distances = self.extractor(method).distance(load_features(self.features_path(method, query)),
                                                     load_features(self.features_path(method, reference)))
         tme = check_distance(distances, (len(q), len(r)), f"evaluate {query.split('/')[0]} {method.name}")
-        summary = evaluate_pair(
+        write_text_atomic(folder / outdir.SUMMARY, json.dumps(self.score(folder, tme, query, reference), indent=2))
+
+    def score(self, folder: Path, tme: np.ndarray, query: str, reference: str) -> dict[str, Any]:
+        """The distances ``tme`` from run ``query``'s samples to run ``reference``'s scored with
+        the scenario's settings into ``folder`` (`evaluate_pair`); returns the summary."""
+        settings = self.scenario.scoring
+        q, r = self.open(query), self.open(reference)
+        return evaluate_pair(
             folder, tme, q.poses, r.poses, settings.tau, query_touch=q.touch_mask(), reference_touch=r.touch_mask(),
             delta=settings.delta, heading_tolerance_deg=settings.heading_tolerance_deg, ks=tuple(settings.recall_k),
             sequence=self.sequence_for(query, len(q)),
         )
-        write_text_atomic(folder / outdir.SUMMARY, json.dumps(summary, indent=2))
 
     def sequence_for(self, query: str, n_queries: int) -> dict[str, Any] | None:
         """The scenario's sequence matching settings (None for single samples), checked against

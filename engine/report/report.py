@@ -440,8 +440,8 @@ def _fusions_section(rows: list[dict[str, Any]], fusions: list[dict[str, Any]]) 
              "selection evaluation (ties: the smallest), applied unchanged to every evaluation.", "",
              "| fusion | vision + touch | chosen on | direction | w | σ_V | σ_T | max F1 there |", "|---|---|---|---|---|---|---|---|"]
     for (name, direction), f in chosen.items():
-        s = settings.get(name, {})
-        lines.append(f"| {name} | {s.get('vision', '?')} + {s.get('touch', '?')} | {s.get('select_on') or 'the training world'} "
+        s = settings[name]
+        lines.append(f"| {name} | {s['vision']} + {s['touch']} | {s.get('select_on') or 'the training world'} "
                      f"| {direction} | {f['weight']:g} | {f['sigma_vision']:.4g} | {f['sigma_touch']:.4g} "
                      f"| {100 * f['selection_max_f1']:.2f} % |")
     return lines + [""]
