@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -126,10 +127,12 @@ def test_velocities_may_be_one_value_when_one_step_is_tried():
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict[str, Path]:
     """The same tiny scenario (hand-crafted features, 12-sample route drives) run with single
-    samples and with sequences of 3."""
+    samples, with length 1 and every other sequence setting away from its default, and with
+    sequences of 3."""
     tmp = tmp_path_factory.mktemp("sequence")
     out = {}
-    for name, sequence in (("single", {}), ("seq3", {"sequence": {"length": 3}})):
+    for name, sequence in (("single", {}), ("seq3", {"sequence": {"length": 3}}),
+                           ("one", {"sequence": {"length": 1, "velocities": [0.5, 2.0], "velocity_steps": 3, "window": 2}})):
         scenario = {
             "name": "tiny",
             "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 5}},
@@ -164,6 +167,37 @@ def test_a_run_that_matches_sequences_scores_the_sequence_of_the_methods_distanc
                 np.load(runs["single"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as b:
             np.testing.assert_array_equal(a["distance"], b["tme"])
             assert "distance" not in b.files
+
+
+def test_length_one_scores_a_real_evaluation_exactly_as_single_samples(runs):
+    # whatever the other sequence settings say: the same rows (every number bit for bit, no
+    # `sequence` field) and the same saved matrices (no `distance` beside the TME)
+    assert json.loads((runs["one"] / "results.json").read_text()) == json.loads((runs["single"] / "results.json").read_text())
+    for direction in ("query-to-reference", "reference-to-query"):
+        with np.load(runs["one"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as a, \
+                np.load(runs["single"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as b:
+            assert sorted(a.files) == sorted(b.files)
+            for name in a.files:
+                assert a[name].tobytes() == b[name].tobytes(), name
+
+
+def test_a_changed_sequence_length_rescores_the_evaluations_and_nothing_before_them(runs, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(runs["single"], out)
+
+    def rerun(*overrides: str) -> set[tuple[str, str]]:
+        args = ["run", str(runs["single"].parent / "single.yaml"), "--out", str(out), "--no-progress", "-q"]
+        for override in overrides:
+            args += ["--set", override]
+        assert main(args) == 0
+        stages = json.loads((out / "manifest.json").read_text())["stages"]
+        return {(s["stage"], s["item"]) for s in stages if s["status"] == "ran"}
+
+    scored = {("evaluate", f"E1 H {d}") for d in ("query-to-reference", "reference-to-query")} | {("report", "report")}
+    assert rerun("scoring.sequence.length=3") == scored
+    assert json.loads((out / "results.json").read_text()) == json.loads((runs["seq3"] / "results.json").read_text())
+    assert rerun("scoring.sequence.length=2") == scored
+    assert {row["sequence"]["length"] for row in json.loads((out / "results.json").read_text())} == {2}
 
 
 @pytest.mark.parametrize("run", ["single", "seq3"])

@@ -15,8 +15,11 @@ import yaml
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.cli.main import main  # noqa: E402
+from vitaplace.engine.config.loading import load_scenario  # noqa: E402
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve  # noqa: E402
 from vitaplace.engine.evaluation.fusion import choose_weight, fused_distance, spread  # noqa: E402
+from vitaplace.engine.outputs import outdir  # noqa: E402
+from vitaplace.engine.pipeline.fusing import chosen_weight  # noqa: E402
 
 ENVS = Path(__file__).resolve().parents[2] / "scenarios" / "environments"
 
@@ -87,6 +90,69 @@ def test_the_weight_is_chosen_on_the_training_world_and_applied_unchanged(fused_
                                        fused_distance(members["H-V"], members["H-T"], sv, st, w))
     report = (fused_run / "report.md").read_text()
     assert "## Late fusions" in report and "| H-F | H-V + H-T | the training world |" in report
+
+
+# Three queries at x = 0, 1, 2 m against three references at the same places (tau 0.3 m: each
+# query's true match is its own reference). RIGHT has its least distance there, WRONG one
+# place to the right (wrapping): a method whose best match is always wrong.
+RIGHT = 1.0 - np.eye(3)
+WRONG = 1.0 - np.roll(np.eye(3), 1, axis=1)
+
+
+class SavedEvaluations:
+    """What `chosen_weight` reads of the runner: the scenario, the members' saved distances
+    under ``out`` and the runs' poses (three places on a line, heading 0)."""
+
+    def __init__(self, out: Path, scenario) -> None:
+        self.out, self.scenario = out, scenario
+
+    def open(self, label: str):
+        class Places:
+            poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+
+            def __len__(self) -> int:
+                return 3
+        return Places()
+
+    def sequence_for(self, query: str, n_queries: int) -> None:
+        return None
+
+    def save(self, environment: str, **distances: np.ndarray) -> None:
+        for method, d in distances.items():
+            folder = outdir.evaluation_dir(self.out, environment, method, "query-to-reference")
+            folder.mkdir(parents=True, exist_ok=True)
+            np.savez(folder / outdir.MATRICES, tme=d)
+
+
+def test_the_weight_is_chosen_on_the_selection_evaluation_alone(tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump({
+        "name": "saved", "train": {"environment": str(ENVS / "e1.yaml"), "run": {"kind": "foraging", "n_samples": 5}},
+        "evaluations": [{"name": env.upper(), "environment": str(ENVS / f"{env}.yaml"),
+                         "run": {"kind": "route", "n_samples": 12}} for env in ("e1", "e2")],  # never simulated
+        "methods": [{"name": "V", "plugin": "handcrafted", "params": {"use_tactile": False}},
+                    {"name": "T", "plugin": "handcrafted", "params": {"use_visual": False}}],
+        "fusions": [{"name": "F", "vision": "V", "touch": "T", "weights": [3, 0, 1]}],
+    }))
+    runner = SavedEvaluations(tmp_path / "out", load_scenario(path)[0])
+    (fusion,) = runner.scenario.fusions  # select_on left out: E1, in the training world e1
+    # E1: vision right, touch wrong. Both spreads sqrt(2) / 3 (three 0s, six 1s), so the fused
+    # row is (RIGHT + w WRONG) * 3 / sqrt(2): w = 0 finds every match (max F1 1), w = 1 ties the
+    # true match with the wrong one, w = 3 prefers the wrong one (1 against 3)
+    runner.save("E1", V=RIGHT, T=WRONG)
+    # E2 the other way round: chosen there, w would be 3 (1 + 0 on the true match, 0 + 3 on the
+    # wrong one)
+    runner.save("E2", V=WRONG, T=RIGHT)
+    choice = chosen_weight(runner, fusion, "query-to-reference", "query", "reference")
+    assert choice["weight"] == 0.0 and choice["selection_max_f1"] == 1.0
+    assert choice["sigma_vision"] == pytest.approx(np.sqrt(2) / 3) and choice["sigma_touch"] == pytest.approx(np.sqrt(2) / 3)
+    assert chosen_weight(runner, fusion.model_copy(update={"select_on": "E2"}), "query-to-reference", "query",
+                         "reference")["weight"] == 3.0
+    # whatever E2's distances are, the weight and spreads chosen on E1 stay
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        runner.save("E2", V=rng.random((3, 3)) * 10, T=rng.random((3, 3)))
+        assert chosen_weight(runner, fusion, "query-to-reference", "query", "reference") == choice
 
 
 @pytest.mark.parametrize("setting, message", [
