@@ -31,7 +31,7 @@ from typing import Any
 import pluggy
 
 from vitaplace.engine.extension import hookspecs
-from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.base.errors import UserError, did_you_mean
 from vitaplace.engine.extension.features import FeatureExtractor
 
 ONLY_ENV = "VITAPLACE_PLUGINS"
@@ -80,7 +80,7 @@ class Registry:
             return self.extractors[name]
         except KeyError:
             valid = ", ".join(self.names()) or "none installed"
-            raise PluginError(f"unknown feature extractor {name!r}; available: {valid}") from None
+            raise PluginError(f"unknown feature extractor {name!r}; available: {valid}{did_you_mean(name, self.names())}") from None
 
     def create(self, name: str, params: Mapping[str, Any] | None = None) -> FeatureExtractor:
         return self.get(name)(params)
