@@ -19,18 +19,20 @@ line says so); notebooks and guarded scripts keep the parallel workers.
 from __future__ import annotations
 
 import ast
+import functools
+import inspect
 import json
 import logging
 import numbers
 import os
 import sys
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from importlib import import_module
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from vitaplace.engine import __version__
-from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.base.errors import UserError, did_you_mean
 
 if TYPE_CHECKING:
     from vitaplace.engine.data.dataset import Run
@@ -60,6 +62,61 @@ __all__ = [
 Overrides = Mapping[str, Any] | Sequence[str] | None
 
 log = logging.getLogger("vitaplace")
+
+
+def _one_line_arguments(function: Callable[..., Any]) -> Callable[..., Any]:
+    """``function`` with its arguments bound before it runs, so that a misspelt keyword, a
+    missing argument or one too many is a one-line `UserError` naming it (and the nearest
+    parameter) instead of Python's TypeError."""
+    signature = inspect.signature(function)
+    names = list(signature.parameters)
+    stars = {inspect.Parameter.VAR_POSITIONAL: "*", inspect.Parameter.VAR_KEYWORD: "**"}
+    shown = ", ".join(stars.get(p.kind, "") + p.name for p in signature.parameters.values()) or "none"
+
+    @functools.wraps(function)
+    def checked(*args: Any, **kwargs: Any) -> Any:
+        try:
+            signature.bind(*args, **kwargs)
+        except TypeError as exc:
+            unknown = [key for key in kwargs if key not in signature.parameters]
+            problem = (f"unknown argument {unknown[0]!r}{did_you_mean(unknown[0], names)}" if unknown
+                       else str(exc).replace("\n", " "))
+            raise UserError(f"vitaplace.{function.__name__}(): {problem} (its arguments: {shown})") from None
+        return function(*args, **kwargs)
+
+    return checked
+
+
+def _flag(value: Any, name: str) -> bool:
+    """``value`` if it is True or False (numpy's too), else UserError naming argument ``name``."""
+    if type(value).__module__ == "numpy" and hasattr(value, "item"):
+        value = value.item()
+    if not isinstance(value, bool):
+        raise UserError(f"{name}={value!r:.80}: expected True or False")
+    return value
+
+
+def _choice(value: Any, name: str, choices: Sequence[str]) -> str:
+    """``value`` if it is one of ``choices``, else UserError naming ``name`` and the nearest choice."""
+    if not isinstance(value, str) or value not in choices:
+        hint = did_you_mean(value, choices) if isinstance(value, str) else ""
+        raise UserError(f"{name}={value!r:.80}: expected one of {', '.join(choices)}{hint}")
+    return value
+
+
+def _stages(force: Any) -> list[str]:
+    """``force`` as a list of stage names (one name alone is a list of one), each one of `STAGES`."""
+    from vitaplace.engine.pipeline.runner import STAGES
+
+    names = [force] if isinstance(force, str) else force
+    if not isinstance(names, Iterable) or isinstance(names, Mapping):
+        raise UserError(f"force={force!r:.80}: expected stage names, a list of some of {', '.join(STAGES)}")
+    names = list(names)
+    for stage in names:
+        if not isinstance(stage, str) or stage not in STAGES:
+            hint = did_you_mean(stage, STAGES) if isinstance(stage, str) else ""
+            raise UserError(f"force={force!r:.80}: {stage!r:.40} is not a stage; expected some of {', '.join(STAGES)}{hint}")
+    return names
 
 
 def _assignments(overrides: Overrides) -> list[str]:
@@ -114,6 +171,7 @@ def _whole(value: Any, name: str, low: int) -> int:
     return int(value)
 
 
+@_one_line_arguments
 def load_scenario(scenario: str | Path, overrides: Overrides = None) -> Scenario:
     """The validated scenario ``scenario`` (a YAML file or a shipped scenario's name) with
     ``overrides`` applied, e.g. ``{"methods.0.params.epochs": 2, "seed": 3}``. Raises
@@ -123,6 +181,7 @@ def load_scenario(scenario: str | Path, overrides: Overrides = None) -> Scenario
     return load(_path(scenario, "scenario"), _assignments(overrides))[0]
 
 
+@_one_line_arguments
 def run(
     scenario: str | Path,
     overrides: Overrides = None,
@@ -144,8 +203,7 @@ def run(
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.runner import STAGES, Pipeline
 
-    if until not in STAGES:
-        raise UserError(f"until={until!r}: expected one of {', '.join(STAGES)}")
+    until, force, progress = _choice(until, "until", STAGES), _stages(force), _flag(progress, "progress")
     if workers is not None:
         workers = _whole(workers, "workers", 1)
     out = None if out is None else _path(out, "out")
@@ -159,6 +217,7 @@ def run(
         return run_stages(Pipeline(loaded, resolved, folder, force=force, progress=progress, workers=workers), until)
 
 
+@_one_line_arguments
 def unguarded_script() -> str | None:
     """The path of the script being run when the call to this function comes from its top
     level outside an ``if __name__ == "__main__":`` block (spawned workers would run that
@@ -194,6 +253,7 @@ def _is_main_guard(test: ast.expr) -> bool:
         isinstance(s, ast.Constant) and s.value == "__main__" for s in sides)
 
 
+@_one_line_arguments
 def read_results(out: str | Path) -> list[dict[str, Any]]:
     """The result rows of the finished run in folder ``out`` (its results.json): one per
     environment x method x direction, with ``max_f1``, ``auc``, ``recall_at_k``, ...
@@ -208,18 +268,19 @@ def read_results(out: str | Path) -> list[dict[str, Any]]:
     return [{k: v for k, v in row.items() if k != "seed"} for row in validate_run_folder(folder).rows]  # untagged
 
 
+@_one_line_arguments
 def simulate(
     environment: str | Path, kind: str = "foraging", n_samples: int = 200, seed: int = 0, progress: bool = False,
     **run_settings: Any,
 ) -> Run:
     """Simulate one run of the WhiskEye in ``environment`` (a YAML file or a shipped name such
     as ``"e1"``) and return it in memory (``vitaplace.engine.data.dataset.write_run`` saves it).
-    ``kind``: foraging, route or orbit; ``run_settings``: any other run key
+    ``kind``: foraging, teleop, stations, route or orbit; ``run_settings``: any other run key
     of that kind (docs/SCENARIOS.md), e.g. ``lateral_noise=0.05`` or ``gains={"leave_time": 2.0}``. Runs in this process."""
     import pydantic
 
     from vitaplace.engine.base.configfile import format_validation_error
-    from vitaplace.engine.sim.controllers import RunSpec
+    from vitaplace.engine.sim.controllers import RUN_KINDS, RunSpec
     from vitaplace.engine.sim.environment import load_environment
     from vitaplace.engine.sim.simulate import simulate_run
 
@@ -227,14 +288,17 @@ def simulate(
         run: RunSpec
 
     environment, seed = _path(environment, "environment"), _whole(seed, "seed", 0)
+    kind, n_samples = _choice(kind, "kind", list(RUN_KINDS)), _whole(n_samples, "n_samples", 1)
+    progress = _flag(progress, "progress")
     try:
         spec = Settings(run={"kind": kind, "n_samples": n_samples, **run_settings}).run
     except pydantic.ValidationError as exc:
         message = format_validation_error("simulate", exc, Settings)  # keys as the arguments' names
-        raise UserError(message.replace("simulate: run.", "simulate: ", 1).replace("simulate: run:", "simulate: kind:", 1)) from None
+        raise UserError(message.replace("simulate: run.", "vitaplace.simulate(): ", 1)) from None
     return simulate_run(load_environment(environment), spec, seed=seed, progress=progress, name=f"{Path(environment).stem}-{kind}")
 
 
+@_one_line_arguments
 def extractors() -> list[str]:
     """The names of the installed feature extractors (``vitaplace plugins`` lists them too)."""
     from vitaplace.engine.extension.registry import discover
@@ -242,6 +306,7 @@ def extractors() -> list[str]:
     return discover().names()
 
 
+@_one_line_arguments
 def fit_extractor(plugin: str, train: Run, params: Mapping[str, Any] | None = None, progress: bool = False) -> FeatureExtractor:
     """A new extractor of ``plugin`` (e.g. ``"handcrafted"``, ``"mupnet"``) with ``params``
     (the scenario's ``methods.N.params``), fitted on the run ``train``. Its ``transform(run)``
@@ -249,11 +314,13 @@ def fit_extractor(plugin: str, train: Run, params: Mapping[str, Any] | None = No
     from vitaplace.engine.data.dataset import Run
     from vitaplace.engine.extension.registry import discover
 
+    if not isinstance(plugin, str):
+        raise UserError(f"plugin={plugin!r:.80}: expected the name of an extractor, one of {', '.join(extractors())}")
     if not isinstance(train, Run):
         raise UserError(f"train={train!r:.80}: expected a Run (vitaplace.open_run(path) reads a run file)")
     if params is not None and not isinstance(params, Mapping):
         raise UserError(f"params={params!r:.80}: expected a mapping of parameter names to values, or None")
     extractor = discover().create(plugin, params)
-    extractor.progress = progress
+    extractor.progress = _flag(progress, "progress")
     extractor.fit(train)
     return extractor

@@ -1,38 +1,58 @@
-"""Optional experiment tracking: log each finished scenario run to MLflow.
+"""Optional experiment tracking: log each finished scenario run, and each sweep, to MLflow.
 
 Inert unless the environment variable ``VITAPLACE_MLFLOW`` names an MLflow experiment; then
 every finished pipeline (`vitaplace run`, each seed of a sweep, `vitaplace.run`) becomes one
 MLflow run in that experiment, at MLflow's own tracking URI (``MLFLOW_TRACKING_URI``; by
-default MLflow's local store in the working folder). Install the client with
-``pip install "vitaplace[mlflow]"``. Logged (docs/plugins.md, "Experiment tracking"):
+default MLflow's local store in the working folder: ``mlflow.db``, SQLite, for MLflow 3).
+A sweep is one parent run with the seeds' runs nested under it. Install the client with
+``pip install "vitaplace[mlflow]"`` (mlflow-skinny with SQLAlchemy and Alembic, which its
+SQLite store needs). Logged (docs/plugins.md, "Experiment tracking"):
 
 * params: the scenario's name and seed, its evaluation settings (``scoring.tau``, ...)
   and every method's plugin and the parameters the scenario sets
-  (``methods.L.plugin``, ``methods.L.epochs``, ...);
+  (``methods.L.plugin``, ``methods.L.epochs``, ...); a sweep's: the same but ``seeds``;
 * metrics: per results row ``ENVIRONMENT/METHOD/DIRECTION/METRIC`` for `METRICS`;
-* tags: vitaplace's version, git commit and dirty flag (from manifest.json), the last stage;
+* tags: vitaplace's version, git commit and dirty flag (from manifest.json), the last stage,
+  the output folder, and `KEY_TAG`, a digest of what was logged;
 * artifacts: report.md, results.json, results.csv, manifest.json, scenario.resolved.yaml
-  and the figures/ folder, those of them the run wrote.
+  and the figures/ folder, those of them the run wrote; a sweep's parent: `SWEEP_FILES` and
+  the pr-bands-* figures.
 
-The module imports MLflow only when it logs, so it costs nothing when tracking is off.
+A run whose output folder, last stage, results and resolved scenario were logged already
+(a rerun that found every stage cached) is not logged again; a rerun of the same sweep
+(same folder, scenario and seeds) reuses its parent run. The module imports MLflow only
+when it logs, so it costs nothing when tracking is off.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
-from collections.abc import Mapping
+import time
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from vitaplace.engine import __version__
 from vitaplace.plugin import hookimpl
 
 #: the environment variable that turns tracking on: the MLflow experiment's name
 EXPERIMENT_ENV = "VITAPLACE_MLFLOW"
+#: set by a sweep's driver for its seeds: the MLflow run id of the sweep's parent run
+PARENT_ENV = "VITAPLACE_MLFLOW_PARENT"
 #: the per-row numbers logged as metrics
 METRICS = ("max_f1", "auc", "precision_at_max_f1", "recall_at_max_f1", "recall_at_100_precision")
 ARTIFACTS = ("report.md", "results.json", "results.csv", "manifest.json", "scenario.resolved.yaml")
+#: a sweep's summary files, logged to its parent run
+SWEEP_FILES = ("sweep.json", "sweep.csv", "sweep-seeds.csv", "sweep-diff.csv", "sweep.md", "sweep.tex")
+#: the tag holding the digest of what a run logged (`run_key`, `sweep_key`); a later run with the same digest is skipped
+KEY_TAG = "vitaplace.key"
+#: the parent run's tag: the digest of the sweep.json it logged last
+SUMMARY_TAG = "vitaplace.summary"
+#: MLflow's tag that nests a run under its parent
+PARENT_TAG = "mlflow.parentRunId"
 
 log = logging.getLogger("vitaplace")
 
@@ -60,33 +80,155 @@ def run_metrics(rows: list[dict[str, Any]]) -> dict[str, float]:
     }
 
 
-@hookimpl
-def vitaplace_run_finished(out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
-    """Log the finished run to the MLflow experiment named by ``VITAPLACE_MLFLOW`` (if set)."""
-    experiment = os.environ.get(EXPERIMENT_ENV)
-    if not experiment:
-        return
+def _digest(parts: Iterable[str | bytes]) -> str:
+    """SHA-256 of ``parts``, each length-prefixed (so no two lists of parts share a digest)."""
+    sha = hashlib.sha256()
+    for part in parts:
+        data = part.encode() if isinstance(part, str) else part
+        sha.update(f"{len(data)}:".encode() + data)
+    return sha.hexdigest()
+
+
+def run_key(out: Path, stage: str) -> str:
+    """What identifies a logged run: its folder, last stage, and the bytes of its results.json
+    and scenario.resolved.yaml (a rerun that recomputed nothing has the same key)."""
+    files = [(out / name).read_bytes() if (out / name).is_file() else b"" for name in ("results.json", "scenario.resolved.yaml")]
+    return _digest([str(out.resolve()), stage, *files])
+
+
+def sweep_key(out: Path, scenario: Any, seeds: list[int]) -> str:
+    """What identifies a sweep's parent run: its folder, its resolved scenario and its seeds."""
+    return _digest([str(Path(out).resolve()), scenario.model_dump_json(), json.dumps(sorted(seeds))])
+
+
+def _client() -> tuple[Any, Any] | None:
+    """MLflow's module and a client at its tracking URI, or None (one warning) when MLflow is not installed."""
     try:
         import mlflow
+        from mlflow.tracking import MlflowClient
     except ImportError:
-        log.warning("%s=%s but MLflow is not installed (pip install \"vitaplace[mlflow]\"): run not logged",
-                    EXPERIMENT_ENV, experiment)
-        return
-    out = Path(out)
+        log.warning("%s=%s but MLflow is not installed (pip install \"vitaplace[mlflow]\"): not logged",
+                    EXPERIMENT_ENV, os.environ.get(EXPERIMENT_ENV))
+        return None
+    return mlflow, MlflowClient()
+
+
+def _experiment_id(client: Any, name: str) -> str:
+    """The id of experiment ``name``, created when missing (by whichever seed gets there first)."""
+    found = client.get_experiment_by_name(name)
+    if found is not None:
+        return found.experiment_id
+    try:
+        return client.create_experiment(name)
+    except Exception:  # noqa: BLE001 - another process created it meanwhile
+        found = client.get_experiment_by_name(name)
+        if found is None:
+            raise
+        return found.experiment_id
+
+
+def _logged(client: Any, experiment_id: str, key: str) -> Any | None:
+    """The run of ``experiment_id`` tagged with ``key`` (`KEY_TAG`), or None."""
+    runs = client.search_runs([experiment_id], filter_string=f"tags.`{KEY_TAG}` = '{key}'", max_results=1)
+    return runs[0] if runs else None
+
+
+def _log_params(client: Any, run_id: str, params: Mapping[str, str]) -> None:
+    from mlflow.entities import Param
+
+    items = [Param(k, v) for k, v in params.items()]
+    for start in range(0, len(items), 100):  # MLflow takes at most 100 params per batch
+        client.log_batch(run_id, params=items[start:start + 100])
+
+
+def _manifest_tags(out: Path, stage: str) -> dict[str, str]:
     manifest_path = out / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
-    tags = {"vitaplace.version": str(manifest.get("vitaplace_version")), "vitaplace.stage": stage,
+    return {"vitaplace.version": str(manifest.get("vitaplace_version")), "vitaplace.stage": stage,
             "git.commit": str(manifest.get("git_commit")), "git.dirty": str(manifest.get("git_dirty")),
             "vitaplace.out": str(out.resolve())}
-    mlflow.set_experiment(experiment)
-    with mlflow.start_run(run_name=f"{scenario.name} seed {scenario.seed}", tags=tags) as active:
-        mlflow.log_params(run_params(scenario))
+
+
+@hookimpl
+def vitaplace_run_finished(out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
+    """Log the finished run to the MLflow experiment named by ``VITAPLACE_MLFLOW`` (if set),
+    nested under the sweep's parent run when `PARENT_ENV` is set; not again if logged already."""
+    experiment = os.environ.get(EXPERIMENT_ENV)
+    if not experiment or (found := _client()) is None:
+        return
+    mlflow, client = found
+    from mlflow.entities import Metric
+
+    out, experiment_id = Path(out), _experiment_id(client, experiment)
+    key = run_key(out, stage)
+    earlier = _logged(client, experiment_id, key)
+    if earlier is not None:
+        log.info("MLflow: %s is logged already (experiment %s, run %s): not logged again", out, experiment, earlier.info.run_id)
+        return
+    tags = {**_manifest_tags(out, stage), KEY_TAG: key}
+    if os.environ.get(PARENT_ENV):
+        tags[PARENT_TAG] = os.environ[PARENT_ENV]
+    run_id = client.create_run(experiment_id, run_name=f"{scenario.name} seed {scenario.seed}", tags=tags).info.run_id
+    try:
+        _log_params(client, run_id, run_params(scenario))
         metrics = run_metrics(rows)
         if metrics:
-            mlflow.log_metrics(metrics)
+            now = int(time.time() * 1000)
+            client.log_batch(run_id, metrics=[Metric(k, v, now, 0) for k, v in metrics.items()])
         for name in ARTIFACTS:
             if (out / name).is_file():
-                mlflow.log_artifact(str(out / name))
+                client.log_artifact(run_id, str(out / name))
         if (out / "figures").is_dir():
-            mlflow.log_artifacts(str(out / "figures"), artifact_path="figures")
-    log.info("logged to MLflow: experiment %s, run %s", experiment, active.info.run_id)
+            client.log_artifacts(run_id, str(out / "figures"), artifact_path="figures")
+    except BaseException:
+        client.set_terminated(run_id, "FAILED")
+        raise
+    client.set_terminated(run_id, "FINISHED")
+    log.info("logged to MLflow: experiment %s, run %s (%s)", experiment, run_id, mlflow.get_tracking_uri())
+
+
+@hookimpl
+def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[str, str] | None:
+    """Open (or, for a rerun of the same sweep, find) the sweep's parent run; the variables
+    every seed needs to log into it: the experiment, MLflow's settings (the tracking URI
+    resolved here, so a Ray worker in another folder logs into the same store) and the parent."""
+    experiment = os.environ.get(EXPERIMENT_ENV)
+    if not experiment or (found := _client()) is None:
+        return None
+    mlflow, client = found
+    experiment_id, key = _experiment_id(client, experiment), sweep_key(out, scenario, seeds)
+    parent = _logged(client, experiment_id, key)
+    if parent is None:
+        tags = {"vitaplace.version": __version__, "vitaplace.stage": "sweep", "vitaplace.out": str(Path(out).resolve()),
+                KEY_TAG: key}
+        name = f"{scenario.name} sweep, seeds {' '.join(map(str, seeds))}"
+        parent = client.create_run(experiment_id, run_name=name, tags=tags)
+        params = {k: v for k, v in run_params(scenario).items() if k != "seed"}
+        _log_params(client, parent.info.run_id, {**params, "seeds": json.dumps(list(seeds))})
+    env = {k: v for k, v in os.environ.items() if k.startswith("MLFLOW_")}
+    return {**env, "MLFLOW_TRACKING_URI": mlflow.get_tracking_uri(), EXPERIMENT_ENV: experiment,
+            PARENT_ENV: parent.info.run_id}
+
+
+@hookimpl
+def vitaplace_sweep_finished(out: Path, scenario: Any, seeds: list[int], failed: dict[int, str],
+                             environment: dict[str, str]) -> None:
+    """Log the sweep's summary files and PR bands to its parent run (not again when its
+    sweep.json is the one logged last) and end the run: FAILED when a seed failed."""
+    parent = environment.get(PARENT_ENV)
+    if not parent or (found := _client()) is None:
+        return
+    _, client = found
+    out = Path(out)
+    summary = _digest([(out / "sweep.json").read_bytes()]) if (out / "sweep.json").is_file() else ""
+    client.set_terminated(parent, "FAILED" if failed else "FINISHED")
+    if client.get_run(parent).data.tags.get(SUMMARY_TAG) == summary:
+        log.info("MLflow: this sweep's summary is logged already (run %s): not logged again", parent)
+        return
+    for name in SWEEP_FILES:
+        if (out / name).is_file():
+            client.log_artifact(parent, str(out / name))
+    for figure in sorted(out.glob("pr-bands-*")):
+        client.log_artifact(parent, str(figure), artifact_path="pr-bands")
+    client.set_tag(parent, SUMMARY_TAG, summary)
+    log.info("logged the sweep to MLflow: run %s, %d seed(s)%s", parent, len(seeds), f", {len(failed)} failed" if failed else "")

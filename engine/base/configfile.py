@@ -10,8 +10,8 @@
 from __future__ import annotations
 
 import copy
-import difflib
 import logging
+import re
 import types
 import typing
 from collections.abc import Callable, Mapping
@@ -22,7 +22,7 @@ import pydantic
 import yaml
 
 from vitaplace.engine.base.shipped import shipped_file
-from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.base.errors import UserError, did_you_mean
 
 log = logging.getLogger("vitaplace")
 
@@ -228,6 +228,17 @@ def show_key(part: Any) -> str:
     return text if text.isprintable() else _quote(text)
 
 
+def _tag_problem(key: str, err: Mapping[str, Any]) -> tuple[str, str]:
+    """The key path and message of an unknown tag of a discriminated union (``run.kind:
+    'teleport' ...``): the tags it takes and the nearest one, in place of pydantic's wording."""
+    ctx = err.get("ctx", {})
+    discriminator = str(ctx.get("discriminator", "")).strip("'")
+    tags = re.findall(r"'([^']*)'", str(ctx.get("expected_tags", "")))
+    tag = ctx.get("tag", "")
+    key = f"{key}.{discriminator}" if discriminator and key != "(top level)" else discriminator or key
+    return key, f"expected one of {', '.join(tags)}, got {_quote(tag)}{did_you_mean(tag, tags)}"
+
+
 def format_validation_error(path: Path | str, exc: pydantic.ValidationError, model: type[pydantic.BaseModel]) -> str:
     """One line: ``FILE: key.path: message`` for the first problem (suggesting the nearest
     valid key), followed by the key paths of any others."""
@@ -242,12 +253,13 @@ def format_validation_error(path: Path | str, exc: pydantic.ValidationError, mod
         message = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             valid = sorted(parent.model_fields) if parent else []
-            close = difflib.get_close_matches(str(loc[-1]), valid, n=1)
-            message = "unknown key" + (f"; did you mean '{close[0]}'?" if close else "")
+            message = "unknown key" + did_you_mean(loc[-1], valid)
             if valid:
                 message += f" (valid keys: {', '.join(valid)})"
         elif err["type"] == "missing":
             message = "required key is missing"
+        elif err["type"] == "union_tag_invalid":  # e.g. run.kind: teleport
+            key, message = _tag_problem(key, err)
         elif "input" in err and err["type"] not in ("value_error", "assertion_error"):
             message += f" (got {_quote(err['input'])})"
         if not loc and err["type"] == "value_error":

@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import vitaplace.scenarios
+from vitaplace.engine.base.errors import did_you_mean
 
 SCENARIOS_DIR = Path(vitaplace.scenarios.__file__).resolve().parent
 ENVIRONMENTS_DIR = SCENARIOS_DIR / "environments"
@@ -33,3 +34,10 @@ def scenario_names() -> list[str]:
 def environment_files() -> dict[str, Path]:
     """The shipped environments by name (``base*`` files, which only serve ``extends:``, excluded)."""
     return {p.stem: p for p in sorted(ENVIRONMENTS_DIR.glob("*.yaml")) if not p.stem.startswith("base")}
+
+
+def shipped_names_hint(name: str | Path, what: str = "environments") -> str:
+    """``"shipped environments: e1, e2, ...; did you mean 'e2'?"`` (or scenarios): the tail of
+    the one-line error for a file ``name`` that is neither there nor shipped."""
+    names = list(environment_files()) if what == "environments" else scenario_names()
+    return f"shipped {what}: {', '.join(names)}{did_you_mean(Path(name).stem, names)}"

@@ -33,7 +33,7 @@ import time
 import traceback
 import typing
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -393,22 +393,25 @@ def check_ray_cluster(ray: Any, where: str, cpus: float, gpus: float) -> None:
 
 
 def _ray(
-    jobs: Sequence[SeedJob], name: str, address: str, cpus: float, gpus: float
+    jobs: Sequence[SeedJob], name: str, address: str, cpus: float, gpus: float, env: Mapping[str, str] | None = None
 ) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
     """Connect to the cluster and check it (now, before any seed runs), then run ``jobs`` as
     Ray tasks (`_ray_tasks`)."""
     ray, where = connect_ray(address)
     check_ray_cluster(ray, where, cpus, gpus)
-    return _ray_tasks(ray, jobs, name, cpus, gpus)
+    return _ray_tasks(ray, jobs, name, cpus, gpus, env)
 
 
 def _ray_tasks(
-    ray: Any, jobs: Sequence[SeedJob], name: str, cpus: float, gpus: float
+    ray: Any, jobs: Sequence[SeedJob], name: str, cpus: float, gpus: float, env: Mapping[str, str] | None = None
 ) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
-    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>"; yield as each one ends."""
+    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>", with the environment variables
+    ``env`` (the plugins' `vitaplace_sweep_started` asks; a worker has the raylet's environment,
+    not the driver's); yield as each one ends."""
     remote = ray.remote(run_seed)
+    extra = {"runtime_env": {"env_vars": dict(env)}} if env else {}
     pending = {
-        remote.options(name=f"{name} seed {job.seed}", num_cpus=cpus, num_gpus=gpus).remote(job): job for job in jobs
+        remote.options(name=f"{name} seed {job.seed}", num_cpus=cpus, num_gpus=gpus, **extra).remote(job): job for job in jobs
     }
     try:
         while pending:
@@ -453,6 +456,7 @@ def run_sweep(
     from tqdm import tqdm
     from tqdm.contrib.logging import logging_redirect_tqdm
 
+    from vitaplace.engine.extension.registry import announce_sweep_finished, announce_sweep_started, discover
     from vitaplace.engine.report.figures import write_pr_bands
     from vitaplace.engine.study.summary import write_summary
 
@@ -462,12 +466,16 @@ def run_sweep(
     marker = out / f".sweep-marker-{uuid.uuid4().hex}"
     local = not (ray_address or slurm)
     jobs = seed_jobs(scenario, resolved, seeds, out, force, progress and len(seeds) == 1 and local, str(marker))
+    registry = discover()
+    worker_env = announce_sweep_started(registry, out, scenario, list(seeds))  # e.g. a tracker's parent run
+    saved_env = {name: os.environ.get(name) for name in worker_env}
+    os.environ.update(worker_env)  # inherited by the local workers and SLURM's tasks; Ray's get them below
     marker.write_text("")
     outcome = SweepOutcome(out)
     started = time.perf_counter()
     try:
         if ray_address:
-            ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job)
+            ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job, worker_env)
         elif slurm:  # sbatch refusing the array is a UserError here: the marker goes all the same
             ended = run_array(run_seed_reported, jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
         else:
@@ -492,9 +500,15 @@ def run_sweep(
                 log.info("seed %d done on %s (%.0f s into the sweep)", job.seed, result["host"], time.perf_counter() - started)
     finally:
         marker.unlink(missing_ok=True)
+        for name, value in saved_env.items():  # the driver's environment as it was
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
     ok = sorted({row["seed"] for row in outcome.rows})
     info = {"scenario": scenario.name, "seeds": ok, "failed": {str(s): m for s, m in sorted(outcome.failed.items())}}
     folders = {seed: seed_dir(out, seed) for seed in ok}
     outcome.summary = write_summary(out, outcome.rows, f"{scenario.name}: {len(ok)} seed(s)", info, folders)["summary"]
     write_pr_bands(out, folders, outcome.rows)
+    announce_sweep_finished(registry, out, scenario, ok, dict(outcome.failed), worker_env)
     return outcome

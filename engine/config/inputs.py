@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from vitaplace.engine.base.shipped import shipped_names_hint
 from vitaplace.engine.config.scenario import MIN_EVALUATION_SAMPLES, RecordedRuns, Scenario, ScenarioError
 from vitaplace.engine.data.dataset import DatasetError, Run, open_run, recorded_tactile_model
 from vitaplace.engine.outputs.checksum import digest
@@ -30,7 +31,8 @@ def check_runs(path: Path, scenario: Scenario) -> int:
         if entry.environment is None:
             continue
         if not entry.environment.is_file():
-            raise ScenarioError(f"{path}: {where}.environment: no such file {str(entry.environment)!r}")
+            raise ScenarioError(f"{path}: {where}.environment: no such file {str(entry.environment)!r} "
+                                f"({shipped_names_hint(entry.environment)})")
         env = load_environment(entry.environment)
         if entry.run is not None and where != "train":
             _check_station_jitter(path, where, entry.run, scenario)

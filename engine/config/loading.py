@@ -17,7 +17,7 @@ from vitaplace.engine.config.memory import check_memory, physical_memory
 from vitaplace.engine.config.methods import check_methods
 from vitaplace.engine.config.overrides import apply_overrides
 from vitaplace.engine.config.scenario import Scenario, ScenarioError, rename_legacy_keys
-from vitaplace.engine.base.shipped import SCENARIOS_DIR, scenario_names, shipped_file
+from vitaplace.engine.base.shipped import SCENARIOS_DIR, shipped_file, shipped_names_hint
 
 log = logging.getLogger("vitaplace")
 
@@ -29,7 +29,7 @@ def resolve_path(name: str | Path) -> Path:
         return path
     shipped = shipped_file(path, (SCENARIOS_DIR,))
     if shipped is None:
-        raise ScenarioError(f"{name}: no such scenario file (built-in scenarios: {', '.join(scenario_names())})")
+        raise ScenarioError(f"{name}: no such scenario file ({shipped_names_hint(name, 'scenarios')})")
     return shipped
 
 

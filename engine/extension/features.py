@@ -18,7 +18,7 @@ import numpy as np
 import pydantic
 
 from vitaplace.engine.base.atomic import atomic_path
-from vitaplace.engine.base.configfile import show_key
+from vitaplace.engine.base.configfile import format_validation_error
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.base.errors import UserError
 
@@ -63,11 +63,8 @@ class FeatureExtractor(ABC):
         """Parse ``params`` with the extractor's schema; raise one clear error per bad key."""
         try:
             return cls.Params.model_validate(dict(params))
-        except pydantic.ValidationError as exc:
-            problems = "; ".join(
-                f"{'.'.join(show_key(p) for p in err['loc']) or '(params)'}: {err['msg']}" for err in exc.errors()
-            )
-            raise ExtractorParamsError(f"extractor '{cls.name}': {problems}") from None
+        except pydantic.ValidationError as exc:  # unknown keys with the nearest parameter suggested
+            raise ExtractorParamsError(format_validation_error(f"extractor '{cls.name}'", exc, cls.Params)) from None
 
     @classmethod
     def memory_bytes(cls, params: ExtractorParams, train_samples: int) -> tuple[int, str, str]:

@@ -38,3 +38,25 @@ def vitaplace_run_finished(out: Path, scenario: Any, rows: list[dict[str, Any]],
     Called in the process that ran the pipeline (for a sweep: once per seed, in its worker).
     An exception is logged as a warning naming the plugin and does not fail the run.
     """
+
+
+@hookspec
+def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[str, str] | None:
+    """A sweep (`vitaplace sweep`) is about to run ``seeds`` of ``scenario`` into ``out``;
+    called in the driver before any seed starts. Return the environment variables every
+    seed's process needs (e.g. a tracker's parent run), or None. The driver sets them in its
+    own environment while the seeds run, which its local workers and SLURM's tasks inherit,
+    and gives them to each Ray task (its ``runtime_env``). An exception is logged as a warning
+    naming the plugin and does not stop the sweep.
+    """
+
+
+@hookspec
+def vitaplace_sweep_finished(out: Path, scenario: Any, seeds: list[int], failed: dict[int, str],
+                             environment: dict[str, str]) -> None:
+    """A sweep ended: ``out`` holds the summary of ``seeds`` (those that succeeded; sweep.json,
+    sweep.csv, sweep-seeds.csv, sweep-diff.csv, sweep.md, sweep.tex and the pr-bands-*
+    figures); ``failed``: seed -> its one-line failure; ``environment``: the variables the
+    `vitaplace_sweep_started` hooks asked for. Called in the driver; an exception is logged
+    as a warning naming the plugin.
+    """

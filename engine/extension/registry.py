@@ -31,7 +31,7 @@ from typing import Any
 import pluggy
 
 from vitaplace.engine.extension import hookspecs
-from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.base.errors import UserError, did_you_mean
 from vitaplace.engine.extension.features import FeatureExtractor
 
 ONLY_ENV = "VITAPLACE_PLUGINS"
@@ -80,7 +80,7 @@ class Registry:
             return self.extractors[name]
         except KeyError:
             valid = ", ".join(self.names()) or "none installed"
-            raise PluginError(f"unknown feature extractor {name!r}; available: {valid}") from None
+            raise PluginError(f"unknown feature extractor {name!r}; available: {valid}{did_you_mean(name, self.names())}") from None
 
     def create(self, name: str, params: Mapping[str, Any] | None = None) -> FeatureExtractor:
         return self.get(name)(params)
@@ -210,13 +210,37 @@ def plugin_distributions(registry: Registry) -> dict[str, dict[str, str]]:
     return out
 
 
+def _call_each(registry: Registry, hook: str, what: str, **kwargs: Any) -> list[Any]:
+    """Call every plugin's ``hook``; one that raises is reported as a warning naming it and
+    ``what`` it is ("run-finished hook"), and the others still run. Returns their results."""
+    log = logging.getLogger("vitaplace")
+    results = []
+    for impl in getattr(registry.manager.hook, hook).get_hookimpls():
+        try:
+            results.append(impl.function(**kwargs))
+        except Exception as exc:  # noqa: BLE001 - a tracker's failure must not fail a finished run
+            log.warning("plugin '%s': its %s raised %s: %s", impl.plugin_name, what, type(exc).__name__,
+                        str(exc).splitlines()[0] if str(exc) else "")
+    return results
+
+
 def announce_run_finished(registry: Registry, out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
     """Call every plugin's `vitaplace_run_finished` hook; one that raises is reported as a
     warning naming it (the run's outputs are written already) and the others still run."""
-    log = logging.getLogger("vitaplace")
-    for impl in registry.manager.hook.vitaplace_run_finished.get_hookimpls():
-        try:
-            impl.function(out=out, scenario=scenario, rows=rows, stage=stage)
-        except Exception as exc:  # noqa: BLE001 - a tracker's failure must not fail a finished run
-            log.warning("plugin '%s': its run-finished hook raised %s: %s", impl.plugin_name, type(exc).__name__,
-                        str(exc).splitlines()[0] if str(exc) else "")
+    _call_each(registry, "vitaplace_run_finished", "run-finished hook", out=out, scenario=scenario, rows=rows, stage=stage)
+
+
+def announce_sweep_started(registry: Registry, out: Path, scenario: Any, seeds: list[int]) -> dict[str, str]:
+    """Call every plugin's `vitaplace_sweep_started` hook; the environment variables they ask
+    the seeds' processes to have, merged (text only)."""
+    environment: dict[str, str] = {}
+    for asked in _call_each(registry, "vitaplace_sweep_started", "sweep-started hook", out=out, scenario=scenario, seeds=seeds):
+        environment.update({str(k): str(v) for k, v in (asked or {}).items()})
+    return environment
+
+
+def announce_sweep_finished(registry: Registry, out: Path, scenario: Any, seeds: list[int], failed: dict[int, str],
+                            environment: dict[str, str]) -> None:
+    """Call every plugin's `vitaplace_sweep_finished` hook (one that raises: a warning)."""
+    _call_each(registry, "vitaplace_sweep_finished", "sweep-finished hook", out=out, scenario=scenario, seeds=seeds,
+               failed=failed, environment=environment)

@@ -25,7 +25,7 @@ import pydantic
 from pydantic import BaseModel, ConfigDict, Field
 
 from vitaplace.engine.base.configfile import ConfigError, format_validation_error, load_yaml
-from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file
+from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file, shipped_names_hint
 from vitaplace.engine.sim.clearance import route_collision
 
 __all__ = [
@@ -575,6 +575,8 @@ def load_environment(path: str | Path) -> EnvironmentSpec:
     p = Path(path)
     if not p.suffix and not p.exists():
         p = shipped_file(p.name, (ENVIRONMENTS_DIR,)) or p
+    if not p.exists():
+        raise EnvironmentSpecError(f"{path}: no such environment file ({shipped_names_hint(path)})")
     p = p.resolve()
     data = load_yaml(p, EnvironmentSpecError, _localise_textures)
     data.setdefault("name", p.stem)

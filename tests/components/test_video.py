@@ -1,10 +1,16 @@
 """Looking at the robot: `vitaplace video RUN.h5` animates a run; `vitaplace view ENV` says in one
-line when there is no display, and puts the robot where the environment starts."""
+line when there is no display, puts the robot where the environment starts, opens framed on it
+with the arena on screen, and quits with exit 0 on Ctrl-C or when its window closes (under
+Xvfb when it is installed)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
+import shutil
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -159,3 +165,177 @@ def test_the_viewer_shows_the_robot_at_the_environments_start():
     x, y, yaw_deg = env.start
     np.testing.assert_allclose(sim.pose(data), [x, y, math.radians(yaw_deg)], atol=1e-9)
     assert sim.model.ngeom > 24 and (sim.whisker_of_geom >= 0).sum() >= 24  # the world and the whiskered robot
+
+
+def _scene_camera(sim, data, camera):
+    """MuJoCo's own frame for ``camera``: position, forward, up and right (the two eyes averaged)."""
+    import mujoco
+
+    scene = mujoco.MjvScene(sim.model, 2000)
+    mujoco.mjv_updateScene(sim.model, data, mujoco.MjvOption(), None, camera, mujoco.mjtCatBit.mjCAT_ALL, scene)
+    pos = (scene.camera[0].pos + scene.camera[1].pos) / 2
+    forward, up = np.array(scene.camera[0].forward), np.array(scene.camera[0].up)
+    return pos, forward, up, np.cross(forward, up)
+
+
+@pytest.mark.parametrize("name,arena,start", [
+    ("e1", None, None),
+    ("e3", None, None),
+    ("e1", {"width": 9.0, "depth": 3.0}, (3.9, -1.2, 135.0)),  # a long arena, the robot near a corner
+])
+def test_the_viewer_opens_looking_at_the_robot_with_every_corner_of_the_arena_on_screen(name, arena, start):
+    import mujoco
+
+    from vitaplace.engine.sim.environment import load_environment
+    from vitaplace.engine.sim.viewer import VIEW_ELEVATION_DEG, _frame, viewer_scene
+
+    env = load_environment(name)
+    if arena is not None:
+        env = env.model_copy(update={"arena": env.arena.model_copy(update=arena), "start": start,
+                                     "landmarks": [], "route": []})
+    sim, data = viewer_scene(env)
+    camera = mujoco.MjvCamera()
+    _frame(camera, env, sim, data)
+    pos, forward, up, right = _scene_camera(sim, data, camera)
+    x, y, yaw_deg = env.start
+    # on the camera's axis: the robot, seen from behind (its heading is the view's azimuth) and from above
+    to_robot = np.array([x, y, 0.245]) - pos
+    np.testing.assert_allclose(np.cross(to_robot / np.linalg.norm(to_robot), forward), 0, atol=1e-5)
+    np.testing.assert_allclose(forward[:2] / np.linalg.norm(forward[:2]),
+                               [math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))], atol=1e-6)
+    assert math.degrees(math.asin(-forward[2])) == pytest.approx(-VIEW_ELEVATION_DEG, abs=1e-4)
+    # every corner of the walls (outside, floor and top) within the vertical half-angle on both axes
+    hx, hy = env.arena.half_x + env.arena.wall_thickness, env.arena.half_y + env.arena.wall_thickness
+    tan_half = math.tan(math.radians(sim.model.vis.global_.fovy) / 2)
+    ratios = []
+    for cx in (-hx, hx):
+        for cy in (-hy, hy):
+            for cz in (0.0, env.arena.wall_height):
+                v = np.array([cx, cy, cz]) - pos
+                depth = v @ forward
+                ratios.append(max(abs(v @ right), abs(v @ up)) / depth / tan_half)
+    assert max(ratios) <= 1 + 1e-6  # all on screen ...
+    assert max(ratios) >= 0.999  # ... from no further away than that needs
+
+
+def _xvfb_display():
+    """Start Xvfb on a free display; (process, ":N")."""
+    import subprocess
+
+    read, write = os.pipe()
+    xvfb = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1280x800x24", "-nolisten", "tcp"],
+                            pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write)
+    with os.fdopen(read) as pipe:
+        number = pipe.readline().strip()
+    if not number:
+        xvfb.kill()
+        pytest.skip("Xvfb did not start")
+    return xvfb, f":{number}"
+
+
+@pytest.mark.skipif(shutil.which("Xvfb") is None, reason="needs Xvfb (apt-get install xvfb)")
+def test_the_viewer_opens_on_xvfb_and_ctrl_c_quits_it_with_exit_0_within_seconds():
+    """Ctrl-C (SIGINT) is the quit sent: it made the viewer segfault (exit 139) or hang while
+    GLFW had been started in the process before the viewer's own thread started it again."""
+    import selectors
+    import signal
+    import subprocess
+    import sys
+
+    xvfb, display = _xvfb_display()
+    env = {**os.environ, "DISPLAY": display}
+    env.pop("WAYLAND_DISPLAY", None)
+    try:
+        with subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli.main", "view", "e1"], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) as viewer:
+            try:
+                said, deadline = "", time.monotonic() + 120
+                with selectors.DefaultSelector() as sel:
+                    sel.register(viewer.stderr, selectors.EVENT_READ)
+                    while "is open" not in said and viewer.poll() is None and time.monotonic() < deadline:
+                        if sel.select(timeout=1.0):
+                            said += viewer.stderr.readline()
+                assert "is open" in said, f"the viewer did not open: {said!r} (exit {viewer.poll()})"
+                time.sleep(1.0)  # a few frames drawn
+                viewer.send_signal(signal.SIGINT)
+                sent = time.monotonic()
+                rc = viewer.wait(timeout=15)
+                quit_s = time.monotonic() - sent
+                err = viewer.stderr.read()
+            finally:
+                if viewer.poll() is None:
+                    viewer.kill()
+        assert rc == 0, f"exit {rc}: {err}"
+        assert quit_s < 10 and "Traceback" not in err and "interrupted" not in err
+    finally:
+        xvfb.terminate()
+        xvfb.wait()
+
+
+def test_view_on_a_display_with_no_x_server_is_one_line_without_glfws_warnings(monkeypatch, capfd):
+    """GLFW's own two-line warning came before the refusal; its reason is now in the line."""
+    monkeypatch.setenv("DISPLAY", ":4917")  # no X server answers there
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    assert main(["view", "e1"]) == 2
+    captured = capfd.readouterr()  # the file descriptors: a child process's output too
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("vitaplace: error: vitaplace view cannot open a window on :4917")
+    assert "(GLFW failed to start: " in err[0] and "vitaplace video" in err[0] and captured.out == ""
+
+
+class _FakeViewer:
+    """`mujoco.viewer.launch_passive` stand-in: a window thread that, like MuJoCo's, is a daemon
+    and takes a while to finish once asked to close; ``interrupt_at`` raises Ctrl-C in a sync."""
+
+    def __init__(self, frames: int, interrupt_at: int | None = None):
+        import mujoco
+
+        self.frames, self.interrupt_at, self.synced = frames, interrupt_at, 0
+        self.closing, self.window_gone = threading.Event(), threading.Event()
+        self.cam, self.opt = mujoco.MjvCamera(), mujoco.MjvOption()
+        self._thread = threading.Thread(target=self._window, daemon=True)
+
+    def _window(self):
+        self.closing.wait()
+        time.sleep(0.3)  # tearing down the window and GL context
+        self.window_gone.set()
+
+    def launch_passive(self, model, data):
+        self._thread.start()
+        return self
+
+    def lock(self):
+        return contextlib.nullcontext()
+
+    def is_running(self):
+        return not self.closing.is_set() and self.synced < self.frames
+
+    def sync(self):
+        self.synced += 1
+        if self.synced == self.interrupt_at:
+            raise KeyboardInterrupt
+
+    def close(self):
+        self.closing.set()
+
+
+@pytest.mark.parametrize("interrupt_at", [None, 3])
+def test_view_returns_only_once_the_viewers_window_thread_has_finished(monkeypatch, interrupt_at):
+    """Closing the window, or Ctrl-C (then `view` returns normally: exit 0), asks the viewer to
+    close and waits for its thread: a daemon thread left drawing while the interpreter shut
+    down made `vitaplace view` exit 139."""
+    import mujoco.viewer
+
+    from vitaplace.engine.sim import viewer
+
+    fake = _FakeViewer(frames=5, interrupt_at=interrupt_at)
+    monkeypatch.setattr(viewer, "require_display", lambda: None)
+    monkeypatch.setattr(mujoco.viewer, "launch_passive", fake.launch_passive)
+    try:
+        viewer.view("e1")
+    except KeyboardInterrupt:
+        pytest.fail("Ctrl-C went past `view` (the command then says 'interrupted' and exits 130)")
+    assert fake.closing.is_set() and fake.window_gone.is_set()
+    assert fake.synced == (interrupt_at or 5)

@@ -1,5 +1,7 @@
 """The Python API: `import vitaplace` has a version, docs/API.md's example runs as written,
-and a script without a `__main__` guard still runs (in one process) instead of breaking the pool."""
+a script without a `__main__` guard still runs (in one process) instead of breaking the pool,
+and every public function's bad arguments are one-line `UserError`s naming the argument and
+what was expected, with the nearest valid name for a misspelt one."""
 
 from __future__ import annotations
 
@@ -121,34 +123,132 @@ def test_numpy_values_and_paths_in_overrides_are_their_plain_values():
     assert (scenario.seed, scenario.scoring.recall_k, scenario.name) == (7, [1, 5], "named")
 
 
+def _tiny_run():
+    return vitaplace.simulate("e1", n_samples=3)
+
+
+#: function -> {case: (call, the one line it raises, as a regular expression)}; every public
+#: function of the API has its cases (`test_every_public_function_has_one_line_errors`)
 BAD_CALLS = {
-    "a set value": (lambda: vitaplace.load_scenario("quickstart", {"scoring.recall_k": {1, 5}}),
-                    r"overrides\['scoring\.recall_k'\]: set values have no YAML form"),
-    "an object value": (lambda: vitaplace.load_scenario("quickstart", {"seed": object()}),
-                        r"overrides\['seed'\]: object values have no YAML form"),
-    "overrides a number": (lambda: vitaplace.load_scenario("quickstart", 5), r"overrides: 5: expected a mapping"),
-    "overrides a list of numbers": (lambda: vitaplace.run("quickstart", [1, 2]), r"overrides: \[1, 2\]: expected"),
-    "a key that is not text": (lambda: vitaplace.load_scenario("quickstart", {1: 2}), r"overrides: keys \[1\]"),
-    "workers as text": (lambda: vitaplace.run("quickstart", workers="2"), r"workers='2': expected a whole number >= 1"),
-    "no workers": (lambda: vitaplace.run("quickstart", workers=0), r"workers=0: expected a whole number >= 1"),
-    "a scenario that is no path": (lambda: vitaplace.load_scenario(5), r"scenario=5: expected a path"),
-    "run's scenario no path": (lambda: vitaplace.run(["quickstart"]), r"scenario=\['quickstart'\]: expected a path"),
-    "out no path": (lambda: vitaplace.read_results(3), r"out=3: expected a path"),
-    "an unknown kind": (lambda: vitaplace.simulate("e1", kind="flying"), r"simulate: kind: Input tag 'flying' found using 'kind' does not match any of the expected tags: 'foraging', 'teleop', 'stations', 'route', 'orbit'"),
-    "samples as text": (lambda: vitaplace.simulate("e1", n_samples="many"), r"simulate: n_samples: "),
-    "an unknown run setting": (lambda: vitaplace.simulate("e1", wobble=3), r"simulate: wobble: unknown key"),
-    "a negative seed": (lambda: vitaplace.simulate("e1", seed=-1), r"seed=-1: expected a whole number >= 0"),
-    "an environment that is no path": (lambda: vitaplace.simulate(3), r"environment=3: expected a path"),
-    "fit on a path": (lambda: vitaplace.fit_extractor("handcrafted", "runs/train.h5"), r"train='runs/train\.h5': expected a Run"),
+    "load_scenario": {
+        "a set value": (lambda: vitaplace.load_scenario("quickstart", {"scoring.recall_k": {1, 5}}),
+                        r"overrides\['scoring\.recall_k'\]: set values have no YAML form"),
+        "an object value": (lambda: vitaplace.load_scenario("quickstart", {"seed": object()}),
+                            r"overrides\['seed'\]: object values have no YAML form"),
+        "overrides a number": (lambda: vitaplace.load_scenario("quickstart", 5), r"overrides: 5: expected a mapping"),
+        "a key that is not text": (lambda: vitaplace.load_scenario("quickstart", {1: 2}), r"overrides: keys \[1\]"),
+        "a scenario that is no path": (lambda: vitaplace.load_scenario(5), r"scenario=5: expected a path"),
+        "a misspelt scenario": (lambda: vitaplace.load_scenario("quickstrat"),
+                                r"^quickstrat: no such scenario file \(shipped scenarios: .*paper, .*quickstart.*; "
+                                r"did you mean 'quickstart'\?\)$"),
+        "a misspelt scenario key": (lambda: vitaplace.load_scenario("quickstart", {"scoring.tua": 0.3}),
+                                    r"quickstart\.yaml: scoring\.tua: unknown key; did you mean 'tau'\? \(valid keys: .*\)$"),
+        "a misspelt run kind": (lambda: vitaplace.load_scenario("quickstart", {"train.run.kind": "foragin"}),
+                                r"quickstart\.yaml: train\.run\.kind: expected one of foraging, teleop, stations, route, "
+                                r"orbit, got 'foragin'; did you mean 'foraging'\?$"),
+        "a misspelt plugin parameter": (lambda: vitaplace.load_scenario("quickstart", {"methods.0.params.epoch": 3}),
+                                        r"quickstart\.yaml: methods\.0\.params: extractor 'mupnet': epoch: unknown key; "
+                                        r"did you mean 'epochs'\? \(valid keys: .*\bepochs\b.*\)$"),
+        "a misspelt plugin": (lambda: vitaplace.load_scenario("quickstart", {"methods.0.plugin": "mupent"}),
+                              r"methods\.0\.plugin: unknown feature extractor 'mupent'; available: .*; did you mean 'mupnet'\?$"),
+        "a misspelt world": (lambda: vitaplace.load_scenario("quickstart", {"train.environment": "e22"}),
+                             r"train\.environment: no such file .*e22.* \(shipped environments: .*\be1\b.*\be3\b.*; "
+                             r"did you mean 'e2'\?\)$"),
+        "a misspelt keyword": (lambda: vitaplace.load_scenario("quickstart", overides={}),
+                               r"^vitaplace\.load_scenario\(\): unknown argument 'overides'; did you mean 'overrides'\? "
+                               r"\(its arguments: scenario, overrides\)$"),
+    },
+    "run": {
+        "overrides a list of numbers": (lambda: vitaplace.run("quickstart", [1, 2]), r"overrides: \[1, 2\]: expected"),
+        "workers as text": (lambda: vitaplace.run("quickstart", workers="2"), r"workers='2': expected a whole number >= 1"),
+        "no workers": (lambda: vitaplace.run("quickstart", workers=0), r"workers=0: expected a whole number >= 1"),
+        "run's scenario no path": (lambda: vitaplace.run(["quickstart"]), r"scenario=\['quickstart'\]: expected a path"),
+        "a misspelt until": (lambda: vitaplace.run("quickstart", until="evalute"),
+                             r"^until='evalute': expected one of simulate, fit, transform, evaluate, report; "
+                             r"did you mean 'evaluate'\?$"),
+        "a misspelt stage to force": (lambda: vitaplace.run("quickstart", force=["fit", "simlate"]),
+                                      r"^force=\['fit', 'simlate'\]: 'simlate' is not a stage; expected some of simulate, "
+                                      r"fit, transform, evaluate, report; did you mean 'simulate'\?$"),
+        "force a number": (lambda: vitaplace.run("quickstart", force=3), r"^force=3: expected stage names"),
+        "progress as text": (lambda: vitaplace.run("quickstart", progress="yes"), r"^progress='yes': expected True or False$"),
+        "a misspelt keyword": (lambda: vitaplace.run("quickstart", unitl="evaluate"),
+                               r"^vitaplace\.run\(\): unknown argument 'unitl'; did you mean 'until'\? \(its arguments: "
+                               r"scenario, overrides, out, until, force, progress, workers\)$"),
+        "no scenario": (lambda: vitaplace.run(), r"^vitaplace\.run\(\): missing a required argument: 'scenario'"),
+    },
+    "read_results": {
+        "out no path": (lambda: vitaplace.read_results(3), r"out=3: expected a path"),
+        "a misspelt keyword": (lambda: vitaplace.read_results(folder="runs/q"),
+                               r"^vitaplace\.read_results\(\): unknown argument 'folder' \(its arguments: out\)$"),
+    },
+    "simulate": {
+        "an unknown kind": (lambda: vitaplace.simulate("e1", kind="teleport"),
+                            r"^kind='teleport': expected one of foraging, teleop, stations, route, orbit; did you mean 'teleop'\?$"),
+        "no samples": (lambda: vitaplace.simulate("e1", n_samples=0), r"^n_samples=0: expected a whole number >= 1$"),
+        "samples as text": (lambda: vitaplace.simulate("e1", n_samples="many"), r"^n_samples='many': expected a whole number >= 1$"),
+        "an unknown run setting": (lambda: vitaplace.simulate("e1", wobble=3),
+                                   r"^vitaplace\.simulate\(\): wobble: unknown key \(valid keys: .*\bspeed\b.*\)$"),
+        "a misspelt run setting": (lambda: vitaplace.simulate("e1", kind="route", lateral_nosie=0.1),
+                                   r"^vitaplace\.simulate\(\): lateral_nosie: unknown key; did you mean 'lateral_noise'\?"),
+        "a negative seed": (lambda: vitaplace.simulate("e1", seed=-1), r"seed=-1: expected a whole number >= 0"),
+        "an environment that is no path": (lambda: vitaplace.simulate(3), r"environment=3: expected a path"),
+        "an unknown world": (lambda: vitaplace.simulate("e9", n_samples=2),
+                             r"^e9: no such environment file \(shipped environments: .*\be1\b.*\be2\b.*\be3\b[^;]*\)$"),
+        "a misspelt world": (lambda: vitaplace.simulate("e2x", n_samples=2),
+                             r"^e2x: no such environment file \(shipped environments: .*; did you mean 'e2'\?\)$"),
+        "progress as a number": (lambda: vitaplace.simulate("e1", progress=2), r"^progress=2: expected True or False$"),
+        "too many arguments": (lambda: vitaplace.simulate("e1", "route", 3, 0, False, 7),
+                               r"^vitaplace\.simulate\(\): too many positional arguments \(its arguments: environment, kind, "
+                               r"n_samples, seed, progress, \*\*run_settings\)$"),
+    },
+    "extractors": {
+        "an argument": (lambda: vitaplace.extractors("mupnet"),
+                        r"^vitaplace\.extractors\(\): too many positional arguments \(its arguments: none\)$"),
+    },
+    "fit_extractor": {
+        "fit on a path": (lambda: vitaplace.fit_extractor("handcrafted", "runs/train.h5"), r"train='runs/train\.h5': expected a Run"),
+        "a plugin that is no name": (lambda: vitaplace.fit_extractor(3, None), r"^plugin=3: expected the name of an extractor, one of .*handcrafted"),
+        "a misspelt plugin": (lambda: vitaplace.fit_extractor("handcraftd", _tiny_run()),
+                              r"^unknown feature extractor 'handcraftd'; available: .*; did you mean 'handcrafted'\?$"),
+        "a misspelt plugin parameter": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), {"gird": [4, 8]}),
+                                        r"^extractor 'handcrafted': gird: unknown key; did you mean 'grid'\? \(valid keys: .*\bgrid\b.*\)$"),
+        "params a list": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), [4, 8]), r"^params=\[4, 8\]: expected a mapping"),
+        "a misspelt keyword": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), progres=True),
+                               r"^vitaplace\.fit_extractor\(\): unknown argument 'progres'; did you mean 'progress'\?"),
+    },
+    "unguarded_script": {
+        "an argument": (lambda: vitaplace.unguarded_script(__file__),
+                        r"^vitaplace\.unguarded_script\(\): too many positional arguments \(its arguments: none\)$"),
+    },
 }
 
 
-@pytest.mark.parametrize("case", sorted(BAD_CALLS))
-def test_bad_arguments_are_one_line_user_errors(case):
-    call, message = BAD_CALLS[case]
+@pytest.mark.parametrize("function,case", [(f, c) for f in BAD_CALLS for c in sorted(BAD_CALLS[f])])
+def test_bad_arguments_are_one_line_user_errors(function, case):
+    call, message = BAD_CALLS[function][case]
     with pytest.raises(vitaplace.UserError, match=message) as info:
         call()
     assert "\n" not in str(info.value)
+
+
+def test_every_public_function_has_one_line_errors():
+    functions = {name for name in vitaplace.__all__ if callable(getattr(vitaplace, name))
+                 and getattr(getattr(vitaplace, name), "__module__", "") == "vitaplace"}
+    assert functions == set(BAD_CALLS)
+
+
+def test_force_takes_one_stage_name_or_several(finished, tmp_path):
+    """``force="simulate"`` is that stage (not its letters); a forced stage is redone."""
+    import shutil
+
+    scenario, out, _ = finished
+    folder = tmp_path / "run"
+    shutil.copytree(out, folder)
+    runs = sorted((folder / "cache" / "datasets").glob("*.h5"))
+    before = [path.stat().st_mtime_ns for path in runs]
+    assert vitaplace.run(scenario, out=folder, until="simulate", force="simulate", workers=1) == []
+    assert [path.stat().st_mtime_ns for path in runs] != before
+    assert vitaplace.run(scenario, out=folder, until="simulate", force=("simulate",), workers=1) == []
 
 
 def test_overrides_as_a_mapping_or_as_set_strings_mean_the_same():

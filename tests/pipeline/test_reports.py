@@ -8,7 +8,7 @@ import subprocess
 import sys
 from importlib.metadata import version
 from pathlib import Path
-from types import SimpleNamespace
+from types import ModuleType
 
 import numpy as np
 import pytest
@@ -196,87 +196,44 @@ def test_recorded_run_report_and_manifest_end_to_end(tmp_path):
 # --------------------------------------------------------------------------- experiment tracking
 
 
-class FakeMlflow:
-    """Records what the MLflow plugin calls, in the order it calls it."""
+def _fake_mlflow(monkeypatch, client: type) -> list:
+    """``mlflow`` and ``mlflow.tracking`` as stand-in modules whose ``MlflowClient`` is
+    ``client``; returns the list that records each client made."""
+    made: list = []
+    module, tracking = ModuleType("mlflow"), ModuleType("mlflow.tracking")
 
-    def __init__(self) -> None:
-        self.calls: list[tuple] = []
-        self.params: dict = {}
-        self.metrics: dict = {}
-        self.artifacts: list[tuple[str, str | None]] = []
+    def make(*args, **kwargs):
+        made.append((args, kwargs))
+        return client()
 
-    def set_experiment(self, name):
-        self.calls.append(("set_experiment", name))
-
-    def start_run(self, run_name=None, tags=None):
-        self.calls.append(("start_run", run_name, tags))
-        fake = self
-
-        class Active:
-            info = SimpleNamespace(run_id="r1")
-
-            def __enter__(self):
-                return self
-
-            def __exit__(self, *exc):
-                fake.calls.append(("end_run",))
-
-        return Active()
-
-    def log_params(self, params):
-        self.params.update(params)
-
-    def log_metrics(self, metrics):
-        self.metrics.update(metrics)
-
-    def log_artifact(self, path):
-        self.artifacts.append((Path(path).name, None))
-
-    def log_artifacts(self, folder, artifact_path=None):
-        self.artifacts.append((Path(folder).name, artifact_path))
+    tracking.MlflowClient = make
+    module.tracking = tracking
+    monkeypatch.setitem(sys.modules, "mlflow", module)
+    monkeypatch.setitem(sys.modules, "mlflow.tracking", tracking)
+    return made
 
 
-def test_a_finished_run_is_logged_to_mlflow_when_asked(tmp_path, monkeypatch):
-    from vitaplace.engine.cli.main import main
-
-    fake = FakeMlflow()
-    monkeypatch.setitem(sys.modules, "mlflow", fake)
-    monkeypatch.setenv("VITAPLACE_MLFLOW", "vitaplace-test")
-    path, _ = _recorded_scenario(tmp_path)
-    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
-    assert fake.calls[0] == ("set_experiment", "vitaplace-test")
-    assert fake.calls[1][:2] == ("start_run", "recorded seed 0") and fake.calls[-1] == ("end_run",)
-    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
-    assert fake.calls[1][2]["git.commit"] == str(manifest["git_commit"]) and fake.calls[1][2]["vitaplace.stage"] == "report"
-    assert fake.params["seed"] == "0" and fake.params["scoring.tau"] == "0.5"
-    assert fake.params["methods.H.plugin"] == "handcrafted" and fake.params["methods.H.grid"] == "[4, 8]"
-    rows = json.loads((tmp_path / "out" / "results.json").read_text())
-    for row in rows:
-        key = f"E1/H/{row['direction']}"
-        assert fake.metrics[f"{key}/max_f1"] == row["max_f1"] and fake.metrics[f"{key}/auc"] == row["auc"]
-    assert len(fake.metrics) == 5 * len(rows)
-    assert set(fake.artifacts) == {("report.md", None), ("results.json", None), ("results.csv", None),
-                                   ("manifest.json", None), ("scenario.resolved.yaml", None), ("figures", "figures")}
+class _Unreachable:
+    def __init__(self):
+        raise ConnectionError("tracking server down")
 
 
 def test_tracking_is_off_unless_asked_and_never_fails_a_run(tmp_path, monkeypatch, caplog):
+    """What the real client logs is tested in tests/study/test_mlflow.py (with the `mlflow` extra)."""
     from vitaplace.engine.cli.main import main
 
-    fake = FakeMlflow()
-    monkeypatch.setitem(sys.modules, "mlflow", fake)
+    made = _fake_mlflow(monkeypatch, _Unreachable)
     monkeypatch.delenv("VITAPLACE_MLFLOW", raising=False)
     path, _ = _recorded_scenario(tmp_path)
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
-    assert fake.calls == []
+    assert made == []  # never asked for a client
     monkeypatch.setenv("VITAPLACE_MLFLOW", "x")
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
+    assert len(made) == 1
+    assert "plugin 'mlflow (vitaplace)': its run-finished hook raised ConnectionError: tracking server down" in caplog.text
     monkeypatch.setitem(sys.modules, "mlflow", None)  # not installed: import fails
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
-    assert "MLflow is not installed" in caplog.text
-    broken = FakeMlflow()
-    broken.log_params = lambda params: (_ for _ in ()).throw(ConnectionError("tracking server down"))
-    monkeypatch.setitem(sys.modules, "mlflow", broken)
-    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
-    assert "plugin 'mlflow (vitaplace)': its run-finished hook raised ConnectionError: tracking server down" in caplog.text
+    assert 'VITAPLACE_MLFLOW=x but MLflow is not installed (pip install "vitaplace[mlflow]"): not logged' in caplog.text
 
 
 def test_the_difficulty_table_shows_the_touch_pairs_and_older_rows_without_them():

@@ -1,0 +1,171 @@
+"""The MLflow tracker with the real client (the `mlflow` extra: mlflow-skinny, SQLAlchemy,
+Alembic) against a local SQLite store in the test's folder: a run logs its params, metrics
+and artifacts once, a cached rerun adds nothing, a sweep is one parent run with its seeds
+nested under it and its summary and PR bands attached, and the MLflow settings reach the
+seeds on the local pool, on Ray (through the tasks' runtime_env: set in the driver after
+Ray started, so its workers could not inherit them) and on SLURM (submitit's local executor).
+Skipped where the extra is not installed; CI's third step installs it (.ci/run)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+import yaml
+
+pytest.importorskip("mlflow", reason="the MLflow extra is not installed (pip install 'vitaplace[mlflow]')")
+pytest.importorskip("sqlalchemy", reason="MLflow's SQLite store needs SQLAlchemy (pip install 'vitaplace[mlflow]')")
+pytest.importorskip("alembic", reason="MLflow's SQLite store needs Alembic (pip install 'vitaplace[mlflow]')")
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+from mlflow.tracking import MlflowClient  # noqa: E402
+
+from vitaplace.engine.cli.main import main  # noqa: E402
+
+ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
+EXPERIMENT = "vitaplace-test"
+#: what every logged seed run holds (the run wrote all of them: it ran to the report)
+RUN_ARTIFACTS = {"figures", "manifest.json", "report.md", "results.csv", "results.json", "scenario.resolved.yaml"}
+SWEEP_ARTIFACTS = {"pr-bands", "sweep-diff.csv", "sweep-seeds.csv", "sweep.csv", "sweep.json", "sweep.md", "sweep.tex"}
+
+
+def _scenario(folder: Path) -> Path:
+    """A scenario of 5-sample runs and the handcrafted method: a seed takes seconds."""
+    path = folder / "tiny.yaml"
+    path.write_text(yaml.safe_dump({
+        "name": "tiny",
+        "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 5}},
+        "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 5}}],
+        "methods": [{"name": "H", "plugin": "handcrafted", "params": {"grid": [4, 8]}}],
+        "scoring": {"tau": 0.3},
+    }))
+    return path
+
+
+def _store(folder: Path) -> str:
+    return f"sqlite:///{folder / 'mlflow.db'}"
+
+
+def _runs(uri: str) -> list:
+    """Every run of the test's experiment, oldest first."""
+    client = MlflowClient(uri)
+    experiment = client.get_experiment_by_name(EXPERIMENT)
+    runs = client.search_runs([experiment.experiment_id]) if experiment else []
+    return sorted(runs, key=lambda r: r.info.start_time)
+
+
+def _artifacts(uri: str, run) -> set[str]:
+    return {a.path for a in MlflowClient(uri).list_artifacts(run.info.run_id)}
+
+
+@pytest.fixture
+def tracking(tmp_path, monkeypatch) -> str:
+    """This process logs into a SQLite store in ``tmp_path`` (artifacts beside it)."""
+    uri = _store(tmp_path)
+    monkeypatch.chdir(tmp_path)  # MLflow's default artifact root is ./mlruns
+    monkeypatch.setenv("VITAPLACE_MLFLOW", EXPERIMENT)
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", uri)
+    monkeypatch.delenv("VITAPLACE_MLFLOW_PARENT", raising=False)
+    return uri
+
+
+def test_a_run_is_logged_once_and_a_rerun_that_recomputed_nothing_adds_no_run(tmp_path, tracking):
+    path, out = _scenario(tmp_path), tmp_path / "out"
+    assert main(["-q", "run", str(path), "--out", str(out), "--no-progress"]) == 0
+    [run] = _runs(tracking)
+    assert run.info.run_name == "tiny seed 0" and run.info.status == "FINISHED"
+    params = run.data.params
+    assert (params["scenario"], params["seed"], params["scoring.tau"]) == ("tiny", "0", "0.3")
+    assert params["methods.H.plugin"] == "handcrafted" and params["methods.H.grid"] == "[4, 8]"
+    rows = json.loads((out / "results.json").read_text())
+    expected = {f"E1/H/{row['direction']}/{name}": row[name] for row in rows
+                for name in ("max_f1", "auc", "precision_at_max_f1", "recall_at_max_f1", "recall_at_100_precision")}
+    assert run.data.metrics == pytest.approx(expected)
+    manifest = json.loads((out / "manifest.json").read_text())
+    tags = run.data.tags
+    assert tags["git.commit"] == str(manifest["git_commit"]) and tags["vitaplace.stage"] == "report"
+    assert tags["vitaplace.out"] == str(out.resolve()) and "mlflow.parentRunId" not in tags
+    assert _artifacts(tracking, run) == RUN_ARTIFACTS
+    # every stage cached: nothing new to log
+    assert main(["-q", "run", str(path), "--out", str(out), "--no-progress"]) == 0
+    assert [r.info.run_id for r in _runs(tracking)] == [run.info.run_id]
+    # another tau: other results, another run
+    assert main(["-q", "run", str(path), "--out", str(out), "--no-progress", "--set", "scoring.tau=0.4"]) == 0
+    later = _runs(tracking)
+    assert len(later) == 2 and later[1].data.params["scoring.tau"] == "0.4"
+
+
+def _check_sweep(uri: str, out: Path, seeds: list[int]) -> str:
+    """One parent run named for the sweep, FINISHED, with the summary files and PR bands, and
+    one run per seed nested under it with the seed's results; returns the parent's id."""
+    runs = _runs(uri)
+    parents = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert len(parents) == 1 and len(runs) == len(seeds) + 1, [r.info.run_name for r in runs]
+    parent = parents[0]
+    assert parent.info.run_name == f"tiny sweep, seeds {' '.join(map(str, seeds))}" and parent.info.status == "FINISHED"
+    assert parent.data.params["seeds"] == json.dumps(seeds) and "seed" not in parent.data.params
+    assert _artifacts(uri, parent) == SWEEP_ARTIFACTS
+    bands = {a.path for a in MlflowClient(uri).list_artifacts(parent.info.run_id, "pr-bands")}
+    assert bands == {f"pr-bands/{p.name}" for p in out.glob("pr-bands-*")} and bands
+    children = sorted((r for r in runs if r is not parent), key=lambda r: r.data.params["seed"])
+    assert [r.data.tags["mlflow.parentRunId"] for r in children] == [parent.info.run_id] * len(seeds)
+    for seed, child in zip(seeds, children):
+        assert child.info.run_name == f"tiny seed {seed}" and child.data.tags["vitaplace.out"] == str(out / f"seed-{seed}")
+        rows = json.loads((out / f"seed-{seed}" / "results.json").read_text())
+        assert child.data.metrics["E1/H/query-to-reference/max_f1"] == pytest.approx(
+            next(r["max_f1"] for r in rows if r["direction"] == "query-to-reference"))
+    return parent.info.run_id
+
+
+def test_a_sweep_is_one_parent_run_with_its_seeds_nested_and_a_rerun_logs_nothing_new(tmp_path, tracking):
+    path, out = _scenario(tmp_path), tmp_path / "sweep"
+    args = ["-q", "sweep", str(path), "--seeds", "0", "1", "--workers", "2", "--out", str(out), "--no-progress"]
+    assert main(args) == 0
+    parent = _check_sweep(tracking, out, [0, 1])
+    assert "VITAPLACE_MLFLOW_PARENT" not in os.environ  # the driver's environment as it was
+    assert main(args) == 0  # every stage cached: the same three runs
+    assert _check_sweep(tracking, out, [0, 1]) == parent
+
+
+def _driver(args: list[str], folder: Path, prelude: str = "") -> subprocess.CompletedProcess:
+    """The CLI in a fresh process in ``folder``, whose environment has no MLflow settings:
+    ``prelude`` sets them (after starting Ray, for a Ray of its own)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("MLFLOW_", "VITAPLACE_MLFLOW", "RAY_ADDRESS"))}
+    code = f"import os, sys\n{prelude}\nfrom vitaplace.engine.cli.main import main\nsys.exit(main(sys.argv[1:]))"
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=400, env=env, cwd=folder)
+
+
+def _settings(uri: str) -> str:
+    return f"os.environ['VITAPLACE_MLFLOW'] = {EXPERIMENT!r}\nos.environ['MLFLOW_TRACKING_URI'] = {uri!r}\n"
+
+
+def test_on_ray_the_mlflow_settings_reach_the_seeds_through_their_runtime_env(tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install 'vitaplace[ray]')")
+    temp = tempfile.mkdtemp(prefix="vp-ray-", dir="/tmp")
+    prelude = ("import ray, uuid\n"
+               f"ray.init(address='local', num_cpus=2, num_gpus=0, log_to_driver=False, _temp_dir={temp!r}, "
+               "namespace='vitaplace-test-' + uuid.uuid4().hex)\n" + _settings(_store(tmp_path)))
+    out = tmp_path / "sweep"
+    try:
+        result = _driver(["sweep", str(_scenario(tmp_path)), "--seeds", "0", "1", "--out", str(out), "--ray", "auto",
+                          "--no-progress"], tmp_path, prelude)
+    finally:
+        shutil.rmtree(temp, ignore_errors=True)
+    assert result.returncode == 0, result.stderr[-3000:]
+    _check_sweep(_store(tmp_path), out, [0, 1])
+
+
+def test_on_slurm_the_seeds_log_into_the_sweeps_parent_run(tmp_path):
+    pytest.importorskip("submitit", reason="submitit is not installed (pip install 'vitaplace[slurm]')")
+    out = tmp_path / "sweep"
+    result = _driver(["sweep", str(_scenario(tmp_path)), "--seeds", "0", "1", "--out", str(out), "--slurm", "local",
+                      "--time", "10", "--no-progress"], tmp_path, _settings(_store(tmp_path)))
+    assert result.returncode == 0, result.stderr[-3000:]
+    _check_sweep(_store(tmp_path), out, [0, 1])
