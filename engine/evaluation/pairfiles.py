@@ -102,6 +102,15 @@ def load_decisions(path: str | os.PathLike) -> Decisions:
     return _load(Decisions, path)
 
 
+def window_span(reference_poses: np.ndarray, window: int) -> float:
+    """The median length of reference drive (metres, along its path) that the local contrast's
+    window of ``window`` references on either side of a reference covers (cut at the run's ends)."""
+    xy = np.asarray(reference_poses, dtype=float)[:, :2]
+    travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    j = np.arange(len(xy))
+    return float(np.median(travelled[np.minimum(j + window, len(xy) - 1)] - travelled[np.maximum(j - window, 0)]))
+
+
 def evaluate_pair(
     folder: str | os.PathLike,
     tme: np.ndarray,
@@ -125,7 +134,7 @@ def evaluate_pair(
     added. With ``sequence`` (`sequence_scores`' settings) the sequence scores are what is
     scored and saved as ``tme``, the method's own distances as ``distance``, and the summary
     names the settings (``sequence``: length, velocity_min, velocity_max, velocity_steps,
-    window)."""
+    window) and the reference drive the window covers (``window_span_m``, `window_span`)."""
     folder = Path(folder)
     distance, extra = tme, {}
     if sequence is not None:
@@ -136,7 +145,8 @@ def evaluate_pair(
     summary["heading_tolerance_deg"] = heading_tolerance_deg
     if sequence is not None:  # numbers only, as every field of a results row
         (slowest, fastest), rest = sequence["velocities"], {k: v for k, v in sequence.items() if k != "velocities"}
-        summary["sequence"] = {**rest, "velocity_min": slowest, "velocity_max": fastest}
+        summary["sequence"] = {**rest, "velocity_min": slowest, "velocity_max": fastest,
+                               "window_span_m": window_span(reference_poses, int(sequence["window"]))}
     summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
     decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
     export_matrices_npz(folder / MATRICES, tme, gtm, query_poses=query_poses, reference_poses=reference_poses, **extra)

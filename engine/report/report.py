@@ -242,7 +242,7 @@ def _header(manifest: dict[str, Any], description: str, rows: list[dict[str, Any
     if description:
         sections += [description.strip(), ""]
     return sections + [
-        f"Place recognition, single best match per query{_matching(rows[0].get('sequence'))}; a true match is "
+        f"Place recognition, single best match per query{_matching(rows[0].get('sequence'), tau)}; a true match is "
         f"{_true_match(tau, heading)}"
         + (" (position only)" if heading is None else "")
         + ". P and R are at the δ that maximises F1 in each evaluation; F1 at training δ is the F1 at the δ that "
@@ -256,13 +256,28 @@ def _header(manifest: dict[str, Any], description: str, rows: list[dict[str, Any
     ]
 
 
-def _matching(sequence: dict[str, Any] | None) -> str:
+def _matching(sequence: dict[str, Any] | None, tau: float) -> str:
     """How the distances were matched: single samples (nothing to say) or sequences."""
     if sequence is None:
         return ""
     return (f", scored by sequences of {sequence['length']} queries (SeqSLAM: local contrast over "
-            f"±{sequence['window']} references, the best straight line at {sequence['velocity_steps']} relative "
-            f"velocities in [{sequence['velocity_min']:g}, {sequence['velocity_max']:g}])")
+            f"±{sequence['window']} references{_window_caveat(sequence, tau)}, the best straight line at "
+            f"{sequence['velocity_steps']} relative velocities in [{sequence['velocity_min']:g}, "
+            f"{sequence['velocity_max']:g}])")
+
+
+def _window_caveat(sequence: dict[str, Any], tau: float) -> str:
+    """How much reference drive the contrast window covers, and a warning where it is no more
+    than one place (2 tau): each reference is then contrasted with the references of its own
+    place, which takes away the true match's lead (docs/DESIGN.md, Sequence matching)."""
+    span = sequence.get("window_span_m")
+    if span is None:
+        return ""
+    text = f", a median {span:.2f} m of the reference drive"
+    if span <= 2 * tau:
+        text += (f": WARNING no more than one place (2τ = {2 * tau:g} m), so each reference is contrasted "
+                 "with its own place's references and the true match loses its lead; raise scoring.sequence.window")
+    return text
 
 
 def _true_match(tau: float, heading: float | None) -> str:

@@ -151,10 +151,16 @@ def test_a_run_that_matches_sequences_scores_the_sequence_of_the_methods_distanc
     rows = json.loads((runs["seq3"] / "results.json").read_text())
     assert len(rows) == 2
     for row in rows:
+        span = row["sequence"].pop("window_span_m")
         assert row["sequence"] == {"length": 3, "velocity_min": 0.8, "velocity_max": 1.25, "velocity_steps": 5,
                                    "window": 10}
         folder = runs["seq3"] / "evaluations" / "E1" / "H" / row["direction"]
         with np.load(folder / "matrices.npz") as m:
+            # the path length of the reference drive from j - 10 to j + 10, cut at its ends, median over j
+            xy = m["reference_poses"][:, :2]
+            lengths = [sum(np.hypot(*(xy[k + 1] - xy[k])) for k in range(max(j - 10, 0), min(j + 10, len(xy) - 1)))
+                       for j in range(len(xy))]
+            assert span == pytest.approx(np.median(lengths), rel=1e-9)
             scores = sequence_scores(m["distance"], 3)
             np.testing.assert_array_equal(m["tme"], scores)
             gtm = ground_truth_matrix(m["query_poses"], m["reference_poses"], 30.0)
@@ -215,3 +221,24 @@ def test_sensitivity_refuses_a_sequence_length_below_one_in_one_line(runs, tmp_p
     assert main(["sensitivity", str(runs["single"]), "--sequence-length", "0", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--sequence-length" in err
+
+
+def test_the_window_span_is_the_reference_path_length_the_window_covers():
+    from vitaplace.engine.evaluation.pairfiles import window_span
+
+    # 7 references 0.1 m apart on a line: +-2 references cover 0.4 m inside, 0.2 / 0.3 m at the ends
+    poses = np.c_[np.arange(7) * 0.1, np.zeros(7), np.zeros(7)]
+    assert window_span(poses, 2) == pytest.approx(np.median([0.2, 0.3, 0.4, 0.4, 0.4, 0.3, 0.2]))
+    # standing still covers nothing; turning on the spot neither (the heading is not path)
+    assert window_span(np.c_[np.zeros(5), np.zeros(5), np.linspace(0, 3, 5)], 2) == 0.0
+
+
+@pytest.mark.parametrize("span, warned", [(0.6, True), (0.61, False)])
+def test_the_report_warns_when_the_contrast_window_is_no_more_than_one_place(span, warned):
+    from vitaplace.engine.report.report import _matching
+
+    sequence = {"length": 5, "window": 10, "velocity_steps": 5, "velocity_min": 0.8, "velocity_max": 1.25,
+                "window_span_m": span}
+    text = _matching(sequence, 0.3)
+    assert f"a median {span:.2f} m of the reference drive" in text
+    assert ("WARNING no more than one place (2τ = 0.6 m)" in text) is warned
