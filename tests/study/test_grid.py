@@ -8,6 +8,8 @@ and the statistics are recomputed here from the seeds' own results.json."""
 import json
 import math
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -27,9 +29,12 @@ POINTS = [("tau=0.3,crop_fraction=0.5", 0.3, 0.5), ("tau=0.3,crop_fraction=1.0",
 NAMES = [name for name, _, _ in POINTS]
 
 
-def _scenario_file(folder: Path, fail_seed: int = -1) -> Path:
+def _scenario_file(folder: Path, fail_seed: int = -1, test_plugin: bool = True) -> Path:
+    """The tiny scenario; without ``test_plugin``, its hand-crafted method alone (for this process)."""
+    scenario = tiny_scenario(fail_seed)
+    scenario["methods"] = scenario["methods"][0 if test_plugin else 1:]
     path = folder / "tiny.yaml"
-    path.write_text(yaml.safe_dump(tiny_scenario(fail_seed)))
+    path.write_text(yaml.safe_dump(scenario))
     return path
 
 
@@ -50,17 +55,29 @@ def _without_environment_paths(resolved: dict) -> dict:
     return resolved
 
 
-def test_every_point_and_seed_runs_what_config_resolves_for_its_assignments(grid_sweep, capsys):
+#: `vitaplace config` for each argument list in argv[1] (JSON), the outputs between MARK lines
+CONFIGS = """
+import json, sys
+from vitaplace.engine.cli.main import main
+for args in json.loads(sys.argv[1]):
+    print("=====", flush=True)
+    assert main(["config", *args]) == 0
+    sys.stdout.flush()
+"""
+
+
+def test_every_point_and_seed_runs_what_config_resolves_for_its_assignments(grid_sweep, plugin_env):  # noqa: F811
     path, out, result = grid_sweep
     assert result.returncode == 0, result.stderr[-3000:]
     assert sorted(p.name for p in out.iterdir() if "=" in p.name) == sorted(NAMES)  # 2 x 2 points, no more
-    for name, tau, crop in POINTS:
-        for seed in (0, 1):
-            sets = [f"seed={seed}", f"scoring.tau={tau}", f"methods.1.params.crop_fraction={crop}"]
-            assert main(["config", str(path), *(a for s in sets for a in ("--set", s))]) == 0
-            expected = yaml.safe_load(capsys.readouterr().out)
-            ran = yaml.safe_load((out / name / f"seed-{seed}" / "scenario.resolved.yaml").read_text())
-            assert _without_environment_paths(ran) == _without_environment_paths(expected)
+    runs = [(name, seed, [str(path), "--set", f"seed={seed}", "--set", f"scoring.tau={tau}",
+                          "--set", f"methods.1.params.crop_fraction={crop}"]) for name, tau, crop in POINTS for seed in (0, 1)]
+    configs = subprocess.run([sys.executable, "-c", CONFIGS, json.dumps([args for _, _, args in runs])],
+                             capture_output=True, text=True, timeout=300, env=plugin_env, check=True).stdout
+    for (name, seed, _), printed in zip(runs, configs.split("=====\n")[1:], strict=True):
+        ran = yaml.safe_load((out / name / f"seed-{seed}" / "scenario.resolved.yaml").read_text())
+        assert _without_environment_paths(ran) == _without_environment_paths(yaml.safe_load(printed))
+    for name in NAMES:
         assert json.loads((out / name / "sweep.json").read_text())["seeds"] == [0, 1]
     record = json.loads((out / "grid.json").read_text())
     assert [p["name"] for p in record["points"]] == NAMES
@@ -102,16 +119,16 @@ def test_the_grid_table_is_each_point_s_mean_and_t_interval_over_its_seeds(grid_
             assert f"| {name} | E1 | {method} | query-to-reference | max_f1 | 2 | {mean:.3f} ± {std:.3f} |" in table
 
 
-def test_a_sweep_that_would_drop_seeds_or_points_of_the_summary_is_refused_in_one_line(grid_sweep, capsys):
+def test_a_sweep_that_would_drop_seeds_or_points_of_the_summary_is_refused_in_one_line(grid_sweep, plugin_env):  # noqa: F811
     path, out, _ = grid_sweep
     before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.suffix in (".json", ".csv", ".md")}
     cases = [(["--seeds", "0", "1"], "no grid, seeds 0 1"),  # a plain sweep where a grid is
              ([*AXES, "--seeds", "0"], "grid points " + " ".join(NAMES) + ", seeds 0"),  # a seed fewer
              (["--grid", "scoring.tau=0.3", *AXES[2:], "--seeds", "0", "1"], None)]  # two points fewer
     for args, this in cases:
-        assert main(["sweep", str(path), *args, "--out", str(out), "--no-progress"]) == 2
-        err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and err[0].startswith(f"vitaplace: error: --out {out}: its summary (grid.json) covers "
+        refused = vitaplace(["sweep", str(path), *args, "--out", str(out), "--no-progress"], plugin_env)
+        err = refused.stderr.strip().splitlines()
+        assert refused.returncode == 2 and len(err) == 1 and err[0].startswith(f"vitaplace: error: --out {out}: its summary (grid.json) covers "
                                                    f"grid points {' '.join(NAMES)}, seeds 0 1"), err
         assert "give --replace to replace it" in err[0] and (this is None or f"sweep of {this} would" in err[0])
     assert not (out / "seed-0").exists() and not (out / "sweep.json").exists()
@@ -181,8 +198,8 @@ def test_a_bad_grid_is_one_line_naming_the_option(options, overrides, message):
 
 
 def test_points_that_would_share_a_folder_are_refused():
-    with pytest.raises(ScenarioError, match="two grid points would share the folder x=_a_"):
-        grid.grid_points(grid.parse_axes(["a.x='a',\"a\""]))
+    with pytest.raises(ScenarioError, match="two grid points would share the folder x=a_b"):
+        grid.grid_points(grid.parse_axes(["a.x=a b,a/b"]))
 
 
 @pytest.mark.parametrize("option, message", [
@@ -200,13 +217,13 @@ def test_a_grid_point_the_scenario_refuses_is_one_line_before_anything_is_writte
 
 
 def test_config_prints_the_scenario_the_api_resolves(tmp_path, capsys):
-    path = _scenario_file(tmp_path)
-    sets = ["scoring.tau=0.4", "methods.1.params.crop_fraction=0.5", "methods+={name: H2, plugin: handcrafted}"]
+    path = _scenario_file(tmp_path, test_plugin=False)
+    sets = ["scoring.tau=0.4", "methods.0.params.crop_fraction=0.5", "methods+={name: H2, plugin: handcrafted}"]
     assert main(["config", str(path), *(a for s in sets for a in ("--set", s))]) == 0
     printed = capsys.readouterr().out
     assert Scenario.model_validate(yaml.safe_load(printed)) == api.load_scenario(path, sets)
     resolved = yaml.safe_load(printed)
-    assert resolved["scoring"]["tau"] == 0.4 and resolved["methods"][2]["name"] == "H2"
+    assert resolved["scoring"]["tau"] == 0.4 and resolved["methods"][1]["name"] == "H2"
     assert main(["config", "quickstart"]) == 0
     assert yaml.safe_load(capsys.readouterr().out)["name"] == api.load_scenario("quickstart").name
 
@@ -216,7 +233,7 @@ def test_config_prints_the_scenario_the_api_resolves(tmp_path, capsys):
     (["--set", "methods.9.name=x"], "has no item 9"),
 ])
 def test_config_of_a_bad_scenario_is_one_line_exit_2(args, message, tmp_path, capsys):
-    assert main(["config", str(_scenario_file(tmp_path)), *args]) == 2
+    assert main(["config", str(_scenario_file(tmp_path, test_plugin=False)), *args]) == 2
     captured = capsys.readouterr()
     err = captured.err.strip().splitlines()
     assert captured.out == "" and len(err) == 1 and message in err[0], err
