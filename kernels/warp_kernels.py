@@ -461,6 +461,16 @@ def _scatter_kernel(src: _F32_2D, index: wp.array(dtype=wp.int32), dst: _F32_2D)
     dst[index[r], c] = src[r, c]
 
 
+@wp.func
+def _under_limits(row_energy: _F64_2D, limits: wp.array(dtype=wp.float64), r: int) -> bool:
+    """Row ``r``'s energy under its limit on every edge."""
+    done = bool(True)
+    for e in range(row_energy.shape[0]):
+        if not (row_energy[e, r] < limits[e]):
+            done = False
+    return done
+
+
 @wp.kernel(enable_backward=False, module="unique")
 def _stop_kernel(
     row_energy: _F64_2D,
@@ -471,11 +481,7 @@ def _stop_kernel(
     r = wp.tid()
     if active[r] == 0:
         return
-    done = int(1)
-    for e in range(row_energy.shape[0]):
-        if not (row_energy[e, r] < limits[e]):
-            done = 0
-    if done == 1:
+    if _under_limits(row_energy, limits, r):
         active[r] = 0
     else:
         steps[r] = steps[r] + 1

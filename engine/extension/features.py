@@ -152,12 +152,16 @@ def feature_facts(features: Features) -> dict[str, Any]:
     """What the manifest (``features``) and the report say about one method's features of one run:
     its feature arrays (float, one row of at least one column per sample), those that are
     all zero, and, for features that record test-time inference (``inference_steps``,
-    ``inference_stopped``), the step counts' median, 90th percentile and largest value, the
-    samples that hit the step cap and the number of samples."""
+    ``inference_stopped``: under the thresholds; ``inference_settled``: a stopping rule ended
+    it, the same as stopped where absent), the step counts' median, 90th percentile and
+    largest value, the samples under the thresholds, those that hit the step cap (not
+    settled) and the number of samples."""
     arrays = sorted(k for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2)
     facts: dict[str, Any] = {"arrays": arrays, "zero": [k for k in arrays if not features[k].any()]}
     if "inference_steps" in features and "inference_stopped" in features:
         steps, stopped = features["inference_steps"], features["inference_stopped"].astype(bool)
+        settled = features["inference_settled"].astype(bool) if "inference_settled" in features else stopped
         facts["inference"] = {"median": float(np.median(steps)), "p90": float(np.percentile(steps, 90)),
-                              "max": steps.max().item(), "capped": int((~stopped).sum()), "samples": int(stopped.size)}
+                              "max": steps.max().item(), "stopped": int(stopped.sum()),
+                              "capped": int((~settled).sum()), "samples": int(stopped.size)}
     return facts

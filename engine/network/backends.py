@@ -11,6 +11,13 @@ A backend owns array storage and the operations the network is built from:
     weight_update(W, Y, G, eta)       W <- W + 2 eta (Y^T G)                    (-eta dF/dW)
     gather_rows / scatter_rows        minibatch rows of a resident store, by an index array
     stop_converged(R, limits, active, steps)   per-sample stopping of inference
+    scale_add(dst, src, alpha, mask)  dst <- dst + alpha mask * src   (the solvers' vector steps)
+    row_dot(A, B, weight, out)        out[r] += weight sum_c A[r, c] B[r, c]   (float64)
+    restart_control(R, prior_energy, last, scale, plain, uphill, active)
+    momentum_step(Y, V, D, beta, restart, scale, active)
+                                      Nesterov with restarts (kernels/solver_kernels.py)
+    stop_settled(R, limits, gnorm, scale, g0, rtol2, active, steps)
+                                      stop_converged, or scale^2 gnorm < rtol2 g0 (the relative rule)
     capture(fn)                       a replayable recording of fn's launches (a CUDA graph)
 
 ``numpy`` runs them with float32 BLAS through ``np.matmul(..., out=)`` (numpy's own
@@ -73,6 +80,15 @@ class Backend(Protocol):
     def gather_rows(self, src: Any, index: Any, dst: Any) -> None: ...
     def scatter_rows(self, src: Any, index: Any, dst: Any) -> None: ...
     def stop_converged(self, R: Any, limits: Any, active: Any, steps: Any) -> None: ...
+    def scale_add(self, dst: Any, src: Any, alpha: float, mask: Any | None) -> None: ...
+    def row_dot(self, A: Any, B: Any, weight: float, out: Any) -> None: ...
+    def restart_control(
+        self, R: Any, prior_energy: Any, last: Any, scale: Any, plain: Any, uphill: Any, active: Any
+    ) -> None: ...
+    def momentum_step(self, Y: Any, V: Any, D: Any, beta: float, restart: Any, scale: Any, active: Any) -> None: ...
+    def stop_settled(
+        self, R: Any, limits: Any, gnorm: Any, scale: Any, g0: Any, rtol2: float, active: Any, steps: Any
+    ) -> None: ...
     def capture(self, fn: Callable[[], None]) -> Callable[[], None]: ...
 
 
@@ -189,6 +205,42 @@ class NumpyBackend(_Scratch):
         active &= ~done
         steps += active
 
+    def scale_add(self, dst, src, alpha: float, mask) -> None:
+        t = self._buffer("scale_add", dst.shape)
+        np.multiply(src, self.dtype.type(alpha), out=t)
+        if mask is not None:
+            np.multiply(t, mask[:, None], out=t)
+        np.add(dst, t, out=dst)
+
+    def row_dot(self, A, B, weight: float, out) -> None:
+        out += weight * np.einsum("ij,ij->i", A, B, dtype=np.float64)
+
+    def restart_control(self, R, prior_energy, last, scale, plain, uphill, active) -> None:
+        live = active != 0
+        f = R.sum(axis=0) + prior_energy
+        rose = f > last
+        scale[live & rose & (plain != 0)] *= 0.5
+        restart = rose | (uphill > 0)
+        uphill[live] = restart[live]
+        plain[live] = restart[live]
+        last[live] = f[live]
+
+    def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
+        live = active != 0
+        keep = np.where(live & ~(restart > 0), beta, 0.0).astype(self.dtype)
+        d = self._buffer("momentum", D.shape)
+        np.multiply(D, np.where(live, scale, 0.0).astype(self.dtype)[:, None], out=d)
+        np.multiply(V, keep[:, None], out=V)
+        np.add(V, d, out=V)
+        np.add(Y, d, out=Y)
+        np.multiply(V, self.dtype.type(beta), out=d)
+        np.add(Y, d, out=Y)
+
+    def stop_settled(self, R, limits, gnorm, scale, g0, rtol2: float, active, steps) -> None:
+        done = np.all(R < limits[:, None], axis=0) | (scale * scale * gnorm < rtol2 * g0)
+        active &= ~done
+        steps += active
+
     def capture(self, fn: Callable[[], None]) -> Callable[[], None]:
         return fn
 
@@ -204,13 +256,14 @@ class WarpBackend(_Scratch):
     name = "warp"
 
     def __init__(self, device: str | None = None) -> None:
-        from vitaplace.kernels import warp_kernels  # imported lazily: compiles on first use
+        from vitaplace.kernels import solver_kernels, warp_kernels  # imported lazily: compiles on first use
 
         import warp as wp
 
         super().__init__()
         self._wp = wp
         self._kernels = warp_kernels
+        self._solver_kernels = solver_kernels
         wp.init()
         self.device = device or ("cuda" if wp.is_cuda_available() else "cpu")
         self._device = wp.get_device(self.device)
@@ -277,6 +330,21 @@ class WarpBackend(_Scratch):
 
     def stop_converged(self, R, limits, active, steps) -> None:
         self._kernels.stop_converged(R, limits, active, steps)
+
+    def scale_add(self, dst, src, alpha: float, mask) -> None:
+        self._solver_kernels.scale_add(dst, src, alpha, mask)
+
+    def row_dot(self, A, B, weight: float, out) -> None:
+        self._solver_kernels.row_dot(A, B, weight, out)
+
+    def restart_control(self, R, prior_energy, last, scale, plain, uphill, active) -> None:
+        self._solver_kernels.restart_control(R, prior_energy, last, scale, plain, uphill, active)
+
+    def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
+        self._solver_kernels.momentum_step(Y, V, D, beta, restart, scale, active)
+
+    def stop_settled(self, R, limits, gnorm, scale, g0, rtol2: float, active, steps) -> None:
+        self._solver_kernels.stop_settled(R, limits, gnorm, scale, g0, rtol2, active, steps)
 
     def capture(self, fn: Callable[[], None]) -> Callable[[], None]:
         """Compile every kernel ``fn`` launches, in parallel, then return its replay: on

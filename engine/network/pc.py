@@ -28,15 +28,13 @@ import numpy as np
 
 from vitaplace.engine.base.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.network.backends import Backend
+from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
 from vitaplace.engine.network.selection import get_backend
-from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.network.solver import InferenceConfig, Solver, curvature_steps
+
+__all__ = ["LATENT_INIT", "BatchState", "InferenceConfig", "Network", "NetworkError"]
 
 FORMAT_VERSION = 1
-LATENT_INIT = 0.1
-
-
-class NetworkError(UserError, RuntimeError):
-    """Training or inference cannot go on (divergence, incompatible file, bad input)."""
 
 
 @dataclass(frozen=True)
@@ -95,6 +93,8 @@ class TrainingConfig:
     seed: int
     converge_window: int
     converge_tol: float
+    #: lambda of the Gaussian prior on the latents in the inference steps (0: the paper's energy)
+    latent_prior: float
 
 
 @dataclass
@@ -133,13 +133,15 @@ class InferenceResult:
     ``steps`` is the largest number of steps any sample took, ``steps_per_sample`` each
     sample's; ``mse`` the per-edge mean squared error averaged over the samples;
     ``stopped`` says per sample whether it ended under every threshold (rather than at the
-    step cap) and ``converged`` whether all did.
+    step cap) and ``converged`` whether all did; ``settled`` whether a stopping rule (the
+    thresholds or the relative rule) ended it before the cap.
     """
 
     latents: dict[str, np.ndarray]
     mse: dict[str, float]
     steps_per_sample: np.ndarray
     stopped: np.ndarray
+    settled: np.ndarray
 
     @property
     def steps(self) -> int:
@@ -315,6 +317,7 @@ class Network:
             for b in range(batches_per_epoch):
                 index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
                 state = self._cached_state(states, len(index), present)
+                state.prior = cfg.latent_prior
                 if len(index) not in runs:
                     runs[len(index)] = be.capture(functools.partial(state.minibatch, resident_x, resident_y, cfg.inference_steps))
                 be.upload(index.astype(np.int32), state.index)
@@ -347,17 +350,26 @@ class Network:
         thresholds: Mapping[str, float] | None = None,
         batch_size: int = 500,
         on_progress: Callable[[int], None] | None = None,
+        inference: InferenceConfig | None = None,
     ) -> InferenceResult:
         """Latents for (scaled) inputs with frozen weights, from 0.1, batch by batch.
 
         Each sample stops on its own, as soon as every active edge's mean squared error
-        for that sample is below its threshold, or after ``max_steps`` steps; the others
-        in its batch go on. Missing modalities are left out (their errors do not reach
-        the joint layer). ``on_progress(k)`` is called whenever k more samples are done
-        (checked every `STEPS_PER_CHECK` steps), for progress bars.
+        for that sample is below its threshold (or ``inference``'s relative rule holds), or
+        after ``max_steps`` steps; the others in its batch go on. ``inference`` picks the
+        solver and the prior (`vitaplace.engine.network.solver`; default: the paper's plain
+        steps). Missing modalities are left out (their errors do not reach the joint
+        layer). ``on_progress(k)`` is called whenever k more samples are done (checked
+        every `STEPS_PER_CHECK` steps), for progress bars.
         """
+        config = inference or InferenceConfig()
         present, n = self._check_inputs(inputs)
         edges = self.active_edges(present)
+        eta = self.eta_y
+        if config.solver != "gd":
+            self._sync_weights_to_host()
+            eta = curvature_steps(self.weights, edges, self.latent_nodes(present), self.config.activation,
+                                  self.config.slope, config.prior)
         limits = {e.name: e.threshold for e in edges}
         limits.update(thresholds or {})
         threshold = np.array([limits[e.name] for e in edges], dtype=np.float64)
@@ -366,6 +378,7 @@ class Network:
         resident_x = {self.input_node(m): be.to_device(inputs[m]) for m in present}
         out = {node: np.empty((n, self.sizes[node]), np.float32) for node in self.latent_nodes(present)}
         steps = np.zeros(n, dtype=np.int64)
+        settled = np.zeros(n, dtype=bool)
         mse = np.zeros((len(edges), n))
         states: dict[int, BatchState] = {}
         chunks: dict[int, Callable[[], None]] = {}
@@ -373,36 +386,45 @@ class Network:
             index = np.arange(start, min(start + batch_size, n))
             state = self._cached_state(states, len(index), present)
             if len(index) not in chunks:
+                state.prior = config.prior
+                state.solver = None if config.paper else Solver(state, config, eta)
                 be.upload(threshold * width, state.limits)
                 chunks[len(index)] = be.capture(functools.partial(state.inference_steps, self.STEPS_PER_CHECK))
             be.upload(index.astype(np.int32), state.index)
             state.start_inference(resident_x)
-            done = reported = 0
-            while done < max_steps:
-                active = be.download(state.active)
-                finished = len(index) - int(np.count_nonzero(active))
-                if on_progress is not None and finished > reported:
-                    on_progress(finished - reported)
-                    reported = finished
-                if finished == len(index):
-                    break
-                todo = min(self.STEPS_PER_CHECK, max_steps - done)
-                if todo == self.STEPS_PER_CHECK:
-                    chunks[len(index)]()
-                else:
-                    state.inference_steps(todo)
-                done += todo
-            if on_progress is not None and len(index) > reported:
-                on_progress(len(index) - reported)  # the rest stopped at the step cap
+            self._run_chunks(state, chunks[len(index)], max_steps, on_progress)
             steps[index] = be.download(state.steps)
+            settled[index] = be.download(state.active) == 0
             row_energy = be.download(state.R)
             energy = {e.name: float(total) for e, total in zip(edges, row_energy.sum(axis=1))}
-            state.check_finite(energy, f"inference of samples {start}-{index[-1]}")
+            state.check_finite(energy, f"inference of samples {start}-{index[-1]}", config.remedy)
             mse[:, index] = row_energy / width[:, None]
             for node, values in state.download_latents().items():
                 out[node][index] = values
         stopped = np.all(mse < threshold[:, None], axis=0)
-        return InferenceResult(out, {e.name: float(mse[k].mean()) for k, e in enumerate(edges)}, steps, stopped)
+        return InferenceResult(out, {e.name: float(mse[k].mean()) for k, e in enumerate(edges)}, steps, stopped, settled)
+
+    def _run_chunks(self, state: BatchState, chunk: Callable[[], None], max_steps: int,
+                    on_progress: Callable[[int], None] | None) -> None:
+        """Steps of one started batch, a captured ``chunk`` of `STEPS_PER_CHECK` at a time,
+        until every sample stopped or ``max_steps``; progress reported between chunks."""
+        be, size = self.backend, state.batch
+        done = reported = 0
+        while done < max_steps:
+            finished = size - int(np.count_nonzero(be.download(state.active)))
+            if on_progress is not None and finished > reported:
+                on_progress(finished - reported)
+                reported = finished
+            if finished == size:
+                break
+            todo = min(self.STEPS_PER_CHECK, max_steps - done)
+            if todo == self.STEPS_PER_CHECK:
+                chunk()
+            else:
+                state.inference_steps(todo)
+            done += todo
+        if on_progress is not None and size > reported:
+            on_progress(size - reported)  # the rest stopped at the step cap
 
     def reconstruct(self, joint: np.ndarray, modality: str) -> np.ndarray:
         """Top-down prediction of a modality's scaled input from joint latents (host numpy)."""
@@ -460,121 +482,3 @@ class Network:
                 offset, scale = net.scalers.get(m, (None, None))
                 net.scalers[m] = (scalers[key], scale) if part == "offset" else (offset, scalers[key])
         return net
-
-
-class BatchState:
-    """Backend buffers of one minibatch: latents Y per node, inputs X, errors E and gains G
-    per edge, per-sample energies R (edges x batch, float64), and the int32 row index,
-    active mask and step counts of the samples.
-
-    `predict_all` computes eq. 1-2, `latent_step` and `weight_step` apply eq. 3 and eq. 4;
-    `minibatch` (training) and `inference_steps` (test time) are built from these and only
-    launch work on the backend, so each can be captured once and replayed.
-    """
-
-    def __init__(self, net: Network, batch: int, modalities: Sequence[str]) -> None:
-        be = net.backend
-        self.net, self.be, self.batch = net, be, batch
-        self.nodes = net.latent_nodes(modalities)
-        self.edges = net.active_edges(modalities)
-        self.weights = net._device_weight_handles()
-        self.Y = {node: be.empty((batch, net.sizes[node])) for node in self.nodes}
-        self.X = {net.input_node(m): be.empty((batch, net.sizes[net.input_node(m)])) for m in modalities}
-        self.E = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
-        self.G = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
-        self.R = be.empty((len(self.edges), batch), np.float64)
-        self.index = be.empty((batch,), np.int32)
-        self.active = be.empty((batch,), np.int32)
-        self.steps = be.empty((batch,), np.int32)
-        self.limits = be.empty((len(self.edges),), np.float64)
-        self.edge_above = {e.lower: e.name for e in self.edges}
-        # The top-down term (+2 E_above) of a node is applied once, with its first edge below.
-        self.first_below = {e.upper: e.name for e in reversed(self.edges)}
-
-    def load(self, inputs: Mapping[str, np.ndarray], latents: Mapping[str, np.ndarray] | None) -> None:
-        """Host inputs and latents (default: all 0.1) into the buffers."""
-        for m, x in inputs.items():
-            self.be.upload(np.asarray(x), self.X[self.net.input_node(m)])
-        for node, y in self.Y.items():
-            host = latents[node] if latents is not None else np.full((self.batch, self.net.sizes[node]), LATENT_INIT)
-            self.be.upload(np.asarray(host), y)
-
-    def _node(self, name: str):
-        return self.Y[name] if name in self.Y else self.X[name]
-
-    def predict_all(self, energy: bool = True) -> None:
-        """Eq. 1 on every edge from the current latents, and (``energy``) each sample's
-        energy per edge into ``R``."""
-        act, slope = self.net.config.activation, self.net.config.slope
-        R = self.R if energy else None
-        for slot, e in enumerate(self.edges):
-            n = e.name
-            self.be.predict(self.Y[e.upper], self.weights[n], self._node(e.lower), self.E[n], self.G[n], R, slot, act, slope)
-
-    def energies(self) -> dict[str, float]:
-        """F per edge (eq. 2) of the last `predict_all` (waits for the device)."""
-        sums = self.be.download(self.R).sum(axis=1)
-        return {e.name: float(s) for e, s in zip(self.edges, sums)}
-
-    def latent_step(self, mask=None) -> None:
-        """Y <- Y - eta_y dF/dY for every node (eq. 3), all from the errors of one predict_all;
-        only the rows where ``mask`` is non-zero, when given."""
-        for e in self.edges:
-            eta = self.net.eta_y[e.upper]
-            above = self.edge_above.get(e.upper) if self.first_below[e.upper] == e.name else None
-            self.be.latent_update(
-                self.Y[e.upper], self.G[e.name], self.weights[e.name], eta, self.E[above] if above else None, mask
-            )
-
-    def weight_step(self) -> None:
-        """W <- W - eta_w dF/dW on every edge (eq. 4)."""
-        for e in self.edges:
-            self.be.weight_update(self.weights[e.name], self.Y[e.upper], self.G[e.name], e.eta_w)
-
-    def minibatch(self, inputs: Mapping[str, object], latents: Mapping[str, object], steps: int) -> None:
-        """One training minibatch: rows ``index`` of the resident inputs and latents, T
-        inference steps, one weight step, the latents written back."""
-        for node, x in self.X.items():
-            self.be.gather_rows(inputs[node], self.index, x)
-        for node, y in self.Y.items():
-            self.be.gather_rows(latents[node], self.index, y)
-        self.train_steps(steps)
-        for node, y in self.Y.items():
-            self.be.scatter_rows(y, self.index, latents[node])
-
-    def train_steps(self, steps: int) -> None:
-        """The learning step on the loaded minibatch: T inference steps, then one weight step
-        (the energies of the final state in ``R``)."""
-        self.predict_all(energy=steps == 0)
-        for step in range(1, steps + 1):
-            self.latent_step()
-            self.predict_all(energy=step == steps)
-        self.weight_step()
-
-    def start_inference(self, inputs: Mapping[str, object]) -> None:
-        """Rows ``index`` of the resident inputs, latents at 0.1, every sample active."""
-        for node, x in self.X.items():
-            self.be.gather_rows(inputs[node], self.index, x)
-        for y in self.Y.values():
-            self.be.fill(y, LATENT_INIT)
-        self.be.fill(self.active, 1)
-        self.be.fill(self.steps, 0)
-        self.predict_all()
-
-    def inference_steps(self, count: int) -> None:
-        """``count`` test-time steps with per-sample stopping (samples under their limits
-        are frozen and no longer counted)."""
-        for _ in range(count):
-            self.be.stop_converged(self.R, self.limits, self.active, self.steps)
-            self.latent_step(self.active)
-            self.predict_all()
-
-    def check_finite(self, energy: Mapping[str, float], where: str) -> None:
-        for name, value in energy.items():
-            if not math.isfinite(value):
-                raise NetworkError(
-                    f"error of layer '{name}' became {value} at {where}; lower the learning rates (eta_y, eta_w)"
-                )
-
-    def download_latents(self) -> dict[str, np.ndarray]:
-        return {node: self.be.download(y) for node, y in self.Y.items()}

@@ -333,3 +333,29 @@ class CublasBackend(WarpBackend):
         self._join()  # reads every edge's row energies
         with self._stream_for(None, (limits,), (active, steps)):
             super().stop_converged(R, limits, active, steps)
+
+    # the solvers' vector steps: on the main stream, after everything the side stream issued
+    def scale_add(self, dst, src, alpha: float, mask) -> None:
+        self._join()
+        with self._stream_for(None, (src, mask), (dst,)):
+            super().scale_add(dst, src, alpha, mask)
+
+    def row_dot(self, A, B, weight: float, out) -> None:
+        self._join()
+        with self._stream_for(None, (A, B), (out,)):
+            super().row_dot(A, B, weight, out)
+
+    def restart_control(self, R, prior_energy, last, scale, plain, uphill, active) -> None:
+        self._join()
+        with self._stream_for(None, (prior_energy, active), (last, scale, plain, uphill)):
+            super().restart_control(R, prior_energy, last, scale, plain, uphill, active)
+
+    def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
+        self._join()
+        with self._stream_for(None, (D, restart, scale, active), (Y, V)):
+            super().momentum_step(Y, V, D, beta, restart, scale, active)
+
+    def stop_settled(self, R, limits, gnorm, scale, g0, rtol2: float, active, steps) -> None:
+        self._join()
+        with self._stream_for(None, (limits, gnorm, scale, g0), (active, steps)):
+            super().stop_settled(R, limits, gnorm, scale, g0, rtol2, active, steps)

@@ -161,15 +161,22 @@ def _methods_section(methods: dict[str, dict[str, Any]]) -> list[str]:
 def inference_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
     """Markdown table of the test-time inference steps per method and evaluation run, for
     methods whose features record them (`feature_facts`): median, 90th percentile and
-    largest step count, and the share of samples that hit the step cap."""
+    largest step count, the share of samples a stopping rule ended before the step cap
+    (settled) and the share under every threshold (older facts without ``stopped``: -)."""
     lines = [
-        f"| {method} | {label} | {i['median']:.0f} | {i['p90']:.0f} | {i['max']} | {100 * i['capped'] / i['samples']:.1f} |"
+        f"| {method} | {label} | {i['median']:.0f} | {i['p90']:.0f} | {i['max']} | "
+        f"{100 * (1 - i['capped'] / i['samples']):.1f} | {_percent(i.get('stopped'), i['samples'])} |"
         for method, by_run in features.items() for label, facts in by_run.items() if (i := facts.get("inference"))
     ]
     if not lines:
         return ""
-    table = ["| method | run | median steps | 90th percentile | most | % at the cap |", "|---|---|---|---|---|---|", *lines]
+    table = ["| method | run | median steps | 90th percentile | most | % settled | % under the thresholds |",
+             "|---|---|---|---|---|---|---|", *lines]
     return "\n".join(table + _cap_warnings(features))
+
+
+def _percent(count: int | None, total: int) -> str:
+    return "-" if count is None else f"{100 * count / total:.1f}"
 
 
 #: a share of test-time inferences at the step cap from which the report warns
@@ -317,7 +324,9 @@ def _inference_section(manifest: dict[str, Any]) -> list[str]:
         "## Test-time inference",
         "",
         "Each sample's latents are inferred until its prediction errors fall under their "
-        "thresholds, or up to the method's step cap (`max_steps`).",
+        "thresholds or, where the method has a relative rule (`inference_rtol`), its step has "
+        "shrunk below that fraction of its first; otherwise up to the method's step cap "
+        "(`max_steps`). A sample is settled when a rule ended it before the cap.",
         "",
         inference,
         "",

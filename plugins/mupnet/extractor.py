@@ -37,6 +37,7 @@ from vitaplace.engine.network.backends import BackendError, Precision
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.plugin import FeatureExtractor, Features, Run, warn_once
 from vitaplace.engine.network.pc import LATENT_INIT, JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
+from vitaplace.engine.network.solver import InferenceConfig, SolverName
 from vitaplace.plugins.mupnet.inputs import InputParams, TactileRange, raw_inputs, report_out_of_range
 
 log = logging.getLogger("vitaplace.mupnet")
@@ -99,6 +100,19 @@ class MupnetParams(ArchitectureParams):
     )
     inference_steps: pydantic.PositiveInt = Field(20, description="T latent steps per minibatch before the weight step")
     max_steps: pydantic.PositiveInt = Field(3000, description="test-time inference step cap")
+    latent_prior: pydantic.NonNegativeFloat = Field(
+        0.0, description="lambda of a Gaussian prior on the latents, energy + lambda/2 ||y||^2, in training and at "
+        "test time (0: the paper's energy, which has no fixed point to settle at; docs/MUPNET.md)",
+    )
+    inference_solver: SolverName = Field(
+        "gd", description="test-time solver: gd (the paper's plain steps at eta_y) or nesterov (momentum with "
+        "restarts, each layer's step from its curvature bound)",
+    )
+    inference_momentum: float = Field(0.9, gt=0, lt=1, description="the nesterov solver's momentum")
+    inference_rtol: pydantic.PositiveFloat | None = Field(
+        None, description="test-time stop also when a sample's step has shrunk below this fraction of its first "
+        "step (None: the per-layer thresholds alone, the paper's rule)",
+    )
     backend: Literal["auto", "numpy", "warp"] = Field(
         "auto", description="auto (warp on CUDA, numpy otherwise), numpy or warp"
     )
@@ -130,8 +144,12 @@ class MupnetParams(ArchitectureParams):
         """The engine's training configuration."""
         return TrainingConfig(
             epochs=self.epochs, batch_size=self.batch_size, inference_steps=self.inference_steps, seed=self.seed,
-            converge_window=self.converge_window, converge_tol=self.converge_tol,
+            converge_window=self.converge_window, converge_tol=self.converge_tol, latent_prior=self.latent_prior,
         )
+
+    def inference_config(self) -> InferenceConfig:
+        """The engine's test-time inference configuration."""
+        return InferenceConfig(self.inference_solver, self.inference_momentum, self.inference_rtol, self.latent_prior)
 
     @pydantic.field_validator("precision")
     @classmethod
@@ -247,10 +265,10 @@ class MupnetExtractor(FeatureExtractor):
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
         start = time.perf_counter()
         with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress, leave=False) as bar:
-            latent, steps, stopped = self._infer(run, inputs, bar.update)
+            latent, steps, stopped, settled = self._infer(run, inputs, bar.update)
         log.info(
             "mupnet: test-time inference of %d samples of run %r (step cap %d, %d reached it, at most %d steps) "
-            "in %.1f s", len(run), run.name, self.params.max_steps, int((~stopped).sum()),
+            "in %.1f s", len(run), run.name, self.params.max_steps, int((~settled).sum()),
             int(steps.max(initial=0)), time.perf_counter() - start,
         )
         diverged = np.linalg.norm(latent, axis=1) > DIVERGED_FACTOR * self.train_norm_max
@@ -262,23 +280,24 @@ class MupnetExtractor(FeatureExtractor):
                 len(where), len(latent), run.name, DIVERGED_FACTOR, self.train_norm_max,
                 ", ".join(map(str, where[:10])),
             )
-        # per sample: inference steps taken, and whether its errors fell under their thresholds
-        # before the cap (the report gives their distribution)
-        features = {"latent": latent, "diverged": diverged, "inference_steps": steps, "inference_stopped": stopped}
+        # per sample: inference steps taken, whether its errors fell under their thresholds and
+        # whether a stopping rule (those, or inference_rtol's) ended it before the cap (the
+        # report gives their distribution)
+        features = {"latent": latent, "diverged": diverged, "inference_steps": steps, "inference_stopped": stopped,
+                    "inference_settled": settled}
         if run.missing:  # samples with none of the network's modalities (a query drop-out)
             features["uninformed"] = ~presence(run, self.params.modalities).any(axis=1)
         return features
 
-    def _infer(self, run: Run, inputs: dict[str, np.ndarray], on_progress) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Joint latents, steps and stopped flags of every sample, each group of samples
+    def _infer(self, run: Run, inputs: dict[str, np.ndarray], on_progress) -> tuple[np.ndarray, ...]:
+        """Joint latents, steps, stopped flags (under the thresholds) and settled flags (a
+        stopping rule ended it before the cap) of every sample, each group of samples
         (`presence_groups`) inferred from the modalities it has."""
         assert self.network is not None
         groups = presence_groups(run, self.params.modalities)
-        if len(groups) == 1 and len(groups[0][0]) == len(self.params.modalities):  # nothing missing
-            result = self.network.infer(inputs, max_steps=self.params.max_steps, on_progress=on_progress)
-            return result.latents["joint"], result.steps_per_sample, result.stopped
         latent = np.full((len(run), self.params.joint_size), LATENT_INIT, dtype=np.float32)
-        steps, stopped = np.zeros(len(run), dtype=np.int64), np.ones(len(run), dtype=bool)
+        steps = np.zeros(len(run), dtype=np.int64)
+        stopped, settled = np.ones(len(run), dtype=bool), np.ones(len(run), dtype=bool)
         for present, index in groups:
             if not present:
                 warn_once(run, "mupnet: no modality", f"run {run.name}: {len(index)} samples have none of mupnet's "
@@ -287,9 +306,10 @@ class MupnetExtractor(FeatureExtractor):
                 on_progress(len(index))
                 continue
             result = self.network.infer({m: inputs[m][index] for m in present}, max_steps=self.params.max_steps,
-                                        on_progress=on_progress)
-            latent[index], steps[index], stopped[index] = result.latents["joint"], result.steps_per_sample, result.stopped
-        return latent, steps, stopped
+                                        on_progress=on_progress, inference=self.params.inference_config())
+            latent[index], steps[index] = result.latents["joint"], result.steps_per_sample
+            stopped[index], settled[index] = result.stopped, result.settled
+        return latent, steps, stopped, settled
 
     def distance(self, query: Features, reference: Features) -> np.ndarray:
         d = cdist(query["latent"], reference["latent"])

@@ -149,7 +149,7 @@ SYNTH = {
     "activation": "leaky_relu",
     "slope": 0.2,
 }
-TRAIN = {"epochs": 30, "batch_size": 50, "inference_steps": 20, "seed": 0, "converge_window": 0, "converge_tol": 0.01}
+TRAIN = {"epochs": 30, "batch_size": 50, "inference_steps": 20, "seed": 0, "converge_window": 0, "converge_tol": 0.01, "latent_prior": 0.0}
 NO_STOP = {"visual.1": 0.0, "tactile.1": 0.0, "joint.visual": 0.0, "joint.tactile": 0.0}
 
 

@@ -284,6 +284,11 @@ def test_a_folder_gives_the_clean_numbers_or_refuses_in_one_line(site, tmp_path)
     _run_machine(site, tmp_path, examples=6, steps=5)
 
 
+@pytest.mark.slow
+def test_fifty_lives_of_a_folder_give_the_clean_numbers_or_refuse_in_one_line(site, tmp_path):
+    _run_machine(site, tmp_path, examples=50, steps=5)
+
+
 def test_aggregate_refuses_matrices_changed_since_the_run_in_one_line(site, tmp_path):
     """Found by the state machine's longer runs: aggregate's block bootstrap read a corrupted
     matrices.npz and died with a BadZipFile traceback."""

@@ -136,9 +136,10 @@ def test_training_lowers_every_prediction_error(fitted):
 def test_joint_latents_recognise_revisits(fitted, runs):
     a, b = runs
     features = fitted.transform(b)
-    assert set(features) == {"latent", "diverged", "inference_steps", "inference_stopped"}
+    assert set(features) == {"latent", "diverged", "inference_steps", "inference_stopped", "inference_settled"}
     assert not features["diverged"].any()
     steps, stopped = features["inference_steps"], features["inference_stopped"]
+    assert np.array_equal(features["inference_settled"], stopped)  # the paper's rule: the thresholds alone
     assert steps.shape == stopped.shape == (N,) and steps.min() >= 1
     assert np.all(stopped | (steps == fitted.params.max_steps))  # unstopped samples ran to the cap
     assert features["latent"].shape == (N, 8)
@@ -299,7 +300,7 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
         "eta_w_joint": (float, 0.23), "threshold_visual": (float, 0.31), "threshold_tactile": (float, 0.32),
         "threshold_joint": (float, 0.33), "activation": (str, "tanh"), "slope": (float, 0.4), "epochs": (int, 17),
         "batch_size": (int, 19), "inference_steps": (int, 23), "seed": (int, 29), "converge_window": (int, 3),
-        "converge_tol": (float, 0.05),
+        "converge_tol": (float, 0.05), "latent_prior": (float, 0.07),
     }
     params = pydantic.create_model("Changed", __base__=MupnetParams, **changed)()
     assert params.network_config(tactile_size=72) == NetworkConfig(
@@ -309,7 +310,7 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
         activation="tanh",
         slope=0.4,
     )
-    assert params.training_config() == TrainingConfig(17, 19, 23, 29, 3, 0.05)
+    assert params.training_config() == TrainingConfig(17, 19, 23, 29, 3, 0.05, 0.07)
     only_touch = pydantic.create_model("OnlyTouch", __base__=MupnetParams, modalities=(list[str], ["tactile"]))()
     assert list(only_touch.network_config(tactile_size=72).modalities) == ["tactile"]
 

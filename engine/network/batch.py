@@ -1,0 +1,159 @@
+"""The buffers and steps of one minibatch of MuPNet's network (maths in docs/MUPNET.md).
+
+`BatchState` holds a minibatch's backend buffers and builds the training and test-time steps
+from the backend's operations (eq. 1-4 of `vitaplace.engine.network.pc`); each of its step
+sequences only launches work, so it can be captured once and replayed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from vitaplace.engine.base.errors import UserError
+
+if TYPE_CHECKING:
+    from vitaplace.engine.network.solver import Solver
+
+LATENT_INIT = 0.1
+
+
+class NetworkError(UserError, RuntimeError):
+    """Training or inference cannot go on (divergence, incompatible file, bad input)."""
+
+
+class BatchState:
+    """Backend buffers of one minibatch: latents Y per node, inputs X, errors E and gains G
+    per edge, per-sample energies R (edges x batch, float64), and the int32 row index,
+    active mask and step counts of the samples.
+
+    `predict_all` computes eq. 1-2, `latent_step` and `weight_step` apply eq. 3 and eq. 4;
+    `minibatch` (training) and `inference_steps` (test time) are built from these and only
+    launch work on the backend, so each can be captured once and replayed.
+    """
+
+    def __init__(self, net: Any, batch: int, modalities: Sequence[str]) -> None:  # net: the Network
+        be = net.backend
+        self.net, self.be, self.batch = net, be, batch
+        self.nodes = net.latent_nodes(modalities)
+        self.edges = net.active_edges(modalities)
+        self.weights = net._device_weight_handles()
+        self.Y = {node: be.empty((batch, net.sizes[node])) for node in self.nodes}
+        self.X = {net.input_node(m): be.empty((batch, net.sizes[net.input_node(m)])) for m in modalities}
+        self.E = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
+        self.G = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
+        self.R = be.empty((len(self.edges), batch), np.float64)
+        self.index = be.empty((batch,), np.int32)
+        self.active = be.empty((batch,), np.int32)
+        self.steps = be.empty((batch,), np.int32)
+        self.limits = be.empty((len(self.edges),), np.float64)
+        self.edge_above = {e.lower: e.name for e in self.edges}
+        #: lambda of the Gaussian prior on the latents (energy + lambda / 2 ||Y||^2; 0: none)
+        self.prior = 0.0
+        #: the test-time solver when it is not the paper's loop (`start_inference`)
+        self.solver: Solver | None = None
+        # The top-down term (+2 E_above) of a node is applied once, with its first edge below.
+        self.first_below = {e.upper: e.name for e in reversed(self.edges)}
+
+    def load(self, inputs: Mapping[str, np.ndarray], latents: Mapping[str, np.ndarray] | None) -> None:
+        """Host inputs and latents (default: all 0.1) into the buffers."""
+        for m, x in inputs.items():
+            self.be.upload(np.asarray(x), self.X[self.net.input_node(m)])
+        for node, y in self.Y.items():
+            host = latents[node] if latents is not None else np.full((self.batch, self.net.sizes[node]), LATENT_INIT)
+            self.be.upload(np.asarray(host), y)
+
+    def _node(self, name: str):
+        return self.Y[name] if name in self.Y else self.X[name]
+
+    def predict_all(self, energy: bool = True) -> None:
+        """Eq. 1 on every edge from the current latents, and (``energy``) each sample's
+        energy per edge into ``R``."""
+        act, slope = self.net.config.activation, self.net.config.slope
+        R = self.R if energy else None
+        for slot, e in enumerate(self.edges):
+            n = e.name
+            self.be.predict(self.Y[e.upper], self.weights[n], self._node(e.lower), self.E[n], self.G[n], R, slot, act, slope)
+
+    def energies(self) -> dict[str, float]:
+        """F per edge (eq. 2) of the last `predict_all` (waits for the device)."""
+        sums = self.be.download(self.R).sum(axis=1)
+        return {e.name: float(s) for e, s in zip(self.edges, sums)}
+
+    def latent_step(self, mask=None) -> None:
+        """Y <- Y - eta_y dF/dY for every node (eq. 3, and the prior's lambda Y), all from
+        the errors of one predict_all; only the rows where ``mask`` is non-zero, when given."""
+        self.descend(self.Y, self.net.eta_y, mask)
+
+    def descend(self, targets: Mapping[str, object], eta: Mapping[str, float], mask=None) -> None:
+        """``targets[node] += -eta[node] dF/dY`` (eq. 3, with ``-eta lambda Y`` under a prior)
+        on the rows of ``mask``; the targets are the latents themselves or step buffers."""
+        if self.prior:
+            for node in self.nodes:
+                self.be.scale_add(targets[node], self.Y[node], -eta[node] * self.prior, mask)
+        for e in self.edges:
+            above = self.edge_above.get(e.upper) if self.first_below[e.upper] == e.name else None
+            self.be.latent_update(
+                targets[e.upper], self.G[e.name], self.weights[e.name], eta[e.upper], self.E[above] if above else None,
+                mask,
+            )
+
+    def weight_step(self) -> None:
+        """W <- W - eta_w dF/dW on every edge (eq. 4)."""
+        for e in self.edges:
+            self.be.weight_update(self.weights[e.name], self.Y[e.upper], self.G[e.name], e.eta_w)
+
+    def minibatch(self, inputs: Mapping[str, object], latents: Mapping[str, object], steps: int) -> None:
+        """One training minibatch: rows ``index`` of the resident inputs and latents, T
+        inference steps, one weight step, the latents written back."""
+        for node, x in self.X.items():
+            self.be.gather_rows(inputs[node], self.index, x)
+        for node, y in self.Y.items():
+            self.be.gather_rows(latents[node], self.index, y)
+        self.train_steps(steps)
+        for node, y in self.Y.items():
+            self.be.scatter_rows(y, self.index, latents[node])
+
+    def train_steps(self, steps: int) -> None:
+        """The learning step on the loaded minibatch: T inference steps, then one weight step
+        (the energies of the final state in ``R``)."""
+        self.predict_all(energy=steps == 0)
+        for step in range(1, steps + 1):
+            self.latent_step()
+            self.predict_all(energy=step == steps)
+        self.weight_step()
+
+    def start_inference(self, inputs: Mapping[str, object]) -> None:
+        """Rows ``index`` of the resident inputs, latents at 0.1, every sample active."""
+        for node, x in self.X.items():
+            self.be.gather_rows(inputs[node], self.index, x)
+        for y in self.Y.values():
+            self.be.fill(y, LATENT_INIT)
+        self.be.fill(self.active, 1)
+        self.be.fill(self.steps, 0)
+        self.predict_all()
+        if self.solver is not None:
+            self.solver.start(self)
+
+    def inference_steps(self, count: int) -> None:
+        """``count`` test-time steps with per-sample stopping (samples under their limits
+        are frozen and no longer counted)."""
+        for _ in range(count):
+            if self.solver is not None:
+                self.solver.step(self)
+                continue
+            self.be.stop_converged(self.R, self.limits, self.active, self.steps)
+            self.latent_step(self.active)
+            self.predict_all()
+
+    def check_finite(self, energy: Mapping[str, float], where: str,
+                     remedy: str = "lower the learning rates (eta_y, eta_w)") -> None:
+        for name, value in energy.items():
+            if not math.isfinite(value):
+                raise NetworkError(f"error of layer '{name}' became {value} at {where}; {remedy}")
+
+    def download_latents(self) -> dict[str, np.ndarray]:
+        return {node: self.be.download(y) for node, y in self.Y.items()}

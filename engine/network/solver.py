@@ -1,0 +1,151 @@
+"""Test-time solvers of MuPNet's latents (docs/MUPNET.md, "Test-time inference that settles").
+
+The energy of the latents with frozen weights, with the optional Gaussian prior of standard
+predictive coding (``prior`` = lambda; 0: the paper's energy),
+
+    F_lambda(Y) = sum_edges ||E||^2 + lambda / 2 sum_latents ||Y||^2,
+
+is minimised per sample by
+
+* ``gd`` (the paper's): ``Y <- Y - eta_y dF/dY`` with each layer's ``eta_y``;
+* ``nesterov``: Nesterov momentum ``beta`` with restarts, each layer's step 1 / L, L the
+  Gauss-Newton bound of its block of the Hessian (`curvature_steps`), in the form whose
+  gradient is taken at the iterate itself: ``D = -s eta dF/dY``, ``V <- b V + D``,
+  ``Y <- Y + D + beta V``. A sample's momentum restarts (b = 0, else beta) when it points
+  uphill (``dF/dY . V > 0``, O'Donoghue and Candes' gradient restart) or when its energy
+  rose at the last step; a rise at a step taken without momentum halves the sample's step
+  scale ``s`` (from 1). The energy is piecewise quadratic for the leaky ReLU, and its
+  minimum may lie on a kink, where fixed steps zig-zag across it for ever; halving after
+  such a rise makes the steps shrink there and reach the kink (docs/MUPNET.md).
+
+Besides the per-edge thresholds, a sample stops once the norm of its step ``D`` (the
+gradient scaled by each layer's step and by ``s``) is below ``rtol`` times its value at
+the start (off when ``rtol`` is None). A stopped sample is frozen, as under the thresholds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal, get_args
+
+import numpy as np
+
+SolverName = Literal["gd", "nesterov"]
+SOLVERS: tuple[str, ...] = get_args(SolverName)
+#: largest phi' of each activation (the Gauss-Newton curvature bound's gain)
+_MAX_GAIN = {"leaky_relu": None, "tanh": 1.0, "sigmoid": 0.25, "linear": 1.0}
+
+
+@dataclass(frozen=True)
+class InferenceConfig:
+    """How test-time inference runs (the MuPNet plugin's ``inference_solver``,
+    ``inference_momentum``, ``inference_rtol`` and ``latent_prior``; defaults: the paper's)."""
+
+    solver: SolverName = "gd"
+    momentum: float = 0.9
+    rtol: float | None = None
+    prior: float = 0.0
+
+    @property
+    def paper(self) -> bool:
+        """The paper's loop exactly: plain steps at eta_y, stopped by the thresholds alone."""
+        return self.solver == "gd" and self.rtol is None
+
+    @property
+    def remedy(self) -> str:
+        """What to change when this inference diverges."""
+        if self.solver == "nesterov":
+            return f"lower inference_momentum ({self.momentum}) or use inference_solver gd"
+        return "lower the latent step sizes (eta_y)"
+
+
+def curvature_steps(
+    weights: Mapping[str, np.ndarray], edges: Sequence, nodes: Sequence[str], activation: str, slope: float,
+    prior: float,
+) -> dict[str, float]:
+    """Per latent node 1 / L, L = 2 g^2 sum_{edges below} ||W||_2^2 + 2 [an edge above] + prior.
+
+    L bounds the node's diagonal block of the energy's Gauss-Newton Hessian ``2 J^T J`` (the
+    Hessian itself almost everywhere for a piecewise-linear activation) for every sample; g
+    is the largest phi'. ``||W||_2^2`` is the largest eigenvalue of the smaller Gram matrix
+    (float64), raised by 1e-6 relative for rounding.
+    """
+    gain = _MAX_GAIN[activation]
+    if gain is None:
+        gain = max(1.0, slope)
+    bound = dict.fromkeys(nodes, prior)
+    for e in edges:
+        w = np.asarray(weights[e.name], np.float64)
+        gram = w @ w.T if w.shape[0] <= w.shape[1] else w.T @ w
+        bound[e.upper] += 2.0 * gain**2 * float(np.linalg.eigvalsh(gram)[-1]) * (1 + 1e-6)
+        if e.lower in bound:
+            bound[e.lower] += 2.0
+    return {node: 1.0 / b for node, b in bound.items()}
+
+
+class Solver:
+    """The buffers and steps of a solver other than the paper's loop on one `BatchState` (`vitaplace.engine.network.batch`)."""
+
+    def __init__(self, state: Any, config: InferenceConfig, eta: Mapping[str, float]) -> None:
+        be = state.be
+        self.config, self.eta = config, dict(eta)
+        self.momentum = config.solver == "nesterov"
+        self.rtol2 = 0.0 if config.rtol is None else float(config.rtol) ** 2
+        shapes = {node: (state.batch, state.net.sizes[node]) for node in state.nodes}
+        self.D = {node: be.empty(shape) for node, shape in shapes.items()}
+        self.V = {node: be.empty(shape) for node, shape in shapes.items()} if self.momentum else {}
+        rows = {name: be.empty((state.batch,), np.float64) for name in ("gnorm", "g0", "scale", "uphill", "last", "prior")}
+        self.gnorm, self.g0, self.scale, self.uphill, self.last, self.prior = rows.values()
+        self.plain = be.empty((state.batch,), np.int32)
+
+    def _step_vector(self, state: Any, norm) -> None:
+        """D = -eta dF/dY (rows of the active samples; 0 elsewhere) and its squared norm per
+        sample into ``norm``."""
+        be = state.be
+        for d in self.D.values():
+            be.fill(d, 0.0)
+        state.descend(self.D, self.eta, state.active)
+        be.fill(norm, 0.0)
+        for d in self.D.values():
+            be.row_dot(d, d, 1.0, norm)
+
+    def start(self, state: Any) -> None:
+        """After the first prediction: no momentum, full steps, the first step's norm into
+        ``g0`` (the relative rule's reference) and no energy to compare with yet."""
+        be = state.be
+        for v in self.V.values():
+            be.fill(v, 0.0)
+        be.fill(self.scale, 1.0)
+        be.fill(self.plain, 1)
+        be.fill(self.last, math.inf)
+        self._step_vector(state, self.g0)
+
+    def _control(self, state: Any) -> None:
+        """Nesterov's restart test and step control (`solver_kernels.restart_control`)."""
+        be = state.be
+        be.fill(self.uphill, 0.0)
+        for node, d in self.D.items():  # dF/dY . V = -(D . V) / eta
+            be.row_dot(d, self.V[node], -1.0 / self.eta[node], self.uphill)
+        be.fill(self.prior, 0.0)
+        if state.prior:
+            for y in state.Y.values():
+                be.row_dot(y, y, 0.5 * state.prior, self.prior)
+        be.restart_control(state.R, self.prior, self.last, self.scale, self.plain, self.uphill, state.active)
+
+    def step(self, state: Any) -> None:
+        """One step of every active sample, after the stopping test on the current state."""
+        be = state.be
+        self._step_vector(state, self.gnorm)
+        if self.momentum:
+            self._control(state)
+        be.stop_settled(state.R, state.limits, self.gnorm, self.scale, self.g0, self.rtol2, state.active, state.steps)
+        if self.momentum:
+            for node, d in self.D.items():
+                be.momentum_step(state.Y[node], self.V[node], d, self.config.momentum, self.uphill, self.scale,
+                                 state.active)
+        else:
+            for node, d in self.D.items():
+                be.scale_add(state.Y[node], d, 1.0, state.active)
+        state.predict_all()

@@ -1,0 +1,185 @@
+"""Test-time solvers of the latents (`vitaplace.engine.network.solver`).
+
+Expectations: the fixed point of the energy with a Gaussian prior on the latents, found by a
+very long plain-gradient solve (its fixed point does not depend on the step size, so that
+solve uses a large one) and checked to be stationary by central differences of the energy
+written out here; the Warp kernels against the numpy backend's operations.
+"""
+
+import numpy as np
+import pytest
+
+from conftest import cuda_present
+from vitaplace.engine.network.backends import NumpyBackend
+from vitaplace.engine.network.pc import InferenceConfig, Network
+from vitaplace.engine.network.selection import get_backend
+from vitaplace.engine.network.solver import curvature_steps
+from vitaplace.kernels.reference import activation
+
+SMALL = {
+    "modalities": {
+        "visual": {"input_size": 9, "layers": [6, 4], "eta_y": 0.02, "eta_w": 0.0, "threshold": 0.0},
+        "tactile": {"input_size": 5, "layers": [3], "eta_y": 0.02, "eta_w": 0.0, "threshold": 0.0},
+    },
+    "joint": {"size": 3, "eta_y": 0.02, "eta_w": 0.0, "threshold": 0.0},
+    "activation": "tanh",
+    "slope": 0.2,
+}
+PRIOR = 0.1
+
+
+def network(backend, activation_name: str = "tanh") -> Network:
+    return Network({**SMALL, "activation": activation_name}, seed=5, backend=backend)
+
+
+def inputs_for(net: Network, n: int = 4) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(2)
+    return {m: rng.random((n, net.sizes[f"{m}.0"])) for m in net.modalities}
+
+
+def energy(net: Network, x: dict[str, np.ndarray], y: dict[str, np.ndarray]) -> float:
+    """sum_edges ||X_d - phi(Y_u W)||^2 + PRIOR / 2 sum ||Y||^2, in float64, written out here."""
+    total = 0.0
+    for e in net.active_edges(net.modalities):
+        lower = y[e.lower] if e.lower in y else x[e.lower.split(".")[0]]
+        pred = activation(y[e.upper] @ net.weights[e.name].astype(np.float64), net.config.activation, net.config.slope)
+        total += float(np.sum((lower - pred) ** 2))
+    return total + 0.5 * PRIOR * sum(float(np.sum(v**2)) for v in y.values())
+
+
+@pytest.fixture(scope="module")
+def reference():
+    """The float64 fixed point of a 200 000-step plain-gradient solve (no stopping)."""
+    net = network(NumpyBackend(np.float64))
+    x = inputs_for(net)
+    result = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", prior=PRIOR))
+    assert not result.settled.any()  # thresholds 0 and no relative rule: it ran to the cap
+    return net, x, result.latents
+
+
+def relative(a: dict[str, np.ndarray], b: dict[str, np.ndarray]) -> float:
+    return float(np.sqrt(sum(np.sum((a[n] - b[n]) ** 2) for n in b) / sum(np.sum(b[n] ** 2) for n in b)))
+
+
+def test_the_long_plain_gradient_solve_is_a_stationary_point(reference):
+    net, x, y = reference
+    rng = np.random.default_rng(0)
+    start = {n: np.full_like(v, 0.1) for n, v in y.items()}
+    for _ in range(3):
+        v = {n: rng.standard_normal(a.shape) for n, a in y.items()}
+        h = 1e-5
+        slope = (energy(net, x, {n: y[n] + h * v[n] for n in y}) - energy(net, x, {n: y[n] - h * v[n] for n in y})) / (2 * h)
+        at_start = (energy(net, x, {n: start[n] + h * v[n] for n in y})
+                    - energy(net, x, {n: start[n] - h * v[n] for n in y})) / (2 * h)
+        assert abs(slope) < 1e-6 * max(1.0, abs(at_start)), (slope, at_start)
+
+
+@pytest.mark.parametrize("activation_name", ["tanh", "sigmoid"])
+def test_nesterov_reaches_the_same_fixed_point_in_float64_within_1e_6(activation_name):
+    net = network(NumpyBackend(np.float64), activation_name)
+    x = inputs_for(net)
+    long = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", prior=PRIOR)).latents
+    fast = net.infer(x, max_steps=20_000, inference=InferenceConfig("nesterov", 0.9, 1e-12, PRIOR))
+    assert fast.settled.all() and fast.steps < 20_000
+    assert relative(fast.latents, long) < 1e-6
+
+
+BACKENDS = [
+    pytest.param(("numpy", None), id="numpy"),
+    pytest.param(("warp", "cpu"), id="warp-cpu"),
+    pytest.param(("warp", "cuda"), id="warp-cuda", marks=pytest.mark.cuda),
+]
+
+
+@pytest.mark.parametrize("which", BACKENDS)
+def test_nesterov_in_float32_is_within_1e_3_of_the_fixed_point(reference, which):
+    name, device = which
+    if device == "cuda" and not cuda_present():
+        pytest.skip("no CUDA device")
+    if name == "warp":
+        pytest.importorskip("warp")
+    _, x, y = reference
+    net = network(get_backend(name, device))
+    x32 = {m: v.astype(np.float32) for m, v in x.items()}
+    result = net.infer(x32, max_steps=5000, inference=InferenceConfig("nesterov", 0.9, 1e-5, PRIOR))
+    assert result.settled.all()
+    assert relative({n: v.astype(np.float64) for n, v in result.latents.items()}, y) < 1e-3
+
+
+def test_the_relative_rule_stops_plain_steps_once_the_step_has_shrunk():
+    """With rtol 1e-3 plain steps stop long before the cap, at a point whose distance to the
+    fixed point is small; without it they run to the cap (thresholds 0)."""
+    net = network(NumpyBackend(np.float64))
+    x = inputs_for(net)
+    long = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", prior=PRIOR)).latents
+    ruled = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", rtol=1e-3, prior=PRIOR))
+    assert ruled.settled.all() and ruled.steps < 200_000
+    assert relative(ruled.latents, long) < 0.05
+
+
+def test_the_prior_moves_the_fixed_point_towards_zero(reference):
+    """A stronger prior gives latents of a smaller norm (the prior's pull on the energy)."""
+    _, x, y = reference
+    net = network(NumpyBackend(np.float64))
+    strong = net.infer(x, max_steps=20_000, inference=InferenceConfig("nesterov", 0.9, 1e-12, 10 * PRIOR)).latents
+    assert sum(np.sum(strong[n] ** 2) for n in y) < sum(np.sum(y[n] ** 2) for n in y)
+
+
+def test_the_curvature_steps_are_the_gauss_newton_bound():
+    """1 / (prior + 2 g^2 sum over the edges below of ||W||_2^2 + 2 when an edge is above),
+    g = 1 for tanh, by hand from the spectral norms."""
+    net = network(NumpyBackend(np.float64))
+    nodes = net.latent_nodes(net.modalities)
+    steps = curvature_steps(net.weights, net.active_edges(net.modalities), nodes, "tanh", 0.2, PRIOR)
+    norm = {name: np.linalg.norm(w.astype(np.float64), 2) ** 2 for name, w in net.weights.items()}
+    expected = {
+        "visual.1": PRIOR + 2 * norm["visual.1"] + 2,
+        "visual.2": PRIOR + 2 * norm["visual.2"] + 2,
+        "tactile.1": PRIOR + 2 * norm["tactile.1"] + 2,
+        "joint": PRIOR + 2 * (norm["joint.visual"] + norm["joint.tactile"]),
+    }
+    assert set(steps) == set(expected)
+    for node, bound in expected.items():
+        assert steps[node] == pytest.approx(1 / bound, rel=1e-5), node
+
+
+# ---------------------------------------------------------------------------- kernels
+
+@pytest.fixture(scope="module")
+def warp_cpu():
+    pytest.importorskip("warp")
+    return get_backend("warp", "cpu")
+
+
+def test_the_solver_kernels_match_the_numpy_backend(warp_cpu):
+    rng = np.random.default_rng(4)
+    b, n = 7, 5
+    ref = NumpyBackend()
+    Y, V, D, src = (rng.standard_normal((b, n)).astype(np.float32) for _ in range(4))
+    R = rng.random((3, b))
+    mask = (rng.random(b) > 0.4).astype(np.int32)
+    last = np.where(rng.random(b) > 0.5, R.sum(axis=0) - 0.1, R.sum(axis=0) + 0.1)
+    prior_energy, scale, uphill = rng.random(b), rng.random(b) + 0.5, rng.standard_normal(b)
+    plain = (rng.random(b) > 0.5).astype(np.int32)
+    limits, gnorm, g0 = rng.random(3), rng.random(b), rng.random(b)
+    steps = np.arange(b, dtype=np.int32)
+
+    cases = [
+        ("scale_add", lambda be, a: be.scale_add(a[0], a[1], 0.7, a[2]), [Y, src, mask]),
+        ("scale_add all", lambda be, a: be.scale_add(a[0], a[1], -1.3, None), [Y, src]),
+        ("row_dot", lambda be, a: be.row_dot(a[0], a[1], 0.5, a[2]), [Y, src, rng.random(b)]),
+        ("restart_control", lambda be, a: be.restart_control(*a), [R, prior_energy, last, scale, plain, uphill, mask]),
+        ("momentum_step", lambda be, a: be.momentum_step(a[0], a[1], a[2], 0.9, a[3], a[4], a[5]),
+         [Y, V, D, (uphill > 0).astype(np.float64), scale, mask]),
+        ("stop_settled", lambda be, a: be.stop_settled(a[0], a[1], a[2], a[3], a[4], 0.3, a[5], a[6]),
+         [R, limits, gnorm, scale, g0, mask, steps]),
+    ]
+    for label, op, arrays in cases:
+        host = [a.copy() for a in arrays]
+        dev = [warp_cpu.empty(a.shape, a.dtype.type) for a in arrays]
+        for a, d in zip(arrays, dev):
+            warp_cpu.upload(a, d)
+        op(ref, host)
+        op(warp_cpu, dev)
+        for k, (h, d) in enumerate(zip(host, dev)):
+            np.testing.assert_allclose(warp_cpu.download(d), h, rtol=1e-6, atol=1e-6, err_msg=f"{label}: argument {k}")
