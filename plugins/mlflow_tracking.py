@@ -45,8 +45,9 @@ PARENT_ENV = "VITAPLACE_MLFLOW_PARENT"
 #: the per-row numbers logged as metrics
 METRICS = ("max_f1", "auc", "precision_at_max_f1", "recall_at_max_f1", "recall_at_100_precision")
 ARTIFACTS = ("report.md", "results.json", "results.csv", "manifest.json", "scenario.resolved.yaml")
-#: a sweep's summary files, logged to its parent run
-SWEEP_FILES = ("sweep.json", "sweep.csv", "sweep-seeds.csv", "sweep-diff.csv", "sweep.md", "sweep.tex")
+#: a sweep's summary files (on a grid, `vitaplace sweep --grid`: its table across points), logged to its parent run
+SWEEP_FILES = ("sweep.json", "sweep.csv", "sweep-seeds.csv", "sweep-diff.csv", "sweep.md", "sweep.tex",
+               "grid.json", "grid.csv", "grid.md")
 #: the tag holding the digest of what a run logged (`run_key`, `sweep_key`); a later run with the same digest is skipped
 KEY_TAG = "vitaplace.key"
 #: the parent run's tag: the digest of the sweep.json it logged last
@@ -211,16 +212,18 @@ def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[
 
 
 @hookimpl
-def vitaplace_sweep_finished(out: Path, scenario: Any, seeds: list[int], failed: dict[int, str],
+def vitaplace_sweep_finished(out: Path, scenario: Any, seeds: list[int], failed: dict[int | str, str],
                              environment: dict[str, str]) -> None:
     """Log the sweep's summary files and PR bands to its parent run (not again when its
-    sweep.json is the one logged last) and end the run: FAILED when a seed failed."""
+    sweep.json, or a grid's grid.json, is the one logged last) and end the run: FAILED when a
+    seed failed."""
     parent = environment.get(PARENT_ENV)
     if not parent or (found := _client()) is None:
         return
     _, client = found
     out = Path(out)
-    summary = _digest([(out / "sweep.json").read_bytes()]) if (out / "sweep.json").is_file() else ""
+    summaries = [(out / name).read_bytes() for name in ("sweep.json", "grid.json") if (out / name).is_file()]
+    summary = _digest(summaries) if summaries else ""
     client.set_terminated(parent, "FAILED" if failed else "FINISHED")
     if client.get_run(parent).data.tags.get(SUMMARY_TAG) == summary:
         log.info("MLflow: this sweep's summary is logged already (run %s): not logged again", parent)

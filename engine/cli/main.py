@@ -1,4 +1,4 @@
-"""Command-line interface: ``vitaplace run|validate|simulate|train|evaluate|report|difficulty|plugins|sweep|aggregate|import|view|video``.
+"""Command-line interface: ``vitaplace run|validate|config|simulate|train|evaluate|report|difficulty|plugins|sweep|aggregate|import|view|video``.
 
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
@@ -95,6 +95,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="check a scenario or an environment file (or a shipped one by name) without running anything",
     )
     _add_scenario_args(p, out=False)
+    p = sub.add_parser("config", parents=[common],
+                       help="print the resolved scenario as YAML: what run would use (extends merged, --set applied)")
+    _add_scenario_args(p, out=False)
     sub.add_parser("plugins", parents=[common], help="list the feature-extractor plugins and any that failed to load")
     p = sub.add_parser(
         "import", parents=[common], help="convert a MultiPredNet/WhiskEye MATLAB folder into a run file (HDF5)"
@@ -136,6 +139,13 @@ def _add_sweep_command(sub: argparse._SubParsersAction, common: argparse.Argumen
     p = sub.add_parser("sweep", parents=[common], help="run a scenario over several seeds (local process pool, Ray or SLURM)")
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
+    p.add_argument(
+        "--grid", action="append", default=[], metavar="KEY.PATH=V1,V2,...",
+        help="run every seed at each value of a --set path, e.g. --grid methods.0.params.epochs=30,90,270 (values "
+        "parsed as YAML; several --grid options form their product; one folder OUT/<path end>=<value> per grid point)",
+    )
+    p.add_argument("--replace", action="store_true",
+                   help="replace a summary in --out that covers seeds or grid points this sweep lacks (refused without it)")
     p.add_argument(
         "--workers", type=int, default=None,
         help="local worker processes (default: the CPUs this process may use / --cpus-per-job)",
@@ -413,6 +423,18 @@ def _validate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _config(args: argparse.Namespace) -> int:
+    """`vitaplace config SCENARIO [--set ...]`: the resolved scenario, as a run writes it into
+    ``scenario.resolved.yaml``."""
+    import yaml
+
+    from vitaplace.engine.config.loading import load_scenario
+
+    _, resolved = load_scenario(args.scenario, args.overrides)
+    print(yaml.safe_dump(resolved, sort_keys=False), end="")
+    return 0
+
+
 def _import(args: argparse.Namespace) -> int:
     """`vitaplace import SRC --out RUN.h5`: a MultiPredNet-layout folder as a run file."""
     from vitaplace.engine.data.dataset import DatasetError, write_run
@@ -434,6 +456,7 @@ def _sweep(args: argparse.Namespace) -> int:
     from vitaplace.engine.cli.slurm import check_queue_clear, settings_from_args
     from vitaplace.engine.study.summary import cell
     from vitaplace.engine.cli.sweep import check_placement, load_sweep_scenario, run_sweep
+    from vitaplace.engine.study.grid import grid_points, load_points, parse_axes
 
     if args.cpus_per_job <= 0 or args.gpus_per_job < 0:
         raise UserError("--cpus-per-job must be > 0 and --gpus-per-job >= 0")
@@ -441,7 +464,10 @@ def _sweep(args: argparse.Namespace) -> int:
         raise UserError(f"--workers {args.workers}: expected a number of worker processes, at least 1")
     slurm = settings_from_args(args)
     check_placement(args.workers, args.ray, slurm, args.gpus_per_job)
+    axes = parse_axes(args.grid, args.overrides)
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
+    grid = load_points(grid_points(axes), lambda point: load_sweep_scenario(
+        args.scenario, [*args.overrides, *point], args.gpus_per_job)) if axes else []
     log = logging.getLogger("vitaplace")
     out = Path(args.out or Path("runs") / f"{scenario.name}-sweep")
     if slurm is not None and slurm.cluster == "slurm":
@@ -450,16 +476,18 @@ def _sweep(args: argparse.Namespace) -> int:
         outcome = run_sweep(
             scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress,
             _forced(args.force, "report", "sweep"),
-            args.cpus_per_job, args.gpus_per_job, slurm,
+            args.cpus_per_job, args.gpus_per_job, slurm, grid, args.replace,
         )
     for row in outcome.summary:
         if row["metric"] == "max_f1":
-            log.info("%-6s %-12s %-20s max F1 %s", row["environment"], row["method"], row["direction"], cell(row))
+            log.info("%s%-6s %-12s %-20s max F1 %s", f"{row['point']} " if grid else "", row["environment"],
+                     row["method"], row["direction"], cell(row))
+    table, runs = out / ("grid.md" if grid else "sweep.md"), len(args.seeds) * max(1, len(grid))
     if outcome.failed:
         log.error("%d of %d seeds failed, missing from the summary: %s; summary of the others in %s",
-                  len(outcome.failed), len(args.seeds), " ".join(map(str, sorted(outcome.failed))), out / "sweep.md")
+                  len(outcome.failed), runs, " ".join(map(str, sorted(outcome.failed))), table)
         return EXIT_SEEDS_FAILED
-    log.info("summary of %d seeds in %s", len(args.seeds), out / "sweep.md")
+    log.info("summary of %d seeds in %s", runs, table)
     return 0
 
 
@@ -502,6 +530,8 @@ def _main(argv: list[str] | None) -> int:
             return _plugins()
         if args.command == "validate":
             return _validate(args)
+        if args.command == "config":
+            return _config(args)
         if args.command == "sweep":
             return _sweep(args)
         if args.command == "aggregate":

@@ -51,6 +51,7 @@ from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.cli.installation import describe, installation, mismatch
 from vitaplace.engine.cli.ray_auth import init_ray
 from vitaplace.engine.cli.slurm import SlurmSettings, run_array
+from vitaplace.engine.study.grid import GridPoint, check_replace, summarise_point, write_grid_summary
 
 log = logging.getLogger("vitaplace")
 
@@ -74,6 +75,23 @@ class SeedJob:
     progress: bool = False
     #: a file the driver wrote into ``out``; a job that cannot see it is on other storage
     marker: str = ""
+    #: the job's grid point, its folder in ``out`` (`vitaplace.engine.study.grid`); "" without a grid
+    point: str = ""
+
+    @property
+    def key(self) -> int | str:
+        """The job's name in a sweep's outcome: the seed, or ``<point>/seed-<s>`` on a grid."""
+        return f"{self.point}/seed-{self.seed}" if self.point else self.seed
+
+    @property
+    def label(self) -> str:
+        """``seed <s>``, or ``<point> seed <s>`` on a grid (log lines, Ray task names)."""
+        return f"{self.point} seed {self.seed}" if self.point else f"seed {self.seed}"
+
+    @property
+    def folder(self) -> Path:
+        """The job's run folder: ``OUT[/<point>]/seed-<s>``."""
+        return seed_dir(Path(self.out) / self.point, self.seed)
 
 
 class SeedFailed(Exception):
@@ -93,10 +111,11 @@ class SweepOutcome:
 
     out: Path
     rows: list[dict[str, Any]] = field(default_factory=list)
-    failed: dict[int, str] = field(default_factory=dict)
+    #: `SeedJob.key` (the seed, or ``<point>/seed-<s>`` on a grid) -> its failure in one line
+    failed: dict[int | str, str] = field(default_factory=dict)
     #: hosts whose jobs could not see the driver's ``OUT``
     unshared: list[str] = field(default_factory=list)
-    #: the summary rows written to sweep.csv
+    #: the summary rows written to sweep.csv (on a grid: grid.csv, each row naming its point)
     summary: list[dict[str, Any]] = field(default_factory=list)
 
 
@@ -163,8 +182,8 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
     limit_blas_threads(usable_cpus())  # a Ray task's or SLURM task's CPUs, a pool worker's share
     host, sees_out = socket.gethostname(), not job.marker or Path(job.marker).exists()
     if not sees_out:
-        log.warning("seed %d on %s: %s is not visible here: --out is not on shared storage", job.seed, host, job.out)
-    folder = seed_dir(Path(job.out), job.seed)
+        log.warning("%s on %s: %s is not visible here: --out is not on shared storage", job.label, host, job.out)
+    folder = job.folder
     handler = None
     try:
         folder.mkdir(parents=True, exist_ok=True)
@@ -234,9 +253,10 @@ def load_sweep_scenario(name: str, overrides: Sequence[str], gpus_per_job: float
 
 def seed_jobs(
     scenario: Scenario, resolved: dict[str, Any], seeds: Sequence[int], out: Path, force: Sequence[str] = (),
-    progress: bool = False, marker: str = "",
+    progress: bool = False, marker: str = "", point: str = "",
 ) -> list[SeedJob]:
-    """One job per seed; each seed is validated here, so a bad one is a user error up front."""
+    """One job per seed (of the grid point ``point``); each seed is validated here, so a bad
+    one is a user error up front."""
     from vitaplace.engine.pipeline.runner import STAGES
     from vitaplace.engine.sim.environment import load_environment
 
@@ -255,8 +275,18 @@ def seed_jobs(
             Scenario.model_validate(data)
         except Exception:
             raise ScenarioError(f"--seeds: {seed} is not a valid scenario seed (0 <= seed < 2**32)") from None
-        jobs.append(SeedJob(data, environments, seed, str(out), tuple(force), progress, marker))
+        jobs.append(SeedJob(data, environments, seed, str(out), tuple(force), progress, marker, point))
     return jobs
+
+
+def sweep_jobs(
+    points: Sequence[GridPoint], seeds: Sequence[int], out: Path, force: Sequence[str] = (), progress: bool = False,
+    marker: str = "",
+) -> list[SeedJob]:
+    """The jobs of a sweep, point by point (`seed_jobs` of each loaded grid point): what every
+    backend runs."""
+    return [job for point in points
+            for job in seed_jobs(point.scenario, dict(point.resolved), seeds, out, force, progress, marker, point.name)]
 
 
 def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
@@ -266,15 +296,15 @@ def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dic
     pool and every job still in it; those jobs run again, each in a pool of its own, so the
     one that kills its process fails alone (its finished stages are cached and resume)."""
     rounds = [(list(jobs), workers)]
-    retried: set[int] = set()
+    retried: set[int | str] = set()
     while rounds:
         batch, width = rounds.pop(0)
         broken = yield from _pool_round(batch, width)
         for job in broken:
-            if job.seed in retried:
+            if job.key in retried:
                 yield job, None, "its worker process died (killed, out of memory or crashed in native code)"
             else:
-                retried.add(job.seed)
+                retried.add(job.key)
                 rounds.append(([job], 1))
 
 
@@ -405,13 +435,13 @@ def _ray(
 def _ray_tasks(
     ray: Any, jobs: Sequence[SeedJob], name: str, cpus: float, gpus: float, env: Mapping[str, str] | None = None
 ) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
-    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>", with the environment variables
+    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>" (on a grid "<scenario> <point> seed <s>"), with the environment variables
     ``env`` (the plugins' `vitaplace_sweep_started` asks; a worker has the raylet's environment,
     not the driver's); yield as each one ends."""
     remote = ray.remote(run_seed)
     extra = {"runtime_env": {"env_vars": dict(env)}} if env else {}
     pending = {
-        remote.options(name=f"{name} seed {job.seed}", num_cpus=cpus, num_gpus=gpus, **extra).remote(job): job for job in jobs
+        remote.options(name=f"{name} {job.label}", num_cpus=cpus, num_gpus=gpus, **extra).remote(job): job for job in jobs
     }
     try:
         while pending:
@@ -449,30 +479,31 @@ def run_sweep(
     cpus_per_job: float = 1,
     gpus_per_job: float = 0,
     slurm: SlurmSettings | None = None,
+    grid: Sequence[GridPoint] = (),
+    replace: bool = False,
 ) -> SweepOutcome:
-    """Run every seed, locally (process pool), on Ray or as a SLURM array (``slurm``; its
-    settings then give the CPUs and GPUs), and write the summary of those that succeeded into
-    ``out`` (`vitaplace.engine.study.summary`). A failed seed does not stop the others."""
-    from tqdm import tqdm
-    from tqdm.contrib.logging import logging_redirect_tqdm
-
+    """Run every seed (of every point of ``grid``, loaded by
+    `vitaplace.engine.study.grid.load_points`; without one, of ``scenario``), locally (process
+    pool), on Ray or as a SLURM array (``slurm``; its settings then give the CPUs and GPUs),
+    and write the summary of those that succeeded into ``out`` (`vitaplace.engine.study.summary`;
+    on a grid, each point's into ``out/<point>`` and the table across points into ``out``). A
+    failed seed does not stop the others. An ``out`` whose summary covers seeds or grid points
+    this sweep lacks is refused before anything runs, unless ``replace`` (`check_replace`)."""
     from vitaplace.engine.extension.registry import announce_sweep_finished, announce_sweep_started, discover
-    from vitaplace.engine.report.figures import write_pr_bands
-    from vitaplace.engine.study.summary import write_summary
 
     check_placement(workers, ray_address, slurm, gpus_per_job)
     out = Path(os.path.abspath(out))
     out.mkdir(parents=True, exist_ok=True)
+    points = list(grid) or [GridPoint("", scenario=scenario, resolved=resolved)]
+    check_replace(out, points, seeds, replace)
     marker = out / f".sweep-marker-{uuid.uuid4().hex}"
     local = not (ray_address or slurm)
-    jobs = seed_jobs(scenario, resolved, seeds, out, force, progress and len(seeds) == 1 and local, str(marker))
+    jobs = sweep_jobs(points, seeds, out, force, progress and len(seeds) * len(points) == 1 and local, str(marker))
     registry = discover()
     worker_env = announce_sweep_started(registry, out, scenario, list(seeds))  # e.g. a tracker's parent run
     saved_env = {name: os.environ.get(name) for name in worker_env}
     os.environ.update(worker_env)  # inherited by the local workers and SLURM's tasks; Ray's get them below
     marker.write_text("")
-    outcome = SweepOutcome(out)
-    started = time.perf_counter()
     try:
         if ray_address:
             ended = _ray(jobs, scenario.name, ray_address, cpus_per_job, gpus_per_job, worker_env)
@@ -480,24 +511,7 @@ def run_sweep(
             ended = run_array(run_seed_reported, jobs, slurm, out / "slurm", f"vitaplace-{scenario.name}")
         else:
             ended = _local(jobs, workers or max(1, min(len(jobs), usable_cpus() // max(1, int(cpus_per_job)))))
-        with logging_redirect_tqdm([log]), tqdm(total=len(jobs), desc="seeds", unit="seed", disable=not progress) as bar:
-            for job, result, failure in ended:
-                bar.update()
-                if failure is not None:
-                    outcome.failed[job.seed] = failure
-                    trace = seed_dir(out, job.seed) / SEED_ERROR
-                    where = f" (traceback in {trace})" if trace.is_file() else ""
-                    log.error("seed %d failed: %s%s", job.seed, failure, where)
-                    continue
-                outcome.rows += result["rows"]
-                if not result["sees_out"] and not outcome.unshared:
-                    log.warning(
-                        "--out %s is not on storage the workers share: node %s cannot see it, so its seed folders "
-                        "and cache stay on that node (the summary is still complete)", out, result["host"],
-                    )
-                if not result["sees_out"]:
-                    outcome.unshared.append(result["host"])
-                log.info("seed %d done on %s (%.0f s into the sweep)", job.seed, result["host"], time.perf_counter() - started)
+        outcome, by_point = _collect(out, ended, len(jobs), progress)
     finally:
         marker.unlink(missing_ok=True)
         for name, value in saved_env.items():  # the driver's environment as it was
@@ -505,10 +519,45 @@ def run_sweep(
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
+    found = {p.name: by_point.get(p.name, ([], {})) for p in points}
+    summaries = {p.name: summarise_point(out, p, scenario.name, *found[p.name]) for p in points}
+    outcome.summary = (write_grid_summary(out, scenario.name, points, seeds, summaries,
+                                          {name: failed for name, (_, failed) in found.items()})
+                       if grid else summaries[""])
     ok = sorted({row["seed"] for row in outcome.rows})
-    info = {"scenario": scenario.name, "seeds": ok, "failed": {str(s): m for s, m in sorted(outcome.failed.items())}}
-    folders = {seed: seed_dir(out, seed) for seed in ok}
-    outcome.summary = write_summary(out, outcome.rows, f"{scenario.name}: {len(ok)} seed(s)", info, folders)["summary"]
-    write_pr_bands(out, folders, outcome.rows)
     announce_sweep_finished(registry, out, scenario, ok, dict(outcome.failed), worker_env)
     return outcome
+
+
+def _collect(
+    out: Path, ended: Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]], total: int, progress: bool
+) -> tuple[SweepOutcome, dict[str, tuple[list[dict[str, Any]], dict[int, str]]]]:
+    """Go through the ``total`` jobs as they end, each logged: the sweep's outcome, and per
+    grid point (its name) the result rows of its seeds that succeeded and its failed seeds."""
+    from tqdm import tqdm
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    outcome = SweepOutcome(out)
+    by_point: dict[str, tuple[list[dict[str, Any]], dict[int, str]]] = {}
+    started = time.perf_counter()
+    with logging_redirect_tqdm([log]), tqdm(total=total, desc="seeds", unit="seed", disable=not progress) as bar:
+        for job, result, failure in ended:
+            bar.update()
+            rows, failed = by_point.setdefault(job.point, ([], {}))
+            if failure is not None:
+                outcome.failed[job.key] = failed[job.seed] = failure
+                trace = job.folder / SEED_ERROR
+                where = f" (traceback in {trace})" if trace.is_file() else ""
+                log.error("%s failed: %s%s", job.label, failure, where)
+                continue
+            outcome.rows += result["rows"]
+            rows += result["rows"]
+            if not result["sees_out"] and not outcome.unshared:
+                log.warning(
+                    "--out %s is not on storage the workers share: node %s cannot see it, so its seed folders "
+                    "and cache stay on that node (the summary is still complete)", out, result["host"],
+                )
+            if not result["sees_out"]:
+                outcome.unshared.append(result["host"])
+            log.info("%s done on %s (%.0f s into the sweep)", job.label, result["host"], time.perf_counter() - started)
+    return outcome, by_point

@@ -52,11 +52,13 @@ def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[
 
 
 @hookspec
-def vitaplace_sweep_finished(out: Path, scenario: Any, seeds: list[int], failed: dict[int, str],
+def vitaplace_sweep_finished(out: Path, scenario: Any, seeds: list[int], failed: dict[int | str, str],
                              environment: dict[str, str]) -> None:
     """A sweep ended: ``out`` holds the summary of ``seeds`` (those that succeeded; sweep.json,
     sweep.csv, sweep-seeds.csv, sweep-diff.csv, sweep.md, sweep.tex and the pr-bands-*
-    figures); ``failed``: seed -> its one-line failure; ``environment``: the variables the
+    figures; a grid's, ``vitaplace sweep --grid``: grid.json, grid.csv and grid.md, and each
+    point's summary in its folder ``out/<point>``); ``failed``: seed (on a grid:
+    ``<point>/seed-<s>``) -> its one-line failure; ``environment``: the variables the
     `vitaplace_sweep_started` hooks asked for. Called in the driver; an exception is logged
     as a warning naming the plugin.
     """

@@ -239,7 +239,7 @@ def announce_sweep_started(registry: Registry, out: Path, scenario: Any, seeds: 
     return environment
 
 
-def announce_sweep_finished(registry: Registry, out: Path, scenario: Any, seeds: list[int], failed: dict[int, str],
+def announce_sweep_finished(registry: Registry, out: Path, scenario: Any, seeds: list[int], failed: dict[int | str, str],
                             environment: dict[str, str]) -> None:
     """Call every plugin's `vitaplace_sweep_finished` hook (one that raises: a warning)."""
     _call_each(registry, "vitaplace_sweep_finished", "sweep-finished hook", out=out, scenario=scenario, seeds=seeds,

@@ -88,6 +88,8 @@ SEED_COLUMNS = ("seed", "environment", "method", "direction", "metric", "kind", 
 INTERVAL_COLUMNS = ("t_low", "t_high", "boot_low", "boot_high", "block_low", "block_high")
 STAT_COLUMNS = ("n", "mean", "std", "min", "max", *INTERVAL_COLUMNS)
 SUMMARY_COLUMNS = ("environment", "method", "direction", "metric", "kind", *STAT_COLUMNS)
+#: the files `write_summary` writes
+SUMMARY_FILES = ("sweep-seeds.csv", "sweep.csv", "sweep-diff.csv", "sweep.md", "sweep.tex", "sweep.json")
 DIFF_COLUMNS = ("environment", "direction", "metric", "method_a", "method_b", *STAT_COLUMNS, "p_sign_flip")
 
 #: what sweep.json says about how its numbers were made
@@ -326,23 +328,27 @@ def interval(row: Mapping[str, Any], name: str) -> str:
     return "–" if math.isnan(low) else f"[{low:.3f}, {high:.3f}]"
 
 
+#: the header of `stat_cells`
+STAT_HEADER = ("n", "mean ± std", "t 95 %", "bootstrap 95 %", "block 95 %")
+
+
+def stat_cells(row: Mapping[str, Any]) -> list[str]:
+    """A summary row's n, mean ± std and its three intervals, as table cells."""
+    return [str(row["n"]), cell(row), interval(row, "t"), interval(row, "boot"), interval(row, "block")]
+
+
 def _tables(summary: Sequence[Mapping], diffs: Sequence[Mapping]) -> list[tuple[str, list[str], list[list[str]]]]:
     """(caption, header, body) of the metrics, the paired differences and the descriptors
     tables, as text cells."""
-    stat = ["n", "mean ± std", "t 95 %", "bootstrap 95 %", "block 95 %"]
-
-    def stats_cells(r: Mapping) -> list[str]:
-        return [str(r["n"]), cell(r), interval(r, "t"), interval(r, "boot"), interval(r, "block")]
-
     metric_rows = [r for r in summary if r["kind"] == "metric"]
     descriptor_rows = [r for r in summary if r["kind"] == "descriptor"]
     return [
         ("Metrics over seeds",
-         ["environment", "method", "direction", "metric", *stat],
-         [[r["environment"], r["method"], r["direction"], r["metric"], *stats_cells(r)] for r in metric_rows]),
+         ["environment", "method", "direction", "metric", *STAT_HEADER],
+         [[r["environment"], r["method"], r["direction"], r["metric"], *stat_cells(r)] for r in metric_rows]),
         ("Paired differences between methods (per seed, a - b)",
-         ["environment", "direction", "metric", "difference", *stat, "p (sign flip)"],
-         [[r["environment"], r["direction"], r["metric"], f"{r['method_a']} - {r['method_b']}", *stats_cells(r),
+         ["environment", "direction", "metric", "difference", *STAT_HEADER, "p (sign flip)"],
+         [[r["environment"], r["direction"], r["metric"], f"{r['method_a']} - {r['method_b']}", *stat_cells(r),
            f"{r['p_sign_flip']:.3g}"] for r in diffs]),
         ("Per method, not compared: sample counts, thresholds, drive difficulty",
          ["environment", "method", "direction", "value", "n", "mean", "min", "max"],

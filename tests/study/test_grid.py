@@ -1,0 +1,273 @@
+"""Parameter grids (`vitaplace sweep --grid`) on the process pool, Ray and SLURM's local
+executor, `vitaplace config`, and the refusal of a sweep into a folder whose summary covers
+seeds or grid points the sweep lacks. Expectations come from elsewhere: a grid point's
+seed folder holds what `vitaplace config --set` resolves for the same assignments, a point's
+rows in the grid table are what `vitaplace aggregate` writes for that point's seed folders,
+and the statistics are recomputed here from the seeds' own results.json."""
+
+import json
+import math
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+from scipy import stats
+from test_sweep import LIST_TASKS, own_ray, plugin_env, read_csv, tiny_scenario, vitaplace  # noqa: F401 - fixtures
+
+import vitaplace as api
+from vitaplace.engine.cli.main import main
+from vitaplace.engine.config.scenario import Scenario, ScenarioError
+from vitaplace.engine.study import grid
+
+AXES = ["--grid", "scoring.tau=0.3,0.5", "--grid", "methods.1.params.crop_fraction=0.5,1.0"]
+#: the product of AXES, the first varying slowest: (folder, tau, crop_fraction)
+POINTS = [("tau=0.3,crop_fraction=0.5", 0.3, 0.5), ("tau=0.3,crop_fraction=1.0", 0.3, 1.0),
+          ("tau=0.5,crop_fraction=0.5", 0.5, 0.5), ("tau=0.5,crop_fraction=1.0", 0.5, 1.0)]
+NAMES = [name for name, _, _ in POINTS]
+
+
+def _scenario_file(folder: Path, fail_seed: int = -1, test_plugin: bool = True) -> Path:
+    """The tiny scenario; without ``test_plugin``, its hand-crafted method alone (for this process)."""
+    scenario = tiny_scenario(fail_seed)
+    scenario["methods"] = scenario["methods"][0 if test_plugin else 1:]
+    path = folder / "tiny.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    return path
+
+
+@pytest.fixture(scope="module")
+def grid_sweep(tmp_path_factory, plugin_env):  # noqa: F811
+    """A 2 x 2 grid over seeds 0 and 1 on two local processes."""
+    tmp = tmp_path_factory.mktemp("grid")
+    path, out = _scenario_file(tmp), tmp / "out"
+    args = ["sweep", str(path), *AXES, "--seeds", "0", "1", "--workers", "2", "--out", str(out), "--no-progress"]
+    return path, out, vitaplace(args, plugin_env)
+
+
+def _without_environment_paths(resolved: dict) -> dict:
+    """``resolved`` without the environment paths (a seed folder's name its own copies)."""
+    resolved = json.loads(json.dumps(resolved))
+    for entry in [resolved["train"], *resolved["evaluations"]]:
+        entry.pop("environment", None)
+    return resolved
+
+
+#: `vitaplace config` for each argument list in argv[1] (JSON), the outputs between MARK lines
+CONFIGS = """
+import json, sys
+from vitaplace.engine.cli.main import main
+for args in json.loads(sys.argv[1]):
+    print("=====", flush=True)
+    assert main(["config", *args]) == 0
+    sys.stdout.flush()
+"""
+
+
+def test_every_point_and_seed_runs_what_config_resolves_for_its_assignments(grid_sweep, plugin_env):  # noqa: F811
+    path, out, result = grid_sweep
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert sorted(p.name for p in out.iterdir() if "=" in p.name) == sorted(NAMES)  # 2 x 2 points, no more
+    runs = [(name, seed, [str(path), "--set", f"seed={seed}", "--set", f"scoring.tau={tau}",
+                          "--set", f"methods.1.params.crop_fraction={crop}"]) for name, tau, crop in POINTS for seed in (0, 1)]
+    configs = subprocess.run([sys.executable, "-c", CONFIGS, json.dumps([args for _, _, args in runs])],
+                             capture_output=True, text=True, timeout=300, env=plugin_env, check=True).stdout
+    for (name, seed, _), printed in zip(runs, configs.split("=====\n")[1:], strict=True):
+        ran = yaml.safe_load((out / name / f"seed-{seed}" / "scenario.resolved.yaml").read_text())
+        assert _without_environment_paths(ran) == _without_environment_paths(yaml.safe_load(printed))
+    for name in NAMES:
+        assert json.loads((out / name / "sweep.json").read_text())["seeds"] == [0, 1]
+    record = json.loads((out / "grid.json").read_text())
+    assert [p["name"] for p in record["points"]] == NAMES
+    assert record["grid"] == {"scoring.tau": [0.3, 0.5], "methods.1.params.crop_fraction": [0.5, 1.0]}
+    assert "summary of 8 seeds in" in result.stderr and str(out / "grid.md") in result.stderr
+
+
+def test_a_point_s_rows_in_the_grid_table_are_what_aggregate_writes_for_its_seeds(grid_sweep, tmp_path):
+    _, out, _ = grid_sweep
+    rows = read_csv(out / "grid.csv")
+    assert [r["point"] for r in rows][:: len(rows) // 4] == NAMES  # point by point, in the product's order
+    for name, tau, crop in POINTS:
+        folder = tmp_path / name
+        assert main(["aggregate", str(out / name / "seed-0"), str(out / name / "seed-1"), "--out", str(folder)]) == 0
+        aggregated = read_csv(folder / "sweep.csv")
+        mine = [{k: v for k, v in r.items() if k not in ("point", "scoring.tau", "methods.1.params.crop_fraction")}
+                for r in rows if r["point"] == name]
+        assert mine == aggregated
+        assert {(r["scoring.tau"], r["methods.1.params.crop_fraction"]) for r in rows if r["point"] == name} == {
+            (str(tau), str(crop))}
+
+
+def test_the_grid_table_is_each_point_s_mean_and_t_interval_over_its_seeds(grid_sweep):
+    _, out, _ = grid_sweep
+    rows = read_csv(out / "grid.csv")
+    table = (out / "grid.md").read_text()
+    for name, _, _ in POINTS:
+        for method in ("O", "H"):
+            values = [r["max_f1"] for seed in (0, 1)
+                      for r in json.loads((out / name / f"seed-{seed}" / "results.json").read_text())
+                      if r["method"] == method and r["direction"] == "query-to-reference"]
+            (row,) = [r for r in rows if (r["point"], r["method"], r["metric"], r["direction"])
+                      == (name, method, "max_f1", "query-to-reference")]
+            mean, std = sum(values) / 2, abs(values[0] - values[1]) / math.sqrt(2)
+            half = stats.t.ppf(0.975, 1) * std / math.sqrt(2)
+            assert row["n"] == "2" and float(row["mean"]) == pytest.approx(mean)
+            assert float(row["t_low"]) == pytest.approx(max(0.0, mean - half))
+            assert float(row["t_high"]) == pytest.approx(min(1.0, mean + half))
+            assert f"| {name} | E1 | {method} | query-to-reference | max_f1 | 2 | {mean:.3f} ± {std:.3f} |" in table
+
+
+def test_a_sweep_that_would_drop_seeds_or_points_of_the_summary_is_refused_in_one_line(grid_sweep, plugin_env):  # noqa: F811
+    path, out, _ = grid_sweep
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file() and p.suffix in (".json", ".csv", ".md")}
+    cases = [(["--seeds", "0", "1"], "no grid, seeds 0 1"),  # a plain sweep where a grid is
+             ([*AXES, "--seeds", "0"], "grid points " + " ".join(NAMES) + ", seeds 0"),  # a seed fewer
+             (["--grid", "scoring.tau=0.3", *AXES[2:], "--seeds", "0", "1"], None)]  # two points fewer
+    for args, this in cases:
+        refused = vitaplace(["sweep", str(path), *args, "--out", str(out), "--no-progress"], plugin_env)
+        err = refused.stderr.strip().splitlines()
+        assert refused.returncode == 2 and len(err) == 1 and err[0].startswith(f"vitaplace: error: --out {out}: its summary (grid.json) covers "
+                                                   f"grid points {' '.join(NAMES)}, seeds 0 1"), err
+        assert "give --replace to replace it" in err[0] and (this is None or f"sweep of {this} would" in err[0])
+    assert not (out / "seed-0").exists() and not (out / "sweep.json").exists()
+    assert {p: p.read_bytes() for p in before} == before  # nothing lost, nothing rewritten
+
+
+def test_more_seeds_extend_a_summary_and_replace_swaps_it_for_another(tmp_path, plugin_env):  # noqa: F811
+    path, out = _scenario_file(tmp_path), tmp_path / "out"
+    common = ["sweep", str(path), "--workers", "1", "--out", str(out), "--no-progress"]
+    assert vitaplace([*common, "--seeds", "0"], plugin_env).returncode == 0
+    more = vitaplace([*common, "--seeds", "0", "1"], plugin_env)  # seed 0 resumes from its cache, seed 1 is new
+    assert more.returncode == 0, more.stderr[-2000:]
+    assert json.loads((out / "sweep.json").read_text())["seeds"] == [0, 1]
+    refused = vitaplace([*common, "--seeds", "1"], plugin_env)
+    assert refused.returncode == 2 and "covers no grid, seeds 0 1, which this sweep of no grid, seeds 1" in refused.stderr
+    assert json.loads((out / "sweep.json").read_text())["seeds"] == [0, 1]
+    replaced = vitaplace([*common, "--seeds", "1", "--replace"], plugin_env)
+    assert replaced.returncode == 0, replaced.stderr[-2000:]
+    assert json.loads((out / "sweep.json").read_text())["seeds"] == [1]
+    to_grid = vitaplace([*common, "--seeds", "1", "--grid", "scoring.tau=0.3,0.5", "--replace"], plugin_env)
+    assert to_grid.returncode == 0, to_grid.stderr[-2000:]
+    assert not (out / "sweep.json").exists() and not list(out.glob("pr-bands-*"))
+    assert [p["name"] for p in json.loads((out / "grid.json").read_text())["points"]] == ["tau=0.3", "tau=0.5"]
+
+
+def test_an_unreadable_summary_is_refused_in_one_line(tmp_path, capsys):
+    (tmp_path / "sweep.json").write_text("{not json")
+    assert main(["sweep", "quickstart", "--seeds", "0", "--out", str(tmp_path), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "its summary sweep.json cannot be read" in err[0] and "--replace" in err[0], err
+
+
+def test_a_grid_is_the_product_of_its_axes_named_by_path_ends():
+    axes = grid.parse_axes(["a.x=1,2,3", "b.y=[1, 2],{k: v}", "c=true,off"])
+    assert [(a.path, a.values) for a in axes] == [("a.x", (1, 2, 3)), ("b.y", ([1, 2], {"k": "v"})), ("c", (True, False))]
+    points = grid.grid_points(axes)
+    assert len(points) == 3 * 2 * 2 and len({p.name for p in points}) == 12
+    assert [p.name for p in points[:4]] == ["x=1,y=_1__2_,c=true", "x=1,y=_1__2_,c=off", "x=1,y=_k__v_,c=true",
+                                            "x=1,y=_k__v_,c=off"]
+    assert points[2].assignments == ("a.x=1", "b.y={k: v}", "c=true")
+    assert points[2].values == {"a.x": 1, "b.y": {"k": "v"}, "c": True}
+    shared = grid.grid_points(grid.parse_axes(["methods.0.params.epochs=1", "methods.1.params.epochs=2,3"]))
+    assert [p.name for p in shared] == ["methods.0.params.epochs=1,methods.1.params.epochs=2",
+                                        "methods.0.params.epochs=1,methods.1.params.epochs=3"]
+    assert grid.grid_points([]) == [grid.GridPoint("")]
+    assert grid.split_values(" 'a,b' , \"c\" ,d,[1, 2]") == ["'a,b'", '"c"', "d", "[1, 2]"]
+    assert grid.parse_axes(["evaluation.tau=0.3"])[0].path == "scoring.tau"  # the old name, as --set reads it
+
+
+@pytest.mark.parametrize("options, overrides, message", [
+    (["scoring.tau"], [], "expected KEY.PATH=VALUE1,VALUE2"),
+    (["methods+=1,2"], [], "expected KEY.PATH=VALUE1,VALUE2"),
+    (["scoring.tau="], [], "an empty value"),
+    (["scoring.tau=0.3,,0.5"], [], "an empty value"),
+    (["scoring.tau=[1,2"], [], "a value is not YAML"),
+    (["scoring.tau=0.3,0.30,0.5"], [], "the value 0.3 is given more than once (0.3, 0.30)"),
+    (["scoring.tau=0.3,0.5"], ["scoring.tau=0.2"], "--set also sets scoring.tau"),
+    (["scoring.tau=0.3,0.5"], ["evaluation.tau=0.2"], "--set also sets scoring.tau"),
+    (["scoring.tau=0.3", "scoring.tau=0.5"], [], "scoring.tau is already a --grid axis"),
+    (["seed=1,2"], [], "the seeds are --seeds"),
+])
+def test_a_bad_grid_is_one_line_naming_the_option(options, overrides, message):
+    with pytest.raises(ScenarioError) as error:
+        grid.parse_axes(options, overrides)
+    assert message in str(error.value) and str(error.value).startswith(f"--grid '{options[-1]}': ")
+    assert "\n" not in str(error.value)
+
+
+def test_points_that_would_share_a_folder_are_refused():
+    with pytest.raises(ScenarioError, match="two grid points would share the folder x=a_b"):
+        grid.grid_points(grid.parse_axes(["a.x=a b,a/b"]))
+
+
+@pytest.mark.parametrize("option, message", [
+    ("methods.0.params.epocs=1,2", "epocs"),
+    ("methods.7.params.epochs=1,2", "has no item 7"),
+    ("scoring.taus=1,2", "taus"),
+    ("scoring.tau=0.3,-1", "tau"),
+])
+def test_a_grid_point_the_scenario_refuses_is_one_line_before_anything_is_written(option, message, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["sweep", "quickstart", "--grid", option, "--seeds", "0", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("vitaplace: error: --grid point ") and message in err[0], err
+    assert not out.exists()
+
+
+def test_config_prints_the_scenario_the_api_resolves(tmp_path, capsys):
+    path = _scenario_file(tmp_path, test_plugin=False)
+    sets = ["scoring.tau=0.4", "methods.0.params.crop_fraction=0.5", "methods+={name: H2, plugin: handcrafted}"]
+    assert main(["config", str(path), *(a for s in sets for a in ("--set", s))]) == 0
+    printed = capsys.readouterr().out
+    assert Scenario.model_validate(yaml.safe_load(printed)) == api.load_scenario(path, sets)
+    resolved = yaml.safe_load(printed)
+    assert resolved["scoring"]["tau"] == 0.4 and resolved["methods"][1]["name"] == "H2"
+    assert main(["config", "quickstart"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out)["name"] == api.load_scenario("quickstart").name
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--set", "scoring.taus=1"], "taus"),
+    (["--set", "methods.9.name=x"], "has no item 9"),
+])
+def test_config_of_a_bad_scenario_is_one_line_exit_2(args, message, tmp_path, capsys):
+    assert main(["config", str(_scenario_file(tmp_path, test_plugin=False)), *args]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert captured.out == "" and len(err) == 1 and message in err[0], err
+    assert main(["config", str(tmp_path / "missing.yaml")]) == 2
+    assert "no such scenario file" in capsys.readouterr().err
+
+
+def test_a_grid_on_ray_runs_every_point_and_reports_a_failed_seed_by_its_point(tmp_path, own_ray):  # noqa: F811
+    prelude, env = own_ray
+    path, out = _scenario_file(tmp_path, fail_seed=1), tmp_path / "out"
+    args = ["sweep", str(path), "--grid", "scoring.tau=0.3,0.5", "--seeds", "0", "1", "--out", str(out), "--ray",
+            "auto", "--no-progress"]
+    result = vitaplace(args, env, prelude, LIST_TASKS.replace(">= 2", ">= 4"))
+    assert result.returncode == 1, result.stderr[-3000:]
+    assert "TASKS ['tiny tau=0.3 seed 0', 'tiny tau=0.3 seed 1', 'tiny tau=0.5 seed 0', 'tiny tau=0.5 seed 1']" \
+        in result.stdout, result.stdout
+    for name in ("tau=0.3", "tau=0.5"):
+        assert len(re.findall(rf"{name} seed 1 failed: ValueError: injected failure", result.stderr)) == 1
+        assert "Traceback" in (out / name / "seed-1" / "error.txt").read_text()
+        assert json.loads((out / name / "sweep.json").read_text())["seeds"] == [0]
+    assert "2 of 4 seeds failed, missing from the summary: tau=0.3/seed-1 tau=0.5/seed-1" in result.stderr
+    record = json.loads((out / "grid.json").read_text())
+    assert [p["failed"] for p in record["points"]] == [{"1": "ValueError: injected failure second line of the message"}] * 2
+    assert {r["n"] for r in read_csv(out / "grid.csv")} == {"1"}
+
+
+def test_a_grid_on_slurm_s_local_executor_is_one_array_of_every_point_s_seeds(tmp_path, plugin_env):  # noqa: F811
+    pytest.importorskip("submitit", reason="submitit is not installed (pip install 'vitaplace[slurm]')")
+    path, out = _scenario_file(tmp_path), tmp_path / "out"
+    args = ["sweep", str(path), "--grid", "methods.1.params.crop_fraction=0.5,1.0", "--seeds", "0", "--out", str(out),
+            "--slurm", "local", "--time", "10", "--no-progress"]
+    result = vitaplace(args, plugin_env)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert re.search(r"SLURM \(local\): job .*2 task\(s\)", result.stderr), result.stderr[-3000:]
+    assert [p["name"] for p in json.loads((out / "grid.json").read_text())["points"]] == ["crop_fraction=0.5",
+                                                                                         "crop_fraction=1.0"]
+    assert {r["point"] for r in read_csv(out / "grid.csv")} == {"crop_fraction=0.5", "crop_fraction=1.0"}
