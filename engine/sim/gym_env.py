@@ -195,7 +195,12 @@ class WhiskEyeEnv(gymnasium.Env):
         if not (abs(x) < arena.half_x and abs(y) < arena.half_y and math.isfinite(yaw_deg)):
             raise ValueError(f"reset: option 'start' {[x, y, yaw_deg]} is outside the arena "
                              f"(|x| < {arena.half_x:g}, |y| < {arena.half_y:g})")
-        return (x, y, math.radians(yaw_deg))
+        yaw = math.radians(yaw_deg)
+        clearance = float(footprint_clearance(self.environment.obstacles, np.array([[x, y]]), np.array([yaw]))[0])
+        if clearance < 0:
+            raise ValueError(f"reset: option 'start' {[x, y, yaw_deg]} puts the robot's body or head "
+                             f"{-clearance:.2f} m into an obstacle")
+        return (x, y, yaw)
 
     def _draw_start(self) -> tuple[float, float, float]:
         arena, rng = self.environment.arena, self.np_random

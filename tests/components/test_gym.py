@@ -171,6 +171,11 @@ def test_bad_input_is_one_clear_line(bare, tmp_path):
         bare.reset(options={"pose": [0, 0, 0]})
     with pytest.raises(ValueError, match=r"option 'start' .* is outside the arena"):
         bare.reset(options={"start": [5.0, 0, 0]})
+    e1 = make()
+    # E1's cylinder (r 0.5 m) at (0, -2.138): the body (r 0.23 m) of a base 0.338 m from its
+    # centre overlaps it by 0.5 + 0.23 - 0.338 = 0.392 m
+    with pytest.raises(ValueError, match=r"option 'start' .* 0\.39 m into an obstacle"):
+        e1.reset(options={"start": [0.0, -1.8, 0.0]})
     fresh = WhiskEyeEnv(environment=BARE_SPEC(), robot=SMALL)
     fresh.reset(seed=0)
     fresh.step(np.zeros(4, dtype=np.float32))
