@@ -22,7 +22,7 @@ import json
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
 
 import mujoco
@@ -42,13 +42,14 @@ from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec
 __all__ = ["RobotSpec", "RunSpec", "run_spec", "simulate_run", "Simulator", "run_hash"]
 
 
-def run_hash(environment: EnvironmentSpec, run: RunSpec, robot: RobotSpec, seed: int) -> str:
+def run_hash(environment: EnvironmentSpec, run: RunSpec | Mapping[str, Any], robot: RobotSpec, seed: int) -> str:
     """Content hash of everything that determines a simulated run (the run's settings in their
-    version-6 key form, `key_form`, so that hashes stay valid)."""
+    version-6 key form, `key_form`, so that hashes stay valid; a mapping, such as a Gymnasium
+    drive's settings and actions, as it is)."""
     payload = json.dumps(
         {
             "environment": environment.model_dump(mode="json"),
-            "run": key_form(run),
+            "run": dict(run) if isinstance(run, Mapping) else key_form(run),
             "robot": robot.model_dump(mode="json"),
             "seed": int(seed),
         },
@@ -100,6 +101,16 @@ class Simulator:
         ctrl[a[0]] = v * c - lateral * s
         ctrl[a[1]] = v * s + lateral * c
         ctrl[a[2]] = w
+
+    def set_whisk_amplitude(self, share: float) -> None:
+        """Whisk at ``share`` (0..1) of the full amplitude from the next step on, still peaking
+        at full protraction at each cycle's end (the sample instant): the servo command is
+        scaled about full protraction, ``hi + share (command - hi)``; 0 holds the whiskers
+        fully protracted (their pose at `reset`)."""
+        if not 0.0 <= share <= 1.0:
+            raise ValueError(f"whisk amplitude {share!r} is outside [0, 1]")
+        hi = math.radians(self.robot.protraction_max_deg)
+        self._cmd = [hi + share * (float(c) - hi) for c in self.sim.whisk_command]
 
     def cycle(self, on_series=None) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
         """Simulate one whisk cycle; it ends at maximum protraction.
@@ -285,8 +296,8 @@ def simulate_samples(sim: Simulator, samples: Samples, tick: ControlTicks, warmu
         sim.close()
 
 
-def run_from_samples(sim: Simulator, samples: Samples, environment: EnvironmentSpec, run: RunSpec, robot: RobotSpec,
-               seed: int, name: str, mode_counts: dict[str, int]) -> Run:
+def run_from_samples(sim: Simulator, samples: Samples, environment: EnvironmentSpec, run: RunSpec | Mapping[str, Any],
+                     robot: RobotSpec, seed: int, name: str, mode_counts: dict[str, int]) -> Run:
     """The simulated samples as a `Run` with everything that made them in its ``attrs``;
     raises SimulationError when the recording is implausible (`check_plausible`)."""
     warn = sim.sim.warnings(sim.data)
@@ -305,7 +316,7 @@ def run_from_samples(sim: Simulator, samples: Samples, environment: EnvironmentS
             "fovy_deg": robot.camera_fovy_deg,
             "pitch_deg": robot.camera_pitch_deg,
         },
-        "run": run.model_dump(mode="json"),
+        "run": dict(run) if isinstance(run, Mapping) else run.model_dump(mode="json"),
         "timestep": robot.timestep,
         "steps_per_cycle": robot.steps_per_cycle,
         "sample_period_s": robot.whisk_period,
