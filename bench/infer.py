@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from infer_diagnose import load
+from infer_diagnose import add_network_arguments, load, relative_distance
 from vitaplace.engine.network.backends import NumpyBackend
 from vitaplace.engine.network.pc import Network
 from vitaplace.engine.network.solver import InferenceConfig
@@ -75,12 +75,6 @@ def reference(net64: Network, inputs, prior: float, cap: int):
                        inference=InferenceConfig(solver="nesterov", prior=prior, rtol=1e-9))
 
 
-def relative_distance(latents, ref_latents, nodes) -> np.ndarray:
-    num = sum(((latents[n].astype(np.float64) - ref_latents[n]) ** 2).sum(axis=1) for n in nodes)
-    den = sum((ref_latents[n] ** 2).sum(axis=1) for n in nodes)
-    return np.sqrt(num / den)
-
-
 def gemm_seconds_per_step(net: Network, inputs, batch: int) -> float:
     """Raw float32 GEMMs of one inference step at ``batch`` rows: per edge Y_u @ W and G @ W.T."""
     present = [m for m in net.modalities if m in inputs]
@@ -102,12 +96,7 @@ def gemm_seconds_per_step(net: Network, inputs, batch: int) -> float:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", help="a fitted MuPNet method's folder (pipeline cache/models/NAME-KEY)")
-    ap.add_argument("--paper-shape", action="store_true", help="train a paper-shape network on --train instead")
-    ap.add_argument("--train", help="training run (.h5) for --paper-shape")
-    ap.add_argument("--epochs", type=int, default=10)
-    ap.add_argument("--run", required=True, help="the run (.h5) whose samples are inferred")
-    ap.add_argument("--samples", type=int, default=450)
+    add_network_arguments(ap, samples=450)
     ap.add_argument("--batch-size", type=int, default=500, help="Network.infer's batch (the plugin's default)")
     ap.add_argument("--prior", type=float, nargs="+", default=[0.0, 1.0])
     ap.add_argument("--rtol", type=float, nargs="+", default=[1e-3, 1e-4])
@@ -152,7 +141,8 @@ def main(argv: list[str] | None = None) -> int:
         # a batch runs as many steps as its slowest sample
         chunks = [r.steps_per_sample[i:i + args.batch_size] for i in range(0, n, args.batch_size)]
         batch_steps = sum(int(c.max()) for c in chunks)
-        dist = relative_distance(r.latents, refs[s.config.prior].latents, nodes)
+        dist = relative_distance({n: r.latents[n].astype(np.float64) for n in nodes},
+                                 {n: refs[s.config.prior].latents[n] for n in nodes})
         rows.append({
             "setting": s.label, "solver": s.config.solver, "prior": s.config.prior, "rtol": s.config.rtol,
             "cap": s.cap, "wall_s": wall, "steps_median": float(np.median(r.steps_per_sample)),

@@ -256,6 +256,16 @@ def gd_trajectory(model: Energy, checkpoints: list[int], reference: Latents | No
     return rows
 
 
+def add_network_arguments(ap: argparse.ArgumentParser, samples: int) -> None:
+    """The options `load` reads: which network, which run, how many of its samples."""
+    ap.add_argument("--model", help="a fitted MuPNet method's folder (pipeline cache/models/NAME-KEY)")
+    ap.add_argument("--paper-shape", action="store_true", help="train a paper-shape network on --train instead")
+    ap.add_argument("--train", help="training run (.h5) for --paper-shape")
+    ap.add_argument("--epochs", type=int, default=10)
+    ap.add_argument("--run", required=True, help="the run (.h5) whose samples are inferred")
+    ap.add_argument("--samples", type=int, default=samples)
+
+
 def load(args) -> tuple[Network, dict[str, np.ndarray], str]:
     run = open_run(args.run)
     if args.paper_shape:
@@ -320,12 +330,7 @@ def print_report(result: dict[str, object], label: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", help="a fitted MuPNet method's folder (pipeline cache/models/NAME-KEY)")
-    ap.add_argument("--paper-shape", action="store_true", help="train a paper-shape network on --train instead")
-    ap.add_argument("--train", help="training run (.h5) for --paper-shape")
-    ap.add_argument("--epochs", type=int, default=10)
-    ap.add_argument("--run", required=True, help="the run (.h5) whose samples are inferred")
-    ap.add_argument("--samples", type=int, default=30)
+    add_network_arguments(ap, samples=30)
     ap.add_argument("--steps", type=int, nargs="+", default=[100, 300, 1000, 3000])
     ap.add_argument("--prior", type=float, nargs="+", default=[0.0, 0.1])
     ap.add_argument("--lanczos", type=int, default=60, help="Lanczos steps per curvature estimate")
