@@ -126,17 +126,34 @@ class BatchState:
             self.predict_all(energy=step == steps)
         self.weight_step()
 
-    def start_inference(self, inputs: Mapping[str, object]) -> None:
-        """Rows ``index`` of the resident inputs, latents at 0.1, every sample active."""
+    def start_inference(self, inputs: Mapping[str, object], carried: Mapping[str, np.ndarray] | None = None) -> None:
+        """Rows ``index`` of the resident inputs, every sample active, latents at 0.1 and no
+        steps taken; or, with ``carried`` (`carry` of a larger batch), each sample's latents,
+        steps and solver state where it left them, so its steps go on as if uninterrupted."""
         for node, x in self.X.items():
             self.be.gather_rows(inputs[node], self.index, x)
-        for y in self.Y.values():
-            self.be.fill(y, LATENT_INIT)
+        for node, y in self.Y.items():
+            if carried is None:
+                self.be.fill(y, LATENT_INIT)
+            else:
+                self.be.upload(carried[f"Y/{node}"], y)
         self.be.fill(self.active, 1)
-        self.be.fill(self.steps, 0)
+        if carried is None:
+            self.be.fill(self.steps, 0)
+        else:
+            self.be.upload(carried["steps"], self.steps)
         self.predict_all()
         if self.solver is not None:
-            self.solver.start(self)
+            self.solver.start(self, carried)
+
+    def carry(self, keep: np.ndarray) -> dict[str, np.ndarray]:
+        """Host copies of the rows ``keep`` (a boolean mask) of all a sample's inference
+        goes on from: its latents, its steps and the solver's per-sample state."""
+        rows = {f"Y/{node}": self.be.download(y)[keep] for node, y in self.Y.items()}
+        rows["steps"] = self.be.download(self.steps)[keep]
+        if self.solver is not None:
+            rows.update({name: self.be.download(buf)[keep] for name, buf in self.solver.per_sample().items()})
+        return rows
 
     def inference_steps(self, count: int) -> None:
         """``count`` test-time steps with per-sample stopping (samples under their limits

@@ -29,8 +29,9 @@ import numpy as np
 from vitaplace.engine.base.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.network.backends import Backend
 from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
+from vitaplace.engine.network.inference import Inference
 from vitaplace.engine.network.selection import get_backend
-from vitaplace.engine.network.solver import InferenceConfig, Solver, curvature_steps
+from vitaplace.engine.network.solver import InferenceConfig, curvature_steps
 
 __all__ = ["LATENT_INIT", "BatchState", "InferenceConfig", "Network", "NetworkError"]
 
@@ -340,9 +341,6 @@ class Network:
         return history
 
     # ------------------------------------------------------------------ inference
-    #: Inference steps per captured chunk between two looks at which samples are still active.
-    STEPS_PER_CHECK = 50
-
     def infer(
         self,
         inputs: Mapping[str, np.ndarray],
@@ -351,16 +349,20 @@ class Network:
         batch_size: int = 500,
         on_progress: Callable[[int], None] | None = None,
         inference: InferenceConfig | None = None,
+        sample_ids: np.ndarray | None = None,
     ) -> InferenceResult:
         """Latents for (scaled) inputs with frozen weights, from 0.1, batch by batch.
 
         Each sample stops on its own, as soon as every active edge's mean squared error
         for that sample is below its threshold (or ``inference``'s relative rule holds), or
-        after ``max_steps`` steps; the others in its batch go on. ``inference`` picks the
-        solver and the prior (`vitaplace.engine.network.solver`; default: the paper's plain
-        steps). Missing modalities are left out (their errors do not reach the joint
-        layer). ``on_progress(k)`` is called whenever k more samples are done (checked
-        every `STEPS_PER_CHECK` steps), for progress bars.
+        after ``max_steps`` steps; the others in its batch go on, and whenever samples have
+        stopped (`vitaplace.engine.network.inference`) the batch is compacted to those
+        still active, so a batch costs the sum of its samples' steps rather than its slowest
+        sample's times its size. ``inference`` picks the solver and the prior
+        (`vitaplace.engine.network.solver`; default: the paper's plain steps). Missing
+        modalities are left out (their errors do not reach the joint layer).
+        ``on_progress(k)`` is called whenever k more samples are done, for progress bars;
+        ``sample_ids`` (default 0..n-1) number the samples in a divergence's message.
         """
         config = inference or InferenceConfig()
         present, n = self._check_inputs(inputs)
@@ -373,58 +375,14 @@ class Network:
         limits = {e.name: e.threshold for e in edges}
         limits.update(thresholds or {})
         threshold = np.array([limits[e.name] for e in edges], dtype=np.float64)
-        width = np.array([self.sizes[e.lower] for e in edges], dtype=np.float64)
-        be = self.backend
-        resident_x = {self.input_node(m): be.to_device(inputs[m]) for m in present}
-        out = {node: np.empty((n, self.sizes[node]), np.float32) for node in self.latent_nodes(present)}
-        steps = np.zeros(n, dtype=np.int64)
-        settled = np.zeros(n, dtype=bool)
-        mse = np.zeros((len(edges), n))
-        states: dict[int, BatchState] = {}
-        chunks: dict[int, Callable[[], None]] = {}
+        ids = np.arange(n) if sample_ids is None else np.asarray(sample_ids)
+        run = Inference(self, present, n, config, eta, threshold, ids)
+        resident_x = {self.input_node(m): self.backend.to_device(inputs[m]) for m in present}
         for start in range(0, n, batch_size):
-            index = np.arange(start, min(start + batch_size, n))
-            state = self._cached_state(states, len(index), present)
-            if len(index) not in chunks:
-                state.prior = config.prior
-                state.solver = None if config.paper else Solver(state, config, eta)
-                be.upload(threshold * width, state.limits)
-                chunks[len(index)] = be.capture(functools.partial(state.inference_steps, self.STEPS_PER_CHECK))
-            be.upload(index.astype(np.int32), state.index)
-            state.start_inference(resident_x)
-            self._run_chunks(state, chunks[len(index)], max_steps, on_progress)
-            steps[index] = be.download(state.steps)
-            settled[index] = be.download(state.active) == 0
-            row_energy = be.download(state.R)
-            energy = {e.name: float(total) for e, total in zip(edges, row_energy.sum(axis=1))}
-            state.check_finite(energy, f"inference of samples {start}-{index[-1]}", config.remedy)
-            mse[:, index] = row_energy / width[:, None]
-            for node, values in state.download_latents().items():
-                out[node][index] = values
-        stopped = np.all(mse < threshold[:, None], axis=0)
-        return InferenceResult(out, {e.name: float(mse[k].mean()) for k, e in enumerate(edges)}, steps, stopped, settled)
-
-    def _run_chunks(self, state: BatchState, chunk: Callable[[], None], max_steps: int,
-                    on_progress: Callable[[int], None] | None) -> None:
-        """Steps of one started batch, a captured ``chunk`` of `STEPS_PER_CHECK` at a time,
-        until every sample stopped or ``max_steps``; progress reported between chunks."""
-        be, size = self.backend, state.batch
-        done = reported = 0
-        while done < max_steps:
-            finished = size - int(np.count_nonzero(be.download(state.active)))
-            if on_progress is not None and finished > reported:
-                on_progress(finished - reported)
-                reported = finished
-            if finished == size:
-                break
-            todo = min(self.STEPS_PER_CHECK, max_steps - done)
-            if todo == self.STEPS_PER_CHECK:
-                chunk()
-            else:
-                state.inference_steps(todo)
-            done += todo
-        if on_progress is not None and size > reported:
-            on_progress(size - reported)  # the rest stopped at the step cap
+            run.run(np.arange(start, min(start + batch_size, n)), resident_x, max_steps, on_progress)
+        stopped = np.all(run.mse < threshold[:, None], axis=0)
+        means = {e.name: float(run.mse[k].mean()) for k, e in enumerate(edges)}
+        return InferenceResult(run.latents, means, run.steps, stopped, run.settled)
 
     def reconstruct(self, joint: np.ndarray, modality: str) -> np.ndarray:
         """Top-down prediction of a modality's scaled input from joint latents (host numpy)."""

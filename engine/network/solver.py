@@ -111,10 +111,22 @@ class Solver:
         for d in self.D.values():
             be.row_dot(d, d, 1.0, norm)
 
-    def start(self, state: Any) -> None:
+    def per_sample(self) -> dict[str, Any]:
+        """The buffers that carry a sample's solver state from one step to the next (the
+        rest is recomputed at each step)."""
+        rows = {"g0": self.g0, "scale": self.scale, "last": self.last, "plain": self.plain}
+        rows.update({f"V/{node}": v for node, v in self.V.items()})
+        return rows
+
+    def start(self, state: Any, carried: Mapping[str, np.ndarray] | None = None) -> None:
         """After the first prediction: no momentum, full steps, the first step's norm into
-        ``g0`` (the relative rule's reference) and no energy to compare with yet."""
+        ``g0`` (the relative rule's reference) and no energy to compare with yet; or the
+        per-sample state in ``carried`` (`BatchState.carry`)."""
         be = state.be
+        if carried is not None:
+            for name, buf in self.per_sample().items():
+                be.upload(carried[name], buf)
+            return
         for v in self.V.values():
             be.fill(v, 0.0)
         be.fill(self.scale, 1.0)

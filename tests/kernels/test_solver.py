@@ -106,6 +106,40 @@ def test_nesterov_in_float32_is_within_1e_3_of_the_fixed_point(reference, which)
     assert relative({n: v.astype(np.float64) for n, v in result.latents.items()}, y) < 1e-3
 
 
+COMPACTED = [
+    pytest.param(InferenceConfig("gd", rtol=1e-3, prior=PRIOR), id="gd"),
+    pytest.param(InferenceConfig("nesterov", 0.9, 1e-6, PRIOR), id="nesterov"),
+]
+
+
+@pytest.mark.parametrize("config", COMPACTED)
+@pytest.mark.parametrize("which", BACKENDS)
+def test_compacting_a_batch_changes_no_sample_s_steps(monkeypatch, which, config):
+    """Samples that stop at different steps, inferred in one batch (compacted to the active
+    ones every 5 steps here), take the same steps to the same latents as each one alone:
+    the batch carries every sample's latents, step count and solver state."""
+    import vitaplace.engine.network.inference as inference
+
+    name, device = which
+    if device == "cuda" and not cuda_present():
+        pytest.skip("no CUDA device")
+    if name == "warp":
+        pytest.importorskip("warp")
+    monkeypatch.setattr(inference, "STEPS_PER_CHECK", 5)
+    net = network(NumpyBackend(np.float64) if name == "numpy" else get_backend(name, device))
+    x = inputs_for(net, n=8)
+    dtype = np.float64 if name == "numpy" else np.float32
+    x = {m: (v * np.linspace(0.2, 1.0, 8)[:, None]).astype(dtype) for m, v in x.items()}
+    together = net.infer(x, max_steps=2000, inference=config)
+    alone = [net.infer({m: v[i : i + 1] for m, v in x.items()}, max_steps=2000, inference=config) for i in range(8)]
+    steps = together.steps_per_sample
+    assert together.settled.all() and steps.max() - steps.min() > 10  # stopped at different checks
+    np.testing.assert_array_equal(steps, [a.steps for a in alone])
+    tol = 1e-12 if name == "numpy" else 1e-5
+    for node, y in together.latents.items():
+        np.testing.assert_allclose(y, np.concatenate([a.latents[node] for a in alone]), rtol=tol, atol=tol)
+
+
 def test_the_relative_rule_stops_plain_steps_once_the_step_has_shrunk():
     """With rtol 1e-3 plain steps stop long before the cap, at a point whose distance to the
     fixed point is small; without it they run to the cap (thresholds 0)."""

@@ -1,0 +1,96 @@
+"""Test-time inference of a batch of samples with frozen weights, compacting as samples stop.
+
+Each sample stops on its own (`BatchState.inference_steps`). Every `STEPS_PER_CHECK` steps
+the batch is looked at; when samples have stopped, their results are taken out and the
+samples still active go on in a batch of their size, carrying their latents, steps and
+solver state (`BatchState.carry`), so each sample's steps are those it would have taken
+uninterrupted and a batch costs the sum of its samples' steps rather than its slowest
+sample's times its size.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+from vitaplace.engine.network.batch import BatchState
+from vitaplace.engine.network.solver import InferenceConfig, Solver
+
+#: Inference steps per captured chunk between two looks at which samples are still active.
+STEPS_PER_CHECK = 50
+
+
+class Inference:
+    """The results of one `Network.infer` call, filled batch by batch (`run`)."""
+
+    def __init__(self, net: Any, present: Sequence[str], n: int, config: InferenceConfig,
+                 eta: Mapping[str, float], threshold: np.ndarray, sample_ids: np.ndarray) -> None:
+        self.net, self.be, self.present, self.config, self.eta = net, net.backend, present, config, eta
+        self.edges = net.active_edges(present)
+        self.width = np.array([net.sizes[e.lower] for e in self.edges], dtype=np.float64)
+        self.limits = threshold * self.width
+        self.ids = sample_ids
+        self.latents = {node: np.empty((n, net.sizes[node]), np.float32) for node in net.latent_nodes(present)}
+        self.steps = np.zeros(n, dtype=np.int64)
+        self.settled = np.zeros(n, dtype=bool)
+        self.mse = np.zeros((len(self.edges), n))
+        self._full: dict[int, tuple[BatchState, Callable[[], None]]] = {}
+
+    def _state(self, size: int) -> tuple[BatchState, Callable[[], None]]:
+        """A batch of ``size`` set up for this inference, and its captured chunk of steps."""
+        state = self.net.batch_state(size, self.present)
+        state.prior = self.config.prior
+        state.solver = None if self.config.paper else Solver(state, self.config, self.eta)
+        self.be.upload(self.limits, state.limits)
+        return state, self.be.capture(functools.partial(state.inference_steps, STEPS_PER_CHECK))
+
+    def _record(self, state: BatchState, rows: np.ndarray) -> None:
+        """The state's samples (``rows`` of the inputs) into the results; a NetworkError
+        naming the layer and the samples when an energy is no longer finite."""
+        row_energy = self.be.download(state.R)
+        bad = ~np.isfinite(row_energy).all(axis=0)
+        if bad.any():
+            where = self.ids[rows[bad]]
+            energy = {e.name: float(row_energy[k, bad].sum()) for k, e in enumerate(self.edges)}
+            state.check_finite(energy, f"inference of samples {where.min()}-{where.max()}", self.config.remedy)
+        self.steps[rows] = self.be.download(state.steps)
+        self.settled[rows] = self.be.download(state.active) == 0
+        self.mse[:, rows] = row_energy / self.width[:, None]
+        for node, values in state.download_latents().items():
+            self.latents[node][rows] = values
+
+    def run(self, rows: np.ndarray, resident_x: Mapping[str, Any], max_steps: int,
+            on_progress: Callable[[int], None] | None) -> None:
+        """Infer the samples ``rows`` of the resident inputs, ``on_progress(k)`` as k more stop."""
+        be = self.be
+        if len(rows) not in self._full:  # full-size batches are reused (a call has at most two sizes)
+            self._full[len(rows)] = self._state(len(rows))
+        state, chunk = self._full[len(rows)]
+        be.upload(rows.astype(np.int32), state.index)
+        state.start_inference(resident_x)
+        done = 0
+        while True:
+            active = be.download(state.active) != 0
+            if on_progress is not None and not active.all():
+                on_progress(int((~active).sum()))
+            if done >= max_steps or not active.any():
+                break
+            if not active.all():
+                self._record(state, rows)
+                carried = state.carry(active)
+                rows = rows[active]
+                state, chunk = self._state(len(rows))
+                be.upload(rows.astype(np.int32), state.index)
+                state.start_inference(resident_x, carried)
+            todo = min(STEPS_PER_CHECK, max_steps - done)
+            if todo == STEPS_PER_CHECK:
+                chunk()
+            else:
+                state.inference_steps(todo)
+            done += todo
+        self._record(state, rows)
+        if on_progress is not None and active.any():
+            on_progress(int(active.sum()))  # the rest stopped at the step cap
