@@ -50,6 +50,11 @@ class BatchState:
         self.active = be.empty((batch,), np.int32)
         self.steps = be.empty((batch,), np.int32)
         self.limits = be.empty((len(self.edges),), np.float64)
+        #: a minibatch's latents before its T steps, then minus those after (`minibatch`)
+        self.Y_start = {node: be.empty((batch, net.sizes[node])) for node in self.nodes}
+        #: per sample, ||Y_after - Y_before||^2 and ||Y_after||^2 over every latent node
+        self.moved = be.empty((batch,), np.float64)
+        self.size2 = be.empty((batch,), np.float64)
         self.edge_above = {e.lower: e.name for e in self.edges}
         #: lambda of the Gaussian prior on the latents (energy + lambda / 2 ||Y||^2; 0: none)
         self.prior = 0.0
@@ -108,14 +113,23 @@ class BatchState:
 
     def minibatch(self, inputs: Mapping[str, object], latents: Mapping[str, object], steps: int) -> None:
         """One training minibatch: rows ``index`` of the resident inputs and latents, T
-        inference steps, one weight step, the latents written back."""
+        inference steps, one weight step, the latents written back; how far the T steps moved
+        each sample's latents into ``moved`` and ``size2`` (`latent_change`)."""
         for node, x in self.X.items():
             self.be.gather_rows(inputs[node], self.index, x)
+        be = self.be
         for node, y in self.Y.items():
-            self.be.gather_rows(latents[node], self.index, y)
+            be.gather_rows(latents[node], self.index, y)
+            be.fill(self.Y_start[node], 0.0)
+            be.scale_add(self.Y_start[node], y, 1.0, None)
         self.train_steps(steps)
+        be.fill(self.moved, 0.0)
+        be.fill(self.size2, 0.0)
         for node, y in self.Y.items():
-            self.be.scatter_rows(y, self.index, latents[node])
+            be.scale_add(self.Y_start[node], y, -1.0, None)
+            be.row_dot(self.Y_start[node], self.Y_start[node], 1.0, self.moved)
+            be.row_dot(y, y, 1.0, self.size2)
+            be.scatter_rows(y, self.index, latents[node])
 
     def train_steps(self, steps: int) -> None:
         """The learning step on the loaded minibatch: T inference steps, then one weight step
@@ -165,6 +179,12 @@ class BatchState:
             self.be.stop_converged(self.R, self.limits, self.active, self.steps)
             self.latent_step(self.active)
             self.predict_all()
+
+    def latent_change(self) -> np.ndarray:
+        """Per sample of the last `minibatch`, ||Y_after - Y_before|| / ||Y_after|| over
+        every latent node: how far its T steps still moved its latents (0 once settled)."""
+        moved, size2 = self.be.download(self.moved), self.be.download(self.size2)
+        return np.sqrt(moved / np.maximum(size2, np.finfo(np.float64).tiny))
 
     def check_finite(self, energy: Mapping[str, float], where: str,
                      remedy: str = "lower the learning rates (eta_y, eta_w)") -> None:

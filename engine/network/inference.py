@@ -1,11 +1,11 @@
 """Test-time inference of a batch of samples with frozen weights, compacting as samples stop.
 
 Each sample stops on its own (`BatchState.inference_steps`). Every `STEPS_PER_CHECK` steps
-the batch is looked at; when samples have stopped, their results are taken out and the
-samples still active go on in a batch of their size, carrying their latents, steps and
-solver state (`BatchState.carry`), so each sample's steps are those it would have taken
-uninterrupted and a batch costs the sum of its samples' steps rather than its slowest
-sample's times its size.
+the batch is looked at; when enough samples have stopped (`COMPACT_BELOW`), their results
+are taken out and the samples still active go on in a batch of their size, carrying their
+latents, steps and solver state (`BatchState.carry`), so each sample's steps are those it
+would have taken uninterrupted and a batch costs about the sum of its samples' steps rather
+than its slowest sample's times its size.
 """
 
 from __future__ import annotations
@@ -20,7 +20,10 @@ from vitaplace.engine.network.batch import BatchState
 from vitaplace.engine.network.solver import InferenceConfig, Solver
 
 #: Inference steps per captured chunk between two looks at which samples are still active.
-STEPS_PER_CHECK = 50
+STEPS_PER_CHECK = 10
+#: A batch is compacted once no more than this share of its samples is still active (a new,
+#: smaller batch, and on CUDA a new graph capture, is not worth it for a sample or two).
+COMPACT_BELOW = 0.9
 
 
 class Inference:
@@ -78,7 +81,7 @@ class Inference:
                 on_progress(int((~active).sum()))
             if done >= max_steps or not active.any():
                 break
-            if not active.all():
+            if active.sum() <= COMPACT_BELOW * len(rows):
                 self._record(state, rows)
                 carried = state.carry(active)
                 rows = rows[active]

@@ -112,11 +112,15 @@ class Edge:
 
 @dataclass
 class TrainingHistory:
-    """Per-epoch mean energy per edge (sum of squared errors / samples) after inference, and
-    whether training stopped because the energy had converged (else it ran all epochs)."""
+    """Per-epoch mean energy per edge (sum of squared errors / samples) after inference,
+    how far the latents still moved (``latent_change``), and whether training stopped
+    because the energy had converged (else it ran all epochs)."""
 
     energy: dict[str, list[float]] = field(default_factory=dict)
     converged: bool = False
+    #: per epoch, the median over samples of how far its T latent steps moved a sample's
+    #: latents (`BatchState.latent_change`): how far from settled the persistent latents are
+    latent_change: list[float] = field(default_factory=list)
 
     @property
     def epochs(self) -> int:
@@ -315,6 +319,7 @@ class Network:
         for epoch in range(cfg.epochs):
             order = rng.permutation(n)
             totals = dict.fromkeys(history.energy, 0.0)
+            change = np.empty(n)
             for b in range(batches_per_epoch):
                 index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
                 state = self._cached_state(states, len(index), present)
@@ -325,12 +330,14 @@ class Network:
                 runs[len(index)]()
                 energy = state.energies()
                 state.check_finite(energy, f"epoch {epoch + 1}, minibatch {b + 1}")
+                change[index] = state.latent_change()
                 for name, value in energy.items():
                     totals[name] += value
                 if on_progress is not None:
                     on_progress(epoch + 1, sum(energy.values()) / len(index))
             for name, total in totals.items():
                 history.energy[name].append(total / n)
+            history.latent_change.append(float(np.median(change)))
             if converged(history.total(), cfg.converge_window, cfg.converge_tol):
                 history.converged = True
                 break

@@ -379,8 +379,9 @@ def _evaluation_sections(out: Path, rows: list[dict[str, Any]]) -> list[str]:
     return sections
 
 
-def _training_section(out: Path, methods: list[str]) -> list[str]:
-    """The training energy per layer of each method that recorded it."""
+def _training_section(out: Path, methods: list[str], summaries: dict[str, dict[str, Any]]) -> list[str]:
+    """The training energy per layer of each method that recorded it, and how far from
+    settled its persistent latents were at the end (the methods that measure it)."""
     sections = []
     for name in methods:
         path = training_path(out, name)
@@ -388,6 +389,12 @@ def _training_section(out: Path, methods: list[str]) -> list[str]:
             figures.plot_energy(out / FIGURES / f"training-{name}", json.loads(path.read_text()),
                                 title=f"{name}: training energy per layer")
             sections += [f"![training {name}](figures/training-{name}.png)", ""]
+        change = summaries.get(name, {}).get("latent_change")
+        if change:
+            sections += [f"{name}: in its last epoch a minibatch's latent steps still moved a sample's latents by a "
+                         f"median {100 * change[-1]:.2g} % (relative; first epoch {100 * change[0]:.2g} %, every "
+                         "epoch in manifest.json's training record): its training latents are not settled where "
+                         "that is far above 0.", ""]
     return ["## Training", "", *sections] if sections else []
 
 
@@ -487,7 +494,7 @@ def write_report(out: Path) -> None:
         *_methods_section(manifest["methods"]),
         *_inference_section(manifest),
         *_evaluation_sections(out, rows),
-        *_training_section(out, list(manifest["methods"])),
+        *_training_section(out, list(manifest["methods"]), manifest.get("training") or {}),
         *_inputs_section(manifest),
         *_provenance_section(manifest),
     ]

@@ -198,6 +198,8 @@ class MupnetExtractor(FeatureExtractor):
         self.train_norm_max = math.inf
         #: training stopped because the energy converged (converge_window), not at the epoch cap
         self.converged = False
+        #: per epoch, how far training's latent steps still moved the latents (`TrainingHistory.latent_change`)
+        self.latent_change: list[float] = []
         #: the tactile channels' training range (None without the tactile modality)
         self.tactile_range: TactileRange | None = None
 
@@ -247,6 +249,7 @@ class MupnetExtractor(FeatureExtractor):
             history = self.network.train(inputs, training, on_progress=on_progress)
         self.energy = history.energy
         self.converged = history.converged
+        self.latent_change = history.latent_change
         self.train_norm_max = float(np.linalg.norm(self.network.train_latents["joint"], axis=1).max())
 
     def training_history(self) -> dict[str, list[float]]:
@@ -254,7 +257,10 @@ class MupnetExtractor(FeatureExtractor):
 
     def training_summary(self) -> dict[str, object]:
         epochs = len(next(iter(self.energy.values()), []))
-        return {"epochs": epochs, "max_epochs": self.params.epochs, "converged": self.converged}
+        # latent_change: per epoch, the median of how far a minibatch's T steps moved a
+        # sample's latents (relative): how far from settled training's persistent latents are
+        return {"epochs": epochs, "max_epochs": self.params.epochs, "converged": self.converged,
+                "latent_change": self.latent_change}
 
     def transform(self, run: Run) -> Features:
         if self.network is None:
@@ -306,7 +312,8 @@ class MupnetExtractor(FeatureExtractor):
                 on_progress(len(index))
                 continue
             result = self.network.infer({m: inputs[m][index] for m in present}, max_steps=self.params.max_steps,
-                                        on_progress=on_progress, inference=self.params.inference_config())
+                                        on_progress=on_progress, inference=self.params.inference_config(),
+                                        sample_ids=index)
             latent[index], steps[index] = result.latents["joint"], result.steps_per_sample
             stopped[index], settled[index] = result.stopped, result.settled
         return latent, steps, stopped, settled
@@ -323,7 +330,8 @@ class MupnetExtractor(FeatureExtractor):
         self.network.save(directory / "network")
         write_text_atomic(directory / "energy.json", json.dumps(self.energy))
         write_text_atomic(directory / "latent_norm.json", json.dumps({"train_max": self.train_norm_max}))
-        write_text_atomic(directory / "training.json", json.dumps({"converged": self.converged}))
+        write_text_atomic(directory / "training.json",
+                          json.dumps({"converged": self.converged, "latent_change": self.latent_change}))
         if self.tactile_range is not None:
             self.tactile_range.save(directory)
 
@@ -332,7 +340,9 @@ class MupnetExtractor(FeatureExtractor):
         energy = directory / "energy.json"
         self.energy = json.loads(energy.read_text()) if energy.exists() else {}
         training = directory / "training.json"
-        self.converged = bool(json.loads(training.read_text())["converged"]) if training.exists() else False
+        record = json.loads(training.read_text()) if training.exists() else {}
+        self.converged = bool(record.get("converged", False))
+        self.latent_change = list(record.get("latent_change", []))
         norm = directory / "latent_norm.json"
         self.train_norm_max = json.loads(norm.read_text())["train_max"] if norm.exists() else math.inf
         self.tactile_range = TactileRange.load(directory) if "tactile" in self.params.modalities else None

@@ -374,6 +374,30 @@ def test_bad_input_shape_is_reported():
         net.infer({"audio": np.zeros((3, 4))}, max_steps=10)
 
 
+@pytest.mark.parametrize("backend", ["numpy", "warp-cpu"])
+def test_latent_change_is_how_far_each_epoch_s_steps_moved_the_latents(backend):
+    """One epoch, one minibatch: the recorded latent change is the median over samples of
+    ||Y_after - Y_before|| / ||Y_after|| (every latent node), computed here on the host from
+    the persistent latents before and after; it is 0 when the steps are 0."""
+    if backend == "warp-cpu":
+        pytest.importorskip("warp")
+        from vitaplace.engine.network.backends import WarpBackend
+
+        backend = WarpBackend("cpu")
+    inputs, _ = synthetic(n=30)
+    net = Network(SYNTH, seed=3, backend=backend)
+    rng = np.random.default_rng(4)
+    before = {node: rng.random((30, net.sizes[node]), dtype=np.float32) for node in net.latent_nodes(net.modalities)}
+    latents = {node: y.copy() for node, y in before.items()}
+    history = net.train(inputs, {**TRAIN, "epochs": 1, "batch_size": 30, "inference_steps": 7}, latents=latents)
+    moved = np.sqrt(sum(np.sum((latents[n].astype(np.float64) - before[n]) ** 2, axis=1) for n in before))
+    size = np.sqrt(sum(np.sum(latents[n].astype(np.float64) ** 2, axis=1) for n in before))
+    assert history.latent_change[0] == pytest.approx(float(np.median(moved / size)), rel=1e-5)
+    assert history.latent_change[0] > 0
+    still = net.train(inputs, {**TRAIN, "epochs": 2, "batch_size": 30, "inference_steps": 0}, latents=latents)
+    assert still.latent_change == [0.0, 0.0]
+
+
 def test_numpy_and_warp_backends_agree(device):
     """Training (two minibatch sizes: 25 and the last 10, replayed from captured graphs on
     CUDA) and per-sample-stopping inference give the same numbers on the numpy backend
