@@ -74,14 +74,17 @@ class Inference:
         state, chunk = self._full[len(rows)]
         be.upload(rows.astype(np.int32), state.index)
         state.start_inference(resident_x)
-        done = 0
+        done = reported = 0  # reported: samples of this state already passed to on_progress
         while True:
             active = be.download(state.active) != 0
-            if on_progress is not None and not active.all():
-                on_progress(int((~active).sum()))
+            stopped = int((~active).sum())
+            if on_progress is not None and stopped > reported:
+                on_progress(stopped - reported)
+                reported = stopped
             if done >= max_steps or not active.any():
                 break
             if active.sum() <= COMPACT_BELOW * len(rows):
+                reported = 0
                 self._record(state, rows)
                 carried = state.carry(active)
                 rows = rows[active]

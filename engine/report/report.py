@@ -391,10 +391,10 @@ def _training_section(out: Path, methods: list[str], summaries: dict[str, dict[s
             sections += [f"![training {name}](figures/training-{name}.png)", ""]
         change = summaries.get(name, {}).get("latent_change")
         if change:
-            sections += [f"{name}: in its last epoch a minibatch's latent steps still moved a sample's latents by a "
-                         f"median {100 * change[-1]:.2g} % (relative; first epoch {100 * change[0]:.2g} %, every "
-                         "epoch in manifest.json's training record): its training latents are not settled where "
-                         "that is far above 0.", ""]
+            sections += [f"{name}: in its last epoch, each minibatch's latent steps still moved a sample's latents "
+                         f"by a median {100 * change[-1]:.2g} % (relative; {100 * change[0]:.2g} % in the first "
+                         "epoch; every epoch in manifest.json's training record). Latents that had settled would "
+                         "not move.", ""]
     return ["## Training", "", *sections] if sections else []
 
 
@@ -448,7 +448,8 @@ def read_inputs(out: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
                           "(those of older versions lack these entries)")
     if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) for r in rows):
         raise ReportError(f"{out / RESULTS_JSON}: expected a non-empty list of result rows")
-    return {k: manifest[k] for k in MANIFEST_KEYS}, rows
+    # how each method's training ended: absent where no method reports it
+    return {**{k: manifest[k] for k in MANIFEST_KEYS}, "training": manifest.get("training") or {}}, rows
 
 
 def report_key_inputs(out: Path) -> dict[str, Any]:
@@ -494,7 +495,7 @@ def write_report(out: Path) -> None:
         *_methods_section(manifest["methods"]),
         *_inference_section(manifest),
         *_evaluation_sections(out, rows),
-        *_training_section(out, list(manifest["methods"]), manifest.get("training") or {}),
+        *_training_section(out, list(manifest["methods"]), manifest["training"]),
         *_inputs_section(manifest),
         *_provenance_section(manifest),
     ]

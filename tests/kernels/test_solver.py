@@ -130,7 +130,9 @@ def test_compacting_a_batch_changes_no_sample_s_steps(monkeypatch, which, config
     x = inputs_for(net, n=8)
     dtype = np.float64 if name == "numpy" else np.float32
     x = {m: (v * np.linspace(0.2, 1.0, 8)[:, None]).astype(dtype) for m, v in x.items()}
-    together = net.infer(x, max_steps=2000, inference=config)
+    progress: list[int] = []
+    together = net.infer(x, max_steps=2000, inference=config, on_progress=progress.append)
+    assert sum(progress) == 8  # each sample reported once, as it stops
     alone = [net.infer({m: v[i : i + 1] for m, v in x.items()}, max_steps=2000, inference=config) for i in range(8)]
     steps = together.steps_per_sample
     assert together.settled.all() and steps.max() - steps.min() > 10  # stopped at different checks

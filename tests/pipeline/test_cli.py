@@ -902,6 +902,10 @@ def test_report_states_sample_counts_and_method_parameters(quiet_json_run):
     assert f"| E1 | query-to-reference | 10 | 10 | {row['n_revisit']} |" in report
     assert "**L** (`mupnet`): image_size=[9, 16]" in report and "max_steps=20" in report
     assert "**H** (`handcrafted`): none; defaults: grid=" in report
+    change = json.loads((out / "manifest.json").read_text())["training"]["L"]["latent_change"]
+    assert len(change) >= 1 and all(c > 0 for c in change)  # measured every epoch; latents still move
+    assert (f"L: in its last epoch, each minibatch's latent steps still moved a sample's latents by a median "
+            f"{100 * change[-1]:.2g} % (relative; {100 * change[0]:.2g} % in the first epoch") in report
 
 
 def _copy_without_cache(out: Path, to: Path) -> Path:
