@@ -77,13 +77,13 @@ class Inference:
         done = reported = 0  # reported: samples of this state already passed to on_progress
         while True:
             active = be.download(state.active) != 0
-            stopped = int((~active).sum())
-            if on_progress is not None and stopped > reported:
-                on_progress(stopped - reported)
-                reported = stopped
-            if done >= max_steps or not active.any():
+            left = int(active.sum())
+            if on_progress is not None and len(rows) - left > reported:
+                on_progress(len(rows) - left - reported)
+                reported = len(rows) - left
+            if done >= max_steps or left == 0:
                 break
-            if active.sum() <= COMPACT_BELOW * len(rows):
+            if left <= COMPACT_BELOW * len(rows):
                 reported = 0
                 self._record(state, rows)
                 carried = state.carry(active)
@@ -98,5 +98,5 @@ class Inference:
                 state.inference_steps(todo)
             done += todo
         self._record(state, rows)
-        if on_progress is not None and active.any():
-            on_progress(int(active.sum()))  # the rest stopped at the step cap
+        if on_progress is not None and left:
+            on_progress(left)  # the rest stopped at the step cap
