@@ -12,8 +12,12 @@ wrote: ``sweep.csv`` (statistics over seeds per world x method x direction x val
 rescored under other ground truths), and each seed's ``manifest.json`` and ``report.md``
 (copied into ``seeds/seed-N/``), in
 ``paper-cpu-sweep/`` (penetration touch model) and ``paper-cpu-physical-sweep/`` (physical
-whiskers). Proportions are printed in percent, intervals are the percentile bootstrap over
-seeds unless a column says otherwise.
+whiskers). The second study's tables (``study2-*``) read the same files of its three arms'
+sweeps, one folder per grid point (`ARMS`, `POINTS`), seed 0's `vitaplace difficulty` runs
+(``study2-difficulty/``) and the budget trend (``study2-budget/epochs=E/``); they compute the
+pre-registered endpoints (`endpoints`: L minus the per-seed better comparator, Holm over the
+secondaries, TOST at ±5 points). Proportions are printed in percent, intervals are the
+percentile bootstrap over seeds unless a column says otherwise.
 """
 
 from __future__ import annotations
@@ -21,9 +25,13 @@ from __future__ import annotations
 import csv
 import functools
 import json
+import math
+import statistics
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
+
+from scipy import stats as scipy_stats
 
 from vitaplace.engine.study.summary import describe, difference_bounds, sign_flip_p
 
@@ -38,9 +46,29 @@ DIRECTIONS = {Q2R: "q→r", R2Q: "r→q"}
 PAPER = {"E1": "similar F1", "E2": "L: higher precision", "E3": "L 72.94 %, H 62.34 %"}
 
 
+#: the second study's arms -> (sweep folder, scenario file, evaluations, grid points as run)
+ARMS = {
+    "touch": (HERE / "study2-sweep", "study2.yaml",
+              ("alike-boxes", "alike-shapes", "distinct-boxes", "distinct-shapes", "distinct-shapes-dusk"),
+              ("length=1", "length=16")),
+    "drop-out": (HERE / "study2-dropout-sweep", "study2-dropout.yaml", ("alike-shapes", "distinct-shapes-dropout"),
+                 ("length=1", "length=16")),
+    "faithful": (HERE / "study2-faithful-sweep", "study2-faithful.yaml", WORLDS, ("length=1",)),
+}
+#: grid point -> how its evaluations match
+MATCHING = {"length=1": "single", "length=16": "seq. 16"}
+#: the second study's methods and fusions (the drop-out arm has no A: it cannot describe a sample without a camera)
+METHODS2 = ("L", "L-V", "L-T", "L-cycle", "A", "H", "H-V", "H-T", "L-F", "H-F")
+LEARNED = ("L", "L-V", "L-T", "L-cycle")
+#: second study: "arm/point" -> its summaries' folder
+POINTS = {f"{arm}/{point}": folder / point for arm, (folder, _, _, points) in ARMS.items() for point in points}
+#: every summaries' folder tables read from: the first study's by touch model, the second's by arm/point
+SUMMARIES = {**STUDIES, **POINTS}
+
+
 @functools.cache  # each file is read once, however many tables use it (callers do not mutate rows)
 def read(study: str, name: str) -> list[dict[str, str]]:
-    with open(STUDIES[study] / name, newline="") as handle:
+    with open(SUMMARIES[study] / name, newline="") as handle:
         return list(csv.DictReader(handle))
 
 
@@ -134,27 +162,31 @@ def primary() -> str:
     return markdown(["endpoint", "touch model", "direction", "n", *DIFFERENCE_HEADER], body)
 
 
+@functools.cache
 def _means(study: str) -> dict[tuple[str, str, str], float]:
     rows = read(study, "sweep.csv")
     return {(r["environment"], r["method"], r["direction"]): float(r["mean"]) for r in rows if r["metric"] == "max_f1"}
 
 
+def _best_cells(study: str, world: str, direction: str, methods: Sequence[str]) -> list[str]:
+    """The method of ``methods`` with the highest mean max F1 in one cell, the runner-up, and
+    their paired difference [bootstrap 95 %] with its sign-flip p."""
+    means = _means(study)
+    first, second = sorted(methods, key=lambda m: -means[(world, m, direction)])[:2]
+    r = _difference(study, world, direction, first, second)
+    return [f"{first} ({pct(means[(world, first, direction)])})", f"{second} ({pct(means[(world, second, direction)])})",
+            f"{pct(r['mean'])} {pct_interval(r)}", p_value(r["p_sign_flip"])]
+
+
+BEST_HEADER = ["best (mean max F1 %)", "runner-up", "best − runner-up, points [bootstrap 95 %]", "sign-flip p"]
+
+
 def best() -> str:
     """Per world, direction and touch model: the method with the highest mean max F1, the
     runner-up, and their paired difference."""
-    body = []
-    for study in STUDIES:
-        means = _means(study)
-        for world in WORLDS:
-            for direction, arrow in DIRECTIONS.items():
-                ranked = sorted(METHODS, key=lambda m: -means[(world, m, direction)])
-                first, second = ranked[:2]
-                r = _difference(study, world, direction, first, second)
-                body.append([world, study, arrow, f"{first} ({pct(means[(world, first, direction)])})",
-                             f"{second} ({pct(means[(world, second, direction)])})",
-                             f"{pct(r['mean'])} {pct_interval(r)}", p_value(r["p_sign_flip"])])
-    return markdown(["world", "touch model", "direction", "best (mean max F1 %)", "runner-up",
-                     "best − runner-up, points [bootstrap 95 %]", "sign-flip p"], body)
+    body = [[world, study, arrow, *_best_cells(study, world, direction, METHODS)]
+            for study in STUDIES for world in WORLDS for direction, arrow in DIRECTIONS.items()]
+    return markdown(["world", "touch model", "direction", *BEST_HEADER], body)
 
 
 def overall() -> str:
@@ -211,24 +243,28 @@ def _paired_cell(r: dict[str, str], p: str | float) -> str:
     return f"{pct(r['mean'])} {pct_interval(r)}, t {pct_interval(r, 't')}, p={p_value(p)}"
 
 
+def _decomposition_cells(study: str, world: str, direction: str) -> list[str]:
+    """L - H, L-V - H-V (both from ``sweep-diff.csv``) and the interaction (`interaction`) of one cell."""
+    cells = []
+    for a, b in (("L", "H"), ("L-V", "H-V")):
+        r = _difference(study, world, direction, a, b)
+        cells.append(_paired_cell(r, r["p_sign_flip"]))
+    _, stats, p = interaction(study, world, direction)
+    return [*cells, _paired_cell({k: str(v) for k, v in stats.items()}, p)]
+
+
+DECOMPOSITION_HEADER = ["L − H, points", "= L-V − H-V (vision)", "+ (L − L-V) − (H − H-V) (touch)"]
+
+
 def decomposition() -> str:
     """L - H = (L-V - H-V) + [(L - L-V) - (H - H-V)], max F1, per world, direction and touch
     model: what vision contributes and what touch costs L less than H (negative: more). Each
     term's mean over seeds [bootstrap 95 %], its t 95 % interval and sign-flip p; the first
     two from ``sweep-diff.csv``, the third computed per seed (`interaction`). The means add
     up exactly; their rounded values may differ by 0.1."""
-    body = []
-    for study in STUDIES:
-        for direction, arrow in DIRECTIONS.items():
-            for world in WORLDS:
-                cells = [world, study, arrow]
-                for a, b in (("L", "H"), ("L-V", "H-V")):
-                    r = _difference(study, world, direction, a, b)
-                    cells.append(_paired_cell(r, r["p_sign_flip"]))
-                _, stats, p = interaction(study, world, direction)
-                body.append([*cells, _paired_cell({k: str(v) for k, v in stats.items()}, p)])
-    return markdown(["world", "touch model", "direction", "L − H, points", "= L-V − H-V (vision)",
-                     "+ (L − L-V) − (H − H-V) (touch)"], body)
+    body = [[world, study, arrow, *_decomposition_cells(study, world, direction)]
+            for study in STUDIES for direction, arrow in DIRECTIONS.items() for world in WORLDS]
+    return markdown(["world", "touch model", "direction", *DECOMPOSITION_HEADER], body)
 
 
 def transfer() -> str:
@@ -362,6 +398,408 @@ def warnings() -> str:
     return markdown(["touch model", "seed", "run", "check", "warning"], body)
 
 
+# ---------------------------------------------------------------------------------------------
+# The second study (RESULTS.md, "Second study"): three arms, each a sweep with one folder per
+# grid point (``length=1``: single samples, ``length=16``: sequences of 16), summaries keyed
+# "arm/point" in `POINTS`; seed 0's validity gates from `vitaplace difficulty` (study2-difficulty/),
+# the budget trend from study2-budget/epochs=E/.
+
+DIFFICULTY2 = HERE / "study2-difficulty"
+BUDGET2 = HERE / "study2-budget"
+BUDGET_EPOCHS = (30, 70, 270)
+#: TOST margin of the decision rules, max F1
+EQUIVALENCE_MARGIN = 0.05
+ALPHA = 0.05
+
+
+def methods_of(arm: str) -> tuple[str, ...]:
+    return tuple(m for m in METHODS2 if not (arm == "drop-out" and m == "A"))
+
+
+def cells2(points: Iterable[str] = tuple(POINTS)) -> list[tuple[str, str, str]]:
+    """Every (arm/point, evaluation, direction) cell of the second study, in arm, point,
+    evaluation, direction order."""
+    return [(key, world, direction) for key in points for world in ARMS[key.split("/")[0]][2] for direction in DIRECTIONS]
+
+
+def _seed_manifests(arm: str) -> dict[int, dict]:
+    """Seed -> the single-sample point's manifest.json of that seed (the features, inference
+    and training of a seed are those of every grid point)."""
+    folder = ARMS[arm][0] / "length=1" / "seeds"
+    return {int(path.parent.name.split("-")[1]): json.loads(path.read_text())
+            for path in folder.glob("seed-*/manifest.json")}
+
+
+#: (label, arm/point, evaluation, direction, L, comparators): L minus the per-seed best comparator
+ENDPOINTS = (
+    ("**primary**", "touch/length=1", "alike-shapes", Q2R, ("L-V", "L-F")),
+    ("1", "touch/length=1", "alike-shapes", R2Q, ("L-V", "L-F")),
+    ("2", "touch/length=1", "distinct-shapes-dusk", Q2R, ("L-V", "L-F")),
+    ("3", "drop-out/length=1", "distinct-shapes-dropout", Q2R, ("L-V", "L-F")),
+    ("4", "touch/length=16", "alike-shapes", Q2R, ("L-V", "L-F")),
+    ("5", "touch/length=1", "alike-shapes", Q2R, ("A",)),
+    ("6", "faithful/length=1", "E3", Q2R, ("H",)),
+)
+
+
+def endpoint_values(key: str, world: str, direction: str, comparators: Sequence[str]) -> dict[int, float]:
+    """Seed -> L minus the best of ``comparators`` in that seed, max F1 (`_per_seed`)."""
+    values = _per_seed(key)
+    l_values = values[(world, "L", direction)]
+    others = [values[(world, m, direction)] for m in comparators]
+    assert all(set(o) == set(l_values) for o in others), (key, world, direction, "methods differ in their seeds")
+    return {s: l_values[s] - max(o[s] for o in others) for s in sorted(l_values)}
+
+
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm's step-down adjusted p values, in the order given: the i-th smallest times
+    (m - i + 1), made non-decreasing, at most 1."""
+    order = sorted(range(len(p_values)), key=lambda i: p_values[i])
+    adjusted, running = [0.0] * len(p_values), 0.0
+    for rank, i in enumerate(order):
+        running = max(running, min(1.0, (len(p_values) - rank) * p_values[i]))
+        adjusted[i] = running
+    return adjusted
+
+
+def t_interval(values: Sequence[float], level: float) -> tuple[float, float]:
+    """The Student-t ``level`` interval of the mean (the TOST's interval at level 0.90)."""
+    n = len(values)
+    mean, sem = statistics.fmean(values), statistics.stdev(values) / math.sqrt(n)
+    half = scipy_stats.t.ppf(0.5 + level / 2, n - 1) * sem
+    return mean - half, mean + half
+
+
+def decision(stats: dict[str, float], p: float, tost: tuple[float, float]) -> str:
+    """The pre-registered rules: superiority (bootstrap 95 % excludes 0 and p < 0.05, p Holm-
+    adjusted for the secondaries), equivalence (the 90 % t interval inside ±5 points)."""
+    superior = p < ALPHA and (stats["boot_low"] > 0 or stats["boot_high"] < 0)
+    equivalent = -EQUIVALENCE_MARGIN < tost[0] and tost[1] < EQUIVALENCE_MARGIN
+    direction = "L better" if stats["mean"] > 0 else "L worse"
+    if superior and equivalent:
+        return f"{direction}, by < 5 points"
+    if superior:
+        return direction
+    return "equivalent (±5 points)" if equivalent else "neither shown"
+
+
+def endpoints() -> list[dict]:
+    """The primary endpoint and the six secondaries: per-seed values, `describe`, sign-flip p,
+    Holm-adjusted p (secondaries; the primary's own p), 90 % t interval, decision."""
+    found = []
+    for label, key, world, direction, comparators in ENDPOINTS:
+        values = list(endpoint_values(key, world, direction, comparators).values())
+        found.append({"label": label, "key": key, "world": world, "direction": direction, "comparators": comparators,
+                      "values": values, "stats": describe(values, difference_bounds("max_f1")),
+                      "p": sign_flip_p(values), "tost": t_interval(values, 0.90)})
+    secondaries = found[1:]
+    for endpoint, adjusted in zip(secondaries, holm([e["p"] for e in secondaries])):
+        endpoint["p_holm"] = adjusted
+    found[0]["p_holm"] = found[0]["p"]
+    for endpoint in found:
+        endpoint["decision"] = decision(endpoint["stats"], endpoint["p_holm"], endpoint["tost"])
+    return found
+
+
+def study2_endpoints() -> str:
+    """The primary endpoint and the six secondaries (max F1, points): n, mean ± std, bootstrap
+    95 %, the sign-flip p and its Holm adjustment over the six secondaries, the TOST's 90 % t
+    interval against ±5 points, and the pre-registered decision."""
+    body = []
+    for e in endpoints():
+        arm, point = e["key"].split("/")
+        comparison = f"L − {e['comparators'][0]}" if len(e["comparators"]) == 1 else f"L − max({', '.join(e['comparators'])})"
+        s = e["stats"]
+        body.append([e["label"], comparison, arm, e["world"], DIRECTIONS[e["direction"]], MATCHING[point], str(s["n"]),
+                     f"{pct(s['mean'])} ± {pct(s['std'])}", f"[{pct(s['boot_low'])}, {pct(s['boot_high'])}]",
+                     p_value(e["p"]), p_value(e["p_holm"]), f"[{pct(e['tost'][0])}, {pct(e['tost'][1])}]",
+                     e["decision"]])
+    return markdown(["endpoint", "comparison", "arm", "evaluation", "direction", "matching", "n", "mean ± std, points",
+                     "bootstrap 95 %", "sign-flip p", "Holm p", "t 90 % (TOST ±5)", "decision"], body)
+
+
+def study2_comparator() -> str:
+    """The primary's comparator per seed: L-V's and L-F's max F1 in alike-shapes, query to
+    reference, single samples, the fusion weight w chosen there, the better of the two, and L
+    minus it."""
+    values, weights = _per_seed("touch/length=1"), _per_seed("touch/length=1", "fusion.weight")
+    cell = ("alike-shapes", Q2R)
+    body = []
+    for seed, d in endpoint_values("touch/length=1", *cell, ("L-V", "L-F")).items():
+        lv, lf, l_value = (values[(cell[0], m, cell[1])][seed] for m in ("L-V", "L-F", "L"))
+        body.append([str(seed), pct(l_value), pct(lv), pct(lf), f"{weights[(cell[0], 'L-F', cell[1])][seed]:g}",
+                     "L-F" if lf > lv else ("L-V = L-F" if lf == lv else "L-V"), pct(d)])
+    return markdown(["seed", "L max F1 %", "L-V", "L-F", "w", "comparator", "L − comparator, points"], body)
+
+
+def _gate_rows(arm: str) -> dict[int, list[dict]]:
+    """Seed -> `difficulty_rows` of that seed: seed 0 from the committed `vitaplace difficulty`
+    run, the others from the sweep's own H-family evaluations (the same measures; the test
+    checks that seed 0's agree)."""
+    from vitaplace.engine.cli.difficulty import difficulty_rows
+    from vitaplace.engine.config.loading import load_scenario
+
+    scenario, _ = load_scenario(HERE.parents[1] / "scenarios" / ARMS[arm][1])
+    seeds = ARMS[arm][0] / "length=1" / "seeds"
+    rows = {}
+    for folder in sorted(seeds.glob("seed-*"), key=lambda f: int(f.name.split("-")[1])):
+        seed = int(folder.name.split("-")[1])
+        difficulty_json = DIFFICULTY2 / f"{ARMS[arm][1].removesuffix('.yaml')}-seed-{seed}.json"
+        if difficulty_json.exists():
+            rows[seed] = json.loads(difficulty_json.read_text())
+        else:
+            rows[seed] = difficulty_rows(scenario, json.loads((folder / "results.json").read_text()),
+                                         json.loads((folder / "complementarity.json").read_text()))
+    return rows
+
+
+def _gate_cell(results: list[dict], scale: float = 100) -> str:
+    """Median (min–max) of a gated measure over seeds and in how many seeds its gate is met."""
+    values = [r["value"] for r in results if r["value"] is not None]
+    if not values:
+        return "none"
+    cell = f"{scale * statistics.median(values):.1f} ({scale * min(values):.1f}–{scale * max(values):.1f})"
+    if results[0]["gate"] is None:
+        return f"{cell}, no gate"
+    return f"{cell}, met {sum(bool(r['met']) for r in results)} of {len(results)}"
+
+
+def study2_gates() -> str:
+    """The validity gates of the two touch arms per evaluation and direction, over the eight
+    seeds: touch correspondence (gate >= 70 %), H-T's rescues of H-V's recall@1 failures
+    (summed over seeds; the share's median (min–max), gate >= 25 %) beside the chance
+    recall@1, and H-V's max F1 (gate <= 85 % where declared), each with the number of seeds
+    that meet it."""
+    body = []
+    for arm in ("touch", "drop-out"):
+        per_seed = _gate_rows(arm)
+        for world in ARMS[arm][2]:
+            for direction, arrow in DIRECTIONS.items():
+                rows = [next(r for r in seed_rows if (r["environment"], r["direction"]) == (world, direction))
+                        for seed_rows in per_seed.values()]
+                rescued = sum(r["complementarity"]["rescued"] for r in rows)
+                wrong = sum(r["complementarity"]["vision_wrong"] for r in rows)
+                chance = statistics.median(r["difficulty"]["chance_r1"] for r in rows)
+                body.append([arm, world, arrow, str(len(rows)),
+                             _gate_cell([r["gates"]["touch_correspondence_min"] for r in rows]),
+                             f"{rescued} of {wrong}; {_gate_cell([r['gates']['rescue_min'] for r in rows])}",
+                             pct(chance), _gate_cell([r["gates"]["hv_max_f1_max"] for r in rows])])
+    return markdown(["arm", "evaluation", "direction", "seeds", "touch correspondence %", "H-T rescues of H-V's failures, %",
+                     "chance R@1 %", "H-V max F1 %"], body)
+
+
+def _methods_table(arm: str) -> str:
+    rows = {key: _index(read(key, "sweep.csv"), "environment", "method", "direction", "metric")
+            for key in POINTS if key.startswith(f"{arm}/")}
+    worlds = ARMS[arm][2]
+    body = []
+    for key, index in rows.items():
+        for direction, arrow in DIRECTIONS.items():
+            for method in methods_of(arm):
+                cells = [f"{pct(r['mean'])} {pct_interval(r)}" for r in (index[(w, method, direction, "max_f1")] for w in worlds)]
+                body.append([method, arrow, MATCHING[key.split("/")[1]], *cells])
+    n = next(iter(rows.values()))[(worlds[0], "L", Q2R, "max_f1")]["n"]
+    return markdown(["method", "direction", "matching", *(f"{w} (n={n})" for w in worlds)], body)
+
+
+def methods_table(arm: str) -> Callable[[], str]:
+    def table() -> str:
+        return _methods_table(arm)
+    table.__doc__ = f"Max F1 %, mean [bootstrap 95 %] over seeds, of every method and fusion of the {arm} arm."
+    return table
+
+
+def study2_decomposition() -> str:
+    """L - H = (L-V - H-V) + [(L - L-V) - (H - H-V)] (`decomposition`) for every evaluation x
+    direction x matching cell of the three arms; exploratory, unadjusted."""
+    body = [[key.split("/")[0], world, DIRECTIONS[direction], MATCHING[key.split("/")[1]],
+             *_decomposition_cells(key, world, direction)] for key, world, direction in cells2()]
+    return markdown(["arm", "evaluation", "direction", "matching", *DECOMPOSITION_HEADER], body)
+
+
+#: paired contrasts reported per evaluation, query to reference, single samples
+CONTRASTS = (("L", "L-V"), ("H", "H-V"), ("L", "L-F"), ("L", "A"), ("L-cycle", "L"), ("L-T", "H-T"))
+
+
+def study2_contrasts() -> str:
+    """What touch adds (L - L-V, H - H-V), joint against late fusion (L - L-F), the learning
+    rule (L - A), the whisk cycle (L-cycle - L) and the tactile codes (L-T - H-T): max F1,
+    query to reference, single samples, mean [bootstrap 95 %] and sign-flip p."""
+    body = []
+    for key in (k for k in POINTS if k.endswith("/length=1")):
+        arm = key.split("/")[0]
+        for world in ARMS[arm][2]:
+            cells = []
+            for a, b in CONTRASTS:
+                if "A" in (a, b) and "A" not in methods_of(arm):
+                    cells.append("–")
+                    continue
+                r = _difference(key, world, Q2R, a, b)
+                cells.append(f"{pct(r['mean'])} {pct_interval(r)} p={p_value(r['p_sign_flip'])}")
+            body.append([arm, world, *cells])
+    return markdown(["arm", "evaluation", *(f"{a} − {b}" for a, b in CONTRASTS)], body)
+
+
+def study2_best() -> str:
+    """Per evaluation, direction and matching of each arm: the best method or fusion by mean
+    max F1, the runner-up and their paired difference (`best`)."""
+    body = [[key.split("/")[0], world, DIRECTIONS[direction], MATCHING[key.split("/")[1]],
+             *_best_cells(key, world, direction, methods_of(key.split("/")[0]))] for key, world, direction in cells2()]
+    return markdown(["arm", "evaluation", "direction", "matching", *BEST_HEADER], body)
+
+
+def study2_overall() -> str:
+    """Per arm and matching: the methods ranked by mean max F1 over its evaluations and both
+    directions (a ranking only), and in how many of its cells each is the best."""
+    body = []
+    for key in POINTS:
+        methods, means, average = methods_of(key.split("/")[0]), _means(key), _averages(key)
+        cells = [(w, d) for _, w, d in cells2([key])]
+        wins = {m: sum(max(methods, key=lambda x: means[(w, x, d)]) == m for w, d in cells) for m in methods}
+        ranked = sorted(methods, key=lambda m: -average[m])
+        body.append([key.split("/")[0], MATCHING[key.split("/")[1]], str(len(cells)),
+                     *(f"{m} {pct(average[m])} ({wins[m]})" for m in ranked),
+                     *([""] * (len(METHODS2) - len(methods)))])
+    return markdown(["arm", "matching", "cells", *(f"rank {i} (best in)" for i in range(1, len(METHODS2) + 1))], body)
+
+
+def _averages(key: str) -> dict[str, float]:
+    """Each method's mean max F1 over the evaluations and directions of one arm/point."""
+    means, cells = _means(key), [(w, d) for _, w, d in cells2([key])]
+    return {m: statistics.fmean(means[(w, m, d)] for w, d in cells) for m in methods_of(key.split("/")[0])}
+
+
+def study2_rank() -> str:
+    """The best method overall: each method's rank by mean max F1 (`study2_overall`) in every
+    arm, and its mean rank over the three arms' single samples and over all five arm x
+    matching points (A over those it ran in: it is not scored under drop-out)."""
+    ranks = {}
+    for key in POINTS:
+        average = _averages(key)
+        ranks[key] = {m: i + 1 for i, m in enumerate(sorted(average, key=lambda m: -average[m]))}
+    single = [k for k in POINTS if k.endswith("/length=1")]
+    mean_rank = {m: (statistics.fmean(ranks[k][m] for k in single if m in ranks[k]),
+                     statistics.fmean(ranks[k][m] for k in POINTS if m in ranks[k])) for m in METHODS2}
+    body = [[m, *(str(ranks[k].get(m, "–")) for k in POINTS), f"{mean_rank[m][0]:.1f}", f"{mean_rank[m][1]:.1f}"]
+            for m in sorted(METHODS2, key=lambda m: mean_rank[m])]
+    return markdown(["method", *(f"{k.split('/')[0]}, {MATCHING[k.split('/')[1]]}" for k in POINTS),
+                     "mean rank, single samples", "mean rank, all"], body)
+
+
+def study2_settled() -> str:
+    """Settledness of the MuPNet methods' test-time inference per evaluation drive, from each
+    seed's manifest: the share of samples that ended before the 1000-step cap (settled: the
+    relative-change rule or the thresholds) and the share under the layer thresholds
+    (stopped), median (min–max) over seeds; "not settled" where the median settled share is
+    under 95 %."""
+    def share(runs: list[dict], name: str) -> list[float]:
+        return [(r["samples"] - r["capped"]) / r["samples"] if name == "settled" else r["stopped"] / r["samples"]
+                for r in runs]
+
+    def cell(values: list[float]) -> str:
+        return f"{100 * statistics.median(values):.1f} ({100 * min(values):.1f}–{100 * max(values):.1f})"
+
+    body = []
+    for arm in ARMS:
+        manifests = list(_seed_manifests(arm).values())
+        for method in LEARNED:
+            for world in ARMS[arm][2]:
+                cells, unsettled = [], []
+                for drive in ("query", "reference"):
+                    runs = [m["features"][method][f"{world}/{drive}"]["inference"] for m in manifests]
+                    settled = share(runs, "settled")
+                    cells += [cell(settled), cell(share(runs, "stopped"))]
+                    if statistics.median(settled) < 0.95:
+                        unsettled.append(drive)
+                body.append([arm, method, world, *cells, ", ".join(unsettled) or "–"])
+    return markdown(["arm", "method", "evaluation", "query settled %", "query stopped %", "reference settled %",
+                     "reference stopped %", "not settled"], body)
+
+
+def study2_training() -> str:
+    """Epochs the learned methods trained, of the cap, and how many seeds converged (the
+    training energy improved by less than 1 % over 20 epochs), from each seed's manifest."""
+    body = []
+    for arm in ARMS:
+        manifests = list(_seed_manifests(arm).values())
+        for method in (m for m in (*LEARNED, "A") if m in methods_of(arm)):
+            trained = [m["training"][method] for m in manifests]
+            epochs = [t["epochs"] for t in trained]
+            cap = "/".join(str(c) for c in sorted({t["max_epochs"] for t in trained}))
+            body.append([arm, method, str(len(trained)), f"{min(epochs)}–{max(epochs)} of {cap}",
+                         f"{sum(bool(t['converged']) for t in trained)} of {len(trained)}"])
+    return markdown(["arm", "method", "seeds", "epochs trained", "converged"], body)
+
+
+def study2_complementarity() -> str:
+    """Per evaluation and direction, single samples: each vision/touch pair's recall@1 failures
+    of vision that touch gets right (rescued of wrong, summed over seeds) and its oracle
+    recall@1 (either right), median over seeds, from each seed's complementarity.json."""
+    body = []
+    for arm, (folder, _, worlds, _) in ARMS.items():
+        seeds = [json.loads(p.read_text()) for p in (folder / "length=1" / "seeds").glob("seed-*/complementarity.json")]
+        for world in worlds:
+            for direction, arrow in DIRECTIONS.items():
+                cells = [arm, world, arrow]
+                for vision, touch in (("L-V", "L-T"), ("H-V", "H-T")):
+                    pairs_found = [next(c for c in seed if (c["environment"], c["direction"], c["vision"], c["touch"])
+                                        == (world, direction, vision, touch)) for seed in seeds]
+                    cells += [f"{sum(c['rescued'] for c in pairs_found)} of {sum(c['vision_wrong'] for c in pairs_found)}",
+                              pct(statistics.median(c["oracle_r1"] for c in pairs_found))]
+                body.append(cells)
+    return markdown(["arm", "evaluation", "direction", "L-T rescues of L-V", "L oracle R@1 %", "H-T rescues of H-V",
+                     "H oracle R@1 %"], body)
+
+
+def _budget_values(epochs: int) -> tuple[dict[tuple[str, str, str], float], dict]:
+    """Max F1 per (evaluation, method, direction) and the manifest of seed 0 at an epoch cap."""
+    folder = BUDGET2 / f"epochs={epochs}"
+    values = {}
+    with open(folder / "sweep-seeds.csv", newline="") as handle:
+        for r in csv.DictReader(handle):
+            if r["metric"] == "max_f1" and r["seed"] == "0":
+                values[(r["environment"], r["method"], r["direction"])] = float(r["value"])
+    return values, json.loads((folder / "seeds" / "seed-0" / "manifest.json").read_text())
+
+
+def study2_budget() -> str:
+    """The budget trend, seed 0 of the touch arm's L and L-V at epoch caps of 30, 70 and 270
+    (the study's cap is 70), single samples: max F1 of L and L-V and L - L-V, points; the
+    last rows are the epochs trained."""
+    runs = {e: _budget_values(e) for e in BUDGET_EPOCHS}
+    body = []
+    for world in ARMS["touch"][2]:
+        for direction, arrow in DIRECTIONS.items():
+            cells = []
+            for values, _ in runs.values():
+                lv, vv = values[(world, "L", direction)], values[(world, "L-V", direction)]
+                cells.append(f"{pct(lv)} / {pct(vv)} / {100 * (lv - vv):+.1f}")
+            body.append([world, arrow, *cells])
+    for method in ("L", "L-V"):
+        body.append([f"epochs trained, {method}", "", *(f"{m['training'][method]['epochs']} of {m['training'][method]['max_epochs']}"
+                                                        f"{', converged' if m['training'][method]['converged'] else ''}"
+                                                        for _, m in runs.values())])
+    return markdown(["evaluation", "direction", *(f"{e} epochs: L / L-V / L − L-V" for e in BUDGET_EPOCHS)], body)
+
+
+def study2_warnings() -> str:
+    """The warnings of the second study's seeds (each manifest's ``warnings``, single-sample
+    point), per arm and check: in how many seeds and runs it fired, and its first message."""
+    body = []
+    for arm in ARMS:
+        found: dict[str, list[tuple[int, str, str]]] = {}
+        for seed, manifest in sorted(_seed_manifests(arm).items()):
+            for run, checks in manifest["warnings"].items():
+                for check, message in checks.items():
+                    found.setdefault(check, []).append((seed, run, message))
+        for check, hits in sorted(found.items()):
+            body.append([arm, f"`{check}`", str(len({h[0] for h in hits})), str(len(hits)),
+                         f"seed {hits[0][0]}, {hits[0][1]}: {hits[0][2]}"])
+        if not found:
+            body.append([arm, "–", "0", "0", "none"])
+    return markdown(["arm", "check", "seeds", "runs", "first message"], body)
+
+
 TABLES: dict[str, Callable[[], str]] = {
     "difficulty": difficulty,
     "six-penetration": lambda: six_methods("penetration"),
@@ -379,6 +817,22 @@ TABLES: dict[str, Callable[[], str]] = {
     "budget": budget,
     "stalls": stalls,
     "warnings": warnings,
+    "study2-gates": study2_gates,
+    "study2-methods-touch": methods_table("touch"),
+    "study2-methods-drop-out": methods_table("drop-out"),
+    "study2-methods-faithful": methods_table("faithful"),
+    "study2-endpoints": study2_endpoints,
+    "study2-comparator": study2_comparator,
+    "study2-best": study2_best,
+    "study2-overall": study2_overall,
+    "study2-rank": study2_rank,
+    "study2-contrasts": study2_contrasts,
+    "study2-decomposition": study2_decomposition,
+    "study2-complementarity": study2_complementarity,
+    "study2-settled": study2_settled,
+    "study2-training": study2_training,
+    "study2-budget": study2_budget,
+    "study2-warnings": study2_warnings,
 }
 
 

@@ -1,8 +1,9 @@
 """docs/RESULTS.md against the study's committed summaries (docs/results/): every table in
 the text is what docs/results/tables.py computes from them (docs/BENCHMARK.md's what
 docs/results/benchmark.py computes from the committed `vitaplace difficulty` run), and the
-summaries hold what the study promises (six methods, at least five seeds, three worlds, both touch models, bounded
-intervals, the sign-flip p, recall at 100 % precision, the F1 at E1's threshold)."""
+summaries hold what the studies promise (the first: six methods, at least five seeds, three worlds, both touch models, bounded
+intervals, the sign-flip p, recall at 100 % precision, the F1 at E1's threshold; the second: every method and condition at eight seeds, bounded
+intervals, the pre-registered endpoints and decision rules, the gates, the budget trend)."""
 
 import csv
 import importlib.util
@@ -108,3 +109,127 @@ def test_the_committed_difficulty_run_checks_every_evaluation_of_the_touch_bench
                 assert gate["met"] is False
             else:
                 assert gate["met"] == (gate["value"] >= gate["gate"] if minimum[name] else gate["value"] <= gate["gate"])
+
+
+# The second study (RESULTS.md, "Second study"): three arms, one summaries' folder per grid point.
+SECOND = ["touch/length=1", "touch/length=16", "drop-out/length=1", "drop-out/length=16", "faithful/length=1"]
+
+
+@pytest.mark.parametrize("key", SECOND)
+def test_the_second_study_holds_every_method_and_evaluation_at_eight_seeds_with_bounded_intervals(key):
+    tables = tables_module()
+    arm = key.split("/")[0]
+    folder = tables.POINTS[key]
+    seeds = rows(folder.relative_to(RESULTS), "sweep-seeds.csv")
+    per_cell: dict[tuple[str, str], set[str]] = {}
+    for row in seeds:
+        if row["metric"] == "max_f1":
+            per_cell.setdefault((row["environment"], row["method"]), set()).add(row["seed"])
+    expected_methods = {"L", "L-V", "L-T", "L-cycle", "H", "H-V", "H-T", "L-F", "H-F"} | ({"A"} if arm != "drop-out" else set())
+    assert {env for env, _ in per_cell} == set(tables.ARMS[arm][2])
+    assert {method for _, method in per_cell} == expected_methods
+    assert all(s == {str(i) for i in range(8)} for s in per_cell.values()), {k: len(v) for k, v in per_cell.items()}
+    for name, low, high in (("sweep.csv", 0.0, 1.0), ("sweep-diff.csv", -1.0, 1.0)):
+        for row in rows(folder.relative_to(RESULTS), name):
+            if row.get("kind", "metric") != "metric":
+                continue
+            for interval in ("t", "boot"):
+                a, b = float(row[f"{interval}_low"]), float(row[f"{interval}_high"])
+                assert low <= a <= b <= high, (name, interval, row)
+    assert all(0 < float(row["p_sign_flip"]) <= 1 for row in rows(folder.relative_to(RESULTS), "sweep-diff.csv"))
+
+
+def test_the_primary_endpoint_is_l_minus_the_better_comparator_in_every_seed():
+    """Recomputed from sweep-seeds.csv: per seed L - max(L-V, L-F), never above either
+    difference; where L-F >= L-V in every seed (as w = 0 on the grid promises) it is the
+    summaries' L - L-F row."""
+    tables = tables_module()
+    seeds = rows("study2-sweep/length=1", "sweep-seeds.csv")
+    value = {(r["seed"], r["method"]): float(r["value"]) for r in seeds
+             if (r["environment"], r["direction"], r["metric"]) == ("alike-shapes", tables.Q2R, "max_f1")}
+    primary = tables.endpoints()[0]
+    assert (primary["key"], primary["world"], primary["direction"]) == ("touch/length=1", "alike-shapes", tables.Q2R)
+    expected = [value[(s, "L")] - max(value[(s, "L-V")], value[(s, "L-F")]) for s in map(str, range(8))]
+    assert primary["values"] == pytest.approx(expected, abs=1e-15)
+    for s, d in zip(map(str, range(8)), primary["values"]):
+        assert d <= value[(s, "L")] - value[(s, "L-V")] + 1e-15 and d <= value[(s, "L")] - value[(s, "L-F")] + 1e-15
+    if all(value[(s, "L-F")] >= value[(s, "L-V")] for s in map(str, range(8))):
+        diff = tables._difference("touch/length=1", "alike-shapes", tables.Q2R, "L", "L-F")
+        assert primary["stats"]["mean"] == pytest.approx(float(diff["mean"]), abs=1e-12)
+        assert primary["p"] == pytest.approx(float(diff["p_sign_flip"]), abs=1e-12)
+    low, high = primary["stats"]["boot_low"], primary["stats"]["boot_high"]
+    assert -1 <= low <= primary["stats"]["mean"] <= high <= 1
+    assert len(tables.endpoints()) == 7 and all(e["stats"]["n"] == 8 for e in tables.endpoints())
+
+
+def test_holm_adjusts_a_hand_computed_family():
+    tables = tables_module()
+    # sorted 0.01, 0.03, 0.04: 3 x 0.01 = 0.03; 2 x 0.03 = 0.06; 1 x 0.04 = 0.04, raised to 0.06
+    assert tables.holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
+    assert tables.holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])
+
+
+@pytest.mark.parametrize("boot, p, tost, expected", [
+    ((0.01, 0.09), 0.01, (0.02, 0.08), "L better"),
+    ((0.01, 0.04), 0.01, (0.005, 0.045), "L better, by < 5 points"),
+    ((-0.09, -0.01), 0.01, (-0.08, -0.02), "L worse"),
+    ((-0.01, 0.03), 0.30, (-0.02, 0.04), "equivalent (±5 points)"),
+    ((0.01, 0.09), 0.06, (0.0, 0.1), "neither shown"),  # p over 0.05 (e.g. after Holm)
+    ((-0.01, 0.09), 0.01, (-0.02, 0.1), "neither shown"),  # bootstrap interval holds 0
+])
+def test_the_decision_rules_are_the_pre_registered_ones(boot, p, tost, expected):
+    tables = tables_module()
+    stats = {"mean": (boot[0] + boot[1]) / 2, "boot_low": boot[0], "boot_high": boot[1]}
+    assert tables.decision(stats, p, tost) == expected
+
+
+def test_the_tost_interval_is_the_90_percent_t_interval():
+    tables = tables_module()
+    values = [0.01, 0.03, -0.02, 0.04]  # mean 0.015, sd sqrt(0.0021/3) = 0.0264575..., t(0.95, 3) = 2.353363434801823
+    half = 2.353363434801823 * math.sqrt(0.0021 / 3) / 2
+    assert tables.t_interval(values, 0.90) == pytest.approx((0.015 - half, 0.015 + half), abs=1e-12)
+
+
+@pytest.mark.parametrize("arm", ["touch", "drop-out"])
+def test_seed_0s_gates_read_from_the_sweep_are_the_committed_difficulty_runs(arm):
+    """The gates of seeds 1-7 are read from the sweeps' H-family evaluations: for seed 0 that
+    reading gives exactly what `vitaplace difficulty` measured."""
+    import json
+
+    from vitaplace.engine.cli.difficulty import difficulty_rows
+    from vitaplace.engine.config.loading import load_scenario
+
+    tables = tables_module()
+    folder, scenario_file = tables.ARMS[arm][:2]
+    scenario, _ = load_scenario(ROOT / "scenarios" / scenario_file)
+    seed0 = folder / "length=1" / "seeds" / "seed-0"
+    from_sweep = difficulty_rows(scenario, json.loads((seed0 / "results.json").read_text()),
+                                 json.loads((seed0 / "complementarity.json").read_text()))
+    committed = json.loads((tables.DIFFICULTY2 / f"{scenario_file.removesuffix('.yaml')}-seed-0.json").read_text())
+    assert json.dumps(from_sweep, sort_keys=True) == json.dumps(committed, sort_keys=True)
+    assert len(tables._gate_rows(arm)) == 8
+
+
+def test_the_second_studys_decomposition_adds_up_in_every_cell():
+    tables = tables_module()
+    cells = tables.cells2()
+    assert len(cells) == 2 * (5 * 2 + 2 * 2 + 3)  # both directions: touch and drop-out at two matchings, faithful at one
+    for key, world, direction in cells:
+        def mean(a: str, b: str) -> float:
+            return float(tables._difference(key, world, direction, a, b)["mean"])
+        per_seed, stats, p = tables.interaction(key, world, direction)
+        assert len(per_seed) == 8 and stats["mean"] == pytest.approx(mean("L", "L-V") - mean("H", "H-V"), abs=1e-12)
+        assert mean("L", "H") == pytest.approx(mean("L-V", "H-V") + stats["mean"], abs=1e-12)
+
+
+@pytest.mark.parametrize("epochs", [30, 70, 270])
+def test_the_budget_trend_trained_l_and_l_v_at_its_epoch_cap_on_seed_0(epochs):
+    import json
+
+    tables = tables_module()
+    manifest = json.loads((tables.BUDGET2 / f"epochs={epochs}" / "seeds" / "seed-0" / "manifest.json").read_text())
+    for method in ("L", "L-V"):
+        trained = manifest["training"][method]
+        assert trained["max_epochs"] == epochs and 1 <= trained["epochs"] <= epochs
+    values, _ = tables._budget_values(epochs)
+    assert {(w, m) for w, m, _ in values} == {(w, m) for w in tables.ARMS["touch"][2] for m in ("L", "L-V")}
