@@ -149,6 +149,7 @@ MODULES = {
     "complementarity": "engine/evaluation/complementarity.py",
     "config.methods": "engine/config/methods.py",
     "cli.difficulty": "engine/cli/difficulty.py",
+    "results.tables": "docs/results/tables.py",
 }
 
 
@@ -1203,6 +1204,24 @@ MUTANTS = [
       '    return f"{value} {bound}" if result["met"] else f"MISSED {value} {bound}"',
       '    return f"{value} {bound}"',
       *t("difficulty_command", "test_difficulty_runs_the_handcrafted_family_alone_and_prints_gates")),
+    m("results.tables: Holm's multipliers one too small", "results.tables",
+      "min(1.0, (len(p_values) - rank) * p_values[i])", "min(1.0, (len(p_values) - rank - 1) * p_values[i])",
+      *t("results_doc", "test_holm_adjusts_a_hand_computed_family")),
+    m("results.tables: Holm's adjusted p not made non-decreasing", "results.tables",
+      "running = max(running, min(1.0,", "running = min(running + 1.0, min(1.0,",
+      *t("results_doc", "test_holm_adjusts_a_hand_computed_family")),
+    m("results.tables: the endpoint against the worse comparator", "results.tables",
+      "{s: l_values[s] - max(o[s] for o in others)", "{s: l_values[s] - min(o[s] for o in others)",
+      *t("results_doc", "test_the_primary_endpoint_is_l_minus_the_better_comparator_in_every_seed")),
+    m("results.tables: superiority without the bootstrap interval", "results.tables",
+      '    superior = p < ALPHA and (stats["boot_low"] > 0 or stats["boot_high"] < 0)', "    superior = p < ALPHA",
+      *t("results_doc", "test_the_decision_rules_are_the_pre_registered_ones")),
+    m("results.tables: the TOST read at 95 %", "results.tables",
+      '"tost": t_interval(values, 0.90)', '"tost": t_interval(values, 0.95)',
+      *t("results_doc", "test_the_primary_endpoint_is_l_minus_the_better_comparator_in_every_seed")),
+    m("results.tables: Holm over the primary too", "results.tables",
+      "    secondaries = found[1:]\n", "    secondaries = found\n",
+      *t("results_doc", "test_the_primary_endpoint_is_l_minus_the_better_comparator_in_every_seed")),
 ]
 
 #: Mutants that cannot change a result, kept to document why they survive.

@@ -9,9 +9,11 @@ import csv
 import importlib.util
 import math
 import re
+import statistics
 from pathlib import Path
 
 import pytest
+from scipy import stats
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "docs" / "results"
@@ -159,7 +161,15 @@ def test_the_primary_endpoint_is_l_minus_the_better_comparator_in_every_seed():
         assert primary["p"] == pytest.approx(float(diff["p_sign_flip"]), abs=1e-12)
     low, high = primary["stats"]["boot_low"], primary["stats"]["boot_high"]
     assert -1 <= low <= primary["stats"]["mean"] <= high <= 1
-    assert len(tables.endpoints()) == 7 and all(e["stats"]["n"] == 8 for e in tables.endpoints())
+    endpoints = tables.endpoints()
+    assert len(endpoints) == 7 and all(e["stats"]["n"] == 8 for e in endpoints)
+    # the TOST's interval: mean -+ t(0.95, 7) sd / sqrt(8), two one-sided tests at 0.05
+    half = stats.t.ppf(0.95, 7) * statistics.stdev(expected) / math.sqrt(8)
+    assert primary["tost"] == pytest.approx((statistics.fmean(expected) - half, statistics.fmean(expected) + half))
+    # Holm over the six secondaries only; the primary keeps its own p
+    assert primary["p_holm"] == primary["p"]
+    ps = sorted(e["p"] for e in endpoints[1:])
+    assert min(e["p_holm"] for e in endpoints[1:]) == pytest.approx(min(1.0, 6 * ps[0]))
 
 
 def test_holm_adjusts_a_hand_computed_family():
