@@ -25,7 +25,6 @@ from __future__ import annotations
 import csv
 import functools
 import json
-import math
 import statistics
 import sys
 from collections.abc import Callable, Iterable, Sequence
@@ -62,8 +61,12 @@ METHODS2 = ("L", "L-V", "L-T", "L-cycle", "A", "H", "H-V", "H-T", "L-F", "H-F")
 LEARNED = ("L", "L-V", "L-T", "L-cycle")
 #: second study: "arm/point" -> its summaries' folder
 POINTS = {f"{arm}/{point}": folder / point for arm, (folder, _, _, points) in ARMS.items() for point in points}
+BUDGET2 = HERE / "study2-budget"
+BUDGET_EPOCHS = (30, 70, 270)
+#: the second study's budget trend: "budget/epochs=E" -> its summaries' folder (seed 0 only)
+BUDGET_POINTS = {f"budget/epochs={e}": BUDGET2 / f"epochs={e}" for e in BUDGET_EPOCHS}
 #: every summaries' folder tables read from: the first study's by touch model, the second's by arm/point
-SUMMARIES = {**STUDIES, **POINTS}
+SUMMARIES = {**STUDIES, **POINTS, **BUDGET_POINTS}
 
 
 @functools.cache  # each file is read once, however many tables use it (callers do not mutate rows)
@@ -215,6 +218,7 @@ def pairs(comparisons: Sequence[tuple[str, str]]) -> Callable[[], str]:
     return table
 
 
+@functools.cache  # callers do not mutate it
 def _per_seed(study: str, metric: str = "max_f1") -> dict[tuple[str, str, str], dict[int, float]]:
     """``{(world, method, direction): {seed: value}}`` of ``metric`` from ``sweep-seeds.csv``."""
     values: dict[tuple[str, str, str], dict[int, float]] = {}
@@ -405,8 +409,6 @@ def warnings() -> str:
 # the budget trend from study2-budget/epochs=E/.
 
 DIFFICULTY2 = HERE / "study2-difficulty"
-BUDGET2 = HERE / "study2-budget"
-BUDGET_EPOCHS = (30, 70, 270)
 #: TOST margin of the decision rules, max F1
 EQUIVALENCE_MARGIN = 0.05
 ALPHA = 0.05
@@ -422,6 +424,7 @@ def cells2(points: Iterable[str] = tuple(POINTS)) -> list[tuple[str, str, str]]:
     return [(key, world, direction) for key in points for world in ARMS[key.split("/")[0]][2] for direction in DIRECTIONS]
 
 
+@functools.cache  # each manifest is read once (callers do not mutate them)
 def _seed_manifests(arm: str) -> dict[int, dict]:
     """Seed -> the single-sample point's manifest.json of that seed (the features, inference
     and training of a seed are those of every grid point)."""
@@ -464,10 +467,8 @@ def holm(p_values: Sequence[float]) -> list[float]:
 
 def t_interval(values: Sequence[float], level: float) -> tuple[float, float]:
     """The Student-t ``level`` interval of the mean (the TOST's interval at level 0.90)."""
-    n = len(values)
-    mean, sem = statistics.fmean(values), statistics.stdev(values) / math.sqrt(n)
-    half = scipy_stats.t.ppf(0.5 + level / 2, n - 1) * sem
-    return mean - half, mean + half
+    low, high = scipy_stats.ttest_1samp(values, 0.0).confidence_interval(confidence_level=level)
+    return float(low), float(high)
 
 
 def decision(stats: dict[str, float], p: float, tost: tuple[float, float]) -> str:
@@ -532,6 +533,7 @@ def study2_comparator() -> str:
     return markdown(["seed", "L max F1 %", "L-V", "L-F", "w", "comparator", "L − comparator, points"], body)
 
 
+@functools.cache
 def _gate_rows(arm: str) -> dict[int, list[dict]]:
     """Seed -> `difficulty_rows` of that seed: seed 0 from the committed `vitaplace difficulty`
     run, the others from the sweep's own H-family evaluations (the same measures; the test
@@ -588,7 +590,8 @@ def study2_gates() -> str:
                      "chance R@1 %", "H-V max F1 %"], body)
 
 
-def _methods_table(arm: str) -> str:
+def methods_table(arm: str) -> str:
+    """Max F1 %, mean [bootstrap 95 %] over seeds, of every method and fusion of one arm."""
     rows = {key: _index(read(key, "sweep.csv"), "environment", "method", "direction", "metric")
             for key in POINTS if key.startswith(f"{arm}/")}
     worlds = ARMS[arm][2]
@@ -600,13 +603,6 @@ def _methods_table(arm: str) -> str:
                 body.append([method, arrow, MATCHING[key.split("/")[1]], *cells])
     n = next(iter(rows.values()))[(worlds[0], "L", Q2R, "max_f1")]["n"]
     return markdown(["method", "direction", "matching", *(f"{w} (n={n})" for w in worlds)], body)
-
-
-def methods_table(arm: str) -> Callable[[], str]:
-    def table() -> str:
-        return _methods_table(arm)
-    table.__doc__ = f"Max F1 %, mean [bootstrap 95 %] over seeds, of every method and fusion of the {arm} arm."
-    return table
 
 
 def study2_decomposition() -> str:
@@ -692,10 +688,6 @@ def study2_settled() -> str:
     relative-change rule or the thresholds) and the share under the layer thresholds
     (stopped), median (min–max) over seeds; "not settled" where the median settled share is
     under 95 %."""
-    def share(runs: list[dict], name: str) -> list[float]:
-        return [(r["samples"] - r["capped"]) / r["samples"] if name == "settled" else r["stopped"] / r["samples"]
-                for r in runs]
-
     def cell(values: list[float]) -> str:
         return f"{100 * statistics.median(values):.1f} ({100 * min(values):.1f}–{100 * max(values):.1f})"
 
@@ -707,8 +699,8 @@ def study2_settled() -> str:
                 cells, unsettled = [], []
                 for drive in ("query", "reference"):
                     runs = [m["features"][method][f"{world}/{drive}"]["inference"] for m in manifests]
-                    settled = share(runs, "settled")
-                    cells += [cell(settled), cell(share(runs, "stopped"))]
+                    settled = [(r["samples"] - r["capped"]) / r["samples"] for r in runs]
+                    cells += [cell(settled), cell([r["stopped"] / r["samples"] for r in runs])]
                     if statistics.median(settled) < 0.95:
                         unsettled.append(drive)
                 body.append([arm, method, world, *cells, ", ".join(unsettled) or "–"])
@@ -753,13 +745,8 @@ def study2_complementarity() -> str:
 
 def _budget_values(epochs: int) -> tuple[dict[tuple[str, str, str], float], dict]:
     """Max F1 per (evaluation, method, direction) and the manifest of seed 0 at an epoch cap."""
-    folder = BUDGET2 / f"epochs={epochs}"
-    values = {}
-    with open(folder / "sweep-seeds.csv", newline="") as handle:
-        for r in csv.DictReader(handle):
-            if r["metric"] == "max_f1" and r["seed"] == "0":
-                values[(r["environment"], r["method"], r["direction"])] = float(r["value"])
-    return values, json.loads((folder / "seeds" / "seed-0" / "manifest.json").read_text())
+    values = {cell: seeds[0] for cell, seeds in _per_seed(f"budget/epochs={epochs}").items()}
+    return values, json.loads((BUDGET2 / f"epochs={epochs}" / "seeds" / "seed-0" / "manifest.json").read_text())
 
 
 def study2_budget() -> str:
@@ -818,9 +805,9 @@ TABLES: dict[str, Callable[[], str]] = {
     "stalls": stalls,
     "warnings": warnings,
     "study2-gates": study2_gates,
-    "study2-methods-touch": methods_table("touch"),
-    "study2-methods-drop-out": methods_table("drop-out"),
-    "study2-methods-faithful": methods_table("faithful"),
+    "study2-methods-touch": lambda: methods_table("touch"),
+    "study2-methods-drop-out": lambda: methods_table("drop-out"),
+    "study2-methods-faithful": lambda: methods_table("faithful"),
     "study2-endpoints": study2_endpoints,
     "study2-comparator": study2_comparator,
     "study2-best": study2_best,
