@@ -140,7 +140,7 @@ def test_the_second_study_holds_every_method_and_evaluation_at_eight_seeds_with_
     assert {env for env, _ in per_cell} == set(tables.ARMS[arm][2])
     assert {method for _, method in per_cell} == expected_methods
     assert all(s == {str(i) for i in range(8)} for s in per_cell.values()), {k: len(v) for k, v in per_cell.items()}
-    # the drop-out arm has no block interval where a query without the camera has no match
+    # the drop-out condition's rows have no block interval (its camera-less queries: distance +inf)
     assert_bounded_intervals(folder.relative_to(RESULTS), required=("t", "boot"), optional=("block",))
 
 
