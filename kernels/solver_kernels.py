@@ -5,9 +5,8 @@ Small element-wise and per-row kernels, launched between the layer steps of
 
 * :func:`scale_add`      ``dst += alpha * mask * src``  (mask per row, 0 / 1)
 * :func:`row_dot`        ``out[r] += weight * sum_c A[r, c] B[r, c]``, float64, in order
-* :func:`restart_control` per row: has the energy risen since the last step, halve the
-                         step after a rise at a step without momentum, restart on a rise
-                         or when the momentum points uphill
+* :func:`restart_control` per row: restart when the momentum points uphill, and halve
+                         the step when that follows a step without momentum
 * :func:`momentum_step`  Nesterov momentum with restart, per row: ``V <- b V + m D``,
                          ``Y <- Y + m D + beta V``, ``m`` the row's step scale (0 when
                          inactive), ``b = beta`` (0 on a restart or when inactive)
@@ -55,22 +54,15 @@ def _row_dot_kernel(A: _F32_2D, B: _F32_2D, out: _F64, weight: wp.float64):
 
 
 @wp.kernel(enable_backward=False, module="unique")
-def _control_kernel(
-    row_energy: _F64_2D, prior_energy: _F64, last: _F64, scale: _F64, plain: _I32, uphill: _F64, active: _I32
-):
+def _control_kernel(scale: _F64, plain: _I32, uphill: _F64, active: _I32):
     r = wp.tid()
     if active[r] == 0:
         return
-    f = prior_energy[r]
-    for e in range(row_energy.shape[0]):
-        f += row_energy[e, r]
-    rose = f > last[r]
-    if rose and plain[r] != 0:
+    restart = uphill[r] > wp.float64(0.0)
+    if restart and plain[r] != 0:
         scale[r] = scale[r] * wp.float64(0.5)
-    restart = rose or uphill[r] > wp.float64(0.0)
     uphill[r] = wp.where(restart, wp.float64(1.0), wp.float64(0.0))
     plain[r] = wp.where(restart, 1, 0)
-    last[r] = f
 
 
 @wp.kernel(enable_backward=False, module="unique")
@@ -122,23 +114,21 @@ def row_dot(A, B, weight: float, out) -> None:
     _simt_launch(_row_dot_kernel, A.shape[0], [A, B, out, wp.float64(weight)], device)
 
 
-def restart_control(row_energy, prior_energy, last, scale, plain, uphill, active) -> None:
-    """The restart and step control of the Nesterov solver, per active row ``r``: its energy
-    ``f = sum_e row_energy[e, r] + prior_energy[r]``; the energy rose when ``f > last[r]``;
-    a rise after a step without momentum (``plain[r]``: a kink was crossed, or the step is
-    too long there) halves ``scale[r]``; a rise or ``uphill[r] > 0`` (the momentum points
-    uphill) is a restart, written to ``uphill[r]`` (1 / 0) and to ``plain[r]``;
-    ``last[r] = f``. ``row_energy`` (edges x B) and the rest (B,) float64, ``plain`` and
-    ``active`` int32."""
+def restart_control(scale, plain, uphill, active) -> None:
+    """The restart and step control of the Nesterov solver, per active row ``r``: the
+    momentum points uphill when ``uphill[r] > 0`` (dF/dY . V); that is a restart, written
+    to ``uphill[r]`` (1 / 0) and to ``plain[r]`` (the next step is without momentum), and
+    when the step just taken had no momentum (``plain[r]``: it overshot the minimum along
+    its own direction, as across a kink) it also halves ``scale[r]``. ``scale``, ``uphill``
+    (B,) float64, ``plain`` and ``active`` int32."""
     _ensure_init()
-    _check_type("row_energy", row_energy, wp.float64)
-    b = row_energy.shape[1]
-    device = row_energy.device
-    for name, arr in (("prior_energy", prior_energy), ("last", last), ("scale", scale), ("uphill", uphill)):
-        _check(name, arr, (b,), device, wp.float64)
+    _check_type("scale", scale, wp.float64, 1)
+    b = scale.shape[0]
+    device = scale.device
+    _check("uphill", uphill, (b,), device, wp.float64)
     for name, arr in (("plain", plain), ("active", active)):
         _check(name, arr, (b,), device, wp.int32)
-    _simt_launch(_control_kernel, b, [row_energy, prior_energy, last, scale, plain, uphill, active], device)
+    _simt_launch(_control_kernel, b, [scale, plain, uphill, active], device)
 
 
 def momentum_step(Y, V, D, beta: float, restart, scale, active) -> None:

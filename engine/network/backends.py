@@ -13,7 +13,7 @@ A backend owns array storage and the operations the network is built from:
     stop_converged(R, limits, active, steps)   per-sample stopping of inference
     scale_add(dst, src, alpha, mask)  dst <- dst + alpha mask * src   (the solvers' vector steps)
     row_dot(A, B, weight, out)        out[r] += weight sum_c A[r, c] B[r, c]   (float64)
-    restart_control(R, prior_energy, last, scale, plain, uphill, active)
+    restart_control(scale, plain, uphill, active)
     momentum_step(Y, V, D, beta, restart, scale, active)
                                       Nesterov with restarts (kernels/solver_kernels.py)
     stop_settled(R, limits, gnorm, scale, g0, rtol2, active, steps)
@@ -82,9 +82,7 @@ class Backend(Protocol):
     def stop_converged(self, R: Any, limits: Any, active: Any, steps: Any) -> None: ...
     def scale_add(self, dst: Any, src: Any, alpha: float, mask: Any | None) -> None: ...
     def row_dot(self, A: Any, B: Any, weight: float, out: Any) -> None: ...
-    def restart_control(
-        self, R: Any, prior_energy: Any, last: Any, scale: Any, plain: Any, uphill: Any, active: Any
-    ) -> None: ...
+    def restart_control(self, scale: Any, plain: Any, uphill: Any, active: Any) -> None: ...
     def momentum_step(self, Y: Any, V: Any, D: Any, beta: float, restart: Any, scale: Any, active: Any) -> None: ...
     def stop_settled(
         self, R: Any, limits: Any, gnorm: Any, scale: Any, g0: Any, rtol2: float, active: Any, steps: Any
@@ -215,15 +213,12 @@ class NumpyBackend(_Scratch):
     def row_dot(self, A, B, weight: float, out) -> None:
         out += weight * np.einsum("ij,ij->i", A, B, dtype=np.float64)
 
-    def restart_control(self, R, prior_energy, last, scale, plain, uphill, active) -> None:
+    def restart_control(self, scale, plain, uphill, active) -> None:
         live = active != 0
-        f = R.sum(axis=0) + prior_energy
-        rose = f > last
-        scale[live & rose & (plain != 0)] *= 0.5
-        restart = rose | (uphill > 0)
+        restart = uphill > 0
+        scale[live & restart & (plain != 0)] *= 0.5
         uphill[live] = restart[live]
         plain[live] = restart[live]
-        last[live] = f[live]
 
     def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
         live = active != 0
@@ -337,8 +332,8 @@ class WarpBackend(_Scratch):
     def row_dot(self, A, B, weight: float, out) -> None:
         self._solver_kernels.row_dot(A, B, weight, out)
 
-    def restart_control(self, R, prior_energy, last, scale, plain, uphill, active) -> None:
-        self._solver_kernels.restart_control(R, prior_energy, last, scale, plain, uphill, active)
+    def restart_control(self, scale, plain, uphill, active) -> None:
+        self._solver_kernels.restart_control(scale, plain, uphill, active)
 
     def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
         self._solver_kernels.momentum_step(Y, V, D, beta, restart, scale, active)

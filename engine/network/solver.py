@@ -12,11 +12,14 @@ is minimised per sample by
   Gauss-Newton bound of its block of the Hessian (`curvature_steps`), in the form whose
   gradient is taken at the iterate itself: ``D = -s eta dF/dY``, ``V <- b V + D``,
   ``Y <- Y + D + beta V``. A sample's momentum restarts (b = 0, else beta) when it points
-  uphill (``dF/dY . V > 0``, O'Donoghue and Candes' gradient restart) or when its energy
-  rose at the last step; a rise at a step taken without momentum halves the sample's step
-  scale ``s`` (from 1). The energy is piecewise quadratic for the leaky ReLU, and its
-  minimum may lie on a kink, where fixed steps zig-zag across it for ever; halving after
-  such a rise makes the steps shrink there and reach the kink (docs/MUPNET.md).
+  uphill (``dF/dY . V > 0``, O'Donoghue and Candes' gradient restart), and an uphill test
+  failed right after a step taken without momentum (that step overshot the minimum along
+  its own direction) halves the sample's step scale ``s`` (from 1). The energy is piecewise
+  quadratic for the leaky ReLU, and its minimum may lie on a kink, where fixed steps
+  zig-zag across it for ever; halving after such an overshoot makes the steps shrink there
+  and reach the kink. Every test is on gradients, never on differences of the energy:
+  in float32 those are rounding (about 1e-4 of an energy of 300) by the time the steps are
+  short, and a rule on them halves steps at random (docs/MUPNET.md).
 
 Besides the per-edge thresholds, a sample stops once the norm of its step ``D`` (the
 gradient scaled by each layer's step and by ``s``) is below ``rtol`` times its value at
@@ -25,7 +28,6 @@ the start (off when ``rtol`` is None). A stopped sample is frozen, as under the 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal, get_args
@@ -96,8 +98,8 @@ class Solver:
         shapes = {node: (state.batch, state.net.sizes[node]) for node in state.nodes}
         self.D = {node: be.empty(shape) for node, shape in shapes.items()}
         self.V = {node: be.empty(shape) for node, shape in shapes.items()} if self.momentum else {}
-        rows = {name: be.empty((state.batch,), np.float64) for name in ("gnorm", "g0", "scale", "uphill", "last", "prior")}
-        self.gnorm, self.g0, self.scale, self.uphill, self.last, self.prior = rows.values()
+        rows = {name: be.empty((state.batch,), np.float64) for name in ("gnorm", "g0", "scale", "uphill")}
+        self.gnorm, self.g0, self.scale, self.uphill = rows.values()
         self.plain = be.empty((state.batch,), np.int32)
 
     def _step_vector(self, state: Any, norm) -> None:
@@ -114,14 +116,14 @@ class Solver:
     def per_sample(self) -> dict[str, Any]:
         """The buffers that carry a sample's solver state from one step to the next (the
         rest is recomputed at each step)."""
-        rows = {"g0": self.g0, "scale": self.scale, "last": self.last, "plain": self.plain}
+        rows = {"g0": self.g0, "scale": self.scale, "plain": self.plain}
         rows.update({f"V/{node}": v for node, v in self.V.items()})
         return rows
 
     def start(self, state: Any, carried: Mapping[str, np.ndarray] | None = None) -> None:
         """After the first prediction: no momentum, full steps, the first step's norm into
-        ``g0`` (the relative rule's reference) and no energy to compare with yet; or the
-        per-sample state in ``carried`` (`BatchState.carry`)."""
+        ``g0`` (the relative rule's reference); or the per-sample state in ``carried``
+        (`BatchState.carry`)."""
         be = state.be
         if carried is not None:
             for name, buf in self.per_sample().items():
@@ -131,7 +133,6 @@ class Solver:
             be.fill(v, 0.0)
         be.fill(self.scale, 1.0)
         be.fill(self.plain, 1)
-        be.fill(self.last, math.inf)
         self._step_vector(state, self.g0)
 
     def _control(self, state: Any) -> None:
@@ -140,11 +141,7 @@ class Solver:
         be.fill(self.uphill, 0.0)
         for node, d in self.D.items():  # dF/dY . V = -(D . V) / eta
             be.row_dot(d, self.V[node], -1.0 / self.eta[node], self.uphill)
-        be.fill(self.prior, 0.0)
-        if state.prior:
-            for y in state.Y.values():
-                be.row_dot(y, y, 0.5 * state.prior, self.prior)
-        be.restart_control(state.R, self.prior, self.last, self.scale, self.plain, self.uphill, state.active)
+        be.restart_control(self.scale, self.plain, self.uphill, state.active)
 
     def step(self, state: Any) -> None:
         """One step of every active sample, after the stopping test on the current state."""

@@ -345,10 +345,10 @@ class CublasBackend(WarpBackend):
         with self._stream_for(None, (A, B), (out,)):
             super().row_dot(A, B, weight, out)
 
-    def restart_control(self, R, prior_energy, last, scale, plain, uphill, active) -> None:
+    def restart_control(self, scale, plain, uphill, active) -> None:
         self._join()
-        with self._stream_for(None, (prior_energy, active), (last, scale, plain, uphill)):
-            super().restart_control(R, prior_energy, last, scale, plain, uphill, active)
+        with self._stream_for(None, (active,), (scale, plain, uphill)):
+            super().restart_control(scale, plain, uphill, active)
 
     def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
         self._join()

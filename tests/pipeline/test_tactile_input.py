@@ -193,8 +193,9 @@ METHOD_PARAMS_KEYS = {
     "quickstart:L": "e85f49fa723cccd5", "quickstart:H": "072f54dc05b75ad4",
 }
 
-#: what the shipped CPU scenarios' MuPNet methods set since issue 30 (paper.yaml keeps the paper's rule)
-SETTLING = {"latent_prior": 1.0, "inference_solver": "nesterov", "inference_rtol": 3.0e-5, "max_steps": 1000}
+#: what the shipped CPU scenarios' MuPNet methods set since issue 30 (paper.yaml keeps the paper's
+#: rule): rtol 1e-5 since the solver's tests are on gradients (docs/MUPNET.md)
+SETTLING = {"latent_prior": 1.0, "inference_solver": "nesterov", "inference_rtol": 1.0e-5, "max_steps": 1000}
 
 
 @pytest.mark.parametrize("name", sorted({key.split(":")[0] for key in METHOD_PARAMS_KEYS}))
