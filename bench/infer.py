@@ -6,21 +6,23 @@ For a fitted network and the first ``--samples`` samples of a run, each configur
 ``Network.infer`` on the numpy backend, interleaved round by round (the machine is shared and
 noisy: the median over ``--repeat`` rounds is reported), and beside it, in the same rounds:
 
-* ``raw GEMMs``: the GEMMs those steps need (per edge ``Y_u @ W`` and ``G @ W.T`` at the batch's
-  shape, ``np.matmul(..., out=)``), timed for 20 steps and scaled to the sample-steps the
+* ``raw GEMMs``: the GEMMs those steps need (per edge ``Y_u @ W`` and ``G @ Wt``, Wt the
+  contiguous transpose the backend keeps, at the batch's shape, ``np.matmul(..., out=)``), timed for 20 steps and scaled to the sample-steps the
   configuration took (the batch is compacted as samples stop) -- the baseline;
 * ``settled``: the share of samples whose latents (every latent layer, relative L2) are within
   ``--tolerance`` (1e-3) of a long reference solve of the same energy (same prior) in float64:
-  the nesterov solver with the thresholds off, stopped at a relative step of 1e-9 or
-  ``--reference-steps``. The reference's own share stopped by that rule is printed: where it
-  is under 100 %, "settled" is measured against a point that is not one. References are
-  solved for the priors of ``--prior`` only: without 0 there, the paper's row is timed (it is
-  the baseline) and its settled share is "n/a" (0 % on the quickstart, docs/MUPNET.md).
+  the same solver (``--solver``: nesterov, preconditioned; gd rows against nesterov's) with the
+  thresholds off, stopped at a relative step of 1e-9 or ``--reference-steps``. The energy is
+  not convex (leaky ReLU), so each solver is measured against the point its own path reaches.
+  The reference's own share stopped by that rule is printed: where it is under 100 %,
+  "settled" is measured against a point that is not one. References are solved for the
+  priors of ``--prior`` only: without 0 there, the paper's row is timed (it is the baseline)
+  and its settled share is "n/a" (0 % on the quickstart, docs/MUPNET.md).
 
 The target of issue 30: >= 95 % settled at <= 1/3 of the wall time of ``gd`` with 300 steps.
 
     python bench/infer.py --model DIR/cache/models/L-... --run DIR/cache/datasets/E1-query-....h5
-    python bench/infer.py ... --samples 450 --prior 1 --rtol 1e-5 --repeat 3 --json infer.json
+    python bench/infer.py ... --samples 450 --solver preconditioned --prior 1 --rtol 1e-5 --repeat 3 --json infer.json
     python bench/infer.py --paper-shape --train DIR/cache/datasets/train-....h5 --run ... --samples 150
 
 ``vitaplace run quickstart --out DIR`` leaves the quickstart's L and its runs in DIR/cache;
@@ -52,14 +54,17 @@ class Setting:
     cap: int
 
 
-def settings(priors: list[float], rtols: list[float], cap: int) -> list[Setting]:
+def settings(solvers: list[str], priors: list[float], rtols: list[float], cap: int) -> list[Setting]:
     out = [Setting("gd, paper's rule", InferenceConfig(), 300)]
     for prior in priors:
         if prior:
             out.append(Setting(f"gd, prior {prior:g}", InferenceConfig(prior=prior), 300))
-        for rtol in rtols:
-            out.append(Setting(f"nesterov, prior {prior:g}, rtol {rtol:g}, cap {cap}",
-                               InferenceConfig(solver="nesterov", prior=prior, rtol=rtol), cap))
+        for solver in solvers:
+            if solver == "preconditioned" and not prior:
+                continue  # its preconditioners need the prior (docs/MUPNET.md)
+            for rtol in rtols:
+                out.append(Setting(f"{solver}, prior {prior:g}, rtol {rtol:g}, cap {cap}",
+                                   InferenceConfig(solver=solver, prior=prior, rtol=rtol), cap))
     return out
 
 
@@ -70,11 +75,11 @@ def float64_copy(net: Network) -> Network:
     return copy
 
 
-def reference(net64: Network, inputs, prior: float, cap: int):
+def reference(net64: Network, inputs, solver: str, prior: float, cap: int):
     off = {e.name: 0.0 for e in net64.edges}
     x = {m: v.astype(np.float64) for m, v in inputs.items()}
     return net64.infer(x, cap, thresholds=off, batch_size=len(next(iter(x.values()))),
-                       inference=InferenceConfig(solver="nesterov", prior=prior, rtol=1e-9))
+                       inference=InferenceConfig(solver=solver, prior=prior, rtol=1e-9))
 
 
 def gemm_seconds_per_step(net: Network, inputs, batch: int) -> float:
@@ -86,13 +91,14 @@ def gemm_seconds_per_step(net: Network, inputs, batch: int) -> float:
         w = net.weights[e.name].astype(np.float32)
         y = rng.random((batch, w.shape[0]), dtype=np.float32)
         g = rng.random((batch, w.shape[1]), dtype=np.float32)
-        work.append((y, w, g, np.empty((batch, w.shape[1]), np.float32), np.empty((batch, w.shape[0]), np.float32)))
+        work.append((y, w, np.ascontiguousarray(w.T), g, np.empty((batch, w.shape[1]), np.float32),
+                     np.empty((batch, w.shape[0]), np.float32)))
     steps = 20
     t0 = time.perf_counter()
     for _ in range(steps):
-        for y, w, g, pred, back in work:
+        for y, w, wt, g, pred, back in work:  # as NumpyBackend: G @ Wt with Wt the contiguous transpose
             np.matmul(y, w, out=pred)
-            np.matmul(g, w.T, out=back)
+            np.matmul(g, wt, out=back)
     return (time.perf_counter() - t0) / steps
 
 
@@ -104,6 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_network_arguments(ap, samples=450)
     ap.add_argument("--batch-size", type=int, default=500, help="Network.infer's batch (the plugin's default)")
+    ap.add_argument("--solver", nargs="+", default=["nesterov", "preconditioned"], choices=["nesterov", "preconditioned"])
     ap.add_argument("--prior", type=float, nargs="+", default=[0.0, 1.0])
     ap.add_argument("--rtol", type=float, nargs="+", default=[1e-4, 3e-5, 1e-5, 3e-6])
     ap.add_argument("--cap", type=int, default=1000, help="the solvers' step cap (gd: 300, today's)")
@@ -119,16 +126,20 @@ def main(argv: list[str] | None = None) -> int:
     n = len(next(iter(inputs.values())))
     nodes = net.latent_nodes([m for m in net.modalities if m in inputs])
     batch = min(args.batch_size, n)
-    todo = settings(args.prior, args.rtol, args.cap)
+    todo = settings(args.solver, args.prior, args.rtol, args.cap)
 
     net64 = float64_copy(net)
-    refs = {}
-    for prior in sorted(set(args.prior)):  # without 0 in --prior the paper's row is timed, not measured
+    refs = {}  # per (solver, prior): a point of the same energy that the same solver reaches
+    for key in sorted({(s.config.solver, s.config.prior) for s in todo if s.config.solver != "gd"}):
         t0 = time.perf_counter()
-        refs[prior] = reference(net64, inputs, prior, args.reference_steps)
-        print(f"reference, prior {prior:g}: {time.perf_counter() - t0:.0f} s, median "
-              f"{np.median(refs[prior].steps_per_sample):.0f} steps, stopped by its rule "
-              f"{100 * refs[prior].settled.mean():.0f} %", file=sys.stderr, flush=True)
+        refs[key] = reference(net64, inputs, *key, args.reference_steps)
+        print(f"reference, {key[0]}, prior {key[1]:g}: {time.perf_counter() - t0:.0f} s, median "
+              f"{np.median(refs[key].steps_per_sample):.0f} steps, stopped by its rule "
+              f"{100 * refs[key].settled.mean():.1f} %", file=sys.stderr, flush=True)
+    # gd is measured against the nesterov solve of its energy (without 0 in --prior the paper's
+    # row is timed, not measured)
+    for (solver, p), r in sorted(refs.items(), key=lambda item: item[0][0] == "nesterov"):
+        refs[("gd", p)] = r  # nesterov's where there is one
 
     walls: dict[str, list[float]] = {s.label: [] for s in todo}
     gemm: list[float] = []
@@ -145,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
     for s in todo:
         r = results[s.label]
         wall = float(np.median(walls[s.label]))
-        ref = refs.get(s.config.prior)
+        ref = refs.get((s.config.solver, s.config.prior))
         dist = (relative_distance({n: r.latents[n].astype(np.float64) for n in nodes},
                                   {n: ref.latents[n] for n in nodes}) if ref is not None else np.full(n, np.nan))
         rows.append({
@@ -171,8 +182,9 @@ def main(argv: list[str] | None = None) -> int:
     print("target (>= 95 % settled at <= 1/3 of gd300's wall):", ", ".join(met) if met else "not met")
     if args.json:
         payload = {"label": label, "samples": n, "rows": rows, "gemm_seconds_per_step": gemm_step,
-                   "reference": {str(p): {"steps_median": float(np.median(r.steps_per_sample)),
-                                          "stopped_share": float(r.settled.mean())} for p, r in refs.items()}}
+                   "reference": {f"{solver}, prior {p:g}": {"steps_median": float(np.median(r.steps_per_sample)),
+                                                   "stopped_share": float(r.settled.mean())}
+                      for (solver, p), r in refs.items()}}
         with open(args.json, "w") as fh:
             json.dump(payload, fh, indent=1)
     return 0

@@ -104,6 +104,16 @@ class _Scratch:
         return buf
 
 
+class _Weights(NamedTuple):
+    """A layer's weights ``W`` (n_l x n_below) and a contiguous copy of their transpose ``Wt``,
+    which the latent update reads (``G Wt``: row-major in the summed index, up to twice as fast
+    as ``G W^T`` for the few rows a compacted inference batch has); the weight update keeps the
+    two equal element for element."""
+
+    W: Any
+    Wt: Any
+
+
 class NumpyBackend(_Scratch):
     """numpy + BLAS (float32 by default; float64 for gradient checks), in preallocated arrays.
 
@@ -140,18 +150,20 @@ class NumpyBackend(_Scratch):
     def fill(self, dst: np.ndarray, value: float) -> None:
         dst.fill(value)
 
-    def weights(self, host: np.ndarray) -> np.ndarray:
-        return np.array(host, dtype=self.dtype)
+    def weights(self, host: np.ndarray) -> _Weights:
+        W = np.array(host, dtype=self.dtype)
+        return _Weights(W, np.ascontiguousarray(W.T))
 
-    def upload_weights(self, host: np.ndarray, handle: np.ndarray) -> None:
-        self.upload(host, handle)
+    def upload_weights(self, host: np.ndarray, handle: _Weights) -> None:
+        self.upload(host, handle.W)
+        self.upload(np.asarray(host).T, handle.Wt)
 
-    def weights_to_host(self, handle: np.ndarray) -> np.ndarray:
-        return handle.copy()
+    def weights_to_host(self, handle: _Weights) -> np.ndarray:
+        return handle.W.copy()
 
-    def predict(self, Y, W, X, E, G, R, slot: int, activation: str, slope: float) -> None:
+    def predict(self, Y, W: _Weights, X, E, G, R, slot: int, activation: str, slope: float) -> None:
         A = self._buffer("A", E.shape)
-        np.matmul(Y, W, out=A)
+        np.matmul(Y, W.W, out=A)
         if activation == "leaky_relu" and 0.0 <= slope <= 1.0:
             # Leaky ReLU is positively homogeneous: phi(a) = phi'(a) a with
             # phi'(a) = max([a > 0], s) for 0 <= s <= 1. Four plain passes, no masked copy
@@ -167,10 +179,10 @@ class NumpyBackend(_Scratch):
         if R is not None:
             R[slot] = np.einsum("ij,ij->i", E, E)  # float32 row sums, stored as float64
 
-    def latent_update(self, Y, G, W, eta: float, E_above, mask) -> None:
+    def latent_update(self, Y, G, W: _Weights, eta: float, E_above, mask) -> None:
         # Y <- Y + 2 eta (G W^T - E_above): GEMM into a (batch x n_l) scratch, then small passes.
         t = self._buffer("latent", Y.shape)
-        np.matmul(G, W.T, out=t)
+        np.matmul(G, W.Wt, out=t)
         if E_above is not None:
             np.subtract(t, E_above, out=t)
         np.multiply(t, self.dtype.type(2.0 * eta), out=t)
@@ -178,10 +190,11 @@ class NumpyBackend(_Scratch):
             np.multiply(t, mask[:, None], out=t)
         np.add(Y, t, out=Y)
 
-    def weight_update(self, W, Y, G, eta: float) -> None:
+    def weight_update(self, W: _Weights, Y, G, eta: float) -> None:
         # W <- W + (2 eta Y)^T G by chunks of rows: a W-sized temporary would cost as much
-        # memory again as W; 2 eta is folded into the small Y instead of a pass over W.
-        n_l, n_below = W.shape
+        # memory again as W; 2 eta is folded into the small Y instead of a pass over W. The
+        # same chunk is added to the columns of Wt, so Wt stays W^T exactly.
+        n_l, n_below = W.W.shape
         ys = self._buffer("weight_y", Y.shape)
         np.multiply(Y, self.dtype.type(2.0 * eta), out=ys)
         step = min(self.WEIGHT_CHUNK, n_l)
@@ -190,7 +203,8 @@ class NumpyBackend(_Scratch):
             rows = slice(i, min(i + step, n_l))
             tc = t[: rows.stop - rows.start]
             np.matmul(ys[:, rows].T, G, out=tc)
-            np.add(W[rows], tc, out=W[rows])
+            np.add(W.W[rows], tc, out=W.W[rows])
+            np.add(W.Wt[:, rows], tc.T, out=W.Wt[:, rows])
 
     def gather_rows(self, src, index, dst) -> None:
         np.take(src, index, axis=0, out=dst)
@@ -238,11 +252,6 @@ class NumpyBackend(_Scratch):
 
     def capture(self, fn: Callable[[], None]) -> Callable[[], None]:
         return fn
-
-
-class _Weights(NamedTuple):
-    W: Any
-    Wt: Any
 
 
 class WarpBackend(_Scratch):

@@ -31,7 +31,7 @@ from vitaplace.engine.network.backends import Backend
 from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
 from vitaplace.engine.network.inference import Inference
 from vitaplace.engine.network.selection import get_backend
-from vitaplace.engine.network.solver import InferenceConfig, curvature_steps
+from vitaplace.engine.network.solver import InferenceConfig, curvature_preconditioners, curvature_steps
 
 __all__ = ["LATENT_INIT", "BatchState", "InferenceConfig", "Network", "NetworkError"]
 
@@ -377,8 +377,11 @@ class Network:
         eta = self.eta_y
         if config.solver != "gd":
             self._sync_weights_to_host()
-            eta = curvature_steps(self.weights, edges, self.latent_nodes(present), self.config.activation,
-                                  self.config.slope, config.prior)
+            bounds = curvature_preconditioners if config.solver == "preconditioned" else curvature_steps
+            eta = bounds(self.weights, edges, self.latent_nodes(present), self.config.activation, self.config.slope,
+                         config.prior)
+            if config.solver == "preconditioned":
+                eta = {node: self.backend.weights(p) for node, p in eta.items()}
         limits = {e.name: e.threshold for e in edges}
         limits.update(thresholds or {})
         threshold = np.array([limits[e.name] for e in edges], dtype=np.float64)

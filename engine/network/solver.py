@@ -11,7 +11,12 @@ is minimised per sample by
 * ``nesterov``: Nesterov momentum ``beta`` with restarts, each layer's step 1 / L, L the
   Gauss-Newton bound of its block of the Hessian (`curvature_steps`), in the form whose
   gradient is taken at the iterate itself: ``D = -s eta dF/dY``, ``V <- b V + D``,
-  ``Y <- Y + D + beta V``. A sample's momentum restarts (b = 0, else beta) when it points
+  ``Y <- Y + D + beta V``;
+* ``preconditioned``: the same momentum, restarts and step control, with each layer's step
+  the inverse of the Gauss-Newton bound of its block as a matrix rather than its largest
+  eigenvalue (`curvature_preconditioners`): ``D = -s (dF/dY) P``. A layer whose weights have a
+  few large singular values (the inputs' common mode) is then not held to the step of its
+  stiffest direction in every other one. A sample's momentum restarts (b = 0, else beta) when it points
   uphill (``dF/dY . V > 0``, O'Donoghue and Candes' gradient restart), and an uphill test
   failed right after a step taken without momentum (that step overshot the minimum along
   its own direction) halves the sample's step scale ``s`` (from 1). The energy is piecewise
@@ -34,7 +39,7 @@ from typing import Any, Literal, get_args
 
 import numpy as np
 
-SolverName = Literal["gd", "nesterov"]
+SolverName = Literal["gd", "nesterov", "preconditioned"]
 SOLVERS: tuple[str, ...] = get_args(SolverName)
 #: largest phi' of each activation (the Gauss-Newton curvature bound's gain)
 _MAX_GAIN = {"leaky_relu": None, "tanh": 1.0, "sigmoid": 0.25, "linear": 1.0}
@@ -58,7 +63,7 @@ class InferenceConfig:
     @property
     def remedy(self) -> str:
         """What to change when this inference diverges."""
-        if self.solver == "nesterov":
+        if self.solver != "gd":
             return f"lower inference_momentum ({self.momentum}) or use inference_solver gd"
         return "lower the latent step sizes (eta_y)"
 
@@ -87,28 +92,74 @@ def curvature_steps(
     return {node: 1.0 / b for node, b in bound.items()}
 
 
+def curvature_preconditioners(
+    weights: Mapping[str, np.ndarray], edges: Sequence, nodes: Sequence[str], activation: str, slope: float,
+    prior: float,
+) -> dict[str, np.ndarray]:
+    """Per latent node P = B^-1, B = 2 g^2 sum_{edges below} W W^T + (2 [an edge above] + prior) I.
+
+    B bounds the node's diagonal block of the Gauss-Newton Hessian ``2 J^T J`` for every
+    sample (``J^T J = W diag(phi'^2) W^T <= g^2 W W^T``); `curvature_steps`' L is its largest
+    eigenvalue. With a prior B >= prior I is invertible; it is inverted in float64 through its
+    eigenvalues (symmetric, so P is too).
+    """
+    gain = _MAX_GAIN[activation]
+    if gain is None:
+        gain = max(1.0, slope)
+    bound = {}
+    for e in edges:
+        w = np.asarray(weights[e.name], np.float64)
+        if e.upper in bound:
+            bound[e.upper] += 2.0 * gain**2 * (w @ w.T)
+        else:
+            bound[e.upper] = 2.0 * gain**2 * (w @ w.T)
+    above = {e.lower for e in edges}
+    out = {}
+    for node in nodes:
+        values, vectors = np.linalg.eigh(bound[node])
+        values = np.maximum(values, 0.0) + prior + (2.0 if node in above else 0.0)
+        if values[0] <= 0.0:
+            raise ValueError(f"the curvature bound of latent node '{node}' is singular; the preconditioned "
+                             "solver needs a latent prior > 0")
+        out[node] = (vectors / values) @ vectors.T
+    return out
+
+
 class Solver:
     """The buffers and steps of a solver other than the paper's loop on one `BatchState` (`vitaplace.engine.network.batch`)."""
 
-    def __init__(self, state: Any, config: InferenceConfig, eta: Mapping[str, float]) -> None:
+    def __init__(self, state: Any, config: InferenceConfig, steps: Mapping[str, Any]) -> None:
+        """``steps``: per latent node its step, a number (``nesterov``, `curvature_steps`) or
+        the backend's weight handle of its preconditioner (``preconditioned``,
+        `curvature_preconditioners`)."""
         be = state.be
-        self.config, self.eta = config, dict(eta)
-        self.momentum = config.solver == "nesterov"
+        self.config = config
+        self.momentum = config.solver != "gd"
         self.rtol2 = 0.0 if config.rtol is None else float(config.rtol) ** 2
         shapes = {node: (state.batch, state.net.sizes[node]) for node in state.nodes}
         self.D = {node: be.empty(shape) for node, shape in shapes.items()}
         self.V = {node: be.empty(shape) for node, shape in shapes.items()} if self.momentum else {}
+        if config.solver == "preconditioned":
+            self.P = dict(steps)
+            self.eta = dict.fromkeys(steps, 1.0)
+            #: -dF/dY, which the preconditioners multiply
+            self.descent = {node: be.empty(shape) for node, shape in shapes.items()}
+        else:
+            self.P, self.eta, self.descent = {}, dict(steps), self.D
         rows = {name: be.empty((state.batch,), np.float64) for name in ("gnorm", "g0", "scale", "uphill")}
         self.gnorm, self.g0, self.scale, self.uphill = rows.values()
         self.plain = be.empty((state.batch,), np.int32)
 
     def _step_vector(self, state: Any, norm) -> None:
-        """D = -eta dF/dY (rows of the active samples; 0 elsewhere) and its squared norm per
-        sample into ``norm``."""
+        """D = -eta dF/dY, or -(dF/dY) P (rows of the active samples; 0 elsewhere), and its
+        squared norm per sample into ``norm``."""
         be = state.be
-        for d in self.D.values():
+        for d in self.descent.values():
             be.fill(d, 0.0)
-        state.descend(self.D, self.eta, state.active)
+        state.descend(self.descent, self.eta, state.active)
+        for node, P in self.P.items():  # D = descent P^T = descent P (P symmetric): the latent update's GEMM
+            be.fill(self.D[node], 0.0)
+            be.latent_update(self.D[node], self.descent[node], P, 0.5, None, None)
         be.fill(norm, 0.0)
         for d in self.D.values():
             be.row_dot(d, d, 1.0, norm)
@@ -139,7 +190,7 @@ class Solver:
         """Nesterov's restart test and step control (`solver_kernels.restart_control`)."""
         be = state.be
         be.fill(self.uphill, 0.0)
-        for node, d in self.D.items():  # dF/dY . V = -(D . V) / eta
+        for node, d in self.descent.items():  # dF/dY . V = -(descent . V) / eta
             be.row_dot(d, self.V[node], -1.0 / self.eta[node], self.uphill)
         be.restart_control(self.scale, self.plain, self.uphill, state.active)
 

@@ -105,8 +105,9 @@ class MupnetParams(ArchitectureParams):
         "test time (0: the paper's energy, which has no fixed point to settle at; docs/MUPNET.md)",
     )
     inference_solver: SolverName = Field(
-        "gd", description="test-time solver: gd (the paper's plain steps at eta_y) or nesterov (momentum with "
-        "restarts, each layer's step from its curvature bound)",
+        "gd", description="test-time solver: gd (the paper's plain steps at eta_y), nesterov (momentum with "
+        "restarts, each layer's step from its curvature bound) or preconditioned (the same with each layer's "
+        "bound as a matrix; needs latent_prior > 0)",
     )
     inference_momentum: float = Field(0.9, gt=0, lt=1, description="the nesterov solver's momentum")
     inference_rtol: pydantic.PositiveFloat | None = Field(
@@ -150,6 +151,14 @@ class MupnetParams(ArchitectureParams):
     def inference_config(self) -> InferenceConfig:
         """The engine's test-time inference configuration."""
         return InferenceConfig(self.inference_solver, self.inference_momentum, self.inference_rtol, self.latent_prior)
+
+    @pydantic.field_validator("inference_solver")
+    @classmethod
+    def _preconditioners_exist(cls, value: str, info: pydantic.ValidationInfo) -> str:
+        if value == "preconditioned" and not info.data.get("latent_prior"):
+            raise ValueError("the preconditioned solver needs latent_prior > 0 (without the prior a layer's "
+                             "curvature bound can be singular)")
+        return value
 
     @pydantic.field_validator("precision")
     @classmethod

@@ -74,9 +74,9 @@ def test_latent_and_weight_gradients_match_finite_differences(activation):
     state = learner.batch_state(4)
     state.load(inputs, latents)
     state.predict_all()
-    before = {name: learner.backend.download(w) for name, w in state.weights.items()}
+    before = {name: learner.backend.weights_to_host(w) for name, w in state.weights.items()}
     state.weight_step()  # eta_w = 1: W' = W - dF/dW
-    analytic_dw = {name: before[name] - learner.backend.download(w) for name, w in state.weights.items()}
+    analytic_dw = {name: before[name] - learner.backend.weights_to_host(w) for name, w in state.weights.items()}
 
     h = 1e-6
     for node, y in latents.items():
@@ -98,7 +98,7 @@ def test_latent_and_weight_gradients_match_finite_differences(activation):
                 changed[name][index] += sign * h
                 probe.set_weights(changed)
                 # set_weights stores float32; write the float64 perturbation into the backend copy.
-                probe._device_weight_handles()[name][...] = changed[name]
+                probe.backend.upload_weights(changed[name], probe._device_weight_handles()[name])
                 values.append(total_energy(probe, inputs, latents))
             numeric = (values[0] - values[1]) / (2 * h)
             assert analytic_dw[name][index] == pytest.approx(numeric, rel=1e-5, abs=1e-7), (name, index)
@@ -322,19 +322,21 @@ def test_numpy_backend_matches_the_reference_on_wide_layers(shape):
     be = NumpyBackend()
     E, G = np.zeros((b, n_below), np.float32), np.zeros((b, n_below), np.float32)
     R = np.zeros((1, b))
-    be.predict(Y, W, X, E, G, R, 0, "leaky_relu", 0.2)
+    be.predict(Y, be.weights(W), X, E, G, R, 0, "leaky_relu", 0.2)
     _, _, e, g = ref.predict(*(a.astype(np.float64) for a in (Y, W, X)))
     np.testing.assert_allclose(E, e, rtol=1e-5, atol=1e-5 * np.abs(e).max())
     np.testing.assert_allclose(R[0], np.sum(e**2, axis=1), rtol=1e-4)
     y = Y.copy()
-    be.latent_update(y, G, W, 0.01, E_above, None)
+    be.latent_update(y, G, be.weights(W), 0.01, E_above, None)
     expected = ref.latent_step(Y.astype(np.float64), G.astype(np.float64), W.astype(np.float64), 0.01, E_above.astype(np.float64))
     np.testing.assert_allclose(y, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
-    w = W.copy()
-    be.weight_update(w, Y, G, 0.01)
+    handle = be.weights(W)
+    be.weight_update(handle, Y, G, 0.01)
+    w = be.weights_to_host(handle)
     expected = ref.weight_step(W.astype(np.float64), Y.astype(np.float64), G.astype(np.float64), 0.01)
     np.testing.assert_allclose(w, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
     assert np.all(np.any(w != W, axis=1)), "some rows of W did not learn"
+    np.testing.assert_array_equal(handle.Wt, w.T)  # the latent update's copy learns the same, exactly
 
 
 def test_same_seed_gives_identical_training():

@@ -13,7 +13,7 @@ from conftest import cuda_present
 from vitaplace.engine.network.backends import NumpyBackend
 from vitaplace.engine.network.pc import InferenceConfig, Network
 from vitaplace.engine.network.selection import get_backend
-from vitaplace.engine.network.solver import curvature_steps
+from vitaplace.engine.network.solver import curvature_preconditioners, curvature_steps
 from vitaplace.kernels.reference import activation
 
 SMALL = {
@@ -74,12 +74,17 @@ def test_the_long_plain_gradient_solve_is_a_stationary_point(reference):
         assert abs(slope) < 1e-6 * max(1.0, abs(at_start)), (slope, at_start)
 
 
+#: the solvers that settle: scalar steps per layer, and the same with each layer's bound as a matrix
+SETTLING = ["nesterov", "preconditioned"]
+
+
+@pytest.mark.parametrize("solver", SETTLING)
 @pytest.mark.parametrize("activation_name", ["tanh", "sigmoid"])
-def test_nesterov_reaches_the_same_fixed_point_in_float64_within_1e_6(activation_name):
+def test_the_solver_reaches_the_same_fixed_point_in_float64_within_1e_6(activation_name, solver):
     net = network(NumpyBackend(np.float64), activation_name)
     x = inputs_for(net)
     long = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", prior=PRIOR)).latents
-    fast = net.infer(x, max_steps=20_000, inference=InferenceConfig("nesterov", 0.9, 1e-12, PRIOR))
+    fast = net.infer(x, max_steps=20_000, inference=InferenceConfig(solver, 0.9, 1e-12, PRIOR))
     assert fast.settled.all() and fast.steps < 20_000
     assert relative(fast.latents, long) < 1e-6
 
@@ -91,8 +96,9 @@ BACKENDS = [
 ]
 
 
+@pytest.mark.parametrize("solver", SETTLING)
 @pytest.mark.parametrize("which", BACKENDS)
-def test_nesterov_in_float32_is_within_1e_3_of_the_fixed_point(reference, which):
+def test_the_solver_in_float32_is_within_1e_3_of_the_fixed_point(reference, which, solver):
     name, device = which
     if device == "cuda" and not cuda_present():
         pytest.skip("no CUDA device")
@@ -101,13 +107,14 @@ def test_nesterov_in_float32_is_within_1e_3_of_the_fixed_point(reference, which)
     _, x, y = reference
     net = network(get_backend(name, device))
     x32 = {m: v.astype(np.float32) for m, v in x.items()}
-    result = net.infer(x32, max_steps=5000, inference=InferenceConfig("nesterov", 0.9, 1e-5, PRIOR))
+    result = net.infer(x32, max_steps=5000, inference=InferenceConfig(solver, 0.9, 1e-5, PRIOR))
     assert result.settled.all()
     assert relative({n: v.astype(np.float64) for n, v in result.latents.items()}, y) < 1e-3
 
 
+@pytest.mark.parametrize("solver", SETTLING)
 @pytest.mark.parametrize("which", BACKENDS)
-def test_on_a_leaky_relu_network_float32_stops_where_float64_does(which):
+def test_on_a_leaky_relu_network_float32_stops_where_float64_does(which, solver):
     """The leaky ReLU's energy is piecewise quadratic, its minima may lie on kinks: every
     sample still stops by the relative rule (the step halves after an overshoot), in float64
     at 1e-10 and in float32 at 1e-5, and the float32 point is the float64 one within 1e-3
@@ -119,11 +126,11 @@ def test_on_a_leaky_relu_network_float32_stops_where_float64_does(which):
         pytest.importorskip("warp")
     net64 = network(NumpyBackend(np.float64), "leaky_relu")
     x = {m: 3 * v - 1 for m, v in inputs_for(net64, n=16).items()}  # both sides of the kinks
-    exact = net64.infer(x, max_steps=20_000, inference=InferenceConfig("nesterov", 0.9, 1e-10, PRIOR))
+    exact = net64.infer(x, max_steps=20_000, inference=InferenceConfig(solver, 0.9, 1e-10, PRIOR))
     assert exact.settled.all()
     net = network(get_backend(name, device), "leaky_relu")
     fast = net.infer({m: v.astype(np.float32) for m, v in x.items()}, max_steps=5000,
-                     inference=InferenceConfig("nesterov", 0.9, 1e-5, PRIOR))
+                     inference=InferenceConfig(solver, 0.9, 1e-5, PRIOR))
     assert fast.settled.all()
     for i in range(16):
         one = {n: v[i : i + 1] for n, v in exact.latents.items()}
@@ -154,6 +161,7 @@ def test_the_restart_control_by_hand(which):
 COMPACTED = [
     pytest.param(InferenceConfig("gd", rtol=1e-3, prior=PRIOR), id="gd"),
     pytest.param(InferenceConfig("nesterov", 0.9, 1e-6, PRIOR), id="nesterov"),
+    pytest.param(InferenceConfig("preconditioned", 0.9, 1e-6, PRIOR), id="preconditioned"),
 ]
 
 
@@ -222,6 +230,35 @@ def test_the_curvature_steps_are_the_gauss_newton_bound():
     assert set(steps) == set(expected)
     for node, bound in expected.items():
         assert steps[node] == pytest.approx(1 / bound, rel=1e-5), node
+
+
+def test_the_preconditioners_invert_the_gauss_newton_bound_matrix():
+    """P = B^-1 with B = prior I + 2 g^2 sum over the edges below of W W^T + 2 I when an edge is
+    above (g = 1 for tanh), built by hand here; the largest eigenvalue of B is the bound the
+    scalar steps use where one edge is below (with two, the joint's, those add the edges'
+    norms, which bound it from above)."""
+    net = network(NumpyBackend(np.float64))
+    nodes = net.latent_nodes(net.modalities)
+    edges = net.active_edges(net.modalities)
+    P = curvature_preconditioners(net.weights, edges, nodes, "tanh", 0.2, PRIOR)
+    steps = curvature_steps(net.weights, edges, nodes, "tanh", 0.2, PRIOR)
+    w = {name: v.astype(np.float64) for name, v in net.weights.items()}
+    eye = {node: np.eye(net.sizes[node]) for node in nodes}
+    expected = {
+        "visual.1": PRIOR * eye["visual.1"] + 2 * w["visual.1"] @ w["visual.1"].T + 2 * eye["visual.1"],
+        "visual.2": PRIOR * eye["visual.2"] + 2 * w["visual.2"] @ w["visual.2"].T + 2 * eye["visual.2"],
+        "tactile.1": PRIOR * eye["tactile.1"] + 2 * w["tactile.1"] @ w["tactile.1"].T + 2 * eye["tactile.1"],
+        "joint": PRIOR * eye["joint"] + 2 * (w["joint.visual"] @ w["joint.visual"].T
+                                             + w["joint.tactile"] @ w["joint.tactile"].T),
+    }
+    assert set(P) == set(expected)
+    for node, bound in expected.items():
+        np.testing.assert_allclose(P[node] @ bound, eye[node], atol=1e-10, err_msg=node)
+        largest = np.linalg.eigvalsh(bound)[-1]
+        if node == "joint":
+            assert largest < 1 / steps[node]
+        else:
+            assert 1 / largest == pytest.approx(steps[node], rel=1e-5), node
 
 
 # ---------------------------------------------------------------------------- kernels

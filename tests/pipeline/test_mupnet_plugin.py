@@ -334,3 +334,15 @@ def test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path(capsys, key, 
     assert len(lines) == 1, lines
     assert lines[0].startswith("vitaplace: error: ") and "quickstart.yaml: methods.0.params: extractor 'mupnet': " in lines[0]
     assert f"{key}: {message}" in lines[0], lines[0]
+
+
+def test_the_preconditioned_solver_without_a_prior_is_one_line(capsys):
+    """Without the prior the joint layer's curvature bound can be singular: refused at validation."""
+    from vitaplace.engine.cli.main import main
+
+    assert main(["validate", "quickstart", "--set", "methods.0.params.inference_solver=preconditioned",
+                 "--set", "methods.0.params.latent_prior=0"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert "methods.0.params: extractor 'mupnet': inference_solver: " in lines[0], lines[0]
+    assert "needs latent_prior > 0" in lines[0], lines[0]
