@@ -30,8 +30,8 @@ class Inference:
     """The results of one `Network.infer` call, filled batch by batch (`run`)."""
 
     def __init__(self, net: Any, present: Sequence[str], n: int, config: InferenceConfig,
-                 eta: Mapping[str, float], threshold: np.ndarray, sample_ids: np.ndarray) -> None:
-        self.net, self.be, self.present, self.config, self.eta = net, net.backend, present, config, eta
+                 steps: Mapping[str, Any], threshold: np.ndarray, sample_ids: np.ndarray) -> None:
+        self.net, self.be, self.present, self.config, self.node_steps = net, net.backend, present, config, steps
         self.edges = net.active_edges(present)
         self.width = np.array([net.sizes[e.lower] for e in self.edges], dtype=np.float64)
         self.limits = threshold * self.width
@@ -46,7 +46,7 @@ class Inference:
         """A batch of ``size`` set up for this inference, and its captured chunk of steps."""
         state = self.net.batch_state(size, self.present)
         state.prior = self.config.prior
-        state.solver = None if self.config.paper else Solver(state, self.config, self.eta)
+        state.solver = None if self.config.paper else Solver(state, self.config, self.node_steps)
         self.be.upload(self.limits, state.limits)
         return state, self.be.capture(functools.partial(state.inference_steps, STEPS_PER_CHECK))
 

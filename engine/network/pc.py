@@ -23,6 +23,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -374,19 +375,20 @@ class Network:
         config = inference or InferenceConfig()
         present, n = self._check_inputs(inputs)
         edges = self.active_edges(present)
-        eta = self.eta_y
+        node_steps: Mapping[str, Any] = self.eta_y  # each latent node's step: eta_y, 1 / L, or the bound's inverse
         if config.solver != "gd":
             self._sync_weights_to_host()
-            bounds = curvature_preconditioners if config.solver == "preconditioned" else curvature_steps
-            eta = bounds(self.weights, edges, self.latent_nodes(present), self.config.activation, self.config.slope,
-                         config.prior)
+            bound = (self.weights, edges, self.latent_nodes(present), self.config.activation, self.config.slope,
+                     config.prior)
             if config.solver == "preconditioned":
-                eta = {node: self.backend.weights(p) for node, p in eta.items()}
+                node_steps = {node: self.backend.weights(p) for node, p in curvature_preconditioners(*bound).items()}
+            else:
+                node_steps = curvature_steps(*bound)
         limits = {e.name: e.threshold for e in edges}
         limits.update(thresholds or {})
         threshold = np.array([limits[e.name] for e in edges], dtype=np.float64)
         ids = np.arange(n) if sample_ids is None else np.asarray(sample_ids)
-        run = Inference(self, present, n, config, eta, threshold, ids)
+        run = Inference(self, present, n, config, node_steps, threshold, ids)
         resident_x = {self.input_node(m): self.backend.to_device(inputs[m]) for m in present}
         for start in range(0, n, batch_size):
             run.run(np.arange(start, min(start + batch_size, n)), resident_x, max_steps, on_progress)

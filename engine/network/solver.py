@@ -68,6 +68,11 @@ class InferenceConfig:
         return "lower the latent step sizes (eta_y)"
 
 
+def _largest_gain(activation: str, slope: float) -> float:
+    gain = _MAX_GAIN[activation]
+    return max(1.0, slope) if gain is None else gain
+
+
 def curvature_steps(
     weights: Mapping[str, np.ndarray], edges: Sequence, nodes: Sequence[str], activation: str, slope: float,
     prior: float,
@@ -79,9 +84,7 @@ def curvature_steps(
     is the largest phi'. ``||W||_2^2`` is the largest eigenvalue of the smaller Gram matrix
     (float64), raised by 1e-6 relative for rounding.
     """
-    gain = _MAX_GAIN[activation]
-    if gain is None:
-        gain = max(1.0, slope)
+    gain = _largest_gain(activation, slope)
     bound = dict.fromkeys(nodes, prior)
     for e in edges:
         w = np.asarray(weights[e.name], np.float64)
@@ -100,12 +103,10 @@ def curvature_preconditioners(
 
     B bounds the node's diagonal block of the Gauss-Newton Hessian ``2 J^T J`` for every
     sample (``J^T J = W diag(phi'^2) W^T <= g^2 W W^T``); `curvature_steps`' L is its largest
-    eigenvalue. With a prior B >= prior I is invertible; it is inverted in float64 through its
-    eigenvalues (symmetric, so P is too).
+    eigenvalue (a bound of it where two edges are below, the joint's). With a prior B >= prior I
+    is invertible; it is inverted in float64 through its eigenvalues (symmetric, so P is too).
     """
-    gain = _MAX_GAIN[activation]
-    if gain is None:
-        gain = max(1.0, slope)
+    gain = _largest_gain(activation, slope)
     bound = {}
     for e in edges:
         w = np.asarray(weights[e.name], np.float64)

@@ -55,7 +55,7 @@ from vitaplace.engine.sim.plausibility import LONG_SECONDS, duration, estimated_
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 2, "transform": 3, "evaluate": 7, "report": 10}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 3, "transform": 4, "evaluate": 7, "report": 10}
 
 #: a run that stays in one place this long (share of its samples, and samples) is warned about:
 #: a quarter of any run, and 10 samples (5 s) at least, so that a short run's stay is found too

@@ -158,6 +158,70 @@ def test_the_restart_control_by_hand(which):
     np.testing.assert_array_equal(got[2], [1.0, 1.0, 0.0, 5.0])
 
 
+def gradient(net: Network, x: dict[str, np.ndarray], y: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """dF/dY of `energy`, written out: per edge -2 (phi'(A) * E) W^T on its upper node and
+    +2 E on its lower one when that is a latent, and PRIOR * Y."""
+    from vitaplace.kernels.reference import activation_derivative
+
+    act, slope = net.config.activation, net.config.slope
+    grad = {n: PRIOR * v for n, v in y.items()}
+    for e in net.active_edges(net.modalities):
+        w = net.weights[e.name].astype(np.float64)
+        a = y[e.upper] @ w
+        err = (y[e.lower] if e.lower in y else x[e.lower.split(".")[0]]) - activation(a, act, slope)
+        grad[e.upper] = grad[e.upper] - 2 * (activation_derivative(a, act, slope) * err) @ w.T
+        if e.lower in y:
+            grad[e.lower] = grad[e.lower] + 2 * err
+    return grad
+
+
+@pytest.mark.parametrize("solver", SETTLING)
+def test_the_first_step_is_one_plus_beta_times_the_preconditioned_descent(solver):
+    """From the start (0.1, no momentum yet) one step moves the latents by (1 + beta) D with
+    D = -(dF/dY) / L per layer (nesterov) or -(dF/dY) P (preconditioned), by hand here."""
+    net = network(NumpyBackend(np.float64))
+    x = inputs_for(net)
+    nodes, edges = net.latent_nodes(net.modalities), net.active_edges(net.modalities)
+    start = {n: np.full((4, net.sizes[n]), 0.1) for n in nodes}
+    off = {e.name: 0.0 for e in edges}
+    one = net.infer(x, max_steps=1, thresholds=off, inference=InferenceConfig(solver, 0.9, None, PRIOR)).latents
+    g = gradient(net, x, start)
+    if solver == "preconditioned":
+        P = curvature_preconditioners(net.weights, edges, nodes, "tanh", 0.2, PRIOR)
+        step = {n: -g[n] @ P[n] for n in nodes}
+    else:
+        eta = curvature_steps(net.weights, edges, nodes, "tanh", 0.2, PRIOR)
+        step = {n: -eta[n] * g[n] for n in nodes}
+    for n in nodes:  # the results are stored in float32
+        np.testing.assert_allclose(one[n] - start[n], 1.9 * step[n], rtol=1e-5, atol=1e-7, err_msg=n)
+
+
+def test_the_preconditioned_restart_test_is_on_the_gradient():
+    """The momentum restarts where dF/dY . V > 0 at the new point, the gradient by hand here,
+    not where the preconditioned step points against V (the two disagree on this case)."""
+    from vitaplace.engine.network.solver import Solver
+
+    net = network(NumpyBackend(np.float64), "leaky_relu")
+    x = {m: 3 * v - 1 for m, v in inputs_for(net, n=16).items()}  # both sides of the kinks
+    nodes, edges = net.latent_nodes(net.modalities), net.active_edges(net.modalities)
+    P = curvature_preconditioners(net.weights, edges, nodes, "leaky_relu", 0.2, PRIOR)
+    state = net.batch_state(16)
+    state.prior = PRIOR
+    state.solver = solver = Solver(state, InferenceConfig("preconditioned", 0.9, None, PRIOR),
+                                   {n: net.backend.weights(p) for n, p in P.items()})
+    state.index[:] = np.arange(16)
+    state.start_inference({net.input_node(m): v for m, v in x.items()})
+    disagree = 0
+    for _ in range(60):
+        y, v = ({n: a[n].copy() for n in nodes} for a in (state.Y, solver.V))
+        solver.step(state)
+        g = gradient(net, x, y)
+        np.testing.assert_array_equal(solver.uphill > 0, sum(np.sum(g[n] * v[n], axis=1) for n in nodes) > 0)
+        disagree += np.sum((sum(np.sum(g[n] * v[n], 1) for n in nodes) > 0)
+                           != (sum(np.sum((g[n] @ P[n]) * v[n], 1) for n in nodes) > 0))
+    assert disagree > 0
+
+
 COMPACTED = [
     pytest.param(InferenceConfig("gd", rtol=1e-3, prior=PRIOR), id="gd"),
     pytest.param(InferenceConfig("nesterov", 0.9, 1e-6, PRIOR), id="nesterov"),
