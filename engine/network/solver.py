@@ -16,19 +16,21 @@ is minimised per sample by
   the inverse of the Gauss-Newton bound of its block as a matrix rather than its largest
   eigenvalue (`curvature_preconditioners`): ``D = -s (dF/dY) P``. A layer whose weights have a
   few large singular values (the inputs' common mode) is then not held to the step of its
-  stiffest direction in every other one. A sample's momentum restarts (b = 0, else beta) when it points
-  uphill (``dF/dY . V > 0``, O'Donoghue and Candes' gradient restart), and an uphill test
-  failed right after a step taken without momentum (that step overshot the minimum along
-  its own direction) halves the sample's step scale ``s`` (from 1). The energy is piecewise
-  quadratic for the leaky ReLU, and its minimum may lie on a kink, where fixed steps
-  zig-zag across it for ever; halving after such an overshoot makes the steps shrink there
-  and reach the kink. Every test is on gradients, never on differences of the energy:
-  in float32 those are rounding (about 1e-4 of an energy of 300) by the time the steps are
-  short, and a rule on them halves steps at random (docs/MUPNET.md).
+  stiffest direction in every other one.
+
+In both, a sample's momentum restarts (b = 0, else beta) when it points uphill
+(``dF/dY . V > 0``, O'Donoghue and Candes' gradient restart), and an uphill test failed
+right after a step taken without momentum (that step overshot the minimum along its own
+direction) halves the sample's step scale ``s`` (from 1). The energy is piecewise quadratic
+for the leaky ReLU, and its minimum may lie on a kink, where fixed steps zig-zag across it
+for ever; halving after such an overshoot makes the steps shrink there and reach the kink.
+Every test is on gradients, never on differences of the energy: in float32 those are
+rounding (about 1e-4 of an energy of 300) by the time the steps are short, and a rule on
+them halves steps at random (docs/MUPNET.md).
 
 Besides the per-edge thresholds, a sample stops once the norm of its step ``D`` (the
-gradient scaled by each layer's step and by ``s``) is below ``rtol`` times its value at
-the start (off when ``rtol`` is None). A stopped sample is frozen, as under the thresholds.
+gradient scaled by each layer's step, or preconditioned, and by ``s``) is below ``rtol``
+times its value at the start (off when ``rtol`` is None). A stopped sample is frozen, as under the thresholds.
 """
 
 from __future__ import annotations
