@@ -109,7 +109,9 @@ class MupnetParams(ArchitectureParams):
         "restarts, each layer's step from its curvature bound) or preconditioned (the same with each layer's "
         "bound as a matrix; needs latent_prior > 0)",
     )
-    inference_momentum: float = Field(0.9, gt=0, lt=1, description="the nesterov solver's momentum")
+    inference_momentum: float = Field(
+        0.9, gt=0, lt=1, description="the momentum of the nesterov and preconditioned solvers"
+    )
     inference_rtol: pydantic.PositiveFloat | None = Field(
         None, description="test-time stop also when a sample's step has shrunk below this fraction of its first "
         "step (None: the per-layer thresholds alone, the paper's rule)",
