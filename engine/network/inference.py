@@ -30,8 +30,9 @@ class Inference:
     """The results of one `Network.infer` call, filled batch by batch (`run`)."""
 
     def __init__(self, net: Any, present: Sequence[str], n: int, config: InferenceConfig,
-                 steps: Mapping[str, Any], threshold: np.ndarray, sample_ids: np.ndarray) -> None:
-        self.net, self.be, self.present, self.config, self.node_steps = net, net.backend, present, config, steps
+                 node_steps: Mapping[str, Any], threshold: np.ndarray, sample_ids: np.ndarray) -> None:
+        self.net, self.be, self.present, self.config = net, net.backend, present, config
+        self.node_steps = node_steps  # per latent node: eta_y, 1 / L, or the preconditioner's handle
         self.edges = net.active_edges(present)
         self.width = np.array([net.sizes[e.lower] for e in self.edges], dtype=np.float64)
         self.limits = threshold * self.width

@@ -30,7 +30,8 @@ them halves steps at random (docs/MUPNET.md).
 
 Besides the per-edge thresholds, a sample stops once the norm of its step ``D`` (the
 gradient scaled by each layer's step, or preconditioned, and by ``s``) is below ``rtol``
-times its value at the start (off when ``rtol`` is None). A stopped sample is frozen, as under the thresholds.
+times its value at the start (off when ``rtol`` is None). A stopped sample is frozen, as
+under the thresholds.
 """
 
 from __future__ import annotations
@@ -109,13 +110,10 @@ def curvature_preconditioners(
     is invertible; it is inverted in float64 through its eigenvalues (symmetric, so P is too).
     """
     gain = _largest_gain(activation, slope)
-    bound = {}
+    bound: dict[str, np.ndarray] = {}
     for e in edges:
         w = np.asarray(weights[e.name], np.float64)
-        if e.upper in bound:
-            bound[e.upper] += 2.0 * gain**2 * (w @ w.T)
-        else:
-            bound[e.upper] = 2.0 * gain**2 * (w @ w.T)
+        bound[e.upper] = bound.get(e.upper, 0.0) + 2.0 * gain**2 * (w @ w.T)
     above = {e.lower for e in edges}
     out = {}
     for node in nodes:
