@@ -14,15 +14,18 @@ rescored under other ground truths), and each seed's ``manifest.json`` and ``rep
 ``paper-cpu-sweep/`` (penetration touch model) and ``paper-cpu-physical-sweep/`` (physical
 whiskers). The second study's tables (``study2-*``) read the same files of its three arms'
 sweeps, one folder per grid point (`ARMS`, `POINTS`), seed 0's `vitaplace difficulty` runs
-(``study2-difficulty/``) and the budget trend (``study2-budget/epochs=E/``); they compute the
-pre-registered endpoints (`endpoints`: L minus the per-seed better comparator, Holm over the
-secondaries, TOST at ±5 points). Proportions are printed in percent, intervals are the
-percentile bootstrap over seeds unless a column says otherwise.
+(``study2-difficulty/``) and the budget trend (``study2-budget/epochs=E/``). This script reads
+and formats: the statistics and the pre-registered tests (the endpoints against the per-seed
+better comparator, Holm over the secondaries, the TOST at ±5 points, the decision rules, the
+decomposition's interaction) are `vitaplace.engine.study.hypotheses`'s. Proportions are
+printed in percent, intervals are the percentile bootstrap over seeds unless a column says
+otherwise.
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import functools
 import json
 import statistics
@@ -30,9 +33,8 @@ import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
-from scipy import stats as scipy_stats
-
-from vitaplace.engine.study.summary import describe, difference_bounds, sign_flip_p
+from vitaplace.engine.study import hypotheses
+from vitaplace.engine.study.hypotheses import INTERACTION_LIMITS, endpoint_tests, paired, versus_best
 
 HERE = Path(__file__).resolve().parent
 #: touch model -> the sweep folder of its scenario
@@ -230,17 +232,12 @@ def _per_seed(study: str, metric: str = "max_f1") -> dict[tuple[str, str, str], 
 
 def interaction(study: str, world: str, direction: str) -> tuple[list[float], dict[str, float], float]:
     """What touch costs L less than H, (L - L-V) - (H - H-V), max F1, per seed from
-    ``sweep-seeds.csv`` (the summaries hold no paired statistics of it): the per-seed values,
-    their `describe` (mean, std, t and bootstrap intervals; no block interval, the block
-    replicates are not committed) and their sign-flip p."""
+    ``sweep-seeds.csv`` (the summaries hold no paired statistics of it): the per-seed values
+    (`hypotheses.interaction`), their `describe` (mean, std, t and bootstrap intervals; no
+    block interval, the block replicates are not committed) and their sign-flip p."""
     values = _per_seed(study)
-    cells = [values[(world, m, direction)] for m in ("L", "L-V", "H", "H-V")]
-    seeds = sorted(set.intersection(*(set(c) for c in cells)))
-    assert all(set(c) == set(seeds) for c in cells), (study, world, direction, "methods differ in their seeds")
-    lv, vv, h, hv = cells
-    d = [(lv[s] - vv[s]) - (h[s] - hv[s]) for s in seeds]
-    low, high = difference_bounds("max_f1")  # a difference of two such differences lies in [-2, 2]
-    return d, describe(d, (low - high, high - low)), sign_flip_p(d)
+    d = list(hypotheses.interaction(*(values[(world, m, direction)] for m in ("L", "L-V", "H", "H-V"))).values())
+    return (d, *paired(d, INTERACTION_LIMITS))
 
 
 def _paired_cell(r: dict[str, str], p: str | float) -> str:
@@ -326,11 +323,10 @@ def sensitivity() -> str:
             cells = [study, f"{float(tau):g}", "position only" if heading == "none" else f"{float(heading):g}°"]
             for world in WORLDS:
                 for b in ("H", "H-V"):
-                    la, lb = values[(world, "L", tau, heading)], values[(world, b, tau, heading)]
-                    d = [la[s] - lb[s] for s in sorted(la) if s in lb]
-                    stats = describe(d, difference_bounds("max_f1"))
+                    d = versus_best(values[(world, "L", tau, heading)], [values[(world, b, tau, heading)]])
+                    stats, p = paired(list(d.values()))
                     cells.append(f"{pct(stats['mean'])} [{pct(stats['boot_low'])}, {pct(stats['boot_high'])}] "
-                                 f"p={p_value(sign_flip_p(d))}")
+                                 f"p={p_value(p)}")
             body.append(cells)
     header = ["touch model", "τ, m", "heading"] + [f"{w}: L − {b}, points" for w in WORLDS for b in ("H", "H-V")]
     return markdown(header, body)
@@ -409,9 +405,6 @@ def warnings() -> str:
 # the budget trend from study2-budget/epochs=E/.
 
 DIFFICULTY2 = HERE / "study2-difficulty"
-#: TOST margin of the decision rules, max F1
-EQUIVALENCE_MARGIN = 0.05
-ALPHA = 0.05
 
 
 def methods_of(arm: str) -> tuple[str, ...]:
@@ -446,60 +439,20 @@ ENDPOINTS = (
 
 
 def endpoint_values(key: str, world: str, direction: str, comparators: Sequence[str]) -> dict[int, float]:
-    """Seed -> L minus the best of ``comparators`` in that seed, max F1 (`_per_seed`)."""
+    """Seed -> L minus the best of ``comparators`` in that seed, max F1 (`_per_seed`, `versus_best`)."""
     values = _per_seed(key)
-    l_values = values[(world, "L", direction)]
-    others = [values[(world, m, direction)] for m in comparators]
-    assert all(set(o) == set(l_values) for o in others), (key, world, direction, "methods differ in their seeds")
-    return {s: l_values[s] - max(o[s] for o in others) for s in sorted(l_values)}
-
-
-def holm(p_values: Sequence[float]) -> list[float]:
-    """Holm's step-down adjusted p values, in the order given: the i-th smallest times
-    (m - i + 1), made non-decreasing, at most 1."""
-    order = sorted(range(len(p_values)), key=lambda i: p_values[i])
-    adjusted, running = [0.0] * len(p_values), 0.0
-    for rank, i in enumerate(order):
-        running = max(running, min(1.0, (len(p_values) - rank) * p_values[i]))
-        adjusted[i] = running
-    return adjusted
-
-
-def t_interval(values: Sequence[float], level: float) -> tuple[float, float]:
-    """The Student-t ``level`` interval of the mean (the TOST's interval at level 0.90)."""
-    low, high = scipy_stats.ttest_1samp(values, 0.0).confidence_interval(confidence_level=level)
-    return float(low), float(high)
-
-
-def decision(stats: dict[str, float], p: float, tost: tuple[float, float]) -> str:
-    """The pre-registered rules: superiority (bootstrap 95 % excludes 0 and p < 0.05, p Holm-
-    adjusted for the secondaries), equivalence (the 90 % t interval inside ±5 points)."""
-    superior = p < ALPHA and (stats["boot_low"] > 0 or stats["boot_high"] < 0)
-    equivalent = -EQUIVALENCE_MARGIN < tost[0] and tost[1] < EQUIVALENCE_MARGIN
-    direction = "L better" if stats["mean"] > 0 else "L worse"
-    if superior and equivalent:
-        return f"{direction}, by < 5 points"
-    if superior:
-        return direction
-    return "equivalent (±5 points)" if equivalent else "neither shown"
+    return versus_best(values[(world, "L", direction)], [values[(world, m, direction)] for m in comparators])
 
 
 def endpoints() -> list[dict]:
-    """The primary endpoint and the six secondaries: per-seed values, `describe`, sign-flip p,
-    Holm-adjusted p (secondaries; the primary's own p), 90 % t interval, decision."""
-    found = []
-    for label, key, world, direction, comparators in ENDPOINTS:
-        values = list(endpoint_values(key, world, direction, comparators).values())
-        found.append({"label": label, "key": key, "world": world, "direction": direction, "comparators": comparators,
-                      "values": values, "stats": describe(values, difference_bounds("max_f1")),
-                      "p": sign_flip_p(values), "tost": t_interval(values, 0.90)})
-    secondaries = found[1:]
-    for endpoint, adjusted in zip(secondaries, holm([e["p"] for e in secondaries])):
-        endpoint["p_holm"] = adjusted
-    found[0]["p_holm"] = found[0]["p"]
-    for endpoint in found:
-        endpoint["decision"] = decision(endpoint["stats"], endpoint["p_holm"], endpoint["tost"])
-    return found
+    """The primary endpoint and the six secondaries (`ENDPOINTS`), each with its per-seed
+    values, `describe`, sign-flip p, Holm-adjusted p (over the secondaries; the primary keeps
+    its own), 90 % t interval and decision (`hypotheses.endpoint_tests`)."""
+    values = [list(endpoint_values(key, world, direction, comparators).values())
+              for _, key, world, direction, comparators in ENDPOINTS]
+    tested = endpoint_tests(values[0], values[1:])
+    return [{"label": label, "key": key, "world": world, "direction": direction, "comparators": comparators,
+             **dataclasses.asdict(endpoint)} for (label, key, world, direction, comparators), endpoint in zip(ENDPOINTS, tested)]
 
 
 def study2_endpoints() -> str:

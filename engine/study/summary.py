@@ -179,16 +179,24 @@ def spread(values: Sequence[float]) -> dict[str, float]:
             "min": float(x.min()), "max": float(x.max())}
 
 
+def t_interval(values: Sequence[float], level: float = LEVEL,
+               limits: tuple[float, float] = (-math.inf, math.inf)) -> tuple[float, float]:
+    """Student's t ``level`` interval of the mean, ``mean ± t((1 + level) / 2, n - 1) std/√n``,
+    inside ``limits``; NaN for n < 2 (the std is)."""
+    s = spread(values)
+    half = float(stats.t.ppf(0.5 + level / 2, s["n"] - 1)) * s["std"] / math.sqrt(s["n"])
+    return _clip(s["mean"] - half, s["mean"] + half, limits)
+
+
 def describe(values: Sequence[float], limits: tuple[float, float] = (-math.inf, math.inf),
              block: np.ndarray | None = None) -> dict[str, float]:
-    """`spread`, then the Student-t and percentile-bootstrap intervals of the mean inside
-    ``limits`` (NaN for n < 2) and the percentile interval of the block replicates of the
-    mean ``block`` (NaN when None)."""
+    """`spread`, then the Student-t (`t_interval`) and percentile-bootstrap intervals of the
+    mean inside ``limits`` (NaN for n < 2) and the percentile interval of the block
+    replicates of the mean ``block`` (NaN when None)."""
     out = {**spread(values), **dict.fromkeys(INTERVAL_COLUMNS, math.nan)}
     n, x = out["n"], np.asarray(values, dtype=float)
     if n >= 2:
-        half = float(stats.t.ppf(0.5 + LEVEL / 2, n - 1)) * out["std"] / math.sqrt(n)
-        out["t_low"], out["t_high"] = _clip(out["mean"] - half, out["mean"] + half, limits)
+        out["t_low"], out["t_high"] = t_interval(values, LEVEL, limits)
         boot = stats.bootstrap((x,), np.mean, n_resamples=SEED_RESAMPLES, confidence_level=LEVEL,
                                method="percentile", random_state=np.random.default_rng(BOOT_SEED))
         # every resample's mean lies within the values' range; its float sum may not (n equal

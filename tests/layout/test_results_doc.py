@@ -3,7 +3,8 @@ the text is what docs/results/tables.py computes from them (docs/BENCHMARK.md's 
 docs/results/benchmark.py computes from the committed `vitaplace difficulty` run), and the
 summaries hold what the studies promise (the first: six methods, at least five seeds, three worlds, both touch models, bounded
 intervals, the sign-flip p, recall at 100 % precision, the F1 at E1's threshold; the second: every method and condition at eight seeds, bounded
-intervals, the pre-registered endpoints and decision rules, the gates, the budget trend)."""
+intervals, the pre-registered endpoints as decided by `vitaplace.engine.study.hypotheses`
+(whose rules tests/components/test_hypotheses.py checks by hand), the gates, the budget trend)."""
 
 import csv
 import importlib.util
@@ -173,34 +174,6 @@ def test_the_primary_endpoint_is_l_minus_the_better_comparator_in_every_seed():
     assert primary["p_holm"] == primary["p"]
     ps = sorted(e["p"] for e in endpoints[1:])
     assert min(e["p_holm"] for e in endpoints[1:]) == pytest.approx(min(1.0, 6 * ps[0]))
-
-
-def test_holm_adjusts_a_hand_computed_family():
-    tables = tables_module()
-    # sorted 0.01, 0.03, 0.04: 3 x 0.01 = 0.03; 2 x 0.03 = 0.06; 1 x 0.04 = 0.04, raised to 0.06
-    assert tables.holm([0.01, 0.04, 0.03]) == pytest.approx([0.03, 0.06, 0.06])
-    assert tables.holm([0.5, 0.9]) == pytest.approx([1.0, 1.0])
-
-
-@pytest.mark.parametrize("boot, p, tost, expected", [
-    ((0.01, 0.09), 0.01, (0.02, 0.08), "L better"),
-    ((0.01, 0.04), 0.01, (0.005, 0.045), "L better, by < 5 points"),
-    ((-0.09, -0.01), 0.01, (-0.08, -0.02), "L worse"),
-    ((-0.01, 0.03), 0.30, (-0.02, 0.04), "equivalent (±5 points)"),
-    ((0.01, 0.09), 0.06, (0.0, 0.1), "neither shown"),  # p over 0.05 (e.g. after Holm)
-    ((-0.01, 0.09), 0.01, (-0.02, 0.1), "neither shown"),  # bootstrap interval holds 0
-])
-def test_the_decision_rules_are_the_pre_registered_ones(boot, p, tost, expected):
-    tables = tables_module()
-    stats = {"mean": (boot[0] + boot[1]) / 2, "boot_low": boot[0], "boot_high": boot[1]}
-    assert tables.decision(stats, p, tost) == expected
-
-
-def test_the_tost_interval_is_the_90_percent_t_interval():
-    tables = tables_module()
-    values = [0.01, 0.03, -0.02, 0.04]  # mean 0.015, sd sqrt(0.0021/3) = 0.0264575..., t(0.95, 3) = 2.353363434801823
-    half = 2.353363434801823 * math.sqrt(0.0021 / 3) / 2
-    assert tables.t_interval(values, 0.90) == pytest.approx((0.015 - half, 0.015 + half), abs=1e-12)
 
 
 @pytest.mark.parametrize("arm", ["touch", "drop-out"])
