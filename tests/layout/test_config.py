@@ -44,7 +44,7 @@ def test_environment_and_scenario_files_are_told_apart_by_their_schemas_own_keys
     """`vitaplace validate/simulate FILE` decides from the top-level keys whether FILE is an
     environment or a scenario: the keys of one schema that the other lacks (old names too)."""
     from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR
-    from vitaplace.engine.cli.main import _is_environment_file, own_top_level_keys
+    from vitaplace.engine.cli.commands import _is_environment_file, own_top_level_keys
 
     environment_keys, scenario_keys = own_top_level_keys()
     # the shared ones (name, description) belong to neither; the rename of scoring is a scenario's

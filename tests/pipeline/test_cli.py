@@ -805,6 +805,35 @@ def test_verbose_and_quiet_are_accepted_by_every_command(tmp_path, capsys):
     assert main(["-q", "validate", path]) == 0 and "valid scenario 't'" in capsys.readouterr().out
 
 
+def test_every_command_names_its_own_handler():
+    """Each subparser's ``handler`` default is the function named for its command, so no
+    command is left without one and no two share one."""
+    import argparse
+
+    import vitaplace.engine.cli.main as cli
+    from vitaplace.engine.cli import commands
+
+    documented = cli.__doc__.split("``vitaplace ")[1].split("``")[0].split("|")  # the module's first line
+    (sub,) = [a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
+    assert sorted(sub.choices) == sorted(documented)
+    for name, parser in sub.choices.items():
+        assert parser.get_default("handler") is getattr(commands, f"{name}_command"), name
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["bogus"], "vitaplace: error: argument COMMAND: invalid choice: 'bogus' (choose from "),
+    ([], "vitaplace: error: the following arguments are required: COMMAND"),
+    (["-q"], "vitaplace: error: the following arguments are required: COMMAND"),
+])
+def test_an_unknown_or_missing_command_is_argparses_usage_error(capsys, argv, expected):
+    """argparse's usage and its one error line on stderr, exit 2."""
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[0].startswith("usage: vitaplace ") and err[-1].startswith(expected), err
+
+
 @pytest.mark.parametrize("argv", [
     ["simulate", "SCENARIO", "--force", "fit"],
     ["train", "SCENARIO", "--force", "transform"],
