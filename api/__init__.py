@@ -265,7 +265,7 @@ def read_results(out: str | Path) -> list[dict[str, Any]]:
     folder = Path(_path(out, "out"))
     if not (folder / "results.json").is_file():
         raise UserError(f"{folder / 'results.json'}: no results here; run the scenario up to the evaluate stage first")
-    return [{k: v for k, v in row.items() if k != "seed"} for row in validate_run_folder(folder).rows]  # untagged
+    return [row.dump() for row in validate_run_folder(folder).rows]
 
 
 @_one_line_arguments

@@ -31,11 +31,12 @@ import json
 import logging
 import os
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from vitaplace.engine import __version__
+from vitaplace.engine.outputs.rows import ResultRow, parse_row
 from vitaplace.plugin import hookimpl
 
 #: the environment variable that turns tracking on: the MLflow experiment's name
@@ -73,11 +74,13 @@ def run_params(scenario: Any) -> dict[str, str]:
     return params
 
 
-def run_metrics(rows: list[dict[str, Any]]) -> dict[str, float]:
-    """``ENVIRONMENT/METHOD/DIRECTION/METRIC`` -> value for every number of `METRICS` in ``rows``."""
+def run_metrics(rows: Sequence[ResultRow | Mapping[str, Any]]) -> dict[str, float]:
+    """``ENVIRONMENT/METHOD/DIRECTION/METRIC`` -> value for every number of `METRICS` in
+    ``rows`` (results rows, or mappings `parse_row` reads)."""
+    parsed = [parse_row(row, f"results row {i}") for i, row in enumerate(rows)]
     return {
-        f"{row['environment']}/{row['method']}/{row['direction']}/{name}": float(row[name])
-        for row in rows for name in METRICS if isinstance(row.get(name), (int, float))
+        f"{row.environment}/{row.method}/{row.direction}/{name}": float(value)
+        for row in parsed for name in METRICS if (value := getattr(row, name)) is not None
     }
 
 
@@ -151,7 +154,7 @@ def _manifest_tags(out: Path, stage: str) -> dict[str, str]:
 
 
 @hookimpl
-def vitaplace_run_finished(out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
+def vitaplace_run_finished(out: Path, scenario: Any, rows: Sequence[ResultRow | Mapping[str, Any]], stage: str) -> None:
     """Log the finished run to the MLflow experiment named by ``VITAPLACE_MLFLOW`` (if set),
     nested under the sweep's parent run when `PARENT_ENV` is set; not again if logged already."""
     experiment = os.environ.get(EXPERIMENT_ENV)

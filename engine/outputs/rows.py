@@ -222,15 +222,15 @@ def _line(error: Mapping[str, Any]) -> str:
     return f"field {name!r} is {value!r:.60}, expected {expected}"
 
 
-def parse_row(data: Any, where: str) -> ResultRow:
+def parse_row(data: Any, where: str, error: type[UserError] = RowError) -> ResultRow:
     """``data`` (a mapping read from ``results.json``, or a row) as a `ResultRow`; else
-    RowError, one line: ``where``, the first field at fault, its value and what it expects."""
+    ``error``, one line: ``where``, the first field at fault, its value and what it expects."""
     if isinstance(data, ResultRow):
         return data
     if not isinstance(data, Mapping):
-        raise RowError(f"{where}: a {type(data).__name__}, expected a result row (a JSON object)")
+        raise error(f"{where}: a {type(data).__name__}, expected a result row (a JSON object)")
     try:
         return ResultRow.model_validate(data)
     except pydantic.ValidationError as exc:
-        raise RowError(f"{where}: {_line(exc.errors()[0])}") from None
+        raise error(f"{where}: {_line(exc.errors()[0])}") from None
 

@@ -8,10 +8,12 @@ import csv
 import io
 import json
 from pathlib import Path
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.outputs.outdir import COMPLEMENTARITY, RESULTS_CSV, RESULTS_JSON
+from vitaplace.engine.outputs.rows import ResultRow, parse_row
 
 
 RESULT_COLUMNS = (
@@ -21,27 +23,30 @@ RESULT_COLUMNS = (
 )
 
 
-def csv_row(row: dict[str, Any]) -> dict[str, Any]:
+def csv_row(row: ResultRow) -> ResultRow:
     """A results row for results.csv: without a fixed ``scoring.delta``, delta, precision,
     recall and F1 are those at the max-F1 threshold (instead of empty)."""
-    if row.get("f1") is not None:
+    if row.f1 is not None:
         return row
-    return {**row, "delta": row["delta_at_max_f1"], "precision": row["precision_at_max_f1"],
-            "recall": row["recall_at_max_f1"], "f1": row["max_f1"]}
+    return row.model_copy(update=dict(delta=row.delta_at_max_f1, precision=row.precision_at_max_f1,
+                                      recall=row.recall_at_max_f1, f1=row.max_f1))
 
 
-def write_results(out: Path, rows: list[dict[str, Any]], complementarity: list[dict[str, Any]]) -> None:
+def write_results(out: Path, rows: Sequence[ResultRow | Mapping[str, Any]],
+                  complementarity: list[dict[str, Any]]) -> None:
     """results.json (everything), results.csv (one row per environment x method x direction;
     `csv_row`: delta, precision, recall, F1 at the fixed delta, else at the max-F1 one) and
     complementarity.json (the records of `Pipeline.complementarity`, a list, empty when no
-    pair ran)."""
-    write_text_atomic(out / RESULTS_JSON, json.dumps(rows, indent=2))
+    pair ran). ``rows``: `ResultRow`s, or mappings `parse_row` reads; results.json holds
+    each row's `ResultRow.dump`."""
+    parsed = [parse_row(row, f"results row {i}") for i, row in enumerate(rows)]
+    write_text_atomic(out / RESULTS_JSON, json.dumps([row.dump() for row in parsed], indent=2))
     write_text_atomic(out / COMPLEMENTARITY, json.dumps(complementarity, indent=2))
-    ks = sorted({k for row in rows for k in row.get("recall_at_k", {})}, key=int)
+    ks = sorted({k for row in parsed for k in row.recall_at_k or {}}, key=int)
     buffer = io.StringIO()
     writer = csv.writer(buffer)
     writer.writerow([*RESULT_COLUMNS, *(f"recall@{k}" for k in ks)])
-    for row in rows:
-        filled = csv_row(row)
-        writer.writerow([filled.get(c, "") for c in RESULT_COLUMNS] + [row["recall_at_k"].get(k, "") for k in ks])
+    for row in parsed:
+        filled, recalls = csv_row(row), row.recall_at_k or {}
+        writer.writerow([getattr(filled, c) for c in RESULT_COLUMNS] + [recalls.get(k, "") for k in ks])
     write_text_atomic(out / RESULTS_CSV, buffer.getvalue())

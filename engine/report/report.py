@@ -11,6 +11,7 @@ and ``vitaplace report OUT`` (`rebuild_report`) call the same function.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -18,11 +19,12 @@ import numpy as np
 import yaml
 
 from vitaplace.engine.outputs import completion
-from vitaplace.engine.evaluation.difficulty import STAY_RADIUS, TOUCH_PAIR_KEYS
+from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
 from vitaplace.engine.report import figures
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.outputs.checksum import digest
+from vitaplace.engine.outputs.rows import Difficulty, ResultRow, SequenceMatching, parse_row
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.outputs.outdir import (
     COMPLEMENTARITY, DECISIONS, FIGURES, MANIFEST, MATRICES, PR_CURVE, REPORT, RESULTS_JSON,
@@ -44,42 +46,42 @@ def _pct(value: Any) -> str:
     return "–" if value is None else f"{100 * float(value):.2f}"
 
 
-def results_table(rows: list[dict[str, Any]]) -> str:
+def results_table(rows: Sequence[ResultRow]) -> str:
     """Markdown table: one row per environment x method x direction (F1, P, R in %; F1 at
     the training world's threshold, ``f1_at_e1_threshold``)."""
-    ks = sorted({k for row in rows for k in row.get("recall_at_k", {})}, key=int)
+    ks = sorted({k for row in rows for k in row.recall_at_k or {}}, key=int)
     header = ["environment", "method", "direction", "max F1 %", "P %", "R %", "AUC", "δ at max F1",
               "F1 % at training δ"]
     header += [f"R@{k} %" for k in ks]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
         cells = [
-            row["environment"], row["method"], row["direction"], _pct(row["max_f1"]),
-            _pct(row.get("precision_at_max_f1")), _pct(row.get("recall_at_max_f1")),
-            f"{row['auc']:.3f}", "–" if row["delta_at_max_f1"] is None else f"{row['delta_at_max_f1']:.4g}",
-            _pct(row.get("f1_at_e1_threshold")),
+            row.environment, row.method, row.direction, _pct(row.max_f1),
+            _pct(row.precision_at_max_f1), _pct(row.recall_at_max_f1),
+            f"{row.auc:.3f}", "–" if row.delta_at_max_f1 is None else f"{row.delta_at_max_f1:.4g}",
+            _pct(row.f1_at_e1_threshold),
         ]
-        cells += [_pct(row["recall_at_k"].get(k)) for k in ks]
+        cells += [_pct((row.recall_at_k or {}).get(k)) for k in ks]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     return "\n".join(lines)
 
 
-def _per_pair(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def _per_pair(rows: Sequence[ResultRow]) -> list[ResultRow]:
     """The first row of each environment x direction: what the evaluation pair itself has,
     the same for every method."""
-    first: dict[tuple[str, str], dict[str, Any]] = {}
+    first: dict[tuple[str, str], ResultRow] = {}
     for row in rows:
-        first.setdefault((row["environment"], row["direction"]), row)
+        first.setdefault((row.environment, row.direction), row)
     return list(first.values())
 
 
-def samples_table(rows: list[dict[str, Any]]) -> str:
+def samples_table(rows: Sequence[ResultRow]) -> str:
     """Markdown table of the sample counts per environment x direction: queries, references,
     revisits (queries with a true match)."""
     lines = ["| environment | direction | queries | references | revisits |", "|---|---|---|---|---|"]
     for row in _per_pair(rows):
-        lines.append(f"| {row['environment']} | {row['direction']} | {row['n_queries']} | "
-                     f"{row.get('n_references', '–')} | {row['n_revisit']} |")
+        references = "–" if row.n_references is None else row.n_references
+        lines.append(f"| {row.environment} | {row.direction} | {row.n_queries} | {references} | {row.n_revisit} |")
     return "\n".join(lines)
 
 
@@ -87,7 +89,7 @@ def _number(value: Any, digits: int) -> str:
     return "–" if value is None else f"{float(value):.{digits}f}"
 
 
-def difficulty_table(rows: list[dict[str, Any]]) -> str:
+def difficulty_table(rows: Sequence[ResultRow]) -> str:
     """Markdown table of each evaluation pair's ``difficulty`` (per environment x direction)."""
     lines = [
         "| environment | direction | nearest ref. median m | nearest ref. 90th pct. m | nearest ref. heading median ° "
@@ -96,13 +98,13 @@ def difficulty_table(rows: list[dict[str, Any]]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for row in _per_pair(rows):
-        d = row["difficulty"]
+        d = row.difficulty or Difficulty()  # measures a run of an older version lacks are None
         cells = [
-            row["environment"], row["direction"], _number(d["nearest_ref_median_m"], 3),
-            _number(d["nearest_ref_p90_m"], 3), _number(d["nearest_ref_heading_median_deg"], 1),
-            _pct(d["chance_r1"]), _pct(d["query_touch_share"]), _pct(d["reference_touch_share"]),
-            _pct(d.get("query_longest_stay_share")), _pct(d.get("reference_longest_stay_share")),
-            *(_pct(d.get(k)) for k in TOUCH_PAIR_KEYS),  # None in the rows of older runs
+            row.environment, row.direction, _number(d.nearest_ref_median_m, 3),
+            _number(d.nearest_ref_p90_m, 3), _number(d.nearest_ref_heading_median_deg, 1),
+            _pct(d.chance_r1), _pct(d.query_touch_share), _pct(d.reference_touch_share),
+            _pct(d.query_longest_stay_share), _pct(d.reference_longest_stay_share),
+            _pct(d.touch_both_share), _pct(d.touch_one_side_share), _pct(d.touch_correspondence),
         ]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -235,14 +237,14 @@ def _warnings_section(manifest: dict[str, Any]) -> list[str]:
     return ["## Warnings", "", *lines, ""] if lines else []
 
 
-def _header(manifest: dict[str, Any], description: str, rows: list[dict[str, Any]]) -> list[str]:
+def _header(manifest: dict[str, Any], description: str, rows: Sequence[ResultRow]) -> list[str]:
     """Title, description and what the results table shows, then the table."""
-    tau, heading = rows[0]["tau"], rows[0]["heading_tolerance_deg"]
+    tau, heading = rows[0].tau, rows[0].heading_tolerance_deg
     sections = [f"# vitaplace report — {manifest['scenario']}", ""]
     if description:
         sections += [description.strip(), ""]
     return sections + [
-        f"Place recognition, single best match per query{_matching(rows[0].get('sequence'), tau)}; a true match is "
+        f"Place recognition, single best match per query{_matching(rows[0].sequence, tau)}; a true match is "
         f"{_true_match(tau, heading)}"
         + (" (position only)" if heading is None else "")
         + ". P and R are at the δ that maximises F1 in each evaluation; F1 at training δ is the F1 at the δ that "
@@ -256,21 +258,21 @@ def _header(manifest: dict[str, Any], description: str, rows: list[dict[str, Any
     ]
 
 
-def _matching(sequence: dict[str, Any] | None, tau: float) -> str:
+def _matching(sequence: SequenceMatching | None, tau: float) -> str:
     """How the distances were matched: single samples (nothing to say) or sequences."""
     if sequence is None:
         return ""
-    return (f", scored by sequences of {sequence['length']} queries (SeqSLAM: local contrast over "
-            f"±{sequence['window']} references{_window_caveat(sequence, tau)}, the best straight line at "
-            f"{sequence['velocity_steps']} relative velocities in [{sequence['velocity_min']:g}, "
-            f"{sequence['velocity_max']:g}])")
+    return (f", scored by sequences of {sequence.length} queries (SeqSLAM: local contrast over "
+            f"±{sequence.window} references{_window_caveat(sequence, tau)}, the best straight line at "
+            f"{sequence.velocity_steps} relative velocities in [{sequence.velocity_min:g}, "
+            f"{sequence.velocity_max:g}])")
 
 
-def _window_caveat(sequence: dict[str, Any], tau: float) -> str:
+def _window_caveat(sequence: SequenceMatching, tau: float) -> str:
     """How much reference drive the contrast window covers, and a warning where it is no more
     than one place (2 tau): each reference is then contrasted with the references of its own
     place, which takes away the true match's lead (docs/DESIGN.md, Sequence matching)."""
-    span = sequence.get("window_span_m")
+    span = sequence.window_span_m
     if span is None:
         return ""
     text = f", a median {span:.2f} m of the reference drive"
@@ -284,9 +286,9 @@ def _true_match(tau: float, heading: float | None) -> str:
     return f"a reference pose within τ = {tau} m" + ("" if heading is None else f" facing within {heading:g}°")
 
 
-def _samples_and_difficulty(manifest: dict[str, Any], rows: list[dict[str, Any]]) -> list[str]:
+def _samples_and_difficulty(manifest: dict[str, Any], rows: Sequence[ResultRow]) -> list[str]:
     """The sample counts and the difficulty of each evaluation pair."""
-    true_match = _true_match(rows[0]["tau"], rows[0]["heading_tolerance_deg"])
+    true_match = _true_match(rows[0].tau, rows[0].heading_tolerance_deg)
     return [
         "## Samples",
         "",
@@ -312,14 +314,13 @@ def _samples_and_difficulty(manifest: dict[str, Any], rows: list[dict[str, Any]]
     ]
 
 
-def _dropout_section(rows: list[dict[str, Any]]) -> list[str]:
+def _dropout_section(rows: Sequence[ResultRow]) -> list[str]:
     """The evaluations whose query samples lost a sensor (``query_dropout`` of their rows)."""
-    lost = {row["environment"]: row["query_dropout"] for row in rows if "query_dropout" in row}
+    lost = {row.environment: row.query_dropout for row in rows if row.query_dropout is not None}
     if not lost:
         return []
     table = ["| evaluation | without camera % | without whiskers % |", "|---|---|---|"]
-    table += [f"| {name} | {_pct(shares.get('camera', 0.0))} | {_pct(shares.get('whiskers', 0.0))} |"
-              for name, shares in lost.items()]
+    table += [f"| {name} | {_pct(shares.camera)} | {_pct(shares.whiskers)} |" for name, shares in lost.items()]
     return [
         "## Query drop-out",
         "",
@@ -348,21 +349,21 @@ def _inference_section(manifest: dict[str, Any]) -> list[str]:
     ]
 
 
-def _evaluation_sections(out: Path, rows: list[dict[str, Any]]) -> list[str]:
+def _evaluation_sections(out: Path, rows: Sequence[ResultRow]) -> list[str]:
     """Per evaluation: its PR curves, and per method and direction its matrices with the
     decisions and its matches drawn over the trajectories (figures into OUT/figures)."""
     fig_dir = out / FIGURES
-    one_direction = len({row["direction"] for row in rows}) == 1
+    one_direction = len({row.direction for row in rows}) == 1
     sections = []
-    for environment in dict.fromkeys(row["environment"] for row in rows):
+    for environment in dict.fromkeys(row.environment for row in rows):
         arena_file = arena_path(out, environment)
         arena = json.loads(arena_file.read_text()) if arena_file.is_file() else None
         with np.load(poses_path(out, environment)) as saved:
             poses = {side: saved[side] for side in ("query", "reference")}
         curves = {}
         sections += [f"## {environment}", "", f"![PR curves](figures/pr-{environment}.png)", ""]
-        for row in (r for r in rows if r["environment"] == environment):
-            method, direction = row["method"], row["direction"]
+        for row in (r for r in rows if r.environment == environment):
+            method, direction = row.method, row.direction
             folder = evaluation_dir(out, environment, method, direction)
             with np.load(folder / MATRICES) as m:
                 tme, gtm = m["tme"], m["gtm"]
@@ -412,16 +413,17 @@ def _provenance_section(manifest: dict[str, Any]) -> list[str]:
     ]
 
 
-def report_files(out: Path, rows: list[dict[str, Any]], methods: list[str]) -> list[Path]:
+def report_files(out: Path, rows: Sequence[ResultRow | Mapping[str, Any]], methods: list[str]) -> list[Path]:
     """Every file the report reads besides the manifest: results, complementarity (when
-    there), resolved scenario, each
-    row's evaluation files, each evaluation's poses and (if simulated) arena, each method's
-    training curves (if recorded)."""
+    there), resolved scenario, each row's evaluation files (``rows``: results rows, or
+    mappings `parse_row` reads), each evaluation's poses and (if simulated) arena, each
+    method's training curves (if recorded)."""
     out = Path(out)
+    parsed = [parse_row(row, f"{out / RESULTS_JSON}: row {i}", ReportError) for i, row in enumerate(rows)]
     files = [out / RESULTS_JSON, out / completion.SCENARIO] + [p for p in [out / COMPLEMENTARITY] if p.is_file()]
-    files += [evaluation_dir(out, r["environment"], r["method"], r["direction"]) / name
-              for r in rows for name in EVALUATION_FILES]
-    for environment in dict.fromkeys(r["environment"] for r in rows):
+    files += [evaluation_dir(out, row.environment, row.method, row.direction) / name
+              for row in parsed for name in EVALUATION_FILES]
+    for environment in dict.fromkeys(row.environment for row in parsed):
         files += [poses_path(out, environment)] + [p for p in [arena_path(out, environment)] if p.is_file()]
     return files + [p for name in methods if (p := training_path(out, name)).is_file()]
 
@@ -436,7 +438,7 @@ def _read_json(path: Path, expected: str) -> Any:
         raise ReportError(f"{path}: unreadable ({type(exc).__name__}); expected {expected}") from None
 
 
-def read_inputs(out: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+def read_inputs(out: Path) -> tuple[dict[str, Any], list[ResultRow]]:
     """The manifest's entries the report reads (`MANIFEST_KEYS`) and the result rows of the
     run in ``out``; ReportError naming the file when one is missing or is not what a run writes."""
     out = Path(out)
@@ -446,8 +448,9 @@ def read_inputs(out: Path) -> tuple[dict[str, Any], list[dict[str, Any]]]:
     if missing:
         raise ReportError(f"{out / MANIFEST}: no {', '.join(missing)}; expected the manifest of a `vitaplace run` "
                           "(those of older versions lack these entries)")
-    if not isinstance(rows, list) or not rows or not all(isinstance(r, dict) for r in rows):
+    if not isinstance(rows, list) or not rows:
         raise ReportError(f"{out / RESULTS_JSON}: expected a non-empty list of result rows")
+    rows = [parse_row(row, f"{out / RESULTS_JSON}: row {i}", ReportError) for i, row in enumerate(rows)]
     # how each method's training ended: absent where no method reports it
     return {**{k: manifest[k] for k in MANIFEST_KEYS}, "training": manifest.get("training") or {}}, rows
 
@@ -460,10 +463,10 @@ def report_key_inputs(out: Path) -> dict[str, Any]:
     return {"manifest": manifest, "files": {str(p.relative_to(out)): digest(p) for p in files}}
 
 
-def _fusions_section(rows: list[dict[str, Any]], fusions: list[dict[str, Any]]) -> list[str]:
+def _fusions_section(rows: Sequence[ResultRow], fusions: list[dict[str, Any]]) -> list[str]:
     """The late fusions' chosen weights, per fusion and direction (the same in every evaluation)."""
     settings = {f["name"]: f for f in fusions}
-    chosen = {(r["method"], r["direction"]): r["fusion"] for r in rows if "fusion" in r}
+    chosen = {(row.method, row.direction): row.fusion for row in rows if row.fusion is not None}
     if not chosen:
         return []
     lines = ["## Late fusions", "",
@@ -474,8 +477,8 @@ def _fusions_section(rows: list[dict[str, Any]], fusions: list[dict[str, Any]]) 
     for (name, direction), f in chosen.items():
         s = settings[name]
         lines.append(f"| {name} | {s['vision']} + {s['touch']} | {s.get('select_on') or 'the training world'} "
-                     f"| {direction} | {f['weight']:g} | {f['sigma_vision']:.4g} | {f['sigma_touch']:.4g} "
-                     f"| {100 * f['selection_max_f1']:.2f} % |")
+                     f"| {direction} | {f.weight:g} | {f.sigma_vision:.4g} | {f.sigma_touch:.4g} "
+                     f"| {100 * f.selection_max_f1:.2f} % |")
     return lines + [""]
 
 

@@ -4,7 +4,7 @@ Each folder is the output of one ``vitaplace run --set seed=N --out DIR`` (or a 
 ``seed-N``). `validate_run_folder` accepts a folder only when its completion record
 (``completed.json``, written last by the run) matches its ``scenario.resolved.yaml`` and
 every file read (``manifest.json``, ``results.json``, each row's ``pr_curve.npz``), and
-every result row is well formed (`check_row`). Folders must hold one scenario: the same
+every result row is well formed (`vitaplace.engine.outputs.rows.ResultRow`). Folders must hold one scenario: the same
 name in the manifest and the same resolved scenario apart from its seed (environment files
 compared by file name, since a sweep job keeps its own copies), and each seed once. Nothing
 is written before every folder passed.
@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import copy
 import json
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,16 +27,11 @@ from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.evaluation.pairfiles import load_curve
 from vitaplace.engine.outputs.keys import content_hash
 from vitaplace.engine.outputs.outdir import MANIFEST, MATRICES, RESULTS_JSON, writable_dir
+from vitaplace.engine.outputs.rows import ResultRow, parse_row
 from vitaplace.engine.report.figures import write_pr_bands
-from vitaplace.engine.study.summary import bounds, write_summary
+from vitaplace.engine.study.summary import write_summary
 
 REQUIRED = (completion.RECORD, MANIFEST, RESULTS_JSON, completion.SCENARIO)
-#: identity columns of a result row: non-empty text
-IDENTITY = ("environment", "method", "direction")
-#: the metric every result row has (a row without it contributes nothing)
-HEADLINE = "max_f1"
-#: result fields that are text by design (how a metric was computed), not metrics
-TEXT_FIELDS = frozenset({"auc_method"})
 
 
 class AggregateError(UserError):
@@ -52,7 +46,11 @@ class RunFolder:
     seed: int
     scenario: str  #: the scenario's name in the manifest
     identity: str  #: `scenario_identity` of its resolved scenario
-    rows: list[dict[str, Any]]  #: its result rows, each tagged with the seed
+    rows: list[ResultRow]  #: its result rows
+
+    def tagged(self) -> list[dict[str, Any]]:
+        """Its rows as the summary reads them: each row's fields, then ``seed``."""
+        return [{**row.dump(), "seed": self.seed} for row in self.rows]
 
 
 def scenario_identity(resolved: dict[str, Any]) -> str:
@@ -68,72 +66,6 @@ def scenario_identity(resolved: dict[str, Any]) -> str:
     return content_hash(data)
 
 
-def _finite(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
-def _check_identity(row: dict[str, Any], where: str) -> None:
-    for key in IDENTITY:
-        if not isinstance(row.get(key), str) or not row[key]:
-            raise AggregateError(f"{where}: field '{key}' is {row.get(key)!r}, expected a non-empty name")
-
-
-def _check_headline(row: dict[str, Any], where: str) -> None:
-    if not _finite(row.get(HEADLINE)):
-        raise AggregateError(f"{where}: field '{HEADLINE}' is {row.get(HEADLINE)!r}, expected a finite number")
-
-
-def _check_queries(row: dict[str, Any], where: str) -> None:
-    queries = row.get("n_queries")
-    if not (_finite(queries) and queries == int(queries) and queries >= 1):
-        raise AggregateError(f"{where}: field 'n_queries' is {queries!r:.60}, expected a whole number of queries (>= 1)")
-
-
-def _check_recall_keys(row: dict[str, Any], where: str) -> None:
-    recall_at_k = row.get("recall_at_k")
-    if recall_at_k is not None and not (isinstance(recall_at_k, dict) and all(k.isdecimal() and int(k) >= 1
-                                                                              for k in recall_at_k)):
-        raise AggregateError(f"{where}: field 'recall_at_k' is {recall_at_k!r:.60}, expected a mapping from K "
-                             "(1, 5, ...) to a recall, or null")
-
-
-def _check_number(key: str, sub: Any, item: Any, where: str) -> None:
-    """One metric value ``item`` (``row[key]``, or ``row[key][sub]`` of a mapping): finite or
-    null, and inside its `bounds`."""
-    name = key if sub is None else f"{key}.{sub}"
-    if item is not None and not _finite(item):
-        raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a finite number or null")
-    low, high = bounds(f"recall@{sub}" if key == "recall_at_k" else name)
-    if item is not None and not low <= item <= high:
-        raise AggregateError(f"{where}: field {name!r} is {item!r:.60}, expected a number in [{low:g}, {high:g}]")
-
-
-def _check_metrics(row: dict[str, Any], where: str) -> None:
-    for key, value in row.items():
-        if key in IDENTITY or (key in TEXT_FIELDS and isinstance(value, str)):
-            continue
-        items = value.items() if isinstance(value, dict) else [(None, value)]
-        for sub, item in items:
-            _check_number(key, sub, item, where)
-
-
-#: the checks of `check_row`, in the order they run (the first failing one raises)
-ROW_CHECKS = (_check_identity, _check_headline, _check_queries, _check_recall_keys, _check_metrics)
-
-
-def check_row(row: Any, where: str) -> dict[str, Any]:
-    """``row`` if it is a result row: text identity columns, a finite ``max_f1``, a whole
-    ``n_queries`` >= 1 (it sizes the block bootstrap's segments), ``recall_at_k`` null or a
-    mapping from whole K >= 1, and every other field a finite number (inside [0, 1] for a
-    proportion), null, a mapping of those (``difficulty``) or one of `TEXT_FIELDS`; else
-    AggregateError naming ``where`` and the field (`ROW_CHECKS`, in order)."""
-    if not isinstance(row, dict):
-        raise AggregateError(f"{where}: a {type(row).__name__}, expected a result row (a JSON object)")
-    for check in ROW_CHECKS:
-        check(row, where)
-    return row
-
-
 def _read(folder: Path, name: str, parse) -> Any:
     try:
         return parse((folder / name).read_text())
@@ -141,15 +73,15 @@ def _read(folder: Path, name: str, parse) -> Any:
         raise AggregateError(f"{folder / name}: unreadable ({type(exc).__name__}: {exc})".splitlines()[0]) from None
 
 
-def curve_path(row: dict[str, Any]) -> str:
+def curve_path(row: ResultRow) -> str:
     """Where a run folder keeps the PR curve of a result row (relative to the folder)."""
-    return f"evaluations/{row['environment']}/{row['method']}/{row['direction']}/pr_curve.npz"
+    return f"evaluations/{row.environment}/{row.method}/{row.direction}/pr_curve.npz"
 
 
 def validate_run_folder(folder: Path) -> RunFolder:
     """Everything `vitaplace aggregate` reads from one run folder, validated: a completion
     record (`vitaplace.engine.outputs.completion`) that matches the resolved scenario, the manifest,
-    the results and every row's PR curve; each result row checked (`check_row`). Raises
+    the results and every row's PR curve; each result row parsed (`parse_row`). Raises
     AggregateError, one line naming the folder or the file (and field) at fault."""
     folder = Path(folder)
     missing = [name for name in REQUIRED if not (folder / name).is_file()]
@@ -169,7 +101,7 @@ def validate_run_folder(folder: Path) -> RunFolder:
         raise AggregateError(f"{folder / completion.SCENARIO}: not a scenario mapping")
     if not isinstance(rows, list) or not rows:
         raise AggregateError(f"{folder / 'results.json'}: holds no result rows, expected a non-empty list")
-    rows = [check_row(row, f"{folder / 'results.json'}: row {i}") for i, row in enumerate(rows)]
+    rows = [parse_row(row, f"{folder / 'results.json'}: row {i}", AggregateError) for i, row in enumerate(rows)]
     curves = [curve_path(row) for row in rows]
     wrong = completion.problem(folder, curves)
     if wrong:
@@ -180,7 +112,7 @@ def validate_run_folder(folder: Path) -> RunFolder:
         except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many kinds on a damaged file
             raise AggregateError(f"{folder / name}: unreadable PR curve ({type(exc).__name__}: {exc})".splitlines()[0]) from None
     seed = manifest["seed"]
-    return RunFolder(folder, seed, manifest["scenario"], scenario_identity(resolved), [{**r, "seed": seed} for r in rows])
+    return RunFolder(folder, seed, manifest["scenario"], scenario_identity(resolved), rows)
 
 
 def one_scenario(runs: Sequence[RunFolder]) -> dict[int, Path]:
@@ -223,7 +155,7 @@ def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Pa
             raise AggregateError("the run folders are in different parent folders: give --out")
         out = parents.pop()
     out = writable_dir(Path(out))
-    rows = [row for run in runs for row in run.rows]
+    rows = [row for run in runs for row in run.tagged()]
     info = {"scenario": first.scenario, "seeds": sorted(seen), "failed": {},
             "folders": {str(s): str(f) for s, f in sorted(seen.items())}}
     record = write_summary(out, rows, f"{first.scenario}: {len(seen)} seed(s)", info, seen)

@@ -150,7 +150,7 @@ def sensitivity_rows(runs: Sequence[RunFolder], taus: Sequence[float] = TAUS,
             if not path.is_file():
                 raise SensitivityError(f"{path}: missing; the evaluation's matrices are needed")
             check_recorded(run, [name])
-            identity = {"seed": run.seed, **{k: row[k] for k in ("environment", "method", "direction")}}
+            identity = {"seed": run.seed, "environment": row.environment, "method": row.method, "direction": row.direction}
             out += [{**identity, **scored} for scored in rescore(*load_evaluation(path, sequence_length), taus,
                                                                  heading_tolerances)]
     return out

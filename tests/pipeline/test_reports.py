@@ -237,14 +237,16 @@ def test_tracking_is_off_unless_asked_and_never_fails_a_run(tmp_path, monkeypatc
 
 
 def test_the_difficulty_table_shows_the_touch_pairs_and_older_rows_without_them():
+    from vitaplace.engine.outputs.rows import parse_row
     from vitaplace.engine.report.report import difficulty_table
 
     old = {"nearest_ref_median_m": 0.1, "nearest_ref_p90_m": 0.2, "nearest_ref_heading_median_deg": 5.0,
            "chance_r1": 0.1, "query_touch_share": 0.5, "reference_touch_share": 0.25}  # a run of an older version
     new = {**old, "query_longest_stay_share": 0.1, "reference_longest_stay_share": 0.2, "touch_both_share": 0.125,
            "touch_one_side_share": 0.5, "touch_correspondence": None}
-    rows = [{"environment": "E1", "direction": "query-to-reference", "difficulty": old},
-            {"environment": "E2", "direction": "query-to-reference", "difficulty": new}]
+    scores = {"method": "L", "n_queries": 4, "n_revisit": 2, "tau": 0.3, "max_f1": 0.5, "auc": 0.5}
+    rows = [parse_row({"environment": "E1", "direction": "query-to-reference", **scores, "difficulty": old}, "E1"),
+            parse_row({"environment": "E2", "direction": "query-to-reference", **scores, "difficulty": new}, "E2")]
     lines = difficulty_table(rows).splitlines()
     assert lines[0].endswith("| touch both sides % | touch one side % | touch correspondence % |")
     assert lines[2].endswith("| – | – | – | – | – |")  # longest stays and touch pairs: not measured then
