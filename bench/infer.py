@@ -45,27 +45,29 @@ import numpy as np
 from infer_diagnose import add_network_arguments, load, relative_distance
 from vitaplace.engine.network.backends import NumpyBackend
 from vitaplace.engine.network.pc import Network
-from vitaplace.engine.network.solver import InferenceConfig
+from vitaplace.engine.network.solver import Solver, make_solver
 
 
 @dataclass(frozen=True)
 class Setting:
     label: str
-    config: InferenceConfig
+    name: str  # the solver's name (`make_solver`)
+    solver: Solver
+    prior: float
     cap: int
 
 
 def settings(solvers: list[str], priors: list[float], rtols: list[float], cap: int) -> list[Setting]:
-    out = [Setting("gd, paper's rule", InferenceConfig(), 300)]
+    out = [Setting("gd, paper's rule", "gd", make_solver("gd"), 0.0, 300)]
     for prior in priors:
         if prior:
-            out.append(Setting(f"gd, prior {prior:g}", InferenceConfig(prior=prior), 300))
-        for solver in solvers:
-            if solver == "preconditioned" and not prior:
+            out.append(Setting(f"gd, prior {prior:g}", "gd", make_solver("gd"), prior, 300))
+        for name in solvers:
+            if make_solver(name).needs_prior and not prior:
                 continue  # its preconditioners need the prior (docs/MUPNET.md)
             for rtol in rtols:
-                out.append(Setting(f"{solver}, prior {prior:g}, rtol {rtol:g}, cap {cap}",
-                                   InferenceConfig(solver=solver, prior=prior, rtol=rtol), cap))
+                out.append(Setting(f"{name}, prior {prior:g}, rtol {rtol:g}, cap {cap}", name,
+                                   make_solver(name, rtol=rtol), prior, cap))
     return out
 
 
@@ -76,11 +78,11 @@ def float64_copy(net: Network) -> Network:
     return copy
 
 
-def reference(net64: Network, inputs, solver: str, prior: float, cap: int):
+def reference(net64: Network, inputs, name: str, prior: float, cap: int):
     off = {e.name: 0.0 for e in net64.edges}
     x = {m: v.astype(np.float64) for m, v in inputs.items()}
     return net64.infer(x, cap, thresholds=off, batch_size=len(next(iter(x.values()))),
-                       inference=InferenceConfig(solver=solver, prior=prior, rtol=1e-9))
+                       solver=make_solver(name, rtol=1e-9), latent_prior=prior)
 
 
 def gemm_seconds_per_step(net: Network, inputs, batch: int) -> float:
@@ -132,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
 
     net64 = float64_copy(net)
     refs = {}  # per (solver, prior): a point of the same energy that the same solver reaches
-    for key in sorted({(s.config.solver, s.config.prior) for s in todo if s.config.solver != "gd"}):
+    for key in sorted({(s.name, s.prior) for s in todo if s.name != "gd"}):
         t0 = time.perf_counter()
         refs[key] = reference(net64, inputs, *key, args.reference_steps)
         print(f"reference, {key[0]}, prior {key[1]:g}: {time.perf_counter() - t0:.0f} s, median "
@@ -151,7 +153,8 @@ def main(argv: list[str] | None = None) -> int:
         gemm.append(gemm_seconds_per_step(net, inputs, batch))
         for s in todo:
             t0 = time.perf_counter()
-            results[s.label] = net.infer(inputs, s.cap, batch_size=args.batch_size, inference=s.config)
+            results[s.label] = net.infer(inputs, s.cap, batch_size=args.batch_size, solver=s.solver,
+                                         latent_prior=s.prior)
             walls[s.label].append(time.perf_counter() - t0)
     gemm_step = float(np.median(gemm))
 
@@ -159,11 +162,11 @@ def main(argv: list[str] | None = None) -> int:
     for s in todo:
         r = results[s.label]
         wall = float(np.median(walls[s.label]))
-        ref = refs.get((s.config.solver, s.config.prior))
+        ref = refs.get((s.name, s.prior))
         dist = (relative_distance({n: r.latents[n].astype(np.float64) for n in nodes},
                                   {n: ref.latents[n] for n in nodes}) if ref is not None else np.full(n, np.nan))
         rows.append({
-            "setting": s.label, "solver": s.config.solver, "prior": s.config.prior, "rtol": s.config.rtol,
+            "setting": s.label, "solver": s.name, "prior": s.prior, "rtol": s.solver.rtol,
             "cap": s.cap, "wall_s": wall, "steps_median": float(np.median(r.steps_per_sample)),
             "steps_max": int(r.steps_per_sample.max()),
             "sample_steps_per_s": float(r.steps_per_sample.sum() / wall),

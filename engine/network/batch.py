@@ -9,14 +9,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from vitaplace.engine.base.errors import UserError
-
-if TYPE_CHECKING:
-    from vitaplace.engine.network.solver import Solver
+from vitaplace.engine.network.structure import NetworkView
 
 LATENT_INIT = 0.1
 
@@ -31,16 +29,17 @@ class BatchState:
     active mask and step counts of the samples.
 
     `predict_all` computes eq. 1-2, `latent_step` and `weight_step` apply eq. 3 and eq. 4;
-    `minibatch` (training) and `inference_steps` (test time) are built from these and only
-    launch work on the backend, so each can be captured once and replayed.
+    `minibatch` (training) and a solver's steps (test time, `vitaplace.engine.network.solver`)
+    are built from these and only launch work on the backend, so each can be captured once
+    and replayed.
     """
 
-    def __init__(self, net: Any, batch: int, modalities: Sequence[str]) -> None:  # net: the Network
+    def __init__(self, net: NetworkView, batch: int, modalities: Sequence[str]) -> None:
         be = net.backend
         self.net, self.be, self.batch = net, be, batch
         self.nodes = net.latent_nodes(modalities)
         self.edges = net.active_edges(modalities)
-        self.weights = net._device_weight_handles()
+        self.weights = net.device_weights()
         self.Y = {node: be.empty((batch, net.sizes[node])) for node in self.nodes}
         self.X = {net.input_node(m): be.empty((batch, net.sizes[net.input_node(m)])) for m in modalities}
         self.E = {e.name: be.empty((batch, net.sizes[e.lower])) for e in self.edges}
@@ -58,8 +57,6 @@ class BatchState:
         self.edge_above = {e.lower: e.name for e in self.edges}
         #: lambda of the Gaussian prior on the latents (energy + lambda / 2 ||Y||^2; 0: none)
         self.prior = 0.0
-        #: the test-time solver when it is not the paper's loop (`start_inference`)
-        self.solver: Solver | None = None
         # The top-down term (+2 E_above) of a node is applied once, with its first edge below.
         self.first_below = {e.upper: e.name for e in reversed(self.edges)}
 
@@ -71,7 +68,7 @@ class BatchState:
             host = latents[node] if latents is not None else np.full((self.batch, self.net.sizes[node]), LATENT_INIT)
             self.be.upload(np.asarray(host), y)
 
-    def _node(self, name: str):
+    def _node(self, name: str) -> Any:
         return self.Y[name] if name in self.Y else self.X[name]
 
     def predict_all(self, energy: bool = True) -> None:
@@ -88,12 +85,12 @@ class BatchState:
         sums = self.be.download(self.R).sum(axis=1)
         return {e.name: float(s) for e, s in zip(self.edges, sums)}
 
-    def latent_step(self, mask=None) -> None:
+    def latent_step(self, mask: Any | None = None) -> None:
         """Y <- Y - eta_y dF/dY for every node (eq. 3, and the prior's lambda Y), all from
         the errors of one predict_all; only the rows where ``mask`` is non-zero, when given."""
         self.descend(self.Y, self.net.eta_y, mask)
 
-    def descend(self, targets: Mapping[str, object], eta: Mapping[str, float], mask=None) -> None:
+    def descend(self, targets: Mapping[str, Any], eta: Mapping[str, float], mask: Any | None = None) -> None:
         """``targets[node] += -eta[node] dF/dY`` (eq. 3, with ``-eta lambda Y`` under a prior)
         on the rows of ``mask``; the targets are the latents themselves or step buffers."""
         if self.prior:
@@ -142,8 +139,8 @@ class BatchState:
 
     def start_inference(self, inputs: Mapping[str, object], carried: Mapping[str, np.ndarray] | None = None) -> None:
         """Rows ``index`` of the resident inputs, every sample active, latents at 0.1 and no
-        steps taken; or, with ``carried`` (`carry` of a larger batch), each sample's latents,
-        steps and solver state where it left them, so its steps go on as if uninterrupted."""
+        steps taken; or, with ``carried`` (`carry` of a larger batch), each sample's latents
+        and steps where it left them (its solver's state: `BatchSolver.start`)."""
         for node, x in self.X.items():
             self.be.gather_rows(inputs[node], self.index, x)
         for node, y in self.Y.items():
@@ -157,28 +154,13 @@ class BatchState:
         else:
             self.be.upload(carried["steps"], self.steps)
         self.predict_all()
-        if self.solver is not None:
-            self.solver.start(self, carried)
 
     def carry(self, keep: np.ndarray) -> dict[str, np.ndarray]:
-        """Host copies of the rows ``keep`` (a boolean mask) of all a sample's inference
-        goes on from: its latents, its steps and the solver's per-sample state."""
+        """Host copies of the rows ``keep`` (a boolean mask) of the latents and steps a
+        sample's inference goes on from (its solver's state: `BatchSolver.carry`)."""
         rows = {f"Y/{node}": self.be.download(y)[keep] for node, y in self.Y.items()}
         rows["steps"] = self.be.download(self.steps)[keep]
-        if self.solver is not None:
-            rows.update({name: self.be.download(buf)[keep] for name, buf in self.solver.per_sample().items()})
         return rows
-
-    def inference_steps(self, count: int) -> None:
-        """``count`` test-time steps with per-sample stopping (samples under their limits
-        are frozen and no longer counted)."""
-        for _ in range(count):
-            if self.solver is not None:
-                self.solver.step(self)
-                continue
-            self.be.stop_converged(self.R, self.limits, self.active, self.steps)
-            self.latent_step(self.active)
-            self.predict_all()
 
     def latent_change(self) -> np.ndarray:
         """Per sample of the last `minibatch`, ||Y_after - Y_before|| / ||Y_after|| over

@@ -1,9 +1,9 @@
 """Test-time inference of a batch of samples with frozen weights, compacting as samples stop.
 
-Each sample stops on its own (`BatchState.inference_steps`). Every `STEPS_PER_CHECK` steps
+Each sample stops on its own (`BatchSolver.steps`). Every `STEPS_PER_CHECK` steps
 the batch is looked at; when enough samples have stopped (`COMPACT_BELOW`), their results
 are taken out and the samples still active go on in a batch of their size, carrying their
-latents, steps and solver state (`BatchState.carry`), so each sample's steps are those it
+latents, steps and solver state (`BatchSolver.carry`), so each sample's steps are those it
 would have taken uninterrupted and a batch costs about the sum of its samples' steps rather
 than its slowest sample's times its size.
 """
@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 
 from vitaplace.engine.network.batch import BatchState
-from vitaplace.engine.network.solver import InferenceConfig, Solver
+from vitaplace.engine.network.solver import BatchSolver, Solver
+from vitaplace.engine.network.structure import NetworkView
 
 #: Inference steps per captured chunk between two looks at which samples are still active.
 STEPS_PER_CHECK = 10
@@ -26,13 +27,15 @@ STEPS_PER_CHECK = 10
 COMPACT_BELOW = 0.9
 
 
-class Inference:
-    """The results of one `Network.infer` call, filled batch by batch (`run`)."""
+class InferredSamples:
+    """The per-sample results of one `Network.infer` call - latents, steps, settled flags and
+    each edge's mean squared error - filled batch by batch (`infer`) by ``solver`` under the
+    latent prior ``prior``."""
 
-    def __init__(self, net: Any, present: Sequence[str], n: int, config: InferenceConfig,
-                 node_steps: Mapping[str, Any], threshold: np.ndarray, sample_ids: np.ndarray) -> None:
-        self.net, self.be, self.present, self.config = net, net.backend, present, config
-        self.node_steps = node_steps  # per latent node: eta_y, 1 / L, or the preconditioner's handle
+    def __init__(self, net: NetworkView, present: Sequence[str], n: int, solver: Solver, prior: float,
+                 threshold: np.ndarray, sample_ids: np.ndarray) -> None:
+        self.net, self.be, self.present, self.solver, self.prior = net, net.backend, present, solver, prior
+        self.node_steps = solver.node_steps(net, present, prior)  # per latent node: eta_y, 1 / L, or P's handle
         self.edges = net.active_edges(present)
         self.width = np.array([net.sizes[e.lower] for e in self.edges], dtype=np.float64)
         self.limits = threshold * self.width
@@ -41,15 +44,16 @@ class Inference:
         self.steps = np.zeros(n, dtype=np.int64)
         self.settled = np.zeros(n, dtype=bool)
         self.mse = np.zeros((len(self.edges), n))
-        self._full: dict[int, tuple[BatchState, Callable[[], None]]] = {}
+        self._full: dict[int, tuple[BatchSolver, Callable[[], None]]] = {}
 
-    def _state(self, size: int) -> tuple[BatchState, Callable[[], None]]:
-        """A batch of ``size`` set up for this inference, and its captured chunk of steps."""
-        state = self.net.batch_state(size, self.present)
-        state.prior = self.config.prior
-        state.solver = None if self.config.paper else Solver(state, self.config, self.node_steps)
+    def _batch(self, size: int) -> tuple[BatchSolver, Callable[[], None]]:
+        """The solver's steps on a batch of ``size`` set up for this inference, and its
+        captured chunk of steps."""
+        state = BatchState(self.net, size, self.present)
+        state.prior = self.prior
+        batch = self.solver.bind(state, self.node_steps)
         self.be.upload(self.limits, state.limits)
-        return state, self.be.capture(functools.partial(state.inference_steps, STEPS_PER_CHECK))
+        return batch, self.be.capture(functools.partial(batch.steps, STEPS_PER_CHECK))
 
     def _record(self, state: BatchState, rows: np.ndarray) -> None:
         """The state's samples (``rows`` of the inputs) into the results; a NetworkError
@@ -59,25 +63,25 @@ class Inference:
         if bad.any():
             where = self.ids[rows[bad]]
             energy = {e.name: float(row_energy[k, bad].sum()) for k, e in enumerate(self.edges)}
-            state.check_finite(energy, f"inference of samples {where.min()}-{where.max()}", self.config.remedy)
+            state.check_finite(energy, f"inference of samples {where.min()}-{where.max()}", self.solver.remedy)
         self.steps[rows] = self.be.download(state.steps)
         self.settled[rows] = self.be.download(state.active) == 0
         self.mse[:, rows] = row_energy / self.width[:, None]
         for node, values in state.download_latents().items():
             self.latents[node][rows] = values
 
-    def run(self, rows: np.ndarray, resident_x: Mapping[str, Any], max_steps: int,
-            on_progress: Callable[[int], None] | None) -> None:
+    def infer(self, rows: np.ndarray, resident_x: Mapping[str, Any], max_steps: int,
+              on_progress: Callable[[int], None] | None) -> None:
         """Infer the samples ``rows`` of the resident inputs, ``on_progress(k)`` as k more stop."""
         be = self.be
         if len(rows) not in self._full:  # full-size batches are reused (a call has at most two sizes)
-            self._full[len(rows)] = self._state(len(rows))
-        state, chunk = self._full[len(rows)]
-        be.upload(rows.astype(np.int32), state.index)
-        state.start_inference(resident_x)
+            self._full[len(rows)] = self._batch(len(rows))
+        batch, chunk = self._full[len(rows)]
+        be.upload(rows.astype(np.int32), batch.state.index)
+        batch.start(resident_x)
         done = reported = 0  # reported: samples of this state already passed to on_progress
         while True:
-            active = be.download(state.active) != 0
+            active = be.download(batch.state.active) != 0
             left = int(active.sum())
             if on_progress is not None and len(rows) - left > reported:
                 on_progress(len(rows) - left - reported)
@@ -86,18 +90,18 @@ class Inference:
                 break
             if left <= COMPACT_BELOW * len(rows):
                 reported = 0
-                self._record(state, rows)
-                carried = state.carry(active)
+                self._record(batch.state, rows)
+                carried = batch.carry(active)
                 rows = rows[active]
-                state, chunk = self._state(len(rows))
-                be.upload(rows.astype(np.int32), state.index)
-                state.start_inference(resident_x, carried)
+                batch, chunk = self._batch(len(rows))
+                be.upload(rows.astype(np.int32), batch.state.index)
+                batch.start(resident_x, carried)
             todo = min(STEPS_PER_CHECK, max_steps - done)
             if todo == STEPS_PER_CHECK:
                 chunk()
             else:
-                state.inference_steps(todo)
+                batch.steps(todo)
             done += todo
-        self._record(state, rows)
+        self._record(batch.state, rows)
         if on_progress is not None and left:
             on_progress(left)  # the rest stopped at the step cap

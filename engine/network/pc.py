@@ -23,92 +23,21 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from vitaplace.engine.base.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.network.backends import Backend
 from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
-from vitaplace.engine.network.inference import Inference
+from vitaplace.engine.network.inference import InferredSamples
 from vitaplace.engine.network.selection import get_backend
-from vitaplace.engine.network.solver import InferenceConfig, curvature_preconditioners, curvature_steps
+from vitaplace.engine.network.solver import GradientDescent, Solver
+from vitaplace.engine.network.structure import Edge, JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
 
-__all__ = ["LATENT_INIT", "BatchState", "InferenceConfig", "Network", "NetworkError"]
+__all__ = ["LATENT_INIT", "BatchState", "Edge", "JointConfig", "ModalityConfig", "Network", "NetworkConfig",
+           "NetworkError", "TrainingConfig"]
 
 FORMAT_VERSION = 1
-
-
-@dataclass(frozen=True)
-class ModalityConfig:
-    """One sensory modality: its input size, the latent layer sizes above it (bottom first),
-    and the latent step size, weight step size and test-time stop threshold of its layers."""
-
-    input_size: int
-    layers: list[int]
-    eta_y: float
-    eta_w: float
-    threshold: float
-
-
-@dataclass(frozen=True)
-class JointConfig:
-    """The joint layer: its size, step sizes and the test-time threshold of its edges."""
-
-    size: int
-    eta_y: float
-    eta_w: float
-    threshold: float
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    """Architecture and step sizes. The settings and their defaults and checks are the MuPNet
-    plugin's parameter schema (``MupnetParams.network_config``); these are plain containers."""
-
-    modalities: dict[str, ModalityConfig]
-    joint: JointConfig
-    activation: str
-    slope: float
-
-    @classmethod
-    def from_dict(cls, data: Mapping) -> NetworkConfig:
-        """The configuration from its `asdict` form (every key required)."""
-        return cls(
-            modalities={m: ModalityConfig(**mc) for m, mc in data["modalities"].items()},
-            joint=JointConfig(**data["joint"]),
-            activation=data["activation"],
-            slope=data["slope"],
-        )
-
-
-@dataclass(frozen=True)
-class TrainingConfig:
-    """Passes over the data (the maximum when converging: stop once the epoch energy fell by
-    less than ``converge_tol`` over ``converge_window`` epochs, 0: off), minibatch size, T
-    latent steps per minibatch, and the seed of the random minibatch order. Settings and
-    defaults: ``MupnetParams.training_config``."""
-
-    epochs: int
-    batch_size: int
-    inference_steps: int
-    seed: int
-    converge_window: int
-    converge_tol: float
-    #: lambda of the Gaussian prior on the latents in the inference steps (0: the paper's energy)
-    latent_prior: float
-
-
-@dataclass
-class Edge:
-    """A prediction from node ``upper`` to node ``lower``; named by the error it produces."""
-
-    name: str
-    upper: str
-    lower: str
-    modality: str
-    eta_w: float
-    threshold: float
 
 
 @dataclass
@@ -255,7 +184,8 @@ class Network:
             for name in weights:
                 self.backend.upload_weights(self.weights[name], self._device_weights[name])
 
-    def _device_weight_handles(self) -> dict[str, object]:
+    def device_weights(self) -> dict[str, object]:
+        """The backend's handles of the weights (made on first use; `set_weights` updates them in place)."""
         if self._device_weights is None:
             self._device_weights = {name: self.backend.weights(w) for name, w in self.weights.items()}
         return self._device_weights
@@ -264,6 +194,11 @@ class Network:
         if self._device_weights is not None:
             for name, handle in self._device_weights.items():
                 self.weights[name] = self.backend.weights_to_host(handle)
+
+    def host_weights(self) -> dict[str, np.ndarray]:
+        """The weights as host arrays, copied back from the backend first."""
+        self._sync_weights_to_host()
+        return self.weights
 
     def batch_state(self, batch: int, modalities: Sequence[str] | None = None) -> BatchState:
         """Buffers for a minibatch of ``batch`` samples of the given (default: all) modalities."""
@@ -356,45 +291,37 @@ class Network:
         thresholds: Mapping[str, float] | None = None,
         batch_size: int = 500,
         on_progress: Callable[[int], None] | None = None,
-        inference: InferenceConfig | None = None,
+        solver: Solver | None = None,
+        latent_prior: float = 0.0,
         sample_ids: np.ndarray | None = None,
     ) -> InferenceResult:
         """Latents for (scaled) inputs with frozen weights, from 0.1, batch by batch.
 
         Each sample stops on its own, as soon as every active edge's mean squared error
-        for that sample is below its threshold (or ``inference``'s relative rule holds), or
+        for that sample is below its threshold (or ``solver``'s relative rule holds), or
         after ``max_steps`` steps; the others in its batch go on, and whenever samples have
         stopped (`vitaplace.engine.network.inference`) the batch is compacted to those
         still active, so a batch costs the sum of its samples' steps rather than its slowest
-        sample's times its size. ``inference`` picks the solver and the prior
-        (`vitaplace.engine.network.solver`; default: the paper's plain steps). Missing
+        sample's times its size. ``solver`` takes the steps (`vitaplace.engine.network.solver`;
+        default: the paper's plain steps) on the energy with the Gaussian prior
+        ``latent_prior`` on the latents (0: the paper's energy). Missing
         modalities are left out (their errors do not reach the joint layer).
         ``on_progress(k)`` is called whenever k more samples are done, for progress bars;
         ``sample_ids`` (default 0..n-1) number the samples in a divergence's message.
         """
-        config = inference or InferenceConfig()
         present, n = self._check_inputs(inputs)
         edges = self.active_edges(present)
-        node_steps: Mapping[str, Any] = self.eta_y  # each latent node's step: eta_y, 1 / L, or the bound's inverse
-        if config.solver != "gd":
-            self._sync_weights_to_host()
-            bound = (self.weights, edges, self.latent_nodes(present), self.config.activation, self.config.slope,
-                     config.prior)
-            if config.solver == "preconditioned":
-                node_steps = {node: self.backend.weights(p) for node, p in curvature_preconditioners(*bound).items()}
-            else:
-                node_steps = curvature_steps(*bound)
         limits = {e.name: e.threshold for e in edges}
         limits.update(thresholds or {})
         threshold = np.array([limits[e.name] for e in edges], dtype=np.float64)
         ids = np.arange(n) if sample_ids is None else np.asarray(sample_ids)
-        run = Inference(self, present, n, config, node_steps, threshold, ids)
+        samples = InferredSamples(self, present, n, solver or GradientDescent(), latent_prior, threshold, ids)
         resident_x = {self.input_node(m): self.backend.to_device(inputs[m]) for m in present}
         for start in range(0, n, batch_size):
-            run.run(np.arange(start, min(start + batch_size, n)), resident_x, max_steps, on_progress)
-        stopped = np.all(run.mse < threshold[:, None], axis=0)
-        means = {e.name: float(run.mse[k].mean()) for k, e in enumerate(edges)}
-        return InferenceResult(run.latents, means, run.steps, stopped, run.settled)
+            samples.infer(np.arange(start, min(start + batch_size, n)), resident_x, max_steps, on_progress)
+        stopped = np.all(samples.mse < threshold[:, None], axis=0)
+        means = {e.name: float(samples.mse[k].mean()) for k, e in enumerate(edges)}
+        return InferenceResult(samples.latents, means, samples.steps, stopped, samples.settled)
 
     def reconstruct(self, joint: np.ndarray, modality: str) -> np.ndarray:
         """Top-down prediction of a modality's scaled input from joint latents (host numpy)."""

@@ -5,14 +5,15 @@ predictive coding (``prior`` = lambda; 0: the paper's energy),
 
     F_lambda(Y) = sum_edges ||E||^2 + lambda / 2 sum_latents ||Y||^2,
 
-is minimised per sample by
+is minimised per sample by a `Solver`, the value `Network.infer` is given (`make_solver` builds
+one from the MuPNet plugin's ``inference_solver``, the one place a name becomes a solver):
 
-* ``gd`` (the paper's): ``Y <- Y - eta_y dF/dY`` with each layer's ``eta_y``;
-* ``nesterov``: Nesterov momentum ``beta`` with restarts, each layer's step 1 / L, L the
+* ``gd`` (the paper's, `GradientDescent`): ``Y <- Y - eta_y dF/dY`` with each layer's ``eta_y``;
+* ``nesterov`` (`Nesterov`): Nesterov momentum ``beta`` with restarts, each layer's step 1 / L, L the
   Gauss-Newton bound of its block of the Hessian (`curvature_steps`), in the form whose
   gradient is taken at the iterate itself: ``D = -s eta dF/dY``, ``V <- b V + D``,
   ``Y <- Y + D + beta V``;
-* ``preconditioned``: the same momentum, restarts and step control, with each layer's step
+* ``preconditioned`` (`Preconditioned`): the same momentum, restarts and step control, with each layer's step
   the inverse of the Gauss-Newton bound of its block as a matrix rather than its largest
   eigenvalue (`curvature_preconditioners`): ``D = -s (dF/dY) P``. A layer whose weights have a
   few large singular values (the inputs' common mode) is then not held to the step of its
@@ -36,39 +37,20 @@ under the thresholds.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, get_args
+from typing import Any, ClassVar, Literal, get_args
 
 import numpy as np
 
+from vitaplace.engine.network.batch import BatchState
+from vitaplace.engine.network.structure import NetworkView
+
+#: the names of the solvers (the MuPNet plugin's ``inference_solver``; `make_solver`)
 SolverName = Literal["gd", "nesterov", "preconditioned"]
-SOLVERS: tuple[str, ...] = get_args(SolverName)
 #: largest phi' of each activation (the Gauss-Newton curvature bound's gain)
 _MAX_GAIN = {"leaky_relu": None, "tanh": 1.0, "sigmoid": 0.25, "linear": 1.0}
-
-
-@dataclass(frozen=True)
-class InferenceConfig:
-    """How test-time inference runs (the MuPNet plugin's ``inference_solver``,
-    ``inference_momentum``, ``inference_rtol`` and ``latent_prior``; defaults: the paper's)."""
-
-    solver: SolverName = "gd"
-    momentum: float = 0.9
-    rtol: float | None = None
-    prior: float = 0.0
-
-    @property
-    def paper(self) -> bool:
-        """The paper's loop exactly: plain steps at eta_y, stopped by the thresholds alone."""
-        return self.solver == "gd" and self.rtol is None
-
-    @property
-    def remedy(self) -> str:
-        """What to change when this inference diverges."""
-        if self.solver != "gd":
-            return f"lower inference_momentum ({self.momentum}) or use inference_solver gd"
-        return "lower the latent step sizes (eta_y)"
 
 
 def _largest_gain(activation: str, slope: float) -> float:
@@ -126,35 +108,71 @@ def curvature_preconditioners(
     return out
 
 
-class Solver:
-    """The buffers and steps of a solver other than the paper's loop on one `BatchState` (`vitaplace.engine.network.batch`)."""
+class BatchSolver:
+    """A solver's steps on one `BatchState` (`Solver.bind`). This one is the paper's loop:
+    plain steps at eta_y, a sample stopped by the thresholds alone, no state of its own."""
 
-    def __init__(self, state: Any, config: InferenceConfig, steps: Mapping[str, Any]) -> None:
-        """``steps``: per latent node its step, a number (``nesterov``, `curvature_steps`) or
-        the backend's weight handle of its preconditioner (``preconditioned``,
-        `curvature_preconditioners`)."""
+    def __init__(self, state: BatchState) -> None:
+        self.state = state
+
+    def per_sample(self) -> dict[str, Any]:
+        """The buffers that carry a sample's solver state from one step to the next (the
+        rest is recomputed at each step)."""
+        return {}
+
+    def start(self, inputs: Mapping[str, object], carried: Mapping[str, np.ndarray] | None = None) -> None:
+        """`BatchState.start_inference`; with ``carried`` (`carry` of a larger batch) each
+        sample's solver state too, so its steps go on as if uninterrupted."""
+        self.state.start_inference(inputs, carried)
+
+    def carry(self, keep: np.ndarray) -> dict[str, np.ndarray]:
+        """Host copies of the rows ``keep`` (a boolean mask) of all a sample's inference goes
+        on from: its latents and steps (`BatchState.carry`) and its solver state."""
+        rows = self.state.carry(keep)
+        rows.update({name: self.state.be.download(buf)[keep] for name, buf in self.per_sample().items()})
+        return rows
+
+    def step(self) -> None:
+        """One step of every active sample, after the stopping test on the current state."""
+        state = self.state
+        state.be.stop_converged(state.R, state.limits, state.active, state.steps)
+        state.latent_step(state.active)
+        state.predict_all()
+
+    def steps(self, count: int) -> None:
+        """``count`` test-time steps with per-sample stopping (samples that stopped are frozen
+        and no longer counted); only launches work, so it can be captured."""
+        for _ in range(count):
+            self.step()
+
+
+class ScaledSteps(BatchSolver):
+    """The steps ``D`` of a solver other than the paper's loop, with the relative stopping
+    rule: each layer's scalar step ``eta`` or its ``preconditioners``, and Nesterov momentum
+    ``momentum`` with restarts and step halving (None: plain steps)."""
+
+    def __init__(self, state: BatchState, eta: Mapping[str, float], *, rtol: float | None,
+                 momentum: float | None = None, preconditioners: Mapping[str, Any] | None = None) -> None:
+        """``preconditioners``: per latent node the backend's weight handle of its
+        `curvature_preconditioners` matrix (then ``eta`` is 1)."""
+        super().__init__(state)
         be = state.be
-        self.config = config
-        self.momentum = config.solver != "gd"
-        self.rtol2 = 0.0 if config.rtol is None else float(config.rtol) ** 2
+        self.momentum = momentum
+        self.rtol2 = 0.0 if rtol is None else float(rtol) ** 2
         shapes = {node: (state.batch, state.net.sizes[node]) for node in state.nodes}
         self.D = {node: be.empty(shape) for node, shape in shapes.items()}
-        self.V = {node: be.empty(shape) for node, shape in shapes.items()} if self.momentum else {}
-        if config.solver == "preconditioned":
-            self.P = dict(steps)
-            self.eta = dict.fromkeys(steps, 1.0)
-            #: -dF/dY, which the preconditioners multiply
-            self.descent = {node: be.empty(shape) for node, shape in shapes.items()}
-        else:
-            self.P, self.eta, self.descent = {}, dict(steps), self.D
+        self.V = {node: be.empty(shape) for node, shape in shapes.items()} if momentum is not None else {}
+        self.P, self.eta = dict(preconditioners or {}), dict(eta)
+        #: -dF/dY, which the preconditioners multiply (without them, the step itself)
+        self.descent = {node: be.empty(shape) for node, shape in shapes.items()} if self.P else self.D
         rows = {name: be.empty((state.batch,), np.float64) for name in ("gnorm", "g0", "scale", "uphill")}
         self.gnorm, self.g0, self.scale, self.uphill = rows.values()
         self.plain = be.empty((state.batch,), np.int32)
 
-    def _step_vector(self, state: Any, norm) -> None:
+    def _step_vector(self, norm: Any) -> None:
         """D = -eta dF/dY, or -(dF/dY) P (rows of the active samples; 0 elsewhere), and its
         squared norm per sample into ``norm``."""
-        be = state.be
+        state, be = self.state, self.state.be
         for d in self.descent.values():
             be.fill(d, 0.0)
         state.descend(self.descent, self.eta, state.active)
@@ -166,17 +184,15 @@ class Solver:
             be.row_dot(d, d, 1.0, norm)
 
     def per_sample(self) -> dict[str, Any]:
-        """The buffers that carry a sample's solver state from one step to the next (the
-        rest is recomputed at each step)."""
         rows = {"g0": self.g0, "scale": self.scale, "plain": self.plain}
         rows.update({f"V/{node}": v for node, v in self.V.items()})
         return rows
 
-    def start(self, state: Any, carried: Mapping[str, np.ndarray] | None = None) -> None:
+    def start(self, inputs: Mapping[str, object], carried: Mapping[str, np.ndarray] | None = None) -> None:
         """After the first prediction: no momentum, full steps, the first step's norm into
-        ``g0`` (the relative rule's reference); or the per-sample state in ``carried``
-        (`BatchState.carry`)."""
-        be = state.be
+        ``g0`` (the relative rule's reference); or the per-sample state in ``carried``."""
+        super().start(inputs, carried)
+        be = self.state.be
         if carried is not None:
             for name, buf in self.per_sample().items():
                 be.upload(carried[name], buf)
@@ -185,28 +201,118 @@ class Solver:
             be.fill(v, 0.0)
         be.fill(self.scale, 1.0)
         be.fill(self.plain, 1)
-        self._step_vector(state, self.g0)
+        self._step_vector(self.g0)
 
-    def _control(self, state: Any) -> None:
+    def _control(self) -> None:
         """Nesterov's restart test and step control (`solver_kernels.restart_control`)."""
-        be = state.be
+        be = self.state.be
         be.fill(self.uphill, 0.0)
         for node, d in self.descent.items():  # dF/dY . V = -(descent . V) / eta
             be.row_dot(d, self.V[node], -1.0 / self.eta[node], self.uphill)
-        be.restart_control(self.scale, self.plain, self.uphill, state.active)
+        be.restart_control(self.scale, self.plain, self.uphill, self.state.active)
 
-    def step(self, state: Any) -> None:
-        """One step of every active sample, after the stopping test on the current state."""
-        be = state.be
-        self._step_vector(state, self.gnorm)
-        if self.momentum:
-            self._control(state)
+    def step(self) -> None:
+        state, be = self.state, self.state.be
+        self._step_vector(self.gnorm)
+        if self.momentum is not None:
+            self._control()
         be.stop_settled(state.R, state.limits, self.gnorm, self.scale, self.g0, self.rtol2, state.active, state.steps)
-        if self.momentum:
+        if self.momentum is not None:
             for node, d in self.D.items():
-                be.momentum_step(state.Y[node], self.V[node], d, self.config.momentum, self.uphill, self.scale,
-                                 state.active)
+                be.momentum_step(state.Y[node], self.V[node], d, self.momentum, self.uphill, self.scale, state.active)
         else:
             for node, d in self.D.items():
                 be.scale_add(state.Y[node], d, 1.0, state.active)
         state.predict_all()
+
+
+@dataclass(frozen=True, kw_only=True)
+class Solver(ABC):
+    """A test-time solver of the latents, the value `Network.infer` is given: its settings,
+    each layer's step (`node_steps`, once per call) and its steps on a batch (`bind`).
+    ``rtol``: the relative stopping rule (None: off). `make_solver` builds one by name."""
+
+    rtol: float | None = None
+    #: whether its steps need a latent prior > 0 (the curvature bound is singular without)
+    needs_prior: ClassVar[bool] = False
+
+    @abstractmethod
+    def node_steps(self, net: NetworkView, present: Sequence[str], prior: float) -> Mapping[str, Any]:
+        """Per latent node of the modalities ``present`` its step (under the latent prior
+        ``prior``): a number or a backend handle."""
+
+    @abstractmethod
+    def bind(self, state: BatchState, node_steps: Mapping[str, Any]) -> BatchSolver:
+        """The solver's steps on ``state`` with the steps of `node_steps`."""
+
+    @property
+    @abstractmethod
+    def remedy(self) -> str:
+        """What to change when this inference diverges."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class GradientDescent(Solver):
+    """``gd``: plain steps at each layer's eta_y; without ``rtol``, the paper's loop exactly."""
+
+    def node_steps(self, net: NetworkView, present: Sequence[str], prior: float) -> Mapping[str, Any]:
+        return net.eta_y
+
+    def bind(self, state: BatchState, node_steps: Mapping[str, Any]) -> BatchSolver:
+        return BatchSolver(state) if self.rtol is None else ScaledSteps(state, node_steps, rtol=self.rtol)
+
+    @property
+    def remedy(self) -> str:
+        return "lower the latent step sizes (eta_y)"
+
+
+def _bound(net: NetworkView, present: Sequence[str], prior: float) -> tuple:
+    """The arguments of the curvature bounds (`curvature_steps`) of the modalities ``present``."""
+    weights = net.host_weights()
+    return weights, net.active_edges(present), net.latent_nodes(present), net.config.activation, net.config.slope, prior
+
+
+@dataclass(frozen=True, kw_only=True)
+class Nesterov(Solver):
+    """``nesterov``: momentum ``momentum`` with restarts, each layer's step 1 / L (`curvature_steps`)."""
+
+    momentum: float = 0.9
+
+    def node_steps(self, net: NetworkView, present: Sequence[str], prior: float) -> Mapping[str, Any]:
+        return curvature_steps(*_bound(net, present, prior))
+
+    def bind(self, state: BatchState, node_steps: Mapping[str, Any]) -> BatchSolver:
+        return ScaledSteps(state, node_steps, rtol=self.rtol, momentum=self.momentum)
+
+    @property
+    def remedy(self) -> str:
+        return f"lower inference_momentum ({self.momentum}) or use inference_solver gd"
+
+
+@dataclass(frozen=True, kw_only=True)
+class Preconditioned(Nesterov):
+    """``preconditioned``: the same momentum, each layer's step its bound's inverse as a
+    matrix (`curvature_preconditioners`, applied on the backend)."""
+
+    needs_prior: ClassVar[bool] = True
+
+    def node_steps(self, net: NetworkView, present: Sequence[str], prior: float) -> Mapping[str, Any]:
+        preconditioners = curvature_preconditioners(*_bound(net, present, prior))
+        return {node: net.backend.weights(p) for node, p in preconditioners.items()}
+
+    def bind(self, state: BatchState, node_steps: Mapping[str, Any]) -> BatchSolver:
+        return ScaledSteps(state, dict.fromkeys(node_steps, 1.0), rtol=self.rtol, momentum=self.momentum,
+                           preconditioners=node_steps)
+
+
+def make_solver(name: str, momentum: float = 0.9, rtol: float | None = None) -> Solver:
+    """The solver called ``name`` (the MuPNet plugin's ``inference_solver``), with the
+    momentum of the momentum solvers and the relative rule ``rtol``: the one place a name
+    becomes a solver."""
+    if name == "gd":
+        return GradientDescent(rtol=rtol)
+    if name == "nesterov":
+        return Nesterov(momentum=momentum, rtol=rtol)
+    if name == "preconditioned":
+        return Preconditioned(momentum=momentum, rtol=rtol)
+    raise ValueError(f"unknown inference solver {name!r}; expected {', '.join(get_args(SolverName))}")

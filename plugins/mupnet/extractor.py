@@ -34,10 +34,10 @@ from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.network.backends import BackendError, Precision
-from vitaplace.engine.network.selection import check_precision, get_backend
-from vitaplace.plugin import FeatureExtractor, Features, Run, warn_once
 from vitaplace.engine.network.pc import LATENT_INIT, JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
-from vitaplace.engine.network.solver import InferenceConfig, SolverName
+from vitaplace.engine.network.selection import check_precision, get_backend
+from vitaplace.engine.network.solver import Solver, SolverName, make_solver
+from vitaplace.plugin import FeatureExtractor, Features, Run, warn_once
 from vitaplace.plugins.mupnet.inputs import InputParams, TactileRange, raw_inputs, report_out_of_range
 
 log = logging.getLogger("vitaplace.mupnet")
@@ -150,15 +150,15 @@ class MupnetParams(ArchitectureParams):
             converge_window=self.converge_window, converge_tol=self.converge_tol, latent_prior=self.latent_prior,
         )
 
-    def inference_config(self) -> InferenceConfig:
-        """The engine's test-time inference configuration."""
-        return InferenceConfig(self.inference_solver, self.inference_momentum, self.inference_rtol, self.latent_prior)
+    def solver(self) -> Solver:
+        """The engine's test-time solver (`make_solver`); its energy's prior is ``latent_prior``."""
+        return make_solver(self.inference_solver, self.inference_momentum, self.inference_rtol)
 
     @pydantic.field_validator("inference_solver")
     @classmethod
-    def _preconditioners_exist(cls, value: str, info: pydantic.ValidationInfo) -> str:
-        if value == "preconditioned" and not info.data.get("latent_prior"):
-            raise ValueError("the preconditioned solver needs latent_prior > 0 (without the prior a layer's "
+    def _prior_where_needed(cls, value: str, info: pydantic.ValidationInfo) -> str:
+        if make_solver(value).needs_prior and not info.data.get("latent_prior"):
+            raise ValueError(f"the {value} solver needs latent_prior > 0 (without the prior a layer's "
                              "curvature bound can be singular)")
         return value
 
@@ -323,8 +323,8 @@ class MupnetExtractor(FeatureExtractor):
                 on_progress(len(index))
                 continue
             result = self.network.infer({m: inputs[m][index] for m in present}, max_steps=self.params.max_steps,
-                                        on_progress=on_progress, inference=self.params.inference_config(),
-                                        sample_ids=index)
+                                        on_progress=on_progress, solver=self.params.solver(),
+                                        latent_prior=self.params.latent_prior, sample_ids=index)
             latent[index], steps[index] = result.latents["joint"], result.steps_per_sample
             stopped[index], settled[index] = result.stopped, result.settled
         return latent, steps, stopped, settled

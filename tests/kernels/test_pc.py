@@ -13,8 +13,8 @@ from scipy.spatial.distance import cdist
 
 from conftest import cuda_present
 from vitaplace.engine.network.backends import NumpyBackend
-from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.pc import Network, NetworkError
+from vitaplace.engine.network.selection import get_backend
 
 #: The behavioural tests (inference lowers the energy, training lowers the error, samples stop
 #: on their own, ...) run on every backend: numpy, Warp on the CPU, Warp on CUDA (skipped
@@ -98,7 +98,7 @@ def test_latent_and_weight_gradients_match_finite_differences(activation):
                 changed[name][index] += sign * h
                 probe.set_weights(changed)
                 # set_weights stores float32; write the float64 perturbation into the backend copy.
-                probe.backend.upload_weights(changed[name], probe._device_weight_handles()[name])
+                probe.backend.upload_weights(changed[name], probe.device_weights()[name])
                 values.append(total_energy(probe, inputs, latents))
             numeric = (values[0] - values[1]) / (2 * h)
             assert analytic_dw[name][index] == pytest.approx(numeric, rel=1e-5, abs=1e-7), (name, index)

@@ -11,9 +11,16 @@ import pytest
 
 from conftest import cuda_present
 from vitaplace.engine.network.backends import NumpyBackend
-from vitaplace.engine.network.pc import InferenceConfig, Network
+from vitaplace.engine.network.pc import Network
 from vitaplace.engine.network.selection import get_backend
-from vitaplace.engine.network.solver import curvature_preconditioners, curvature_steps
+from vitaplace.engine.network.solver import (
+    GradientDescent,
+    Nesterov,
+    Preconditioned,
+    curvature_preconditioners,
+    curvature_steps,
+    make_solver,
+)
 from vitaplace.kernels.reference import activation
 
 SMALL = {
@@ -52,7 +59,7 @@ def reference():
     """The float64 fixed point of a 200 000-step plain-gradient solve (no stopping)."""
     net = network(NumpyBackend(np.float64))
     x = inputs_for(net)
-    result = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", prior=PRIOR))
+    result = net.infer(x, max_steps=200_000, latent_prior=PRIOR)
     assert not result.settled.any()  # thresholds 0 and no relative rule: it ran to the cap
     return net, x, result.latents
 
@@ -78,13 +85,28 @@ def test_the_long_plain_gradient_solve_is_a_stationary_point(reference):
 SETTLING = ["nesterov", "preconditioned"]
 
 
+def test_the_factory_builds_each_solver_from_its_name_and_settings():
+    """The plugin's ``inference_solver``, ``inference_momentum`` and ``inference_rtol``; gd has
+    no momentum."""
+    assert make_solver("gd", 0.8, 1e-5) == GradientDescent(rtol=1e-5)
+    assert make_solver("nesterov", 0.8, 1e-5) == Nesterov(momentum=0.8, rtol=1e-5)
+    assert make_solver("preconditioned", 0.7, None) == Preconditioned(momentum=0.7)
+    assert make_solver("preconditioned").needs_prior and not make_solver("nesterov").needs_prior
+
+
+def test_the_factory_refuses_an_unknown_name_in_one_line():
+    with pytest.raises(ValueError) as error:
+        make_solver("adam")
+    assert str(error.value) == "unknown inference solver 'adam'; expected gd, nesterov, preconditioned"
+
+
 @pytest.mark.parametrize("solver", SETTLING)
 @pytest.mark.parametrize("activation_name", ["tanh", "sigmoid"])
 def test_the_solver_reaches_the_same_fixed_point_in_float64_within_1e_6(activation_name, solver):
     net = network(NumpyBackend(np.float64), activation_name)
     x = inputs_for(net)
-    long = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", prior=PRIOR)).latents
-    fast = net.infer(x, max_steps=20_000, inference=InferenceConfig(solver, 0.9, 1e-12, PRIOR))
+    long = net.infer(x, max_steps=200_000, latent_prior=PRIOR).latents
+    fast = net.infer(x, max_steps=20_000, solver=make_solver(solver, 0.9, 1e-12), latent_prior=PRIOR)
     assert fast.settled.all() and fast.steps < 20_000
     assert relative(fast.latents, long) < 1e-6
 
@@ -107,7 +129,7 @@ def test_the_solver_in_float32_is_within_1e_3_of_the_fixed_point(reference, whic
     _, x, y = reference
     net = network(get_backend(name, device))
     x32 = {m: v.astype(np.float32) for m, v in x.items()}
-    result = net.infer(x32, max_steps=5000, inference=InferenceConfig(solver, 0.9, 1e-5, PRIOR))
+    result = net.infer(x32, max_steps=5000, solver=make_solver(solver, 0.9, 1e-5), latent_prior=PRIOR)
     assert result.settled.all()
     assert relative({n: v.astype(np.float64) for n, v in result.latents.items()}, y) < 1e-3
 
@@ -126,11 +148,11 @@ def test_on_a_leaky_relu_network_float32_stops_where_float64_does(which, solver)
         pytest.importorskip("warp")
     net64 = network(NumpyBackend(np.float64), "leaky_relu")
     x = {m: 3 * v - 1 for m, v in inputs_for(net64, n=16).items()}  # both sides of the kinks
-    exact = net64.infer(x, max_steps=20_000, inference=InferenceConfig(solver, 0.9, 1e-10, PRIOR))
+    exact = net64.infer(x, max_steps=20_000, solver=make_solver(solver, 0.9, 1e-10), latent_prior=PRIOR)
     assert exact.settled.all()
     net = network(get_backend(name, device), "leaky_relu")
     fast = net.infer({m: v.astype(np.float32) for m, v in x.items()}, max_steps=5000,
-                     inference=InferenceConfig(solver, 0.9, 1e-5, PRIOR))
+                     solver=make_solver(solver, 0.9, 1e-5), latent_prior=PRIOR)
     assert fast.settled.all()
     for i in range(16):
         one = {n: v[i : i + 1] for n, v in exact.latents.items()}
@@ -184,7 +206,7 @@ def test_the_first_step_is_one_plus_beta_times_the_preconditioned_descent(solver
     nodes, edges = net.latent_nodes(net.modalities), net.active_edges(net.modalities)
     start = {n: np.full((4, net.sizes[n]), 0.1) for n in nodes}
     off = {e.name: 0.0 for e in edges}
-    one = net.infer(x, max_steps=1, thresholds=off, inference=InferenceConfig(solver, 0.9, None, PRIOR)).latents
+    one = net.infer(x, max_steps=1, thresholds=off, solver=make_solver(solver, 0.9, None), latent_prior=PRIOR).latents
     g = gradient(net, x, start)
     if solver == "preconditioned":
         P = curvature_preconditioners(net.weights, edges, nodes, "tanh", 0.2, PRIOR)
@@ -199,22 +221,19 @@ def test_the_first_step_is_one_plus_beta_times_the_preconditioned_descent(solver
 def test_the_preconditioned_restart_test_is_on_the_gradient():
     """The momentum restarts where dF/dY . V > 0 at the new point, the gradient by hand here,
     not where the preconditioned step points against V (the two disagree on this case)."""
-    from vitaplace.engine.network.solver import Solver
-
     net = network(NumpyBackend(np.float64), "leaky_relu")
     x = {m: 3 * v - 1 for m, v in inputs_for(net, n=16).items()}  # both sides of the kinks
     nodes, edges = net.latent_nodes(net.modalities), net.active_edges(net.modalities)
     P = curvature_preconditioners(net.weights, edges, nodes, "leaky_relu", 0.2, PRIOR)
     state = net.batch_state(16)
     state.prior = PRIOR
-    state.solver = solver = Solver(state, InferenceConfig("preconditioned", 0.9, None, PRIOR),
-                                   {n: net.backend.weights(p) for n, p in P.items()})
+    solver = make_solver("preconditioned", 0.9).bind(state, {n: net.backend.weights(p) for n, p in P.items()})
     state.index[:] = np.arange(16)
-    state.start_inference({net.input_node(m): v for m, v in x.items()})
+    solver.start({net.input_node(m): v for m, v in x.items()})
     disagree = 0
     for _ in range(60):
         y, v = ({n: a[n].copy() for n in nodes} for a in (state.Y, solver.V))
-        solver.step(state)
+        solver.step()
         g = gradient(net, x, y)
         np.testing.assert_array_equal(solver.uphill > 0, sum(np.sum(g[n] * v[n], axis=1) for n in nodes) > 0)
         disagree += np.sum((sum(np.sum(g[n] * v[n], 1) for n in nodes) > 0)
@@ -223,15 +242,15 @@ def test_the_preconditioned_restart_test_is_on_the_gradient():
 
 
 COMPACTED = [
-    pytest.param(InferenceConfig("gd", rtol=1e-3, prior=PRIOR), id="gd"),
-    pytest.param(InferenceConfig("nesterov", 0.9, 1e-6, PRIOR), id="nesterov"),
-    pytest.param(InferenceConfig("preconditioned", 0.9, 1e-6, PRIOR), id="preconditioned"),
+    pytest.param(make_solver("gd", rtol=1e-3), id="gd"),
+    pytest.param(make_solver("nesterov", 0.9, 1e-6), id="nesterov"),
+    pytest.param(make_solver("preconditioned", 0.9, 1e-6), id="preconditioned"),
 ]
 
 
-@pytest.mark.parametrize("config", COMPACTED)
+@pytest.mark.parametrize("solver", COMPACTED)
 @pytest.mark.parametrize("which", BACKENDS)
-def test_compacting_a_batch_changes_no_sample_s_steps(monkeypatch, which, config):
+def test_compacting_a_batch_changes_no_sample_s_steps(monkeypatch, which, solver):
     """Samples that stop at different steps, inferred in one batch (compacted to the active
     ones every 5 steps here), take the same steps to the same latents as each one alone:
     the batch carries every sample's latents, step count and solver state."""
@@ -248,9 +267,10 @@ def test_compacting_a_batch_changes_no_sample_s_steps(monkeypatch, which, config
     dtype = np.float64 if name == "numpy" else np.float32
     x = {m: (v * np.linspace(0.2, 1.0, 8)[:, None]).astype(dtype) for m, v in x.items()}
     progress: list[int] = []
-    together = net.infer(x, max_steps=2000, inference=config, on_progress=progress.append)
+    together = net.infer(x, max_steps=2000, solver=solver, latent_prior=PRIOR, on_progress=progress.append)
     assert sum(progress) == 8  # each sample reported once, as it stops
-    alone = [net.infer({m: v[i : i + 1] for m, v in x.items()}, max_steps=2000, inference=config) for i in range(8)]
+    alone = [net.infer({m: v[i : i + 1] for m, v in x.items()}, max_steps=2000, solver=solver, latent_prior=PRIOR)
+             for i in range(8)]
     steps = together.steps_per_sample
     assert together.settled.all() and steps.max() - steps.min() > 10  # stopped at different checks
     np.testing.assert_array_equal(steps, [a.steps for a in alone])
@@ -264,8 +284,8 @@ def test_the_relative_rule_stops_plain_steps_once_the_step_has_shrunk():
     fixed point is small; without it they run to the cap (thresholds 0)."""
     net = network(NumpyBackend(np.float64))
     x = inputs_for(net)
-    long = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", prior=PRIOR)).latents
-    ruled = net.infer(x, max_steps=200_000, inference=InferenceConfig("gd", rtol=1e-3, prior=PRIOR))
+    long = net.infer(x, max_steps=200_000, latent_prior=PRIOR).latents
+    ruled = net.infer(x, max_steps=200_000, solver=make_solver("gd", rtol=1e-3), latent_prior=PRIOR)
     assert ruled.settled.all() and ruled.steps < 200_000
     assert relative(ruled.latents, long) < 0.05
 
@@ -274,7 +294,7 @@ def test_the_prior_moves_the_fixed_point_towards_zero(reference):
     """A stronger prior gives latents of a smaller norm (the prior's pull on the energy)."""
     _, x, y = reference
     net = network(NumpyBackend(np.float64))
-    strong = net.infer(x, max_steps=20_000, inference=InferenceConfig("nesterov", 0.9, 1e-12, 10 * PRIOR)).latents
+    strong = net.infer(x, max_steps=20_000, solver=make_solver("nesterov", 0.9, 1e-12), latent_prior=10 * PRIOR).latents
     assert sum(np.sum(strong[n] ** 2) for n in y) < sum(np.sum(y[n] ** 2) for n in y)
 
 

@@ -271,18 +271,26 @@ def test_diverging_latents_are_flagged_per_sample(mupnet_class, runs, caplog):
 
 def test_the_engine_configs_hold_no_defaults_of_their_own():
     """MuPNet's settings and defaults are MupnetParams alone: the engine's containers, the
-    network's seed and the inference step cap have none."""
+    network's seed and the inference step cap have none, but for the latent prior, added
+    after the others: its default is the plugin's, the paper's energy (0), in training and at
+    test time."""
     import dataclasses
     import inspect
 
     from vitaplace.engine.network.pc import JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
+    from vitaplace.plugins.mupnet.extractor import MupnetParams
 
     for container in (ModalityConfig, JointConfig, NetworkConfig, TrainingConfig):
         for field in dataclasses.fields(container):
-            assert field.default is dataclasses.MISSING, (container, field.name)
+            if (container, field.name) != (TrainingConfig, "latent_prior"):
+                assert field.default is dataclasses.MISSING, (container, field.name)
             assert field.default_factory is dataclasses.MISSING, (container, field.name)
     assert inspect.signature(Network).parameters["seed"].default is inspect.Parameter.empty
     assert inspect.signature(Network.infer).parameters["max_steps"].default is inspect.Parameter.empty
+    prior = MupnetParams.model_fields["latent_prior"].default
+    assert prior == 0.0
+    assert TrainingConfig(1, 1, 1, 0, 0, 0.01).latent_prior == prior
+    assert inspect.signature(Network.infer).parameters["latent_prior"].default == prior
 
 
 def test_a_changed_schema_default_reaches_the_engine_configs():
@@ -313,6 +321,15 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
     assert params.training_config() == TrainingConfig(17, 19, 23, 29, 3, 0.05, 0.07)
     only_touch = pydantic.create_model("OnlyTouch", __base__=MupnetParams, modalities=(list[str], ["tactile"]))()
     assert list(only_touch.network_config(tactile_size=72).modalities) == ["tactile"]
+
+
+def test_the_solver_is_built_from_the_params():
+    from vitaplace.engine.network.solver import GradientDescent, Nesterov
+    from vitaplace.plugins.mupnet.extractor import MupnetParams
+
+    assert MupnetParams().solver() == GradientDescent()  # the paper's loop
+    params = MupnetParams(inference_solver="nesterov", inference_momentum=0.8, inference_rtol=1e-5)
+    assert params.solver() == Nesterov(momentum=0.8, rtol=1e-5)
 
 
 def test_the_fitted_network_is_built_from_the_params(fitted):

@@ -1,0 +1,109 @@
+"""MuPNet's configurations, its edges, and `NetworkView`: what a batch and a solver read of a network.
+
+The configurations are plain containers: the MuPNet plugin's parameter schema
+(``MupnetParams``) holds the settings, their defaults and their checks and builds these.
+`NetworkView` is the typed handle `vitaplace.engine.network.batch`,
+`vitaplace.engine.network.solver` and `vitaplace.engine.network.inference` hold of the
+`vitaplace.engine.network.pc.Network` (which builds them, so they cannot import it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from vitaplace.engine.network.backends import Backend
+
+
+@dataclass(frozen=True)
+class ModalityConfig:
+    """One sensory modality: its input size, the latent layer sizes above it (bottom first),
+    and the latent step size, weight step size and test-time stop threshold of its layers."""
+
+    input_size: int
+    layers: list[int]
+    eta_y: float
+    eta_w: float
+    threshold: float
+
+
+@dataclass(frozen=True)
+class JointConfig:
+    """The joint layer: its size, step sizes and the test-time threshold of its edges."""
+
+    size: int
+    eta_y: float
+    eta_w: float
+    threshold: float
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Architecture and step sizes. The settings and their defaults and checks are the MuPNet
+    plugin's parameter schema (``MupnetParams.network_config``); these are plain containers."""
+
+    modalities: dict[str, ModalityConfig]
+    joint: JointConfig
+    activation: str
+    slope: float
+
+    @classmethod
+    def from_dict(cls, data: Mapping) -> NetworkConfig:
+        """The configuration from its `asdict` form (every key required)."""
+        return cls(
+            modalities={m: ModalityConfig(**mc) for m, mc in data["modalities"].items()},
+            joint=JointConfig(**data["joint"]),
+            activation=data["activation"],
+            slope=data["slope"],
+        )
+
+
+@dataclass(frozen=True)
+class TrainingConfig:
+    """Passes over the data (the maximum when converging: stop once the epoch energy fell by
+    less than ``converge_tol`` over ``converge_window`` epochs, 0: off), minibatch size, T
+    latent steps per minibatch, and the seed of the random minibatch order. Settings and
+    defaults: ``MupnetParams.training_config``.
+
+    ``latent_prior`` alone has a default, 0 (the paper's energy, and the plugin's default), so
+    that code written before it existed builds the same configuration."""
+
+    epochs: int
+    batch_size: int
+    inference_steps: int
+    seed: int
+    converge_window: int
+    converge_tol: float
+    #: lambda of the Gaussian prior on the latents in the inference steps (0: the paper's energy)
+    latent_prior: float = 0.0
+
+
+@dataclass
+class Edge:
+    """A prediction from node ``upper`` to node ``lower``; named by the error it produces."""
+
+    name: str
+    upper: str
+    lower: str
+    modality: str
+    eta_w: float
+    threshold: float
+
+
+class NetworkView(Protocol):
+    """What a batch's buffers and steps, a solver and the settling of a batch read of the
+    network: its backend, configuration, node sizes, latent step sizes and weights."""
+
+    backend: Backend
+    config: NetworkConfig
+    sizes: dict[str, int]
+    eta_y: dict[str, float]
+
+    def input_node(self, modality: str) -> str: ...
+    def latent_nodes(self, modalities: Sequence[str]) -> list[str]: ...
+    def active_edges(self, modalities: Sequence[str]) -> list[Edge]: ...
+    def device_weights(self) -> dict[str, object]: ...
+    def host_weights(self) -> dict[str, np.ndarray]: ...
