@@ -44,7 +44,7 @@ if TYPE_CHECKING:
 _LAZY = {
     "Run": "vitaplace.engine.data.dataset", "open_run": "vitaplace.engine.data.dataset",
     "FeatureExtractor": "vitaplace.engine.extension.features", "Features": "vitaplace.engine.extension.features",
-    "Scenario": "vitaplace.engine.config.scenario", "STAGES": "vitaplace.engine.pipeline.runner",
+    "Scenario": "vitaplace.engine.config.scenario", "STAGES": "vitaplace.engine.pipeline.keys",
 }
 
 
@@ -106,7 +106,7 @@ def _choice(value: Any, name: str, choices: Sequence[str]) -> str:
 
 def _stages(force: Any) -> list[str]:
     """``force`` as a list of stage names (one name alone is a list of one), each one of `STAGES`."""
-    from vitaplace.engine.pipeline.runner import STAGES
+    from vitaplace.engine.pipeline.keys import STAGES
 
     names = [force] if isinstance(force, str) else force
     if not isinstance(names, Iterable) or isinstance(names, Mapping):
@@ -201,7 +201,8 @@ def run(
     from vitaplace.engine.outputs.outdir import claimed
     from vitaplace.engine.config.loading import load_scenario as load
     from vitaplace.engine.pipeline.orchestrate import run_stages
-    from vitaplace.engine.pipeline.runner import STAGES, Pipeline
+    from vitaplace.engine.pipeline.keys import STAGES
+    from vitaplace.engine.pipeline.store import Store
 
     until, force, progress = _choice(until, "until", STAGES), _stages(force), _flag(progress, "progress")
     if workers is not None:
@@ -214,7 +215,7 @@ def run(
                  "(guard the call for parallel simulation workers)", script)
         workers = 1
     with claimed(Path(out) if out is not None else Path("runs") / loaded.name) as folder:
-        return run_stages(Pipeline(loaded, resolved, folder, force=force, progress=progress, workers=workers), until)
+        return run_stages(loaded, resolved, Store(folder, force=force, progress=progress, workers=workers), until)
 
 
 @_one_line_arguments

@@ -121,7 +121,7 @@ def pack(seeds: list[int], dest: Path, sim_root: Path, tiny: bool) -> dict:
 def _method_overrides(scenario_seed: int, runs_dir: Path, method: str, epochs: int, max_steps: int) -> list[str]:
     """--set assignments: the recorded runs of ``runs_dir``, one method with the study's seed for it."""
     from vitaplace.engine.config.loading import load_scenario
-    from vitaplace.engine.pipeline.runner import seed_for
+    from vitaplace.engine.pipeline.plan import seed_for
 
     scenario, _ = load_scenario(SCENARIO, [f"seed={scenario_seed}"])
     index = [m.name for m in scenario.methods].index(method)

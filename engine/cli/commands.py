@@ -26,7 +26,7 @@ def _setup_logging(out: Path) -> None:
 def _forced(force: list[str], until: str, command: str) -> list[str]:
     """The stages ``--force`` names, ``all`` being every stage up to ``until``; a stage the
     command does not reach is refused (it would be ignored)."""
-    from vitaplace.engine.pipeline.runner import STAGES
+    from vitaplace.engine.pipeline.keys import STAGES
 
     reached = STAGES[: STAGES.index(until) + 1]
     late = [s for s in force if s in STAGES and s not in reached]
@@ -41,13 +41,13 @@ def _forced(force: list[str], until: str, command: str) -> list[str]:
 def _run_stages(args: argparse.Namespace, until: str) -> int:
     from vitaplace.engine.config.loading import load_scenario
     from vitaplace.engine.pipeline.orchestrate import run_stages
-    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.pipeline.store import Store
 
     args.force = _forced(args.force, until, args.command)
     scenario, resolved = load_scenario(args.scenario, args.overrides)
     log = logging.getLogger("vitaplace")
     with claimed(args.out or Path("runs") / scenario.name, _setup_logging) as out:
-        rows = run_stages(Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress), until)
+        rows = run_stages(scenario, resolved, Store(out, force=args.force, progress=not args.no_progress), until)
     for row in rows:
         log.info(
             "%-6s %-12s %-20s max F1 %.2f %%  AUC %.3f",
@@ -97,12 +97,12 @@ def difficulty_command(args: argparse.Namespace) -> int:
     from vitaplace.engine.config.loading import load_scenario
     from vitaplace.engine.outputs.outdir import COMPLEMENTARITY
     from vitaplace.engine.pipeline.orchestrate import run_stages
-    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.pipeline.store import Store
 
     args.force = _forced(args.force, "evaluate", args.command)
     scenario, resolved = load_scenario(args.scenario, [*args.overrides, *family_overrides()])
     with claimed(args.out or Path("runs") / f"{scenario.name}-difficulty", _setup_logging) as out:
-        rows = run_stages(Pipeline(scenario, resolved, out, force=args.force, progress=not args.no_progress), "evaluate")
+        rows = run_stages(scenario, resolved, Store(out, force=args.force, progress=not args.no_progress), "evaluate")
         measured = difficulty_rows(scenario, rows, json.loads((out / COMPLEMENTARITY).read_text()))
     print(json.dumps(measured, indent=2) if args.json else table(measured))
     return 0

@@ -177,7 +177,7 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
     result rows tagged with the seed, the host and whether it saw the driver's marker;
     raises SeedFailed, with the traceback in ``OUT/seed-<s>/error.txt``."""
     from vitaplace.engine.pipeline.orchestrate import run_stages
-    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.pipeline.store import Store
 
     limit_blas_threads(usable_cpus())  # a Ray task's or SLURM task's CPUs, a pool worker's share
     host, sees_out = socket.gethostname(), not job.marker or Path(job.marker).exists()
@@ -194,9 +194,8 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
         log.setLevel(logging.INFO)
         resolved = _localise(job, folder)
         scenario = Scenario.model_validate(resolved)
-        pipeline = Pipeline(scenario, resolved, folder, force=job.force, progress=job.progress, workers=1,
-                            cache=cache_dir(Path(job.out)))
-        rows = [{"seed": job.seed, **row} for row in run_stages(pipeline)]
+        store = Store(folder, force=job.force, progress=job.progress, workers=1, cache=cache_dir(Path(job.out)))
+        rows = [{"seed": job.seed, **row} for row in run_stages(scenario, resolved, store)]
     except Exception as exc:
         try:
             write_text_atomic(folder / SEED_ERROR, traceback.format_exc())
@@ -257,7 +256,7 @@ def seed_jobs(
 ) -> list[SeedJob]:
     """One job per seed (of the grid point ``point``); each seed is validated here, so a bad
     one is a user error up front."""
-    from vitaplace.engine.pipeline.runner import STAGES
+    from vitaplace.engine.pipeline.keys import STAGES
     from vitaplace.engine.sim.environment import load_environment
 
     unknown = set(force) - set(STAGES)

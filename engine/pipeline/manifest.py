@@ -25,7 +25,7 @@ def manifest_of(run: RunRecord) -> dict[str, Any]:
         "run_seeds": simulated.run_seeds,
         "datasets": simulated.datasets,
         "recorded": simulated.recorded,
-        "runs": simulated.runs,
+        "runs": simulated.facts,
         "warnings": run.warnings,
         "stages": [record.__dict__ for record in run.stages],
         "training": run.fit.training if run.fit is not None else {},

@@ -1,56 +1,67 @@
-"""A run from start to end: the stages of a `Pipeline` in order up to the one asked for, the
-result files, the report, the manifest, and last the completion record."""
+"""A run from start to end: the stages (`vitaplace.engine.pipeline.stages`) in order up to the
+one asked for, each handed the records of the stages before it; the result files, the
+report, the manifest, and last the completion record. This is the one place that sequences
+the stages."""
 
 from __future__ import annotations
 
 import time
-from functools import partial
 from typing import Any
 
 import yaml
 
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.engine.report.report import report_files, report_key_inputs, write_report
+from vitaplace.engine.config.scenario import Scenario, training_world_evaluation
+from vitaplace.engine.extension.registry import announce_run_finished, plugin_distributions
 from vitaplace.engine.outputs import completion
-from vitaplace.engine.outputs import outdir
+import vitaplace.engine.pipeline.plan as plan
+from vitaplace.engine.pipeline.keys import STAGES
 from vitaplace.engine.pipeline.manifest import write_manifest
+from vitaplace.engine.pipeline.records import RunRecord
 from vitaplace.engine.pipeline.results import write_results
-from vitaplace.engine.outputs.keys import content_hash
-from vitaplace.engine.pipeline.records import ReportRecord, RunRecord
-from vitaplace.engine.pipeline.runner import STAGE_VERSION, STAGES, Pipeline
-from vitaplace.engine.extension.registry import announce_run_finished
+from vitaplace.engine.pipeline.stages.compare import compare
+from vitaplace.engine.pipeline.stages.evaluate import evaluate
+from vitaplace.engine.pipeline.stages.fit import fit
+from vitaplace.engine.pipeline.stages.fuse import fuse
+from vitaplace.engine.pipeline.stages.report import report
+from vitaplace.engine.pipeline.stages.simulate import simulate
+from vitaplace.engine.pipeline.stages.transform import transform
+from vitaplace.engine.pipeline.store import Store
 
 
-def run_stages(pipeline: Pipeline, until: str = "report") -> list[dict[str, Any]]:
-    """Run ``pipeline``'s stages up to and including ``until``; return the result rows (if evaluated)."""
-    out = pipeline.out
+def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until: str = "report") -> list[dict[str, Any]]:
+    """Run ``scenario``'s stages into ``store``'s output folder up to and including ``until``
+    (``resolved``: the scenario as read, written beside the results); return the result rows
+    (if evaluated)."""
+    out = store.out
     out.mkdir(parents=True, exist_ok=True)
     completion.clear(out)  # first: until the new record, the folder holds no finished run
-    write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(pipeline.resolved, sort_keys=False))
+    write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(resolved, sort_keys=False))
     started = time.perf_counter()
     stop = STAGES.index(until)
-    record = pipeline.run_record(until, pipeline.simulate())
+    record = RunRecord(out=out, scenario=scenario.name, seed=scenario.seed, until=until,
+                       methods=plan.method_settings(scenario, store.registry),
+                       training_world=training_world_evaluation(scenario)[1],
+                       plugins=plugin_distributions(store.registry), simulate=simulate(store, scenario))
     if stop >= STAGES.index("fit"):
-        record.fit = pipeline.fit()
-    if stop >= STAGES.index("transform"):
-        record.transform = pipeline.transform()
-    if stop >= STAGES.index("evaluate"):
-        record.evaluate = pipeline.evaluate()
+        record.fit = fit(store, scenario, record.simulate)
+    if record.fit is not None and stop >= STAGES.index("transform"):
+        record.transform = transform(store, scenario, record.simulate, record.fit)
+    if record.fit is not None and record.transform is not None and stop >= STAGES.index("evaluate"):
+        evaluated = evaluate(store, scenario, record.simulate, record.fit, record.transform)
+        record.evaluate = compare(store, scenario, record.simulate, fuse(store, scenario, record.simulate, evaluated))
         write_results(out, record.evaluate.rows, record.evaluate.complementarity)
     if stop >= STAGES.index("report"):
-        record.report = report_stage(pipeline, record, started)
-    write_manifest(pipeline.close_record(record, time.perf_counter() - started))
-    announce_run_finished(pipeline.registry, out, pipeline.scenario, record.rows, until)
+        record.report = report(store, scenario, closed(record, store, started))
+    write_manifest(closed(record, store, started))
+    announce_run_finished(store.registry, out, scenario, record.rows, until)
     completion.write(out, record.finished_files())
     return record.rows
 
 
-def report_stage(pipeline: Pipeline, record: RunRecord, started: float) -> ReportRecord:
-    """The report stage: first what the report reads besides the results (the poses, arenas,
-    training curves, the manifest so far), then report.md and the figures from the output
-    folder alone (`vitaplace.engine.report.report.write_report`)."""
-    pipeline.write_report_inputs()
-    write_manifest(pipeline.close_record(record, time.perf_counter() - started))
-    key = content_hash("report", STAGE_VERSION["report"], report_key_inputs(pipeline.out))
-    pipeline.stage("report", "report", key, pipeline.out / outdir.REPORT, partial(write_report, pipeline.out))
-    return ReportRecord([pipeline.out / outdir.REPORT, *report_files(pipeline.out, record.rows, list(record.methods))])
+def closed(record: RunRecord, store: Store, started: float) -> RunRecord:
+    """``record`` with every stage item's record so far, the runs' warnings and the time since ``started``."""
+    record.stages = list(store.records)
+    record.warnings = store.warnings.raised()
+    record.seconds = round(time.perf_counter() - started, 3)
+    return record

@@ -36,7 +36,7 @@ def write_results(out: Path, rows: Sequence[ResultRow | Mapping[str, Any]],
                   complementarity: list[dict[str, Any]]) -> None:
     """results.json (everything), results.csv (one row per environment x method x direction;
     `csv_row`: delta, precision, recall, F1 at the fixed delta, else at the max-F1 one) and
-    complementarity.json (the records of `Pipeline.complementarity`, a list, empty when no
+    complementarity.json (the records of `stages.compare.pair_complementarity`, a list, empty when no
     pair ran). ``rows``: `ResultRow`s, or mappings `parse_row` reads; results.json holds
     each row's `ResultRow.dump`."""
     parsed = [parse_row(row, f"results row {i}") for i, row in enumerate(rows)]

@@ -742,10 +742,11 @@ def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp
     """E1 (in the training run's world, e1) holds the training matrices above, E2 the other
     ones: every row of a method gets the F1 at E1's max-F1 threshold (0.3), per direction."""
     from vitaplace.engine.outputs.outdir import evaluation_dir
-    from vitaplace.engine.pipeline.runner import Pipeline
+    from types import SimpleNamespace
+
+    from vitaplace.engine.pipeline.stages.compare import f1_at_training_threshold
 
     scenario = _scenario(_train_in("e1"), [("E2", "e2"), ("E1", "e1")])
-    pipeline = Pipeline(scenario, {}, tmp_path)
     rows = []
     for env, tme, gtm in (("E2", OTHER_TME, OTHER_GTM), ("E1", TRAIN_TME, TRAIN_GTM)):
         folder = evaluation_dir(tmp_path, env, "H", "query-to-reference")
@@ -754,7 +755,7 @@ def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp
         save_curve_and_decisions(folder, curve, ev.decide(tme, gtm, 1.0, curve.delta_at_max_f1))
         export_matrices_npz(folder / "matrices.npz", tme, gtm)
         rows.append({"environment": env, "method": "H", "direction": "query-to-reference", "tau": 1.0})
-    pipeline.add_f1_at_training_threshold(rows)
+    rows = f1_at_training_threshold(SimpleNamespace(out=tmp_path), scenario, rows)
     assert [row["f1_at_e1_threshold"] for row in rows] == [pytest.approx(1 / 2), pytest.approx(2 / 3)]
     assert [row["e1_threshold"] for row in rows] == [pytest.approx(0.3)] * 2
 

@@ -458,9 +458,9 @@ def test_a_run_stuck_in_one_place_reaches_the_user(tmp_path, monkeypatch):
     0.29 m apart, beyond the 0.25 m radius) warns in the log, manifest.json and report.md, and
     its longest-stay share (5/8) is in the difficulty; the reference is not warned about. The
     runs are tiny, so the sample floor is lowered to 4 (the share, 1/4, is the shipped one)."""
-    from vitaplace.engine.pipeline import runner
+    from vitaplace.engine.pipeline.stages import simulate
 
-    monkeypatch.setattr(runner, "STUCK_SAMPLES", 4)
+    monkeypatch.setattr(simulate, "STUCK_SAMPLES", 4)
     scenario = recorded_scenario(tmp_path)
     poses = open_run(tmp_path / "query.h5").poses.copy()
     poses[2:7] = poses[2]

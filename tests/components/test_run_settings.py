@@ -24,7 +24,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from vitaplace.engine.config.loading import load_scenario  # noqa: E402
 from vitaplace.engine.config.scenario import EvaluationPair  # noqa: E402
 from vitaplace.engine.outputs.keys import content_hash  # noqa: E402
-from vitaplace.engine.pipeline.runner import STAGE_VERSION, seed_for  # noqa: E402
+from vitaplace.engine.pipeline.keys import STAGE_VERSION  # noqa: E402
+from vitaplace.engine.pipeline.plan import seed_for  # noqa: E402
 from vitaplace.engine.sim import SIMULATOR_VERSION  # noqa: E402
 from vitaplace.engine.sim.controllers import (  # noqa: E402
     RUN_KINDS,

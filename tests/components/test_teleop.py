@@ -336,6 +336,6 @@ def test_holds_and_detours_no_longer_than_the_run(kind, settings, message):
     (9, 20, False), (10, 20, True),  # at least 10 samples, however short the run
 ])
 def test_a_stuck_drive_is_a_quarter_of_its_run_and_ten_samples(stay, samples, stuck):
-    from vitaplace.engine.pipeline.runner import is_stuck
+    from vitaplace.engine.pipeline.stages.simulate import is_stuck
 
     assert is_stuck(stay, samples) is stuck

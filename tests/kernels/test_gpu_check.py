@@ -80,7 +80,7 @@ def test_runs_were_the_recorded_ones_with_the_studys_settings(stage):
     tmp, _ = stage
     carried = json.loads((tmp / "runs" / "RUNS.json").read_text())["seeds"]["0"]
     study = yaml.safe_load((ROOT / "scenarios" / "paper-cpu.yaml").read_text())
-    from vitaplace.engine.pipeline.runner import seed_for
+    from vitaplace.engine.pipeline.plan import seed_for
 
     for index, method in enumerate(METHODS):
         folder = tmp / "work" / "seed-0" / method

@@ -49,7 +49,18 @@ LAYERS: list[tuple[str, ...]] = [
     ("vitaplace.plugins", "vitaplace.engine.config"),  # the shipped plugins; scenarios
     ("vitaplace.engine.evaluation",),  # metrics: matching, PR curves, difficulty
     ("vitaplace.engine.report",),  # one run's report, from its output folder
-    ("vitaplace.engine.pipeline",),  # the stages and their orchestration
+    # the pipeline's floors: what stages hand on and the files a run writes beside its stages;
+    # the cache keys, a scenario's plan, simulation jobs, the manifest; the stage store and
+    # scoring of one evaluation folder; the stages, one module each, none importing another;
+    # their orchestration
+    ("vitaplace.engine.pipeline.records", "vitaplace.engine.pipeline.processes", "vitaplace.engine.pipeline.provenance",
+     "vitaplace.engine.pipeline.output_checks", "vitaplace.engine.pipeline.results"),
+    ("vitaplace.engine.pipeline.keys", "vitaplace.engine.pipeline.plan", "vitaplace.engine.pipeline.simulation",
+     "vitaplace.engine.pipeline.manifest"),
+    ("vitaplace.engine.pipeline.store", "vitaplace.engine.pipeline.scoring"),
+    tuple(f"vitaplace.engine.pipeline.stages.{stage}"
+          for stage in ("simulate", "fit", "transform", "evaluate", "fuse", "compare", "report")),
+    ("vitaplace.engine.pipeline",),  # the stages' orchestration (orchestrate.py)
     ("vitaplace.engine.study",),  # across runs: aggregate, sensitivity, statistics
     ("vitaplace.engine.cli",),
     ("vitaplace",),  # the Python API

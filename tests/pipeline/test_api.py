@@ -78,16 +78,16 @@ def test_read_results_refuses_a_folder_whose_rerun_was_killed(finished, tmp_path
     new scenario.resolved.yaml, and no completed.json: read_results refuses, as aggregate does."""
     import shutil
 
-    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.pipeline import orchestrate
 
     scenario, out, _ = finished
     folder = tmp_path / "run"
     shutil.copytree(out, folder)
 
-    def killed(self):
+    def killed(store, scenario):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(Pipeline, "simulate", killed)
+    monkeypatch.setattr(orchestrate, "simulate", killed)
     with pytest.raises(KeyboardInterrupt):
         vitaplace.run(scenario, {"scoring.tau": 0.4}, out=folder, workers=1)
     assert (folder / "results.json").is_file()  # the old run's

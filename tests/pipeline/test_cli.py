@@ -703,17 +703,18 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     from vitaplace.engine.data.dataset import open_run
     from vitaplace.engine.config.loading import load_scenario
     from vitaplace.engine.pipeline.orchestrate import run_stages
-    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.outputs.outdir import cache_dir, dataset_file
+    from vitaplace.engine.pipeline.store import Store
     from vitaplace.engine.sim.clearance import Route
     from vitaplace.engine.sim.environment import load_environment
 
     overrides = ["train.run.n_samples=3", "evaluations.0.run.n_samples=40", "evaluations.0.query_off_route=0.5"]
     scenario, resolved = load_scenario("near-duplicate", overrides)
-    pipeline = Pipeline(scenario, resolved, tmp_path, progress=False, workers=1)
-    run_stages(pipeline, until="simulate")
+    run_stages(scenario, resolved, Store(tmp_path, progress=False, workers=1), until="simulate")
+    datasets = json.loads((tmp_path / "manifest.json").read_text())["datasets"]
     route = Route(load_environment("e1").route)
-    query = route.distance(open_run(pipeline.dataset_path("E1/query")).poses[:, :2])
-    reference = route.distance(open_run(pipeline.dataset_path("E1/reference")).poses[:, :2])
+    query, reference = (route.distance(open_run(dataset_file(cache_dir(tmp_path), label, datasets[label])).poses[:, :2])
+                        for label in ("E1/query", "E1/reference"))
     assert query[:20].max() < 0.1 and reference.max() < 0.1
     assert query[-12:].min() > 0.4  # the detour starts at sample 20; ~8 samples to get there
 
@@ -724,12 +725,11 @@ def test_until_runs_the_stages_up_to_and_including_the_one_named(tmp_path):
     from vitaplace.engine.config.loading import load_scenario
     from vitaplace.engine.outputs import completion
     from vitaplace.engine.pipeline.orchestrate import run_stages
-    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.pipeline.store import Store
 
     overrides = ["train.run.n_samples=5", "evaluations.0.run.n_samples=5", "methods=[{name: H, plugin: handcrafted}]"]
     scenario, resolved = load_scenario("quickstart", overrides)
-    pipeline = Pipeline(scenario, resolved, tmp_path, progress=False, workers=1)
-    assert run_stages(pipeline, until="fit") == []
+    assert run_stages(scenario, resolved, Store(tmp_path, progress=False, workers=1), until="fit") == []
     manifest = json.loads((tmp_path / "manifest.json").read_text())
     assert {(r["stage"], r["item"]) for r in manifest["stages"]} == {
         ("simulate", "train"), ("simulate", "E1/query"), ("simulate", "E1/reference"), ("fit", "H")}

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from vitaplace.engine.config.loading import load_scenario  # noqa: E402
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve  # noqa: E402
 from vitaplace.engine.evaluation.fusion import choose_weight, fused_distance, spread  # noqa: E402
 from vitaplace.engine.outputs import outdir  # noqa: E402
-from vitaplace.engine.pipeline.fusing import chosen_weight  # noqa: E402
+from vitaplace.engine.pipeline.stages.fuse import chosen_weight  # noqa: E402
 
 ENVS = Path(__file__).resolve().parents[2] / "scenarios" / "environments"
 
@@ -100,22 +101,21 @@ WRONG = 1.0 - np.roll(np.eye(3), 1, axis=1)
 
 
 class SavedEvaluations:
-    """What `chosen_weight` reads of the runner: the scenario, the members' saved distances
-    under ``out`` and the runs' poses (three places on a line, heading 0)."""
+    """What `chosen_weight` reads of the store and the simulate record: the members' saved
+    distances under ``out`` and the runs' poses (three places on a line, heading 0)."""
 
     def __init__(self, out: Path, scenario) -> None:
         self.out, self.scenario = out, scenario
+        self.runs = defaultdict(lambda: None)  # the simulate record's runs: any label
 
-    def open(self, label: str):
+    def run(self, record: None):
         class Places:
+            name = "a run"
             poses = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
 
             def __len__(self) -> int:
                 return 3
         return Places()
-
-    def sequence_for(self, query: str, n_queries: int) -> None:
-        return None
 
     def save(self, environment: str, **distances: np.ndarray) -> None:
         for method, d in distances.items():
@@ -134,25 +134,25 @@ def test_the_weight_is_chosen_on_the_selection_evaluation_alone(tmp_path):
                     {"name": "T", "plugin": "handcrafted", "params": {"use_visual": False}}],
         "fusions": [{"name": "F", "vision": "V", "touch": "T", "weights": [3, 0, 1]}],
     }))
-    runner = SavedEvaluations(tmp_path / "out", load_scenario(path)[0])
-    (fusion,) = runner.scenario.fusions  # select_on left out: E1, in the training world e1
+    saved = SavedEvaluations(tmp_path / "out", load_scenario(path)[0])
+    (fusion,) = saved.scenario.fusions  # select_on left out: E1, in the training world e1
     # E1: vision right, touch wrong. Both spreads sqrt(2) / 3 (three 0s, six 1s), so the fused
     # row is (RIGHT + w WRONG) * 3 / sqrt(2): w = 0 finds every match (max F1 1), w = 1 ties the
     # true match with the wrong one, w = 3 prefers the wrong one (1 against 3)
-    runner.save("E1", V=RIGHT, T=WRONG)
+    saved.save("E1", V=RIGHT, T=WRONG)
     # E2 the other way round: chosen there, w would be 3 (1 + 0 on the true match, 0 + 3 on the
     # wrong one)
-    runner.save("E2", V=WRONG, T=RIGHT)
-    choice = chosen_weight(runner, fusion, "query-to-reference", "query", "reference")
+    saved.save("E2", V=WRONG, T=RIGHT)
+    choice = chosen_weight(saved, saved.scenario, saved, fusion, "query-to-reference", "query")
     assert choice["weight"] == 0.0 and choice["selection_max_f1"] == 1.0
     assert choice["sigma_vision"] == pytest.approx(np.sqrt(2) / 3) and choice["sigma_touch"] == pytest.approx(np.sqrt(2) / 3)
-    assert chosen_weight(runner, fusion.model_copy(update={"select_on": "E2"}), "query-to-reference", "query",
-                         "reference")["weight"] == 3.0
+    assert chosen_weight(saved, saved.scenario, saved, fusion.model_copy(update={"select_on": "E2"}),
+                         "query-to-reference", "query")["weight"] == 3.0
     # whatever E2's distances are, the weight and spreads chosen on E1 stay
     rng = np.random.default_rng(0)
     for _ in range(3):
-        runner.save("E2", V=rng.random((3, 3)) * 10, T=rng.random((3, 3)))
-        assert chosen_weight(runner, fusion, "query-to-reference", "query", "reference") == choice
+        saved.save("E2", V=rng.random((3, 3)) * 10, T=rng.random((3, 3)))
+        assert chosen_weight(saved, saved.scenario, saved, fusion, "query-to-reference", "query") == choice
 
 
 @pytest.mark.parametrize("setting, message", [

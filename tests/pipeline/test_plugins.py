@@ -464,35 +464,39 @@ def test_doc_mentions_error_behaviour_and_usage():
 
 
 def test_cache_keys_change_with_the_plugin_version(monkeypatch):
-    """A new version of a plugin must not reuse the old version's fitted model and features."""
-    from vitaplace.engine.pipeline.runner import Pipeline
+    """A new version of a plugin must not reuse the old version's fitted model and features;
+    nor may another training run's content."""
     from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.pipeline.keys import fit_key
+    from vitaplace.engine.pipeline.plan import params_for
+    from vitaplace.engine.pipeline.records import RunFile
 
-    scenario, resolved = load_scenario("quickstart")
+    scenario, _ = load_scenario("quickstart")
     registry = discover()
     assert registry.version_of("handcrafted").startswith("vitaplace==")
-    pipeline = Pipeline(scenario, resolved, Path("unused"), registry=registry)
-    pipeline.state.datasets["train"] = "k"
-    pipeline.state.digests[str(pipeline.dataset_path("train"))] = "d"
     method = scenario.methods[1]
-    before = pipeline.model_key(method)
+    train = RunFile("train", Path("train.h5"), "k", "d", False, 0, {})
+
+    def key(run: RunFile = train) -> str:
+        return fit_key(method.plugin, registry.version_of(method.plugin), registry.code_digest(method.plugin),
+                       params_for(scenario, registry, method), run)
+
+    before = key()
     registry.distributions[registry.sources[method.plugin]] = "vitaplace==99.0"
-    assert pipeline.model_key(method) != before
-    before = pipeline.model_key(method)
-    pipeline.state.digests[str(pipeline.dataset_path("train"))] = "another training run's content"
-    assert pipeline.model_key(method) != before
+    assert key() != before
+    before = key()
+    assert key(RunFile("train", Path("train.h5"), "k", "another training run's content", False, 0, {})) != before
 
 
 def test_the_scenario_seed_reaches_the_methods_seed():
-    from vitaplace.engine.pipeline.runner import Pipeline
     from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.pipeline.plan import params_for
 
+    registry = discover()
     keys = {}
     for seed in (0, 1):
-        scenario, resolved = load_scenario("quickstart", [f"seed={seed}"])
-        pipeline = Pipeline(scenario, resolved, Path("unused"))
-        learned = scenario.methods[0]
-        keys[seed] = pipeline.params_for(learned)["seed"]
+        scenario, _ = load_scenario("quickstart", [f"seed={seed}"])
+        keys[seed] = params_for(scenario, registry, scenario.methods[0])["seed"]
     assert keys[0] != keys[1]
-    scenario, resolved = load_scenario("quickstart", ["methods.0.params.seed=7"])
-    assert Pipeline(scenario, resolved, Path("unused")).params_for(scenario.methods[0])["seed"] == 7
+    scenario, _ = load_scenario("quickstart", ["methods.0.params.seed=7"])
+    assert params_for(scenario, registry, scenario.methods[0])["seed"] == 7

@@ -7,7 +7,6 @@ Expected values are worked by hand in the comments.
 
 from __future__ import annotations
 
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +16,8 @@ from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.extension.registry import discover
 from vitaplace.engine.outputs.keys import content_hash
-from vitaplace.engine.pipeline.runner import Pipeline
+from vitaplace.engine.extension.registry import discover
+from vitaplace.engine.pipeline.plan import params_for
 from vitaplace.plugins.mupnet.extractor import MupnetParams
 from vitaplace.plugins.mupnet.inputs import (
     TactileRange, contact_flags, cycle_series, report_out_of_range, tactile_values,
@@ -202,11 +202,11 @@ SETTLING = {"latent_prior": 1.0, "inference_solver": "preconditioned", "inferenc
 def test_the_methods_of_the_shipped_scenarios_keep_their_parameter_keys(name):
     """A new parameter at its default enters no key: the pipeline hands a plugin the
     scenario's parameters (and the derived seed), not the schema's defaults."""
-    scenario, resolved = load_scenario(ROOT / "scenarios" / f"{name}.yaml")
-    pipeline = Pipeline(scenario, resolved, Path(tempfile.mkdtemp()))
+    scenario, _ = load_scenario(ROOT / "scenarios" / f"{name}.yaml")
+    registry = discover()
     keys = {}
     for m in scenario.methods:
-        params = dict(pipeline.params_for(m))
+        params = dict(params_for(scenario, registry, m))
         if name != "paper" and m.plugin == "mupnet":  # the settling solver, set since (issue 30)
             assert {k: params.pop(k) for k in SETTLING} == SETTLING
             params["max_steps"] = 300  # the cap these scenarios had at 4d558a4
@@ -220,8 +220,7 @@ def test_the_controls_scenario_holds_the_studys_six_methods_unchanged():
     cycle input or the autoencoder."""
     keys = {}
     for name in ("paper-cpu", "paper-cpu-controls"):
-        scenario, resolved = load_scenario(ROOT / "scenarios" / f"{name}.yaml")
-        pipeline = Pipeline(scenario, resolved, Path(tempfile.mkdtemp()))
-        keys[name] = [(m.name, content_hash(m.plugin, pipeline.params_for(m))) for m in scenario.methods]
+        scenario, _ = load_scenario(ROOT / "scenarios" / f"{name}.yaml")
+        keys[name] = [(m.name, content_hash(m.plugin, params_for(scenario, discover(), m))) for m in scenario.methods]
     assert keys["paper-cpu-controls"][:6] == keys["paper-cpu"]
     assert [name for name, _ in keys["paper-cpu-controls"][6:]] == ["L-cycle", "L-T-cycle", "A", "A-V", "A-T", "A-cycle"]

@@ -65,7 +65,7 @@ def vitaplace_register_features(register):
 
 def tiny_scenario(fail_seed: int = -1) -> dict:
     """Two methods, 5-sample runs: one seed takes a second or two."""
-    from vitaplace.engine.pipeline.runner import seed_for
+    from vitaplace.engine.pipeline.plan import seed_for
 
     # the runner gives the first method of scenario seed s the seed seed_for(s, 1000)
     fail_for = seed_for(fail_seed, 1000) if fail_seed >= 0 else -1
@@ -539,7 +539,7 @@ def test_pr_band_figures_are_written_per_environment_from_the_seed_folders(tmp_p
 def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
     """A worker killed mid-job breaks the process pool and the jobs beside it; those run again,
     each in its own pool: the dying seed fails in one line, the others finish."""
-    from vitaplace.engine.pipeline.runner import seed_for
+    from vitaplace.engine.pipeline.plan import seed_for
 
     data = tiny_scenario()
     data["methods"][0]["params"] = {"exit_for": seed_for(1, 1000)}
@@ -614,7 +614,8 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     from vitaplace.engine.config.scenario import Scenario
     from vitaplace.engine.outputs import completion
     from vitaplace.engine.pipeline.orchestrate import run_stages
-    from vitaplace.engine.pipeline.runner import Pipeline
+    from vitaplace.engine.pipeline import orchestrate
+    from vitaplace.engine.pipeline.store import Store
 
     out, _ = local_sweep
     folder = tmp_path / "seed-2"
@@ -623,12 +624,12 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     resolved = yaml.safe_load((folder / "scenario.resolved.yaml").read_text())
     resolved["scoring"]["tau"] = 0.4
 
-    def killed(self):
+    def killed(store, scenario):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(Pipeline, "simulate", killed)
+    monkeypatch.setattr(orchestrate, "simulate", killed)
     with pytest.raises(KeyboardInterrupt):
-        run_stages(Pipeline(Scenario.model_validate(resolved), resolved, folder, cache=tmp_path / "cache"))
+        run_stages(Scenario.model_validate(resolved), resolved, Store(folder, cache=tmp_path / "cache"))
     assert (folder / "results.json").is_file() and (folder / "manifest.json").is_file()  # the old run's
     summary = tmp_path / "summary"
     assert main(["aggregate", str(out / "seed-0"), str(folder), "--out", str(summary)]) == 2

@@ -1,0 +1,52 @@
+"""Scoring one evaluation folder, for a method's distances and a fusion's alike: the
+scenario's scoring settings applied to a distance matrix (`evaluate_pair`), and the results
+row read back from the folder."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from vitaplace.engine.config.scenario import EvaluationPair, Scenario, ScenarioError
+from vitaplace.engine.data.dataset import Run
+from vitaplace.engine.evaluation.pairfiles import evaluate_pair
+from vitaplace.engine.outputs import outdir
+from vitaplace.engine.pipeline.records import RunFile
+
+
+def sequence_for(scenario: Scenario, query: str, n_queries: int) -> dict[str, Any] | None:
+    """The scenario's sequence matching settings (None for single samples), checked against
+    the length of the query run ``query`` (a recorded run's is known only here)."""
+    sequence = scenario.scoring.sequence
+    if sequence.length == 1:
+        return None
+    if sequence.length > n_queries:
+        raise ScenarioError(f"scoring.sequence.length: {sequence.length} is longer than run {query} "
+                            f"({n_queries} samples); expected at most that")
+    return sequence.model_dump()
+
+
+def score(scenario: Scenario, folder: Path, tme: np.ndarray, query: Run, reference: Run) -> dict[str, Any]:
+    """The distances ``tme`` from the ``query`` run's samples to the ``reference`` run's scored
+    with the scenario's settings into ``folder`` (`evaluate_pair`); returns the summary."""
+    settings = scenario.scoring
+    return evaluate_pair(
+        folder, tme, query.poses, reference.poses, settings.tau, query_touch=query.touch_mask(),
+        reference_touch=reference.touch_mask(), delta=settings.delta,
+        heading_tolerance_deg=settings.heading_tolerance_deg, ks=tuple(settings.recall_k),
+        sequence=sequence_for(scenario, query.name, len(query)),
+    )
+
+
+def result_row(evaluation: EvaluationPair, name: str, direction: str, folder: Path, query: RunFile) -> dict[str, Any]:
+    """The results row of evaluation folder ``folder`` (method or fusion ``name``): its summary
+    and, for an evaluation with a ``query_dropout``, the shares of the ``query`` run's samples
+    that lacked each sensor (as drawn: whole samples)."""
+    summary = json.loads((folder / outdir.SUMMARY).read_text())
+    row = {"environment": evaluation.name, "method": name, "direction": direction, **summary}
+    if evaluation.query_dropout is not None:
+        row["query_dropout"] = {sensor: float(mask.mean()) if len(mask) else 0.0 for sensor, mask in query.missing.items()}
+    return row
