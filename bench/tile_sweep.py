@@ -30,6 +30,7 @@ import warp as wp
 
 import pc_step
 from vitaplace.kernels import warp_kernels as wk
+from vitaplace.kernels.tiles import round_rows
 
 CANDIDATES = [
     wk.TileConfig(*c)
@@ -97,9 +98,9 @@ def _cases(device: str, shape: tuple[int, int, int], cfg: wk.TileConfig, splits_
     cases = []
     for kernel in ("predict", "latent", "weight"):
         if kernel == "weight":
-            tiles = cfg._replace(tk=wk._round_rows(b, cfg.tk))
+            tiles = cfg._replace(tk=round_rows(b, cfg.tk))
         else:
-            tiles = cfg._replace(tm=wk._round_rows(b, cfg.tm))
+            tiles = cfg._replace(tm=round_rows(b, cfg.tm))
         for splits in splits_list if kernel == "latent" else [1]:
             row = {"kernel": kernel, "tm": tiles.tm, "tn": tiles.tn, "tk": tiles.tk, "block_dim": tiles.block_dim,
                    "mathdx": tiles.mathdx, "splits": splits}

@@ -1,8 +1,8 @@
 """Plain numpy reference for one predictive-coding layer step.
 
-This module is the *specification* that the Warp kernels (``warp_kernels.py``) and the
-numpy backend are tested against. Every function is dtype-preserving: float32 inputs give
-float32 outputs, float64 inputs give float64 outputs.
+This module is the *specification* that the Warp kernels (``predict_kernels.py``,
+``update_kernels.py``) and the numpy backend are tested against. Every function is
+dtype-preserving: float32 inputs give float32 outputs, float64 inputs give float64 outputs.
 
 For a layer with latent ``Y`` (B x n_l), weights ``W`` (n_l x n_below) and the layer
 below (or the sensory input) ``X`` (B x n_below)::
