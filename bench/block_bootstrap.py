@@ -20,9 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from vitaplace.engine.evaluation import evaluate as ev
-from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.evaluation import resample
+from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.study import summary
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=300, help="queries and references per evaluation")

@@ -61,10 +61,10 @@ os.environ.setdefault("JAX_PLATFORMS", "cpu")  # before any jax import: no GPU p
 
 import numpy as np
 
+from vitaplace.engine.config.loading import load_scenario
+from vitaplace.engine.config.scenario import Scenario
 from vitaplace.engine.network.backends import NumpyBackend
 from vitaplace.engine.network.pc import LATENT_INIT, BatchState, Network, NetworkConfig
-from vitaplace.engine.config.scenario import Scenario
-from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.sim.robot import N_WHISKERS
 from vitaplace.plugins.mupnet.extractor import MupnetParams
 

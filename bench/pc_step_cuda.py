@@ -167,9 +167,9 @@ def timed_training(pc, epochs: int, samples: int, log, precision: str) -> dict:
     """The paper's network trained on random data (the same data and seed in every
     precision): the first epoch (kernel compilation, graph capture) timed apart, then
     ``epochs`` epochs; projected to the paper's budget; then test-time inference."""
-    from vitaplace.engine.network.pc import Network
-
     import warp as wp
+
+    from vitaplace.engine.network.pc import Network
 
     spec = pc.paper_spec()
     rng = np.random.default_rng(0)

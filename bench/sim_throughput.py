@@ -17,11 +17,11 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
-from concurrent.futures import ProcessPoolExecutor
 import os
 import sys
 import tempfile
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
