@@ -215,7 +215,8 @@ def run(
                  "(guard the call for parallel simulation workers)", script)
         workers = 1
     with claimed(Path(out) if out is not None else Path("runs") / loaded.name) as folder:
-        return run_stages(loaded, resolved, Store(folder, force=force, progress=progress, workers=workers), until)
+        rows = run_stages(loaded, resolved, Store(folder, force=force, progress=progress, workers=workers), until)
+    return [row.dump() for row in rows]
 
 
 @_one_line_arguments

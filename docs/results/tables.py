@@ -493,6 +493,7 @@ def _gate_rows(arm: str) -> dict[int, list[dict]]:
     checks that seed 0's agree)."""
     from vitaplace.engine.cli.difficulty import difficulty_rows
     from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.outputs.rows import parse_row
 
     scenario, _ = load_scenario(HERE.parents[1] / "scenarios" / ARMS[arm][1])
     seeds = ARMS[arm][0] / "length=1" / "seeds"
@@ -503,8 +504,9 @@ def _gate_rows(arm: str) -> dict[int, list[dict]]:
         if difficulty_json.exists():
             rows[seed] = json.loads(difficulty_json.read_text())
         else:
-            rows[seed] = difficulty_rows(scenario, json.loads((folder / "results.json").read_text()),
-                                         json.loads((folder / "complementarity.json").read_text()))
+            results = folder / "results.json"
+            parsed = [parse_row(row, f"{results}: row {i}") for i, row in enumerate(json.loads(results.read_text()))]
+            rows[seed] = difficulty_rows(scenario, parsed, json.loads((folder / "complementarity.json").read_text()))
     return rows
 
 

@@ -51,12 +51,12 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
     for row in rows:
         log.info(
             "%-6s %-12s %-20s max F1 %.2f %%  AUC %.3f",
-            row["environment"], row["method"], row["direction"], 100 * row["max_f1"], row["auc"],
+            row.environment, row.method, row.direction, 100 * row.max_f1, row.auc,
         )
     if until in ("report", "evaluate"):
         log.info("results in %s", out / ("report.md" if until == "report" else "results.csv"))
     if getattr(args, "json", False):
-        print(json.dumps(rows, indent=2))
+        print(json.dumps([row.dump() for row in rows], indent=2))
     return 0
 
 
@@ -281,10 +281,10 @@ def sweep_command(args: argparse.Namespace) -> int:
             _forced(args.force, "report", "sweep"),
             args.cpus_per_job, args.gpus_per_job, slurm, grid, args.replace,
         )
-    for row in outcome.summary:
-        if row["metric"] == "max_f1":
-            log.info("%s%-6s %-12s %-20s max F1 %s", f"{row['point']} " if grid else "", row["environment"],
-                     row["method"], row["direction"], cell(row))
+    for summary in outcome.summary:  # sweep.csv's rows, one per method, cell and metric
+        if summary["metric"] == "max_f1":
+            log.info("%s%-6s %-12s %-20s max F1 %s", f"{summary['point']} " if grid else "", summary["environment"],
+                     summary["method"], summary["direction"], cell(summary))
     table, runs = out / ("grid.md" if grid else "sweep.md"), len(args.seeds) * max(1, len(grid))
     if outcome.failed:
         log.error("%d of %d seeds failed, missing from the summary: %s; summary of the others in %s",

@@ -17,6 +17,7 @@ import json
 from typing import Any
 
 from vitaplace.engine.config.scenario import Gates, Scenario
+from vitaplace.engine.outputs.rows import ResultRow
 
 __all__ = ["FAMILY", "GATES", "VISION", "TOUCH", "difficulty_rows", "family_overrides", "gate_results", "table"]
 
@@ -56,22 +57,23 @@ def gate_results(gates: Gates, values: dict[str, float | None]) -> dict[str, dic
     return results
 
 
-def difficulty_rows(scenario: Scenario, rows: list[dict[str, Any]],
+def difficulty_rows(scenario: Scenario, rows: list[ResultRow],
                     complementarity: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per evaluation and direction: its ``difficulty``, the complementarity of H-V
     and H-T there, H-V's max F1 and the gates' results (`gate_results`)."""
     gates = {e.name: e.gates for e in scenario.evaluations}
     out = []
-    for row in (r for r in rows if r["method"] == VISION):
-        where = (row["environment"], row["direction"])
+    for row in (r for r in rows if r.method == VISION):
+        where = (row.environment, row.direction)
         pair = next(c for c in complementarity if (c["environment"], c["direction"]) == where
                     and (c["vision"], c["touch"]) == (VISION, TOUCH))
         pair = {k: v for k, v in pair.items() if k not in ("environment", "direction")}
-        values = {"touch_correspondence": row["difficulty"]["touch_correspondence"], "rescue": pair["rescue"],
-                  "hv_max_f1": row["max_f1"]}
-        out.append({"environment": row["environment"], "direction": row["direction"], "difficulty": row["difficulty"],
-                    "complementarity": pair, "hv_max_f1": row["max_f1"],
-                    "gates": gate_results(gates[row["environment"]], values)})
+        difficulty = row.difficulty.dump() if row.difficulty is not None else {}
+        values = {"touch_correspondence": difficulty.get("touch_correspondence"), "rescue": pair["rescue"],
+                  "hv_max_f1": row.max_f1}
+        out.append({"environment": row.environment, "direction": row.direction, "difficulty": difficulty,
+                    "complementarity": pair, "hv_max_f1": row.max_f1,
+                    "gates": gate_results(gates[row.environment], values)})
     return out
 
 
@@ -93,10 +95,10 @@ def table(rows: list[dict[str, Any]]) -> str:
     header = ["evaluation", "direction", "touch both sides", "touch one side", "touch correspondence",
               f"{TOUCH} rescues of {VISION}'s R@1 failures", f"{VISION} max F1"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    for row in rows:
-        d, c, g = row["difficulty"], row["complementarity"], row["gates"]
+    for measured in rows:
+        d, c, g = measured["difficulty"], measured["complementarity"], measured["gates"]
         gated = {gate: _gated(g[gate], is_min) for gate, (_, is_min) in GATES.items()}
-        cells = [row["environment"], row["direction"], _pct(d["touch_both_share"]), _pct(d["touch_one_side_share"]),
+        cells = [measured["environment"], measured["direction"], _pct(d["touch_both_share"]), _pct(d["touch_one_side_share"]),
                  gated["touch_correspondence_min"], f"{c['rescued']} of {c['vision_wrong']}: {gated['rescue_min']}",
                  gated["hv_max_f1_max"]]
         lines.append("| " + " | ".join(cells) + " |")

@@ -195,7 +195,7 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
         resolved = _localise(job, folder)
         scenario = Scenario.model_validate(resolved)
         store = Store(folder, force=job.force, progress=job.progress, workers=1, cache=cache_dir(Path(job.out)))
-        rows = [{"seed": job.seed, **row} for row in run_stages(scenario, resolved, store)]
+        rows = [{"seed": job.seed, **row.dump()} for row in run_stages(scenario, resolved, store)]
     except Exception as exc:
         try:
             write_text_atomic(folder / SEED_ERROR, traceback.format_exc())

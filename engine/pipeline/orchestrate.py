@@ -14,6 +14,7 @@ from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Scenario, training_world_evaluation
 from vitaplace.engine.extension.registry import announce_run_finished, plugin_distributions
 from vitaplace.engine.outputs import completion
+from vitaplace.engine.outputs.rows import ResultRow
 import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.pipeline.keys import STAGES
 from vitaplace.engine.pipeline.manifest import write_manifest
@@ -29,7 +30,7 @@ from vitaplace.engine.pipeline.stages.transform import transform
 from vitaplace.engine.pipeline.store import Store
 
 
-def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until: str = "report") -> list[dict[str, Any]]:
+def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until: str = "report") -> list[ResultRow]:
     """Run ``scenario``'s stages into ``store``'s output folder up to and including ``until``
     (``resolved``: the scenario as read, written beside the results); return the result rows
     (if evaluated)."""
@@ -54,7 +55,7 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
     if stop >= STAGES.index("report"):
         record.report = report(store, scenario, closed(record, store, started))
     write_manifest(closed(record, store, started))
-    announce_run_finished(store.registry, out, scenario, record.rows, until)
+    announce_run_finished(store.registry, out, scenario, [row.dump() for row in record.rows], until)
     completion.write(out, record.finished_files())
     return record.rows
 

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from vitaplace.engine.outputs import completion, outdir
+from vitaplace.engine.outputs.rows import ResultRow
 
 
 @dataclass
@@ -129,7 +130,7 @@ class EvaluateRecord:
     use (its summary and PR curve); and, once every evaluation is scored, the complementarity
     of each vision-only / touch-only pair per evaluation and direction."""
 
-    rows: list[dict[str, Any]]
+    rows: list[ResultRow]
     folders: dict[tuple[str, str, str], str]
     files: list[Path]
     complementarity: list[dict[str, Any]] = field(default_factory=list)
@@ -165,7 +166,7 @@ class RunRecord:
     seconds: float = 0.0
 
     @property
-    def rows(self) -> list[dict[str, Any]]:
+    def rows(self) -> list[ResultRow]:
         """The result rows; none before the evaluate stage."""
         return self.evaluate.rows if self.evaluate is not None else []
 

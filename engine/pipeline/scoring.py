@@ -1,6 +1,6 @@
 """Scoring one evaluation folder, for a method's distances and a fusion's alike: the
 scenario's scoring settings applied to a distance matrix (`evaluate_pair`), and the results
-row read back from the folder."""
+row (`ResultRow`) read back from the folder."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ from vitaplace.engine.config.scenario import EvaluationPair, Scenario, ScenarioE
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.outputs import outdir
+from vitaplace.engine.outputs.rows import QueryDropoutShares, ResultRow, parse_row
 from vitaplace.engine.pipeline.records import RunFile
 
 
@@ -41,12 +42,14 @@ def score(scenario: Scenario, folder: Path, tme: np.ndarray, query: Run, referen
     )
 
 
-def result_row(evaluation: EvaluationPair, name: str, direction: str, folder: Path, query: RunFile) -> dict[str, Any]:
+def result_row(evaluation: EvaluationPair, name: str, direction: str, folder: Path, query: RunFile) -> ResultRow:
     """The results row of evaluation folder ``folder`` (method or fusion ``name``): its summary
     and, for an evaluation with a ``query_dropout``, the shares of the ``query`` run's samples
     that lacked each sensor (as drawn: whole samples)."""
-    summary = json.loads((folder / outdir.SUMMARY).read_text())
-    row = {"environment": evaluation.name, "method": name, "direction": direction, **summary}
-    if evaluation.query_dropout is not None:
-        row["query_dropout"] = {sensor: float(mask.mean()) if len(mask) else 0.0 for sensor, mask in query.missing.items()}
-    return row
+    summary = folder / outdir.SUMMARY
+    row = parse_row(json.loads(summary.read_text()) | dict(environment=evaluation.name, method=name, direction=direction),
+                    str(summary))
+    if evaluation.query_dropout is None:
+        return row
+    shares = {sensor: float(mask.mean()) if len(mask) else 0.0 for sensor, mask in query.missing.items()}
+    return row.model_copy(update=dict(query_dropout=QueryDropoutShares(**shares)))

@@ -744,6 +744,7 @@ def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp
     from vitaplace.engine.outputs.outdir import evaluation_dir
     from types import SimpleNamespace
 
+    from vitaplace.engine.outputs.rows import ResultRow
     from vitaplace.engine.pipeline.stages.compare import f1_at_training_threshold
 
     scenario = _scenario(_train_in("e1"), [("E2", "e2"), ("E1", "e1")])
@@ -754,10 +755,11 @@ def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp
         curve = ev.pr_curve(tme, gtm, 1.0)
         save_curve_and_decisions(folder, curve, ev.decide(tme, gtm, 1.0, curve.delta_at_max_f1))
         export_matrices_npz(folder / "matrices.npz", tme, gtm)
-        rows.append({"environment": env, "method": "H", "direction": "query-to-reference", "tau": 1.0})
+        rows.append(ResultRow(environment=env, method="H", direction="query-to-reference", tau=1.0, n_queries=2,
+                              n_revisit=2, max_f1=curve.max_f1, auc=0.5))
     rows = f1_at_training_threshold(SimpleNamespace(out=tmp_path), scenario, rows)
-    assert [row["f1_at_e1_threshold"] for row in rows] == [pytest.approx(1 / 2), pytest.approx(2 / 3)]
-    assert [row["e1_threshold"] for row in rows] == [pytest.approx(0.3)] * 2
+    assert [row.f1_at_e1_threshold for row in rows] == [pytest.approx(1 / 2), pytest.approx(2 / 3)]
+    assert [row.e1_threshold for row in rows] == [pytest.approx(0.3)] * 2
 
 
 def test_a_query_that_no_reference_can_be_compared_with_has_no_answer():

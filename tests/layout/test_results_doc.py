@@ -184,13 +184,14 @@ def test_seed_0s_gates_read_from_the_sweep_are_the_committed_difficulty_runs(arm
 
     from vitaplace.engine.cli.difficulty import difficulty_rows
     from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.outputs.rows import parse_row
 
     tables = tables_module()
     folder, scenario_file = tables.ARMS[arm][:2]
     scenario, _ = load_scenario(ROOT / "scenarios" / scenario_file)
     seed0 = folder / "length=1" / "seeds" / "seed-0"
-    from_sweep = difficulty_rows(scenario, json.loads((seed0 / "results.json").read_text()),
-                                 json.loads((seed0 / "complementarity.json").read_text()))
+    rows = [parse_row(row, "seed-0/results.json") for row in json.loads((seed0 / "results.json").read_text())]
+    from_sweep = difficulty_rows(scenario, rows, json.loads((seed0 / "complementarity.json").read_text()))
     committed = json.loads((tables.DIFFICULTY2 / f"{scenario_file.removesuffix('.yaml')}-seed-0.json").read_text())
     assert json.dumps(from_sweep, sort_keys=True) == json.dumps(committed, sort_keys=True)
     assert len(tables._gate_rows(arm)) == 8

@@ -24,16 +24,9 @@ ROW_KEYS = frozenset(ResultRow.model_fields)
 ROW_NAMES = frozenset({"row", "first"})
 #: modules that still read results rows as mappings, and why
 EXEMPT = {
-    "engine/pipeline/runner.py": "builds the rows",  # being rewritten (issue 47 item 1)
-    "engine/pipeline/fusing.py": "builds the fusions' rows",  # being rewritten (issue 47 item 1)
-    "engine/pipeline/scoring.py": "builds the rows",  # being rewritten (issue 47 item 1)
-    "engine/pipeline/stages/compare.py": "builds the rows",  # being rewritten (issue 47 item 1)
-    "engine/cli/main.py": "vitaplace run's log lines: the rows run_stages returns",
-    "engine/cli/commands.py": "vitaplace run's log lines: the rows run_stages returns",
     "engine/study/summary.py": "the summary's input: each row's dump tagged with its seed",
     "engine/evaluation/resample.py": "the block bootstrap of one seed-tagged row of the summary",
     "engine/report/figures.py": "write_pr_bands: the summary's seed-tagged rows (also from study/grid.py)",
-    "engine/cli/difficulty.py": "vitaplace difficulty: the rows run_stages returns",
     "docs/results/benchmark.py": "the committed `vitaplace difficulty` rows (engine/cli/difficulty.py's)",
 }
 

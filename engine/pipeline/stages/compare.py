@@ -15,6 +15,7 @@ from vitaplace.engine.evaluation.complementarity import complementarity
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
 from vitaplace.engine.extension.features import warn_once
 from vitaplace.engine.outputs import outdir
+from vitaplace.engine.outputs.rows import ResultRow
 import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.pipeline.records import EvaluateRecord, SimulateRecord
 from vitaplace.engine.pipeline.store import Store
@@ -32,7 +33,7 @@ def compare(store: Store, scenario: Scenario, simulated: SimulateRecord, evaluat
     return EvaluateRecord(rows, evaluated.folders, evaluated.files, pair_complementarity(store, scenario))
 
 
-def f1_at_training_threshold(store: Store, scenario: Scenario, rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+def f1_at_training_threshold(store: Store, scenario: Scenario, rows: list[ResultRow]) -> list[ResultRow]:
     """The rows with ``f1_at_e1_threshold``: F1 at the threshold that maximised the same
     method's F1 (same direction) on the training world's evaluation
     (`training_world_evaluation`), applied unchanged, and that threshold, ``e1_threshold``
@@ -40,30 +41,30 @@ def f1_at_training_threshold(store: Store, scenario: Scenario, rows: list[dict[s
     source, _ = training_world_evaluation(scenario)
     completed = []
     for row in rows:
-        row = {**row, "f1_at_e1_threshold": None, "e1_threshold": None}
+        f1, threshold = None, None
         if source is not None:
-            curve = load_curve(outdir.evaluation_dir(store.out, source, row["method"], row["direction"]) / outdir.PR_CURVE)
-            with np.load(outdir.evaluation_dir(store.out, row["environment"], row["method"], row["direction"])
+            curve = load_curve(outdir.evaluation_dir(store.out, source, row.method, row.direction) / outdir.PR_CURVE)
+            with np.load(outdir.evaluation_dir(store.out, row.environment, row.method, row.direction)
                          / outdir.MATRICES) as m:
-                row["f1_at_e1_threshold"] = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row["tau"])
-            row["e1_threshold"] = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None
-        completed.append(row)
+                f1 = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row.tau)
+            threshold = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None
+        completed.append(row.model_copy(update=dict(f1_at_e1_threshold=f1, e1_threshold=threshold)))
     return completed
 
 
-def warn_few_revisits(store: Store, simulated: SimulateRecord, rows: list[dict[str, Any]]) -> None:
+def warn_few_revisits(store: Store, simulated: SimulateRecord, rows: list[ResultRow]) -> None:
     """Warn (log, manifest.json, report.md; on the run whose samples are the queries) about
     every evaluation direction in which fewer than `MIN_REVISITS` queries have a true
     match: with none, its max F1 of 0 says nothing about a method."""
     for row in rows:
-        n, queries = row["n_revisit"], row["n_queries"]
+        n, queries = row.n_revisit, row.n_queries
         if n >= MIN_REVISITS:
             continue
-        side = "query" if row["direction"] == "query-to-reference" else "reference"
+        side = "query" if row.direction == "query-to-reference" else "reference"
         what = ("none of its {q} queries has" if n == 0 else "only {n} of its {q} queries have").format(n=n, q=queries)
-        warn_once(store.run(simulated.runs[f"{row['environment']}/{side}"]), f"revisits {row['direction']}",
-                  f"evaluation {row['environment']} {row['direction']}: {what} a true match within tau = "
-                  f"{row['tau']:g} m (n_revisit < {MIN_REVISITS}): its max F1 and recall rest on too few samples "
+        warn_once(store.run(simulated.runs[f"{row.environment}/{side}"]), f"revisits {row.direction}",
+                  f"evaluation {row.environment} {row.direction}: {what} a true match within tau = "
+                  f"{row.tau:g} m (n_revisit < {MIN_REVISITS}): its max F1 and recall rest on too few samples "
                   "to compare methods by")
 
 
