@@ -96,7 +96,8 @@ def _digest(parts: Iterable[str | bytes]) -> str:
 def run_key(out: Path, stage: str) -> str:
     """What identifies a logged run: its folder, last stage, and the bytes of its results.json
     and scenario.resolved.yaml (a rerun that recomputed nothing has the same key)."""
-    files = [(out / name).read_bytes() if (out / name).is_file() else b"" for name in ("results.json", "scenario.resolved.yaml")]
+    files = [(out / name).read_bytes() if (out / name).is_file() else b""
+             for name in ("results.json", "scenario.resolved.yaml")]
     return _digest([str(out.resolve()), stage, *files])
 
 
@@ -167,7 +168,8 @@ def vitaplace_run_finished(out: Path, scenario: Any, rows: Sequence[ResultRow | 
     key = run_key(out, stage)
     earlier = _logged(client, experiment_id, key)
     if earlier is not None:
-        log.info("MLflow: %s is logged already (experiment %s, run %s): not logged again", out, experiment, earlier.info.run_id)
+        log.info("MLflow: %s is logged already (experiment %s, run %s): not logged again", out, experiment,
+                 earlier.info.run_id)
         return
     tags = {**_manifest_tags(out, stage), KEY_TAG: key}
     if os.environ.get(PARENT_ENV):
@@ -237,4 +239,5 @@ def vitaplace_sweep_finished(out: Path, scenario: Any, seeds: list[int], failed:
     for figure in sorted(out.glob("pr-bands-*")):
         client.log_artifact(parent, str(figure), artifact_path="pr-bands")
     client.set_tag(parent, SUMMARY_TAG, summary)
-    log.info("logged the sweep to MLflow: run %s, %d seed(s)%s", parent, len(seeds), f", {len(failed)} failed" if failed else "")
+    log.info("logged the sweep to MLflow: run %s, %d seed(s)%s", parent, len(seeds),
+             f", {len(failed)} failed" if failed else "")

@@ -33,12 +33,15 @@ The tensor-core backend (precision tf32 or bf16) is `vitaplace.engine.network.te
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, Literal, NamedTuple, Protocol, get_args
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple, Protocol, get_args
 
 import numpy as np
 
 from vitaplace.engine.base.errors import UserError
 from vitaplace.kernels import reference
+
+if TYPE_CHECKING:
+    from vitaplace.kernels.tiles import TileConfig
 
 #: GEMM precisions: float32 everywhere; tf32 and bf16 run on CUDA tensor cores
 #: (`tensorcores.CublasBackend`). The one spelling of them: MuPNet's ``precision`` parameter is this type.
@@ -96,6 +99,10 @@ class _Scratch:
 
     def __init__(self) -> None:
         self._scratch: dict[tuple[str, tuple[int, ...]], Any] = {}
+
+    def empty(self, shape: tuple[int, ...], dtype: type = np.float32) -> Any:
+        """A zeroed array on the backend's device (each backend's own)."""
+        raise NotImplementedError
 
     def _buffer(self, use: str, shape: tuple[int, ...]) -> Any:
         buf = self._scratch.get((use, shape))
@@ -161,7 +168,8 @@ class NumpyBackend(_Scratch):
     def weights_to_host(self, handle: _Weights) -> np.ndarray:
         return handle.W.copy()
 
-    def predict(self, Y, W: _Weights, X, E, G, R, slot: int, activation: str, slope: float) -> None:
+    def predict(self, Y: np.ndarray, W: _Weights, X: np.ndarray, E: np.ndarray, G: np.ndarray, R: np.ndarray | None,
+                slot: int, activation: str, slope: float) -> None:
         A = self._buffer("A", E.shape)
         np.matmul(Y, W.W, out=A)
         if activation == "leaky_relu" and 0.0 <= slope <= 1.0:
@@ -179,7 +187,8 @@ class NumpyBackend(_Scratch):
         if R is not None:
             R[slot] = np.einsum("ij,ij->i", E, E)  # float32 row sums, stored as float64
 
-    def latent_update(self, Y, G, W: _Weights, eta: float, E_above, mask) -> None:
+    def latent_update(self, Y: np.ndarray, G: np.ndarray, W: _Weights, eta: float, E_above: np.ndarray | None,
+                      mask: np.ndarray | None) -> None:
         # Y <- Y + 2 eta (G W^T - E_above): GEMM into a (batch x n_l) scratch, then small passes.
         t = self._buffer("latent", Y.shape)
         np.matmul(G, W.Wt, out=t)
@@ -190,7 +199,7 @@ class NumpyBackend(_Scratch):
             np.multiply(t, mask[:, None], out=t)
         np.add(Y, t, out=Y)
 
-    def weight_update(self, W: _Weights, Y, G, eta: float) -> None:
+    def weight_update(self, W: _Weights, Y: np.ndarray, G: np.ndarray, eta: float) -> None:
         # W <- W + (2 eta Y)^T G by chunks of rows: a W-sized temporary would cost as much
         # memory again as W; 2 eta is folded into the small Y instead of a pass over W. The
         # same chunk is added to the columns of Wt, so Wt stays W^T exactly.
@@ -206,35 +215,36 @@ class NumpyBackend(_Scratch):
             np.add(W.W[rows], tc, out=W.W[rows])
             np.add(W.Wt[:, rows], tc.T, out=W.Wt[:, rows])
 
-    def gather_rows(self, src, index, dst) -> None:
+    def gather_rows(self, src: np.ndarray, index: np.ndarray, dst: np.ndarray) -> None:
         np.take(src, index, axis=0, out=dst)
 
-    def scatter_rows(self, src, index, dst) -> None:
+    def scatter_rows(self, src: np.ndarray, index: np.ndarray, dst: np.ndarray) -> None:
         dst[index] = src
 
-    def stop_converged(self, R, limits, active, steps) -> None:
+    def stop_converged(self, R: np.ndarray, limits: np.ndarray, active: np.ndarray, steps: np.ndarray) -> None:
         done = np.all(R < limits[:, None], axis=0)
         active &= ~done
         steps += active
 
-    def scale_add(self, dst, src, alpha: float, mask) -> None:
+    def scale_add(self, dst: np.ndarray, src: np.ndarray, alpha: float, mask: np.ndarray | None) -> None:
         t = self._buffer("scale_add", dst.shape)
         np.multiply(src, self.dtype.type(alpha), out=t)
         if mask is not None:
             np.multiply(t, mask[:, None], out=t)
         np.add(dst, t, out=dst)
 
-    def row_dot(self, A, B, weight: float, out) -> None:
+    def row_dot(self, A: np.ndarray, B: np.ndarray, weight: float, out: np.ndarray) -> None:
         out += weight * np.einsum("ij,ij->i", A, B, dtype=np.float64)
 
-    def restart_control(self, scale, plain, uphill, active) -> None:
+    def restart_control(self, scale: np.ndarray, plain: np.ndarray, uphill: np.ndarray, active: np.ndarray) -> None:
         live = active != 0
         restart = uphill > 0
         scale[live & restart & (plain != 0)] *= 0.5
         uphill[live] = restart[live]
         plain[live] = restart[live]
 
-    def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
+    def momentum_step(self, Y: np.ndarray, V: np.ndarray, D: np.ndarray, beta: float, restart: np.ndarray,
+                      scale: np.ndarray, active: np.ndarray) -> None:
         live = active != 0
         keep = np.where(live & ~(restart > 0), beta, 0.0).astype(self.dtype)
         d = self._buffer("momentum", D.shape)
@@ -245,7 +255,8 @@ class NumpyBackend(_Scratch):
         np.multiply(V, self.dtype.type(beta), out=d)
         np.add(Y, d, out=Y)
 
-    def stop_settled(self, R, limits, gnorm, scale, g0, rtol2: float, active, steps) -> None:
+    def stop_settled(self, R: np.ndarray, limits: np.ndarray, gnorm: np.ndarray, scale: np.ndarray, g0: np.ndarray,
+                     rtol2: float, active: np.ndarray, steps: np.ndarray) -> None:
         done = np.all(R < limits[:, None], axis=0) | (scale * scale * gnorm < rtol2 * g0)
         active &= ~done
         steps += active
@@ -255,14 +266,17 @@ class NumpyBackend(_Scratch):
 
 
 class WarpBackend(_Scratch):
-    """Warp kernels on ``cpu`` or ``cuda``; on CUDA, captured sequences replay as CUDA graphs."""
+    """Warp kernels on ``cpu`` or ``cuda``; on CUDA, captured sequences replay as CUDA graphs.
+
+    Arrays are ``wp.array``; a weight handle is opaque (`Backend`): a `_Weights` here, the
+    tensor-core subclass's own in `tensorcores.CublasBackend`, hence ``Any``."""
 
     name = "warp"
 
     def __init__(self, device: str | None = None) -> None:
-        from vitaplace.kernels import solver_kernels, warp_kernels  # imported lazily: compiles on first use
-
         import warp as wp
+
+        from vitaplace.kernels import solver_kernels, warp_kernels  # imported lazily: compiles on first use
 
         super().__init__()
         self._wp = wp
@@ -272,12 +286,12 @@ class WarpBackend(_Scratch):
         self.device = device or ("cuda" if wp.is_cuda_available() else "cpu")
         self._device = wp.get_device(self.device)
 
-    def _tiles(self, kernel: str, rows: int):
+    def _tiles(self, kernel: str, rows: int) -> TileConfig:
         return self._kernels.tile_config(self._device, kernel, rows)
 
     _DTYPES = {np.dtype(np.float32): "float32", np.dtype(np.float64): "float64", np.dtype(np.int32): "int32"}
 
-    def _wp_dtype(self, dtype) -> Any:
+    def _wp_dtype(self, dtype: type | np.dtype) -> Any:
         return getattr(self._wp, self._DTYPES[np.dtype(dtype)])
 
     def empty(self, shape: tuple[int, ...], dtype: type = np.float32) -> Any:
@@ -289,7 +303,7 @@ class WarpBackend(_Scratch):
 
     def upload(self, host: np.ndarray, dst: Any) -> None:
         host = np.ascontiguousarray(host, dtype=self._wp.dtype_to_numpy(dst.dtype))
-        src = self._wp.array(host, dtype=dst.dtype, device="cpu")
+        src: Any = self._wp.array(host, dtype=dst.dtype, device="cpu")
         self._wp.copy(dst, src)
 
     def download(self, src: Any) -> np.ndarray:
@@ -298,56 +312,59 @@ class WarpBackend(_Scratch):
     def fill(self, dst: Any, value: float) -> None:
         dst.fill_(value)
 
-    def weights(self, host: np.ndarray) -> _Weights:
+    def weights(self, host: np.ndarray) -> Any:
         """``W`` and its transpose ``Wt`` (read by the latent update), kept in step by
         the weight update."""
         return _Weights(self.to_device(host), self.to_device(np.asarray(host).T))
 
-    def upload_weights(self, host: np.ndarray, handle: _Weights) -> None:
+    def upload_weights(self, host: np.ndarray, handle: Any) -> None:
         self.upload(host, handle.W)
         self.upload(np.asarray(host).T, handle.Wt)
 
-    def weights_to_host(self, handle: _Weights) -> np.ndarray:
+    def weights_to_host(self, handle: Any) -> np.ndarray:
         return handle.W.numpy().copy()
 
-    def predict(self, Y, W: _Weights, X, E, G, R, slot: int, activation: str, slope: float) -> None:
+    def predict(self, Y: Any, W: Any, X: Any, E: Any, G: Any, R: Any | None, slot: int, activation: str,
+                slope: float) -> None:
         k = self._kernels
         tiles = self._tiles("predict", Y.shape[0])
-        partial = None if R is None else self._buffer("row_partial", k.row_partial_shape(Y.shape[0], W.W.shape[1], tiles))
+        partial = (None if R is None
+                   else self._buffer("row_partial", k.row_partial_shape(Y.shape[0], W.W.shape[1], tiles)))
         k.predict(Y, W.W, X, E, G, partial, R, slot, activation=activation, slope=slope, tiles=tiles)
 
-    def latent_update(self, Y, G, W: _Weights, eta: float, E_above, mask) -> None:
+    def latent_update(self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None, mask: Any | None) -> None:
         k = self._kernels
         tiles = self._tiles("latent", Y.shape[0])
         shape = k.latent_scratch_shape(Y.shape[0], Y.shape[1], W.W.shape[1], self._device, tiles)
         scratch = self._buffer("latent", shape) if shape[0] else None
         k.latent_update(Y, G, W.Wt, eta, scratch, E_above=E_above, mask=mask, tiles=tiles)
 
-    def weight_update(self, W: _Weights, Y, G, eta: float) -> None:
+    def weight_update(self, W: Any, Y: Any, G: Any, eta: float) -> None:
         self._kernels.weight_update(W.W, Y, G, eta, Wt=W.Wt, tiles=self._tiles("weight", Y.shape[0]))
 
-    def gather_rows(self, src, index, dst) -> None:
+    def gather_rows(self, src: Any, index: Any, dst: Any) -> None:
         self._kernels.gather_rows(src, index, dst)
 
-    def scatter_rows(self, src, index, dst) -> None:
+    def scatter_rows(self, src: Any, index: Any, dst: Any) -> None:
         self._kernels.scatter_rows(src, index, dst)
 
-    def stop_converged(self, R, limits, active, steps) -> None:
+    def stop_converged(self, R: Any, limits: Any, active: Any, steps: Any) -> None:
         self._kernels.stop_converged(R, limits, active, steps)
 
-    def scale_add(self, dst, src, alpha: float, mask) -> None:
+    def scale_add(self, dst: Any, src: Any, alpha: float, mask: Any | None) -> None:
         self._solver_kernels.scale_add(dst, src, alpha, mask)
 
-    def row_dot(self, A, B, weight: float, out) -> None:
+    def row_dot(self, A: Any, B: Any, weight: float, out: Any) -> None:
         self._solver_kernels.row_dot(A, B, weight, out)
 
-    def restart_control(self, scale, plain, uphill, active) -> None:
+    def restart_control(self, scale: Any, plain: Any, uphill: Any, active: Any) -> None:
         self._solver_kernels.restart_control(scale, plain, uphill, active)
 
-    def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
+    def momentum_step(self, Y: Any, V: Any, D: Any, beta: float, restart: Any, scale: Any, active: Any) -> None:
         self._solver_kernels.momentum_step(Y, V, D, beta, restart, scale, active)
 
-    def stop_settled(self, R, limits, gnorm, scale, g0, rtol2: float, active, steps) -> None:
+    def stop_settled(self, R: Any, limits: Any, gnorm: Any, scale: Any, g0: Any, rtol2: float, active: Any,
+                     steps: Any) -> None:
         self._solver_kernels.stop_settled(R, limits, gnorm, scale, g0, rtol2, active, steps)
 
     def capture(self, fn: Callable[[], None]) -> Callable[[], None]:

@@ -78,12 +78,13 @@ class BatchState:
         R = self.R if energy else None
         for slot, e in enumerate(self.edges):
             n = e.name
-            self.be.predict(self.Y[e.upper], self.weights[n], self._node(e.lower), self.E[n], self.G[n], R, slot, act, slope)
+            self.be.predict(self.Y[e.upper], self.weights[n], self._node(e.lower), self.E[n], self.G[n], R, slot, act,
+                            slope)
 
     def energies(self) -> dict[str, float]:
         """F per edge (eq. 2) of the last `predict_all` (waits for the device)."""
         sums = self.be.download(self.R).sum(axis=1)
-        return {e.name: float(s) for e, s in zip(self.edges, sums)}
+        return {e.name: float(s) for e, s in zip(self.edges, sums, strict=True)}
 
     def latent_step(self, mask: Any | None = None) -> None:
         """Y <- Y - eta_y dF/dY for every node (eq. 3, and the prior's lambda Y), all from

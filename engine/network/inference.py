@@ -71,7 +71,7 @@ class InferredSamples:
             self.latents[node][rows] = values
 
     def infer(self, rows: np.ndarray, resident_x: Mapping[str, Any], max_steps: int,
-              on_progress: Callable[[int], None] | None) -> None:
+              on_progress: Callable[[int], object] | None) -> None:
         """Infer the samples ``rows`` of the resident inputs, ``on_progress(k)`` as k more stop."""
         be = self.be
         if len(rows) not in self._full:  # full-size batches are reused (a call has at most two sizes)

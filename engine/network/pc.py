@@ -23,6 +23,7 @@ import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -58,7 +59,7 @@ class TrainingHistory:
 
     def total(self) -> list[float]:
         """Energy per sample of each epoch, summed over the edges."""
-        return [float(sum(values)) for values in zip(*self.energy.values())]
+        return [float(sum(values)) for values in zip(*self.energy.values(), strict=True)]
 
 
 @dataclass
@@ -261,7 +262,9 @@ class Network:
                 state = self._cached_state(states, len(index), present)
                 state.prior = cfg.latent_prior
                 if len(index) not in runs:
-                    runs[len(index)] = be.capture(functools.partial(state.minibatch, resident_x, resident_y, cfg.inference_steps))
+                    runs[len(index)] = be.capture(
+                        functools.partial(state.minibatch, resident_x, resident_y, cfg.inference_steps)
+                    )
                 be.upload(index.astype(np.int32), state.index)
                 runs[len(index)]()
                 energy = state.energies()
@@ -290,7 +293,7 @@ class Network:
         max_steps: int,
         thresholds: Mapping[str, float] | None = None,
         batch_size: int = 500,
-        on_progress: Callable[[int], None] | None = None,
+        on_progress: Callable[[int], object] | None = None,
         solver: Solver | None = None,
         latent_prior: float = 0.0,
         sample_ids: np.ndarray | None = None,
@@ -342,9 +345,15 @@ class Network:
         directory.mkdir(parents=True, exist_ok=True)
         self._sync_weights_to_host()
         meta = {"format_version": FORMAT_VERSION, "seed": self.seed, "config": asdict(self.config)}
+        # typed Any: np.savez's stub gives ``**kwds`` ArrayLike but would also bind a key named allow_pickle
+        arrays: dict[str, Any] = self.weights
         with atomic_path(directory / "weights.npz") as tmp, open(tmp, "wb") as f:
-            np.savez(f, **self.weights)
-        scalers = {f"{m}/{part}": arr for m, pair in self.scalers.items() for part, arr in zip(("offset", "scale"), pair)}
+            np.savez(f, **arrays)
+        scalers: dict[str, Any] = {
+            f"{m}/{part}": arr
+            for m, pair in self.scalers.items()
+            for part, arr in zip(("offset", "scale"), pair, strict=True)
+        }
         with atomic_path(directory / "scalers.npz") as tmp, open(tmp, "wb") as f:
             np.savez(f, **scalers)
         write_text_atomic(directory / "config.json", json.dumps(meta, indent=2))
@@ -362,7 +371,8 @@ class Network:
         version = meta.get("format_version")
         if version != FORMAT_VERSION:
             raise NetworkError(
-                f"{meta_path}: network format version {version}, this vitaplace reads version {FORMAT_VERSION}; retrain it"
+                f"{meta_path}: network format version {version}, "
+                f"this vitaplace reads version {FORMAT_VERSION}; retrain it"
             )
         net = cls(meta["config"], seed=meta["seed"], backend=backend)
         with np.load(directory / "weights.npz") as weights:
@@ -376,6 +386,8 @@ class Network:
         with np.load(directory / "scalers.npz") as scalers:
             for key in scalers.files:
                 m, part = key.split("/")
+                offset: Any  # None, as is scale, until the file's other part of the pair is read
+                scale: Any
                 offset, scale = net.scalers.get(m, (None, None))
                 net.scalers[m] = (scalers[key], scale) if part == "offset" else (offset, scalers[key])
         return net

@@ -30,9 +30,9 @@ def cuda_available() -> bool:
     if not _cuda_driver_loads():
         return False
     try:
-        from vitaplace.kernels import warp_kernels  # noqa: F401 - sets Warp's log level
-
         import warp as wp
+
+        from vitaplace.kernels import warp_kernels  # noqa: F401 - sets Warp's log level
 
         wp.init()
         return bool(wp.is_cuda_available())
@@ -45,7 +45,9 @@ def check_precision(precision: str, backend: str = "auto") -> None:
     if known_precision(precision) == "float32":
         return
     if backend == "numpy":
-        raise BackendError(f"precision '{precision}' runs on CUDA tensor cores; backend 'numpy' computes in float32 only")
+        raise BackendError(
+            f"precision '{precision}' runs on CUDA tensor cores; backend 'numpy' computes in float32 only"
+        )
     if not cuda_available():
         raise BackendError(f"precision '{precision}' needs a CUDA device and none was found; use precision 'float32'")
 

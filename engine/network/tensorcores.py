@@ -55,7 +55,7 @@ def _load_cublas() -> ctypes.CDLL:
 class Cublas:
     """One cuBLAS handle on the Warp stream of a CUDA device (ctypes), with its own workspace."""
 
-    def __init__(self, device) -> None:
+    def __init__(self, device: Any) -> None:
         import warp as wp
 
         self._wp, self._device = wp, device
@@ -94,7 +94,7 @@ class Cublas:
         self._check(status, "cublasGemmEx")
 
 
-def row_major_gemm(blas, precision: str, C, A, B, trans_a: bool = False, trans_b: bool = False,
+def row_major_gemm(blas: Any, precision: str, C: Any, A: Any, B: Any, trans_a: bool = False, trans_b: bool = False,
                    alpha: float = 1.0, beta: float = 0.0) -> None:
     """``C = alpha op(A) op(B) + beta C`` on row-major Warp arrays through a column-major
     ``blas.gemm_ex``: the row-major C is the column-major C^T = op(B)^T op(A)^T, and a
@@ -252,7 +252,8 @@ class CublasBackend(WarpBackend):
         return super().weights_to_host(handle)
 
     # ---------------------------------------------------------------- precision
-    def _gemm(self, C, A, B, trans_a: bool = False, trans_b: bool = False, alpha: float = 1.0, beta: float = 0.0) -> None:
+    def _gemm(self, C: Any, A: Any, B: Any, trans_a: bool = False, trans_b: bool = False, alpha: float = 1.0,
+              beta: float = 0.0) -> None:
         if not self._kernels.planning():  # a planning pass only records the Warp kernels
             row_major_gemm(self._blas, self.precision, C, A, B, trans_a, trans_b, alpha, beta)
 
@@ -264,7 +265,7 @@ class CublasBackend(WarpBackend):
             buf = self._low[key] = self._wp.zeros(of.shape, dtype=self._wp.bfloat16, device=self.device)
         return buf
 
-    def _operand(self, X) -> Any:
+    def _operand(self, X: Any) -> Any:
         """A GEMM operand at the working precision (bf16: a fresh rounded copy)."""
         if self.precision != "bf16":
             return X
@@ -288,7 +289,8 @@ class CublasBackend(WarpBackend):
             self._round_weights(handle)
 
     # ---------------------------------------------------------------- the step
-    def predict(self, Y, W: _LowWeights, X, E, G, R, slot: int, activation: str, slope: float) -> None:
+    def predict(self, Y: Any, W: _LowWeights, X: Any, E: Any, G: Any, R: Any | None, slot: int, activation: str,
+                slope: float) -> None:
         with self._stream_for(W, (Y, W, X), (E, G, None if R is None else (R.ptr, slot))):
             k = self._kernels
             A = self._buffer("product", tuple(E.shape))
@@ -300,17 +302,17 @@ class CublasBackend(WarpBackend):
             k.predict_epilogue(A, X, E, G, partial, R, slot, activation=activation, slope=slope, G_low=G_low,
                                tiles=tiles)
 
-    def _gain(self, G) -> Any:
+    def _gain(self, G: Any) -> Any:
         """G at the working precision: its bfloat16 copy, written by the last predict."""
         return self._low_buffer("gain", G) if self.precision == "bf16" else G
 
-    def latent_update(self, Y, G, W: _LowWeights, eta: float, E_above, mask) -> None:
+    def latent_update(self, Y: Any, G: Any, W: _LowWeights, eta: float, E_above: Any | None, mask: Any | None) -> None:
         with self._stream_for(W, (G, W, E_above, mask), (Y,)):
             D = self._buffer("latent", tuple(Y.shape))
             self._gemm(D, self._gain(G), W.W if W.low is None else W.low, trans_b=True)
             self._kernels.latent_apply(Y, D, eta, E_above=E_above, mask=mask)
 
-    def weight_update(self, W: _LowWeights, Y, G, eta: float) -> None:
+    def weight_update(self, W: _LowWeights, Y: Any, G: Any, eta: float) -> None:
         # W <- W + 2 eta Y^T G accumulated by cuBLAS in float32 into the float32 master copy
         with self._stream_for(W, (Y, G), (W,)):
             self._gemm(W.W, self._operand(Y), self._gain(G), trans_a=True, alpha=2.0 * eta, beta=1.0)
@@ -321,41 +323,42 @@ class CublasBackend(WarpBackend):
         with self._stream_for(None, (), (dst,)):
             super().fill(dst, value)
 
-    def gather_rows(self, src, index, dst) -> None:
+    def gather_rows(self, src: Any, index: Any, dst: Any) -> None:
         with self._stream_for(None, (src, index), (dst,)):
             super().gather_rows(src, index, dst)
 
-    def scatter_rows(self, src, index, dst) -> None:
+    def scatter_rows(self, src: Any, index: Any, dst: Any) -> None:
         with self._stream_for(None, (src, index), (dst,)):
             super().scatter_rows(src, index, dst)
 
-    def stop_converged(self, R, limits, active, steps) -> None:
+    def stop_converged(self, R: Any, limits: Any, active: Any, steps: Any) -> None:
         self._join()  # reads every edge's row energies
         with self._stream_for(None, (limits,), (active, steps)):
             super().stop_converged(R, limits, active, steps)
 
     # the solvers' vector steps: on the main stream, after everything the side stream issued
-    def scale_add(self, dst, src, alpha: float, mask) -> None:
+    def scale_add(self, dst: Any, src: Any, alpha: float, mask: Any | None) -> None:
         self._join()
         with self._stream_for(None, (src, mask), (dst,)):
             super().scale_add(dst, src, alpha, mask)
 
-    def row_dot(self, A, B, weight: float, out) -> None:
+    def row_dot(self, A: Any, B: Any, weight: float, out: Any) -> None:
         self._join()
         with self._stream_for(None, (A, B), (out,)):
             super().row_dot(A, B, weight, out)
 
-    def restart_control(self, scale, plain, uphill, active) -> None:
+    def restart_control(self, scale: Any, plain: Any, uphill: Any, active: Any) -> None:
         self._join()
         with self._stream_for(None, (active,), (scale, plain, uphill)):
             super().restart_control(scale, plain, uphill, active)
 
-    def momentum_step(self, Y, V, D, beta: float, restart, scale, active) -> None:
+    def momentum_step(self, Y: Any, V: Any, D: Any, beta: float, restart: Any, scale: Any, active: Any) -> None:
         self._join()
         with self._stream_for(None, (D, restart, scale, active), (Y, V)):
             super().momentum_step(Y, V, D, beta, restart, scale, active)
 
-    def stop_settled(self, R, limits, gnorm, scale, g0, rtol2: float, active, steps) -> None:
+    def stop_settled(self, R: Any, limits: Any, gnorm: Any, scale: Any, g0: Any, rtol2: float, active: Any,
+                     steps: Any) -> None:
         self._join()
         with self._stream_for(None, (limits, gnorm, scale, g0), (active, steps)):
             super().stop_settled(R, limits, gnorm, scale, g0, rtol2, active, steps)

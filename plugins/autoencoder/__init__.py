@@ -1,9 +1,11 @@
 """Built-in plugin: the backprop control of MuPNet (``autoencoder``)."""
 
-from vitaplace.plugin import hookimpl
+from collections.abc import Callable
+
+from vitaplace.plugin import FeatureExtractor, hookimpl
 from vitaplace.plugins.autoencoder.extractor import AutoencoderExtractor
 
 
 @hookimpl
-def vitaplace_register_features(register) -> None:
+def vitaplace_register_features(register: Callable[[type[FeatureExtractor]], None]) -> None:
     register(AutoencoderExtractor)

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 import pydantic
@@ -21,7 +23,7 @@ from scipy.spatial.distance import cdist
 from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.plugin import FeatureExtractor, Features, Run
+from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run
 from vitaplace.plugins.autoencoder.model import Autoencoder, Encoder, OptimizerName, TrainingSettings, train
 from vitaplace.plugins.mupnet.extractor import ArchitectureParams
 from vitaplace.plugins.mupnet.inputs import TactileRange, raw_inputs, report_out_of_range
@@ -51,7 +53,7 @@ class AutoencoderExtractor(FeatureExtractor):
     Params = AutoencoderParams
     params: AutoencoderParams
 
-    def __init__(self, params=None) -> None:
+    def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         super().__init__(params)
         self.model: Autoencoder | None = None
         self.tactile_range: TactileRange | None = None
@@ -59,9 +61,10 @@ class AutoencoderExtractor(FeatureExtractor):
         self.converged = False
 
     @classmethod
-    def memory_bytes(cls, params: AutoencoderParams, train_samples: int) -> tuple[int, str, str]:
+    def memory_bytes(cls, params: ExtractorParams, train_samples: int) -> tuple[int, str, str]:
         """The first visual layer's weights (decoder, encoder unless tied), their gradients and
         optimizer moments, and the training images."""
+        params = cast(AutoencoderParams, params)  # made by validate_params from cls.Params
         h, w = params.image_size
         inputs = h * w * 3 if "visual" in params.modalities else 0
         copies = (1 if params.encoder == "tied" else 2) * (4 if params.optimizer == "adam" else 2)
@@ -73,6 +76,7 @@ class AutoencoderExtractor(FeatureExtractor):
         if "visual" in raw:
             scaled["visual"] = raw["visual"] * np.float32(1 / 255)
         if "tactile" in raw:
+            assert self.tactile_range is not None  # fitted with the tactile input, or loaded
             offset, scale = self.tactile_range.scaler()
             scaled["tactile"] = (raw["tactile"] - offset) * scale
         return scaled
@@ -115,7 +119,8 @@ class AutoencoderExtractor(FeatureExtractor):
     def save_state(self, directory: Path) -> None:
         if self.model is None:
             raise RuntimeError("autoencoder: nothing to save before fit()")
-        np.savez(directory / WEIGHTS_FILE, **self.model.weights)
+        weights: dict[str, Any] = self.model.weights  # Any: np.savez's stub would bind a key named allow_pickle
+        np.savez(directory / WEIGHTS_FILE, **weights)
         model = {"sizes": self.model.sizes, "converged": self.converged, "history": self.history}
         write_text_atomic(directory / "model.json", json.dumps(model))
         if self.tactile_range is not None:

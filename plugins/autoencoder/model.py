@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -54,7 +54,7 @@ class Autoencoder:
         self.dtype = np.dtype(dtype)
         rng = np.random.default_rng(seed)
         # the decoder drawn as MuPNet's Network draws its edges: every stack bottom up, then the joint edges
-        shapes = {f"{m}.{l}": (s[l], s[l - 1]) for m, s in self.sizes.items() for l in range(1, len(s))}
+        shapes = {f"{m}.{k}": (s[k], s[k - 1]) for m, s in self.sizes.items() for k in range(1, len(s))}
         shapes.update({f"joint.{m}": (joint, s[-1]) for m, s in self.sizes.items()})
         self.weights = {name: glorot_uniform(rng, *shape).astype(self.dtype) for name, shape in shapes.items()}
         if encoder == "learned":
@@ -77,13 +77,14 @@ class Autoencoder:
         """The joint code (B, joint) of the inputs of every modality."""
         return self._encode(inputs, {})[0]
 
-    def _encode(self, inputs: Mapping[str, np.ndarray], stacks: dict[str, list[Layer]]):
-        total = 0
+    def _encode(self, inputs: Mapping[str, np.ndarray],
+                stacks: dict[str, list[Layer]]) -> tuple[np.ndarray, np.ndarray]:
+        total: Any = 0  # the joint pre-activation: each modality's share (B, joint) added to 0
         for m, s in self.sizes.items():
             h = np.asarray(inputs[m], self.dtype)
             stacks[m] = []
-            for l in range(1, len(s)):
-                h = self._dense(h, self.encoder_weight(f"{m}.{l}"), stacks[m])
+            for k in range(1, len(s)):
+                h = self._dense(h, self.encoder_weight(f"{m}.{k}"), stacks[m])
             # the stack's top and its share of the joint pre-activation (phi is applied to the sum)
             stacks[m].append(Layer(h, h @ self.encoder_weight(f"joint.{m}")))
             total = total + stacks[m][-1].a
@@ -91,8 +92,8 @@ class Autoencoder:
 
     def _decode(self, z: np.ndarray, m: str, layers: list[Layer]) -> np.ndarray:
         y = self._dense(z, self.weights[f"joint.{m}"], layers)
-        for l in range(len(self.sizes[m]) - 1, 0, -1):
-            y = self._dense(y, self.weights[f"{m}.{l}"], layers)
+        for k in range(len(self.sizes[m]) - 1, 0, -1):
+            y = self._dense(y, self.weights[f"{m}.{k}"], layers)
         return y
 
     def _backward(self, layers: list[Layer], weights: list[np.ndarray], grad: np.ndarray,
@@ -100,7 +101,7 @@ class Autoencoder:
         """Backprop ``grad`` (of the last layer's output) through dense ``layers`` (last
         first); the weights' gradients appended to ``into``; returns the first input's
         gradient (None unless ``to_input``: the data's gradient is not needed)."""
-        for i, (layer, w) in enumerate(zip(reversed(layers), reversed(weights))):
+        for i, (layer, w) in enumerate(zip(reversed(layers), reversed(weights), strict=True)):
             g = grad * activation_derivative(layer.a, self.activation, self.slope)
             into.append(layer.x.T @ g)
             if i == len(layers) - 1 and not to_input:
@@ -113,24 +114,26 @@ class Autoencoder:
         stacks: dict[str, list[Layer]] = {}
         z, a_z = self._encode(inputs, stacks)
         batch = len(z)
-        losses, grads, dz = {}, {}, np.zeros_like(z)
+        losses: dict[str, float] = {}
+        grads: dict[str, np.ndarray] = {}
+        dz = np.zeros_like(z)
         for m, s in self.sizes.items():
             layers: list[Layer] = []
             error = np.asarray(inputs[m], self.dtype) - self._decode(z, m, layers)
             losses[m] = float(np.sum(error * error)) / batch
-            names = [f"joint.{m}"] + [f"{m}.{l}" for l in range(len(s) - 1, 0, -1)]
+            names = [f"joint.{m}"] + [f"{m}.{k}" for k in range(len(s) - 1, 0, -1)]
             found: list[np.ndarray] = []
             dz += self._backward(layers, [self.weights[n] for n in names], error * (-2 / batch), found)
-            grads.update(zip(reversed(names), found))
+            grads.update(zip(reversed(names), found, strict=True))
         gz = dz * activation_derivative(a_z, self.activation, self.slope)
         for m, s in self.sizes.items():
-            names = [f"{m}.{l}" for l in range(1, len(s))]
+            names = [f"{m}.{k}" for k in range(1, len(s))]
             top = stacks[m][-1]
             encoder_grads = {f"joint.{m}": top.x.T @ gz}
             found = []
             self._backward(stacks[m][:-1], [self.encoder_weight(n) for n in names],
                            gz @ self.encoder_weight(f"joint.{m}").T, found, to_input=False)
-            encoder_grads.update(zip(reversed(names), found))
+            encoder_grads.update(zip(reversed(names), found, strict=True))
             for name, g in encoder_grads.items():
                 if self.encoder == "learned":
                     grads[f"encoder.{name}"] = g
@@ -196,7 +199,7 @@ def train(model: Autoencoder, inputs: Mapping[str, np.ndarray], settings: Traini
                 on_progress(epoch, sum(losses.values()))
         for m in model.sizes:
             history[m].append(sums[m] / n)
-        totals = [sum(values) for values in zip(*history.values())]
+        totals = [sum(values) for values in zip(*history.values(), strict=True)]
         if converged(totals, settings.converge_window, settings.converge_tol):
             return history, True
     return history, False

@@ -26,7 +26,7 @@ from __future__ import annotations
 import json
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal, cast
 
 import numpy as np
 import pydantic
@@ -138,8 +138,9 @@ class HandcraftedExtractor(FeatureExtractor):
         self.sigmas: dict[str, float] | None = None
 
     @classmethod
-    def modalities(cls, params: HandcraftedParams) -> frozenset[str]:  # type: ignore[override]
+    def modalities(cls, params: ExtractorParams) -> frozenset[str]:
         """The profile term is vision, the PFH and SDA terms touch."""
+        params = cast(HandcraftedParams, params)  # made by validate_params from cls.Params
         return frozenset([VISUAL] * params.use_visual + [TACTILE] * params.use_tactile)
 
     # -- features -------------------------------------------------------------------------
@@ -243,8 +244,9 @@ class HandcraftedExtractor(FeatureExtractor):
             raise ValueError(f"{path}: no fitted state of extractor '{self.name}'") from None
         except json.JSONDecodeError as exc:
             raise ValueError(f"{path}: not valid JSON: {exc}") from None
-        sigmas = state.get("sigmas") if isinstance(state, dict) else None
-        missing = [key for key in self.feature_names if not isinstance(sigmas, dict) or key not in sigmas]
+        found = state.get("sigmas") if isinstance(state, dict) else None
+        sigmas: dict[str, Any] = found if isinstance(found, dict) else {}
+        missing = [key for key in self.feature_names if key not in sigmas]
         if missing:
             raise ValueError(f"{path}: state lacks sigma(s) for {', '.join(missing)}")
         self.sigmas = {key: float(sigmas[key]) for key in self.feature_names}

@@ -126,7 +126,8 @@ def template_distance(
 
     For each shift the mean absolute difference over the overlapping columns is a batched L1
     distance between the flattened overlapping slices (``cdist(..., 'cityblock')``), computed
-    in cache-sized blocks on ``threads`` threads (default: the CPUs this process may use, `usable_cpus`; SciPy releases the GIL).
+    in cache-sized blocks on ``threads`` threads (default: the CPUs this process may use, `usable_cpus`; SciPy
+    releases the GIL).
     """
     q = np.asarray(query, dtype=np.float64)
     r = np.asarray(reference, dtype=np.float64)

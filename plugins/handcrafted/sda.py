@@ -53,7 +53,7 @@ def sda(deflection: np.ndarray, threshold: float = 0.01, mode: SdaMode = "magnit
     if mode == "magnitude":
         mag = np.hypot(d[..., 0], d[..., 1])  # (N, S, W)
         positive = mag > threshold
-        any_pos = positive.any(axis=1)  # (N, W)
+        any_pos = np.any(positive, axis=1)  # (N, W)
         first = positive.argmax(axis=1)[:, None, :, None]  # first True along S
         peak = mag.argmax(axis=1)[:, None, :, None]
         init = np.take_along_axis(d, first, axis=1)[:, 0]  # (N, W, 2)

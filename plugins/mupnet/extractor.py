@@ -23,8 +23,9 @@ import json
 import logging
 import math
 import time
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 import pydantic
@@ -33,11 +34,11 @@ from scipy.spatial.distance import cdist
 from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.engine.network.backends import BackendError, Precision
+from vitaplace.engine.network.backends import Backend, BackendError, Precision
 from vitaplace.engine.network.pc import LATENT_INIT, JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.solver import Solver, SolverName, make_solver
-from vitaplace.plugin import FeatureExtractor, Features, Run, warn_once
+from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
 from vitaplace.plugins.mupnet.inputs import InputParams, TactileRange, raw_inputs, report_out_of_range
 
 log = logging.getLogger("vitaplace.mupnet")
@@ -172,18 +173,18 @@ class MupnetParams(ArchitectureParams):
         return value
 
 
-def presence(run: Run, modalities: list[str]) -> np.ndarray:
+def presence(run: Run, modalities: Sequence[str]) -> np.ndarray:
     """(samples, modalities) bool: which of ``modalities`` each sample of ``run`` has."""
     return np.stack([~run.lacks(SENSOR_OF[m]) for m in modalities], axis=1)
 
 
-def presence_groups(run: Run, modalities: list[str]) -> list[tuple[list[str], np.ndarray]]:
+def presence_groups(run: Run, modalities: Sequence[str]) -> list[tuple[list[str], np.ndarray]]:
     """The samples of ``run`` grouped by the modalities (of ``modalities``) they have: (the
     modalities present, the samples' indices) per group; one group of every sample without
     drop-out."""
     has = presence(run, modalities)
     kinds, group = np.unique(has, axis=0, return_inverse=True)
-    return [([m for m, h in zip(modalities, kind) if h], np.flatnonzero(group.reshape(-1) == k))
+    return [([m for m, h in zip(modalities, kind, strict=True) if h], np.flatnonzero(group.reshape(-1) == k))
             for k, kind in enumerate(kinds)]
 
 
@@ -201,7 +202,7 @@ class MupnetExtractor(FeatureExtractor):
     params: MupnetParams
     handles_missing = True
 
-    def __init__(self, params=None) -> None:
+    def __init__(self, params: Mapping[str, Any] | None = None) -> None:
         super().__init__(params)
         self.network: Network | None = None
         self.energy: dict[str, list[float]] = {}
@@ -215,19 +216,21 @@ class MupnetExtractor(FeatureExtractor):
         self.tactile_range: TactileRange | None = None
 
     @classmethod
-    def modalities(cls, params: MupnetParams) -> frozenset[str]:  # type: ignore[override]
+    def modalities(cls, params: ExtractorParams) -> frozenset[str]:
         """The modalities fed to the network."""
+        params = cast(MupnetParams, params)  # made by validate_params from cls.Params
         return frozenset(params.modalities)
 
     @classmethod
-    def memory_bytes(cls, params: MupnetParams, train_samples: int) -> tuple[int, str, str]:
+    def memory_bytes(cls, params: ExtractorParams, train_samples: int) -> tuple[int, str, str]:
         """The first visual layer's weights (W and its transposed copy) and the training images."""
+        params = cast(MupnetParams, params)  # made by validate_params from cls.Params
         h, w = params.image_size
         inputs = h * w * 3 if "visual" in params.modalities else 0
         need = inputs * params.visual_layers[0] * 4 * 2 + train_samples * inputs * 4
         return need, "image_size", f"{h}x{w} images"
 
-    def _backend(self):
+    def _backend(self) -> str | Backend:
         """The backend name, or for tf32 / bf16 the tensor-core backend itself."""
         p = self.params
         return p.backend if p.precision == "float32" else get_backend(p.backend, precision=p.precision)
@@ -281,7 +284,8 @@ class MupnetExtractor(FeatureExtractor):
             report_out_of_range(run, raw["tactile"], self.tactile_range, self.params, self.name)
         inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
         start = time.perf_counter()
-        with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress, leave=False) as bar:
+        with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress,
+                  leave=False) as bar:
             latent, steps, stopped, settled = self._infer(run, inputs, bar.update)
         log.info(
             "mupnet: test-time inference of %d samples of run %r (step cap %d, %d reached it, at most %d steps) "
@@ -306,7 +310,8 @@ class MupnetExtractor(FeatureExtractor):
             features["uninformed"] = ~presence(run, self.params.modalities).any(axis=1)
         return features
 
-    def _infer(self, run: Run, inputs: dict[str, np.ndarray], on_progress) -> tuple[np.ndarray, ...]:
+    def _infer(self, run: Run, inputs: dict[str, np.ndarray],
+               on_progress: Callable[[int], object]) -> tuple[np.ndarray, ...]:
         """Joint latents, steps, stopped flags (under the thresholds) and settled flags (a
         stopping rule ended it before the cap) of every sample, each group of samples
         (`presence_groups`) inferred from the modalities it has."""

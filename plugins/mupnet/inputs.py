@@ -39,11 +39,15 @@ TactileInput = Literal["instant", "cycle"]
 RANGE_FILE = "tactile_range.json"
 
 
+def _both_modalities() -> list[Modality]:
+    return ["visual", "tactile"]
+
+
 class InputParams(ExtractorParams):
     """What the network is fed and how it is scaled."""
 
     modalities: list[Modality] = Field(
-        default_factory=lambda: ["visual", "tactile"], min_length=1,
+        default_factory=_both_modalities, min_length=1,
         description="modalities fed to the network (an ablation leaves one out)",
     )
     image_size: tuple[pydantic.PositiveInt, pydantic.PositiveInt] = Field(
@@ -121,7 +125,7 @@ def tactile_values(run: Run, params: InputParams) -> np.ndarray:
 
 def touched(run: Run, params: InputParams) -> np.ndarray:
     """(N,) bool: samples with a touch in what the tactile input covers (the instant, or the cycle)."""
-    return run.touch_mask() if params.tactile_input == "instant" else contact_flags(run.deflection).any(axis=1)
+    return run.touch_mask() if params.tactile_input == "instant" else np.any(contact_flags(run.deflection), axis=1)
 
 
 def raw_inputs(run: Run, params: InputParams) -> dict[str, np.ndarray]:
