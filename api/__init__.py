@@ -35,9 +35,11 @@ from vitaplace.engine import __version__
 from vitaplace.engine.base.errors import UserError, did_you_mean
 
 if TYPE_CHECKING:
+    from types import FrameType
+
+    from vitaplace.engine.config.scenario import Scenario
     from vitaplace.engine.data.dataset import Run
     from vitaplace.engine.extension.features import FeatureExtractor
-    from vitaplace.engine.config.scenario import Scenario
 
 #: names imported on first use, so that ``import vitaplace`` (and every ``vitaplace.engine``
 #: import, the command line's included) stays cheap
@@ -70,7 +72,7 @@ def _one_line_arguments(function: Callable[..., Any]) -> Callable[..., Any]:
     parameter) instead of Python's TypeError."""
     signature = inspect.signature(function)
     names = list(signature.parameters)
-    stars = {inspect.Parameter.VAR_POSITIONAL: "*", inspect.Parameter.VAR_KEYWORD: "**"}
+    stars: dict[object, str] = {inspect.Parameter.VAR_POSITIONAL: "*", inspect.Parameter.VAR_KEYWORD: "**"}
     shown = ", ".join(stars.get(p.kind, "") + p.name for p in signature.parameters.values()) or "none"
 
     @functools.wraps(function)
@@ -115,7 +117,8 @@ def _stages(force: Any) -> list[str]:
     for stage in names:
         if not isinstance(stage, str) or stage not in STAGES:
             hint = did_you_mean(stage, STAGES) if isinstance(stage, str) else ""
-            raise UserError(f"force={force!r:.80}: {stage!r:.40} is not a stage; expected some of {', '.join(STAGES)}{hint}")
+            raise UserError(f"force={force!r:.80}: {stage!r:.40} is not a stage; "
+                            f"expected some of {', '.join(STAGES)}{hint}")
     return names
 
 
@@ -198,10 +201,10 @@ def run(
     runs in parallel (default: one per core; 1 in a script without a ``__main__`` guard).
     Stage messages go to the ``vitaplace`` logger (``logging.basicConfig(level="INFO")``
     shows them)."""
-    from vitaplace.engine.outputs.outdir import claimed
     from vitaplace.engine.config.loading import load_scenario as load
-    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.outputs.outdir import claimed
     from vitaplace.engine.pipeline.keys import STAGES
+    from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.store import Store
 
     until, force, progress = _choice(until, "until", STAGES), _stages(force), _flag(progress, "progress")
@@ -228,7 +231,7 @@ def unguarded_script() -> str | None:
     path = getattr(main, "__file__", None)
     if path is None or not Path(path).is_file():
         return None
-    frame = sys._getframe(1)
+    frame: FrameType | None = sys._getframe(1)
     while frame is not None and frame.f_globals.get("__name__") != "__main__":
         frame = frame.f_back
     while frame is not None and frame.f_back is not None and frame.f_back.f_globals.get("__name__") == "__main__":
@@ -241,7 +244,8 @@ def unguarded_script() -> str | None:
     except (OSError, SyntaxError, ValueError):
         return None
     for node in tree.body:
-        if isinstance(node, ast.If) and node.lineno <= line <= (node.end_lineno or node.lineno) and _is_main_guard(node.test):
+        if (isinstance(node, ast.If) and node.lineno <= line <= (node.end_lineno or node.lineno)
+                and _is_main_guard(node.test)):
             return None
     return path
 
@@ -278,7 +282,8 @@ def simulate(
     """Simulate one run of the WhiskEye in ``environment`` (a YAML file or a shipped name such
     as ``"e1"``) and return it in memory (``vitaplace.engine.data.dataset.write_run`` saves it).
     ``kind``: foraging, teleop, stations, route or orbit; ``run_settings``: any other run key
-    of that kind (docs/SCENARIOS.md), e.g. ``lateral_noise=0.05`` or ``gains={"leave_time": 2.0}``. Runs in this process."""
+    of that kind (docs/SCENARIOS.md), e.g. ``lateral_noise=0.05`` or ``gains={"leave_time": 2.0}``.
+    Runs in this process."""
     import pydantic
 
     from vitaplace.engine.base.configfile import format_validation_error
@@ -297,7 +302,8 @@ def simulate(
     except pydantic.ValidationError as exc:
         message = format_validation_error("simulate", exc, Settings)  # keys as the arguments' names
         raise UserError(message.replace("simulate: run.", "vitaplace.simulate(): ", 1)) from None
-    return simulate_run(load_environment(environment), spec, seed=seed, progress=progress, name=f"{Path(environment).stem}-{kind}")
+    return simulate_run(load_environment(environment), spec, seed=seed, progress=progress,
+                        name=f"{Path(environment).stem}-{kind}")
 
 
 @_one_line_arguments
@@ -309,7 +315,9 @@ def extractors() -> list[str]:
 
 
 @_one_line_arguments
-def fit_extractor(plugin: str, train: Run, params: Mapping[str, Any] | None = None, progress: bool = False) -> FeatureExtractor:
+def fit_extractor(
+    plugin: str, train: Run, params: Mapping[str, Any] | None = None, progress: bool = False
+) -> FeatureExtractor:
     """A new extractor of ``plugin`` (e.g. ``"handcrafted"``, ``"mupnet"``) with ``params``
     (the scenario's ``methods.N.params``), fitted on the run ``train``. Its ``transform(run)``
     gives features and ``distance(query, reference)`` the distance matrix."""

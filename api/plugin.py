@@ -11,10 +11,17 @@ names are listed in docs/API.md, "Stable import paths").
 from __future__ import annotations
 
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.extension.features import (TACTILE, VISUAL, ExtractorParams, ExtractorParamsError, FeatureExtractor,
-                                                 Features, warn_once)
+from vitaplace.engine.extension.features import (
+    TACTILE,
+    VISUAL,
+    ExtractorParams,
+    ExtractorParamsError,
+    FeatureExtractor,
+    Features,
+    warn_once,
+)
 from vitaplace.engine.extension.hookspecs import hookimpl
 from vitaplace.engine.extension.registry import discover
 
-__all__ = ["ExtractorParams", "ExtractorParamsError", "FeatureExtractor", "Features", "Run", "TACTILE", "VISUAL", "discover",
-           "hookimpl", "warn_once"]
+__all__ = ["ExtractorParams", "ExtractorParamsError", "FeatureExtractor", "Features", "Run", "TACTILE", "VISUAL",
+           "discover", "hookimpl", "warn_once"]

@@ -32,10 +32,10 @@ from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.extension.features import TACTILE, VISUAL, FeatureExtractor, Features
 
 __all__ = [
-    "ATOL", "CHECKS", "RTOL", "ContractError", "check_declared_senses", "check_distance_before_fit", "check_distance_output",
-    "check_extractor", "check_features_output", "check_fit_leaves_params", "check_missing_modalities",
-    "check_same_seed_same_features", "check_save_load_round_trip", "check_transform_before_fit", "check_transform_subset",
-    "parametrize_with_checks", "synthetic_run",
+    "ATOL", "CHECKS", "RTOL", "ContractError", "check_declared_senses", "check_distance_before_fit",
+    "check_distance_output", "check_extractor", "check_features_output", "check_fit_leaves_params",
+    "check_missing_modalities", "check_same_seed_same_features", "check_save_load_round_trip",
+    "check_transform_before_fit", "check_transform_subset", "parametrize_with_checks", "synthetic_run",
 ]
 
 RTOL = 1e-5
@@ -86,7 +86,7 @@ def _kind(value: Any) -> str:
     return f"an array of {value.dtype}" if isinstance(value, np.ndarray) else f"a {type(value).__name__}"
 
 
-def _differences(expected: Features, actual: Features) -> list[str]:
+def _differences(expected: Features, actual: Mapping[str, Any]) -> list[str]:
     """The keys on which two feature sets differ (beyond RTOL / ATOL), with how."""
     if expected.keys() != actual.keys():
         return [f"keys {sorted(actual)} instead of {sorted(expected)}"]

@@ -115,8 +115,8 @@ def _report_folder(args: argparse.Namespace) -> int:
     given = [flag for flag, value in (("--set", args.overrides), ("--force", args.force), ("--out", args.out),
                                       ("--json", args.json)) if value]
     if given:
-        raise UserError(f"{' '.join(given)}: apply to a scenario; `vitaplace report {args.scenario}` rebuilds the report "
-                        "of that output folder from its files as they are")
+        raise UserError(f"{' '.join(given)}: apply to a scenario; `vitaplace report {args.scenario}` rebuilds "
+                        "the report of that output folder from its files as they are")
     with claimed(Path(args.scenario)) as out:
         path = rebuild_report(out)
     print(f"wrote {path} and its figures")
@@ -199,7 +199,8 @@ def _validate_environment(args: argparse.Namespace) -> int:
         raise UserError("--set applies to scenarios, not to environment files")
     env = load_environment(args.scenario)
     print(
-        f"{args.scenario}: valid environment '{env.name}': arena {2 * env.arena.half_x:g} x {2 * env.arena.half_y:g} m, "
+        f"{args.scenario}: valid environment '{env.name}': "
+        f"arena {2 * env.arena.half_x:g} x {2 * env.arena.half_y:g} m, "
         f"{len(env.landmarks)} landmark(s), route of {len(env.route)} waypoint(s)"
     )
     return 0
@@ -216,7 +217,8 @@ def validate_command(args: argparse.Namespace) -> int:
     scenario, _ = load_scenario(args.scenario, args.overrides)
     runs = [scenario.train.run] + [e.run for e in scenario.evaluations for _ in ("query", "reference")]
     seconds = sum(estimated_seconds(run, scenario.robot) for run in runs if run is not None)
-    long = f"; simulating its runs takes about {duration(seconds)} on one core (estimate)" if seconds > LONG_SECONDS else ""
+    long = (f"; simulating its runs takes about {duration(seconds)} on one core (estimate)"
+            if seconds > LONG_SECONDS else "")
     print(
         f"{args.scenario}: valid scenario '{scenario.name}': {len(scenario.evaluations)} evaluation environment(s), "
         f"methods {', '.join(m.name for m in scenario.methods)}"
@@ -243,7 +245,8 @@ def import_command(args: argparse.Namespace) -> int:
     from vitaplace.engine.data.matimport import import_mat
 
     if args.out.is_dir():
-        raise DatasetError(f"--out {args.out}: is a folder; expected the run file to write (e.g. {args.out / 'run.h5'})")
+        raise DatasetError(f"--out {args.out}: is a folder; expected the run file to write "
+                           f"(e.g. {args.out / 'run.h5'})")
     run = import_mat(args.source, name=args.name, image_range=args.image_range, pose_layout=args.pose_layout,
                      tactile_model=args.tactile_model)
     try:

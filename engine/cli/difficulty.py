@@ -98,8 +98,8 @@ def table(rows: list[dict[str, Any]]) -> str:
     for measured in rows:
         d, c, g = measured["difficulty"], measured["complementarity"], measured["gates"]
         gated = {gate: _gated(g[gate], is_min) for gate, (_, is_min) in GATES.items()}
-        cells = [measured["environment"], measured["direction"], _pct(d["touch_both_share"]), _pct(d["touch_one_side_share"]),
-                 gated["touch_correspondence_min"], f"{c['rescued']} of {c['vision_wrong']}: {gated['rescue_min']}",
-                 gated["hv_max_f1_max"]]
+        cells = [measured["environment"], measured["direction"], _pct(d["touch_both_share"]),
+                 _pct(d["touch_one_side_share"]), gated["touch_correspondence_min"],
+                 f"{c['rescued']} of {c['vision_wrong']}: {gated['rescue_min']}", gated["hv_max_f1_max"]]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -20,7 +20,7 @@ def installation() -> dict[str, Any]:
     from vitaplace.engine.pipeline.provenance import git_commit, git_dirty
 
     plugins = sorted(
-        f"{ep.name}={ep.dist.name}=={ep.dist.version}" if getattr(ep, "dist", None) else f"{ep.name}=unknown"
+        f"{ep.name}={dist.name}=={dist.version}" if (dist := getattr(ep, "dist", None)) else f"{ep.name}=unknown"
         for ep in entry_points(group=ENTRY_POINT_GROUP)
     )
     commit = git_commit()

@@ -123,7 +123,8 @@ def _add_stage_commands(sub: argparse._SubParsersAction, common: argparse.Argume
     p.set_defaults(handler=difficulty_command)
     _add_scenario_args(p, out_name="<scenario name>-difficulty")
     p.add_argument("--json", action="store_true",
-                   help="print one JSON row per evaluation and direction on stdout (difficulty, complementarity, gates)")
+                   help="print one JSON row per evaluation and direction on stdout "
+                        "(difficulty, complementarity, gates)")
 
 
 def _add_inspection_commands(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
@@ -138,7 +139,8 @@ def _add_inspection_commands(sub: argparse._SubParsersAction, common: argparse.A
                        help="print the resolved scenario as YAML: what run would use (extends merged, --set applied)")
     p.set_defaults(handler=config_command)
     _add_scenario_args(p, out=False)
-    p = sub.add_parser("plugins", parents=[common], help="list the feature-extractor plugins and any that failed to load")
+    p = sub.add_parser("plugins", parents=[common],
+                       help="list the feature-extractor plugins and any that failed to load")
     p.set_defaults(handler=plugins_command)
 
 
@@ -166,7 +168,8 @@ def _add_study_commands(sub: argparse._SubParsersAction, common: argparse.Argume
         help="summarise run folders of one scenario made by independent jobs (e.g. a SLURM array)",
     )
     p.set_defaults(handler=aggregate_command)
-    p.add_argument("folders", nargs="+", type=Path, metavar="DIR", help="run folders (vitaplace run --set seed=N --out DIR)")
+    p.add_argument("folders", nargs="+", type=Path, metavar="DIR",
+                   help="run folders (vitaplace run --set seed=N --out DIR)")
     p.add_argument("--out", type=Path, help="where the summary goes (default: the folders' common parent)")
     p = sub.add_parser(
         "sensitivity", parents=[common],
@@ -184,7 +187,8 @@ def _add_study_commands(sub: argparse._SubParsersAction, common: argparse.Argume
 
 def _add_sweep_command(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
     """`vitaplace sweep`: seeds, and where they run (local pool, Ray, SLURM) with what each reserves."""
-    p = sub.add_parser("sweep", parents=[common], help="run a scenario over several seeds (local process pool, Ray or SLURM)")
+    p = sub.add_parser("sweep", parents=[common],
+                       help="run a scenario over several seeds (local process pool, Ray or SLURM)")
     p.set_defaults(handler=sweep_command)
     _add_scenario_args(p)
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="scenario seeds to run")
@@ -194,7 +198,8 @@ def _add_sweep_command(sub: argparse._SubParsersAction, common: argparse.Argumen
         "parsed as YAML; several --grid options form their product; one folder OUT/<path end>=<value> per grid point)",
     )
     p.add_argument("--replace", action="store_true",
-                   help="replace a summary in --out that covers seeds or grid points this sweep lacks (refused without it)")
+                   help="replace a summary in --out that covers seeds or grid points this sweep lacks "
+                        "(refused without it)")
     p.add_argument(
         "--workers", type=int, default=None,
         help="local worker processes (default: the CPUs this process may use / --cpus-per-job)",
@@ -240,7 +245,8 @@ def _add_viewing_commands(sub: argparse._SubParsersAction, common: argparse.Argu
     p.set_defaults(handler=video_command)
     p.add_argument("run", type=Path, help="run file (HDF5), e.g. from `vitaplace simulate ENV.yaml`")
     p.add_argument("--out", type=Path, help="the video to write, .gif (always) or .mp4 (needs ffmpeg); default RUN.gif")
-    p.add_argument("--fps", type=float, default=5.0, help="frames per second, 0.1 to 50 (default 5; one sample per 0.5 s whisk cycle)")
+    p.add_argument("--fps", type=float, default=5.0,
+                   help="frames per second, 0.1 to 50 (default 5; one sample per 0.5 s whisk cycle)")
     p.add_argument("--step", type=int, help="draw every STEP-th sample (default 1, or larger to keep to 300 frames)")
 
 
@@ -256,7 +262,7 @@ def _add_completion(parser: argparse.ArgumentParser) -> None:
 class _StderrHandler(logging.StreamHandler):
     """A handler that writes to ``sys.stderr`` as it is when a message comes (redirections work)."""
 
-    @property  # type: ignore[override]
+    @property
     def stream(self) -> TextIO:
         return sys.stderr
 

@@ -19,8 +19,19 @@ from pathlib import Path
 import pydantic
 from pydantic_core import PydanticUndefined
 
-from vitaplace.engine.config.scenario import (ComplementarityPair, EvaluationPair, Fusion, Gates, Method, QueryDropout, RecordedRuns,
-                                              Scenario, ScoringSettings, SequenceSettings, TrainingData)
+from vitaplace.engine.config.scenario import (
+    ComplementarityPair,
+    EvaluationPair,
+    Fusion,
+    Gates,
+    Method,
+    QueryDropout,
+    RecordedRuns,
+    Scenario,
+    ScoringSettings,
+    SequenceSettings,
+    TrainingData,
+)
 from vitaplace.engine.sim.condition import CameraCondition, Condition, LightCondition, Occlusion
 from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, StationsRun, TeleopRun
 from vitaplace.engine.sim.environment import (
@@ -61,7 +72,8 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("run.condition, evaluations[].query_condition, evaluations[].reference_condition: Condition", Condition,
      "the lighting and camera state a simulated run is recorded under (docs/SIMULATION.md, Conditions)"),
     ("condition.light: LightCondition", LightCondition, "how the environment's lights differ"),
-    ("condition.camera: CameraCondition", CameraCondition, "how each frame is degraded: blur, exposure, noise, occlusion"),
+    ("condition.camera: CameraCondition", CameraCondition,
+     "how each frame is degraded: blur, exposure, noise, occlusion"),
     ("condition.camera.occlusion: Occlusion", Occlusion, "the part of the image blanked"),
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),
     ("methods[]: Method", Method, "a feature extractor to compare"),
@@ -107,7 +119,7 @@ def _type_name(annotation: typing.Any) -> str:
 def _default(field: pydantic.fields.FieldInfo) -> str:
     if field.default is PydanticUndefined and field.default_factory is None:
         return "**required**"
-    value = field.default_factory() if field.default_factory is not None else field.default
+    value = field.get_default(call_default_factory=True)  # the factory's value, else the default
     if isinstance(value, pydantic.BaseModel):
         return "(see its section)"
     if isinstance(value, dict) and len(str(value)) > 60:
@@ -137,7 +149,8 @@ def model_table(model: type[pydantic.BaseModel]) -> str:
         if not field.description:
             raise ValueError(f"{model.__name__}.{name}: a schema field needs Field(description=...)")
         meaning = field.description.replace("|", "\\|").replace("\n", " ")
-        rows.append(f"| `{name}` | {_type_name(field.annotation)} | {_default(field)} | {_constraints(field)} | {meaning} |")
+        rows.append(f"| `{name}` | {_type_name(field.annotation)} | {_default(field)} | {_constraints(field)} "
+                    f"| {meaning} |")
     return "\n".join(rows)
 
 

@@ -49,7 +49,8 @@ OWN_OPTIONS = {"partition": "--partition", "time": "--time", "mem": "--mem", "cp
                "output": "(logs go to OUT/slurm)", "error": "(logs go to OUT/slurm)",
                "chdir": "(tasks run in OUT/slurm)"}
 #: sbatch's --time formats: M, M:S, H:M:S, D-H, D-H:M, D-H:M:S
-TIME = re.compile(r"^(?:(?P<days>\d+)-(?P<dh>\d+)(?::(?P<dm>\d+)(?::(?P<ds>\d+))?)?|(?P<a>\d+)(?::(?P<b>\d+)(?::(?P<c>\d+))?)?)$")
+TIME = re.compile(r"^(?:(?P<days>\d+)-(?P<dh>\d+)(?::(?P<dm>\d+)(?::(?P<ds>\d+))?)?"
+                  r"|(?P<a>\d+)(?::(?P<b>\d+)(?::(?P<c>\d+))?)?)$")
 #: seconds between checks of the array's state (submitit caches sacct between them)
 POLL_S = {"slurm": 15.0, "local": 0.5}
 #: the shortest --time accepted, in minutes: submitit signals a task 90 s before its limit
@@ -87,7 +88,8 @@ def parse_time(text: str) -> int:
     """sbatch's ``--time`` (minutes, M:S, H:M:S, D-H, D-H:M or D-H:M:S) in whole minutes, rounded up."""
     match = TIME.match(text.strip())
     if match is None:
-        raise UserError(f"--time {text}: expected a time limit as sbatch reads it: MINUTES, HH:MM:SS or DAYS-HH[:MM[:SS]]")
+        raise UserError(f"--time {text}: expected a time limit as sbatch reads it: "
+                        "MINUTES, HH:MM:SS or DAYS-HH[:MM[:SS]]")
     g = {k: int(v) for k, v in match.groupdict().items() if v is not None}
     if "days" in g:
         seconds = ((g["days"] * 24 + g["dh"]) * 60 + g.get("dm", 0)) * 60 + g.get("ds", 0)
@@ -139,7 +141,8 @@ def settings_from_args(args: Any) -> SlurmSettings | None:
     if args.max_parallel is not None and args.max_parallel < 1:
         raise UserError(f"--max-parallel {args.max_parallel}: expected a number of tasks at once, at least 1")
     if args.max_parallel is not None and args.slurm == "local":
-        raise UserError("--max-parallel: throttles an array on a SLURM cluster; --slurm local starts every task at once")
+        raise UserError("--max-parallel: throttles an array on a SLURM cluster; "
+                        "--slurm local starts every task at once")
     return SlurmSettings(args.slurm, minutes, int(args.cpus_per_job), int(args.gpus_per_job),
                          args.partition, args.mem, parse_sbatch(args.sbatch), args.max_parallel)
 
@@ -153,7 +156,8 @@ def executor(settings: SlurmSettings, folder: Path, name: str) -> Any:
     try:
         ex = submitit.AutoExecutor(folder=folder, cluster=settings.cluster)
     except RuntimeError as exc:  # no srun/sbatch on this machine
-        raise UserError(f"--slurm: {' '.join(str(exc).split())} (--slurm local runs the tasks on this machine)") from None
+        raise UserError(f"--slurm: {' '.join(str(exc).split())} "
+                        "(--slurm local runs the tasks on this machine)") from None
     extra = {**({"mem": settings.mem} if settings.mem else {}), "chdir": str(folder), **settings.sbatch}
     throttle = {"slurm_array_parallelism": settings.max_parallel} if settings.max_parallel else {}
     ex.update_parameters(
@@ -213,8 +217,9 @@ def check_queue_clear(folder: Path) -> None:
                         "folder is still running (squeue failed); try again when squeue answers")
     if listed:
         states = ", ".join(sorted(set(listed.values())))
-        raise UserError(f"--out {folder.parent}: {len(listed)} task(s) of SLURM job {array}, an earlier sweep into this "
-                        f"folder, are still in the queue ({states}); wait until `squeue -j {array}` lists none, "
+        raise UserError(f"--out {folder.parent}: {len(listed)} task(s) of SLURM job {array}, "
+                        f"an earlier sweep into this folder, are still in the queue ({states}); "
+                        f"wait until `squeue -j {array}` lists none, "
                         f"or `scancel {array}`")
 
 
@@ -305,9 +310,10 @@ class QueueWatch:
             log.warning("SLURM: cannot tell whether the cancelled tasks of job %s have left the queue (squeue failed); "
                         "`squeue -j %s` shows them", self.array, self.array)
         elif listed:
-            log.warning("SLURM: %d task(s) of job %s are still in the queue %.0f s after cancelling; SLURM kills them "
-                        "at the latest after its KillWait (`scontrol show config | grep KillWait`), and a rerun into this "
-                        "OUT is refused until `squeue -j %s` lists none", len(listed), self.array, DRAIN_S, self.array)
+            log.warning("SLURM: %d task(s) of job %s are still in the queue %.0f s after cancelling; "
+                        "SLURM kills them at the latest after its KillWait (`scontrol show config | grep KillWait`), "
+                        "and a rerun into this OUT is refused until `squeue -j %s` lists none",
+                        len(listed), self.array, DRAIN_S, self.array)
         else:
             log.info("SLURM: the cancelled tasks of job %s have left the queue", self.array)
 
@@ -327,7 +333,7 @@ def _wait(
     """Yield (job, result, failure) as each submitit task ends (or, with ``watch``, is lost);
     an interrupted driver cancels the tasks still queued or running (and, with ``watch``,
     waits for them to leave the queue)."""
-    pending = {task.job_id: (task, job) for task, job in zip(tasks, jobs)}
+    pending = {task.job_id: (task, job) for task, job in zip(tasks, jobs, strict=True)}
     try:
         while pending:
             lost = watch.lost(list(pending)) if watch is not None else {}

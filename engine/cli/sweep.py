@@ -33,7 +33,7 @@ import time
 import traceback
 import typing
 import uuid
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Generator, Iterator, Mapping, Sequence
 from concurrent.futures import FIRST_COMPLETED, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -45,12 +45,12 @@ import yaml
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.cpus import limit_blas_threads, usable_cpus
 from vitaplace.engine.base.errors import UserError
-from vitaplace.engine.outputs.outdir import SEED_ERROR, cache_dir, seed_dir
-from vitaplace.engine.config.scenario import Scenario, ScenarioError
-from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.cli.installation import describe, installation, mismatch
 from vitaplace.engine.cli.ray_auth import init_ray
 from vitaplace.engine.cli.slurm import SlurmSettings, run_array
+from vitaplace.engine.config.loading import load_scenario
+from vitaplace.engine.config.scenario import Scenario, ScenarioError
+from vitaplace.engine.outputs.outdir import SEED_ERROR, cache_dir, seed_dir
 from vitaplace.engine.study.grid import GridPoint, check_replace, summarise_point, write_grid_summary
 
 log = logging.getLogger("vitaplace")
@@ -238,7 +238,9 @@ def gpu_overrides(scenario: Scenario) -> list[str]:
     return overrides
 
 
-def load_sweep_scenario(name: str, overrides: Sequence[str], gpus_per_job: float = 0) -> tuple[Scenario, dict[str, Any]]:
+def load_sweep_scenario(
+    name: str, overrides: Sequence[str], gpus_per_job: float = 0
+) -> tuple[Scenario, dict[str, Any]]:
     """The validated scenario and its resolved mapping; with GPUs per job, methods that have
     a backend parameter are set to their GPU backend (`gpu_overrides`)."""
     scenario, resolved = load_scenario(name, overrides)
@@ -284,8 +286,11 @@ def sweep_jobs(
 ) -> list[SeedJob]:
     """The jobs of a sweep, point by point (`seed_jobs` of each loaded grid point): what every
     backend runs."""
-    return [job for point in points
-            for job in seed_jobs(point.scenario, dict(point.resolved), seeds, out, force, progress, marker, point.name)]
+    jobs: list[SeedJob] = []
+    for point in points:
+        assert point.scenario is not None  # loaded: load_points
+        jobs += seed_jobs(point.scenario, dict(point.resolved), seeds, out, force, progress, marker, point.name)
+    return jobs
 
 
 def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
@@ -307,7 +312,9 @@ def _local(jobs: Sequence[SeedJob], workers: int) -> Iterator[tuple[SeedJob, dic
                 rounds.append(([job], 1))
 
 
-def _pool_round(jobs: Sequence[SeedJob], workers: int):
+def _pool_round(
+    jobs: Sequence[SeedJob], workers: int
+) -> Generator[tuple[SeedJob, dict[str, Any] | None, str | None], None, list[SeedJob]]:
     """One process pool over ``jobs``: yields (job, result, failure) for the jobs that ended,
     returns those lost to a broken pool."""
     from vitaplace.engine.pipeline.processes import interrupts_to_this_process, stop_pool, worker_pool
@@ -350,7 +357,8 @@ def _check_reachable(address: str) -> None:
         with socket.create_connection((host, int(port)), timeout=CONNECT_TIMEOUT_S):
             pass
     except OSError as exc:
-        raise UserError(f"--ray {address}: nothing answers at {host}:{port} ({exc.strerror or exc}); is the cluster up?") from None
+        raise UserError(f"--ray {address}: nothing answers at {host}:{port} ({exc.strerror or exc}); "
+                        "is the cluster up?") from None
 
 
 def connect_ray(address: str) -> tuple[Any, str]:
@@ -434,13 +442,14 @@ def _ray(
 def _ray_tasks(
     ray: Any, jobs: Sequence[SeedJob], name: str, cpus: float, gpus: float, env: Mapping[str, str] | None = None
 ) -> Iterator[tuple[SeedJob, dict[str, Any] | None, str | None]]:
-    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>" (on a grid "<scenario> <point> seed <s>"), with the environment variables
-    ``env`` (the plugins' `vitaplace_sweep_started` asks; a worker has the raylet's environment,
-    not the driver's); yield as each one ends."""
+    """Run ``jobs`` as Ray tasks named "<scenario> seed <s>" (on a grid "<scenario> <point> seed <s>"),
+    with the environment variables ``env`` (the plugins' `vitaplace_sweep_started` asks; a worker
+    has the raylet's environment, not the driver's); yield as each one ends."""
     remote = ray.remote(run_seed)
     extra = {"runtime_env": {"env_vars": dict(env)}} if env else {}
     pending = {
-        remote.options(name=f"{name} {job.label}", num_cpus=cpus, num_gpus=gpus, **extra).remote(job): job for job in jobs
+        remote.options(name=f"{name} {job.label}", num_cpus=cpus, num_gpus=gpus, **extra).remote(job): job
+        for job in jobs
     }
     try:
         while pending:
@@ -456,7 +465,9 @@ def _ray_tasks(
             ray.cancel(ref)
 
 
-def check_placement(workers: int | None, ray_address: str | None, slurm: SlurmSettings | None, gpus_per_job: float) -> None:
+def check_placement(
+    workers: int | None, ray_address: str | None, slurm: SlurmSettings | None, gpus_per_job: float
+) -> None:
     """Refuse options that do not apply where the seeds run (they would be ignored, or worse)."""
     if gpus_per_job and not (ray_address or slurm):
         raise UserError("--gpus-per-job: applies to --ray and --slurm jobs; on this machine every seed uses the "
@@ -549,6 +560,7 @@ def _collect(
                 where = f" (traceback in {trace})" if trace.is_file() else ""
                 log.error("%s failed: %s%s", job.label, failure, where)
                 continue
+            assert result is not None  # a job that did not fail has its result
             outcome.rows += result["rows"]
             rows += result["rows"]
             if not result["sees_out"] and not outcome.unshared:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Literal
 
 import mujoco
 import numpy as np
@@ -150,7 +151,7 @@ def _add_assets(spec: mujoco.MjSpec, env: EnvironmentSpec) -> None:
                 t.mark = getattr(mujoco.mjtMark, f"mjMARK_{tex.mark.upper()}")
                 t.random, t.width, t.height = tex.random, tex.width, tex.height
         _add_material(spec, f"mat_{mname}", mat, None if tex is None else f"tex_{mname}", mat.texrepeat, mat.texuniform)
-    for name, lm in zip(env.landmark_names(), env.landmarks):
+    for name, lm in zip(env.landmark_names(), env.landmarks, strict=True):
         if isinstance(lm, RockLandmark):
             spec.add_mesh(name=f"mesh_{name}", uservert=lm.vertices().ravel())
 
@@ -173,15 +174,18 @@ def _add_world(spec: mujoco.MjSpec, env: EnvironmentSpec) -> None:
     solid = dict(contype=0, conaffinity=WORLD_TACTILE_AFFINITY, friction=WORLD_FRICTION)
     # Each wall is a thin box whose local +z faces the arena, so a 2-D texture lands on
     # the inner face and repeats `wall_panels` times along it.
-    for wname, (cx, cy, yaw, half_len) in {
+    sides: dict[Literal["north", "south", "east", "west"], tuple[float, float, float, float]] = {
         "north": (0.0, hy + t / 2, -90.0, hx + t),
         "south": (0.0, -hy - t / 2, 90.0, hx + t),
         "east": (hx + t / 2, 0.0, 180.0, hy + t),
         "west": (-hx - t / 2, 0.0, 0.0, hy + t),
-    }.items():
+    }
+    for wname, (cx, cy, yaw, half_len) in sides.items():
         wall = a.walls.get(wname)
         material = a.wall_material if wall is None else wall.material
-        look: dict[str, object] = {"rgba": wall.rgba} if material is None else {"material": f"mat_wall_{material}"}
+        look: dict[str, object] = (  # no material: the wall has an entry (wall_material is a name)
+            {"rgba": wall.rgba} if wall is not None and material is None else {"material": f"mat_wall_{material}"}
+        )
         if material is not None and spec.material(f"mat_wall_{material}") is None:
             mat = env.materials[material]
             tex = None if mat.texture is None else f"tex_{material}"
@@ -218,7 +222,7 @@ def _add_world(spec: mujoco.MjSpec, env: EnvironmentSpec) -> None:
                 name=f"board{k}_strip", pos=strip_pos, size=(board.width / 2, 0.002, board.strip_height / 2),
                 rgba=board.strip_rgba, **flat,
             )
-    for name, lm in zip(env.landmark_names(), env.landmarks):
+    for name, lm in zip(env.landmark_names(), env.landmarks, strict=True):
         look = {"rgba": lm.rgba} if lm.material is None else {"material": f"mat_{lm.material}"}
         x, y = lm.pos
         if isinstance(lm, BoxLandmark):
@@ -241,11 +245,12 @@ def _add_robot(spec: mujoco.MjSpec, robot: RobotSpec) -> None:
         base.add_joint(name=f"base_{n}", type=getattr(mujoco.mjtJoint, f"mjJNT_{jtype}"), axis=axis)
     body_bits = dict(contype=BIT_BODY, conaffinity=0, group=ROBOT_GROUP)
     base.add_geom(
-        name="chassis", type=_GEOM.mjGEOM_CYLINDER, size=(BODY_RADIUS, BODY_HEIGHT / 2), pos=(0.0, 0.0, BODY_HEIGHT / 2),
-        mass=robot.base_mass, rgba=(0.25, 0.25, 0.3, 1.0), **body_bits,
+        name="chassis", type=_GEOM.mjGEOM_CYLINDER, size=(BODY_RADIUS, BODY_HEIGHT / 2),
+        pos=(0.0, 0.0, BODY_HEIGHT / 2), mass=robot.base_mass, rgba=(0.25, 0.25, 0.3, 1.0), **body_bits,
     )
     base.add_geom(
-        name="neck", type=_GEOM.mjGEOM_CAPSULE, fromto=(0.1, 0.0, BODY_HEIGHT, HEAD_POS[0] - HEAD_HALF[0], 0.0, HEAD_POS[2]),
+        name="neck", type=_GEOM.mjGEOM_CAPSULE,
+        fromto=(0.1, 0.0, BODY_HEIGHT, HEAD_POS[0] - HEAD_HALF[0], 0.0, HEAD_POS[2]),
         size=(0.03, 0, 0), mass=0.2, rgba=(0.3, 0.3, 0.35, 1.0), contype=0, conaffinity=0, group=ROBOT_GROUP,
     )
     head = base.add_body(name="head", pos=HEAD_POS)
@@ -264,7 +269,8 @@ def _add_robot(spec: mujoco.MjSpec, robot: RobotSpec) -> None:
     if robot.tactile_model == "penetration":
         # contacts are still detected (depth, normal) but nearly forceless: a 1000 s time
         # constant and ~0 impedance, dominating the mix with the world geom's parameters
-        whisker_geom.update(solref=(1000.0, 1.0), solimp=(0.0001, 0.0001, 0.001, 0.5, 2.0), solmix=1e9, friction=(0, 0, 0))
+        whisker_geom.update(solref=(1000.0, 1.0), solimp=(0.0001, 0.0001, 0.001, 0.5, 2.0), solmix=1e9,
+                            friction=(0, 0, 0))
     # As in the original XML model: the range is written in radians but compiler.degree
     # reads it in degrees, so the compiled limit is +-spring_range_deg * pi / 180 degrees.
     limit = math.radians(robot.spring_range_deg)
@@ -276,7 +282,8 @@ def _add_robot(spec: mujoco.MjSpec, robot: RobotSpec) -> None:
     for w in layout:
         n = w["name"]
         body = head.add_body(name=n, pos=np.subtract(w["pos"], HEAD_POS), quat=w["quat"])
-        body.add_joint(name=f"{n}_theta", type=mujoco.mjtJoint.mjJNT_HINGE, axis=(0, 0, 1), armature=robot.servo_armature)
+        body.add_joint(name=f"{n}_theta", type=mujoco.mjtJoint.mjJNT_HINGE, axis=(0, 0, 1),
+                       armature=robot.servo_armature)
         body.add_joint(name=f"{n}_dx", axis=(0, 0, 1), **spring)
         body.add_joint(name=f"{n}_dy", axis=(0, -1, 0), **spring)
         body.add_geom(name=n, fromto=(0, 0, 0, w["length"], 0, 0), **whisker_geom)

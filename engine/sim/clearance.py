@@ -40,7 +40,7 @@ def footprint_clearance(obstacles: DistanceField, xy: np.ndarray, heading: np.nd
 class Route:
     """A closed polyline with arc-length parametrisation."""
 
-    def __init__(self, waypoints: list[tuple[float, float]] | np.ndarray) -> None:
+    def __init__(self, waypoints: Sequence[tuple[float, float]] | np.ndarray) -> None:
         pts = np.asarray(waypoints, dtype=float)
         if len(pts) < 2:
             raise ValueError("a route needs at least 2 waypoints")
@@ -95,7 +95,7 @@ class Route:
         """Points every ``step`` metres along the loop, (n, 2)."""
         return np.array([self.point(s)[0] for s in np.arange(0.0, self.length, step)])
 
-    def segment_of(self, s: np.ndarray) -> np.ndarray:
+    def segment_of(self, s: np.ndarray | float) -> np.ndarray:
         """Index (n,) of the segment (from waypoint i to i + 1) holding arc lengths ``s``."""
         s = np.asarray(s, dtype=float) % self.length
         return np.clip(np.searchsorted(self.cum, s, side="right") - 1, 0, len(self.seg_len) - 1)

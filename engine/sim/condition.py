@@ -77,7 +77,8 @@ class CameraCondition(_Settings):
     blur_sigma_px: float = Field(0.0, ge=0, le=20, description="std of the Gaussian blur [pixels]; 0: sharp")
     exposure: float = Field(1.0, gt=0, le=16, description="sensor gain: every intensity times this, clipped to 255")
     noise_std: float = Field(
-        0.0, ge=0, le=128, description="std of additive Gaussian sensor noise [grey levels of 0-255], per pixel and channel"
+        0.0, ge=0, le=128, description="std of additive Gaussian sensor noise [grey levels of 0-255], per pixel and "
+        "channel"
     )
     occlusion: Occlusion = Field(Occlusion(), description="the part of the image blanked")
 
@@ -86,7 +87,9 @@ class Condition(_Settings):
     """The condition of a run: its lighting and its camera's state (defaults: unchanged)."""
 
     light: LightCondition = Field(LightCondition(), description="lighting: intensity, direction, colour temperature")
-    camera: CameraCondition = Field(CameraCondition(), description="camera degradation: blur, exposure, noise, occlusion")
+    camera: CameraCondition = Field(
+        CameraCondition(), description="camera degradation: blur, exposure, noise, occlusion"
+    )
 
 
 def is_default(condition: Condition | None) -> bool:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from functools import cached_property
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union
+from typing import Annotated, Any, Literal
 
 import numpy as np
 import pydantic
@@ -296,7 +296,7 @@ class RockLandmark(_LandmarkBase):
         return pts[hull.vertices]
 
 
-Landmark = Annotated[Union[BoxLandmark, CylinderLandmark, RockLandmark], Field(discriminator="type")]
+Landmark = Annotated[BoxLandmark | CylinderLandmark | RockLandmark, Field(discriminator="type")]
 
 
 def _default_materials() -> dict[str, MaterialSpec]:
@@ -419,7 +419,7 @@ class EnvironmentSpec(_Model):
         "radius": r (cylinder), "polygon": [[x, y], ...] (rock: world-frame outline)}]}``
         """
         landmarks = []
-        for name, lm in zip(self.landmark_names(), self.landmarks):
+        for name, lm in zip(self.landmark_names(), self.landmarks, strict=True):
             item: dict[str, Any] = {
                 "name": name,
                 "type": lm.type,
@@ -543,7 +543,8 @@ class ObstacleMap:
         p = np.asarray(points, dtype=float).reshape(-1, 2)
         offsets = np.array([[0, 0], [eps, 0], [-eps, 0], [0, eps], [0, -eps]])
         q = (p[:, None, :] + offsets[None]).reshape(-1, 2)
-        d = (self.distance_many(q) if landmark is None else self.landmark_distance_many(q)[:, landmark]).reshape(len(p), 5)
+        d = (self.distance_many(q) if landmark is None
+             else self.landmark_distance_many(q)[:, landmark]).reshape(len(p), 5)
         g = np.stack([d[:, 1] - d[:, 2], d[:, 3] - d[:, 4]], axis=1)
         norm = np.linalg.norm(g, axis=1, keepdims=True)
         return d[:, 0], np.divide(g, norm, out=np.zeros_like(g), where=norm > 0)

@@ -60,6 +60,7 @@ class WhiskEyeEnv(gymnasium.Env):
     """The WhiskEye robot in one environment; one step is one whisk cycle (see the module)."""
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
+    action_space: spaces.Box
 
     def __init__(self, environment: str | Path | EnvironmentSpec = "e1", robot: RobotSpec | dict | None = None,
                  render_mode: str | None = None, record: bool = False) -> None:
@@ -94,7 +95,9 @@ class WhiskEyeEnv(gymnasium.Env):
         self._seed: int | None = None
 
     # ------------------------------------------------------------------ gymnasium API
-    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None):
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         if seed is not None:
             self._seed = int(seed)
@@ -110,11 +113,12 @@ class WhiskEyeEnv(gymnasium.Env):
         obs = self._observe()
         return obs, {"time": 0.0, "whisker_contacts": 0}
 
-    def step(self, action):
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (4,) or not np.all(np.isfinite(a)) or not self.action_space.contains(a.astype(np.float32)):
             raise ValueError(f"action {np.asarray(action).tolist()!r} is outside the action space (forward, strafe, "
-                             f"turn, whisk amplitude) within {self.action_space.low.tolist()}..{self.action_space.high.tolist()}")
+                             f"turn, whisk amplitude) within "
+                             f"{self.action_space.low.tolist()}..{self.action_space.high.tolist()}")
         if self._start is None:
             raise RuntimeError("call reset() before step()")
         sim = self._sim
@@ -135,7 +139,7 @@ class WhiskEyeEnv(gymnasium.Env):
         info = {"time": float(sim.data.time), "whisker_contacts": int(touched), "body_collision": terminated}
         return obs, 0.0, terminated, False, info
 
-    def render(self):
+    def render(self) -> np.ndarray | None:
         if self.render_mode == "rgb_array":
             return self._image.copy()
         return None

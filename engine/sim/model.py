@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -83,7 +84,9 @@ class SimModel:
             return self.penetration_xy(d)
         return d.qpos[self.xy_qadr].copy()
 
-    def _whisker_contact_arrays(self, d: mujoco.MjData):
+    def _whisker_contact_arrays(
+        self, d: mujoco.MjData
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """All whisker-world contacts: (positions (k, 3), normals (k, 3) out of the touched
         object toward the whisker, signed distances (k,), whisker indices (k,)) or None."""
         n = d.ncon
@@ -195,7 +198,8 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
         servo_act=np.array([aid(f"{n}_servo") for n in names]),
         whisker_of_geom=whisker_of_geom,
         whisker_body=np.array([mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, n) for n in names]),
-        is_body_geom=np.isin(np.arange(m.ngeom), [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in ("chassis", "head")]),
+        is_body_geom=np.isin(np.arange(m.ngeom),
+                             [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, g) for g in ("chassis", "head")]),
         layout=layout,
     )
     assert len(sim.servo_act) == N_WHISKERS
@@ -208,7 +212,7 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
     mujoco.mj_fullM(m, full, d.qM) if _fullm_takes_qm() else mujoco.mj_fullM(m, d, full)
     diag = np.diag(full)
     wb = 2 * math.pi * robot.base_servo_hz
-    for a, dof in zip(sim.drive_act, sim.base_dofadr):
+    for a, dof in zip(sim.drive_act, sim.base_dofadr, strict=True):
         kp_b, kv_b = diag[dof] * wb * wb, 2.0 * diag[dof] * wb  # critically damped pose servo
         m.actuator_gainprm[a, 0] = kp_b
         m.actuator_biasprm[a, 1] = -kp_b
@@ -245,7 +249,7 @@ def penetration_deflection(depth: np.ndarray, normal_yz: np.ndarray, along: np.n
     return 10.0 * depth[:, None] * np.asarray(normal_yz, dtype=float) / (np.asarray(along, dtype=float)[:, None] + 0.1)
 
 
-def _contact_geoms(con, n: int) -> np.ndarray:
+def _contact_geoms(con: Any, n: int) -> np.ndarray:  # con: MjData.contact
     """(n, 2) geom ids of the contacts (``geom`` array in recent MuJoCo, geom1/geom2 before)."""
     geom = getattr(con, "geom", None)
     if geom is not None and np.ndim(geom) == 2:

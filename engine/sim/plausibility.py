@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from vitaplace.engine.sim.clearance import Route
-from vitaplace.engine.sim.controllers import RunSpec
+from vitaplace.engine.sim.controllers import OrbitRun, RouteRun, RunSpec, StationsRun, TeleopRun
 from vitaplace.engine.sim.controllers.stations import StationError, station_indices
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.robot import BODY_RADIUS, RobotSpec
@@ -86,7 +86,7 @@ def check_run(env: EnvironmentSpec, run: RunSpec, robot: RobotSpec) -> None:
                                  f"{BODY_RADIUS} m) to ({x:.2f}, {y:.2f}), outside {_arena(env)}")
 
 
-def _detour(env: EnvironmentSpec, run: RunSpec) -> np.ndarray:
+def _detour(env: EnvironmentSpec, run: TeleopRun | StationsRun | RouteRun | OrbitRun) -> np.ndarray:
     """Points of the path moved ``off_route_offset`` to the left of travel (towards the
     centre of a counter-clockwise orbit): where the off-route part of the run drives."""
     if run.kind == "orbit":

@@ -31,7 +31,7 @@ def plot_environment(
     Returns the matplotlib axes.
     """
     import matplotlib.pyplot as plt
-    from matplotlib.patches import Circle, Polygon, Rectangle
+    from matplotlib.patches import Circle, Patch, Polygon, Rectangle
     from matplotlib.transforms import Affine2D
 
     if ax is None:
@@ -43,7 +43,7 @@ def plot_environment(
         style = {"fc": colour, "ec": "0.15", "lw": 0.8, "alpha": 0.85, "hatch": None if lm["tactile"] else "//"}
         x, y = lm["pos"]
         if lm["type"] == "cylinder":
-            patch = Circle((x, y), lm["radius"], **style)
+            patch: Patch = Circle((x, y), lm["radius"], **style)
         elif lm["type"] == "rock":
             patch = Polygon(lm["polygon"], closed=True, **style)
         else:
@@ -54,7 +54,8 @@ def plot_environment(
     if show_route and top_view.get("route"):
         r = np.array([*top_view["route"], top_view["route"][0]])
         ax.plot(r[:, 0], r[:, 1], ls="--", color="k", lw=1.0, label="route", zorder=3)
-    for (label, traj), colour in zip((trajectories or {}).items(), ("tab:blue", "tab:red", "tab:green", "tab:purple")):
+    colours = ("tab:blue", "tab:red", "tab:green", "tab:purple")  # at most four trajectories drawn
+    for (label, traj), colour in zip((trajectories or {}).items(), colours, strict=False):
         t = np.asarray(traj)
         lw = 0.7 if len(t) > 300 else 1.2
         ax.plot(t[:, 0], t[:, 1], color=colour, lw=lw, label=label, zorder=4)
@@ -192,13 +193,14 @@ def _touch_worlds_figure(out: Path, drive_samples: int) -> Path:
     its stations (``touch_worlds_top.png``)."""
     import matplotlib.pyplot as plt
 
-    from vitaplace.engine.sim.controllers import stations_of
+    from vitaplace.engine.sim.controllers import StationsRun, stations_of
     from vitaplace.engine.sim.environment import load_environment
     from vitaplace.engine.sim.simulate import run_spec, simulate_run
 
     spec = run_spec(kind="stations", n_samples=drive_samples)
+    assert isinstance(spec, StationsRun)
     fig, axes = plt.subplots(2, 2, figsize=(10, 10))
-    for ax, name in zip(axes.ravel(), TOUCH_WORLDS):
+    for ax, name in zip(axes.ravel(), TOUCH_WORLDS, strict=True):
         env = load_environment(name)
         drives = {f"station drive {label} (seed {seed})": simulate_run(env, spec, seed=seed, progress=False).poses
                   for label, seed in (("A", 1), ("B", 2))}
@@ -220,7 +222,9 @@ def _whisker_figure(out: Path) -> Path:
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.4), sharey=True)
     t = (sim.robot.series_steps() + 1) * sim.robot.timestep
     east_wall = (2.58, 0.0, math.radians(60))  # the east wall ahead and to the right
-    for ax, (label, pose) in zip(axes, (("open floor", (0.0, 0.0, 0.0)), ("east wall ahead right", east_wall))):
+    for ax, (label, pose) in zip(
+        axes, (("open floor", (0.0, 0.0, 0.0)), ("east wall ahead right", east_wall)), strict=True
+    ):
         sim.reset(pose)
         sim.cycle()
         series, _, _ = sim.cycle()

@@ -43,10 +43,9 @@ sweeps the tip. Sign conventions:
 from __future__ import annotations
 
 import math
-
-import numpy as np
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 __all__ = ["RobotSpec", "whisker_layout", "camera_fovy_deg", "N_WHISKERS", "N_BOARDS", "N_COLUMNS"]
@@ -137,9 +136,12 @@ class RobotSpec(BaseModel):
     camera_width: int = Field(160, ge=8, le=2048, description="recorded image width [px]")
     camera_height: int = Field(120, ge=8, le=2048, description="recorded image height [px]")
     camera_hfov_deg: float = Field(
-        90.0, gt=5, lt=170, description="horizontal field of view [deg] (WhiskEye: 90); the vertical one follows from the image's aspect"
+        90.0, gt=5, lt=170, description="horizontal field of view [deg] (WhiskEye: 90); the vertical one follows from "
+        "the image's aspect"
     )
-    camera_pitch_deg: float = Field(0.0, ge=-60, le=60, description="camera tilt, negative = down [deg] (WhiskEye: level)")
+    camera_pitch_deg: float = Field(
+        0.0, ge=-60, le=60, description="camera tilt, negative = down [deg] (WhiskEye: level)"
+    )
     # base
     base_mass: float = Field(10.0, gt=0, description="mass of the mobile base [kg] (WhiskEye model: 10)")
     base_servo_hz: float = Field(10.0, gt=0, le=50, description="bandwidth of the base's pose servo [Hz]")
@@ -161,7 +163,8 @@ class RobotSpec(BaseModel):
             )
         if round(steps) < self.deflection_samples:
             raise ValueError(
-                f"deflection_samples ({self.deflection_samples}) exceeds the physics steps per whisk cycle ({round(steps)})"
+                f"deflection_samples ({self.deflection_samples}) exceeds the physics steps per whisk cycle "
+                f"({round(steps)})"
             )
         for name, stiffness, limit in (
             ("spring_stiffness", self.spring_stiffness, self.max_stable_stiffness(self.spring_armature)),

@@ -29,8 +29,8 @@ import mujoco
 import numpy as np
 from tqdm.auto import tqdm
 
-from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.sim.condition import Condition, degrade, noise_rng
 from vitaplace.engine.sim.controllers import Observation, RunSpec, key_form, make_controller, run_spec
 from vitaplace.engine.sim.environment import EnvironmentSpec
@@ -112,7 +112,9 @@ class Simulator:
         hi = math.radians(self.robot.protraction_max_deg)
         self._cmd = [hi + share * (float(c) - hi) for c in self.sim.whisk_command]
 
-    def cycle(self, on_series=None) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+    def cycle(
+        self, on_series: Callable[[int, np.ndarray], object] | None = None
+    ) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
         """Simulate one whisk cycle; it ends at maximum protraction.
 
         ``on_series(i, contact_points)`` is called after each of the S series instants (e.g. a
@@ -182,7 +184,8 @@ def check_plausible(name: str, mujoco_warnings: dict[str, int], poses: np.ndarra
     outside = (np.abs(poses[:, 0]) > hx) | (np.abs(poses[:, 1]) > hy)
     if outside.any():
         k = int(np.argmax(outside))
-        raise SimulationError(f"run {name!r}: sample {k} is outside the arena at ({poses[k, 0]:.2f}, {poses[k, 1]:.2f})")
+        raise SimulationError(f"run {name!r}: sample {k} is outside the arena "
+                              f"at ({poses[k, 0]:.2f}, {poses[k, 1]:.2f})")
     if len(poses) > 1:
         travelled = float(np.sum(np.hypot(*np.diff(poses[:, :2], axis=0).T)))
         if travelled < 0.01:

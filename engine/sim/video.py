@@ -20,8 +20,8 @@ from matplotlib import animation
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from vitaplace.engine.data.dataset import TOUCH_THRESHOLD, Run
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.data.dataset import TOUCH_THRESHOLD, Run
 from vitaplace.engine.outputs.outdir import writable_dir
 
 log = logging.getLogger("vitaplace")
@@ -43,11 +43,12 @@ def frame_indices(n_samples: int, step: int | None = None) -> np.ndarray:
 
 def _writer(suffix: str, fps: float) -> animation.AbstractMovieWriter:
     if suffix == ".gif":
-        return animation.PillowWriter(fps=fps)
+        return animation.PillowWriter(fps=fps)  # type: ignore[arg-type]  # matplotlib's stubs say int; a float works
     if suffix == ".mp4":
         if not animation.writers.is_available("ffmpeg"):
-            raise UserError("an MP4 video needs ffmpeg on the PATH (e.g. `apt-get install ffmpeg`); write a .gif instead")
-        return animation.FFMpegWriter(fps=fps)
+            raise UserError("an MP4 video needs ffmpeg on the PATH (e.g. `apt-get install ffmpeg`); "
+                            "write a .gif instead")
+        return animation.FFMpegWriter(fps=fps)  # type: ignore[arg-type]  # matplotlib's stubs say int; a float works
     raise UserError(f"video: unknown format {suffix!r}; expected {' or '.join(FORMATS)}")
 
 
@@ -125,7 +126,7 @@ def write_video(run: Run, path: str | os.PathLike, fps: float = 5.0, step: int |
         points, _ = run.contacts(i)
         contacts.set_offsets(points[:, :2] if len(points) else np.empty((0, 2)))
 
-        for bar, value in zip(bars, deflection[i]):
+        for bar, value in zip(bars, deflection[i], strict=True):
             bar.set_height(value)
             bar.set_color("tab:red" if value > TOUCH_THRESHOLD else "tab:grey")
         fig.suptitle(f"{run.name}: sample {i + 1} of {len(run)}, t = {times[i]:.1f} s")

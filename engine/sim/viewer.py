@@ -37,7 +37,9 @@ except ImportError as exc:
     print(f"vitaplace view needs GLFW (pip install glfw): {exc}")
     sys.exit(3)
 said = []
-glfw.set_error_callback(lambda code, text: said.append(text.decode(errors="replace") if isinstance(text, bytes) else str(text)))
+glfw.set_error_callback(
+    lambda code, text: said.append(text.decode(errors="replace") if isinstance(text, bytes) else str(text))
+)
 ok = glfw.init()
 if ok:
     glfw.terminate()
@@ -56,13 +58,15 @@ def require_display() -> None:
     try:
         probe = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=PROBE_TIMEOUT_S)
     except subprocess.TimeoutExpired:
-        raise UserError(f"vitaplace view: GLFW did not start on {where} within {PROBE_TIMEOUT_S:g} s; {HEADLESS_HINT}") from None
+        raise UserError(f"vitaplace view: GLFW did not start on {where} within {PROBE_TIMEOUT_S:g} s; "
+                        f"{HEADLESS_HINT}") from None
     said = " ".join(probe.stdout.split())
     if probe.returncode == 3:
         raise UserError(said)
     if probe.returncode != 0:
         reason = f": {said}" if said else ""
-        raise UserError(f"vitaplace view cannot open a window on {where} (GLFW failed to start{reason}); {HEADLESS_HINT}")
+        raise UserError(f"vitaplace view cannot open a window on {where} (GLFW failed to start{reason}); "
+                        f"{HEADLESS_HINT}")
 
 
 def viewer_scene(environment: EnvironmentSpec, robot: RobotSpec | None = None) -> tuple[SimModel, mujoco.MjData]:
@@ -75,7 +79,9 @@ def viewer_scene(environment: EnvironmentSpec, robot: RobotSpec | None = None) -
 VIEW_ELEVATION_DEG = -60.0  #: the opening view looks down on the robot at this angle
 
 
-def viewer_camera(environment: EnvironmentSpec, pose: np.ndarray, fovy_deg: float) -> tuple[np.ndarray, float, float, float]:
+def viewer_camera(
+    environment: EnvironmentSpec, pose: np.ndarray, fovy_deg: float
+) -> tuple[np.ndarray, float, float, float]:
     """The free camera the viewer opens with: ``(lookat, distance, azimuth, elevation)``
     (degrees, MuJoCo's convention). It looks at the robot (at its head's height) from
     behind, down at `VIEW_ELEVATION_DEG`, from the nearest distance at which every corner of
@@ -87,7 +93,8 @@ def viewer_camera(environment: EnvironmentSpec, pose: np.ndarray, fovy_deg: floa
     lookat = np.array([x, y, HEAD_POS[2]])
     hx = environment.arena.half_x + environment.arena.wall_thickness
     hy = environment.arena.half_y + environment.arena.wall_thickness
-    corners = np.array([(sx * hx, sy * hy, z) for sx in (-1, 1) for sy in (-1, 1) for z in (0.0, environment.arena.wall_height)])
+    corners = np.array([(sx * hx, sy * hy, z) for sx in (-1, 1) for sy in (-1, 1)
+                        for z in (0.0, environment.arena.wall_height)])
     azimuth, elevation = math.degrees(yaw), VIEW_ELEVATION_DEG
     ca, sa = math.cos(yaw), math.sin(yaw)
     ce, se = math.cos(math.radians(elevation)), math.sin(math.radians(elevation))
@@ -119,9 +126,11 @@ def view(environment: str | Path, robot: RobotSpec | None = None) -> None:
     try:
         handle = mujoco.viewer.launch_passive(model, data)
     except RuntimeError as exc:  # macOS: the viewer must run on the main thread, under mjpython
-        raise UserError(f"vitaplace view: {exc} (e.g. `mjpython -m vitaplace.engine.cli.main view {environment}`)") from None
+        raise UserError(f"vitaplace view: {exc} "
+                        f"(e.g. `mjpython -m vitaplace.engine.cli.main view {environment}`)") from None
     viewer_threads = [t for t in threading.enumerate() if t not in before]
-    print(f"vitaplace view: {spec.name} is open; close its window or press Ctrl-C here to quit", file=sys.stderr, flush=True)
+    print(f"vitaplace view: {spec.name} is open; close its window or press Ctrl-C here to quit",
+          file=sys.stderr, flush=True)
     try:
         with handle.lock():
             handle.opt.geomgroup[ROBOT_GROUP] = 1

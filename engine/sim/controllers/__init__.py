@@ -94,9 +94,23 @@ from vitaplace.engine.sim.controllers.settings import (
     rename_legacy_run_keys,
     run_spec,
 )
-from vitaplace.engine.sim.controllers.stations import STATION_TRANSITIONS, Station, StationDriver, ToStation, stations_of
-from vitaplace.engine.sim.controllers.teleop import TELEOP_KEYS, TELEOP_TURN, TeleopDriver
-from vitaplace.engine.sim.controllers.teleop import TELEOP_TRANSITIONS, Approach, Drive, Hold, TeleopMode
+from vitaplace.engine.sim.controllers.stations import (
+    STATION_TRANSITIONS,
+    Station,
+    StationDriver,
+    ToStation,
+    stations_of,
+)
+from vitaplace.engine.sim.controllers.teleop import (
+    TELEOP_KEYS,
+    TELEOP_TRANSITIONS,
+    TELEOP_TURN,
+    Approach,
+    Drive,
+    Hold,
+    TeleopDriver,
+    TeleopMode,
+)
 
 __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "TeleopDriver", "make_controller",
            "SafetyGuard", "Headway", "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore",

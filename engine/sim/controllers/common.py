@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 
@@ -48,7 +49,13 @@ class Limiter:
         self.limits = np.asarray(limits, dtype=float)
         self.state = np.zeros(len(limits))
 
-    def __call__(self, *command: float, dt: float) -> tuple[float, ...]:
+    @overload
+    def __call__(self, v: float, w: float, /, *, dt: float) -> tuple[float, float]: ...
+
+    @overload
+    def __call__(self, v: float, w: float, side: float, /, *, dt: float) -> tuple[float, float, float]: ...
+
+    def __call__(self, *command: float, dt: float) -> tuple[float, ...]:  # one component per limit
         step = self.limits * dt
         self.state += np.clip(np.asarray(command, dtype=float) - self.state, -step, step)
         return tuple(float(c) for c in self.state)

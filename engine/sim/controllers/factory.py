@@ -38,8 +38,8 @@ def make_controller(
         phi = np.radians(np.arange(0.0, 360.0, 5.0))
         centre = np.asarray(spec.orbit_centre, dtype=float)
         circle = centre + spec.orbit_radius * np.stack([np.cos(phi), np.sin(phi)], axis=1)
-        ctrl = RouteFollower(spec, Route(circle), env.obstacles, rng, off_from, outward=centre)
-        return ctrl, ctrl.start_pose()
+        follower = RouteFollower(spec, Route(circle), env.obstacles, rng, off_from, outward=centre)
+        return follower, follower.start_pose()
     outward = np.mean(env.route, axis=0) if env.route_facing == "outward" else None
-    ctrl = RouteFollower(spec, Route(env.route), env.obstacles, rng, off_from, outward)
-    return ctrl, ctrl.start_pose()
+    follower = RouteFollower(spec, Route(env.route), env.obstacles, rng, off_from, outward)
+    return follower, follower.start_pose()

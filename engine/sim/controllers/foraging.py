@@ -13,14 +13,13 @@ import numpy as np
 
 from vitaplace.engine.sim.clearance import HEAD_CENTRE, HEAD_RADIUS, footprint_clearance
 from vitaplace.engine.sim.controllers.common import HEAD_REACH, Observation
-from vitaplace.engine.sim.controllers.common import Limiter as _Limiter
 from vitaplace.engine.sim.controllers.common import OU as _OU
+from vitaplace.engine.sim.controllers.common import Limiter as _Limiter
 from vitaplace.engine.sim.controllers.common import wrap as _wrap
 from vitaplace.engine.sim.controllers.safety import Headway, SafetyGuard
 from vitaplace.engine.sim.controllers.settings import ForagingRun
 from vitaplace.engine.sim.environment import ObstacleMap
 from vitaplace.engine.sim.robot import BODY_RADIUS
-
 
 Command = tuple[float, float]  #: a foraging command: forward speed [m/s], yaw rate [rad/s]
 
@@ -97,7 +96,8 @@ class ForagingState(ABC):
         self.max_turn = math.radians(spec.max_turn_rate_deg)
 
     def enter(self, s: Surroundings) -> None:
-        """Called when the controller switches to this state."""
+        """Called when the controller switches to this state; a state without set-up keeps this no-op."""
+        return None
 
     @abstractmethod
     def step(self, s: Surroundings) -> tuple[Command | None, str]:
@@ -179,7 +179,8 @@ class Explore(ForagingState):
         w = spec.gains.explore_bearing_gain * err + spec.gains.explore_distance_gain * reach_err * side
         if s.head_gap < margin:  # snout too close: steer away from the object's side
             w -= side * spec.gains.explore_snout_gain * (margin - s.head_gap)
-        v = spec.gains.explore_speed_share * spec.speed * float(np.clip((s.head_gap - 0.25 * margin) / margin, 0.0, 1.0))
+        v = (spec.gains.explore_speed_share * spec.speed
+             * float(np.clip((s.head_gap - 0.25 * margin) / margin, 0.0, 1.0)))
         return (v, self._turn(w)), ""
 
 
@@ -203,7 +204,8 @@ class Leave(ForagingState):
         self.until = s.time + spec.gains.leave_time
         self.attention.refractory_until = s.time + spec.refractory_time
         away = s.pos - self.attention.target
-        self.heading = math.atan2(away[1], away[0]) + float(self.rng.uniform(-spec.gains.leave_jitter, spec.gains.leave_jitter))
+        self.heading = (math.atan2(away[1], away[0])
+                        + float(self.rng.uniform(-spec.gains.leave_jitter, spec.gains.leave_jitter)))
 
     def step(self, s: Surroundings) -> tuple[Command | None, str]:
         spec = self.spec
@@ -254,7 +256,9 @@ class Avoid(ForagingState):
         ways = np.stack([np.cos(cand), np.sin(cand)], axis=1)
         clear = self.obstacles.distance_many(pos[None] + HEAD_CENTRE * ways)
         if footprint:  # in the head probe's units: the distance of the head's centre
-            clear = np.minimum(clear, footprint_clearance(self.obstacles, pos[None] + self.ESCAPE_STEP * ways, cand) + HEAD_RADIUS)
+            clear = np.minimum(
+                clear, footprint_clearance(self.obstacles, pos[None] + self.ESCAPE_STEP * ways, cand) + HEAD_RADIUS
+            )
         turn = np.abs((np.arange(12) * 30.0 + 180.0) % 360.0 - 180.0)
         score = np.minimum(clear, HEAD_RADIUS + 0.25) - 1e-3 * turn  # free enough -> the smallest turn wins
         return float(cand[int(np.argmax(score))])
@@ -266,7 +270,8 @@ class Avoid(ForagingState):
             return None, "clear"
         err = _wrap(self.heading - s.yaw)
         if abs(err) < math.radians(spec.gains.avoid_drive_deg):
-            v = spec.gains.avoid_speed_share * spec.speed * float(np.clip((s.head_gap - 0.5 * margin) / margin, 0.0, 1.0))
+            v = (spec.gains.avoid_speed_share * spec.speed
+                 * float(np.clip((s.head_gap - 0.5 * margin) / margin, 0.0, 1.0)))
             if v == 0.0:  # blocked in this direction too: look for another way out
                 self.heading = self._escape_heading(s.pos, s.yaw + math.pi / 6)
         else:
@@ -350,6 +355,7 @@ class ForagingController:
             state = self._switch("too close", s)
         elif self.headway.stalled(s.pose, s.time):
             if self.mode == "avoid":
+                assert isinstance(self.states["avoid"], Avoid)
                 self.states["avoid"].failed_at = s.pos.copy()
             state = self._switch("stuck", s)
         else:

@@ -10,9 +10,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from vitaplace.engine.sim.clearance import Route
+from vitaplace.engine.sim.controllers.common import OU as _OU
 from vitaplace.engine.sim.controllers.common import Limiter as _Limiter
 from vitaplace.engine.sim.controllers.common import Observation
-from vitaplace.engine.sim.controllers.common import OU as _OU
 from vitaplace.engine.sim.controllers.common import wrap as _wrap
 from vitaplace.engine.sim.controllers.settings import OrbitRun, RouteRun
 from vitaplace.engine.sim.environment import ObstacleMap

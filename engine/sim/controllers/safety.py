@@ -32,6 +32,7 @@ class SafetyGuard:
         ``horizon`` (ramp from ``start`` to ``command`` at ``braking``, then hold) and after
         braking to a stop from there (5,)."""
         a = self.braking
+        assert a is not None  # called only with braking
         tau = horizon * np.array([0.25, 0.5, 0.75, 1.0])
         ramp = np.minimum(abs(command - start) / a, tau)
         reached = start + np.copysign(a * ramp, command - start)
@@ -87,7 +88,8 @@ class Headway:
         self.pose, self.since = np.array(pose, dtype=float), t
 
     def stalled(self, pose: np.ndarray, t: float) -> bool:
-        moved = math.hypot(*(pose[:2] - self.pose[:2])) > self.DISTANCE or abs(_wrap(pose[2] - self.pose[2])) > self.TURN
+        moved = (math.hypot(*(pose[:2] - self.pose[:2])) > self.DISTANCE
+                 or abs(_wrap(pose[2] - self.pose[2])) > self.TURN)
         if moved:
             self.restart(pose, t)
         return not moved and t - self.since >= self.STALL_TIME

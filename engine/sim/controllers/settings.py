@@ -33,7 +33,8 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 from vitaplace.engine.sim.condition import Condition, is_default
 
 __all__ = ["RunSpec", "ForagingGains", "ForagingRun", "TeleopRun", "StationsRun", "RouteRun", "OrbitRun", "run_spec",
-           "recorded_run_spec", "key_form", "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "V6_DEFAULTS", "TELEOP_SPEED", "RUN_KINDS"]
+           "recorded_run_spec", "key_form", "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "V6_DEFAULTS", "TELEOP_SPEED",
+           "RUN_KINDS"]
 
 #: the teleop keys' nominal speed [m/s] for the WhiskEye (see docs/SIMULATION.md)
 TELEOP_SPEED = 0.3
@@ -51,13 +52,15 @@ class ForagingGains(_Settings):
         2.0, gt=0, le=60, description="wander: correlation time of the random turn rate [s]"
     )
     wander_steer_range: float = Field(
-        0.05, ge=0, le=1, description="wander: steer away from an obstacle this close to the point 0.15 m beyond the snout [m]"
+        0.05, ge=0, le=1, description="wander: steer away from an obstacle this close to the point 0.15 m beyond the "
+        "snout [m]"
     )
     wander_steer_gain: float = Field(
         1.5, ge=0, le=20, description="wander: turn rate per radian of that obstacle's escape direction [1/s]"
     )
     contact_weight: float = Field(
-        0.3, gt=0, le=1, description="orient, explore: weight of the newest contacts' centroid in the attended point per tick"
+        0.3, gt=0, le=1, description="orient, explore: weight of the newest contacts' centroid in the attended point "
+        "per tick"
     )
     orient_turn_gain: float = Field(
         3.0, gt=0, le=20, description="orient: turn rate per radian of bearing to the attended point [1/s]"
@@ -66,7 +69,8 @@ class ForagingGains(_Settings):
         0.15, gt=0, le=1, description="orient: share of that turn rate left when the attended point is at the snout"
     )
     orient_back_gain: float = Field(
-        1.5, ge=0, le=20, description="orient: backing speed per metre the attended point is inside the head's turning reach [1/s]"
+        1.5, ge=0, le=20, description="orient: backing speed per metre the attended point is inside the head's "
+        "turning reach [1/s]"
     )
     orient_back_speed: float = Field(0.08, ge=0, le=0.5, description="orient: largest backing speed [m/s]")
     orient_done_deg: float = Field(
@@ -76,7 +80,8 @@ class ForagingGains(_Settings):
         25.0, ge=0, le=90, description="explore: the attended point is kept this far to one side of the heading [deg]"
     )
     explore_reach: float = Field(
-        0.12, ge=0, le=0.3, description="explore: ... and this far beyond the head's centre, within the whiskers' reach [m]"
+        0.12, ge=0, le=0.3, description="explore: ... and this far beyond the head's centre, within the whiskers' "
+        "reach [m]"
     )
     explore_bearing_gain: float = Field(
         2.5, ge=0, le=20, description="explore: turn rate per radian of bearing error [1/s]"
@@ -85,7 +90,8 @@ class ForagingGains(_Settings):
         1.5, ge=0, le=50, description="explore: turn rate per metre of distance error [rad/(s m)]"
     )
     explore_snout_gain: float = Field(
-        8.0, ge=0, le=100, description="explore: turn rate away per metre that the head is inside avoid_margin [rad/(s m)]"
+        8.0, ge=0, le=100, description="explore: turn rate away per metre that the head is inside avoid_margin "
+        "[rad/(s m)]"
     )
     explore_speed_share: float = Field(
         0.5, gt=0, le=1, description="explore: largest forward speed, as a share of speed"
@@ -106,7 +112,8 @@ class ForagingGains(_Settings):
         20.0, gt=0, le=180, description="leave: heading error below which wandering resumes [deg]"
     )
     attend_margin_share: float = Field(
-        0.5, gt=0, le=1, description="share of avoid_margin that triggers avoid while attending (orient, explore, leave)"
+        0.5, gt=0, le=1, description="share of avoid_margin that triggers avoid while attending (orient, explore, "
+        "leave)"
     )
     avoid_release_gap: float = Field(
         0.04, ge=0, le=0.5, description="avoid: ends when the body and head are avoid_margin + this clear [m] ..."
@@ -127,7 +134,8 @@ class ForagingGains(_Settings):
         0.05, ge=0, le=0.5, description="avoid, leave, safety guard: speed of backing away from an obstacle [m/s]"
     )
     guard_margin_share: float = Field(
-        0.25, gt=0, le=1, description="safety guard: no command may bring the body or head closer than this share of avoid_margin"
+        0.25, gt=0, le=1, description="safety guard: no command may bring the body or head closer than this share of "
+        "avoid_margin"
     )
 
 
@@ -146,7 +154,9 @@ class _Run(_Settings):
         0.06, ge=0, description="clearance kept between the body and obstacles [m] (teleop: its safety guard keeps a "
         "quarter of it)"
     )
-    control_hz: float = Field(10.0, gt=0, le=500, description="controller update rate (rounded to deflection samples) [Hz]")
+    control_hz: float = Field(
+        10.0, gt=0, le=500, description="controller update rate (rounded to deflection samples) [Hz]"
+    )
     condition: Condition | None = Field(
         None, description="the lighting and camera state the run is recorded under (docs/SIMULATION.md, Conditions); "
         "null: the environment's lights and a clean camera"
@@ -162,7 +172,8 @@ class _OffPath(_Run):
         "end, teleop in detours"
     )
     off_route_offset: float = Field(
-        0.6, ge=-3, le=3, description="how far off the path that part runs: left of travel, or towards the orbit's centre [m]"
+        0.6, ge=-3, le=3, description="how far off the path that part runs: left of travel, or towards the orbit's "
+        "centre [m]"
     )
 
 
@@ -175,7 +186,8 @@ class ForagingRun(_Run):
     explore_time: tuple[float, float] = Field((3.0, 8.0), description="range of the exploration bout length [s]")
     refractory_time: float = Field(4.0, ge=0, description="contacts ignored after leaving an object [s]")
     gains: ForagingGains = Field(
-        ForagingGains(), description="gains and thresholds of the foraging states (wander, orient, explore, leave, avoid)"
+        ForagingGains(), description="gains and thresholds of the foraging states (wander, orient, explore, leave, "
+        "avoid)"
     )
 
     @model_validator(mode="after")
@@ -204,10 +216,12 @@ class _Teleoperated(_OffPath):
         0.08, ge=0, le=0.5, description="std of the smooth offsets of the run's own copy of the route loop [m]"
     )
     speed_steps: int = Field(
-        2, ge=0, le=5, description="the run's speed is the keys' speed after k presses of q (x1.1) or z (x0.9), |k| <= this"
+        2, ge=0, le=5, description="the run's speed is the keys' speed after k presses of q (x1.1) or z (x0.9), "
+        "|k| <= this"
     )
     touch_gap: float = Field(
-        0.06, gt=0, le=0.2, description="an explored landmark is approached until the whiskers touch it and the head is this close [m]"
+        0.06, gt=0, le=0.2, description="an explored landmark is approached until the whiskers touch it and the head "
+        "is this close [m]"
     )
     hold_cycles: tuple[int, int] = Field((2, 5), description="whisk cycles held at an explored landmark [min, max]")
     detour_count: int = Field(3, ge=1, le=50, description="detours that the off-route share is split into")
@@ -261,7 +275,9 @@ class StationsRun(_Teleoperated):
         5.0, ge=0, le=45, description="each approach faces the landmark's nearest point plus a uniform angle within "
         "+-this (drawn per visit) [deg]"
     )
-    hold_cycles: tuple[int, int] = Field((4, 6), description="whisk cycles with contact held at each station [min, max]")
+    hold_cycles: tuple[int, int] = Field(
+        (4, 6), description="whisk cycles with contact held at each station [min, max]"
+    )
     sample_at: Literal["cycle", "stations"] = Field(
         "cycle", description="cycle: a sample at the end of every whisk cycle of the drive; stations: only of the "
         "cycles held whisking a station (the drive between stations is simulated, not recorded): place recognition "
@@ -272,16 +288,16 @@ class StationsRun(_Teleoperated):
     def _check_stations(self) -> StationsRun:
         if self.station_landmarks is not None and len(set(self.station_landmarks)) != len(self.station_landmarks):
             raise ValueError(f"station_landmarks must name each landmark once, got {self.station_landmarks}")
-        if self.station_landmarks is not None and self.station_count is not None and self.station_count > len(self.station_landmarks):
-            raise ValueError(f"station_count {self.station_count} is more than the {len(self.station_landmarks)} landmarks named")
+        if (self.station_landmarks is not None and self.station_count is not None
+                and self.station_count > len(self.station_landmarks)):
+            raise ValueError(f"station_count {self.station_count} is more than the {len(self.station_landmarks)} "
+                             "landmarks named")
         return self
 
 
-class RouteRun(_OffPath):
-    """Noisy laps of the environment's route (near-duplicates of each other, kept for
-    regression): `RouteFollower`."""
+class _Laps(_OffPath):
+    """The fields of the kinds that drive noisy laps of a loop (route, orbit): `RouteFollower`."""
 
-    kind: Literal["route"] = Field(description="route: noisy laps of the environment's route")
     max_turn_rate_deg: float = Field(90.0, gt=0, le=720, description="turn-rate limit [deg/s]")
     lateral_noise: float = Field(0.02, ge=0, le=0.2, description="std of the lateral offset from the route [m]")
     heading_noise_deg: float = Field(3.0, ge=0, le=45, description="std of the heading offset [deg]")
@@ -290,7 +306,14 @@ class RouteRun(_OffPath):
     start_noise: float = Field(0.03, ge=0, le=0.5, description="std of the start position along/across the route [m]")
 
 
-class OrbitRun(RouteRun):
+class RouteRun(_Laps):
+    """Noisy laps of the environment's route (near-duplicates of each other, kept for
+    regression): `RouteFollower`."""
+
+    kind: Literal["route"] = Field(description="route: noisy laps of the environment's route")
+
+
+class OrbitRun(_Laps):
     """Noisy laps of a circle, driven sideways with the camera facing outward (ViTa-SLAM's
     evaluation trajectory): `RouteFollower` with ``outward``."""
 
@@ -302,8 +325,8 @@ class OrbitRun(RouteRun):
 #: the settings of a run: one model per ``kind``
 AnyRun = ForagingRun | TeleopRun | StationsRun | RouteRun | OrbitRun
 RunSpec = Annotated[AnyRun, Field(discriminator="kind")]
-RUN_KINDS: dict[str, type[_Run]] = {"foraging": ForagingRun, "teleop": TeleopRun, "stations": StationsRun, "route": RouteRun,
-                                     "orbit": OrbitRun}
+RUN_KINDS: dict[str, type[_Run]] = {"foraging": ForagingRun, "teleop": TeleopRun, "stations": StationsRun,
+                                     "route": RouteRun, "orbit": OrbitRun}
 _ADAPTER: TypeAdapter[AnyRun] = TypeAdapter(RunSpec)
 
 

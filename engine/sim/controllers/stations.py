@@ -38,8 +38,8 @@ from vitaplace.engine.sim.controllers.settings import StationsRun
 from vitaplace.engine.sim.controllers.teleop import STOP, Approach, Drive, Hold, Leave, Press, TeleopDriver, TeleopMode
 from vitaplace.engine.sim.environment import EnvironmentSpec
 
-__all__ = ["Station", "StationError", "StationDriver", "ToStation", "StationApproach", "STATION_TRANSITIONS", "stations_of",
-           "station_indices", "approach_clearance"]
+__all__ = ["Station", "StationError", "StationDriver", "ToStation", "StationApproach", "STATION_TRANSITIONS",
+           "stations_of", "station_indices", "approach_clearance"]
 
 AT_STATION = 0.03  #: the driver has arrived within this distance of its (jittered) station point [m]
 _TO_STATION_TIMEOUT = 12.0  #: a station not reached by then is approached from where the robot is [s]
@@ -71,7 +71,7 @@ def station_indices(env: EnvironmentSpec, spec: StationsRun) -> list[int]:
     of ``station_landmarks`` (default: every tactile landmark, in the environment's order); a
     `StationError` naming the setting when they do not fit ``env``."""
     names = env.landmark_names()
-    tactile = [name for name, lm in zip(names, env.landmarks) if lm.tactile]
+    tactile = [name for name, lm in zip(names, env.landmarks, strict=True) if lm.tactile]
     if len(env.route) < 2 or not tactile:
         raise StationError("kind", f"a stations run needs the environment's route and tactile landmarks; "
                            f"{env.name!r} has {len(env.route)} route waypoints and {len(tactile)} tactile landmarks")
@@ -81,11 +81,13 @@ def station_indices(env: EnvironmentSpec, spec: StationsRun) -> list[int]:
             raise StationError("station_landmarks", f"{name!r} names no landmark of {env.name!r} (its landmarks: "
                                f"{', '.join(names)})")
         if name not in tactile:
-            raise StationError("station_landmarks", f"{name!r} of {env.name!r} is not tactile: the whiskers cannot touch it")
+            raise StationError("station_landmarks", f"{name!r} of {env.name!r} is not tactile: "
+                               "the whiskers cannot touch it")
     count = len(chosen) if spec.station_count is None else spec.station_count
     if count > len(chosen):
         raise StationError("station_count", f"{count} stations asked for, but {env.name!r} has only {len(chosen)} "
-                           f"{'named' if spec.station_landmarks is not None else 'tactile'} landmarks to make them from")
+                           f"{'named' if spec.station_landmarks is not None else 'tactile'} "
+                           "landmarks to make them from")
     return [names.index(name) for name in chosen[:count]]
 
 

@@ -34,7 +34,7 @@ from vitaplace.engine.sim.controllers.common import Limiter as _Limiter
 from vitaplace.engine.sim.controllers.common import Observation
 from vitaplace.engine.sim.controllers.common import wrap as _wrap
 from vitaplace.engine.sim.controllers.safety import Headway, SafetyGuard
-from vitaplace.engine.sim.controllers.settings import TeleopRun
+from vitaplace.engine.sim.controllers.settings import StationsRun, TeleopRun
 from vitaplace.engine.sim.environment import EnvironmentSpec
 
 Press = tuple[str, float]  #: a key and how long it is pressed [s] (inf: until the next decision)
@@ -56,7 +56,8 @@ class TeleopMode(ABC):
         self.driver = driver
 
     def enter(self, t: float, pose: np.ndarray) -> None:
-        """Called when the driver switches to this mode."""
+        """Called when the driver switches to this mode; a mode without set-up keeps this no-op."""
+        return None
 
     @abstractmethod
     def decide(self, t: float, pose: np.ndarray) -> tuple[Press | None, str]:
@@ -248,8 +249,11 @@ class TeleopDriver:
 
     #: (mode, event) -> next mode; a driver with other modes (`StationDriver`) has its own table
     transitions = TELEOP_TRANSITIONS
+    spec: TeleopRun | StationsRun  #: a StationsRun for `StationDriver`
 
-    def __init__(self, spec: TeleopRun, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float) -> None:
+    def __init__(
+        self, spec: TeleopRun | StationsRun, env: EnvironmentSpec, rng: np.random.Generator, sample_period: float
+    ) -> None:
         self.spec, self.rng, self.obstacles = spec, rng, env.obstacles
         self.guard = SafetyGuard(env.obstacles, 0.25 * spec.avoid_margin, braking=spec.max_accel)
         self.centre = np.mean(env.route, axis=0)
@@ -262,7 +266,8 @@ class TeleopDriver:
         base = Route(env.route)
         jitter = self._smooth_offsets(base)
         self.loop = self._clear_offset_route(base, jitter)
-        self.detour = self._clear_offset_route(base, jitter + spec.off_route_offset) if spec.off_route_fraction else None
+        self.detour = (self._clear_offset_route(base, jitter + spec.off_route_offset) if spec.off_route_fraction
+                       else None)
         self.detours = self._plan_detours(sample_period)
         self.path = self.loop
         self.s = float(rng.uniform(0.0, self.loop.length))
@@ -346,7 +351,7 @@ class TeleopDriver:
     def _translation_keys(self, direction: float) -> list[str]:
         """Translation keys moving within 90 deg of ``direction`` [rad, robot frame], best first."""
         off = {k: abs(_wrap(math.radians(a) - direction)) for k, a in _TRANSLATION_KEYS.items()}
-        return [k for k in sorted(off, key=off.get) if off[k] < math.pi / 2]
+        return [k for k in sorted(off, key=off.__getitem__) if off[k] < math.pi / 2]
 
     def _turn_key(self, err: float) -> str:
         return "j" if err > 0 else "l"
@@ -453,6 +458,7 @@ class TeleopDriver:
         not again within half a lap."""
         if not self.tactile:
             return False
+        assert isinstance(self.spec, TeleopRun)  # a StationDriver visits its stations instead
         gaps = self._landmark_gaps(pose)
         ahead = self.path.point(self.s + ROUTE_LOOKAHEAD)[0]
         gaps_ahead = self._landmark_gaps(np.array([*ahead, self._facing(ahead)]))
