@@ -10,12 +10,12 @@ from typing import Any
 
 import yaml
 
+import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Scenario, training_world_evaluation
 from vitaplace.engine.extension.registry import announce_run_finished, plugin_distributions
 from vitaplace.engine.outputs import completion
 from vitaplace.engine.outputs.rows import ResultRow
-import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.pipeline.keys import STAGES
 from vitaplace.engine.pipeline.manifest import write_manifest
 from vitaplace.engine.pipeline.records import RunRecord
@@ -40,10 +40,11 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
     write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(resolved, sort_keys=False))
     started = time.perf_counter()
     stop = STAGES.index(until)
+    simulated = simulate(store, scenario)  # first: a scenario's runs are recorded before anything reads its methods
     record = RunRecord(out=out, scenario=scenario.name, seed=scenario.seed, until=until,
                        methods=plan.method_settings(scenario, store.registry),
                        training_world=training_world_evaluation(scenario)[1],
-                       plugins=plugin_distributions(store.registry), simulate=simulate(store, scenario))
+                       plugins=plugin_distributions(store.registry), simulate=simulated)
     if stop >= STAGES.index("fit"):
         record.fit = fit(store, scenario, record.simulate)
     if record.fit is not None and stop >= STAGES.index("transform"):
