@@ -21,8 +21,8 @@ from typing import Any
 import pydantic
 import yaml
 
-from vitaplace.engine.base.shipped import shipped_file
 from vitaplace.engine.base.errors import UserError, did_you_mean
+from vitaplace.engine.base.shipped import shipped_file
 
 log = logging.getLogger("vitaplace")
 
@@ -190,7 +190,8 @@ def _tags(model: type[pydantic.BaseModel]) -> tuple[Any, ...]:
     """The values of a model's ``type`` or ``kind`` field (``Literal[...]``): its tags in a
     discriminated union (landmarks on ``type``, run settings on ``kind``)."""
     fields = (model.model_fields.get(name) for name in ("type", "kind"))
-    return next((typing.get_args(f.annotation) for f in fields if f and typing.get_origin(f.annotation) is typing.Literal), ())
+    return next((typing.get_args(f.annotation) for f in fields
+                 if f and typing.get_origin(f.annotation) is typing.Literal), ())
 
 
 def _resolve(tp: Any, loc: tuple[Any, ...]) -> tuple[type[pydantic.BaseModel] | None, list[Any] | None]:
@@ -204,7 +205,8 @@ def _resolve(tp: Any, loc: tuple[Any, ...]) -> tuple[type[pydantic.BaseModel] | 
     for option in options:
         origin, args = typing.get_origin(option), typing.get_args(option)
         if origin in (list, tuple) and isinstance(part, int) and args:
-            inner = args[0] if origin is list or len(args) == 2 and args[1] is Ellipsis else args[min(part, len(args) - 1)]
+            inner = (args[0] if origin is list or len(args) == 2 and args[1] is Ellipsis
+                     else args[min(part, len(args) - 1)])
             model, shown = _resolve(inner, rest)
         elif origin is dict and args:
             model, shown = _resolve(args[1], rest)

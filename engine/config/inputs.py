@@ -11,7 +11,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from vitaplace.engine.base.shipped import shipped_names_hint
-from vitaplace.engine.config.scenario import MIN_EVALUATION_SAMPLES, RecordedRuns, Scenario, ScenarioError
+from vitaplace.engine.config.scenario import (
+    MIN_EVALUATION_SAMPLES,
+    EvaluationPair,
+    RecordedRuns,
+    Scenario,
+    ScenarioError,
+)
 from vitaplace.engine.data.dataset import DatasetError, Run, open_run, recorded_tactile_model
 from vitaplace.engine.outputs.checksum import digest
 from vitaplace.engine.sim.controllers import RunSpec
@@ -37,7 +43,8 @@ def check_runs(path: Path, scenario: Scenario) -> int:
         if entry.run is not None and where != "train":
             _check_station_jitter(path, where, entry.run, scenario)
         if entry.run is not None:
-            runs = [entry.run_for(role) for role in ("query", "reference")] if where != "train" else [entry.run]
+            runs = ([entry.run_for(role) for role in ("query", "reference")] if isinstance(entry, EvaluationPair)
+                    else [entry.run])
             for run in runs:
                 try:
                     check_run(env, run, robot)

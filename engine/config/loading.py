@@ -12,12 +12,12 @@ from typing import Any
 import pydantic
 
 from vitaplace.engine.base.configfile import format_validation_error, load_yaml, local_or_shipped
+from vitaplace.engine.base.shipped import SCENARIOS_DIR, shipped_file, shipped_names_hint
 from vitaplace.engine.config.inputs import check_runs
 from vitaplace.engine.config.memory import check_memory, physical_memory
 from vitaplace.engine.config.methods import check_methods
 from vitaplace.engine.config.overrides import apply_overrides
 from vitaplace.engine.config.scenario import Scenario, ScenarioError, rename_legacy_keys
-from vitaplace.engine.base.shipped import SCENARIOS_DIR, shipped_file, shipped_names_hint
 
 log = logging.getLogger("vitaplace")
 

@@ -33,7 +33,8 @@ def check_memory(
     """Refuse, before any compute, runs and networks that cannot fit in this machine's memory."""
     if limit is None:
         return
-    runs = [("train.run", scenario.train.run)] + [(f"evaluations.{i}.run", e.run) for i, e in enumerate(scenario.evaluations)]
+    runs = [("train.run", scenario.train.run)] + [(f"evaluations.{i}.run", e.run)
+                                                  for i, e in enumerate(scenario.evaluations)]
     for where, run in runs:
         if run is None:  # a recorded run: it fits, it was recorded
             continue

@@ -26,7 +26,7 @@ def check_methods(path: Path, scenario: Scenario) -> list[tuple[Any, Any]]:
         except ExtractorParamsError as exc:
             raise ScenarioError(f"{path}: methods.{i}.params: {exc}") from None
     dropouts = [i for i, e in enumerate(scenario.evaluations) if e.query_dropout is not None]
-    for method, (extractor, _) in zip(scenario.methods, checked):
+    for method, (extractor, _) in zip(scenario.methods, checked, strict=True):
         if dropouts and not getattr(extractor, "handles_missing", False):
             raise ScenarioError(
                 f"{path}: evaluations.{dropouts[0]}.query_dropout: method {method.name}'s extractor "
@@ -47,6 +47,6 @@ def complementarity_pairs(scenario: Scenario, registry: Registry) -> list[tuple[
         extractor = registry.get(method.plugin)
         senses[method.name] = (method.plugin, extractor.modalities(extractor.validate_params(method.params)))
     found = [(v, t) for v, (v_plugin, v_senses) in senses.items() for t, (t_plugin, t_senses) in senses.items()
-             if v_plugin == t_plugin and v_senses == {VISUAL} and t_senses == {TACTILE}]
+             if v_plugin == t_plugin and v_senses == frozenset({VISUAL}) and t_senses == frozenset({TACTILE})]
     found += [(pair.vision, pair.touch) for pair in scenario.scoring.complementarity]
     return list(dict.fromkeys(found))

@@ -40,8 +40,13 @@ import pydantic
 
 from vitaplace.engine.base.configfile import ConfigError
 from vitaplace.engine.sim.condition import Condition
-from vitaplace.engine.sim.controllers import (RENAMED_RUN_KEYS, RunSpec, legacy_gain_paths, nest_legacy_gains,
-                                              rename_legacy_run_keys)
+from vitaplace.engine.sim.controllers import (
+    RENAMED_RUN_KEYS,
+    RunSpec,
+    legacy_gain_paths,
+    nest_legacy_gains,
+    rename_legacy_run_keys,
+)
 from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment
 from vitaplace.engine.sim.robot import RobotSpec
 
@@ -71,7 +76,8 @@ class _RunSource(Strict):
     def _check_source(self, key: str, recorded: bool, environment_allowed: bool) -> None:
         """A run is simulated (``environment`` and ``run``) or recorded (``key``), never both."""
         if recorded:
-            extra = [k for k in ("run",) + (() if environment_allowed else ("environment",)) if getattr(self, k) is not None]
+            extra = [k for k in ("run",) + (() if environment_allowed else ("environment",))
+                     if getattr(self, k) is not None]
             if extra:
                 raise ValueError(
                     f"give either '{key}' (recorded runs) or 'environment' and 'run' (simulated), not both: remove "
@@ -115,7 +121,8 @@ def _not_only_dots(name: str) -> str:
 
 
 #: Names that become folder or file names: letters, digits, _ . - (not only dots), <= 64 long.
-SafeName = Annotated[str, pydantic.StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$"), pydantic.AfterValidator(_not_only_dots)]
+SafeName = Annotated[str, pydantic.StringConstraints(pattern=r"^[A-Za-z0-9_.-]{1,64}$"),
+                     pydantic.AfterValidator(_not_only_dots)]
 #: An evaluation run with fewer samples gives no meaningful precision-recall curve.
 MIN_EVALUATION_SAMPLES = 5
 
@@ -199,7 +206,8 @@ class EvaluationPair(_RunSource):
         self._check_source("datasets", self.datasets is not None, environment_allowed=True)
         if self.query_off_route and (self.run is None or self.run.kind == "foraging"):
             raise ValueError(
-                "query_off_route needs a simulated teleop, stations, route or orbit run (not recorded runs, not foraging)"
+                "query_off_route needs a simulated teleop, stations, route or orbit run "
+                "(not recorded runs, not foraging)"
             )
         conditions = [k for k in ("query_condition", "reference_condition") if getattr(self, k) is not None]
         if conditions and self.run is None:
@@ -292,7 +300,7 @@ def current_run_settings(data: dict[str, Any], where: str) -> dict[str, Any]:
     (`RENAMED_RUN_KEYS`) and the foraging gains given at its top level (the form before
     ``run.gains``) moved under ``gains``, each with one warning naming ``where`` and the key
     paths; a setting given in both forms is a ScenarioError."""
-    runs = {"train.run": data.get("train")}
+    runs: dict[str, Any] = {"train.run": data.get("train")}
     evaluations = data.get("evaluations")
     for i, entry in enumerate(evaluations if isinstance(evaluations, list) else []):
         runs[f"evaluations.{i}.run"] = entry
@@ -348,7 +356,8 @@ class SequenceSettings(Strict):
             raise ValueError(f"velocities: expected [slowest, fastest] with 0 < slowest <= fastest, both finite, "
                              f"got [{low:g}, {high:g}]")
         if self.velocity_steps > 1 and low == high:
-            raise ValueError(f"velocities: an empty range [{low:g}, {high:g}] with velocity_steps {self.velocity_steps}; "
+            raise ValueError(f"velocities: an empty range [{low:g}, {high:g}] "
+                             f"with velocity_steps {self.velocity_steps}; "
                              "expected slowest < fastest, or velocity_steps 1")
         return self
 
@@ -434,7 +443,8 @@ class Scenario(Strict):
                                  "expected a name of its own")
             for role in ("vision", "touch"):
                 if getattr(f, role) not in methods:
-                    raise ValueError(f"fusions.{i}.{role}: no method '{getattr(f, role)}' (methods: {', '.join(methods)})")
+                    raise ValueError(
+                        f"fusions.{i}.{role}: no method '{getattr(f, role)}' (methods: {', '.join(methods)})")
             if f.vision == f.touch:
                 raise ValueError(f"fusions.{i}: vision and touch are the same method '{f.vision}'; expected two "
                                  "different methods")

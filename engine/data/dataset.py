@@ -177,7 +177,7 @@ class Run:
 
     @property
     def image_shape(self) -> tuple[int, int, int]:
-        return tuple(self._source["images"].shape[1:])  # type: ignore[return-value]
+        return tuple(self._source["images"].shape[1:])
 
     def touch_mask(self, threshold: float = TOUCH_THRESHOLD) -> np.ndarray:
         """(N,) bool: samples in which some whisker touches something at the sampling instant,
@@ -283,7 +283,7 @@ def _check_shapes(arrays: Mapping[str, Any], where: str) -> None:
     expected["deflection"] = (n, None, n_whiskers, 2)
     for key, shape in expected.items():
         actual = arrays[key].shape
-        if len(actual) != len(shape) or any(e is not None and e != a for e, a in zip(shape, actual)):
+        if len(actual) != len(shape) or any(e is not None and e != a for e, a in zip(shape, actual, strict=True)):
             wanted = "x".join("?" if e is None else str(e) for e in shape)
             raise DatasetError(f"{where}: field '{key}' has shape {actual}, expected {wanted}")
     offsets = np.asarray(arrays["contact_offsets"][...])
@@ -410,7 +410,7 @@ def _check_field(f: Any, key: str, where: str) -> None:
     if item.chunks is None:
         stored = item.id.get_storage_size() == item.nbytes
     else:
-        chunks = int(np.prod([-(-n // c) for n, c in zip(item.shape, item.chunks)]))
+        chunks = int(np.prod([-(-n // c) for n, c in zip(item.shape, item.chunks, strict=True)]))
         stored = item.id.get_num_chunks() == chunks
     if not stored:
         raise DatasetError(

@@ -250,7 +250,8 @@ def _check_frame_values(arr: np.ndarray, path: Path, name: str, where: str) -> N
         _check_finite(np.moveaxis(arr, 0, -1), path, name)
     outside = int(np.count_nonzero((arr < 0) | (arr > 255)))
     if outside:
-        raise DatasetError(f"{where} has {outside} value(s) outside both [0, 1] and [0, 255]; expected uint8 or float in [0, 1]")
+        raise DatasetError(
+            f"{where} has {outside} value(s) outside both [0, 1] and [0, 255]; expected uint8 or float in [0, 1]")
 
 
 def _images(raw: np.ndarray, path: Path, name: str = "images", image_range: str | None = None) -> np.ndarray:
@@ -279,7 +280,8 @@ def _image_range(arr: np.ndarray, where: str) -> str:
 
 
 def import_mat(
-    directory: str | os.PathLike, name: str | None = None, image_range: str | None = None, pose_layout: str | None = None,
+    directory: str | os.PathLike, name: str | None = None, image_range: str | None = None,
+    pose_layout: str | None = None,
     tactile_model: str = "physical",
 ) -> Run:
     """Read a MultiPredNet/WhiskEye recording folder into an in-memory `Run`; ``image_range``

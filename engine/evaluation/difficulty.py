@@ -10,6 +10,7 @@ The pose and threshold conventions are `vitaplace.engine.evaluation.evaluate`'s.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.distance import cdist
 
 from vitaplace.engine.evaluation.evaluate import _check_poses, _check_tau, _heading_difference_deg
@@ -29,7 +30,7 @@ TOUCH_PAIR_KEYS = DIFFICULTY_KEYS[-3:]
 STAY_RADIUS = 0.25
 
 
-def longest_stay(xy, radius: float = STAY_RADIUS) -> tuple[int, int]:
+def longest_stay(xy: ArrayLike, radius: float = STAY_RADIUS) -> tuple[int, int]:
     """(length, first index) of the longest stretch of consecutive samples of the (N, 2)
     positions ``xy`` that stay within ``radius`` of the stretch's first sample (ties: the
     earliest). A drive that stops to whisk a landmark stays a few samples; one that got stuck
@@ -42,7 +43,10 @@ def longest_stay(xy, radius: float = STAY_RADIUS) -> tuple[int, int]:
     return best[0], -best[1]
 
 
-def touch_at_true_matches(query_xy, reference_xy, true_match, query_touch, reference_touch) -> dict[str, float | None]:
+def touch_at_true_matches(
+    query_xy: np.ndarray, reference_xy: np.ndarray, true_match: np.ndarray, query_touch: np.ndarray | None,
+    reference_touch: np.ndarray | None,
+) -> dict[str, float | None]:
     """Whether touch is shared by a query and its true match (`TOUCH_PAIR_KEYS`).
 
     A *true-match pair* is each query that has a true match (a row of the boolean
@@ -67,7 +71,8 @@ def touch_at_true_matches(query_xy, reference_xy, true_match, query_touch, refer
 
 
 def difficulty(
-    query_poses, reference_poses, gtm, tau: float, query_touch=None, reference_touch=None
+    query_poses: ArrayLike, reference_poses: ArrayLike, gtm: ArrayLike, tau: float,
+    query_touch: ArrayLike | None = None, reference_touch: ArrayLike | None = None,
 ) -> dict[str, float | None]:
     """How hard an evaluation pair is, whatever the method (`DIFFICULTY_KEYS`, plain floats).
 
@@ -90,8 +95,10 @@ def difficulty(
     r = _check_poses(reference_poses, "reference_poses", need_yaw=False)
     gtm_a = np.asarray(gtm, dtype=float)
     if gtm_a.shape != (len(q), len(r)) or np.isnan(gtm_a).any():
-        raise ValueError(f"gtm must be a NaN-free queries x references ({len(q)}, {len(r)}) matrix, got shape {gtm_a.shape}")
-    per_run, masks = {}, {}
+        raise ValueError(
+            f"gtm must be a NaN-free queries x references ({len(q)}, {len(r)}) matrix, got shape {gtm_a.shape}")
+    per_run: dict[str, float | None] = {}
+    masks: dict[str, np.ndarray | None] = {}
     for role, mask, n in (("query", query_touch, len(q)), ("reference", reference_touch, len(r))):
         if mask is None:
             per_run[f"{role}_touch_share"] = masks[role] = None

@@ -35,8 +35,10 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.distance import cdist
 
 __all__ = [
@@ -54,7 +56,7 @@ __all__ = [
 # --------------------------------------------------------------------------- validation
 
 
-def _check_poses(poses, name: str, need_yaw: bool) -> np.ndarray:
+def _check_poses(poses: ArrayLike, name: str, need_yaw: bool) -> np.ndarray:
     arr = np.asarray(poses, dtype=float)
     if arr.ndim != 2 or arr.shape[1] < (3 if need_yaw else 2):
         want = "(N, 3) x, y, yaw" if need_yaw else "(N, 2) or (N, 3)"
@@ -64,7 +66,7 @@ def _check_poses(poses, name: str, need_yaw: bool) -> np.ndarray:
     return arr
 
 
-def _check_tau(tau) -> float:
+def _check_tau(tau: Any) -> float:
     try:
         tau_f = float(tau)
     except (TypeError, ValueError):
@@ -74,7 +76,7 @@ def _check_tau(tau) -> float:
     return tau_f
 
 
-def _check_matrices(tme, gtm) -> tuple[np.ndarray, np.ndarray]:
+def _check_matrices(tme: ArrayLike, gtm: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
     tme_a = np.asarray(tme, dtype=float)
     gtm_a = np.asarray(gtm, dtype=float)
     if tme_a.ndim != 2:
@@ -109,7 +111,8 @@ def _heading_difference_deg(yaw_a: np.ndarray, yaw_b: np.ndarray) -> np.ndarray:
     return np.degrees(np.abs(np.arctan2(np.sin(diff), np.cos(diff))))
 
 
-def ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg: float | None = None) -> np.ndarray:
+def ground_truth_matrix(query_poses: ArrayLike, reference_poses: ArrayLike,
+                        heading_tolerance_deg: float | None = None) -> np.ndarray:
     """Ground-truth matrix ``GTM[i, j]`` between query and reference poses ``(N, 3)`` (x, y, yaw).
 
     ``GTM[i, j] = ||xy_i - xy_j||_2`` (metres) where the two headings differ by at most
@@ -119,7 +122,7 @@ def ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg: flo
     the tolerance". ``None``: position only ((N, 2) poses accepted then).
     """
     need_yaw = heading_tolerance_deg is not None
-    if need_yaw:
+    if heading_tolerance_deg is not None:
         heading_tolerance_deg = float(heading_tolerance_deg)
         if np.isnan(heading_tolerance_deg) or heading_tolerance_deg < 0:
             raise ValueError(f"heading_tolerance_deg must be >= 0 degrees or None, got {heading_tolerance_deg!r}")
@@ -191,7 +194,9 @@ def _correct(best_gtm: np.ndarray, best_tme: np.ndarray, tau: float) -> np.ndarr
     return (best_gtm <= tau) & np.isfinite(best_tme)
 
 
-def _best(tme: np.ndarray, gtm: np.ndarray, tau: float):
+def _best(
+    tme: np.ndarray, gtm: np.ndarray, tau: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     rows = np.arange(tme.shape[0])
     best_match = np.argmin(tme, axis=1)  # ties -> lowest reference index
     best_tme = tme[rows, best_match]
@@ -201,7 +206,7 @@ def _best(tme: np.ndarray, gtm: np.ndarray, tau: float):
     return best_match, best_tme, best_gtm, has_revisit, correct
 
 
-def decide(tme, gtm, tau: float, delta: float) -> Decisions:
+def decide(tme: ArrayLike, gtm: ArrayLike, tau: float, delta: float) -> Decisions:
     """Single-best-match decisions for acceptance threshold ``delta`` on the TME."""
     tme_a, gtm_a = _check_matrices(tme, gtm)
     tau = _check_tau(tau)
@@ -292,7 +297,7 @@ class PRCurve:
         return float(np.sum(dr * p))
 
 
-def pr_curve(tme, gtm, tau: float, deltas: Iterable[float] | None = None) -> PRCurve:
+def pr_curve(tme: ArrayLike, gtm: ArrayLike, tau: float, deltas: Iterable[float] | None = None) -> PRCurve:
     """PR curve of single-best-match place recognition.
 
     ``deltas=None`` sweeps every distinct best-match TME value plus ``-inf`` (nothing accepted),
@@ -337,7 +342,7 @@ def pr_curve(tme, gtm, tau: float, deltas: Iterable[float] | None = None) -> PRC
 # --------------------------------------------------------------------------- recall@K
 
 
-def recall_at_k(tme, gtm, tau: float, ks: Sequence[int] = (1, 5, 10)) -> dict[int, float]:
+def recall_at_k(tme: ArrayLike, gtm: ArrayLike, tau: float, ks: Sequence[int] = (1, 5, 10)) -> dict[int, float]:
     """Fraction of queries with a true revisit for which one of the K lowest-TME references
     lies within ``tau`` (ties in TME broken towards the lower reference index).
 
@@ -365,13 +370,14 @@ def recall_at_k(tme, gtm, tau: float, ks: Sequence[int] = (1, 5, 10)) -> dict[in
 # --------------------------------------------------------------------------- summary
 
 
-def _json_float(x) -> float | None:
+def _json_float(x: float) -> float | None:
     x = float(x)
     return x if np.isfinite(x) else None
 
 
 def evaluate(
-    tme, gtm, tau: float, delta: float | None = None, ks: Sequence[int] = (1, 5, 10), curve: PRCurve | None = None
+    tme: ArrayLike, gtm: ArrayLike, tau: float, delta: float | None = None, ks: Sequence[int] = (1, 5, 10),
+    curve: PRCurve | None = None,
 ) -> dict:
     """JSON-serialisable summary (plain floats/ints; non-finite thresholds reported as None).
 
@@ -422,7 +428,7 @@ def evaluate(
     return out
 
 
-def f1_at_threshold_of(source: PRCurve, tme, gtm, tau: float) -> float:
+def f1_at_threshold_of(source: PRCurve, tme: ArrayLike, gtm: ArrayLike, tau: float) -> float:
     """F1 of ``(tme, gtm)`` at the threshold that maximised F1 on ``source`` (another
     evaluation's PR curve: the training world's), applied unchanged. The threshold is
     ``source.delta_at_max_f1`` (the smallest among tied maxima); ``-inf`` (the source's best

@@ -37,7 +37,8 @@ def fused_distance(vision: np.ndarray, touch: np.ndarray, sigma_vision: float, s
                    weight: float) -> np.ndarray:
     """``(d_V / σ_V + w d_T / σ_T)``, each term's absence (+inf) made up by the other's scaled to
     the full weight (module docstring)."""
-    terms = [(np.asarray(vision, dtype=float) / sigma_vision, 1.0), (np.asarray(touch, dtype=float) / sigma_touch, weight)]
+    terms = [(np.asarray(vision, dtype=float) / sigma_vision, 1.0),
+             (np.asarray(touch, dtype=float) / sigma_touch, weight)]
     total = np.zeros(np.shape(vision))
     present = np.zeros(np.shape(vision))
     for term, w in terms:
@@ -56,6 +57,7 @@ def choose_weight(
     """(w, σ_V, σ_T, score per weight) on the selection evaluation: ``score(fused)`` (its max
     F1) for each weight of the grid, the best kept, ties to the smallest weight."""
     sigma_v, sigma_t = spread(vision), spread(touch)
-    scores = {float(w): float(score(fused_distance(vision, touch, sigma_v, sigma_t, float(w)))) for w in sorted(weights)}
+    scores = {float(w): float(score(fused_distance(vision, touch, sigma_v, sigma_t, float(w))))
+              for w in sorted(weights)}
     best = max(scores.values())
     return min(w for w, s in scores.items() if s == best), sigma_v, sigma_t, scores

@@ -10,8 +10,10 @@ import dataclasses
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any, TypeVar
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from vitaplace.engine.base.atomic import atomic_path
 from vitaplace.engine.evaluation.difficulty import difficulty
@@ -63,7 +65,7 @@ def export_decisions_csv(
                 )
 
 
-def export_matrices_npz(path: str | os.PathLike, tme, gtm, **extra) -> None:
+def export_matrices_npz(path: str | os.PathLike, tme: ArrayLike, gtm: ArrayLike, **extra: ArrayLike) -> None:
     """Save ``tme`` and ``gtm`` (and any extra named arrays) to a compressed ``.npz``, atomically."""
     tme_a = np.asarray(tme)
     gtm_a = np.asarray(gtm)
@@ -71,7 +73,8 @@ def export_matrices_npz(path: str | os.PathLike, tme, gtm, **extra) -> None:
         raise ValueError(f"tme and gtm must have the same shape: tme {tme_a.shape} vs gtm {gtm_a.shape}")
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as fh:  # file object: numpy would append '.npz' to a bare name
-            np.savez_compressed(fh, tme=tme_a, gtm=gtm_a, **{k: np.asarray(v) for k, v in extra.items()})
+            arrays: dict[str, Any] = {k: np.asarray(v) for k, v in extra.items()}  # Any: not allow_pickle's bool
+            np.savez_compressed(fh, tme=tme_a, gtm=gtm_a, **arrays)
 
 
 def save_curve_and_decisions(folder: str | os.PathLike, curve: PRCurve, decisions: Decisions) -> None:
@@ -80,12 +83,16 @@ def save_curve_and_decisions(folder: str | os.PathLike, curve: PRCurve, decision
     folder = Path(folder)
     for name, obj in ((PR_CURVE, curve), (DECISIONS, decisions)):
         with atomic_path(folder / name) as tmp, open(tmp, "wb") as f:
-            np.savez(f, **{k: np.asarray(v) for k, v in dataclasses.asdict(obj).items()})
+            arrays: dict[str, Any] = {k: np.asarray(v) for k, v in dataclasses.asdict(obj).items()}
+            np.savez(f, **arrays)
 
 
-def _load(cls, path: str | os.PathLike):
+_Saved = TypeVar("_Saved", PRCurve, Decisions)
+
+
+def _load(cls: type[_Saved], path: str | os.PathLike) -> _Saved:
     with np.load(path) as data:
-        values = {}
+        values: dict[str, Any] = {}
         for f in dataclasses.fields(cls):
             arr = data[f.name]
             values[f.name] = arr.item() if arr.ndim == 0 else arr
@@ -123,7 +130,7 @@ def evaluate_pair(
     heading_tolerance_deg: float | None = None,
     query_touch: np.ndarray | None = None,
     reference_touch: np.ndarray | None = None,
-    sequence: Mapping[str, object] | None = None,
+    sequence: Mapping[str, Any] | None = None,
 ) -> dict:
     """Everything about one query run against one reference run, written to ``folder``:
     the ground truth from the poses (`ground_truth_matrix`), ``matrices.npz`` (TME, GTM and

@@ -6,8 +6,8 @@ From a method's distance matrix ``D`` (queries x references, both in drive order
 1. **Local contrast** — each entry is normalised against the references around it in its
    query's row: ``D^[i, j] = (D[i, j] - mean) / std`` over the references ``j - window ..
    j + window`` (cut at the run's ends) of row ``i``; a window whose spread is 0 (below
-   `FLAT` of its mean: rounding) is divided by 1. Only finite entries enter the window's statistics; a +inf entry (a pair the method
-   cannot compare) stays +inf.
+   `FLAT` of its mean: rounding) is divided by 1. Only finite entries enter the window's
+   statistics; a +inf entry (a pair the method cannot compare) stays +inf.
 2. **Straight lines** — for query ``i``, reference ``j`` and each relative velocity ``v``
    (``velocity_steps`` values evenly spaced over ``velocities``, references per query), the
    line through the last ``length`` queries ``k = i - length + 1 .. i`` meets references
@@ -47,7 +47,8 @@ def local_contrast(distances: np.ndarray, window: int) -> np.ndarray:
         ok = ~np.isnan(near)
         count = np.maximum(ok.sum(axis=2), 1)
         mean = np.where(ok, near, 0.0).sum(axis=2) / count
-        spread = np.sqrt((np.where(ok, near - mean[..., None], 0.0) ** 2).sum(axis=2) / count)  # two passes: exact for flat windows
+        # two passes: exact for flat windows
+        spread = np.sqrt((np.where(ok, near - mean[..., None], 0.0) ** 2).sum(axis=2) / count)
         spread = np.where(spread > FLAT * np.abs(mean), spread, 1.0)
         out[rows] = np.where(finite[rows], (np.where(finite[rows], d[rows], 0.0) - mean) / spread, np.inf)
     return out

@@ -1,1 +1,2 @@
-"""The feature-extractor interface, the plugin hooks and the plugin registry (the plugin API itself: `vitaplace.plugin`)."""
+"""The feature-extractor interface, the plugin hooks and the plugin registry (the plugin API
+itself: `vitaplace.plugin`)."""

@@ -19,8 +19,8 @@ import pydantic
 
 from vitaplace.engine.base.atomic import atomic_path
 from vitaplace.engine.base.configfile import format_validation_error
-from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.data.dataset import Run
 
 #: Features of one run: named arrays whose first axis is the sample index.
 Features = dict[str, np.ndarray]
@@ -130,7 +130,8 @@ def save_features(path: str | Path, features: Features) -> None:
     """Write features to an ``.npz`` file atomically."""
     with atomic_path(path) as tmp:
         with open(tmp, "wb") as f:
-            np.savez(f, **features)
+            arrays: Mapping[str, Any] = features  # Any: not allow_pickle's bool
+            np.savez(f, **arrays)
 
 
 def load_features(path: str | Path) -> Features:

@@ -30,8 +30,8 @@ from typing import Any
 
 import pluggy
 
-from vitaplace.engine.extension import hookspecs
 from vitaplace.engine.base.errors import UserError, did_you_mean
+from vitaplace.engine.extension import hookspecs
 from vitaplace.engine.extension.features import FeatureExtractor
 
 ONLY_ENV = "VITAPLACE_PLUGINS"
@@ -80,7 +80,8 @@ class Registry:
             return self.extractors[name]
         except KeyError:
             valid = ", ".join(self.names()) or "none installed"
-            raise PluginError(f"unknown feature extractor {name!r}; available: {valid}{did_you_mean(name, self.names())}") from None
+            raise PluginError(
+                f"unknown feature extractor {name!r}; available: {valid}{did_you_mean(name, self.names())}") from None
 
     def create(self, name: str, params: Mapping[str, Any] | None = None) -> FeatureExtractor:
         return self.get(name)(params)
@@ -146,11 +147,13 @@ def _module_files(module: object) -> set[Path]:
 
 def _installed_files(dist: Distribution | None) -> set[Path]:
     """What ``dist`` installed, without bytecode and its own ``.dist-info`` records."""
-    found = set()
-    for item in (dist.files or []) if dist is not None else []:
+    found: set[Path] = set()
+    if dist is None:
+        return found
+    for item in dist.files or []:
         if item.suffix == ".pyc" or any(part.endswith(".dist-info") for part in item.parts):
             continue
-        path = Path(dist.locate_file(item))
+        path = Path(str(dist.locate_file(item)))  # typed as a SimplePath, which Path() does not take
         if path.is_file():
             found.add(path.resolve())
     return found
@@ -227,20 +230,22 @@ def _call_each(registry: Registry, hook: str, what: str, **kwargs: Any) -> list[
 def announce_run_finished(registry: Registry, out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
     """Call every plugin's `vitaplace_run_finished` hook; one that raises is reported as a
     warning naming it (the run's outputs are written already) and the others still run."""
-    _call_each(registry, "vitaplace_run_finished", "run-finished hook", out=out, scenario=scenario, rows=rows, stage=stage)
+    _call_each(registry, "vitaplace_run_finished", "run-finished hook", out=out, scenario=scenario, rows=rows,
+               stage=stage)
 
 
 def announce_sweep_started(registry: Registry, out: Path, scenario: Any, seeds: list[int]) -> dict[str, str]:
     """Call every plugin's `vitaplace_sweep_started` hook; the environment variables they ask
     the seeds' processes to have, merged (text only)."""
     environment: dict[str, str] = {}
-    for asked in _call_each(registry, "vitaplace_sweep_started", "sweep-started hook", out=out, scenario=scenario, seeds=seeds):
+    for asked in _call_each(registry, "vitaplace_sweep_started", "sweep-started hook", out=out, scenario=scenario,
+                            seeds=seeds):
         environment.update({str(k): str(v) for k, v in (asked or {}).items()})
     return environment
 
 
-def announce_sweep_finished(registry: Registry, out: Path, scenario: Any, seeds: list[int], failed: dict[int | str, str],
-                            environment: dict[str, str]) -> None:
+def announce_sweep_finished(registry: Registry, out: Path, scenario: Any, seeds: list[int],
+                            failed: dict[int | str, str], environment: dict[str, str]) -> None:
     """Call every plugin's `vitaplace_sweep_finished` hook (one that raises: a warning)."""
     _call_each(registry, "vitaplace_sweep_finished", "sweep-finished hook", out=out, scenario=scenario, seeds=seeds,
                failed=failed, environment=environment)

@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
+from typing import TextIO
 
 from vitaplace.engine.base.errors import UserError
 
@@ -74,7 +75,7 @@ class OutputLock:
 
     def __init__(self, out: Path) -> None:
         self.path = Path(out) / LOCK_NAME
-        self._file = None
+        self._file: TextIO | None = None
 
     def __enter__(self) -> OutputLock:
         if fcntl is None:
@@ -97,7 +98,8 @@ class OutputLock:
         self._file.flush()
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
         if self._file is not None:
             fcntl.flock(self._file, fcntl.LOCK_UN)
             self._file.close()

@@ -218,7 +218,8 @@ def _line(error: Mapping[str, Any]) -> str:
     if error["type"] == "missing":
         return f"field {name!r} is None, expected {_expected(tuple(error['loc']))}"
     value = error["input"]
-    expected = error["ctx"]["expected"] if error["type"] == "row" else _PYDANTIC_EXPECTED.get(error["type"], error["msg"])
+    expected = (error["ctx"]["expected"] if error["type"] == "row"
+                else _PYDANTIC_EXPECTED.get(error["type"], error["msg"]))
     return f"field {name!r} is {value!r:.60}, expected {expected}"
 
 

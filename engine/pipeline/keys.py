@@ -40,7 +40,8 @@ def recorded_key(digest: str) -> str:
 def fit_key(plugin: str, plugin_version: str, code_digest: str, params: dict[str, Any], train: RunFile) -> str:
     """The key of a method's model: its plugin (version and code), the parameters handed to
     it, and the training run."""
-    return content_hash("fit", STAGE_VERSION["fit"], plugin, plugin_version, code_digest, params, train.key, train.digest)
+    return content_hash("fit", STAGE_VERSION["fit"], plugin, plugin_version, code_digest, params, train.key,
+                        train.digest)
 
 
 def features_key(model: ModelFile, run: RunFile) -> str:

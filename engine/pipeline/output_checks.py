@@ -33,7 +33,8 @@ def check_finite(features: Features, what: str) -> Features:
 def check_features(features: Any, samples: int, what: str) -> Features:
     """An extractor's ``transform`` output must be a mapping of arrays with one row per sample."""
     if not isinstance(features, dict) or not features:
-        raise StageError(f"{what}: transform returned {type(features).__name__}, expected a non-empty mapping of arrays")
+        raise StageError(
+            f"{what}: transform returned {type(features).__name__}, expected a non-empty mapping of arrays")
     for key, values in features.items():
         shape = np.shape(values)
         if not shape or shape[0] != samples:

@@ -26,7 +26,8 @@ def seed_for(scenario_seed: int, *path: int) -> int:
 
 def runs(scenario: Scenario) -> dict[str, tuple[TrainingData | EvaluationPair, int]]:
     """Every run of the scenario: label (``train``, ``E1/query``) -> (its settings, its seed)."""
-    found: dict[str, tuple[TrainingData | EvaluationPair, int]] = {"train": (scenario.train, seed_for(scenario.seed, 0))}
+    found: dict[str, tuple[TrainingData | EvaluationPair, int]] = {
+        "train": (scenario.train, seed_for(scenario.seed, 0))}
     for i, e in enumerate(scenario.evaluations):
         found[f"{e.name}/query"] = (e, seed_for(scenario.seed, i + 1, 1))
         found[f"{e.name}/reference"] = (e, seed_for(scenario.seed, i + 1, 2))

@@ -7,14 +7,13 @@ from __future__ import annotations
 import csv
 import io
 import json
-from pathlib import Path
 from collections.abc import Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.outputs.outdir import COMPLEMENTARITY, RESULTS_CSV, RESULTS_JSON
 from vitaplace.engine.outputs.rows import ResultRow, parse_row
-
 
 RESULT_COLUMNS = (
     "environment", "method", "direction", "max_f1", "precision_at_max_f1", "recall_at_max_f1",

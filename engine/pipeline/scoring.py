@@ -47,8 +47,9 @@ def result_row(evaluation: EvaluationPair, name: str, direction: str, folder: Pa
     and, for an evaluation with a ``query_dropout``, the shares of the ``query`` run's samples
     that lacked each sensor (as drawn: whole samples)."""
     summary = folder / outdir.SUMMARY
-    row = parse_row(json.loads(summary.read_text()) | dict(environment=evaluation.name, method=name, direction=direction),
-                    str(summary))
+    row = parse_row(
+        json.loads(summary.read_text()) | dict(environment=evaluation.name, method=name, direction=direction),
+        str(summary))
     if evaluation.query_dropout is None:
         return row
     shares = {sensor: float(mask.mean()) if len(mask) else 0.0 for sensor, mask in query.missing.items()}

@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future
 from concurrent.futures import TimeoutError as FutureTimeout
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from vitaplace.engine.data.dataset import write_run
 from vitaplace.engine.pipeline.processes import interrupts_to_this_process, stop_pool, worker_pool
@@ -61,7 +61,7 @@ def log_simulated(label: str, samples: int, seconds: float, where: str = "") -> 
     log.info("%-9s %-28s simulated %d samples in %.1f s%s", "simulate", label, samples, seconds, where)
 
 
-def _log_finished(label: str, future: Future) -> None:
+def _log_finished(label: str, future: Future[tuple[int, float]]) -> None:
     """Done-callback of a simulation in a worker process: log it as soon as it finishes."""
     if not future.cancelled() and future.exception() is None:
         log_simulated(label, *future.result(), " (worker process)")

@@ -14,11 +14,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from matplotlib.collections import LineCollection
-from matplotlib.patches import Circle, Polygon, Rectangle
+from matplotlib.patches import Circle, Patch, Polygon, Rectangle
+from numpy.typing import ArrayLike
 
 from vitaplace.engine.base.atomic import atomic_path
 from vitaplace.engine.evaluation.evaluate import Decisions, PRCurve
@@ -38,7 +40,7 @@ BAND_NOTE = ("line: mean interpolated precision over seeds; band: lowest to high
              "(interpolated precision: the best precision at that recall or above)")
 
 
-def _new_figure(figsize) -> Figure:
+def _new_figure(figsize: tuple[float, float]) -> Figure:
     fig = Figure(figsize=figsize, layout="constrained")
     FigureCanvasAgg(fig)
     return fig
@@ -64,7 +66,8 @@ def _primary_outcome(decisions: Decisions) -> np.ndarray:
     return out
 
 
-def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> list[Path]:
+def plot_matrices(out_stem: str | os.PathLike, tme: ArrayLike, gtm: ArrayLike, decisions: Decisions,
+                  title: str = "") -> list[Path]:
     """GTM and TME heat maps side by side (rows = queries, columns = references) with the
     decision of each query drawn as a dot at (query, best match): green TP, red FP
     (accepted and wrong), orange FN (rejected although a revisit existed), grey TN.
@@ -110,7 +113,7 @@ def plot_matrices(out_stem, tme, gtm, decisions: Decisions, title: str = "") -> 
     return _save(fig, out_stem)
 
 
-def plot_pr_curves(out_stem, curves: Mapping[str, PRCurve], title: str = "") -> list[Path]:
+def plot_pr_curves(out_stem: str | os.PathLike, curves: Mapping[str, PRCurve], title: str = "") -> list[Path]:
     """Precision-recall curve per method with the max-F1 point marked; the legend gives max F1
     and AUC.  Drawn step-wise in threshold order so that the area under the drawn curve is the
     AUC (step-wise average precision)."""
@@ -136,7 +139,7 @@ def _pr_style(i: int, n_curves: int) -> dict:
     return {"linestyle": PR_STYLES[i % len(PR_STYLES)], "linewidth": 1.2 + 1.0 * (n_curves - 1 - i), "zorder": 2 + i}
 
 
-def _finish_pr_axes(fig: Figure, ax, ylabel: str, n_curves: int, title: str, legend_title: str) -> None:
+def _finish_pr_axes(fig: Figure, ax: Axes, ylabel: str, n_curves: int, title: str, legend_title: str) -> None:
     """Limits, labels, grid, a legend below the axes (covering no data) with ``legend_title``
     (what the curves show) and the title."""
     ax.set_xlim(-0.02, 1.02)
@@ -160,7 +163,7 @@ def interpolated_precision(curve: PRCurve, recall_grid: np.ndarray) -> np.ndarra
     return np.where(idx >= 0, best[np.clip(idx, 0, None)], 0.0)
 
 
-def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str = "") -> list[Path]:
+def plot_pr_bands(out_stem: str | os.PathLike, curves: Mapping[str, Sequence[PRCurve]], title: str = "") -> list[Path]:
     """Per method, the mean interpolated precision-recall curve over seeds with the band
     from the lowest to the highest seed (the figure says so, whatever the title); the legend
     gives the seeds and max F1 mean +- std."""
@@ -172,8 +175,8 @@ def plot_pr_bands(out_stem, curves: Mapping[str, Sequence[PRCurve]], title: str 
         prec = np.array([interpolated_precision(c, grid) for c in seeds])
         f1 = np.array([c.max_f1 for c in seeds])
         spread = f" ± {f1.std(ddof=1):.3f}" if len(f1) > 1 else ""
-        ax.plot(grid, prec.mean(axis=0), color=colour, label=f"{name} ({len(seeds)} seeds, max F1 {f1.mean():.3f}{spread})",
-                **_pr_style(i, len(curves)))
+        ax.plot(grid, prec.mean(axis=0), color=colour,
+                label=f"{name} ({len(seeds)} seeds, max F1 {f1.mean():.3f}{spread})", **_pr_style(i, len(curves)))
         ax.fill_between(grid, prec.min(axis=0), prec.max(axis=0), color=colour, alpha=0.2, linewidth=0)
     _finish_pr_axes(fig, ax, "interpolated precision", len(curves), title or "Precision-recall over seeds", BAND_NOTE)
     return _save(fig, out_stem)
@@ -189,10 +192,12 @@ def write_pr_bands(out: Path, folders: Mapping[int, Path], rows: Sequence[Mappin
     for row in sorted(rows, key=lambda r: r["seed"]):
         path = evaluation_dir(folders[row["seed"]], row["environment"], row["method"], row["direction"]) / PR_CURVE
         if path.is_file():
-            groups.setdefault((row["environment"], row["direction"]), {}).setdefault(row["method"], []).append(load_curve(path))
+            by_method = groups.setdefault((row["environment"], row["direction"]), {})
+            by_method.setdefault(row["method"], []).append(load_curve(path))
     written = []
     for (env, direction), curves in groups.items():
-        written += plot_pr_bands(Path(out) / f"pr-bands-{env}-{direction}", curves, f"{env}: precision-recall over seeds ({direction})")
+        written += plot_pr_bands(Path(out) / f"pr-bands-{env}-{direction}", curves,
+                                 f"{env}: precision-recall over seeds ({direction})")
     return written
 
 
@@ -204,7 +209,7 @@ def _arena_bounds(arena: Mapping) -> tuple[float, float, float, float] | None:
     return -hx, hx, -hy, hy
 
 
-def _landmark_patch(lm: Mapping):
+def _landmark_patch(lm: Mapping) -> Patch:
     """Patch for a landmark of `EnvironmentSpec.top_view`: 'box' (size [sx, sy], yaw in degrees),
     'cylinder' (radius), 'rock' (polygon [[x, y], ...] in the world frame)."""
     kind = lm.get("type", "box")
@@ -216,11 +221,12 @@ def _landmark_patch(lm: Mapping):
     if kind == "rock" and "polygon" in lm:
         return Polygon(np.asarray(lm["polygon"], dtype=float)[:, :2], closed=True, **style)
     sx, sy = (float(v) for v in lm["size"][:2])
-    return Rectangle((x - sx / 2, y - sy / 2), sx, sy, angle=float(lm.get("yaw", 0.0)), rotation_point="center", **style)
+    return Rectangle((x - sx / 2, y - sy / 2), sx, sy, angle=float(lm.get("yaw", 0.0)), rotation_point="center",
+                     **style)
 
 
-def plot_trajectories(out_stem, query_poses, reference_poses, decisions: Decisions,
-                      arena: Mapping | None = None, title: str = "") -> list[Path]:
+def plot_trajectories(out_stem: str | os.PathLike, query_poses: ArrayLike, reference_poses: ArrayLike,
+                      decisions: Decisions, arena: Mapping | None = None, title: str = "") -> list[Path]:
     """Top view of the query and reference runs over the arena, with accepted matches drawn
     as segments from query pose to matched reference pose (green TP, red FP)."""
     q = np.asarray(query_poses, dtype=float)[:, :2]
@@ -241,7 +247,7 @@ def plot_trajectories(out_stem, query_poses, reference_poses, decisions: Decisio
         idx = np.flatnonzero(mask)
         if idx.size:
             segs = np.stack([q[idx], r[bm[idx]]], axis=1)
-            ax.add_collection(LineCollection(segs, colors=colour, linewidths=0.8, alpha=0.8, zorder=3,
+            ax.add_collection(LineCollection(list(segs), colors=colour, linewidths=0.8, alpha=0.8, zorder=3,
                                              label=f"{label} ({idx.size})"))
     ax.set_aspect("equal")
     ax.autoscale_view()
@@ -252,7 +258,7 @@ def plot_trajectories(out_stem, query_poses, reference_poses, decisions: Decisio
     return _save(fig, out_stem)
 
 
-def plot_energy(out_stem, energy: Mapping[str, Sequence[float]], title: str = "") -> list[Path]:
+def plot_energy(out_stem: str | os.PathLike, energy: Mapping[str, Sequence[float]], title: str = "") -> list[Path]:
     """Training energy per layer (one line per key) against epoch, log y axis
     (non-positive values are masked)."""
     fig = _new_figure((6.5, 4.5))

@@ -18,18 +18,28 @@ from typing import Any
 import numpy as np
 import yaml
 
-from vitaplace.engine.outputs import completion
+from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
-from vitaplace.engine.report import figures
-from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.outputs import completion
 from vitaplace.engine.outputs.checksum import digest
-from vitaplace.engine.outputs.rows import Difficulty, ResultRow, SequenceMatching, parse_row
-from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.outputs.outdir import (
-    COMPLEMENTARITY, DECISIONS, FIGURES, MANIFEST, MATRICES, PR_CURVE, REPORT, RESULTS_JSON,
-    arena_path, evaluation_dir, poses_path, training_path,
+    COMPLEMENTARITY,
+    DECISIONS,
+    FIGURES,
+    MANIFEST,
+    MATRICES,
+    PR_CURVE,
+    REPORT,
+    RESULTS_JSON,
+    arena_path,
+    evaluation_dir,
+    poses_path,
+    training_path,
 )
+from vitaplace.engine.outputs.rows import Difficulty, ResultRow, SequenceMatching, parse_row
+from vitaplace.engine.report import figures
 
 #: the manifest entries the report reads (a change to one of them changes the report's key)
 MANIFEST_KEYS = ("scenario", "seed", "vitaplace_version", "git_commit", "git_dirty", "packages", "plugins", "recorded",
@@ -120,8 +130,9 @@ def complementarity_table(records: list[dict[str, Any]]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for c in records:
-        cells = [c["environment"], c["direction"], c["vision"], c["touch"], str(c["n_revisit"]), _pct(c["vision_r1"]),
-                 _pct(c["touch_r1"]), str(c["vision_wrong"]), str(c["rescued"]), _pct(c["rescue"]), _pct(c["oracle_r1"])]
+        cells = [c["environment"], c["direction"], c["vision"], c["touch"], str(c["n_revisit"]),
+                 _pct(c["vision_r1"]), _pct(c["touch_r1"]), str(c["vision_wrong"]), str(c["rescued"]),
+                 _pct(c["rescue"]), _pct(c["oracle_r1"])]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -190,7 +201,7 @@ def _cap_warnings(features: dict[str, dict[str, dict[str, Any]]]) -> list[str]:
     most (`CAP_WARNING_SHARE`), samples of the evaluation runs: its latents did not settle."""
     lines = []
     for method, by_run in features.items():
-        inferences = [facts.get("inference") for facts in by_run.values()]
+        inferences: list[Any] = [facts.get("inference") for facts in by_run.values()]
         if not inferences or any(i is None for i in inferences):
             continue
         capped, samples = sum(i["capped"] for i in inferences), sum(i["samples"] for i in inferences)
@@ -406,9 +417,9 @@ def _provenance_section(manifest: dict[str, Any]) -> list[str]:
     return [
         "## Provenance",
         "",
-        f"vitaplace {manifest['vitaplace_version']}, commit {manifest['git_commit'] or 'unknown'}{dirty}, scenario seed "
-        f"{manifest['seed']}; {packages}; feature plugins from {plugins or 'no distribution'}. Seeds, timings and "
-        "machine in manifest.json, resolved configuration in scenario.resolved.yaml.",
+        f"vitaplace {manifest['vitaplace_version']}, commit {manifest['git_commit'] or 'unknown'}{dirty}, "
+        f"scenario seed {manifest['seed']}; {packages}; feature plugins from {plugins or 'no distribution'}. "
+        "Seeds, timings and machine in manifest.json, resolved configuration in scenario.resolved.yaml.",
         "",
     ]
 
@@ -473,7 +484,8 @@ def _fusions_section(rows: Sequence[ResultRow], fusions: list[dict[str, Any]]) -
              "d = d_V / σ_V + w · d_T / σ_T of a vision-only and a touch-only method (σ: the spread of each one's "
              "distances where w is chosen), w the weight of the scenario's grid with the largest max F1 on the "
              "selection evaluation (ties: the smallest), applied unchanged to every evaluation.", "",
-             "| fusion | vision + touch | chosen on | direction | w | σ_V | σ_T | max F1 there |", "|---|---|---|---|---|---|---|---|"]
+             "| fusion | vision + touch | chosen on | direction | w | σ_V | σ_T | max F1 there |",
+             "|---|---|---|---|---|---|---|---|"]
     for (name, direction), f in chosen.items():
         s = settings[name]
         lines.append(f"| {name} | {s['vision']} + {s['touch']} | {s.get('select_on') or 'the training world'} "

@@ -14,17 +14,17 @@ from __future__ import annotations
 
 import copy
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from vitaplace.engine.outputs import completion
-from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.evaluation.pairfiles import load_curve
+from vitaplace.engine.outputs import completion
 from vitaplace.engine.outputs.keys import content_hash
 from vitaplace.engine.outputs.outdir import MANIFEST, MATRICES, RESULTS_JSON, writable_dir
 from vitaplace.engine.outputs.rows import ResultRow, parse_row
@@ -66,7 +66,7 @@ def scenario_identity(resolved: dict[str, Any]) -> str:
     return content_hash(data)
 
 
-def _read(folder: Path, name: str, parse) -> Any:
+def _read(folder: Path, name: str, parse: Callable[[str], Any]) -> Any:
     try:
         return parse((folder / name).read_text())
     except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError) as exc:
@@ -93,8 +93,10 @@ def validate_run_folder(folder: Path) -> RunFolder:
     manifest = _read(folder, MANIFEST, json.loads)
     rows = _read(folder, RESULTS_JSON, json.loads)
     resolved = _read(folder, completion.SCENARIO, yaml.safe_load)
-    if not isinstance(manifest, dict) or not isinstance(manifest.get("seed"), int) or isinstance(manifest["seed"], bool):
-        raise AggregateError(f"{folder / 'manifest.json'}: field 'seed' missing or not an integer; not a vitaplace run's")
+    if (not isinstance(manifest, dict) or not isinstance(manifest.get("seed"), int)
+            or isinstance(manifest["seed"], bool)):
+        raise AggregateError(
+            f"{folder / 'manifest.json'}: field 'seed' missing or not an integer; not a vitaplace run's")
     if not isinstance(manifest.get("scenario"), str):
         raise AggregateError(f"{folder / 'manifest.json'}: field 'scenario' missing or not text; not a vitaplace run's")
     if not isinstance(resolved, dict):
@@ -110,7 +112,8 @@ def validate_run_folder(folder: Path) -> RunFolder:
         try:
             load_curve(folder / name)
         except Exception as exc:  # noqa: BLE001 - numpy/zipfile raise many kinds on a damaged file
-            raise AggregateError(f"{folder / name}: unreadable PR curve ({type(exc).__name__}: {exc})".splitlines()[0]) from None
+            raise AggregateError(
+                f"{folder / name}: unreadable PR curve ({type(exc).__name__}: {exc})".splitlines()[0]) from None
     seed = manifest["seed"]
     return RunFolder(folder, seed, manifest["scenario"], scenario_identity(resolved), rows)
 

@@ -34,8 +34,16 @@ from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.config.scenario import RENAMED_KEYS, Scenario, ScenarioError, current_key
 from vitaplace.engine.outputs.outdir import seed_dir
 from vitaplace.engine.report.figures import write_pr_bands
-from vitaplace.engine.study.summary import (LEGEND, STAT_HEADER, SUMMARY_COLUMNS, SUMMARY_FILES, csv_text, json_safe,
-                                            stat_cells, write_summary)
+from vitaplace.engine.study.summary import (
+    LEGEND,
+    STAT_HEADER,
+    SUMMARY_COLUMNS,
+    SUMMARY_FILES,
+    csv_text,
+    json_safe,
+    stat_cells,
+    write_summary,
+)
 
 #: the files `write_grid_summary` writes into a grid sweep's folder
 GRID_FILES = ("grid.csv", "grid.md", "grid.json")
@@ -101,7 +109,7 @@ def _values(raw: str, where: str) -> tuple[list[str], list[Any]]:
     except yaml.YAMLError as exc:
         raise ScenarioError(f"{where}: a value is not YAML ({' '.join(str(exc).split())})") from None
     canonical = [yaml.safe_dump(v) for v in values]
-    twice = [t for t, c in zip(texts, canonical) if canonical.count(c) > 1]
+    twice = [t for t, c in zip(texts, canonical, strict=True) if canonical.count(c) > 1]
     if twice:
         raise ScenarioError(f"{where}: the value {twice[0]} is given more than once ({', '.join(twice)})")
     return texts, values
@@ -134,12 +142,12 @@ def parse_axes(options: Sequence[str], overrides: Sequence[str] = ()) -> list[Ax
 def _labels(axes: Sequence[Axis]) -> list[str]:
     """Each axis's label in folder names: its path's last part, unless another axis shares it."""
     last = [axis.path.rsplit(".", 1)[-1] for axis in axes]
-    return [name if last.count(name) == 1 else axis.path for name, axis in zip(last, axes)]
+    return [name if last.count(name) == 1 else axis.path for name, axis in zip(last, axes, strict=True)]
 
 
 def point_name(labels: Sequence[str], texts: Sequence[str]) -> str:
     """The folder name of a grid point: ``label=value`` per axis, joined by commas."""
-    return ",".join(f"{label}={UNSAFE.sub('_', text)}" for label, text in zip(labels, texts))
+    return ",".join(f"{label}={UNSAFE.sub('_', text)}" for label, text in zip(labels, texts, strict=True))
 
 
 def grid_points(axes: Sequence[Axis]) -> list[GridPoint]:
@@ -149,11 +157,11 @@ def grid_points(axes: Sequence[Axis]) -> list[GridPoint]:
         return [GridPoint("")]
     labels, points = _labels(axes), []
     for combination in itertools.product(*(range(len(axis.values)) for axis in axes)):
-        texts = [axis.texts[i] for axis, i in zip(axes, combination)]
+        texts = [axis.texts[i] for axis, i in zip(axes, combination, strict=True)]
         points.append(GridPoint(
             point_name(labels, texts),
-            {axis.path: axis.values[i] for axis, i in zip(axes, combination)},
-            tuple(f"{axis.path}={text}" for axis, text in zip(axes, texts)),
+            {axis.path: axis.values[i] for axis, i in zip(axes, combination, strict=True)},
+            tuple(f"{axis.path}={text}" for axis, text in zip(axes, texts, strict=True)),
         ))
     names = [p.name for p in points]
     clash = next((n for n in names if names.count(n) > 1), None)

@@ -137,4 +137,4 @@ def endpoint_tests(primary: Sequence[float], secondaries: Sequence[Sequence[floa
     tested = [(tuple(values), *paired(values), tost_interval(values)) for values in (primary, *secondaries)]
     p_holm = [tested[0][2], *holm([p for _, _, p, _ in tested[1:]])]
     return [Endpoint(values, stats, p, adjusted, tost, decision(stats, adjusted, tost))
-            for (values, stats, p, tost), adjusted in zip(tested, p_holm)]
+            for (values, stats, p, tost), adjusted in zip(tested, p_holm, strict=True)]

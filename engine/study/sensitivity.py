@@ -55,8 +55,8 @@ class SensitivityError(UserError):
     """A folder whose saved evaluations cannot be rescored; the message names the file."""
 
 
-def run_folders(folder: Path) -> tuple[list[RunFolder], dict[int, str]]:
-    """(the validated run folders under ``folder``, seed -> why for the failed seeds left out):
+def run_folders(folder: Path) -> tuple[list[RunFolder], dict[str, str]]:
+    """(the validated run folders under ``folder``, seed folder name -> why for the failed seeds left out):
     ``folder`` itself when it is a run folder (it has ``results.json``), else its ``seed-*``
     subfolders (a sweep), which must hold one scenario, each seed once (`one_scenario`). A
     seed folder with the sweep's ``error.txt`` is a failed seed: left out with one log line."""
@@ -66,7 +66,7 @@ def run_folders(folder: Path) -> tuple[list[RunFolder], dict[int, str]]:
     seeds = sorted(p for p in folder.glob("seed-*") if p.is_dir())
     if not seeds:
         raise SensitivityError(f"{folder}: neither a run folder (no results.json) nor a sweep folder (no seed-*/)")
-    failed = {}
+    failed: dict[str, str] = {}
     for path in seeds:
         if (path / SEED_ERROR).is_file():
             why = _last_line(path / SEED_ERROR)
@@ -117,7 +117,8 @@ def load_evaluation(path: Path, sequence_length: int | None = None) -> tuple[np.
                                f"{len(query)} x {len(reference)} matrix (queries x references)")
     if sequence_length is not None:
         if sequence_length > len(query):
-            raise SensitivityError(f"--sequence-length {sequence_length}: longer than the {len(query)} queries of {path}")
+            raise SensitivityError(
+                f"--sequence-length {sequence_length}: longer than the {len(query)} queries of {path}")
         tme = sequence_scores(tme, sequence_length, **SequenceSettings().model_dump(exclude={"length"}))
     return tme, query, reference
 
@@ -150,7 +151,8 @@ def sensitivity_rows(runs: Sequence[RunFolder], taus: Sequence[float] = TAUS,
             if not path.is_file():
                 raise SensitivityError(f"{path}: missing; the evaluation's matrices are needed")
             check_recorded(run, [name])
-            identity = {"seed": run.seed, "environment": row.environment, "method": row.method, "direction": row.direction}
+            identity = {"seed": run.seed, "environment": row.environment, "method": row.method,
+                        "direction": row.direction}
             out += [{**identity, **scored} for scored in rescore(*load_evaluation(path, sequence_length), taus,
                                                                  heading_tolerances)]
     return out
@@ -163,7 +165,8 @@ def summarise(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     groups: dict[tuple, list[Mapping[str, Any]]] = {}
     for row in rows:
         groups.setdefault(tuple(row[k] for k in keys), []).append(row)
-    return [{**dict(zip(keys, key)), "metric": metric, **describe([r[metric] for r in group], bounds(metric))}
+    return [{**dict(zip(keys, key, strict=True)), "metric": metric,
+             **describe([r[metric] for r in group], bounds(metric))}
             for key, group in groups.items() for metric in METRICS]
 
 
@@ -180,7 +183,8 @@ def markdown(summary: Sequence[Mapping[str, Any]], title: str) -> str:
              "| environment | method | direction | heading | τ (m) | metric | n | mean ± std | bootstrap 95 % |",
              "|" + " --- |" * 9]
     for r in summary:
-        lines.append(f"| {r['environment']} | {r['method']} | {r['direction']} | {_heading(r['heading_tolerance_deg'])} "
+        lines.append(f"| {r['environment']} | {r['method']} | {r['direction']} "
+                     f"| {_heading(r['heading_tolerance_deg'])} "
                      f"| {r['tau']:g} | {r['metric']} | {r['n']} | {cell(r)} | {interval(r, 'boot')} |")
     return "\n".join(lines) + "\n"
 
@@ -207,7 +211,8 @@ def write_sensitivity(folder: Path, out: Path | None = None, taus: Sequence[floa
     write_text_atomic(out / "sensitivity.csv", csv_text(rows, COLUMNS))
     seeds = sorted({r.seed for r in runs})
     matched = "" if sequence_length is None else f", sequences of {sequence_length} queries"
-    write_text_atomic(out / "sensitivity.md", markdown(summary, f"{runs[0].scenario}: sensitivity, {len(seeds)} seed(s){matched}"))
+    write_text_atomic(out / "sensitivity.md",
+                      markdown(summary, f"{runs[0].scenario}: sensitivity, {len(seeds)} seed(s){matched}"))
     record = {"scenario": runs[0].scenario, "seeds": seeds, "taus": list(taus),
               "heading_tolerances_deg": [heading_tolerance_deg, None], "sequence_length": sequence_length,
               "failed": failed, "rows": rows,

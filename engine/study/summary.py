@@ -62,8 +62,8 @@ from typing import Any
 import numpy as np
 from scipy import stats
 
-from vitaplace.engine.evaluation import resample
 from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.evaluation import resample
 
 #: columns naming what a result row is about, not values
 IDENTITY = ("seed", "environment", "method", "direction")
@@ -202,7 +202,8 @@ def describe(values: Sequence[float], limits: tuple[float, float] = (-math.inf, 
         # every resample's mean lies within the values' range; its float sum may not (n equal
         # values gave a low bound one ulp above the high one)
         inside = (max(limits[0], float(x.min())), min(limits[1], float(x.max())))
-        out["boot_low"], out["boot_high"] = _clip(*boot.confidence_interval, inside)
+        boot_low, boot_high = boot.confidence_interval
+        out["boot_low"], out["boot_high"] = _clip(boot_low, boot_high, inside)
     if block is not None:
         out["block_low"], out["block_high"] = percentile_interval(block, limits)
     return out
@@ -267,7 +268,8 @@ def _mean_replicates(replicates: Replicates, cells: Sequence[tuple], metric: str
     """Replicate by replicate, the mean over ``cells`` (seed, environment, method, direction)
     of their block replicates of ``metric``; None unless every cell has them."""
     arrays = [replicates.get(cell, {}).get(metric) for cell in cells]
-    return None if not arrays or any(a is None for a in arrays) else np.mean(arrays, axis=0)
+    found = [a for a in arrays if a is not None]
+    return None if not arrays or len(found) < len(arrays) else np.mean(found, axis=0)
 
 
 def summarise(long: Sequence[Mapping[str, Any]], replicates: Replicates | None = None) -> list[dict[str, Any]]:
@@ -283,7 +285,7 @@ def summarise(long: Sequence[Mapping[str, Any]], replicates: Replicates | None =
             described = describe(list(by_seed.values()), bounds(name), block)
         else:
             described = {**dict.fromkeys(STAT_COLUMNS, math.nan), **spread(list(by_seed.values()))}
-        table.append({**dict(zip(keys, key)), "kind": kind(name), **described})
+        table.append({**dict(zip(keys, key, strict=True)), "kind": kind(name), **described})
     return table
 
 

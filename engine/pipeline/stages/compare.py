@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.config.methods import complementarity_pairs
 from vitaplace.engine.config.scenario import Scenario, training_world_evaluation
 from vitaplace.engine.evaluation import evaluate as ev
@@ -16,7 +17,6 @@ from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
 from vitaplace.engine.extension.features import warn_once
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.outputs.rows import ResultRow
-import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.pipeline.records import EvaluateRecord, SimulateRecord
 from vitaplace.engine.pipeline.store import Store
 

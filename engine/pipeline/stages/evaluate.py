@@ -8,15 +8,22 @@ import json
 from functools import partial
 from pathlib import Path
 
+import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Scenario
 from vitaplace.engine.extension.features import load_features
 from vitaplace.engine.outputs import outdir
-import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.pipeline.keys import evaluate_key
 from vitaplace.engine.pipeline.output_checks import check_distance
-from vitaplace.engine.pipeline.records import (EvaluateRecord, FeaturesFile, FitRecord, ModelFile, RunFile,
-                                              SimulateRecord, TransformRecord)
+from vitaplace.engine.pipeline.records import (
+    EvaluateRecord,
+    FeaturesFile,
+    FitRecord,
+    ModelFile,
+    RunFile,
+    SimulateRecord,
+    TransformRecord,
+)
 from vitaplace.engine.pipeline.scoring import result_row, score
 from vitaplace.engine.pipeline.store import Store
 

@@ -11,10 +11,10 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Method, Scenario
 from vitaplace.engine.outputs import outdir
-import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.pipeline.keys import fit_key
 from vitaplace.engine.pipeline.records import FitRecord, ModelFile, RunFile, SimulateRecord
 from vitaplace.engine.pipeline.store import Store
@@ -27,10 +27,12 @@ def fit(store: Store, scenario: Scenario, simulated: SimulateRecord) -> FitRecor
     for method in scenario.methods:
         params = plan.params_for(scenario, store.registry, method)
         registry = store.registry
-        key = fit_key(method.plugin, registry.version_of(method.plugin), registry.code_digest(method.plugin), params, train)
+        key = fit_key(method.plugin, registry.version_of(method.plugin), registry.code_digest(method.plugin), params,
+                      train)
         folder = outdir.model_dir(store.cache, method.name, key)
         folder.parent.mkdir(parents=True, exist_ok=True)
-        done = store.stage("fit", method.name, key, folder, partial(_fit, store, method, params, train, folder), [train.key])
+        done = store.stage("fit", method.name, key, folder, partial(_fit, store, method, params, train, folder),
+                           [train.key])
         models[method.name] = ModelFile(method.name, method.plugin, folder, key, done.digest)
         record = training_record(folder)
         if record["summary"]:

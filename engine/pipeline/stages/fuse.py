@@ -16,13 +16,13 @@ from typing import Any
 
 import numpy as np
 
+import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Fusion, Scenario, training_world_evaluation
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve
 from vitaplace.engine.evaluation.fusion import choose_weight, fused_distance
 from vitaplace.engine.evaluation.sequence import sequence_scores
 from vitaplace.engine.outputs import outdir
-import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.pipeline.keys import fusion_key
 from vitaplace.engine.pipeline.records import EvaluateRecord, SimulateRecord
 from vitaplace.engine.pipeline.scoring import result_row, score, sequence_for
@@ -87,9 +87,10 @@ def fuse(store: Store, scenario: Scenario, simulated: SimulateRecord, evaluated:
                 members = [(env, m, name) for env in (e.name, chosen_on) for m in (fusion.vision, fusion.touch)]
                 key = fusion_key(fusion, chosen_on, scenario, [evaluated.folders[member] for member in members])
                 folder = outdir.evaluation_dir(store.out, e.name, fusion.name, name)
-                done = store.stage("evaluate", f"{e.name} {fusion.name} {name}", key, folder,
-                                   partial(_evaluate, store, scenario, simulated, fusion, choice, e.name, direction, folder),
-                                   [str(outdir.evaluation_dir(store.out, *member).relative_to(store.out)) for member in members])
+                done = store.stage(
+                    "evaluate", f"{e.name} {fusion.name} {name}", key, folder,
+                    partial(_evaluate, store, scenario, simulated, fusion, choice, e.name, direction, folder),
+                    [str(outdir.evaluation_dir(store.out, *member).relative_to(store.out)) for member in members])
                 folders[(e.name, fusion.name, name)] = done.digest
                 rows.append(result_row(e, fusion.name, name, folder, simulated.runs[f"{e.name}/query"]))
                 files += [folder / outdir.SUMMARY, folder / outdir.PR_CURVE]

@@ -25,9 +25,11 @@ def report(store: Store, scenario: Scenario, record: RunRecord) -> ReportRecord:
     """report.md of the run ``record`` holds so far, and every file it is built from."""
     for e in scenario.evaluations:
         save_features(outdir.poses_path(store.out, e.name),
-                      {side: store.run(record.simulate.runs[f"{e.name}/{side}"]).poses for side in ("query", "reference")})
+                      {side: store.run(record.simulate.runs[f"{e.name}/{side}"]).poses
+                       for side in ("query", "reference")})
         if e.environment is not None:
-            write_text_atomic(outdir.arena_path(store.out, e.name), json.dumps(load_environment(e.environment).top_view()))
+            write_text_atomic(outdir.arena_path(store.out, e.name),
+                              json.dumps(load_environment(e.environment).top_view()))
     for method, history in (record.fit.histories if record.fit is not None else {}).items():
         write_text_atomic(outdir.training_path(store.out, method), json.dumps(history))
     write_manifest(record)

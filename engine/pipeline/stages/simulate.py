@@ -9,12 +9,12 @@ import time
 from functools import partial
 from pathlib import Path
 
+import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.config.scenario import EvaluationPair, Scenario
 from vitaplace.engine.data.dataset import run_facts
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS, longest_stay
 from vitaplace.engine.extension.features import warn_once
 from vitaplace.engine.outputs import checksum, outdir
-import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.pipeline.keys import recorded_key, simulate_key
 from vitaplace.engine.pipeline.records import RunFile, SimulateRecord, StageRecord
 from vitaplace.engine.pipeline.simulation import SimulationJob, simulate_here, simulations_in_workers
@@ -46,9 +46,11 @@ def simulate(store: Store, scenario: Scenario) -> SimulateRecord:
         run = entry.run_for(label.rsplit("/", 1)[1]) if isinstance(entry, EvaluationPair) else entry.run
         assert entry.environment is not None and run is not None  # validated: simulated
         key = simulate_key(scenario, entry, label, seed)
-        jobs.append(SimulationJob(label, str(entry.environment), run.model_dump(), scenario.robot.model_dump(), seed, key,
-                                  outdir.dataset_file(store.cache, label, key), estimated_seconds(run, scenario.robot)))
-    pending = [job for job in jobs if "simulate" in store.force or not store.done("simulate", job.label, job.path, job.key)]
+        jobs.append(SimulationJob(label, str(entry.environment), run.model_dump(), scenario.robot.model_dump(), seed,
+                                  key, outdir.dataset_file(store.cache, label, key),
+                                  estimated_seconds(run, scenario.robot)))
+    pending = [job for job in jobs
+               if "simulate" in store.force or not store.done("simulate", job.label, job.path, job.key)]
     for job in pending:
         if job.estimate > LONG_SECONDS:
             log.warning("%-9s %-28s a long simulation: about %s on one core (estimate)", "simulate", job.label,

@@ -11,7 +11,14 @@ from vitaplace.engine.extension.features import feature_facts, load_features, sa
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.pipeline.keys import features_key
 from vitaplace.engine.pipeline.output_checks import check_features
-from vitaplace.engine.pipeline.records import FeaturesFile, FitRecord, ModelFile, RunFile, SimulateRecord, TransformRecord
+from vitaplace.engine.pipeline.records import (
+    FeaturesFile,
+    FitRecord,
+    ModelFile,
+    RunFile,
+    SimulateRecord,
+    TransformRecord,
+)
 from vitaplace.engine.pipeline.store import Store
 
 
