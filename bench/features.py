@@ -75,8 +75,10 @@ def main() -> None:
 
     extractor = HandcraftedExtractor({"threads": args.threads})
     extractor.fit(synthetic_run(50, rng))
-    fq = {"profile": query, "pfh": rng.random((n, 27), dtype=np.float32), "sda": rng.normal(size=(n, 24)).astype(np.float32)}
-    fr = {"profile": reference, "pfh": rng.random((n, 27), dtype=np.float32), "sda": rng.normal(size=(n, 24)).astype(np.float32)}
+    fq = {"profile": query, "pfh": rng.random((n, 27), dtype=np.float32),
+          "sda": rng.normal(size=(n, 24)).astype(np.float32)}
+    fr = {"profile": reference, "pfh": rng.random((n, 27), dtype=np.float32),
+          "sda": rng.normal(size=(n, 24)).astype(np.float32)}
     timed(f"handcrafted distance {n}x{n} (profile + pfh + sda)", lambda: extractor.distance(fq, fr), base)
 
     run = synthetic_run(n, rng)

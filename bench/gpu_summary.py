@@ -52,7 +52,8 @@ def _bench_section(bench: dict) -> list[str]:
     if per_epoch:
         best = min(per_epoch, key=per_epoch.get)
         out += [f"- Paper-shape training, best precision ({best}): {per_epoch[best]:.3f} s per epoch -> floor "
-                f"<= 0.20 s **{_verdict(per_epoch[best] <= 0.20)}**, goal <= 0.06 s **{_verdict(per_epoch[best] <= 0.06)}**"]
+                f"<= 0.20 s **{_verdict(per_epoch[best] <= 0.20)}**, "
+                f"goal <= 0.06 s **{_verdict(per_epoch[best] <= 0.06)}**"]
         out += ["", "## Training per precision (5550 random samples)", "",
                 "| precision | s per epoch | epochs timed | first epoch s | TFLOP/s | 10000 epochs, min | "
                 "inference 300 x 3000 s | energy band vs float32 |", "|---|---|---|---|---|---|---|---|"]

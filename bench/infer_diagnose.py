@@ -314,7 +314,8 @@ def print_report(result: dict[str, object], label: str) -> None:
           f"{100 * ref['settled_share']:.0f} %, energy {ref['energy']:.5g}, |joint| {ref['joint_norm']:.4g}")
     print(f"{'gd steps':>9} {'energy':>10} {'|joint|':>8} {'dist to ref':>11}")
     for row in result["gd"]:
-        print(f"{row['steps']:>9} {row['energy']:>10.5g} {row['joint_norm']:>8.4g} {row.get('distance', float('nan')):>11.3g}")
+        print(f"{row['steps']:>9} {row['energy']:>10.5g} {row['joint_norm']:>8.4g} "
+              f"{row.get('distance', float('nan')):>11.3g}")
     for where in ("curvature_after_gd", "curvature_at_reference"):
         c = result[where]
         print(f"-- {where}")
@@ -346,7 +347,8 @@ def main(argv: list[str] | None = None) -> int:
         print_report(result, label)
         results.append(result)
     if args.json:
-        Path(args.json).write_text(json.dumps({"network": label, "samples": args.samples, "results": results}, indent=2))
+        Path(args.json).write_text(json.dumps({"network": label, "samples": args.samples, "results": results},
+                                              indent=2))
     return 0
 
 

@@ -120,7 +120,8 @@ def smoke_spec() -> Spec:
     """Small shapes, large step sizes so that one minibatch changes every array visibly (the
     comparison is on the updates, not on the arrays); B = 40 > 32: the same CUDA tile
     configurations (compiled modules) as B = 150."""
-    etas = {f"eta_{kind}_{layer}": eta for kind, eta in (("y", 0.02), ("w", 0.01)) for layer in ("visual", "tactile", "joint")}
+    etas = {f"eta_{kind}_{layer}": eta
+            for kind, eta in (("y", 0.02), ("w", 0.01)) for layer in ("visual", "tactile", "joint")}
     return Spec(MupnetParams(
         image_size=(4, 8), visual_layers=[40, 24], tactile_layers=[8], joint_size=16, batch_size=40, inference_steps=5,
         **etas,
@@ -181,7 +182,8 @@ def make_problem(spec: Spec, seed: int = 0) -> Problem:
         edges.append(EdgeSpec(e.name, e.upper, e.lower, net.eta_y[e.upper], e.eta_w, above))
     rng = np.random.default_rng(seed + 1)
     b = spec.batch
-    inputs = {net.input_node(m): rng.random((b, net.sizes[net.input_node(m)]), dtype=np.float32) for m in net.modalities}
+    inputs = {net.input_node(m): rng.random((b, net.sizes[net.input_node(m)]), dtype=np.float32)
+              for m in net.modalities}
     latents = {node: np.full((b, net.sizes[node]), LATENT_INIT, np.float32) for node in state.nodes}
     # latents slightly off 0.1 so that no two samples are identical
     for y in latents.values():
@@ -541,7 +543,8 @@ def describe_machine(torch, jax) -> dict:
     for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OPENBLAS_CORETYPE", "MKL_NUM_THREADS"):
         info[var] = os.environ.get(var, "unset")
     if torch is not None:
-        info["torch"] = f"{torch.__version__}, {torch.get_num_threads()} threads, MKL {torch.backends.mkl.is_available()}"
+        info["torch"] = (f"{torch.__version__}, {torch.get_num_threads()} threads, "
+                         f"MKL {torch.backends.mkl.is_available()}")
     if jax is not None:
         info["jax"] = f"{jax.__version__}, devices {[str(d) for d in jax.devices()]}"
     return info
@@ -556,10 +559,12 @@ def print_machine(info: dict) -> None:
     else:
         for p in blas:
             lib = os.path.basename(p["filepath"] or "?")
-            owner = "numpy" if "numpy" in (p["filepath"] or "") else "scipy" if "scipy" in (p["filepath"] or "") else "?"
+            path = p["filepath"] or ""
+            owner = "numpy" if "numpy" in path else "scipy" if "scipy" in path else "?"
             print(f"  BLAS ({owner}): {lib} OpenBLAS {p['version']}, arch {p['architecture']}, "
                   f"{p['num_threads']} threads ({p['threading_layer']})")
-    print("  env: " + ", ".join(f"{k}={info[k]}" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "OPENBLAS_CORETYPE", "MKL_NUM_THREADS")))
+    print("  env: " + ", ".join(f"{k}={info[k]}" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                                           "OPENBLAS_CORETYPE", "MKL_NUM_THREADS")))
     for k in ("torch", "jax"):
         if k in info:
             print(f"  {k}: {info[k]}")
@@ -590,7 +595,7 @@ def smoke_check(impls: dict[str, Callable[[Problem], object]]) -> dict[str, tupl
 
 def fmt_table(rows: list[list[str]], header: list[str]) -> str:
     widths = [max(len(str(r[i])) for r in [header, *rows]) for i in range(len(header))]
-    line = lambda r: "| " + " | ".join(str(c).ljust(w) for c, w in zip(r, widths)) + " |"  # noqa: E731
+    line = lambda r: "| " + " | ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)) + " |"  # noqa: E731
     return "\n".join([line(header), "|" + "|".join("-" * (w + 2) for w in widths) + "|", *map(line, rows)])
 
 
@@ -765,7 +770,8 @@ def main(argv: list[str] | None = None) -> int:
             + f", tactile {sz['tactile.0']} -> " + " -> ".join(map(str, mods["tactile"].layers))
             + f", joint {sz['joint']}, B = {prob.batch}, T = {prob.steps}")
     print(f"\nshapes: {desc}")
-    print(f"GEMMs per minibatch: {len(prob.gemm_shapes())}, FLOPs per minibatch (2mnk per GEMM): {flops / 1e9:.2f} GFLOP")
+    print(f"GEMMs per minibatch: {len(prob.gemm_shapes())}, "
+          f"FLOPs per minibatch (2mnk per GEMM): {flops / 1e9:.2f} GFLOP")
 
     impls: dict[str, object] = {
         "gemm numpy (baseline)": GemmImpl(prob, "numpy"),
@@ -837,7 +843,8 @@ def main(argv: list[str] | None = None) -> int:
     for other in ("torch", "jax"):
         if other in results:
             ahead = nb["median_s"] < results[other]["median_s"]
-            print(f"target 2: numpy backend vs {other}: {other} takes {results[other]['median_s'] / nb['median_s']:.2f} x "
+            print(f"target 2: numpy backend vs {other}: "
+                  f"{other} takes {results[other]['median_s'] / nb['median_s']:.2f} x "
                   f"the numpy backend's time -> {'ahead' if ahead else 'NOT ahead'}")
     if max(_median_nan(v) for v in loads.values()) > args.max_other:
         print(f"note: other processes kept more than {args.max_other} cores busy during some samples; "

@@ -103,7 +103,8 @@ def op_breakdown(impl, repeat: int, sync: Callable[[], None]) -> dict[str, float
     """Milliseconds of each operation of the Warp minibatch (predict_all without energies,
     latent_step, weight_step), each replayed as a graph of 20 and timed over ``repeat``."""
     s, be = impl.state, impl.net.backend
-    ops = {"predict_all": lambda: s.predict_all(energy=False), "latent_step": s.latent_step, "weight_step": s.weight_step}
+    ops = {"predict_all": lambda: s.predict_all(energy=False), "latent_step": s.latent_step,
+           "weight_step": s.weight_step}
     out = {}
     for name, op in ops.items():
         run = be.capture(lambda op=op: [op() for _ in range(20)])
@@ -280,7 +281,8 @@ def cuda_main(args, pc) -> dict:
         targets[precision] = {"ratio": w["ratio"], "torch_over_warp": t["median_s"] / w["median_s"]}
         print(f"target ({precision}): warp step >= 0.8 x cuBLAS GEMM rate: {w['ratio']:.2f} x -> "
               f"{'met' if w['ratio'] >= 0.8 else 'NOT met'}; ahead of the torch step: torch takes "
-              f"{t['median_s'] / w['median_s']:.2f} x the warp time -> {'met' if w['median_s'] < t['median_s'] else 'NOT met'}")
+              f"{t['median_s'] / w['median_s']:.2f} x the warp time -> "
+              f"{'met' if w['median_s'] < t['median_s'] else 'NOT met'}")
     breakdown = {name: _breakdown(name, impls[name], prob, args.repeat, sync)
                  for name in [f"warp {precision}" for precision in PRECISIONS]}
     out = {"device": info, "gflop": flops / 1e9, "smoke": agree, "results": results, "targets": targets, "failed": {},

@@ -153,7 +153,8 @@ def compile_all(device: str, shape, candidates, splits_list, limit: float, log) 
     return done
 
 
-def sweep(device: str, shape: tuple[int, int, int], candidates, splits_list, launches: int, repeat: int, log) -> list[dict]:
+def sweep(device: str, shape: tuple[int, int, int], candidates, splits_list, launches: int, repeat: int,
+          log) -> list[dict]:
     """Every (kernel, configuration) checked against the float64 reference and timed; a
     configuration that does not build or run is recorded with its error."""
     b, n_l, n_below = shape

@@ -69,4 +69,5 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     ``xfail`` would hide it behind a passing run, so a test carrying it stops the session."""
     hiding = [item.nodeid for item in items if item.get_closest_marker("xfail")]
     if hiding:
-        raise pytest.UsageError(f"xfail hides a known defect; mark it @pytest.mark.bug(...) instead: {', '.join(hiding)}")
+        raise pytest.UsageError("xfail hides a known defect; mark it @pytest.mark.bug(...) instead: "
+                                f"{', '.join(hiding)}")

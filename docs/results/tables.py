@@ -179,7 +179,8 @@ def _best_cells(study: str, world: str, direction: str, methods: Sequence[str]) 
     means = _means(study)
     first, second = sorted(methods, key=lambda m: -means[(world, m, direction)])[:2]
     r = _difference(study, world, direction, first, second)
-    return [f"{first} ({pct(means[(world, first, direction)])})", f"{second} ({pct(means[(world, second, direction)])})",
+    return [f"{first} ({pct(means[(world, first, direction)])})",
+            f"{second} ({pct(means[(world, second, direction)])})",
             f"{pct(r['mean'])} {pct_interval(r)}", p_value(r["p_sign_flip"])]
 
 
@@ -378,9 +379,11 @@ def budget() -> str:
             converged = sum(bool(m["training"][method]["converged"]) for m in manifests)
             runs = [run["inference"] for m in manifests for run in m["features"][method].values()]
             capped, samples = sum(r["capped"] for r in runs), sum(r["samples"] for r in runs)
-            body.append([method, study, str(len(manifests)), f"{min(epochs)}–{max(epochs)} of {'/'.join(map(str, cap))}",
+            body.append([method, study, str(len(manifests)),
+                         f"{min(epochs)}–{max(epochs)} of {'/'.join(map(str, cap))}",
                          f"{converged} of {len(manifests)}", f"{100 * capped / samples:.1f} ({capped} of {samples})"])
-    return markdown(["method", "touch model", "seeds", "epochs trained", "converged", "test samples at the step cap, %"],
+    return markdown(["method", "touch model", "seeds", "epochs trained", "converged",
+                     "test samples at the step cap, %"],
                     body)
 
 
@@ -414,7 +417,8 @@ def methods_of(arm: str) -> tuple[str, ...]:
 def cells2(points: Iterable[str] = tuple(POINTS)) -> list[tuple[str, str, str]]:
     """Every (arm/point, evaluation, direction) cell of the second study, in arm, point,
     evaluation, direction order."""
-    return [(key, world, direction) for key in points for world in ARMS[key.split("/")[0]][2] for direction in DIRECTIONS]
+    return [(key, world, direction)
+            for key in points for world in ARMS[key.split("/")[0]][2] for direction in DIRECTIONS]
 
 
 @functools.cache  # each manifest is read once (callers do not mutate them)
@@ -452,7 +456,8 @@ def endpoints() -> list[dict]:
               for _, key, world, direction, comparators in ENDPOINTS]
     tested = endpoint_tests(values[0], values[1:])
     return [{"label": label, "key": key, "world": world, "direction": direction, "comparators": comparators,
-             **dataclasses.asdict(endpoint)} for (label, key, world, direction, comparators), endpoint in zip(ENDPOINTS, tested)]
+             **dataclasses.asdict(endpoint)}
+            for (label, key, world, direction, comparators), endpoint in zip(ENDPOINTS, tested, strict=True)]
 
 
 def study2_endpoints() -> str:
@@ -462,7 +467,8 @@ def study2_endpoints() -> str:
     body = []
     for e in endpoints():
         arm, point = e["key"].split("/")
-        comparison = f"L − {e['comparators'][0]}" if len(e["comparators"]) == 1 else f"L − max({', '.join(e['comparators'])})"
+        comparison = (f"L − {e['comparators'][0]}" if len(e["comparators"]) == 1
+                      else f"L − max({', '.join(e['comparators'])})")
         s = e["stats"]
         body.append([e["label"], comparison, arm, e["world"], DIRECTIONS[e["direction"]], MATCHING[point], str(s["n"]),
                      f"{pct(s['mean'])} ± {pct(s['std'])}", f"[{pct(s['boot_low'])}, {pct(s['boot_high'])}]",
@@ -541,7 +547,8 @@ def study2_gates() -> str:
                              _gate_cell([r["gates"]["touch_correspondence_min"] for r in rows]),
                              f"{rescued} of {wrong}; {_gate_cell([r['gates']['rescue_min'] for r in rows])}",
                              pct(chance), _gate_cell([r["gates"]["hv_max_f1_max"] for r in rows])])
-    return markdown(["arm", "evaluation", "direction", "seeds", "touch correspondence %", "H-T rescues of H-V's failures, %",
+    return markdown(["arm", "evaluation", "direction", "seeds", "touch correspondence %",
+                     "H-T rescues of H-V's failures, %",
                      "chance R@1 %", "H-V max F1 %"], body)
 
 
@@ -554,7 +561,8 @@ def methods_table(arm: str) -> str:
     for key, index in rows.items():
         for direction, arrow in DIRECTIONS.items():
             for method in methods_of(arm):
-                cells = [f"{pct(r['mean'])} {pct_interval(r)}" for r in (index[(w, method, direction, "max_f1")] for w in worlds)]
+                cells = [f"{pct(r['mean'])} {pct_interval(r)}"
+                         for r in (index[(w, method, direction, "max_f1")] for w in worlds)]
                 body.append([method, arrow, MATCHING[key.split("/")[1]], *cells])
     n = next(iter(rows.values()))[(worlds[0], "L", Q2R, "max_f1")]["n"]
     return markdown(["method", "direction", "matching", *(f"{w} (n={n})" for w in worlds)], body)
@@ -691,7 +699,8 @@ def study2_complementarity() -> str:
                 for vision, touch in (("L-V", "L-T"), ("H-V", "H-T")):
                     pairs_found = [next(c for c in seed if (c["environment"], c["direction"], c["vision"], c["touch"])
                                         == (world, direction, vision, touch)) for seed in seeds]
-                    cells += [f"{sum(c['rescued'] for c in pairs_found)} of {sum(c['vision_wrong'] for c in pairs_found)}",
+                    cells += [f"{sum(c['rescued'] for c in pairs_found)} of "
+                              f"{sum(c['vision_wrong'] for c in pairs_found)}",
                               pct(statistics.median(c["oracle_r1"] for c in pairs_found))]
                 body.append(cells)
     return markdown(["arm", "evaluation", "direction", "L-T rescues of L-V", "L oracle R@1 %", "H-T rescues of H-V",
@@ -718,7 +727,8 @@ def study2_budget() -> str:
                 cells.append(f"{pct(lv)} / {pct(vv)} / {100 * (lv - vv):+.1f}")
             body.append([world, arrow, *cells])
     for method in ("L", "L-V"):
-        body.append([f"epochs trained, {method}", "", *(f"{m['training'][method]['epochs']} of {m['training'][method]['max_epochs']}"
+        body.append([f"epochs trained, {method}", "",
+                     *(f"{m['training'][method]['epochs']} of {m['training'][method]['max_epochs']}"
                                                         f"{', converged' if m['training'][method]['converged'] else ''}"
                                                         for _, m in runs.values())])
     return markdown(["evaluation", "direction", *(f"{e} epochs: L / L-V / L − L-V" for e in BUDGET_EPOCHS)], body)

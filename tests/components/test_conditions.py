@@ -16,8 +16,16 @@ import mujoco  # noqa: E402
 
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.config.loading import load_scenario  # noqa: E402
-from vitaplace.engine.sim.condition import (CameraCondition, Condition, LightCondition, Occlusion, degrade,  # noqa: E402
-                                            kelvin_rgb, light_rgb, noise_rng)
+from vitaplace.engine.sim.condition import (  # noqa: E402
+    CameraCondition,
+    Condition,
+    LightCondition,
+    Occlusion,
+    degrade,
+    kelvin_rgb,
+    light_rgb,
+    noise_rng,
+)
 from vitaplace.engine.sim.controllers import key_form, run_spec  # noqa: E402
 from vitaplace.engine.sim.environment import load_environment  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
@@ -58,7 +66,8 @@ def test_a_light_is_its_level_times_intensity_times_colour():
     assert light_rgb(0.5, None) == [0.5, 0.5, 0.5]
     assert light_rgb(0.5, LightCondition()) == [0.5, 0.5, 0.5]
     r, g, b = kelvin_rgb(2500)
-    assert light_rgb(0.4, LightCondition(intensity=2.0, colour_temperature_k=2500)) == pytest.approx([0.8 * r, 0.8 * g, 0.8 * b])
+    assert light_rgb(0.4, LightCondition(intensity=2.0, colour_temperature_k=2500)) == pytest.approx(
+        [0.8 * r, 0.8 * g, 0.8 * b])
 
 
 # --------------------------------------------------------------------------- camera degradation
@@ -165,7 +174,8 @@ def test_the_keys_are_unchanged_without_a_condition_and_change_with_one():
     assert key_form(night)["condition"]["light"]["intensity"] == 0.2
     assert run_hash(env, night, RobotSpec(), 0) != run_hash(env, plain, RobotSpec(), 0)
     blurred = run_spec(kind="teleop", n_samples=10, condition={"camera": {"blur_sigma_px": 1.0}})
-    assert run_hash(env, blurred, RobotSpec(), 0) not in (run_hash(env, night, RobotSpec(), 0), run_hash(env, plain, RobotSpec(), 0))
+    assert run_hash(env, blurred, RobotSpec(), 0) not in (run_hash(env, night, RobotSpec(), 0),
+                                                          run_hash(env, plain, RobotSpec(), 0))
 
 
 # --------------------------------------------------------------------------- bad input
@@ -174,9 +184,11 @@ BAD = {
     "negative intensity": ("evaluations.0.query_condition={light: {intensity: -1}}",
                            "evaluations.0.query_condition.light.intensity: Input should be greater than or equal to 0"),
     "too cold": ("evaluations.0.query_condition={light: {colour_temperature_k: 500}}",
-                 "evaluations.0.query_condition.light.colour_temperature_k: Input should be greater than or equal to 1000"),
+                 "evaluations.0.query_condition.light.colour_temperature_k: "
+                 "Input should be greater than or equal to 1000"),
     "too hot": ("evaluations.0.reference_condition={light: {colour_temperature_k: 50000}}",
-                "evaluations.0.reference_condition.light.colour_temperature_k: Input should be less than or equal to 40000"),
+                "evaluations.0.reference_condition.light.colour_temperature_k: "
+                "Input should be less than or equal to 40000"),
     "a zero direction": ("evaluations.0.query_condition={light: {direction: [0, 0, 0]}}",
                          "evaluations.0.query_condition.light.direction: direction must not be zero"),
     "negative noise": ("evaluations.0.query_condition={camera: {noise_std: -1}}",
@@ -190,9 +202,11 @@ BAD = {
     "all occluded": ("evaluations.0.query_condition={camera: {occlusion: {share: 1}}}",
                      "evaluations.0.query_condition.camera.occlusion.share: Input should be less than 1"),
     "negative occlusion": ("evaluations.0.query_condition={camera: {occlusion: {share: -0.1}}}",
-                           "evaluations.0.query_condition.camera.occlusion.share: Input should be greater than or equal to 0"),
+                           "evaluations.0.query_condition.camera.occlusion.share: "
+                           "Input should be greater than or equal to 0"),
     "an unknown side": ("evaluations.0.query_condition={camera: {occlusion: {share: 0.2, side: middle}}}",
-                        "evaluations.0.query_condition.camera.occlusion.side: Input should be 'top', 'bottom', 'left' or 'right'"),
+                        "evaluations.0.query_condition.camera.occlusion.side: "
+                        "Input should be 'top', 'bottom', 'left' or 'right'"),
     "an unknown key": ("evaluations.0.query_condition={light: {brightness: 2}}",
                        "evaluations.0.query_condition.light.brightness: unknown key"),
 }
@@ -225,7 +239,8 @@ def test_a_condition_survives_the_simulation_job_and_the_run_file():
     from vitaplace.engine.sim.controllers import recorded_run_spec
 
     scenario, _ = load_scenario("quickstart", overrides=[
-        "evaluations.0.query_condition={light: {direction: [1, 0, -0.5]}, camera: {occlusion: {share: 0.25, side: left}}}"])
+        "evaluations.0.query_condition={light: {direction: [1, 0, -0.5]}, "
+        "camera: {occlusion: {share: 0.25, side: left}}}"])
     query = scenario.evaluations[0].run_for("query")
     assert run_spec(query.model_dump()) == query
     assert recorded_run_spec(json.loads(json.dumps(query.model_dump(mode="json")))) == query

@@ -159,10 +159,11 @@ def test_nan_values_are_reported_with_field_and_sample(tmp_path):
         f["theta"][3, 5] = np.nan
         f["poses"][1, 0] = np.inf
     back = open_run(path)
-    with pytest.raises(DatasetError, match=r"run\.h5: field 'theta' has NaN or infinite values \(1 rows, first at index 3\)"):
-        back.theta
+    with pytest.raises(DatasetError,
+                       match=r"run\.h5: field 'theta' has NaN or infinite values \(1 rows, first at index 3\)"):
+        _ = back.theta
     with pytest.raises(DatasetError, match=r"field 'poses' .* first at index 1"):
-        back.poses
+        _ = back.poses
     np.testing.assert_array_equal(back.xy, run.xy)  # the other fields stay readable
 
 
@@ -216,7 +217,8 @@ HOSTILE_FILES = {
                          r"field 'images' has dtype float64, expected uint8"),
     "theta as text": (lambda f: (f.__delitem__("theta"), f.create_dataset("theta", data=np.full((5, 24), b"x"))),
                       r"field 'theta' has dtype \|S1, expected float32"),
-    "10^7 samples declared, none stored": (_forged_size, r"field 'images' declares shape \(10000000, 2, 2, 3\) but the file "
+    "10^7 samples declared, none stored": (_forged_size,
+                                           r"field 'images' declares shape \(10000000, 2, 2, 3\) but the file "
                                                          r"does not hold its data"),
 }
 

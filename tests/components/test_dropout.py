@@ -124,7 +124,8 @@ def reference_inference(net, inputs: dict[str, np.ndarray], steps: int) -> np.nd
         E, G = {}, {}
         for e in edges:
             lower = Y[e.lower] if e.lower in Y else X[e.lower]
-            _, _, E[e.name], G[e.name] = ref.predict(Y[e.upper], net.weights[e.name].astype(np.float64), lower, act, slope)
+            _, _, E[e.name], G[e.name] = ref.predict(Y[e.upper], net.weights[e.name].astype(np.float64), lower, act,
+                                                     slope)
         new = {}
         for node in Y:
             below = [e for e in edges if e.upper == node]

@@ -21,8 +21,14 @@ from sklearn.metrics import average_precision_score, precision_recall_curve
 
 from vitaplace.engine.evaluation import evaluate as ev
 from vitaplace.engine.evaluation.difficulty import difficulty, longest_stay
-from vitaplace.engine.evaluation.pairfiles import (evaluate_pair, export_decisions_csv, export_matrices_npz, load_curve,
-                                                    load_decisions, save_curve_and_decisions)
+from vitaplace.engine.evaluation.pairfiles import (
+    evaluate_pair,
+    export_decisions_csv,
+    export_matrices_npz,
+    load_curve,
+    load_decisions,
+    save_curve_and_decisions,
+)
 
 # --------------------------------------------------------------------------- hand case
 # 5 queries x 4 references, tau = 1.0.
@@ -510,8 +516,8 @@ def vpr_tutorial_create_pr_single(similarity, gt_hard, n_thresh):
     thresholds = np.linspace(max(best_s), min(best_s), n_thresh)
     precision, recall = [1.0], [0.0]
     for t in thresholds:
-        tp = sum(1 for s, ok in zip(best_s, best_ok) if s >= t and ok)
-        fp = sum(1 for s, ok in zip(best_s, best_ok) if s >= t and not ok)
+        tp = sum(1 for s, ok in zip(best_s, best_ok, strict=True) if s >= t and ok)
+        fp = sum(1 for s, ok in zip(best_s, best_ok, strict=True) if s >= t and not ok)
         precision.append(tp / (tp + fp))
         recall.append(tp / gtp)
     return np.array(precision), np.array(recall), thresholds
@@ -741,9 +747,9 @@ def test_the_training_world_is_the_one_evaluation_in_the_training_environment(tm
 def test_the_runner_scores_every_evaluation_at_the_training_worlds_threshold(tmp_path):
     """E1 (in the training run's world, e1) holds the training matrices above, E2 the other
     ones: every row of a method gets the F1 at E1's max-F1 threshold (0.3), per direction."""
-    from vitaplace.engine.outputs.outdir import evaluation_dir
     from types import SimpleNamespace
 
+    from vitaplace.engine.outputs.outdir import evaluation_dir
     from vitaplace.engine.outputs.rows import ResultRow
     from vitaplace.engine.pipeline.stages.compare import f1_at_training_threshold
 

@@ -15,11 +15,24 @@ import yaml
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
 from vitaplace.engine.cli.main import main  # noqa: E402
-from vitaplace.engine.sim.controllers import HEAD_REACH, TRANSITIONS, Attention, Avoid, Explore, ForagingController, Leave, Observation, Orient, Surroundings, Wander, ForagingGains, key_form
 from vitaplace.engine.evaluation.difficulty import longest_stay  # noqa: E402
 from vitaplace.engine.sim.clearance import HEAD_CENTRE, HEAD_RADIUS, footprint_clearance
-from vitaplace.engine.sim.environment import load_environment  # noqa: E402
-from vitaplace.engine.sim.environment import EnvironmentSpec  # noqa: E402
+from vitaplace.engine.sim.controllers import (
+    HEAD_REACH,
+    TRANSITIONS,
+    Attention,
+    Avoid,
+    Explore,
+    ForagingController,
+    ForagingGains,
+    Leave,
+    Observation,
+    Orient,
+    Surroundings,
+    Wander,
+    key_form,
+)
+from vitaplace.engine.sim.environment import EnvironmentSpec, load_environment  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
 from vitaplace.engine.sim.simulate import run_hash, run_spec, simulate_run  # noqa: E402
 

@@ -13,8 +13,8 @@ import numpy as np
 import pluggy
 import pytest
 
-from vitaplace.engine.extension import hookspecs
 from vitaplace.engine.data.dataset import Run
+from vitaplace.engine.extension import hookspecs
 from vitaplace.engine.extension.features import ExtractorParamsError
 from vitaplace.plugins import handcrafted
 from vitaplace.plugins.handcrafted import HandcraftedExtractor, pfh, sda, template_distance, templates

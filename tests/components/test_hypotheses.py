@@ -21,7 +21,8 @@ T_95_3 = 2.353363
 def brute_force_sign_flip_p(d: list[float]) -> float:
     observed = abs(sum(d))
     patterns = list(itertools.product((1, -1), repeat=len(d)))
-    return sum(abs(sum(s * x for s, x in zip(signs, d))) >= observed - 1e-12 for signs in patterns) / len(patterns)
+    hits = sum(abs(sum(s * x for s, x in zip(signs, d, strict=True))) >= observed - 1e-12 for signs in patterns)
+    return hits / len(patterns)
 
 
 @pytest.mark.parametrize("p, expected", [
@@ -41,7 +42,7 @@ def test_holm_adjusts_hand_worked_families(p, expected):
 @given(st.lists(st.floats(0.0, 1.0), min_size=1, max_size=8))
 def test_holm_never_lowers_a_p_keeps_their_order_and_stays_at_most_1(p):
     adjusted = hypotheses.holm(p)
-    assert all(raw <= adj <= 1.0 for raw, adj in zip(p, adjusted))
+    assert all(raw <= adj <= 1.0 for raw, adj in zip(p, adjusted, strict=True))
     assert all(adjusted[i] <= adjusted[j] for i in range(len(p)) for j in range(len(p)) if p[i] <= p[j])
 
 
@@ -105,7 +106,8 @@ def test_a_family_is_decided_on_exact_sign_flip_p_with_holm_over_the_secondaries
     even = [0.1, 0.1, -0.1]  # every pattern's |sum| is at least 0.1: p = 1
     tested = hypotheses.endpoint_tests(six, [six, mixed, even])
     assert [e.p for e in tested] == pytest.approx([2 / 64, 2 / 64, 4 / 8, 1.0], abs=1e-12)
-    assert [e.p for e in tested] == pytest.approx([brute_force_sign_flip_p(v) for v in (six, six, mixed, even)], abs=1e-12)
+    assert [e.p for e in tested] == pytest.approx([brute_force_sign_flip_p(v) for v in (six, six, mixed, even)],
+                                                  abs=1e-12)
     # Holm over the three secondaries: 3 x 2/64 = 0.09375, 2 x 0.5 = 1, 1 x 1 = 1; the primary keeps 2/64
     assert [e.p_holm for e in tested] == pytest.approx([2 / 64, 0.09375, 1.0, 1.0], abs=1e-12)
     primary, first = tested[0], tested[1]

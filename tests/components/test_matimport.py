@@ -90,7 +90,8 @@ def test_an_empty_pose_array_is_one_line(tmp_path, capsys):
     scipy.io.savemat(tmp_path / "poses.mat", {"poses": np.zeros((0, 3))})
     assert main(["import", str(tmp_path), "--out", str(tmp_path / "run.h5")]) == 2
     err = capsys.readouterr().err
-    assert err.strip() == f"vitaplace: error: {tmp_path / 'poses.mat'}: variable 'poses' holds no samples; expected at least one"
+    assert err.strip() == (f"vitaplace: error: {tmp_path / 'poses.mat'}: variable 'poses' holds no samples; "
+                           "expected at least one")
     assert not (tmp_path / "run.h5").exists()
 
 
@@ -234,8 +235,10 @@ def _nan_in_float_images(folder):
 
 
 BAD_RECORDINGS = {
-    "missing theta": (lambda f: (f / "theta.mat").unlink(), r"theta\.mat: missing MATLAB file; expected variable 'theta' \(4 x 6 x N\)"),
-    "no poses file": (lambda f: (f / "poses.mat").unlink(), r"poses\.mat: missing MATLAB file \(nor is there pose_return\.mat\)"),
+    "missing theta": (lambda f: (f / "theta.mat").unlink(),
+                      r"theta\.mat: missing MATLAB file; expected variable 'theta' \(4 x 6 x N\)"),
+    "no poses file": (lambda f: (f / "poses.mat").unlink(),
+                      r"poses\.mat: missing MATLAB file \(nor is there pose_return\.mat\)"),
     "xy boards and columns swapped": (
         lambda f: scipy.io.savemat(f / "xy.mat", {"xy": np.zeros((2, 6, 4, N))}),
         r"xy\.mat: variable 'xy' has shape \(2, 6, 4, 7\), expected 2 x 4 x 6 x N",
@@ -245,17 +248,22 @@ BAD_RECORDINGS = {
         r"theta\.mat: variable 'theta' is not a numeric array; expected 4 x 6 x N",
     ),
     "pose_return N x 2": (
-        lambda f: ((f / "poses.mat").unlink(), scipy.io.savemat(f / "pose_return.mat", {"pose_return": np.zeros((N, 2))})),
+        lambda f: ((f / "poses.mat").unlink(),
+                   scipy.io.savemat(f / "pose_return.mat", {"pose_return": np.zeros((N, 2))})),
         r"pose_return\.mat: variable 'pose_return' has shape \(7, 2\), expected N x 3",
     ),
     "fewer poses": (
         lambda f: scipy.io.savemat(f / "poses.mat", {"poses": np.zeros((5, 3))}),
         r"different numbers of samples: images\.mat 7, theta\.mat 7, xy\.mat 7, poses\.mat 5",
     ),
-    "NaN in theta": (_nan_theta, r"theta\.mat: variable 'theta' has NaN or infinite values in 1 sample\(s\) \(first: sample 4"),
-    "inf in images": (_nan_in_float_images, r"images\.mat: variable 'images' has NaN or infinite values .*first: sample 5"),
-    "v7.3 cell with a 2-D frame": (_cell_of_wrong_frames, r"images\.mat: variable 'images' is a cell array of frames of shape"),
-    "garbage": (lambda f: (f / "xy.mat").write_bytes(b"\x89HDF\r\n\x1a\nnot really"), r"xy\.mat: not a readable MATLAB"),
+    "NaN in theta": (_nan_theta,
+                     r"theta\.mat: variable 'theta' has NaN or infinite values in 1 sample\(s\) \(first: sample 4"),
+    "inf in images": (_nan_in_float_images,
+                      r"images\.mat: variable 'images' has NaN or infinite values .*first: sample 5"),
+    "v7.3 cell with a 2-D frame": (_cell_of_wrong_frames,
+                                   r"images\.mat: variable 'images' is a cell array of frames of shape"),
+    "garbage": (lambda f: (f / "xy.mat").write_bytes(b"\x89HDF\r\n\x1a\nnot really"),
+                r"xy\.mat: not a readable MATLAB"),
 }
 
 
@@ -299,7 +307,8 @@ def test_an_imported_run_records_its_tactile_model(tmp_path):
 
     route = np.zeros((8, 3))
     assert recorded_tactile_model(open_run(import_run(tmp_path, "a", route, 1))) == "physical"  # the default
-    assert recorded_tactile_model(open_run(import_run(tmp_path, "b", route, 1, "--tactile-model", "penetration"))) == "penetration"
+    penetration = import_run(tmp_path, "b", route, 1, "--tactile-model", "penetration")
+    assert recorded_tactile_model(open_run(penetration)) == "penetration"
 
 
 def _set_tactile_model(path, model):
@@ -368,7 +377,8 @@ def test_a_scenario_runs_end_to_end_on_imported_runs(tmp_path, capsys):
     assert all(r["n_queries"] == 8 for r in rows)
     manifest = json.loads((out / "manifest.json").read_text())
     simulate = {r["item"]: r for r in manifest["stages"] if r["stage"] == "simulate"}
-    assert {item: r["status"] for item, r in simulate.items()} == dict.fromkeys(("train", "E1/query", "E1/reference"), "recorded")
+    assert {item: r["status"] for item, r in simulate.items()} == dict.fromkeys(("train", "E1/query", "E1/reference"),
+                                                                                "recorded")
     assert simulate["E1/query"]["output"] == str(tmp_path / "query.h5")
     assert not (out / "cache" / "datasets").exists()  # nothing simulated
     assert manifest["recorded"]["E1/reference"] == str(tmp_path / "ref.h5") and manifest["run_seeds"] == {}
@@ -404,10 +414,12 @@ def _nan_in_run_file(tmp_path, data, field="poses"):
 
 
 BAD_RECORDED_SCENARIOS = {
-    "missing dataset": (lambda t, d: d["train"].update(dataset="nope.h5"), r"train\.dataset: no such file .*nope\.h5.*vitaplace import"),
+    "missing dataset": (lambda t, d: d["train"].update(dataset="nope.h5"),
+                        r"train\.dataset: no such file .*nope\.h5.*vitaplace import"),
     "dataset and run": (
         lambda t, d: d["train"].update(run={"kind": "foraging", "n_samples": 5}),
-        r"train: give either 'dataset' \(recorded runs\) or 'environment' and 'run' \(simulated\), not both: remove 'run'",
+        r"train: give either 'dataset' \(recorded runs\) or 'environment' and 'run' \(simulated\), "
+        r"not both: remove 'run'",
     ),
     "neither": (lambda t, d: d["evaluations"][0].pop("datasets"), r"evaluations\.0: 'environment' and 'run' missing"),
     "a v7.3 .mat file, not a run file": (
@@ -419,7 +431,8 @@ BAD_RECORDED_SCENARIOS = {
         lambda t, d: d["evaluations"][0]["datasets"].update(reference=str(import_run(t, "short", np.zeros((4, 3)), 5))),
         r"evaluations\.0\.datasets\.reference: an evaluation run needs at least 5 samples, .*short\.h5 has 4",
     ),
-    "NaN in a run file": (_nan_in_run_file, r"query\.h5: field 'poses' has NaN or infinite values \(1 rows, first at index 2\)"),
+    "NaN in a run file": (_nan_in_run_file,
+                          r"query\.h5: field 'poses' has NaN or infinite values \(1 rows, first at index 2\)"),
     # no stage reads a run's times: only the check of a recorded run before the stages finds this
     "NaN in a run file's times": (lambda t, d: _nan_in_run_file(t, d, "times"),
                                   r"query\.h5: field 'times' has NaN or infinite values \(1 rows, first at index 2\)"),
@@ -650,11 +663,14 @@ def _symlink_loop(tmp_path, data):
 
 
 INCONSISTENT_RECORDINGS = {
-    "a query with 12 whiskers": (_twelve_whiskers, r"evaluations\.0\.datasets\.query: .*q12\.h5 has 12 whiskers, the training run 24"),
-    "a query with smaller images": (_smaller_images, r"evaluations\.0\.datasets\.query: .*q40\.h5 has 40x80x3 images, the training run 45x80x3"),
+    "a query with 12 whiskers": (_twelve_whiskers,
+                                 r"evaluations\.0\.datasets\.query: .*q12\.h5 has 12 whiskers, the training run 24"),
+    "a query with smaller images": (_smaller_images, r"evaluations\.0\.datasets\.query: .*q40\.h5 has 40x80x3 images, "
+                                                     r"the training run 45x80x3"),
     "query = reference": (lambda t, d: d["evaluations"][0]["datasets"].update(query="ref.h5"),
                           r"evaluations\.0\.datasets: query .*ref\.h5 and reference .*ref\.h5 are the same recording"),
-    "query a copy of the reference": (_copy_of_the_reference, r"evaluations\.0\.datasets: query .*copy\.h5 and reference .*ref\.h5 are the same recording"),
+    "query a copy of the reference": (_copy_of_the_reference, r"evaluations\.0\.datasets: query .*copy\.h5 and "
+                                                              r"reference .*ref\.h5 are the same recording"),
     "a symlink loop": (_symlink_loop, r"evaluations\.0\.datasets\.query: no such file .*loop\.h5"),
 }
 

@@ -156,7 +156,8 @@ def shipped_keys() -> dict[str, tuple[str, str]]:
             env = load_environment(entry.environment)
             run = entry.run_for(label.rsplit("/", 1)[1]) if isinstance(entry, EvaluationPair) else entry.run
             key = content_hash("simulate", STAGE_VERSION["simulate"], RECORDED_AT,
-                               [env.model_dump(mode="json"), key_form(run)], scenario.robot.model_dump(mode="json"), seed)
+                               [env.model_dump(mode="json"), key_form(run)], scenario.robot.model_dump(mode="json"),
+                               seed)
             keys[f"{path.stem}:{label}"] = (key, run_hash(env, run, scenario.robot, seed))
     return keys
 
@@ -170,7 +171,8 @@ def test_the_runs_of_every_shipped_scenario_keep_their_cache_keys_and_run_hashes
 def test_runs_set_away_from_the_defaults_keep_their_run_hashes(name):
     """The old code's run hash of each recorded example, for the same settings given today."""
     old = OLD[name]
-    assert run_hash(load_environment("e1"), run_spec(nest_legacy_gains(old["given"])), RobotSpec(), 0) == old["run_hash_e1_seed0"]
+    spec = run_spec(nest_legacy_gains(old["given"]))
+    assert run_hash(load_environment("e1"), spec, RobotSpec(), 0) == old["run_hash_e1_seed0"]
 
 
 @pytest.mark.parametrize("name", sorted(OLD))
@@ -237,13 +239,15 @@ def test_a_scenario_with_the_old_flat_foraging_gains_loads_with_one_warning(tmp_
 def test_a_gain_both_flat_and_under_gains_is_refused(tmp_path):
     from vitaplace.engine.config.scenario import ScenarioError
 
-    path = write_scenario(tmp_path, {"kind": "foraging", "n_samples": 5, "leave_time": 2.0, "gains": {"leave_time": 3.0}})
+    path = write_scenario(tmp_path,
+                          {"kind": "foraging", "n_samples": 5, "leave_time": 2.0, "gains": {"leave_time": 3.0}})
     with pytest.raises(ScenarioError, match=r"train\.run: leave_time given both at the top level and under 'gains'"):
         load_scenario(path)
 
 
-@pytest.mark.parametrize("kind, key", [("teleop", "lateral_noise"), ("route", "orbit_radius"), ("foraging", "lookahead"),
-                                       ("teleop", "max_turn_rate_deg"), ("route", "visit_range")])
+@pytest.mark.parametrize("kind, key", [("teleop", "lateral_noise"), ("route", "orbit_radius"),
+                                       ("foraging", "lookahead"), ("teleop", "max_turn_rate_deg"),
+                                       ("route", "visit_range")])
 def test_a_key_that_is_not_a_setting_of_the_runs_kind_is_refused_naming_its_path(tmp_path, kind, key):
     """Each kind has only the keys its controller uses: another kind's key had no effect
     before the split and is an error now, naming the key path and the kind's valid keys."""
@@ -278,7 +282,8 @@ def test_the_teleoperators_old_heading_tolerance_is_read_as_its_turn_threshold(t
     assert isinstance(run, TeleopRun) and run.turn_threshold_deg == 12.0
     warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
     assert len(warnings) == 1 and "\n" not in warnings[0]
-    assert str(path) in warnings[0] and "'evaluations.0.run.heading_tolerance_deg' is now called 'turn_threshold_deg'" in warnings[0]
+    assert str(path) in warnings[0]
+    assert "'evaluations.0.run.heading_tolerance_deg' is now called 'turn_threshold_deg'" in warnings[0]
     flat = key_form(run)
     assert flat["heading_tolerance_deg"] == 12.0 and "turn_threshold_deg" not in flat
     assert recorded_run_spec(flat).turn_threshold_deg == 12.0
@@ -289,5 +294,6 @@ def test_both_names_of_the_turn_threshold_are_refused(tmp_path):
 
     path = write_scenario(tmp_path, {"kind": "foraging", "n_samples": 5},
                           {"kind": "teleop", "n_samples": 8, "heading_tolerance_deg": 12.0, "turn_threshold_deg": 9.0})
-    with pytest.raises(ScenarioError, match=r"evaluations\.0\.run: both 'heading_tolerance_deg' and 'turn_threshold_deg'"):
+    with pytest.raises(ScenarioError,
+                       match=r"evaluations\.0\.run: both 'heading_tolerance_deg' and 'turn_threshold_deg'"):
         load_scenario(path)

@@ -13,9 +13,9 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from conftest import reseal  # noqa: E402
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.study.sensitivity import rescore  # noqa: E402
-from conftest import reseal  # noqa: E402
 
 ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
 
@@ -192,7 +192,8 @@ def _rewrite(path: Path, **arrays) -> None:
 # damaged matrices, recorded so in completed.json (as if the run itself had written them)
 DAMAGED = {
     "truncated": (lambda p: p.write_bytes(p.read_bytes()[:100]), "unreadable matrices (BadZipFile"),
-    "a 3 x 3 TME": (lambda p: _rewrite(p, tme=np.zeros((3, 3))), "tme of shape (3, 3) (or not finite), expected a finite 5 x 5"),
+    "a 3 x 3 TME": (lambda p: _rewrite(p, tme=np.zeros((3, 3))),
+                    "tme of shape (3, 3) (or not finite), expected a finite 5 x 5"),
     "an all-NaN TME": (lambda p: _rewrite(p, tme=np.full((5, 5), np.nan)), "tme of shape (5, 5) (or not finite)"),
     "NaN poses": (lambda p: _rewrite(p, query_poses=np.full((5, 3), np.nan)),
                   "query_poses of shape (5, 3) (or not finite), expected finite N x 3"),

@@ -24,7 +24,8 @@ from vitaplace.engine.evaluation.sequence import local_contrast, sequence_scores
 ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
 
 
-def reference_scores(d: np.ndarray, length: int, velocities: tuple[float, float], steps: int, window: int) -> np.ndarray:
+def reference_scores(d: np.ndarray, length: int, velocities: tuple[float, float], steps: int,
+                     window: int) -> np.ndarray:
     """The sequence score written as plainly as it is defined (sequence.py's docstring)."""
     n_q, n_r = d.shape
     contrast = np.full(d.shape, np.inf)
@@ -132,7 +133,8 @@ def runs(tmp_path_factory) -> dict[str, Path]:
     tmp = tmp_path_factory.mktemp("sequence")
     out = {}
     for name, sequence in (("single", {}), ("seq3", {"sequence": {"length": 3}}),
-                           ("one", {"sequence": {"length": 1, "velocities": [0.5, 2.0], "velocity_steps": 3, "window": 2}})):
+                           ("one",
+                            {"sequence": {"length": 1, "velocities": [0.5, 2.0], "velocity_steps": 3, "window": 2}})):
         scenario = {
             "name": "tiny",
             "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 5}},
@@ -178,7 +180,8 @@ def test_a_run_that_matches_sequences_scores_the_sequence_of_the_methods_distanc
 def test_length_one_scores_a_real_evaluation_exactly_as_single_samples(runs):
     # whatever the other sequence settings say: the same rows (every number bit for bit, no
     # `sequence` field) and the same saved matrices (no `distance` beside the TME)
-    assert json.loads((runs["one"] / "results.json").read_text()) == json.loads((runs["single"] / "results.json").read_text())
+    assert (json.loads((runs["one"] / "results.json").read_text())
+            == json.loads((runs["single"] / "results.json").read_text()))
     for direction in ("query-to-reference", "reference-to-query"):
         with np.load(runs["one"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as a, \
                 np.load(runs["single"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as b:
@@ -213,7 +216,8 @@ def test_sensitivity_rescores_a_run_as_the_sequence_run_scored_it(runs, tmp_path
     record = json.loads((tmp_path / "sensitivity.json").read_text())
     assert record["sequence_length"] == 3
     for result in json.loads((runs["seq3"] / "results.json").read_text()):
-        (own,) = [r for r in record["rows"] if r["direction"] == result["direction"] and r["heading_tolerance_deg"] == 30.0]
+        (own,) = [r for r in record["rows"]
+                  if r["direction"] == result["direction"] and r["heading_tolerance_deg"] == 30.0]
         assert own["max_f1"] == pytest.approx(result["max_f1"])
 
 

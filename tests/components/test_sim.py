@@ -16,13 +16,15 @@ import numpy as np
 import pytest
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
+
+# isort: split
 import mujoco  # noqa: E402
 
 from vitaplace.engine.data.dataset import Run  # noqa: E402
 from vitaplace.engine.sim.clearance import Route  # noqa: E402
 from vitaplace.engine.sim.environment import (  # noqa: E402
-    EnvironmentSpecError,
     EnvironmentSpec,
+    EnvironmentSpecError,
     environment_files,
     load_environment,
 )
@@ -95,8 +97,8 @@ BODY_R, HEAD_AHEAD, HEAD_R = 0.23, 0.5, 0.113
 @pytest.mark.parametrize("name", ENVS)
 def test_route_keeps_body_and_head_clear_of_obstacles(name):
     """Every point of the route, with the heading the route is driven at (towards the
-    pursuit point 0.3 m further along the loop, or away from its centroid), keeps the body and the head at least 3 cm from everything
-    (the pursuit controller's corner cutting and noise are a few cm)."""
+    pursuit point 0.3 m further along the loop, or away from its centroid), keeps the body and the head at least
+    3 cm from everything (the pursuit controller's corner cutting and noise are a few cm)."""
     env = load_environment(name)
     route = Route(env.route)
     points = route.sample(0.02)
@@ -117,7 +119,7 @@ def test_one_lap_of_the_e1_route_touches_every_landmark_without_collision(e1):
     run = simulate_run(e1, run_spec(kind="route", n_samples=60, speed=0.3), seed=4, progress=False)
     assert run.attrs["body_collision_instants"] == 0
     points = run._get("contact_points")
-    for lm_name, lm in zip(e1.landmark_names(), e1.landmarks):
+    for lm_name, lm in zip(e1.landmark_names(), e1.landmarks, strict=True):
         alone = {**lm.model_dump(), "material": None}
         single = EnvironmentSpec.model_validate({"name": "one", "arena": {"size": 50.0}, "landmarks": [alone]})
         assert (single.obstacles.distance_many(points[:, :2]) < 0.01).any(), f"{lm_name} was never touched"
@@ -163,7 +165,8 @@ def test_extends_deep_merges_and_replaces_lists(tmp_path):
         "route: [[0, 0], [1, 0]]\n"
     )
     (tmp_path / "child.yaml").write_text(
-        "extends: parent.yaml\narena: {size: 4.0}\nlandmarks: [{type: cylinder, pos: [0, 1], radius: 0.2, height: 0.3}]\n"
+        "extends: parent.yaml\narena: {size: 4.0}\n"
+        "landmarks: [{type: cylinder, pos: [0, 1], radius: 0.2, height: 0.3}]\n"
     )
     env = load_environment(tmp_path / "child.yaml")
     assert env.name == "child"
@@ -186,7 +189,8 @@ def test_environment_errors_name_file_and_key_path(tmp_path):
     bad.write_text("extends: nowhere.yaml\n")
     with pytest.raises(EnvironmentSpecError, match=r"nowhere\.yaml"):
         load_environment(bad)
-    with pytest.raises(EnvironmentSpecError, match=r"missing\.yaml: no such environment file \(shipped environments: .*\be1\b"):
+    with pytest.raises(EnvironmentSpecError,
+                       match=r"missing\.yaml: no such environment file \(shipped environments: .*\be1\b"):
         load_environment(tmp_path / "missing.yaml")
 
 
@@ -308,7 +312,8 @@ def test_camera_projects_a_known_point_where_the_whiskeye_pinhole_model_says():
     rows, cols = np.nonzero(red)
     # pixel centres are at index + 0.5; a 4 cm cube at 1.5 m spans ~4 px, its centroid
     # within 1 px of the projected centre
-    assert abs(cols.mean() + 0.5 - u) < 1.0 and abs(rows.mean() + 0.5 - v) < 1.0, (cols.mean() + 0.5, rows.mean() + 0.5, u, v)
+    assert abs(cols.mean() + 0.5 - u) < 1.0 and abs(rows.mean() + 0.5 - v) < 1.0, (
+        cols.mean() + 0.5, rows.mean() + 0.5, u, v)
 
 
 def test_missing_gl_gives_one_clear_error():
@@ -498,7 +503,8 @@ def test_penetration_deflection_hand_case():
 @pytest.fixture(scope="module")
 def bare_sims():
     env = EnvironmentSpec.model_validate(BARE)
-    sims = {model: Simulator(env, RobotSpec(tactile_model=model), camera=False) for model in ("physical", "penetration")}
+    sims = {model: Simulator(env, RobotSpec(tactile_model=model), camera=False)
+            for model in ("physical", "penetration")}
     yield sims
     for sim in sims.values():
         sim.close()
@@ -674,7 +680,8 @@ def test_the_simulator_package_exports_its_modules_names():
         if name != "SIMULATOR_VERSION":
             defining = [m for m in ("environment", "robot", "simulate", "render")
                         if name in vars(importlib.import_module(f"vitaplace.engine.sim.{m}"))]
-            assert defining and getattr(sim, name) is getattr(importlib.import_module(f"vitaplace.engine.sim.{defining[0]}"), name)
+            assert defining
+            assert getattr(sim, name) is getattr(importlib.import_module(f"vitaplace.engine.sim.{defining[0]}"), name)
     assert sim.simulate_run is simulate_run
 
 

@@ -69,7 +69,7 @@ def test_stations_are_the_loop_points_towards_their_landmarks_facing_their_neare
     stations = stations_of(env, run_spec(kind="stations", n_samples=5))
     assert [st.name for st in stations] == ["east", "north", "west", "south"]
     expected = [((0.87, 0.0), 0.0), ((0.0, 0.87), 90.0), ((-0.87, 0.0), 180.0), ((0.0, -0.87), -90.0)]
-    for st, (point, facing) in zip(stations, expected):
+    for st, (point, facing) in zip(stations, expected, strict=True):
         assert st.point == pytest.approx(point, abs=0.006)  # the loop is searched every 1 cm
         assert math.degrees(st.facing) % 360 == pytest.approx(facing % 360, abs=0.5)
 
@@ -78,7 +78,9 @@ def test_stations_and_station_count_choose_the_landmarks_in_the_order_given():
     env = load_environment("e1")
     chosen = stations_of(env, run_spec(kind="stations", n_samples=5, station_landmarks=["cyl_south", "box_east"]))
     assert [st.name for st in chosen] == ["cyl_south", "box_east"]
-    first = stations_of(env, run_spec(kind="stations", n_samples=5, station_landmarks=["cyl_south", "box_east"], station_count=1))
+    first = stations_of(env,
+                        run_spec(kind="stations", n_samples=5, station_landmarks=["cyl_south", "box_east"],
+                                 station_count=1))
     assert [st.name for st in first] == ["cyl_south"]
     every = stations_of(env, run_spec(kind="stations", n_samples=5, station_count=2))
     assert [st.name for st in every] == ["box_east", "box_west"]  # the tactile landmarks, in the file's order
@@ -191,10 +193,12 @@ def _scenario(tmp_path: Path, run: dict, environment: str = "e1", scoring: dict 
 
 
 @pytest.mark.parametrize("run, scoring, message", [
-    ({"station_landmarks": ["box_east", "nope"]}, None, r"evaluations\.0\.run\.station_landmarks: 'nope' names no landmark of 'e1'"),
+    ({"station_landmarks": ["box_east", "nope"]}, None,
+     r"evaluations\.0\.run\.station_landmarks: 'nope' names no landmark of 'e1'"),
     ({"station_count": 4}, None, r"evaluations\.0\.run\.station_count: 4 stations asked for, but 'e1' has only 3"),
     ({"station_count": 0}, None, r"evaluations\.0\.run\.station_count: .*greater than or equal to 1"),
-    ({"station_landmarks": ["box_east"], "station_count": 2}, None, r"evaluations\.0\.run.*station_count 2 is more than the 1 landmarks named"),
+    ({"station_landmarks": ["box_east"], "station_count": 2}, None,
+     r"evaluations\.0\.run.*station_count 2 is more than the 1 landmarks named"),
     ({"station_landmarks": ["box_east", "box_east"]}, None, r"evaluations\.0\.run.*must name each landmark once"),
     ({"station_jitter": 0.6}, None, r"evaluations\.0\.run\.station_jitter: .*less than or equal to 0\.5"),
     ({"station_heading_jitter_deg": -1}, None, r"evaluations\.0\.run\.station_heading_jitter_deg: .*greater than"),
@@ -215,7 +219,8 @@ def test_a_station_heading_jitter_is_not_bounded_without_a_heading_tolerance(tmp
 
 
 @pytest.mark.parametrize("environment, message", [
-    ({"name": "bare", "extends": "base.yaml"}, r"evaluations\.0\.run\.kind: a stations run needs the environment's route"),
+    ({"name": "bare", "extends": "base.yaml"},
+     r"evaluations\.0\.run\.kind: a stations run needs the environment's route"),
     ({"name": "hidden", "extends": "e1.yaml", "landmarks": [
         {"name": "ghost", "type": "box", "pos": [2.138, 0.0], "size": [1.0, 1.0, 0.3], "tactile": False}]},
      r"evaluations\.0\.run\.kind: .* 0 tactile landmarks"),

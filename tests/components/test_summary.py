@@ -17,10 +17,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from vitaplace.engine.evaluation import evaluate as ev
+from vitaplace.engine.evaluation import resample
 from vitaplace.engine.evaluation.difficulty import TOUCH_PAIR_KEYS
 from vitaplace.engine.evaluation.pairfiles import evaluate_pair
-from vitaplace.engine.evaluation import resample
 from vitaplace.engine.study import summary
+
 #: t(0.975, 2) and t(0.975, 1) from a printed table of Student's t quantiles
 T_2, T_1 = 4.302653, 12.706205
 INTERVALS = ("t", "boot", "block")
@@ -50,7 +51,8 @@ def test_describe_matches_hand_computed_statistics():
     half = T_2 * 0.2 / math.sqrt(3)
     assert (stats["n"], stats["min"], stats["max"]) == (3, 0.5, 0.9)
     assert stats["mean"] == pytest.approx(0.7) and stats["std"] == pytest.approx(0.2)
-    assert stats["t_low"] == pytest.approx(0.7 - half, abs=1e-6) and stats["t_high"] == pytest.approx(0.7 + half, abs=1e-6)
+    assert stats["t_low"] == pytest.approx(0.7 - half, abs=1e-6)
+    assert stats["t_high"] == pytest.approx(0.7 + half, abs=1e-6)
     cut = summary.describe([0.5, 0.7, 0.9], (0.0, 1.0))
     assert cut["t_low"] == pytest.approx(0.7 - half, abs=1e-6) and cut["t_high"] == 1.0
     # two values 1 and 3, unbounded: mean 2, s = sqrt(2), half-width t(0.975, 1) * sqrt(2) / sqrt(2)
@@ -110,7 +112,7 @@ def test_no_interval_of_a_proportion_leaves_0_1(values):
 def test_intervals_of_proportions_and_of_their_differences_stay_in_range(a, b):
     assert all(0.0 <= lo <= hi <= 1.0 for lo, hi in finite_intervals(summary.describe(a, summary.bounds("recall@5"))))
     n = min(len(a), len(b))
-    d = [x - y for x, y in zip(a[:n], b[:n])]
+    d = [x - y for x, y in zip(a[:n], b[:n], strict=True)]
     diff = summary.describe(d, summary.difference_bounds("auc"))
     assert all(-1.0 <= lo <= hi <= 1.0 for lo, hi in finite_intervals(diff))
 
@@ -180,7 +182,8 @@ def test_counts_thresholds_and_difficulty_are_per_method_and_never_compared():
         assert table[("L", name)]["kind"] == "descriptor", name
         assert all(math.isnan(table[("L", name)][f"{k}_low"]) for k in INTERVALS)
     # L's thresholds on seeds 0 and 1 are 0.1 and 0.2 (rows in method order): its own mean, min, max
-    assert (table[("L", "delta_at_max_f1")]["mean"], table[("L", "delta_at_max_f1")]["max"]) == pytest.approx((0.15, 0.2))
+    assert (table[("L", "delta_at_max_f1")]["mean"], table[("L", "delta_at_max_f1")]["max"]) == pytest.approx(
+        (0.15, 0.2))
     assert table[("H", "delta_at_max_f1")]["mean"] == pytest.approx(0.35)
     assert table[("L", "difficulty.overlap")]["mean"] == pytest.approx(1.0)
     assert ("L", "difficulty.heading.name") not in table and ("L", "difficulty.list") not in table
@@ -228,7 +231,8 @@ def test_recall_at_full_precision_and_f1_at_the_e1_threshold_reach_every_summary
         assert "recall_at_100_precision" in text.replace(r"\_", "_"), name
         assert "f1_at_e1_threshold" in text.replace(r"\_", "_"), name
     table = {(r["method"], r["metric"]): r for r in read_csv(tmp_path / "sweep.csv")}
-    assert table[("L", "f1_at_e1_threshold")]["n"] == "1" and float(table[("H", "f1_at_e1_threshold")]["mean"]) == pytest.approx(0.75)
+    assert table[("L", "f1_at_e1_threshold")]["n"] == "1"
+    assert float(table[("H", "f1_at_e1_threshold")]["mean"]) == pytest.approx(0.75)
     (diff,) = [r for r in read_csv(tmp_path / "sweep-diff.csv") if r["metric"] == "f1_at_e1_threshold"]
     assert diff["n"] == "1" and float(diff["mean"]) == pytest.approx(0.6 - 0.8)  # seed 1: L 0.6, H 0.8
 
@@ -258,8 +262,9 @@ def test_block_length_and_draws():
             parts.append(tuple(cut[:length]))
             cut = cut[length:]
         assert len(parts) == 3 and set(parts) <= segments
-    assert all((a == b).all() for a, b in zip(draws, resample.block_draws(10, seed=3, resamples=50)))
-    assert any(len(a) != len(b) or (a != b).any() for a, b in zip(draws, resample.block_draws(10, seed=4, resamples=50)))
+    assert all((a == b).all() for a, b in zip(draws, resample.block_draws(10, seed=3, resamples=50), strict=True))
+    assert any(len(a) != len(b) or (a != b).any()
+               for a, b in zip(draws, resample.block_draws(10, seed=4, resamples=50), strict=True))
 
 
 @pytest.mark.parametrize("kmax", [1, 3, 5, 9])
@@ -276,7 +281,8 @@ def test_compact_matrices_keep_every_metric(kmax):
     for rows in [np.arange(40), *resample.block_draws(40, seed=kmax, resamples=20)]:
         full = ev.evaluate(tme[rows], gtm[rows], 0.3, delta=2.0, ks=ks)
         small = ev.evaluate(small_tme[rows], small_gtm[rows], 0.3, delta=2.0, ks=ks)
-        assert {k: v for k, v in small.items() if k != "n_references"} == {k: v for k, v in full.items() if k != "n_references"}
+        assert ({k: v for k, v in small.items() if k != "n_references"}
+                == {k: v for k, v in full.items() if k != "n_references"})
 
 
 @pytest.fixture
@@ -332,7 +338,8 @@ def test_a_single_seed_gets_a_block_bootstrap_interval(tmp_path, few_replicates)
     expected = np.quantile(full_replicates(tmp_path, rows[0], "max_f1") - full_replicates(tmp_path, rows[1], "max_f1"),
                            [0.025, 0.975])
     assert (float(diff["block_low"]), float(diff["block_high"])) == pytest.approx(tuple(expected), abs=1e-12)
-    assert all(0.0 <= float(r[f"block_{s}"]) <= 1.0 for r in table.values() if r["kind"] == "metric" for s in ("low", "high"))
+    assert all(0.0 <= float(r[f"block_{s}"]) <= 1.0
+               for r in table.values() if r["kind"] == "metric" for s in ("low", "high"))
 
 
 def test_the_block_interval_over_seeds_is_that_of_the_mean_of_the_seeds_replicates(tmp_path, few_replicates):
@@ -340,7 +347,8 @@ def test_the_block_interval_over_seeds_is_that_of_the_mean_of_the_seeds_replicat
     summary.write_summary(tmp_path, rows, "t", {}, {0: tmp_path / "seed-0", 1: tmp_path / "seed-1"})
     (got,) = [r for r in read_csv(tmp_path / "sweep.csv") if r["metric"] == "auc"]
     mean = (full_replicates(tmp_path, rows[0], "auc") + full_replicates(tmp_path, rows[1], "auc")) / 2
-    assert (float(got["block_low"]), float(got["block_high"])) == pytest.approx(tuple(np.quantile(mean, [0.025, 0.975])), abs=1e-12)
+    assert (float(got["block_low"]), float(got["block_high"])) == pytest.approx(
+        tuple(np.quantile(mean, [0.025, 0.975])), abs=1e-12)
 
 
 def test_rows_without_saved_matrices_have_no_block_interval(tmp_path, few_replicates):

@@ -111,7 +111,8 @@ def test_two_teleop_seeds_are_independent_drives_unlike_two_route_runs():
     e1 = load_environment("e1")
     medians = {}
     for kind in ("route", "teleop"):
-        ref, query = (simulate_run(e1, run_spec(kind=kind, n_samples=150), seed, ROBOT, progress=False) for seed in (1, 2))
+        ref, query = (simulate_run(e1, run_spec(kind=kind, n_samples=150), seed, ROBOT, progress=False)
+                      for seed in (1, 2))
         medians[kind] = float(np.median(_nearest_m(query.poses, ref.poses)))
         if kind == "teleop":
             assert np.linalg.norm(ref.poses[0, :2] - query.poses[0, :2]) > 0.5
@@ -227,7 +228,7 @@ def test_detours_are_spread_along_the_run_with_the_requested_share():
     assert len(windows) == 3
     lengths = [t1 - t0 for t0, t1 in windows]
     assert lengths == pytest.approx([0.3 * N * 0.5 / 3] * 3)
-    assert all(b[0] >= a[1] for a, b in zip(windows, windows[1:]))
+    assert all(b[0] >= a[1] for a, b in zip(windows, windows[1:], strict=False))  # consecutive pairs
     times = (spec.warmup_cycles + 1 + np.arange(N)) * 0.5
     inside = np.array([driver.in_detour(t) for t in times])
     assert abs(inside.mean() - 0.3) <= 3 / N
@@ -325,8 +326,8 @@ def test_holds_and_detours_no_longer_than_the_run(kind, settings, message):
     samples = 40 if "detour_count" in settings else 60
     with pytest.raises(ValueError, match=message):
         run_spec(kind=kind, n_samples=samples, **settings)
-    run_spec(kind=kind, n_samples=samples, **{**settings, **({"hold_cycles": [60, 100000]} if "hold_cycles" in settings
-                                                              else {"detour_count": 40})})  # the run's length is allowed
+    longest = {"hold_cycles": [60, 100000]} if "hold_cycles" in settings else {"detour_count": 40}
+    run_spec(kind=kind, n_samples=samples, **{**settings, **longest})  # the run's length is allowed
 
 
 @pytest.mark.parametrize("stay, samples, stuck", [

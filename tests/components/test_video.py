@@ -139,8 +139,9 @@ def test_the_fps_range_ends_give_their_frame_durations(tmp_path, fps):
     assert durations == [1000 / fps] * 3
 
 
-@pytest.mark.parametrize("n, step, expected", [(5, None, 5), (MAX_FRAMES, None, MAX_FRAMES), (MAX_FRAMES + 1, None, 151),
-                                               (1000, None, 250), (1000, 1, 1000), (7, 3, 3)])
+@pytest.mark.parametrize("n, step, expected", [(5, None, 5), (MAX_FRAMES, None, MAX_FRAMES),
+                                               (MAX_FRAMES + 1, None, 151), (1000, None, 250), (1000, 1, 1000),
+                                               (7, 3, 3)])
 def test_frame_indices(n, step, expected):
     frames = frame_indices(n, step)
     assert len(frames) == expected and frames[0] == 0 and len(set(np.diff(frames))) <= 1

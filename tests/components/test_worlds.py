@@ -18,6 +18,8 @@ import numpy as np
 import pytest
 
 import vitaplace.engine.sim  # noqa: F401  (selects the GL backend before mujoco is imported)
+
+# isort: split
 import mujoco  # noqa: E402
 
 from vitaplace.engine.sim.environment import BoxLandmark, CylinderLandmark, RockLandmark, load_environment  # noqa: E402
@@ -80,7 +82,8 @@ def test_arena_walls_panels_light_and_background_are_the_originals(name):
     assert env.background_rgb == (0.7, 0.7, 0.7)
     light = env.lighting
     assert len(light.lights) == 1
-    assert (light.lights[0].direction, light.lights[0].diffuse, light.lights[0].specular) == ((-0.5, 0.1, -0.9), 0.8, 0.2)
+    assert (light.lights[0].direction, light.lights[0].diffuse, light.lights[0].specular) == (
+        (-0.5, 0.1, -0.9), 0.8, 0.2)
     assert (light.ambient, light.headlight, light.shadows) == (0.4, 0.0, False)
     banner = env.boards[0]  # 3.6 x 3.43 at (0.5, 5.0), top at 2.43 m
     assert (banner.pos, banner.width, banner.height, banner.bottom + banner.height) == ((0.5, 5.0), 3.6, 3.43, 2.43)

@@ -66,7 +66,8 @@ def test_rows_are_the_pipelines_own(stage):
             assert row["max_f1_reference_to_query"] == f1["reference-to-query"]
             assert (row["epochs"], row["max_epochs"], row["converged"]) == (
                 training["epochs"], training["max_epochs"], training["converged"])
-            inference = [manifest["features"][method][f"{world}/{role}"]["inference"] for role in ("query", "reference")]
+            inference = [manifest["features"][method][f"{world}/{role}"]["inference"]
+                         for role in ("query", "reference")]
             assert row["samples"] == sum(i["samples"] for i in inference) == 40  # 20-sample drives, both
             assert row["capped"] == sum(i["capped"] for i in inference)
             assert row["settled_share"] == pytest.approx(1 - row["capped"] / row["samples"])
@@ -110,7 +111,7 @@ def test_summary_table_lists_every_row(stage):
     assert "## Convergence check at study size" in text and "Tiny plumbing run" in text
     table = [line for line in text.splitlines() if line.startswith("| 0 |")]
     assert len(table) == len(record["rows"]) == 9
-    for line, row in zip(table, record["rows"]):
+    for line, row in zip(table, record["rows"], strict=True):
         cells = [c.strip() for c in line.strip("|").split("|")]
         assert cells[1:3] == [row["method"], row["environment"]]
         assert float(cells[3]) == pytest.approx(row["max_f1_query_to_reference"], abs=5e-4)

@@ -91,7 +91,7 @@ def test_predict_matches_reference(shape, activation, device):
     Y, W, X = layer(shape)
     *got, rows = run_predict(Y, W, X, device, activation)
     expected = ref.predict(*f64(Y, W, X), activation)
-    for name, g, e in zip("APEG", got, expected):
+    for name, g, e in zip("APEG", got, expected, strict=True):
         assert g.dtype == np.float32
         assert rel_err(g, e) <= TOL, (name, rel_err(g, e))
     assert rel_err(rows, np.sum(expected[2] ** 2, axis=1)) <= TOL
@@ -129,7 +129,7 @@ def test_predict_leaky_relu_slope_is_runtime_parameter(device):
     for slope in (0.01, 0.5):
         *got, _ = run_predict(Y, W, X, device, "leaky_relu", slope)
         expected = ref.predict(*f64(Y, W, X), "leaky_relu", slope)
-        for g, e in zip(got, expected):
+        for g, e in zip(got, expected, strict=True):
             assert rel_err(g, e) <= TOL
 
 
@@ -246,7 +246,7 @@ def _all_kernels_vs_reference(shape, device, tiles, activation="tanh"):
     Y, W, X = layer(shape, seed=8)
     *got, rows = run_predict(Y, W, X, device, activation, tiles=tiles)
     expected = ref.predict(*f64(Y, W, X), activation)
-    for g, e in zip(got, expected):
+    for g, e in zip(got, expected, strict=True):
         assert rel_err(g, e) <= TOL
     assert rel_err(rows, np.sum(expected[2] ** 2, axis=1)) <= TOL
     rng = np.random.default_rng(9)

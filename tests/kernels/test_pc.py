@@ -149,7 +149,8 @@ SYNTH = {
     "activation": "leaky_relu",
     "slope": 0.2,
 }
-TRAIN = {"epochs": 30, "batch_size": 50, "inference_steps": 20, "seed": 0, "converge_window": 0, "converge_tol": 0.01, "latent_prior": 0.0}
+TRAIN = {"epochs": 30, "batch_size": 50, "inference_steps": 20, "seed": 0, "converge_window": 0, "converge_tol": 0.01,
+         "latent_prior": 0.0}
 NO_STOP = {"visual.1": 0.0, "tactile.1": 0.0, "joint.visual": 0.0, "joint.tactile": 0.0}
 
 
@@ -218,7 +219,8 @@ def test_each_sample_stops_on_its_own(trained):
     subset = {m: x[:12] for m, x in inputs.items()}
     limits = dict.fromkeys(NO_STOP, 4e-3)
     batched = net.infer(subset, max_steps=400, thresholds=limits, batch_size=12)
-    alone = [net.infer({m: x[i : i + 1] for m, x in subset.items()}, max_steps=400, thresholds=limits) for i in range(12)]
+    alone = [net.infer({m: x[i : i + 1] for m, x in subset.items()}, max_steps=400, thresholds=limits)
+             for i in range(12)]
     np.testing.assert_array_equal(batched.steps_per_sample, [r.steps for r in alone])
     assert len(set(batched.steps_per_sample)) > 3, batched.steps_per_sample
     assert batched.steps == max(r.steps for r in alone)
@@ -304,7 +306,7 @@ def test_training_reports_each_minibatch_with_its_epoch_and_energy_per_sample():
     history = Network(frozen, seed=4, backend="numpy").train(
         inputs, {**TRAIN, "epochs": 2, "batch_size": 25}, on_progress=lambda epoch, f: calls.append((epoch, f)))
     assert [epoch for epoch, _ in calls] == [1, 1, 1, 2, 2, 2]
-    first = sum(size * f for size, (_, f) in zip((25, 25, 10), calls[:3]))
+    first = sum(size * f for size, (_, f) in zip((25, 25, 10), calls[:3], strict=True))
     assert first == pytest.approx(60 * history.total()[0], rel=1e-5)
 
 
@@ -328,7 +330,8 @@ def test_numpy_backend_matches_the_reference_on_wide_layers(shape):
     np.testing.assert_allclose(R[0], np.sum(e**2, axis=1), rtol=1e-4)
     y = Y.copy()
     be.latent_update(y, G, be.weights(W), 0.01, E_above, None)
-    expected = ref.latent_step(Y.astype(np.float64), G.astype(np.float64), W.astype(np.float64), 0.01, E_above.astype(np.float64))
+    expected = ref.latent_step(Y.astype(np.float64), G.astype(np.float64), W.astype(np.float64), 0.01,
+                               E_above.astype(np.float64))
     np.testing.assert_allclose(y, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
     handle = be.weights(W)
     be.weight_update(handle, Y, G, 0.01)

@@ -75,7 +75,8 @@ def test_the_long_plain_gradient_solve_is_a_stationary_point(reference):
     for _ in range(3):
         v = {n: rng.standard_normal(a.shape) for n, a in y.items()}
         h = 1e-5
-        slope = (energy(net, x, {n: y[n] + h * v[n] for n in y}) - energy(net, x, {n: y[n] - h * v[n] for n in y})) / (2 * h)
+        slope = (energy(net, x, {n: y[n] + h * v[n] for n in y})
+                 - energy(net, x, {n: y[n] - h * v[n] for n in y})) / (2 * h)
         at_start = (energy(net, x, {n: start[n] + h * v[n] for n in y})
                     - energy(net, x, {n: start[n] - h * v[n] for n in y})) / (2 * h)
         assert abs(slope) < 1e-6 * max(1.0, abs(at_start)), (slope, at_start)
@@ -171,7 +172,7 @@ def test_the_restart_control_by_hand(which):
     uphill, active = np.array([0.3, 2.0, -0.1, 5.0]), np.array([1, 1, 1, 0], np.int32)
     arrays = [scale, plain, uphill, active]
     bufs = [be.empty(a.shape, a.dtype.type) for a in arrays]
-    for a, buf in zip(arrays, bufs):
+    for a, buf in zip(arrays, bufs, strict=True):
         be.upload(a, buf)
     be.restart_control(*bufs)
     got = [be.download(buf) for buf in bufs[:3]]
@@ -383,9 +384,9 @@ def test_the_solver_kernels_match_the_numpy_backend(warp_cpu):
     for label, op, arrays in cases:
         host = [a.copy() for a in arrays]
         dev = [warp_cpu.empty(a.shape, a.dtype.type) for a in arrays]
-        for a, d in zip(arrays, dev):
+        for a, d in zip(arrays, dev, strict=True):
             warp_cpu.upload(a, d)
         op(ref, host)
         op(warp_cpu, dev)
-        for k, (h, d) in enumerate(zip(host, dev)):
+        for k, (h, d) in enumerate(zip(host, dev, strict=True)):
             np.testing.assert_allclose(warp_cpu.download(d), h, rtol=1e-6, atol=1e-6, err_msg=f"{label}: argument {k}")

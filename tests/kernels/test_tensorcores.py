@@ -22,9 +22,9 @@ import numpy as np
 import pytest
 
 from vitaplace.engine.network.backends import PRECISIONS, BackendError, NumpyBackend
+from vitaplace.engine.network.pc import LATENT_INIT, Network
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.tensorcores import CublasBackend, row_major_gemm
-from vitaplace.engine.network.pc import LATENT_INIT, Network
 from vitaplace.plugins.mupnet.extractor import MupnetParams
 
 wp = pytest.importorskip("warp")
@@ -322,7 +322,7 @@ def test_small_edges_on_a_second_stream_give_the_same_updates(cuda, precision):
     start = start_state(SMALL, 40)
     serial = minibatch_updates(SMALL, CublasBackend(precision, cuda), start, 5, replays=3)
     beside = minibatch_updates(SMALL, CublasBackend(precision, cuda, small_edges_beside=1000), start, 5, replays=3)
-    for one, other in zip(serial, beside):
+    for one, other in zip(serial, beside, strict=True):
         for name in one:
             np.testing.assert_allclose(other[name], one[name], rtol=1e-6, atol=1e-9, err_msg=name)
 
@@ -354,8 +354,8 @@ def test_paper_shape_training_energy_stays_in_band_of_float32(cuda, precision):
 def test_mupnet_refuses_tensor_core_precision_without_cuda_at_validation(monkeypatch):
     """``precision: bf16`` on a machine without CUDA (or with backend numpy) fails when the
     scenario is validated, in one line naming the extractor and the key; float32 is fine."""
-    from vitaplace.engine.network import selection
     from vitaplace.engine.extension.features import ExtractorParamsError
+    from vitaplace.engine.network import selection
     from vitaplace.plugins.mupnet import MupnetExtractor
 
     monkeypatch.setattr(selection, "cuda_available", lambda: False)

@@ -4,8 +4,8 @@ shipped files."""
 import numpy as np
 import pytest
 
-from vitaplace.engine.config.memory import run_bytes
 from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, SCENARIOS_DIR, environment_files, shipped_file
+from vitaplace.engine.config.memory import run_bytes
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.sim.controllers import run_spec
 from vitaplace.engine.sim.robot import RobotSpec

@@ -17,10 +17,9 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import breadth_first_order, connected_components
-
-import pytest
 
 tomllib = pytest.importorskip("tomllib")  # Python >= 3.11, as tests/study/test_packaging.py
 
@@ -182,7 +181,8 @@ def test_an_upward_a_sibling_and_an_unplaced_import_are_each_named(tmp_path):
     (package / "__init__.py").write_text("")
     (package / "low" / "x.py").write_text("def f():\n    from pkg.top import t\n")  # lazy, still upward
     (package / "mid_a" / "a.py").write_text("from pkg.low import x\nfrom ..mid_b import b\n")  # down: fine; sibling
-    (package / "mid_b" / "b.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import pkg.top.t\n")
+    (package / "mid_b" / "b.py").write_text(
+        "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    import pkg.top.t\n")
     (package / "top" / "t.py").write_text("import pkg.low.x\nimport pkg.mid_a.a\n")  # down: fine
     (package / "stray.py").write_text("")
     layers = [("pkg.low", "pkg"), ("pkg.mid_a", "pkg.mid_b"), ("pkg.top",)]
@@ -276,7 +276,8 @@ def test_no_function_of_the_package_is_over_80_lines(tmp_path):
     (tmp_path / "engine").mkdir()
     body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES - 1))
     (tmp_path / "engine" / "long.py").write_text(f"def fits():\n{body}\n\ndef too_long():\n{body}    return 0\n")
-    assert long_functions(tmp_path) == [f"engine/long.py:{MAX_FUNCTION_LINES + 3} too_long ({MAX_FUNCTION_LINES + 1} lines)"]
+    assert long_functions(tmp_path) == [
+        f"engine/long.py:{MAX_FUNCTION_LINES + 3} too_long ({MAX_FUNCTION_LINES + 1} lines)"]
 
 
 def test_every_package_folder_is_installed():

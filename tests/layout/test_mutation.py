@@ -5,8 +5,8 @@ occurs exactly once in its module, and every test a mutant names exists.
 """
 
 import ast
-import os
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
@@ -39,7 +39,8 @@ def test_a_snippet_that_no_longer_applies_is_named(mutation, tmp_path):
     (tmp_path / "engine" / "network").mkdir(parents=True)
     (tmp_path / "engine" / "network" / "pc.py").write_text("LATENT_INIT = 0.2\n")
     gone = mutation.Mutant("pc: latent init", "pc", "LATENT_INIT = 0.1", "LATENT_INIT = 0.0", ())
-    assert mutation.stale([gone], tmp_path) == ["'pc: latent init': its snippet occurs not exactly once in engine/network/pc.py (0 times)"]
+    assert mutation.stale([gone], tmp_path) == [
+        "'pc: latent init': its snippet occurs not exactly once in engine/network/pc.py (0 times)"]
 
 
 def test_every_named_test_exists(mutation):
@@ -63,11 +64,15 @@ def test_a_known_defect_is_marked_bug_and_fails_while_xfail_stops_the_session(tm
     tests = Path(__file__).resolve().parents[1]
     (tmp_path / "test_defects.py").write_text(
         "import pytest\n\n@pytest.mark.bug('adds wrong')\ndef test_known():\n    assert 1 + 1 == 3\n")
-    run = [sys.executable, "-m", "pytest", "-q", "-p", "conftest", "--rootdir", str(tmp_path), "-c", str(tests.parent / "pyproject.toml")]
+    run = [sys.executable, "-m", "pytest", "-q", "-p", "conftest", "--rootdir", str(tmp_path), "-c",
+           str(tests.parent / "pyproject.toml")]
     env = {**os.environ, "PYTHONPATH": str(tests)}
-    bug = subprocess.run([*run, str(tmp_path / "test_defects.py")], capture_output=True, text=True, env=env, cwd=tmp_path)
+    bug = subprocess.run([*run, str(tmp_path / "test_defects.py")], capture_output=True, text=True, env=env,
+                         cwd=tmp_path)
     assert bug.returncode == 1 and "1 failed" in bug.stdout, bug.stdout + bug.stderr
     (tmp_path / "test_defects.py").write_text(
         "import pytest\n\n@pytest.mark.xfail\ndef test_hidden():\n    assert 1 + 1 == 3\n")
-    hidden = subprocess.run([*run, str(tmp_path / "test_defects.py")], capture_output=True, text=True, env=env, cwd=tmp_path)
-    assert hidden.returncode == 4 and "xfail hides a known defect" in hidden.stdout + hidden.stderr, hidden.stdout + hidden.stderr
+    hidden = subprocess.run([*run, str(tmp_path / "test_defects.py")], capture_output=True, text=True, env=env,
+                            cwd=tmp_path)
+    output = hidden.stdout + hidden.stderr
+    assert hidden.returncode == 4 and "xfail hides a known defect" in output, output

@@ -133,7 +133,8 @@ def test_the_docs_import_only_listed_names():
 
 
 def test_an_unlisted_import_of_an_example_is_named():
-    text = ("```python\nfrom vitaplace.plugin import Run, hookimpl as h  # the API\nimport vitaplace.engine.sim.gym_env\n"
+    text = ("```python\nfrom vitaplace.plugin import Run, hookimpl as h  # the API\n"
+            "import vitaplace.engine.sim.gym_env\n"
             "import vitaplace.engine.cli\nrows = vitaplace.run('q')\nx = vitaplace.engine.sim.RobotSpec()\n"
             "ep = EntryPoint(group=\"vitaplace.features\")\n```\n"
             "```console\n$ python -c 'import vitaplace.engine.base'\n```\n")

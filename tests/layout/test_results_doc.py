@@ -1,10 +1,11 @@
 """docs/RESULTS.md against the study's committed summaries (docs/results/): every table in
 the text is what docs/results/tables.py computes from them (docs/BENCHMARK.md's what
 docs/results/benchmark.py computes from the committed `vitaplace difficulty` run), and the
-summaries hold what the studies promise (the first: six methods, at least five seeds, three worlds, both touch models, bounded
-intervals, the sign-flip p, recall at 100 % precision, the F1 at E1's threshold; the second: every method and condition at eight seeds, bounded
-intervals, the pre-registered endpoints as decided by `vitaplace.engine.study.hypotheses`
-(whose rules tests/components/test_hypotheses.py checks by hand), the gates, the budget trend)."""
+summaries hold what the studies promise (the first: six methods, at least five seeds, three worlds, both touch
+models, bounded intervals, the sign-flip p, recall at 100 % precision, the F1 at E1's threshold; the second: every
+method and condition at eight seeds, bounded intervals, the pre-registered endpoints as decided by
+`vitaplace.engine.study.hypotheses` (whose rules tests/components/test_hypotheses.py checks by hand), the gates, the
+budget trend)."""
 
 import csv
 import importlib.util
@@ -56,7 +57,8 @@ def test_every_table_in_results_md_is_computed_from_the_committed_summaries():
     found = dict(re.findall(r"<!-- table ([\w-]+) -->\n(.*?)\n<!-- /table -->", text, re.S))
     assert set(found) == set(tables.TABLES), "tables in RESULTS.md vs docs/results/tables.py"
     for name, table in found.items():
-        assert table == tables.TABLES[name](), f"RESULTS.md table {name} differs from `python docs/results/tables.py {name}`"
+        assert table == tables.TABLES[name](), (
+            f"RESULTS.md table {name} differs from `python docs/results/tables.py {name}`")
 
 
 @pytest.mark.parametrize("study", ["paper-cpu-sweep", "paper-cpu-physical-sweep"])
@@ -80,7 +82,7 @@ def test_the_decomposition_of_l_minus_h_adds_up_and_its_touch_term_matches_the_p
     for study in tables.STUDIES:
         for direction in tables.DIRECTIONS:
             for world in tables.WORLDS:
-                def mean(a: str, b: str) -> float:
+                def mean(a: str, b: str, study: str = study, world: str = world, direction: str = direction) -> float:
                     return float(tables._difference(study, world, direction, a, b)["mean"])
                 per_seed, stats, p = tables.interaction(study, world, direction)
                 assert len(per_seed) >= 5 and stats["n"] == len(per_seed)
@@ -97,7 +99,8 @@ def test_every_table_in_benchmark_md_is_computed_from_the_committed_difficulty_r
     found = dict(re.findall(r"<!-- table ([\w-]+) -->\n(.*?)\n<!-- /table -->", text, re.S))
     assert set(found) == set(benchmark.TABLES), "tables in BENCHMARK.md vs docs/results/benchmark.py"
     for name, table in found.items():
-        assert table == benchmark.TABLES[name](), f"BENCHMARK.md table {name} differs from `python docs/results/benchmark.py`"
+        assert table == benchmark.TABLES[name](), (
+            f"BENCHMARK.md table {name} differs from `python docs/results/benchmark.py`")
     assert benchmark.written(text) == text
 
 
@@ -112,7 +115,7 @@ def test_the_committed_difficulty_run_checks_every_evaluation_of_the_touch_bench
     assert [(r["environment"], r["direction"]) for r in run] == [
         (e["name"], d) for e in scenario["evaluations"] for d in ("query-to-reference", "reference-to-query")]
     minimum = {"touch_correspondence_min": True, "rescue_min": True, "hv_max_f1_max": False}
-    for row, evaluation in zip(run, evaluations):
+    for row, evaluation in zip(run, evaluations, strict=True):
         assert {k: g["gate"] for k, g in row["gates"].items() if g["gate"] is not None} == evaluation["gates"]
         for name, gate in row["gates"].items():
             if gate["gate"] is None:
@@ -120,7 +123,8 @@ def test_the_committed_difficulty_run_checks_every_evaluation_of_the_touch_bench
             elif gate["value"] is None:  # nothing to measure (vision never wrong) is not a gate met
                 assert gate["met"] is False
             else:
-                assert gate["met"] == (gate["value"] >= gate["gate"] if minimum[name] else gate["value"] <= gate["gate"])
+                assert gate["met"] == (gate["value"] >= gate["gate"] if minimum[name]
+                                       else gate["value"] <= gate["gate"])
 
 
 # The second study (RESULTS.md, "Second study"): three arms, one summaries' folder per grid point.
@@ -137,7 +141,8 @@ def test_the_second_study_holds_every_method_and_evaluation_at_eight_seeds_with_
     for row in seeds:
         if row["metric"] == "max_f1":
             per_cell.setdefault((row["environment"], row["method"]), set()).add(row["seed"])
-    expected_methods = {"L", "L-V", "L-T", "L-cycle", "H", "H-V", "H-T", "L-F", "H-F"} | ({"A"} if arm != "drop-out" else set())
+    expected_methods = ({"L", "L-V", "L-T", "L-cycle", "H", "H-V", "H-T", "L-F", "H-F"}
+                        | ({"A"} if arm != "drop-out" else set()))
     assert {env for env, _ in per_cell} == set(tables.ARMS[arm][2])
     assert {method for _, method in per_cell} == expected_methods
     assert all(s == {str(i) for i in range(8)} for s in per_cell.values()), {k: len(v) for k, v in per_cell.items()}
@@ -157,7 +162,7 @@ def test_the_primary_endpoint_is_l_minus_the_better_comparator_in_every_seed():
     assert (primary["key"], primary["world"], primary["direction"]) == ("touch/length=1", "alike-shapes", tables.Q2R)
     expected = [value[(s, "L")] - max(value[(s, "L-V")], value[(s, "L-F")]) for s in map(str, range(8))]
     assert primary["values"] == pytest.approx(expected, abs=1e-15)
-    for s, d in zip(map(str, range(8)), primary["values"]):
+    for s, d in zip(map(str, range(8)), primary["values"], strict=True):
         assert d <= value[(s, "L")] - value[(s, "L-V")] + 1e-15 and d <= value[(s, "L")] - value[(s, "L-F")] + 1e-15
     if all(value[(s, "L-F")] >= value[(s, "L-V")] for s in map(str, range(8))):
         diff = tables._difference("touch/length=1", "alike-shapes", tables.Q2R, "L", "L-F")
@@ -200,9 +205,10 @@ def test_seed_0s_gates_read_from_the_sweep_are_the_committed_difficulty_runs(arm
 def test_the_second_studys_decomposition_adds_up_in_every_cell():
     tables = tables_module()
     cells = tables.cells2()
-    assert len(cells) == 2 * (5 * 2 + 2 * 2 + 3)  # both directions: touch and drop-out at two matchings, faithful at one
+    # both directions: touch and drop-out at two matchings, faithful at one
+    assert len(cells) == 2 * (5 * 2 + 2 * 2 + 3)
     for key, world, direction in cells:
-        def mean(a: str, b: str) -> float:
+        def mean(a: str, b: str, key: str = key, world: str = world, direction: str = direction) -> float:
             return float(tables._difference(key, world, direction, a, b)["mean"])
         per_seed, stats, p = tables.interaction(key, world, direction)
         assert len(per_seed) == 8 and stats["mean"] == pytest.approx(mean("L", "L-V") - mean("H", "H-V"), abs=1e-12)

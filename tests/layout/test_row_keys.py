@@ -46,7 +46,8 @@ def spelled_keys(tree: ast.AST) -> list[tuple[int, str]]:
         if isinstance(node, ast.Subscript) and isinstance(node.slice, ast.Constant):
             target, key = node.value, node.slice.value
         elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
-              and node.func.attr in ("get", "pop", "setdefault") and node.args and isinstance(node.args[0], ast.Constant)):
+              and node.func.attr in ("get", "pop", "setdefault") and node.args
+              and isinstance(node.args[0], ast.Constant)):
             target, key = node.func.value, node.args[0].value
         if target is not None and key in ROW_KEYS and _row_name(target):
             found.append((node.lineno, key))

@@ -36,7 +36,8 @@ def test_every_public_name_is_documented():
     doc = (ROOT / "docs" / "API.md").read_text()
     missing = [name for name in vitaplace.__all__ if not re.search(rf"`(vitaplace\.)?{name}\b", doc)]
     assert not missing, missing
-    own = [getattr(vitaplace, name) for name in vitaplace.__all__ if getattr(getattr(vitaplace, name), "__module__", "") == "vitaplace"]
+    own = [getattr(vitaplace, name) for name in vitaplace.__all__
+           if getattr(getattr(vitaplace, name), "__module__", "") == "vitaplace"]
     undocumented = [f.__name__ for f in own if not f.__doc__]
     assert len(own) == 7  # extractors, fit_extractor, load_scenario, read_results, run, simulate, unguarded_script
     assert not undocumented, undocumented
@@ -142,38 +143,44 @@ BAD_CALLS = {
                                 r"^quickstrat: no such scenario file \(shipped scenarios: .*paper, .*quickstart.*; "
                                 r"did you mean 'quickstart'\?\)$"),
         "a misspelt scenario key": (lambda: vitaplace.load_scenario("quickstart", {"scoring.tua": 0.3}),
-                                    r"quickstart\.yaml: scoring\.tua: unknown key; did you mean 'tau'\? \(valid keys: .*\)$"),
+                                    r"quickstart\.yaml: scoring\.tua: unknown key; "
+                                    r"did you mean 'tau'\? \(valid keys: .*\)$"),
         "a misspelt run kind": (lambda: vitaplace.load_scenario("quickstart", {"train.run.kind": "foragin"}),
-                                r"quickstart\.yaml: train\.run\.kind: expected one of foraging, teleop, stations, route, "
-                                r"orbit, got 'foragin'; did you mean 'foraging'\?$"),
+                                r"quickstart\.yaml: train\.run\.kind: expected one of foraging, teleop, stations, "
+                                r"route, orbit, got 'foragin'; did you mean 'foraging'\?$"),
         "a misspelt plugin parameter": (lambda: vitaplace.load_scenario("quickstart", {"methods.0.params.epoch": 3}),
-                                        r"quickstart\.yaml: methods\.0\.params: extractor 'mupnet': epoch: unknown key; "
-                                        r"did you mean 'epochs'\? \(valid keys: .*\bepochs\b.*\)$"),
+                                        r"quickstart\.yaml: methods\.0\.params: extractor 'mupnet': epoch: "
+                                        r"unknown key; did you mean 'epochs'\? \(valid keys: .*\bepochs\b.*\)$"),
         "a misspelt plugin": (lambda: vitaplace.load_scenario("quickstart", {"methods.0.plugin": "mupent"}),
-                              r"methods\.0\.plugin: unknown feature extractor 'mupent'; available: .*; did you mean 'mupnet'\?$"),
+                              r"methods\.0\.plugin: unknown feature extractor 'mupent'; available: .*; "
+                              r"did you mean 'mupnet'\?$"),
         "a misspelt world": (lambda: vitaplace.load_scenario("quickstart", {"train.environment": "e22"}),
                              r"train\.environment: no such file .*e22.* \(shipped environments: .*\be1\b.*\be3\b.*; "
                              r"did you mean 'e2'\?\)$"),
         "a misspelt keyword": (lambda: vitaplace.load_scenario("quickstart", overides={}),
-                               r"^vitaplace\.load_scenario\(\): unknown argument 'overides'; did you mean 'overrides'\? "
-                               r"\(its arguments: scenario, overrides\)$"),
+                               r"^vitaplace\.load_scenario\(\): unknown argument 'overides'; "
+                               r"did you mean 'overrides'\? \(its arguments: scenario, overrides\)$"),
     },
     "run": {
         "overrides a list of numbers": (lambda: vitaplace.run("quickstart", [1, 2]), r"overrides: \[1, 2\]: expected"),
-        "workers as text": (lambda: vitaplace.run("quickstart", workers="2"), r"workers='2': expected a whole number >= 1"),
+        "workers as text": (lambda: vitaplace.run("quickstart", workers="2"),
+                            r"workers='2': expected a whole number >= 1"),
         "no workers": (lambda: vitaplace.run("quickstart", workers=0), r"workers=0: expected a whole number >= 1"),
-        "run's scenario no path": (lambda: vitaplace.run(["quickstart"]), r"scenario=\['quickstart'\]: expected a path"),
+        "run's scenario no path": (lambda: vitaplace.run(["quickstart"]),
+                                   r"scenario=\['quickstart'\]: expected a path"),
         "a misspelt until": (lambda: vitaplace.run("quickstart", until="evalute"),
                              r"^until='evalute': expected one of simulate, fit, transform, evaluate, report; "
                              r"did you mean 'evaluate'\?$"),
         "a misspelt stage to force": (lambda: vitaplace.run("quickstart", force=["fit", "simlate"]),
-                                      r"^force=\['fit', 'simlate'\]: 'simlate' is not a stage; expected some of simulate, "
-                                      r"fit, transform, evaluate, report; did you mean 'simulate'\?$"),
+                                      r"^force=\['fit', 'simlate'\]: 'simlate' is not a stage; "
+                                      r"expected some of simulate, fit, transform, evaluate, report; "
+                                      r"did you mean 'simulate'\?$"),
         "force a number": (lambda: vitaplace.run("quickstart", force=3), r"^force=3: expected stage names"),
-        "progress as text": (lambda: vitaplace.run("quickstart", progress="yes"), r"^progress='yes': expected True or False$"),
+        "progress as text": (lambda: vitaplace.run("quickstart", progress="yes"),
+                             r"^progress='yes': expected True or False$"),
         "a misspelt keyword": (lambda: vitaplace.run("quickstart", unitl="evaluate"),
-                               r"^vitaplace\.run\(\): unknown argument 'unitl'; did you mean 'until'\? \(its arguments: "
-                               r"scenario, overrides, out, until, force, progress, workers\)$"),
+                               r"^vitaplace\.run\(\): unknown argument 'unitl'; did you mean 'until'\? "
+                               r"\(its arguments: scenario, overrides, out, until, force, progress, workers\)$"),
         "no scenario": (lambda: vitaplace.run(), r"^vitaplace\.run\(\): missing a required argument: 'scenario'"),
     },
     "read_results": {
@@ -183,13 +190,16 @@ BAD_CALLS = {
     },
     "simulate": {
         "an unknown kind": (lambda: vitaplace.simulate("e1", kind="teleport"),
-                            r"^kind='teleport': expected one of foraging, teleop, stations, route, orbit; did you mean 'teleop'\?$"),
+                            r"^kind='teleport': expected one of foraging, teleop, stations, route, orbit; "
+                            r"did you mean 'teleop'\?$"),
         "no samples": (lambda: vitaplace.simulate("e1", n_samples=0), r"^n_samples=0: expected a whole number >= 1$"),
-        "samples as text": (lambda: vitaplace.simulate("e1", n_samples="many"), r"^n_samples='many': expected a whole number >= 1$"),
+        "samples as text": (lambda: vitaplace.simulate("e1", n_samples="many"),
+                            r"^n_samples='many': expected a whole number >= 1$"),
         "an unknown run setting": (lambda: vitaplace.simulate("e1", wobble=3),
                                    r"^vitaplace\.simulate\(\): wobble: unknown key \(valid keys: .*\bspeed\b.*\)$"),
         "a misspelt run setting": (lambda: vitaplace.simulate("e1", kind="route", lateral_nosie=0.1),
-                                   r"^vitaplace\.simulate\(\): lateral_nosie: unknown key; did you mean 'lateral_noise'\?"),
+                                   r"^vitaplace\.simulate\(\): lateral_nosie: unknown key; "
+                                   r"did you mean 'lateral_noise'\?"),
         "a negative seed": (lambda: vitaplace.simulate("e1", seed=-1), r"seed=-1: expected a whole number >= 0"),
         "an environment that is no path": (lambda: vitaplace.simulate(3), r"environment=3: expected a path"),
         "an unknown world": (lambda: vitaplace.simulate("e9", n_samples=2),
@@ -198,21 +208,25 @@ BAD_CALLS = {
                              r"^e2x: no such environment file \(shipped environments: .*; did you mean 'e2'\?\)$"),
         "progress as a number": (lambda: vitaplace.simulate("e1", progress=2), r"^progress=2: expected True or False$"),
         "too many arguments": (lambda: vitaplace.simulate("e1", "route", 3, 0, False, 7),
-                               r"^vitaplace\.simulate\(\): too many positional arguments \(its arguments: environment, kind, "
-                               r"n_samples, seed, progress, \*\*run_settings\)$"),
+                               r"^vitaplace\.simulate\(\): too many positional arguments \(its arguments: environment, "
+                               r"kind, n_samples, seed, progress, \*\*run_settings\)$"),
     },
     "extractors": {
         "an argument": (lambda: vitaplace.extractors("mupnet"),
                         r"^vitaplace\.extractors\(\): too many positional arguments \(its arguments: none\)$"),
     },
     "fit_extractor": {
-        "fit on a path": (lambda: vitaplace.fit_extractor("handcrafted", "runs/train.h5"), r"train='runs/train\.h5': expected a Run"),
-        "a plugin that is no name": (lambda: vitaplace.fit_extractor(3, None), r"^plugin=3: expected the name of an extractor, one of .*handcrafted"),
+        "fit on a path": (lambda: vitaplace.fit_extractor("handcrafted", "runs/train.h5"),
+                          r"train='runs/train\.h5': expected a Run"),
+        "a plugin that is no name": (lambda: vitaplace.fit_extractor(3, None),
+                                     r"^plugin=3: expected the name of an extractor, one of .*handcrafted"),
         "a misspelt plugin": (lambda: vitaplace.fit_extractor("handcraftd", _tiny_run()),
                               r"^unknown feature extractor 'handcraftd'; available: .*; did you mean 'handcrafted'\?$"),
         "a misspelt plugin parameter": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), {"gird": [4, 8]}),
-                                        r"^extractor 'handcrafted': gird: unknown key; did you mean 'grid'\? \(valid keys: .*\bgrid\b.*\)$"),
-        "params a list": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), [4, 8]), r"^params=\[4, 8\]: expected a mapping"),
+                                        r"^extractor 'handcrafted': gird: unknown key; "
+                                        r"did you mean 'grid'\? \(valid keys: .*\bgrid\b.*\)$"),
+        "params a list": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), [4, 8]),
+                          r"^params=\[4, 8\]: expected a mapping"),
         "a misspelt keyword": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), progres=True),
                                r"^vitaplace\.fit_extractor\(\): unknown argument 'progres'; did you mean 'progress'\?"),
     },
@@ -280,7 +294,8 @@ def test_the_documented_example_runs_as_written(tmp_path):
 def _detect(tmp_path: Path, body: str) -> str:
     """What `unguarded_script` says when called as ``body`` places it."""
     script = tmp_path / "probe.py"
-    script.write_text("import vitaplace\n\ndef where():\n    return vitaplace.unguarded_script()\n\n" + textwrap.dedent(body))
+    script.write_text("import vitaplace\n\ndef where():\n    return vitaplace.unguarded_script()\n\n"
+                      + textwrap.dedent(body))
     result = _python(script, tmp_path)
     assert result.returncode == 0, result.stderr
     return result.stdout.strip()

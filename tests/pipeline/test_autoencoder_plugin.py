@@ -142,7 +142,8 @@ def test_training_stops_once_converged(autoencoder_class):
 
 
 @pytest.mark.parametrize("params, key", [
-    ({"encoder": "transposed"}, "encoder"), ({"optimizer": "lbfgs"}, "optimizer"), ({"learning_rate": 0}, "learning_rate"),
+    ({"encoder": "transposed"}, "encoder"), ({"optimizer": "lbfgs"}, "optimizer"),
+    ({"learning_rate": 0}, "learning_rate"),
     ({"max_steps": 10}, "max_steps"), ({"tactile_input": "sweep"}, "tactile_input"),
 ])
 def test_params_errors_name_extractor_and_key(autoencoder_class, params, key):
@@ -165,7 +166,8 @@ def test_the_test_runs_tactile_values_outside_the_training_range_are_reported(au
     train_run = places_run(1)
     xy = train_run.xy.copy()
     xy[[0, 3], 5, 0] += 1.0
-    test_run = Run.from_arrays(images=train_run.images, theta=train_run.theta, xy=xy, poses=train_run.poses, name="test")
+    test_run = Run.from_arrays(images=train_run.images, theta=train_run.theta, xy=xy, poses=train_run.poses,
+                               name="test")
     extractor = autoencoder_class({**PARAMS, "epochs": 1})
     extractor.progress = False
     extractor.fit(train_run)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+
 from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -70,7 +71,8 @@ def setup(tmp_path):
 def run(scenario: Path, out: Path, env: dict, *extra: str, order: str = "") -> tuple[float, dict[str, str]]:
     """`vitaplace evaluate` in a fresh process: (max F1, stage -> statuses of its items)."""
     result = subprocess.run(
-        [sys.executable, "-m", "vitaplace.engine.cli.main", "evaluate", str(scenario), "--out", str(out), "--no-progress",
+        [sys.executable, "-m", "vitaplace.engine.cli.main", "evaluate", str(scenario), "--out", str(out),
+         "--no-progress",
          *extra], capture_output=True, text=True, timeout=600, env={**env, "ORACLE_ORDER": order},
     )
     assert result.returncode == 0, result.stderr[-2000:]
@@ -93,7 +95,8 @@ def test_an_edited_plugin_is_not_served_from_the_cache(setup):
     assert stages == {"simulate": "cached", "fit": "ran", "transform": "ran", "evaluate": "ran"}
     plugin.write_text(PLUGIN)  # back to the first code: its cached model and features serve again
     again, stages = run(scenario, out, env)
-    assert again == first and stages == {"simulate": "cached", "fit": "cached", "transform": "cached", "evaluate": "ran"}
+    assert again == first and stages == {"simulate": "cached", "fit": "cached", "transform": "cached",
+                                         "evaluate": "ran"}
 
 
 def test_force_reaches_every_stage_whose_input_changed(setup):

@@ -11,12 +11,11 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from test_cli import TINY  # noqa: E402
+
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.data.dataset import dropout_masks  # noqa: E402
 from vitaplace.engine.extension.features import load_features  # noqa: E402
-
-from test_cli import TINY  # noqa: E402
-
 
 #: vision alone: a query without its camera shares no term with any reference (distance +inf)
 VISION_ONLY = "methods+={name: H-V, plugin: handcrafted, params: {use_tactile: false}}"
@@ -53,6 +52,7 @@ def test_a_query_drop_out_is_drawn_recorded_used_and_keyed(tmp_path):
 
     again = run(out, "{camera: 0.5}")
     status = {(r["stage"], r["item"]): r["status"] for r in again["stages"]}
-    assert status[("simulate", "E1/query")] == status[("fit", "L")] == status[("transform", "L E1/reference")] == "cached"
+    assert (status[("simulate", "E1/query")] == status[("fit", "L")] == status[("transform", "L E1/reference")]
+            == "cached")
     assert status[("transform", "L E1/query")] == status[("transform", "H E1/query")] == "ran"
     assert len(again["dropout"]["E1/query"]["camera"]) == 5 and again["dropout"]["E1/query"]["whiskers"] == []

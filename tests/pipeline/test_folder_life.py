@@ -27,10 +27,11 @@ from pathlib import Path
 
 import pytest
 import yaml
-from conftest import install_plugin
 from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, invariant, precondition, rule
+
+from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -187,7 +188,8 @@ class FolderLife(RuleBasedStateMachine):
     @rule(stage=st.sampled_from(STAGES))
     def command_force(self, stage: str) -> None:
         before = self.completion_mark()
-        status, err = cli("evaluate", str(self.work / "s.yaml"), "--out", str(self.out), "--no-progress", "--force", stage)
+        status, err = cli("evaluate", str(self.work / "s.yaml"), "--out", str(self.out), "--no-progress", "--force",
+                          stage)
         assert status == 0 or refused_in_one_line(status, err), err[-2000:]
         self.after_run(before, self.code)
         if status == 0:
@@ -198,7 +200,8 @@ class FolderLife(RuleBasedStateMachine):
         before = self.completion_mark()
         env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(self.site), os.environ.get("PYTHONPATH", "")]),
                "PYTHONDONTWRITEBYTECODE": "1"}
-        process = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli.main", "evaluate", str(self.work / "s.yaml"),
+        process = subprocess.Popen([sys.executable, "-m", "vitaplace.engine.cli.main", "evaluate",
+                                    str(self.work / "s.yaml"),
                                     "--out", str(self.out), "-q", "--no-progress"], env=env,
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         try:

@@ -76,13 +76,13 @@ def matrices(run: Path, env: str, method: str, direction: str) -> dict[str, np.n
 
 def test_the_weight_is_chosen_on_the_training_world_and_applied_unchanged(fused_run):
     rows = [r for r in json.loads((fused_run / "results.json").read_text()) if r["method"] == "H-F"]
-    assert {(r["environment"], r["direction"]) for r in rows} == {(e, d) for e in ("E1", "E2")
-                                                                   for d in ("query-to-reference", "reference-to-query")}
+    assert {(r["environment"], r["direction"]) for r in rows} == {
+        (e, d) for e in ("E1", "E2") for d in ("query-to-reference", "reference-to-query")}
     for direction in ("query-to-reference", "reference-to-query"):
         e1 = {m: matrices(fused_run, "E1", m, direction) for m in ("H-V", "H-T")}
         gtm = ground_truth_matrix(e1["H-V"]["query_poses"], e1["H-V"]["reference_poses"], 30.0)
         w, sv, st, _ = choose_weight(e1["H-V"]["tme"], e1["H-T"]["tme"], [0, 0.3, 1, 3],
-                                     lambda d: pr_curve(d, gtm, 0.3).max_f1)
+                                     lambda d, gtm=gtm: pr_curve(d, gtm, 0.3).max_f1)
         for env in ("E1", "E2"):
             (row,) = [r for r in rows if r["environment"] == env and r["direction"] == direction]
             assert row["fusion"]["weight"] == w and row["fusion"]["sigma_vision"] == pytest.approx(sv)
@@ -145,7 +145,8 @@ def test_the_weight_is_chosen_on_the_selection_evaluation_alone(tmp_path):
     saved.save("E2", V=WRONG, T=RIGHT)
     choice = chosen_weight(saved, saved.scenario, saved, fusion, "query-to-reference", "query")
     assert choice["weight"] == 0.0 and choice["selection_max_f1"] == 1.0
-    assert choice["sigma_vision"] == pytest.approx(np.sqrt(2) / 3) and choice["sigma_touch"] == pytest.approx(np.sqrt(2) / 3)
+    assert choice["sigma_vision"] == pytest.approx(np.sqrt(2) / 3)
+    assert choice["sigma_touch"] == pytest.approx(np.sqrt(2) / 3)
     assert chosen_weight(saved, saved.scenario, saved, fusion.model_copy(update={"select_on": "E2"}),
                          "query-to-reference", "query")["weight"] == 3.0
     # whatever E2's distances are, the weight and spreads chosen on E1 stay

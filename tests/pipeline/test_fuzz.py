@@ -33,11 +33,14 @@ scalars = st.one_of(
     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=40),
     st.sampled_from([math.inf, -math.inf, math.nan, 0, -1, 1e308, "", "..", "../x", "e1.yaml", "relu6"]),
 )
-values = st.recursive(scalars, lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
+values = st.recursive(scalars,
+                      lambda inner: st.lists(inner, max_size=4)
+                      | st.dictionaries(st.text(max_size=8), inner, max_size=4),
                       max_leaves=12)
 # a path into the valid scenario, and what to put there (or delete it)
 paths = st.lists(st.sampled_from(["name", "train", "run", "n_samples", "kind", "environment", "evaluations", 0,
-                                   "methods", 1, "params", "epochs", "image_size", "scoring", "evaluation", "tau", "delta",
+                                   "methods", 1, "params", "epochs", "image_size", "scoring", "evaluation", "tau",
+                                   "delta",
                                    "robot", "whisk_hz", "spring_stiffness", "seed", "extends", "plugin"]),
                  min_size=1, max_size=4)
 
@@ -63,7 +66,8 @@ def mutate(data: dict, path: list, value, delete: bool) -> dict:
     return out
 
 
-@settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", 60)), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", 60)), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(path=paths, value=values, delete=st.booleans())
 def test_any_mutated_scenario_gets_a_clean_answer(tmp_path, capsys, path, value, delete):
     scenario = tmp_path / "fuzz.yaml"
@@ -192,14 +196,15 @@ def _finished_folder(folder: Path, seed: int) -> None:
     and the completion record written last."""
     import json
 
-    from vitaplace.engine.outputs import completion
     from vitaplace.engine.evaluation.pairfiles import evaluate_pair
+    from vitaplace.engine.outputs import completion
 
     poses = np.stack([np.linspace(0, 2, 6), np.zeros(6), np.zeros(6)], axis=1)
     tme = np.abs(np.subtract.outer(np.arange(6.0), np.arange(6.0))) + 0.1 * seed
     evaluation = folder / "evaluations" / "E1" / "M" / "query-to-reference"
     summary = evaluate_pair(evaluation, tme, poses, poses, 0.3)
-    (folder / "scenario.resolved.yaml").write_text(yaml.safe_dump({"name": "fuzz", "seed": seed, "scoring": {"tau": 0.3}}))
+    (folder / "scenario.resolved.yaml").write_text(yaml.safe_dump({"name": "fuzz", "seed": seed,
+                                                                   "scoring": {"tau": 0.3}}))
     (folder / "manifest.json").write_text(json.dumps({"scenario": "fuzz", "seed": seed}))
     rows = [{"environment": "E1", "method": "M", "direction": "query-to-reference", **summary}]
     (folder / "results.json").write_text(json.dumps(rows))
@@ -209,16 +214,19 @@ def _finished_folder(folder: Path, seed: int) -> None:
 @settings(max_examples=int(os.environ.get("FUZZ_EXAMPLES", 60)), deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(file=st.sampled_from(["results.json", "manifest.json", "completed.json", "scenario.resolved.yaml"]),
-       key=st.sampled_from(["max_f1", "auc", "recall_at_k", "environment", "seed", "scenario", "files", "name", "n_queries"]),
+       key=st.sampled_from(["max_f1", "auc", "recall_at_k", "environment", "seed", "scenario", "files", "name",
+                            "n_queries"]),
        value=values, whole=st.booleans(), reseal=st.booleans())
 # found by this test: a row's own null seed overrode the folder's; a null recall_at_k
 @example(file="results.json", key="seed", value=None, whole=False, reseal=True)
 @example(file="results.json", key="recall_at_k", value=None, whole=False, reseal=True)
-@example(file="results.json", key="auc", value={"\r": False}, whole=False, reseal=True)  # a line break in a field's name
+# a line break in a field's name
+@example(file="results.json", key="auc", value={"\r": False}, whole=False, reseal=True)
 @example(file="results.json", key="n_queries", value=None, whole=False, reseal=True)  # sized the block bootstrap
 @example(file="results.json", key="recall_at_k", value={"": None}, whole=False, reseal=True)  # K not a number
 @example(file="results.json", key="recall_at_k", value=1, whole=False, reseal=True)  # not a mapping
-@example(file="results.json", key="max_f1", value=4.752060766250472e+161, whole=False, reseal=True)  # overflowed the bootstrap
+# overflowed the bootstrap
+@example(file="results.json", key="max_f1", value=4.752060766250472e+161, whole=False, reseal=True)
 def test_any_mutated_aggregate_folder_gets_a_clean_answer(capsys, file, key, value, whole, reseal):
     import json
 

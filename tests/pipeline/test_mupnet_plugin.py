@@ -185,7 +185,8 @@ def test_save_load_gives_identical_features(fitted, mupnet_class, runs, tmp_path
     for run in runs:
         np.testing.assert_array_equal(loaded.transform(run)["latent"], fitted.transform(run)["latent"])
     np.testing.assert_array_equal(
-        loaded.distance(loaded.transform(b), loaded.transform(a)), fitted.distance(fitted.transform(b), fitted.transform(a))
+        loaded.distance(loaded.transform(b), loaded.transform(a)),
+        fitted.distance(fitted.transform(b), fitted.transform(a))
     )
 
 
@@ -302,7 +303,8 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
     from vitaplace.plugins.mupnet.extractor import MupnetParams
 
     changed = {
-        "image_size": (tuple[int, int], (3, 4)), "visual_layers": (list[int], [7, 5]), "tactile_layers": (list[int], [6]),
+        "image_size": (tuple[int, int], (3, 4)), "visual_layers": (list[int], [7, 5]),
+        "tactile_layers": (list[int], [6]),
         "joint_size": (int, 9), "eta_y_visual": (float, 0.11), "eta_y_tactile": (float, 0.12),
         "eta_y_joint": (float, 0.13), "eta_w_visual": (float, 0.21), "eta_w_tactile": (float, 0.22),
         "eta_w_joint": (float, 0.23), "threshold_visual": (float, 0.31), "threshold_tactile": (float, 0.32),
@@ -349,7 +351,8 @@ def test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path(capsys, key, 
     assert main(["validate", "quickstart", "--set", f"methods.0.params.{key}={value}"]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1, lines
-    assert lines[0].startswith("vitaplace: error: ") and "quickstart.yaml: methods.0.params: extractor 'mupnet': " in lines[0]
+    assert lines[0].startswith("vitaplace: error: ")
+    assert "quickstart.yaml: methods.0.params: extractor 'mupnet': " in lines[0]
     assert f"{key}: {message}" in lines[0], lines[0]
 
 

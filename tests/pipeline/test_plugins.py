@@ -18,8 +18,8 @@ import numpy as np
 import pluggy
 import pytest
 
-from vitaplace.engine.extension import hookspecs
 from vitaplace.engine.data.dataset import Run
+from vitaplace.engine.extension import hookspecs
 from vitaplace.engine.extension.features import ExtractorParamsError, FeatureExtractor
 from vitaplace.engine.extension.registry import ONLY_ENV, PluginError, discover
 
@@ -157,7 +157,8 @@ def test_example_dist_info_is_found_by_real_entry_points(example_path, tmp_path,
     project = tomllib.loads((EXAMPLE_DIR / "pyproject.toml").read_text())["project"]
     dist_info = tmp_path / f"{project['name'].replace('-', '_')}-{project['version']}.dist-info"
     dist_info.mkdir()
-    (dist_info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {project['name']}\nVersion: {project['version']}\n")
+    (dist_info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {project['name']}\n"
+                                        f"Version: {project['version']}\n")
     lines = [f"[{GROUP}]"] + [f"{k} = {v}" for k, v in project["entry-points"][GROUP].items()]
     (dist_info / "entry_points.txt").write_text("\n".join(lines) + "\n")
     monkeypatch.syspath_prepend(str(tmp_path))
@@ -213,7 +214,8 @@ def test_same_module_under_two_entry_points_is_a_plugin_error(example_path):
 
 def test_plugin_failing_to_import_is_reported_and_skipped(example_path, plugin_dir, capsys):
     write_plugin(plugin_dir, "tmp_plugin_broken", "import a_dependency_that_is_not_installed_xyz\n")
-    eps = [ep("broken", "tmp_plugin_broken"), ep("example", "vitaplace_example_plugin"), ep("gone", "tmp_plugin_nowhere")]
+    eps = [ep("broken", "tmp_plugin_broken"), ep("example", "vitaplace_example_plugin"),
+           ep("gone", "tmp_plugin_nowhere")]
     registry = discover(eps=eps)
     err = capsys.readouterr().err
     assert "broken (tmp_plugin_broken)" in err and "a_dependency_that_is_not_installed_xyz" in err
@@ -268,7 +270,8 @@ def test_plugin_whose_hook_raises_is_skipped(example_path, plugin_dir, capsys):
 
 def test_env_var_restricts_which_plugins_load(example_path, plugin_dir, monkeypatch, capsys):
     write_plugin(plugin_dir, "tmp_plugin_broken2", "raise ImportError('must not even be imported')\n")
-    eps = [ep("mupnet", "vitaplace.plugins.mupnet"), ep("example", "vitaplace_example_plugin"), ep("b", "tmp_plugin_broken2")]
+    eps = [ep("mupnet", "vitaplace.plugins.mupnet"), ep("example", "vitaplace_example_plugin"),
+           ep("b", "tmp_plugin_broken2")]
     monkeypatch.setenv(ONLY_ENV, " example , mupnet")
     registry = discover(eps=eps)
     assert registry.names() == [EXAMPLE, "mupnet"]

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 import yaml
 
+from vitaplace.engine.data.dataset import Run, write_run
 from vitaplace.engine.evaluation import evaluate as ev
 from vitaplace.engine.report import figures
-from vitaplace.engine.data.dataset import Run, write_run
 
 
 @pytest.fixture
@@ -125,8 +125,7 @@ def _recorded(path: Path, n: int = 10, rng=None) -> Path:
 
 
 def test_inputs_name_recorded_files_and_features_that_carried_nothing(tmp_path):
-    from vitaplace.engine.data.dataset import open_run
-    from vitaplace.engine.data.dataset import run_facts
+    from vitaplace.engine.data.dataset import open_run, run_facts
     from vitaplace.engine.report.report import _inputs_section
 
     query = _recorded(tmp_path / "query.h5")
@@ -166,7 +165,8 @@ def _recorded_scenario(tmp_path: Path) -> tuple[Path, dict[str, Path]]:
     files = {name: _recorded(tmp_path / f"{name}.h5", 12, rng) for name in ("train", "query", "reference")}
     scenario = {
         "name": "recorded", "train": {"dataset": str(files["train"])},
-        "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]), "reference": str(files["reference"])}}],
+        "evaluations": [{"name": "E1",
+                         "datasets": {"query": str(files["query"]), "reference": str(files["reference"])}}],
         "methods": [{"name": "H", "plugin": "handcrafted", "params": {"grid": [4, 8]}}], "scoring": {"tau": 0.5},
     }
     path = tmp_path / "s.yaml"
@@ -230,7 +230,8 @@ def test_tracking_is_off_unless_asked_and_never_fails_a_run(tmp_path, monkeypatc
     monkeypatch.setenv("VITAPLACE_MLFLOW", "x")
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
     assert len(made) == 1
-    assert "plugin 'mlflow (vitaplace)': its run-finished hook raised ConnectionError: tracking server down" in caplog.text
+    assert ("plugin 'mlflow (vitaplace)': its run-finished hook raised ConnectionError: tracking server down"
+            in caplog.text)
     monkeypatch.setitem(sys.modules, "mlflow", None)  # not installed: import fails
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out"), "--no-progress"]) == 0
     assert 'VITAPLACE_MLFLOW=x but MLflow is not installed (pip install "vitaplace[mlflow]"): not logged' in caplog.text

@@ -7,9 +7,7 @@ the cases each describes.
 import hashlib
 import json
 
-from vitaplace.engine.outputs import checksum
-
-from vitaplace.engine.outputs import completion
+from vitaplace.engine.outputs import checksum, completion
 from vitaplace.engine.outputs.outdir import LOCK_NAME, remove_stale_temporaries
 
 

@@ -24,8 +24,7 @@ from vitaplace.engine.config.loading import load_scenario  # noqa: E402
 from vitaplace.engine.extension.registry import discover  # noqa: E402
 from vitaplace.engine.outputs import outdir  # noqa: E402
 from vitaplace.engine.pipeline import plan  # noqa: E402
-from vitaplace.engine.pipeline.keys import (evaluate_key, features_key, fit_key, fusion_key, recorded_key,  # noqa: E402
-                                            simulate_key)
+from vitaplace.engine.pipeline.keys import evaluate_key, features_key, fit_key, fusion_key, recorded_key, simulate_key  # noqa: E402
 from vitaplace.engine.pipeline.records import FeaturesFile, ModelFile, RunFile  # noqa: E402
 from vitaplace.engine.pipeline.stages.fuse import selection  # noqa: E402
 

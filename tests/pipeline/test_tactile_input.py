@@ -16,11 +16,14 @@ from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.extension.registry import discover
 from vitaplace.engine.outputs.keys import content_hash
-from vitaplace.engine.extension.registry import discover
 from vitaplace.engine.pipeline.plan import params_for
 from vitaplace.plugins.mupnet.extractor import MupnetParams
 from vitaplace.plugins.mupnet.inputs import (
-    TactileRange, contact_flags, cycle_series, report_out_of_range, tactile_values,
+    TactileRange,
+    contact_flags,
+    cycle_series,
+    report_out_of_range,
+    tactile_values,
 )
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -181,8 +184,10 @@ def test_the_cycle_input_reaches_the_network_and_out_of_range_tests_are_reported
 #: content_hash(plugin, the parameters the pipeline hands each method's plugin) of every method
 #: of every shipped scenario, recorded at commit 4d558a4, before `tactile_input` existed
 METHOD_PARAMS_KEYS = {
-    "coloured-cpu:L": "9daa2b704f00e44e", "coloured-cpu:L-V": "e3f7a74270751789", "coloured-cpu:L-T": "e4562015b8330d0f",
-    "coloured-cpu:H": "072f54dc05b75ad4", "coloured-cpu:H-V": "48ef700d0a2c666a", "coloured-cpu:H-T": "d7284dbdd1c8cde0",
+    "coloured-cpu:L": "9daa2b704f00e44e", "coloured-cpu:L-V": "e3f7a74270751789",
+    "coloured-cpu:L-T": "e4562015b8330d0f",
+    "coloured-cpu:H": "072f54dc05b75ad4", "coloured-cpu:H-V": "48ef700d0a2c666a",
+    "coloured-cpu:H-T": "d7284dbdd1c8cde0",
     "near-duplicate:L": "e85f49fa723cccd5", "near-duplicate:H": "072f54dc05b75ad4",
     "paper-cpu-physical:L": "9daa2b704f00e44e", "paper-cpu-physical:L-V": "e3f7a74270751789",
     "paper-cpu-physical:L-T": "e4562015b8330d0f", "paper-cpu-physical:H": "072f54dc05b75ad4",
@@ -223,4 +228,5 @@ def test_the_controls_scenario_holds_the_studys_six_methods_unchanged():
         scenario, _ = load_scenario(ROOT / "scenarios" / f"{name}.yaml")
         keys[name] = [(m.name, content_hash(m.plugin, params_for(scenario, discover(), m))) for m in scenario.methods]
     assert keys["paper-cpu-controls"][:6] == keys["paper-cpu"]
-    assert [name for name, _ in keys["paper-cpu-controls"][6:]] == ["L-cycle", "L-T-cycle", "A", "A-V", "A-T", "A-cycle"]
+    assert [name for name, _ in keys["paper-cpu-controls"][6:]] == ["L-cycle", "L-T-cycle", "A", "A-V", "A-T",
+                                                                    "A-cycle"]

@@ -8,8 +8,8 @@ import sys
 import pytest
 import yaml
 
-from vitaplace.engine.base import cpus
 import vitaplace.engine.cli.sweep as sweep
+from vitaplace.engine.base import cpus
 from vitaplace.engine.base.errors import UserError
 
 

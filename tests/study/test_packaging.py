@@ -25,7 +25,8 @@ def _release(version: str) -> tuple[int, ...]:
 #: extras the minimum-versions run cannot install, and why
 UNTESTED_EXTRAS = {
     "tensorcores": "CUDA libraries, for a GPU machine; CI has none",
-    "mlflow": "~20 more distributions; CI's third step installs the newest into the first venv and runs tests/study/test_mlflow.py",
+    "mlflow": "~20 more distributions; CI's third step installs the newest into the first venv and runs "
+              "tests/study/test_mlflow.py",
 }
 
 

@@ -37,4 +37,5 @@ def test_a_seed_redraws_the_training_run_both_drives_and_each_network():
     learned = [m for m in first.methods if m.plugin == "mupnet"]
     inits = [plan.params_for(first, registry, m)["seed"] for m in learned]
     assert len(set(inits)) == len(inits)
-    assert all(plan.params_for(first, registry, m)["seed"] != plan.params_for(second, registry, m)["seed"] for m in learned)
+    assert all(plan.params_for(first, registry, m)["seed"] != plan.params_for(second, registry, m)["seed"]
+               for m in learned)
