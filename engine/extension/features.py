@@ -149,6 +149,10 @@ def warn_once(run: Run, feature: str, message: str) -> None:
     logging.getLogger("vitaplace").warning(message)
 
 
+#: the share of a channel's evaluation values inside its training range under which the facts count it
+IN_RANGE_SHARE = 0.99
+
+
 def feature_facts(features: Features) -> dict[str, Any]:
     """What the manifest (``features``) and the report say about one method's features of one run:
     its feature arrays (float, one row of at least one column per sample), those that are
@@ -156,7 +160,11 @@ def feature_facts(features: Features) -> dict[str, Any]:
     ``inference_stopped``: under the thresholds; ``inference_settled``: a stopping rule ended
     it, the same as stopped where absent), the step counts' median, 90th percentile and
     largest value, the samples under the thresholds, those that hit the step cap (not
-    settled) and the number of samples."""
+    settled) and the number of samples; and, for features that measure the tactile input
+    against its training range (``tactile_inside``: (N, C) bool per value; ``tactile_beyond``:
+    (N,) the farthest excess beyond [0, 1] in scaled units, NaN where the sample was not
+    measured), the values measured and inside, the channels, the lowest channel's share inside,
+    the channels under `IN_RANGE_SHARE` and the largest excess."""
     arrays = sorted(k for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2)
     facts: dict[str, Any] = {"arrays": arrays, "zero": [k for k in arrays if not features[k].any()]}
     if "inference_steps" in features and "inference_stopped" in features:
@@ -165,4 +173,15 @@ def feature_facts(features: Features) -> dict[str, Any]:
         facts["inference"] = {"median": float(np.median(steps)), "p90": float(np.percentile(steps, 90)),
                               "max": steps.max().item(), "stopped": int(stopped.sum()),
                               "capped": int((~settled).sum()), "samples": int(stopped.size)}
+    if "tactile_inside" in features and "tactile_beyond" in features:
+        beyond = np.asarray(features["tactile_beyond"], np.float64)
+        measured = ~np.isnan(beyond)
+        inside = features["tactile_inside"].astype(bool)[measured]
+        per_channel = inside.mean(axis=0) if len(inside) else np.ones(inside.shape[1])
+        facts["tactile_range"] = {
+            "values": int(inside.size), "inside": int(inside.sum()), "channels": int(inside.shape[1]),
+            "channel_min": float(per_channel.min(initial=1.0)),
+            "channels_under": int((per_channel < IN_RANGE_SHARE).sum()),
+            "beyond": float(beyond[measured].max(initial=0.0)), "samples": int(measured.sum()),
+        }
     return facts

@@ -22,6 +22,7 @@ from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
+from vitaplace.engine.extension.features import IN_RANGE_SHARE
 from vitaplace.engine.outputs import completion
 from vitaplace.engine.outputs.checksum import digest
 from vitaplace.engine.outputs.outdir import (
@@ -360,6 +361,42 @@ def _inference_section(manifest: dict[str, Any]) -> list[str]:
     ]
 
 
+def tactile_range_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
+    """Markdown table, per method and evaluation run whose features measure the tactile input
+    against its training range (`feature_facts`' ``tactile_range``): the share of its values
+    (samples x channels) inside the range, the lowest channel's share, the channels under
+    `IN_RANGE_SHARE` and the largest excess beyond [0, 1] in scaled units."""
+    lines = [
+        f"| {method} | {label} | {_percent(r['inside'], r['values']) if r['values'] else '-'} | "
+        f"{100 * r['channel_min']:.1f} | {r['channels_under']} of {r['channels']} | {r['beyond']:.3g} |"
+        for method, by_run in features.items() for label, facts in by_run.items() if (r := facts.get("tactile_range"))
+    ]
+    if not lines:
+        return ""
+    under = f"{100 * IN_RANGE_SHARE:g} %"
+    return "\n".join([f"| method | run | % of values in range | lowest channel % | channels under {under} | "
+                      "largest excess (scaled units) |", "|---|---|---|---|---|---|", *lines])
+
+
+def _tactile_range_section(manifest: dict[str, Any]) -> list[str]:
+    table = tactile_range_table(manifest["features"])
+    if not table:
+        return []
+    return [
+        "## Tactile inputs inside the training range",
+        "",
+        "Each tactile channel is scaled on the training run (`tactile_scaling`). Per method and evaluation run: "
+        "the share of the run's tactile values (samples x channels, samples without whiskers left out) inside "
+        "their channel's range on the training run, the lowest channel's share, the channels with less than "
+        f"{100 * IN_RANGE_SHARE:g} % inside, and how far the farthest value lies beyond [0, 1] in min-max scaled "
+        "units (the channel's training range, floored by `tactile_min_range`, is 1). Under `tactile_scaling: clip` "
+        "such values are fed saturated at 0 or 1; otherwise as they are.",
+        "",
+        table,
+        "",
+    ]
+
+
 def _evaluation_sections(out: Path, rows: Sequence[ResultRow]) -> list[str]:
     """Per evaluation: its PR curves, and per method and direction its matrices with the
     decisions and its matches drawn over the trajectories (figures into OUT/figures)."""
@@ -509,6 +546,7 @@ def write_report(out: Path) -> None:
         *_dropout_section(rows),
         *_methods_section(manifest["methods"]),
         *_inference_section(manifest),
+        *_tactile_range_section(manifest),
         *_evaluation_sections(out, rows),
         *_training_section(out, list(manifest["methods"]), manifest["training"]),
         *_inputs_section(manifest),

@@ -26,7 +26,7 @@ from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run
 from vitaplace.plugins.autoencoder.model import Autoencoder, Encoder, OptimizerName, TrainingSettings, train
 from vitaplace.plugins.mupnet.extractor import ArchitectureParams
-from vitaplace.plugins.mupnet.inputs import TactileRange, raw_inputs, report_out_of_range
+from vitaplace.plugins.mupnet.inputs import TactileRange, range_measure, raw_inputs, report_out_of_range
 
 WEIGHTS_FILE = "weights.npz"
 
@@ -77,8 +77,7 @@ class AutoencoderExtractor(FeatureExtractor):
             scaled["visual"] = raw["visual"] * np.float32(1 / 255)
         if "tactile" in raw:
             assert self.tactile_range is not None  # fitted with the tactile input, or loaded
-            offset, scale = self.tactile_range.scaler()
-            scaled["tactile"] = (raw["tactile"] - offset) * scale
+            scaled["tactile"] = self.tactile_range.scale(raw["tactile"])  # tactile_scaling
         return scaled
 
     def fit(self, train_run: Run) -> None:
@@ -109,9 +108,11 @@ class AutoencoderExtractor(FeatureExtractor):
         if self.model is None:
             raise RuntimeError("autoencoder: fit() or load() before transform()")
         raw = raw_inputs(run, self.params)
-        if self.tactile_range is not None:
+        features = {"latent": self.model.encode(self._scaled(raw))}
+        if self.tactile_range is not None:  # the tactile values inside the training range (`range_measure`)
             report_out_of_range(run, raw["tactile"], self.tactile_range, self.params, self.name)
-        return {"latent": self.model.encode(self._scaled(raw))}
+            features |= range_measure(raw["tactile"], self.tactile_range, ~run.lacks("whiskers"))
+        return features
 
     def distance(self, query: Features, reference: Features) -> np.ndarray:
         return cdist(query["latent"], reference["latent"])

@@ -2,10 +2,11 @@
 
 ``fit`` scales the inputs (`vitaplace.plugins.mupnet.inputs`: images to [0, 1] after
 resampling to the network's image size, the tactile input chosen by ``tactile_input``
-min-max fitted on the training run), trains the network, and ``transform`` infers the joint
-latent of every sample with frozen weights (a progress bar over the samples unless
-``progress`` is off, then one log line: samples, step cap, seconds); tactile values outside
-the training range are reported once per run. Distance: L2.
+scaled by ``tactile_scaling`` fitted on the training run), trains the network, and
+``transform`` infers the joint latent of every sample with frozen weights (a progress bar
+over the samples unless ``progress`` is off, then one log line: samples, step cap, seconds);
+tactile values outside the training range are reported once per run and measured per sample
+(``tactile_inside``, ``tactile_beyond``: `inputs.range_measure`). Distance: L2.
 
 Missing modalities (`Run.lacks`: a query drop-out): a sample without the camera is inferred
 from its tactile input alone, one without the whiskers from its visual input alone - the
@@ -39,7 +40,7 @@ from vitaplace.engine.network.pc import LATENT_INIT, JointConfig, ModalityConfig
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.solver import Solver, SolverName, make_solver
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
-from vitaplace.plugins.mupnet.inputs import InputParams, TactileRange, raw_inputs, report_out_of_range
+from vitaplace.plugins.mupnet.inputs import InputParams, TactileRange, range_measure, raw_inputs, report_out_of_range
 
 log = logging.getLogger("vitaplace.mupnet")
 #: a test-time joint latent longer than this many times the longest training one has diverged
@@ -240,8 +241,15 @@ class MupnetExtractor(FeatureExtractor):
         return raw_inputs(run, self.params)
 
     def scaled_inputs(self, run: Run) -> dict[str, np.ndarray]:
+        return self._scaled(self.raw_inputs(run))
+
+    def _scaled(self, raw: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """``raw`` inputs as fed: the network's scalers, then the tactile range's `saturate`."""
         assert self.network is not None
-        return {m: self.network.scale_input(m, x) for m, x in self.raw_inputs(run).items()}
+        inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
+        if "tactile" in inputs and self.tactile_range is not None:
+            inputs["tactile"] = self.tactile_range.saturate(inputs["tactile"])
+        return inputs
 
     def fit(self, train: Run) -> None:
         p = self.params
@@ -252,7 +260,7 @@ class MupnetExtractor(FeatureExtractor):
         if "tactile" in raw:
             self.tactile_range = TactileRange.fit(raw["tactile"], p)
             self.network.set_scaler("tactile", *self.tactile_range.scaler())
-        inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
+        inputs = self._scaled(raw)
         training = p.training_config()
         minibatches = training.epochs * math.ceil(len(train) / training.batch_size)
         with tqdm(total=minibatches, desc="train", unit="batch", disable=not self.progress) as bar:
@@ -282,7 +290,7 @@ class MupnetExtractor(FeatureExtractor):
         raw = self.raw_inputs(run)
         if self.tactile_range is not None:
             report_out_of_range(run, raw["tactile"], self.tactile_range, self.params, self.name)
-        inputs = {m: self.network.scale_input(m, x) for m, x in raw.items()}
+        inputs = self._scaled(raw)
         start = time.perf_counter()
         with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress,
                   leave=False) as bar:
@@ -308,6 +316,8 @@ class MupnetExtractor(FeatureExtractor):
                     "inference_settled": settled}
         if run.missing:  # samples with none of the network's modalities (a query drop-out)
             features["uninformed"] = ~presence(run, self.params.modalities).any(axis=1)
+        if self.tactile_range is not None:  # the tactile values inside the training range (without whiskers: unfed)
+            features |= range_measure(raw["tactile"], self.tactile_range, ~run.lacks("whiskers"))
         return features
 
     def _infer(self, run: Run, inputs: dict[str, np.ndarray],

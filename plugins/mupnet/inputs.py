@@ -11,10 +11,19 @@
     samples (`contact_flags`), ``W (2 P + 1)`` values. Theta is left out: it is the
     commanded protraction, not a reading of the world.
 
-Each tactile channel is min-max scaled on the training run, ``(x - low) / max(high - low,
-floor)``, the floor ``tactile_min_range`` for measured channels and 1 for the contact flags
-(their own range). Test values outside a channel's training range are not clipped: they are
-counted and reported once per run (`report_out_of_range`).
+Each tactile channel is scaled on the training run by ``tactile_scaling``:
+
+* ``range`` (the paper's, the default): min-max, ``(x - low) / max(high - low, floor)``, the
+  floor ``tactile_min_range`` for measured channels and 1 for the contact flags (their own
+  range); not clipped;
+* ``clip``: the same, clipped to [0, 1]: values beyond the training range saturate;
+* ``robust``: ``(x - median) / max(IQR, tactile_min_range)`` of the training run (numpy's
+  default percentiles), not clipped; the contact flags keep their own 0/1 scale.
+
+Test values outside a channel's training range ``[low, high]`` are counted and reported once
+per run (`report_out_of_range`), and measured per sample (`range_measure`: which values lie
+inside it and how far the farthest lies beyond [0, 1] in the ``range`` scaling, whatever the
+method's scaling), for the manifest's and the report's facts (`feature_facts`).
 """
 
 from __future__ import annotations
@@ -35,6 +44,7 @@ from vitaplace.plugin import ExtractorParams, Run, warn_once
 
 Modality = Literal["visual", "tactile"]
 TactileInput = Literal["instant", "cycle"]
+TactileScaling = Literal["range", "clip", "robust"]
 #: the file a fitted extractor keeps its tactile channels' training range in
 RANGE_FILE = "tactile_range.json"
 
@@ -66,6 +76,12 @@ class InputParams(ExtractorParams):
         0.05,
         description="floor on each tactile channel's min-max range before scaling (theta and xy units): a channel "
         "that barely moved in training is not blown up to unit range",
+    )
+    tactile_scaling: TactileScaling = Field(
+        "range", description="how each tactile channel is scaled from the training run: range: (x - min) / "
+        "max(max - min, tactile_min_range), not clipped (the paper's); clip: the same clipped to [0, 1], so values "
+        "beyond the training range saturate; robust: (x - median) / max(IQR, tactile_min_range), not clipped (the "
+        "cycle input's contact flags keep their 0/1 scale; docs/MUPNET.md)",
     )
 
     @pydantic.field_validator("modalities")
@@ -142,51 +158,113 @@ def raw_inputs(run: Run, params: InputParams) -> dict[str, np.ndarray]:
     return inputs
 
 
+def _inverse(span: np.ndarray) -> np.ndarray:
+    """1 / span, 0 where the span is 0 (a flat channel with no floor)."""
+    return np.where(span > 0, 1 / np.where(span > 0, span, 1), 0).astype(np.float32)
+
+
 @dataclass
 class TactileRange:
-    """Each tactile channel's range on the training run and the floor of its scaling span."""
+    """Each tactile channel's range on the training run and the floor of its scaling span, and
+    how the channels are scaled (`InputParams.tactile_scaling`; ``robust``: each channel's
+    median ``center`` and floored IQR ``spread``, 0 and 1 for the contact flags)."""
 
     low: np.ndarray
     high: np.ndarray
     floor: np.ndarray
+    scaling: TactileScaling = "range"
+    center: np.ndarray | None = None
+    spread: np.ndarray | None = None
 
     @classmethod
     def fit(cls, values: np.ndarray, params: InputParams) -> TactileRange:
-        """The range of (N, C) training ``values``; floors per `InputParams.tactile_input`."""
+        """The range of (N, C) training ``values``; floors per `InputParams.tactile_input`;
+        the median and IQR too for ``tactile_scaling`` robust."""
         floor = np.full(values.shape[1], params.tactile_min_range, np.float32)
+        flags = np.zeros(values.shape[1], bool)
         if params.tactile_input == "cycle":
-            floor[-(values.shape[1] // (2 * params.cycle_points + 1)):] = 1.0  # the contact flags
-        return cls(values.min(axis=0), values.max(axis=0), floor)
+            flags[-(values.shape[1] // (2 * params.cycle_points + 1)):] = True  # the last W channels
+            floor[flags] = 1.0  # the contact flags
+        fitted = cls(values.min(axis=0), values.max(axis=0), floor, params.tactile_scaling)
+        if params.tactile_scaling == "robust":
+            q1, median, q3 = np.percentile(values, [25, 50, 75], axis=0)
+            fitted.center = np.where(flags, 0, median).astype(np.float32)
+            fitted.spread = np.where(flags, 1, np.maximum(q3 - q1, floor)).astype(np.float32)
+        return fitted
+
+    def range_scaler(self) -> tuple[np.ndarray, np.ndarray]:
+        """(offset, scale) of the ``range`` scaling: the training range to [0, 1] (its span floored)."""
+        return self.low, _inverse(np.maximum(self.high - self.low, self.floor))
 
     def scaler(self) -> tuple[np.ndarray, np.ndarray]:
-        """(offset, scale): channels are fed as ``(x - offset) * scale``."""
-        span = np.maximum(self.high - self.low, self.floor)
-        return self.low, np.where(span > 0, 1 / np.where(span > 0, span, 1), 0).astype(np.float32)
+        """(offset, scale): channels are fed as ``(x - offset) * scale`` (then `saturate`)."""
+        if self.scaling == "robust":
+            assert self.center is not None and self.spread is not None  # fitted or loaded with them
+            return self.center, _inverse(self.spread)
+        return self.range_scaler()
+
+    def saturate(self, scaled: np.ndarray) -> np.ndarray:
+        """``scaled`` values as fed: clipped to [0, 1] for ``clip``, else unchanged (the same array)."""
+        return np.clip(scaled, 0, 1) if self.scaling == "clip" else scaled
+
+    def scale(self, values: np.ndarray) -> np.ndarray:
+        """(N, C) tactile ``values`` as fed to the network: `scaler`, then `saturate`."""
+        offset, scale = self.scaler()
+        return self.saturate((values - offset) * scale)
 
     def outside(self, values: np.ndarray) -> np.ndarray:
         """(N, C) bool: values outside their channel's training range."""
         return (values < self.low) | (values > self.high)
 
     def save(self, directory: Path) -> None:
-        data = {"low": self.low.tolist(), "high": self.high.tolist(), "floor": self.floor.tolist()}
+        data: dict[str, object] = {"low": self.low.tolist(), "high": self.high.tolist(), "floor": self.floor.tolist(),
+                                   "scaling": self.scaling}
+        if self.center is not None and self.spread is not None:
+            data |= {"center": self.center.tolist(), "spread": self.spread.tolist()}
         write_text_atomic(directory / RANGE_FILE, json.dumps(data))
 
     @classmethod
     def load(cls, directory: Path) -> TactileRange:
+        """The range `save` wrote; a file from before ``tactile_scaling`` (no ``scaling``) means ``range``."""
         data = json.loads((directory / RANGE_FILE).read_text())
-        return cls(*(np.asarray(data[key], np.float32) for key in ("low", "high", "floor")))
+        low, high, floor = (np.asarray(data[key], np.float32) for key in ("low", "high", "floor"))
+        center, spread = (np.asarray(data[key], np.float32) if key in data else None for key in ("center", "spread"))
+        return cls(low, high, floor, scaling=data.get("scaling", "range"), center=center, spread=spread)
+
+
+def range_measure(values: np.ndarray, fitted: TactileRange,
+                  measured: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Per-sample arrays on how (N, C) tactile ``values`` sit in the training range, for the
+    features (`feature_facts` sums them up): ``tactile_inside`` (N, C) bool, each value inside
+    its channel's training range ``[low, high]``; ``tactile_beyond`` (N,) float32, how far the
+    sample's farthest value lies beyond [0, 1] in the ``range`` scaling (`range_scaler`, units
+    of the channel's floored training span, whatever ``tactile_scaling`` feeds; 0 when none
+    does). Samples not ``measured`` (e.g. without the whiskers: not fed) are inside, at NaN."""
+    offset, scale = fitted.range_scaler()
+    scaled = (values - offset) * scale
+    beyond = np.maximum(scaled - 1, 0 - scaled).max(axis=1, initial=0).astype(np.float32)  # 0 - x: never -0
+    inside = ~fitted.outside(values)
+    if measured is not None:
+        inside[~measured] = True
+        beyond[~measured] = np.nan
+    return {"tactile_inside": inside, "tactile_beyond": beyond}
+
+
+#: what `report_out_of_range` says of the values outside the training range, per tactile_scaling
+CLIPPED = {"range": "they are not clipped", "clip": "they are clipped to [0, 1] (tactile_scaling clip: beyond the "
+           "training range they saturate)", "robust": "they are not clipped (tactile_scaling robust: median and IQR "
+           "scaling; the excess is in units of the training range)"}
 
 
 def report_out_of_range(run: Run, values: np.ndarray, fitted: TactileRange, params: InputParams, who: str) -> None:
     """Warn once per run (`warn_once`: log, manifest, report) when some of ``run``'s tactile
     ``values`` lie outside the training range: how many samples (and touched samples), values
-    and channels, and how far beyond it in scaled units. Nothing is clipped."""
+    and channels, how far beyond [0, 1] the farthest lies in the ``range`` scaling
+    (`range_measure`), and whether they are clipped (``tactile_scaling`` clip) or not."""
     outside = fitted.outside(values)
     if not outside.any():
         return
-    offset, scale = fitted.scaler()
-    scaled = (values - offset) * scale
-    beyond = float(np.maximum(scaled - 1, -scaled)[outside].max())
+    beyond = float(range_measure(values, fitted)["tactile_beyond"].max())
     rows = outside.any(axis=1)
     touch = touched(run, params)
     kind = "instant" if params.tactile_input == "instant" else f"cycle, {params.cycle_points} points"
@@ -195,5 +273,5 @@ def report_out_of_range(run: Run, values: np.ndarray, fitted: TactileRange, para
         f"{who} (tactile_input {kind}): {int(rows.sum())} of {len(run)} samples of run {run.name!r} "
         f"({int((rows & touch).sum())} of its {int(touch.sum())} touched samples) have tactile values outside the "
         f"training run's range ({int(outside.sum())} values in {int(outside.any(axis=0).sum())} of "
-        f"{values.shape[1]} channels, up to {beyond:.3g} scaled units beyond [0, 1]); they are not clipped",
+        f"{values.shape[1]} channels, up to {beyond:.3g} scaled units beyond [0, 1]); {CLIPPED[fitted.scaling]}",
     )
