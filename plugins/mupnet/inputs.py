@@ -16,7 +16,7 @@ Each tactile channel is scaled on the training run by ``tactile_scaling``:
 * ``range`` (the paper's, the default): min-max, ``(x - low) / max(high - low, floor)``, the
   floor ``tactile_min_range`` for measured channels and 1 for the contact flags (their own
   range); not clipped;
-* ``clip``: the same, clipped to [0, 1]: values beyond the training range saturate;
+* ``clip``: the same, clipped to the training range: values beyond it saturate at its ends;
 * ``robust``: ``(x - median) / max(IQR, tactile_min_range)`` of the training run (numpy's
   default percentiles), not clipped; the contact flags keep their own 0/1 scale.
 
@@ -79,9 +79,9 @@ class InputParams(ExtractorParams):
     )
     tactile_scaling: TactileScaling = Field(
         "range", description="how each tactile channel is scaled from the training run: range: (x - min) / "
-        "max(max - min, tactile_min_range), not clipped (the paper's); clip: the same clipped to [0, 1], so values "
-        "beyond the training range saturate; robust: (x - median) / max(IQR, tactile_min_range), not clipped (the "
-        "cycle input's contact flags keep their 0/1 scale; docs/MUPNET.md)",
+        "max(max - min, tactile_min_range), not clipped (the paper's); clip: the same clipped to the training range, "
+        "so values beyond it saturate at its ends; robust: (x - median) / max(IQR, tactile_min_range), not clipped "
+        "(the cycle input's contact flags keep their 0/1 scale; docs/MUPNET.md)",
     )
 
     @pydantic.field_validator("modalities")
@@ -204,8 +204,13 @@ class TactileRange:
         return self.range_scaler()
 
     def saturate(self, scaled: np.ndarray) -> np.ndarray:
-        """``scaled`` values as fed: clipped to [0, 1] for ``clip``, else unchanged (the same array)."""
-        return np.clip(scaled, 0, 1) if self.scaling == "clip" else scaled
+        """``scaled`` values as fed: for ``clip``, clipped to the training range itself (scaled:
+        0 to (high - low) / span, which is 1 unless the span was floored), so no value beyond
+        what training saw reaches the network; else unchanged (the same array)."""
+        if self.scaling != "clip":
+            return scaled
+        _, scale = self.range_scaler()
+        return np.clip(scaled, 0, (self.high - self.low) * scale)
 
     def scale(self, values: np.ndarray) -> np.ndarray:
         """(N, C) tactile ``values`` as fed to the network: `scaler`, then `saturate`."""
@@ -251,9 +256,10 @@ def range_measure(values: np.ndarray, fitted: TactileRange,
 
 
 #: what `report_out_of_range` says of the values outside the training range, per tactile_scaling
-CLIPPED = {"range": "they are not clipped", "clip": "they are clipped to [0, 1] (tactile_scaling clip: beyond the "
-           "training range they saturate)", "robust": "they are not clipped (tactile_scaling robust: median and IQR "
-           "scaling; the excess is in units of the training range)"}
+CLIPPED = {"range": "they are not clipped",
+           "clip": "they are clipped to the training range (tactile_scaling clip: beyond it they saturate at its ends)",
+           "robust": "they are not clipped (tactile_scaling robust: median and IQR scaling; the excess is in units of "
+           "the training range)"}
 
 
 def report_out_of_range(run: Run, values: np.ndarray, fitted: TactileRange, params: InputParams, who: str) -> None:

@@ -48,6 +48,14 @@ def test_clip_is_the_same_clipped_to_0_1_so_values_beyond_the_range_saturate():
     np.testing.assert_allclose(fitted("clip").scale(TEST)[:, 0], [0, 0, 0.5, 1])
 
 
+def test_clip_saturates_at_the_training_range_even_where_the_span_was_floored():
+    # training values 0 .. 0.02, span floored to 0.05: scaled (x - 0) / 0.05; the training
+    # maximum 0.02 is 0.4 scaled, so 0.03 (0.6 scaled, beyond what training saw) is fed as 0.4
+    scaling = fitted("clip", np.array([[0], [0.02]], np.float32), tactile_min_range=0.05)
+    np.testing.assert_allclose(scaling.scale(np.array([[-0.01], [0.01], [0.03]], np.float32))[:, 0],
+                               [0, 0.2, 0.4], rtol=1e-6)
+
+
 def test_robust_is_median_and_iqr_of_the_training_run_and_not_clipped():
     # (x - 1.5) / 3.25: -6.5 / 3.25 = -2, -1.5 / 3.25, 3.5 / 3.25, 18.5 / 3.25
     scaling = fitted("robust")
@@ -143,7 +151,7 @@ def test_clip_feeds_the_network_saturated_values_and_the_features_measure_the_ra
     features = extractor.transform(test)
     np.testing.assert_array_equal(features["latent"], extractor.transform(far)["latent"])
     assert int((~features["tactile_inside"]).sum()) == 3 and features["tactile_inside"].shape == (12, 72)
-    assert "they are clipped to [0, 1]" in test.warnings[f"{plugin} tactile range (instant)"]
+    assert "they are clipped to the training range" in test.warnings[f"{plugin} tactile range (instant)"]
     extractor.save(tmp_path / "m")
     loaded = extractor_class.load(tmp_path / "m")
     assert loaded.tactile_range.scaling == "clip"
