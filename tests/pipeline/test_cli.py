@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+
 from conftest import install_plugin
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -180,10 +181,12 @@ def test_the_old_scoring_key_is_read_with_a_warning(tmp_path, caplog):
 
     old = {k: v for k, v in valid_scenario().items() if k != "scoring"} | {"evaluation": {"tau": 0.5}}
     base = write_scenario(tmp_path, old, "base.yaml")
-    child = write_scenario(tmp_path, {"extends": base.name, "name": "child", "scoring": {"direction": "both"}}, "child.yaml")
+    child = write_scenario(tmp_path, {"extends": base.name, "name": "child", "scoring": {"direction": "both"}},
+                           "child.yaml")
     with caplog.at_level("WARNING", logger="vitaplace"):
         scenario, raw = load_scenario(child, ["evaluation.heading_tolerance_deg=null"])
-    assert (scenario.scoring.tau, scenario.scoring.direction, scenario.scoring.heading_tolerance_deg) == (0.5, "both", None)
+    assert (scenario.scoring.tau, scenario.scoring.direction, scenario.scoring.heading_tolerance_deg) == (
+        0.5, "both", None)
     assert "evaluation" not in raw and raw["scoring"]["tau"] == 0.5
     warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
     assert len(warnings) == 2, warnings
@@ -193,7 +196,7 @@ def test_the_old_scoring_key_is_read_with_a_warning(tmp_path, caplog):
     both = write_scenario(tmp_path, valid_scenario() | {"evaluation": {"tau": 0.5}}, "both.yaml")
     result = run_cli(["validate", str(both)])
     assert result.returncode == 2 and "Traceback" not in result.stderr
-    assert re_line(result.stderr, rf"both\.yaml: both 'evaluation' and 'scoring' are set"), result.stderr
+    assert re_line(result.stderr, r"both\.yaml: both 'evaluation' and 'scoring' are set"), result.stderr
 
 
 @pytest.fixture(scope="module")
@@ -384,7 +387,8 @@ def test_oracle_features_score_perfectly_end_to_end(tmp_path):
     # and +inf where the two runs face more than the default 30 degrees apart
     from vitaplace.engine.data.dataset import open_run
 
-    yaw = [open_run(next((out / "cache" / "datasets").glob(f"E1-{role}-*.h5"))).poses[:, 2] for role in ("query", "reference")]
+    yaw = [open_run(next((out / "cache" / "datasets").glob(f"E1-{role}-*.h5"))).poses[:, 2]
+           for role in ("query", "reference")]
     facing_apart = np.degrees(np.abs(np.angle(np.exp(1j * (yaw[0][:, None] - yaw[1][None, :]))))) > 30
     assert facing_apart.any() and not facing_apart.all()
     with np.load(npz) as m:
@@ -467,7 +471,8 @@ def test_extractor_outputs_are_checked_with_one_line():
     cannot_compare = np.array([[0.5, np.inf, 1.0], [np.inf, np.inf, np.inf]])  # +inf: never a match
     assert check_distance(cannot_compare, (2, 3), "t") is not None
     for bad in (np.nan, -np.inf):
-        with pytest.raises(StageError, match=r"t: feature 'distance' has NaN or infinite values in 1 samples \(first: 1\)"):
+        with pytest.raises(StageError,
+                           match=r"t: feature 'distance' has NaN or infinite values in 1 samples \(first: 1\)"):
             check_distance(np.array([[0.5, 1.0, 1.0], [1.0, bad, 1.0]]), (2, 3), "t")
 
 
@@ -529,8 +534,8 @@ def _worker_outlives_a_killed_parent(tmp_path: Path, main_body: str) -> bool:
     import time
 
     script = tmp_path / "parent.py"
-    script.write_text("import os, time\nfrom vitaplace.engine.pipeline.processes import worker_pool\nif __name__ == '__main__':\n"
-                      "    pool = worker_pool(1)\n" + main_body + "    time.sleep(60)\n")
+    script.write_text("import os, time\nfrom vitaplace.engine.pipeline.processes import worker_pool\n"
+                      "if __name__ == '__main__':\n    pool = worker_pool(1)\n" + main_body + "    time.sleep(60)\n")
     parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
     worker = int(parent.stdout.readline())
     os.kill(parent.pid, signal.SIGKILL)
@@ -614,7 +619,8 @@ def test_ctrl_c_while_workers_start_is_one_line(tmp_path):
     os.killpg(proc.pid, signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err[-3000:]
-    assert err.strip().splitlines() == ["vitaplace: interrupted; finished stages are cached, run again to resume"], err[-3000:]
+    assert err.strip().splitlines() == [
+        "vitaplace: interrupted; finished stages are cached, run again to resume"], err[-3000:]
     time.sleep(1)
     assert not any(_alive(c) for c in workers)
     assert not list((out / "cache").rglob("*.h5")), "workers went on simulating after the interrupt"
@@ -700,10 +706,10 @@ def test_query_off_route_drives_only_the_end_of_the_query_run_off_the_route(tmp_
     reference run) runs off_route_offset (0.6 m, facing outward: towards the centre) away from
     E1's route, farther than tau = 0.3, so those queries have no match. (The teleop kind's
     detours, spread along the run: tests/components/test_teleop.py.)"""
-    from vitaplace.engine.data.dataset import open_run
     from vitaplace.engine.config.loading import load_scenario
-    from vitaplace.engine.pipeline.orchestrate import run_stages
+    from vitaplace.engine.data.dataset import open_run
     from vitaplace.engine.outputs.outdir import cache_dir, dataset_file
+    from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.store import Store
     from vitaplace.engine.sim.clearance import Route
     from vitaplace.engine.sim.environment import load_environment
@@ -851,8 +857,8 @@ def test_force_of_a_stage_the_command_does_not_reach_is_refused(tmp_path, capsys
 
 
 def test_set_appends_to_a_list_and_refuses_anything_else(capsys):
-    from vitaplace.engine.config.scenario import ScenarioError
     from vitaplace.engine.config.overrides import apply_overrides
+    from vitaplace.engine.config.scenario import ScenarioError
 
     data = {"methods": [{"name": "L"}], "scoring": {"tau": 0.3}}
     appended = apply_overrides(data, ["methods+={name: L2, plugin: mupnet, params: {epochs: 1}}"])
@@ -976,7 +982,8 @@ def test_report_is_rebuilt_from_a_copy_of_the_output_folder_alone(quiet_json_run
      ": not a finished run: evaluations/E1/H/query-to-reference/decisions.npz is not the file its finished run "
      "recorded in completed.json"),
 ], ids=["no results", "corrupt manifest", "no poses", "unfinished", "damaged decisions"])
-def test_report_of_a_damaged_output_folder_is_one_line_naming_the_file(quiet_json_run, tmp_path, capsys, damage, expected):
+def test_report_of_a_damaged_output_folder_is_one_line_naming_the_file(quiet_json_run, tmp_path, capsys, damage,
+                                                                       expected):
     copy = _copy_without_cache(quiet_json_run[0], tmp_path / "copy")
     damage(copy)
     assert main(["report", str(copy)]) == 2
@@ -1092,8 +1099,10 @@ def test_report_gives_the_distribution_of_test_time_inference_steps(quickstart_r
 
 IMPLAUSIBLE = {
     "an infinite tactile range": (["methods.0.params.tactile_min_range=.inf"],
-                                  "methods.0.params: extractor 'mupnet': tactile_min_range: Input should be a finite number"),
-    "a negative whisker length": (["robot.whisker_lengths_mm=[50, -70, 100, 160]"], "robot.whisker_lengths_mm.1: Input should be greater than 0"),
+                                  "methods.0.params: extractor 'mupnet': tactile_min_range: "
+                                  "Input should be a finite number"),
+    "a negative whisker length": (["robot.whisker_lengths_mm=[50, -70, 100, 160]"],
+                                  "robot.whisker_lengths_mm.1: Input should be greater than 0"),
     "a detour outside the arena": (["evaluations.0.query_off_route=0.3", "evaluations.0.run.off_route_offset=-3"],
                                    "evaluations.0.run.off_route_offset: -3 m off the path takes the robot"),
     "a 0.1 us timestep": (["robot.timestep=1e-7"], "robot.timestep: Input should be greater than or equal to 0.0001"),
@@ -1103,7 +1112,8 @@ IMPLAUSIBLE = {
                                 "evaluations.0.run.orbit_centre: (9, 0) is outside the 6.05 x 6.05 m arena"),
     "a start outside": (["train.run.start=[10, 0, 0]"], "train.run.start: (10, 0) puts the robot"),
     "a start in the wall": (["train.run.start=[2.9, 0, 0]"], "train.run.start: (2.9, 0) puts the robot"),
-    "a 0.001 Hz controller": (["train.run.control_hz=0.001"], "train.run.control_hz: 0.001 Hz is below the whisking rate"),
+    "a 0.001 Hz controller": (["train.run.control_hz=0.001"],
+                              "train.run.control_hz: 0.001 Hz is below the whisking rate"),
 }
 
 
@@ -1121,7 +1131,8 @@ def test_a_run_along_the_route_in_an_environment_without_one_is_refused_at_valid
     """Teleop drives and route runs follow the environment's loop: in an environment without
     one they are refused in one line naming the evaluation's key and the environment (a teleop
     evaluation used to pass validate and die in its simulation worker)."""
-    (tmp_path / "open.yaml").write_text(f"extends: {SCENARIOS / 'environments' / 'e1.yaml'}\nname: e1-open\nroute: []\n")
+    (tmp_path / "open.yaml").write_text(f"extends: {SCENARIOS / 'environments' / 'e1.yaml'}\n"
+                                        "name: e1-open\nroute: []\n")
     argv = ["validate", "quickstart", "--set", f"evaluations.0.environment={tmp_path / 'open.yaml'}",
             "--set", f"evaluations.0.run={{kind: {kind}, n_samples: 10}}"]
     assert main(argv) == 2

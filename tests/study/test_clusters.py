@@ -30,7 +30,8 @@ NO_TOKEN = "Token authentication is enabled but no authentication token was foun
 @pytest.fixture
 def listening(tmp_path):
     """A scenario file and a local address something listens on (the reachability check passes)."""
-    (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}))
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(),
+                                                     "methods": [{"name": "H", "plugin": "handcrafted"}]}))
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         s.listen()
@@ -82,8 +83,10 @@ def test_installations_differ_by_version_commit_uncommitted_changes_or_plugins()
     assert mismatch(driver, {**driver, "host": "n1"}, "node n1") is None
     for key, value in {"version": "1.1", "commit": "abd", "dirty": True, "plugins": []}.items():
         reason = mismatch(driver, {**driver, key: value}, "node n1")
-        assert reason is not None and reason.startswith("node n1 runs vitaplace") and "this driver runs vitaplace 1.0" in reason
-    assert "commit abc, with uncommitted changes; plugins none" in mismatch(driver, {**driver, "dirty": True, "plugins": []}, "n")
+        assert reason is not None and reason.startswith("node n1 runs vitaplace")
+        assert "this driver runs vitaplace 1.0" in reason
+    changed = {**driver, "dirty": True, "plugins": []}
+    assert "commit abc, with uncommitted changes; plugins none" in mismatch(driver, changed, "n")
     assert set(installation()) == set(driver)
 
 
@@ -93,8 +96,9 @@ def test_installations_differ_by_version_commit_uncommitted_changes_or_plugins()
 def fake_slurm(tmp_path, monkeypatch):
     """Stand-ins for srun, sbatch, squeue and scancel on PATH. ``sbatch`` runs
     ``FOLDER/sbatch.sh`` (the test writes it), ``squeue`` prints ``FOLDER/queue`` (lines
-    ``12_3 RUNNING``; then ``FOLDER/queue.next``, when there is one, replaces it) or, when ``FOLDER/squeue.err`` exists, prints that and fails, and
-    ``scancel`` appends its arguments to ``FOLDER/scancelled``. Returns FOLDER."""
+    ``12_3 RUNNING``; then ``FOLDER/queue.next``, when there is one, replaces it) or, when
+    ``FOLDER/squeue.err`` exists, prints that and fails, and ``scancel`` appends its arguments to
+    ``FOLDER/scancelled``. Returns FOLDER."""
     pytest.importorskip("submitit", reason="submitit is not installed (pip install 'vitaplace[slurm]')")
     fake = tmp_path / "fake-slurm"
     fake.mkdir()
@@ -102,7 +106,8 @@ def fake_slurm(tmp_path, monkeypatch):
         "srun": "exit 0",
         "sbatch": f'exec sh "{fake}/sbatch.sh" "$@"',
         "squeue": f'if [ -f "{fake}/squeue.err" ]; then cat "{fake}/squeue.err" >&2; exit 1; fi; '
-                  f'cat "{fake}/queue" 2>/dev/null; [ -f "{fake}/queue.next" ] && mv "{fake}/queue.next" "{fake}/queue"; '
+                  f'cat "{fake}/queue" 2>/dev/null; '
+                  f'[ -f "{fake}/queue.next" ] && mv "{fake}/queue.next" "{fake}/queue"; '
                   'exit 0',
         "scancel": f'echo "$@" >> "{fake}/scancelled"',
     }
@@ -154,9 +159,11 @@ def test_a_short_time_limit_and_a_bad_throttle_are_refused_before_anything_runs(
     cases = {
         "--time 4: at least 5 minutes; submitit signals a task 90 s before its limit": ["--slurm", "--time", "4"],
         "--time 0:02:00: at least 5 minutes": ["--slurm", "local", "--time", "0:02:00"],
-        "--max-parallel 0: expected a number of tasks at once, at least 1": ["--slurm", "--time", "5", "--max-parallel", "0"],
+        "--max-parallel 0: expected a number of tasks at once, at least 1":
+            ["--slurm", "--time", "5", "--max-parallel", "0"],
         "--max-parallel: only with --slurm": ["--max-parallel", "2"],
-        "--max-parallel: throttles an array on a SLURM cluster": ["--slurm", "local", "--time", "5", "--max-parallel", "2"],
+        "--max-parallel: throttles an array on a SLURM cluster":
+            ["--slurm", "local", "--time", "5", "--max-parallel", "2"],
     }
     for message, extra in cases.items():
         code = main([*base, *extra])
@@ -211,7 +218,8 @@ def test_an_array_is_throttled_watched_by_squeue_alone_and_blocks_a_rerun_while_
     out = scenario_file.parent / "out"
     folder = out / "slurm"
     (fake_slurm / "queue").write_text("4242_1 RUNNING\n4242_2 RUNNING\n")
-    ended = slurm.run_array(run_seed_reported, [0, 1, 2], slurm.SlurmSettings("slurm", 10, max_parallel=2), folder, "vp")
+    ended = slurm.run_array(run_seed_reported, [0, 1, 2], slurm.SlurmSettings("slurm", 10, max_parallel=2), folder,
+                            "vp")
     script = (fake_slurm / "submitted.sh").read_text()
     assert "#SBATCH --array=0-2%2\n" in script and f"#SBATCH --chdir={folder}\n" in script, script
     assert json.loads((folder / "job.json").read_text())["job"] == "4242"

@@ -71,7 +71,8 @@ def test_every_point_and_seed_runs_what_config_resolves_for_its_assignments(grid
     assert result.returncode == 0, result.stderr[-3000:]
     assert sorted(p.name for p in out.iterdir() if "=" in p.name) == sorted(NAMES)  # 2 x 2 points, no more
     runs = [(name, seed, [str(path), "--set", f"seed={seed}", "--set", f"scoring.tau={tau}",
-                          "--set", f"methods.1.params.crop_fraction={crop}"]) for name, tau, crop in POINTS for seed in (0, 1)]
+                          "--set", f"methods.1.params.crop_fraction={crop}"])
+            for name, tau, crop in POINTS for seed in (0, 1)]
     configs = subprocess.run([sys.executable, "-c", CONFIGS, json.dumps([args for _, _, args in runs])],
                              capture_output=True, text=True, timeout=300, env=plugin_env, check=True).stdout
     for (name, seed, _), printed in zip(runs, configs.split("=====\n")[1:], strict=True):
@@ -128,8 +129,9 @@ def test_a_sweep_that_would_drop_seeds_or_points_of_the_summary_is_refused_in_on
     for args, this in cases:
         refused = vitaplace(["sweep", str(path), *args, "--out", str(out), "--no-progress"], plugin_env)
         err = refused.stderr.strip().splitlines()
-        assert refused.returncode == 2 and len(err) == 1 and err[0].startswith(f"vitaplace: error: --out {out}: its summary (grid.json) covers "
-                                                   f"grid points {' '.join(NAMES)}, seeds 0 1"), err
+        assert refused.returncode == 2 and len(err) == 1 and err[0].startswith(
+            f"vitaplace: error: --out {out}: its summary (grid.json) covers "
+            f"grid points {' '.join(NAMES)}, seeds 0 1"), err
         assert "give --replace to replace it" in err[0] and (this is None or f"sweep of {this} would" in err[0])
     assert not (out / "seed-0").exists() and not (out / "sweep.json").exists()
     assert {p: p.read_bytes() for p in before} == before  # nothing lost, nothing rewritten
@@ -143,7 +145,8 @@ def test_more_seeds_extend_a_summary_and_replace_swaps_it_for_another(tmp_path, 
     assert more.returncode == 0, more.stderr[-2000:]
     assert json.loads((out / "sweep.json").read_text())["seeds"] == [0, 1]
     refused = vitaplace([*common, "--seeds", "1"], plugin_env)
-    assert refused.returncode == 2 and "covers no grid, seeds 0 1, which this sweep of no grid, seeds 1" in refused.stderr
+    assert refused.returncode == 2
+    assert "covers no grid, seeds 0 1, which this sweep of no grid, seeds 1" in refused.stderr
     assert json.loads((out / "sweep.json").read_text())["seeds"] == [0, 1]
     replaced = vitaplace([*common, "--seeds", "1", "--replace"], plugin_env)
     assert replaced.returncode == 0, replaced.stderr[-2000:]
@@ -163,7 +166,8 @@ def test_an_unreadable_summary_is_refused_in_one_line(tmp_path, capsys):
 
 def test_a_grid_is_the_product_of_its_axes_named_by_path_ends():
     axes = grid.parse_axes(["a.x=1,2,3", "b.y=[1, 2],{k: v}", "c=true,off"])
-    assert [(a.path, a.values) for a in axes] == [("a.x", (1, 2, 3)), ("b.y", ([1, 2], {"k": "v"})), ("c", (True, False))]
+    assert [(a.path, a.values) for a in axes] == [("a.x", (1, 2, 3)), ("b.y", ([1, 2], {"k": "v"})),
+                                                  ("c", (True, False))]
     points = grid.grid_points(axes)
     assert len(points) == 3 * 2 * 2 and len({p.name for p in points}) == 12
     assert [p.name for p in points[:4]] == ["x=1,y=_1__2_,c=true", "x=1,y=_1__2_,c=off", "x=1,y=_k__v_,c=true",
@@ -256,7 +260,8 @@ def test_a_grid_on_ray_runs_every_point_and_reports_a_failed_seed_by_its_point(t
         assert json.loads((out / name / "sweep.json").read_text())["seeds"] == [0]
     assert "2 of 4 seeds failed, missing from the summary: tau=0.3/seed-1 tau=0.5/seed-1" in result.stderr
     record = json.loads((out / "grid.json").read_text())
-    assert [p["failed"] for p in record["points"]] == [{"1": "ValueError: injected failure second line of the message"}] * 2
+    assert [p["failed"] for p in record["points"]] == [
+        {"1": "ValueError: injected failure second line of the message"}] * 2
     assert {r["n"] for r in read_csv(out / "grid.csv")} == {"1"}
 
 

@@ -116,8 +116,9 @@ def _check_sweep(uri: str, out: Path, seeds: list[int]) -> str:
     assert bands == {f"pr-bands/{p.name}" for p in out.glob("pr-bands-*")} and bands
     children = sorted((r for r in runs if r is not parent), key=lambda r: r.data.params["seed"])
     assert [r.data.tags["mlflow.parentRunId"] for r in children] == [parent.info.run_id] * len(seeds)
-    for seed, child in zip(seeds, children):
-        assert child.info.run_name == f"tiny seed {seed}" and child.data.tags["vitaplace.out"] == str(out / f"seed-{seed}")
+    for seed, child in zip(seeds, children, strict=True):
+        assert child.info.run_name == f"tiny seed {seed}"
+        assert child.data.tags["vitaplace.out"] == str(out / f"seed-{seed}")
         rows = json.loads((out / f"seed-{seed}" / "results.json").read_text())
         assert child.data.metrics["E1/H/query-to-reference/max_f1"] == pytest.approx(
             next(r["max_f1"] for r in rows if r["direction"] == "query-to-reference"))
@@ -139,7 +140,8 @@ def _driver(args: list[str], folder: Path, prelude: str = "") -> subprocess.Comp
     ``prelude`` sets them (after starting Ray, for a Ray of its own)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("MLFLOW_", "VITAPLACE_MLFLOW", "RAY_ADDRESS"))}
     code = f"import os, sys\n{prelude}\nfrom vitaplace.engine.cli.main import main\nsys.exit(main(sys.argv[1:]))"
-    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=400, env=env, cwd=folder)
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=400, env=env,
+                          cwd=folder)
 
 
 def _settings(uri: str) -> str:

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+
 from conftest import install_plugin, reseal
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -90,7 +91,8 @@ def plugin_env(tmp_path_factory) -> dict:
 
 def vitaplace(args: list[str], env: dict, prelude: str = "", postlude: str = "") -> subprocess.CompletedProcess:
     """The CLI in a fresh process, between ``prelude`` and ``postlude`` (Python code)."""
-    code = f"import sys\n{prelude}\nfrom vitaplace.engine.cli.main import main\nrc = main(sys.argv[1:])\n{postlude}\nsys.exit(rc)"
+    code = (f"import sys\n{prelude}\nfrom vitaplace.engine.cli.main import main\n"
+            f"rc = main(sys.argv[1:])\n{postlude}\nsys.exit(rc)")
     return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=300, env=env)
 
 
@@ -112,7 +114,8 @@ def check_partial_sweep(out: Path, result: subprocess.CompletedProcess, ok: list
     assert record["seeds"] == ok and list(record["failed"]) == [str(failed)]
     assert {r["seed"] for r in record["runs"]} == set(ok)
     rows = read_csv(out / "sweep.csv")
-    assert {(r["method"], r["n"]) for r in rows if r["metric"] == "max_f1"} == {("O", str(len(ok))), ("H", str(len(ok)))}
+    assert {(r["method"], r["n"]) for r in rows if r["metric"] == "max_f1"} == {("O", str(len(ok))),
+                                                                                ("H", str(len(ok)))}
     # the within-seed block bootstrap found every seed's saved matrices
     assert all(r["block_low"] != "nan" for r in rows if r["kind"] == "metric")
     # oracle features: a perfect score on every seed that ran
@@ -208,7 +211,8 @@ def test_the_documented_slurm_command_runs_and_reports_a_failed_seed_in_one_line
     result = vitaplace(["sweep", *args], plugin_env)
     check_partial_sweep(out, result, [0], 1)
     assert "missing from the summary: 1;" in result.stderr
-    assert re.search(rf"SLURM \(local\): job .*2 task\(s\); scripts and logs in {re.escape(str(out / 'slurm'))}", result.stderr)
+    assert re.search(rf"SLURM \(local\): job .*2 task\(s\); scripts and logs in {re.escape(str(out / 'slurm'))}",
+                     result.stderr)
     assert len(list((out / "slurm").glob("*_log.err"))) == 2
 
 
@@ -247,7 +251,6 @@ def test_slurm_settings_reach_the_sbatch_script(tmp_path, monkeypatch):
 
     import vitaplace.engine.cli.slurm as slurm
     from vitaplace.engine.base.errors import UserError
-
     from vitaplace.engine.cli.main import build_parser
 
     settings = slurm.settings_from_args(build_parser().parse_args(["sweep", *documented_slurm_command(),
@@ -287,7 +290,8 @@ def test_a_slurm_task_without_a_result_is_one_line_and_an_interrupt_cancels_the_
     pytest.importorskip("submitit")
     import vitaplace.engine.cli.slurm as slurm
 
-    tasks = [FakeTask("12_0", {"seed": 0, "rows": []}), FakeTask("12_1"), FakeTask("12_2", {"seed": 2, "failure": "E: x"})]
+    tasks = [FakeTask("12_0", {"seed": 0, "rows": []}), FakeTask("12_1"),
+             FakeTask("12_2", {"seed": 2, "failure": "E: x"})]
     ended = list(slurm._wait(tasks, ["job0", "job1", "job2"], 0.01))
     assert ended == [("job0", {"seed": 0, "rows": []}, None),
                      ("job1", None, "its task 12_1 ended without a result (FAILED); log: /out/slurm/12_1_0_log.err"),
@@ -372,7 +376,8 @@ def test_ray_refuses_workers_with_other_code_and_resources_no_node_has(tmp_path,
     assert len(errors) == 2 and "Traceback" not in result.stderr, result.stderr[-3000:]
     version, gpus = errors
     assert re.search(rf"node \S+ runs vitaplace {re.escape(__version__)} \(commit .*\) but this driver runs "
-                     r"vitaplace 0\.0\.0\+driver \(commit .*fails-for-one-seed=vitaplace-failing-plugin==0\.0\.1", version)
+                     r"vitaplace 0\.0\.0\+driver \(commit .*fails-for-one-seed=vitaplace-failing-plugin==0\.0\.1",
+                     version)
     assert "--gpus-per-job 1: no node of the Ray cluster" in gpus and "2 CPUs/0 GPUs" in gpus
     assert not list(out.glob("seed-*"))
 
@@ -382,7 +387,8 @@ def test_an_unreachable_ray_address_fails_at_once_in_one_line(tmp_path, capsys):
     with socket.socket() as s:  # a port nothing listens on
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}))
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(),
+                                                     "methods": [{"name": "H", "plugin": "handcrafted"}]}))
     assert main(["sweep", str(tmp_path / "s.yaml"), "--out", str(tmp_path / "out"), "--ray", f"127.0.0.1:{port}"]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and f"--ray 127.0.0.1:{port}: nothing answers at 127.0.0.1:{port}" in lines[0], lines
@@ -420,17 +426,19 @@ def test_a_job_reads_nothing_from_the_driver_s_files(tmp_path, monkeypatch):
     result = sweep.run_seed(job)
     assert result["sees_out"] is False and result["rows"][0]["seed"] == 4
     written = yaml.safe_load((tmp_path / "out" / "seed-4" / "scenario.resolved.yaml").read_text())
-    assert written["seed"] == 4 and written["train"]["environment"] == str(tmp_path / "out" / "seed-4" / "environments" / "arena.yaml")
+    assert written["seed"] == 4
+    assert written["train"]["environment"] == str(tmp_path / "out" / "seed-4" / "environments" / "arena.yaml")
     assert sweep.run_seed(forced)["sees_out"] is True
     stages = json.loads((tmp_path / "out" / "seed-4" / "manifest.json").read_text())["stages"]
     assert {r["stage"] for r in stages if r["status"] == "ran"} == {"evaluate"}
 
 
 def test_bad_seeds_and_stages_are_user_errors_before_any_job(tmp_path):
-    from vitaplace.engine.config.scenario import ScenarioError
     from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.config.scenario import ScenarioError
 
-    (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}))
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(),
+                                                     "methods": [{"name": "H", "plugin": "handcrafted"}]}))
     scenario, resolved = load_scenario(tmp_path / "s.yaml")
     for seeds, force, message in (([1, 1], [], "each seed once"), ([-1], [], "not a valid scenario seed"),
                                   ([1], ["fitt"], "unknown stage")):
@@ -550,7 +558,8 @@ def test_a_seed_whose_worker_process_dies_fails_alone(tmp_path, plugin_env):
                         "--no-progress"], plugin_env)
     assert result.returncode == 1, result.stderr[-3000:]
     lines = [line for line in result.stderr.splitlines() if "seed 1 failed" in line]
-    assert len(lines) == 1 and "worker process died" in lines[0] and "traceback in" not in lines[0], result.stderr[-3000:]
+    assert len(lines) == 1 and "worker process died" in lines[0] and "traceback in" not in lines[0], (
+        result.stderr[-3000:])
     record = json.loads((out / "sweep.json").read_text())
     assert record["seeds"] == [0, 2] and list(record["failed"]) == ["1"]
 
@@ -568,7 +577,8 @@ def _rows(folder: Path, change) -> None:
 CURVE = "evaluations/E1/O/query-to-reference/pr_curve.npz"
 UNFINISHED = {
     "results edited after the run": (lambda f: _rows(f, lambda r: r[0].update(max_f1=0.5)), False,
-                                     r"seed-copy: not a finished run: results\.json is not the file its finished run recorded"),
+                                     r"seed-copy: not a finished run: "
+                                     r"results\.json is not the file its finished run recorded"),
     "a truncated PR curve": (lambda f: (f / CURVE).write_bytes((f / CURVE).read_bytes()[:50]), False,
                              rf"not a finished run: {CURVE} is not the file its finished run recorded"),
     "a truncated PR curve, recorded so": (lambda f: (f / CURVE).write_bytes((f / CURVE).read_bytes()[:50]), True,
@@ -613,8 +623,8 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     holds the old results beside the new resolved scenario, and no completion record."""
     from vitaplace.engine.config.scenario import Scenario
     from vitaplace.engine.outputs import completion
-    from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline import orchestrate
+    from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.store import Store
 
     out, _ = local_sweep
