@@ -239,10 +239,11 @@ def test_the_window_span_is_the_reference_path_length_the_window_covers():
 
 @pytest.mark.parametrize("span, warned", [(0.6, True), (0.61, False)])
 def test_the_report_warns_when_the_contrast_window_is_no_more_than_one_place(span, warned):
+    from vitaplace.engine.outputs.rows import SequenceMatching
     from vitaplace.engine.report.report import _matching
 
-    sequence = {"length": 5, "window": 10, "velocity_steps": 5, "velocity_min": 0.8, "velocity_max": 1.25,
-                "window_span_m": span}
+    sequence = SequenceMatching(length=5, window=10, velocity_steps=5, velocity_min=0.8, velocity_max=1.25,
+                                window_span_m=span)
     text = _matching(sequence, 0.3)
     assert f"a median {span:.2f} m of the reference drive" in text
     assert ("WARNING no more than one place (2τ = 0.6 m)" in text) is warned

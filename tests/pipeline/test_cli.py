@@ -819,7 +819,7 @@ def test_every_command_names_its_own_handler():
     import vitaplace.engine.cli.main as cli
     from vitaplace.engine.cli import commands
 
-    documented = cli.__doc__.split("``vitaplace ")[1].split("``")[0].split("|")  # the module's first line
+    documented = cli.__doc__.split("COMMAND one of\n``")[1].split("``")[0].split("|")  # the docstring's 2nd line
     (sub,) = [a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
     assert sorted(sub.choices) == sorted(documented)
     for name, parser in sub.choices.items():
