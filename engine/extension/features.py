@@ -162,9 +162,10 @@ def feature_facts(features: Features) -> dict[str, Any]:
     largest value, the samples under the thresholds, those that hit the step cap (not
     settled) and the number of samples; and, for features that measure the tactile input
     against its training range (``tactile_inside``: (N, C) bool per value; ``tactile_beyond``:
-    (N,) the farthest excess beyond [0, 1] in scaled units, NaN where the sample was not
-    measured), the values measured and inside, the channels, the lowest channel's share inside,
-    the channels under `IN_RANGE_SHARE` and the largest excess."""
+    (N,) the farthest excess beyond [0, 1] in scaled units; ``tactile_measured``: (N,) bool,
+    the samples measured, every one where absent), the values measured and inside, the
+    channels, the lowest channel's share inside, the channels under `IN_RANGE_SHARE` and the
+    largest excess."""
     arrays = sorted(k for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2)
     facts: dict[str, Any] = {"arrays": arrays, "zero": [k for k in arrays if not features[k].any()]}
     if "inference_steps" in features and "inference_stopped" in features:
@@ -175,7 +176,8 @@ def feature_facts(features: Features) -> dict[str, Any]:
                               "capped": int((~settled).sum()), "samples": int(stopped.size)}
     if "tactile_inside" in features and "tactile_beyond" in features:
         beyond = np.asarray(features["tactile_beyond"], np.float64)
-        measured = ~np.isnan(beyond)
+        measured = (features["tactile_measured"].astype(bool) if "tactile_measured" in features
+                    else np.ones(len(beyond), bool))
         inside = features["tactile_inside"].astype(bool)[measured]
         per_channel = inside.mean(axis=0) if len(inside) else np.ones(inside.shape[1])
         facts["tactile_range"] = {

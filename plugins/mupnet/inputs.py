@@ -244,15 +244,17 @@ def range_measure(values: np.ndarray, fitted: TactileRange,
     its channel's training range ``[low, high]``; ``tactile_beyond`` (N,) float32, how far the
     sample's farthest value lies beyond [0, 1] in the ``range`` scaling (`range_scaler`, units
     of the channel's floored training span, whatever ``tactile_scaling`` feeds; 0 when none
-    does). Samples not ``measured`` (e.g. without the whiskers: not fed) are inside, at NaN."""
+    does); ``tactile_measured`` (N,) bool, ``measured`` (default: every sample). A sample not
+    measured (e.g. without the whiskers: not fed) counts as inside, at 0, and is left out of
+    the facts (`feature_facts`)."""
     offset, scale = fitted.range_scaler()
     scaled = (values - offset) * scale
     beyond = np.maximum(scaled - 1, 0 - scaled).max(axis=1, initial=0).astype(np.float32)  # 0 - x: never -0
     inside = ~fitted.outside(values)
-    if measured is not None:
-        inside[~measured] = True
-        beyond[~measured] = np.nan
-    return {"tactile_inside": inside, "tactile_beyond": beyond}
+    measured = np.ones(len(values), bool) if measured is None else np.asarray(measured, bool)
+    inside[~measured] = True
+    beyond[~measured] = 0.0
+    return {"tactile_inside": inside, "tactile_beyond": beyond, "tactile_measured": measured}
 
 
 #: what `report_out_of_range` says of the values outside the training range, per tactile_scaling

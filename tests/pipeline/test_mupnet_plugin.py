@@ -136,8 +136,9 @@ def test_training_lowers_every_prediction_error(fitted):
 def test_joint_latents_recognise_revisits(fitted, runs):
     a, b = runs
     features = fitted.transform(b)
+    range_measure = {"tactile_inside", "tactile_beyond", "tactile_measured"}  # the tactile range measure
     assert set(features) == {"latent", "diverged", "inference_steps", "inference_stopped", "inference_settled",
-                             "tactile_inside", "tactile_beyond"}  # the last two: the tactile range measure
+                             *range_measure}
     assert not features["diverged"].any()
     steps, stopped = features["inference_steps"], features["inference_stopped"]
     assert np.array_equal(features["inference_settled"], stopped)  # the paper's rule: the thresholds alone

@@ -183,7 +183,7 @@ def test_the_measure_of_a_hand_built_run():
         "samples": 3}
     # sample 0 without whiskers (not fed): 5 of 6 values inside; theta 2/2, x 1/2, y 2/2; excess 0.1
     unfed = range_measure(values, fit, np.array([False, True, True]))
-    assert np.isnan(unfed["tactile_beyond"][0])
+    assert unfed["tactile_beyond"][0] == 0 and unfed["tactile_measured"].tolist() == [False, True, True]
     facts = feature_facts({"latent": np.zeros((3, 2), np.float32), **unfed})["tactile_range"]
     assert facts | {"beyond": round(facts["beyond"], 5)} == {
         "values": 6, "inside": 5, "channels": 3, "channel_min": 0.5, "channels_under": 1, "beyond": 0.1,
