@@ -28,6 +28,8 @@ __all__ = [
     "predict",
     "latent_step",
     "weight_step",
+    "momentum_weight_step",
+    "adam_weight_step",
 ]
 
 #: Names accepted by :func:`activation` and :func:`activation_derivative`.
@@ -128,3 +130,25 @@ def weight_step(W: np.ndarray, Y: np.ndarray, G: np.ndarray, eta: float) -> np.n
     ``W - eta * dF/dW`` with ``dF/dW = -2 Y.T @ G``, i.e. ``W + 2 eta Y.T @ G``.
     """
     return W + W.dtype.type(2 * eta) * (Y.T @ G)
+
+
+def momentum_weight_step(W: np.ndarray, V: np.ndarray, D: np.ndarray, eta: float, beta: float
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Heavy-ball weight step from the step direction ``D = 2 Y.T @ G`` (= -dF/dW); returns
+    the new ``(W, V)``: ``V' = beta V + D``, ``W' = W + eta V'``."""
+    t = W.dtype.type
+    V = t(beta) * V + D
+    return W + t(eta) * V, V
+
+
+def adam_weight_step(W: np.ndarray, M: np.ndarray, S: np.ndarray, D: np.ndarray, step: int, eta: float, beta1: float,
+                     beta2: float, eps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Adam's weight step from the step direction ``D`` (= -dF/dW) at step count ``step``
+    (from 1); returns the new ``(W, M, S)``: ``M' = b1 M + (1 - b1) D``,
+    ``S' = b2 S + (1 - b2) D^2``, ``W' = W + eta (M' / (1 - b1^step)) / (sqrt(S' / (1 - b2^step)) + eps)``
+    (the bias corrections in float64)."""
+    t = W.dtype.type
+    M = t(beta1) * M + t(1.0 - beta1) * D
+    S = t(beta2) * S + t(1.0 - beta2) * (D * D)
+    c1, c2 = t(1.0 - beta1**step), t(1.0 - beta2**step)
+    return W + t(eta) * (M / c1) / (np.sqrt(S / c2) + t(eps)), M, S

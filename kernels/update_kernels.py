@@ -5,6 +5,10 @@
                            transposed copy ``Wt`` of ``W``); :func:`latent_apply` the same
                            step from a product computed elsewhere (cuBLAS)
 (c) :func:`weight_update`  ``W <- W + 2 eta Y.T @ G`` and ``Wt <- W.T`` (in place)
+(d) :func:`momentum_weight_step`, :func:`adam_weight_step`, :func:`count_step`
+                           the element-wise weight steps of the momentum and Adam optimisers
+                           from a step direction ``D = 2 Y.T @ G`` (:func:`weight_update` on
+                           zeroed ``D`` with eta 1), keeping ``Wt <- W.T``; the step count
 
 The latent update's GEMM has few output tiles (batch x n_l) and a long K (n_below), so on
 CUDA it is split along K: each split writes its partial product to a scratch buffer and a
@@ -34,7 +38,10 @@ from vitaplace.kernels.launch import (
 )
 from vitaplace.kernels.tiles import TileConfig, cdiv, latent_splits, tile_config
 
-__all__ = ["latent_apply", "latent_scratch_shape", "latent_update", "weight_update"]
+__all__ = [
+    "adam_weight_step", "count_step", "latent_apply", "latent_scratch_shape", "latent_update", "momentum_weight_step",
+    "weight_update",
+]
 
 # --------------------------------------------------------------------------------------
 # Kernels
@@ -144,6 +151,58 @@ def _weight_kernel(tiles: TileConfig, with_transpose: bool) -> wp.Kernel:
             wp.tile_store(Wt, wp.tile_transpose(w), offset=(col, row))
 
     return tiled_kernel(weight_kernel, f"pc_weight_{'WWt' if with_transpose else 'W'}_{tm}x{tn}x{tk}", tiles)
+
+
+@functools.cache
+def _momentum_weight_kernel(with_transpose: bool) -> wp.Kernel:
+    """(d) heavy ball: ``V <- beta V + D``, ``W <- W + eta V``, and ``Wt = W.T`` when asked."""
+
+    @no_type_check
+    def momentum_weight_kernel(W: F32_2D, V: F32_2D, D: F32_2D, eta: wp.float32, beta: wp.float32, Wt: F32_2D):
+        r, c = wp.tid()
+        v = beta * V[r, c] + D[r, c]
+        V[r, c] = v
+        w = W[r, c] + eta * v
+        W[r, c] = w
+        if wp.static(with_transpose):
+            Wt[c, r] = w
+
+    return tiled_kernel(momentum_weight_kernel, f"pc_momentum_weight_{'WWt' if with_transpose else 'W'}")
+
+
+@functools.cache
+def _adam_weight_kernel(with_transpose: bool) -> wp.Kernel:
+    """(d) Adam: ``M <- b1 M + (1 - b1) D``, ``S <- b2 S + (1 - b2) D^2``, ``W <- W + eta
+    (M / c1) / (sqrt(S / c2) + eps)`` with the bias corrections ``c = 1 - b^t`` (float64) of
+    the step count ``t[0]``, and ``Wt = W.T`` when asked."""
+
+    @no_type_check
+    def adam_weight_kernel(
+        W: F32_2D, M: F32_2D, S: F32_2D, D: F32_2D, t: I32, eta: wp.float32, beta1: wp.float32,
+        one_minus_beta1: wp.float32, beta2: wp.float32, one_minus_beta2: wp.float32, eps: wp.float32,
+        b1: wp.float64, b2: wp.float64, Wt: F32_2D,
+    ):
+        r, c = wp.tid()
+        g = D[r, c]
+        m = beta1 * M[r, c] + one_minus_beta1 * g
+        s = beta2 * S[r, c] + one_minus_beta2 * (g * g)
+        M[r, c] = m
+        S[r, c] = s
+        n = wp.float64(t[0])
+        c1 = wp.float32(wp.float64(1.0) - wp.pow(b1, n))
+        c2 = wp.float32(wp.float64(1.0) - wp.pow(b2, n))
+        w = W[r, c] + eta * (m / c1) / (wp.sqrt(s / c2) + eps)
+        W[r, c] = w
+        if wp.static(with_transpose):
+            Wt[c, r] = w
+
+    return tiled_kernel(adam_weight_kernel, f"pc_adam_weight_{'WWt' if with_transpose else 'W'}")
+
+
+@wp.kernel(enable_backward=False, module="unique")
+@no_type_check
+def _count_kernel(t: I32):
+    t[0] = t[0] + 1
 
 
 # --------------------------------------------------------------------------------------
@@ -277,3 +336,55 @@ def weight_update(
         cfg.block_dim,
         device,
     )
+
+
+def _check_optimizer_arrays(W: wp.array, Wt: wp.array | None, **same: wp.array) -> None:
+    ensure_init()
+    check_type("W", W)
+    device, shape = W.device, tuple(W.shape)
+    for name, arr in same.items():
+        check(name, arr, shape, device)
+    if Wt is not None:
+        check("Wt", Wt, (shape[1], shape[0]), device)
+
+
+def momentum_weight_step(
+    W: wp.array, V: wp.array, D: wp.array, eta: float, beta: float, Wt: wp.array | None = None
+) -> None:
+    """(d) Heavy-ball weight step, in place: ``V <- beta V + D``, ``W <- W + eta V`` and
+    ``Wt <- W.T`` of the result when ``Wt`` is given. ``D`` is the step direction
+    ``2 Y.T @ G`` (= -dF/dW); ``W``, ``V``, ``D`` (n_l x n_below) float32."""
+    _check_optimizer_arrays(W, Wt, V=V, D=D)
+    simt_launch(
+        _momentum_weight_kernel(Wt is not None), tuple(W.shape),
+        [W, V, D, wp.float32(eta), wp.float32(beta), Wt if Wt is not None else W], W.device,
+    )
+
+
+def adam_weight_step(
+    W: wp.array, M: wp.array, S: wp.array, D: wp.array, t: wp.array, eta: float, beta1: float, beta2: float,
+    eps: float, Wt: wp.array | None = None,
+) -> None:
+    """(d) Adam weight step, in place (float32 moments, float64 bias corrections):
+    ``M <- b1 M + (1 - b1) D``, ``S <- b2 S + (1 - b2) D^2``,
+    ``W <- W + eta (M / (1 - b1^t)) / (sqrt(S / (1 - b2^t)) + eps)`` with ``t = t[0]`` (the
+    step count, already counted by :func:`count_step`), and ``Wt <- W.T`` when given.
+    ``D`` is the step direction ``2 Y.T @ G`` (= -dF/dW)."""
+    _check_optimizer_arrays(W, Wt, M=M, S=S, D=D)
+    check("t", t, (1,), W.device, wp.int32)
+    simt_launch(
+        _adam_weight_kernel(Wt is not None), tuple(W.shape),
+        [W, M, S, D, t, wp.float32(eta), wp.float32(beta1), wp.float32(1.0 - beta1), wp.float32(beta2),
+         wp.float32(1.0 - beta2), wp.float32(eps), wp.float64(beta1), wp.float64(beta2),
+         Wt if Wt is not None else W],
+        W.device,
+    )
+
+
+def count_step(t: wp.array) -> None:
+    """``t[0] <- t[0] + 1``: the optimiser's step count, on the device (so that a captured
+    minibatch counts each replay)."""
+    ensure_init()
+    check_type("t", t, wp.int32, 1)
+    check("t", t, (1,), t.device, wp.int32)
+    simt_launch(_count_kernel, 1, [t], t.device)

@@ -9,6 +9,12 @@ A backend owns array storage and the operations the network is built from:
     latent_update(Y, G, W, eta, E_up, mask)
                                       Y <- Y + 2 eta mask * (G W^T - E_up)      (-eta dF/dY)
     weight_update(W, Y, G, eta)       W <- W + 2 eta (Y^T G)                    (-eta dF/dW)
+    weight_gradient(D, Y, G)          D <- 2 Y^T G, the step direction -dF/dW (D shaped as W)
+    count_step(t)                     t[0] += 1: an optimiser's step count, on the device
+    momentum_weight_step(W, V, D, eta, beta)
+                                      V <- beta V + D, W <- W + eta V          (heavy ball)
+    adam_weight_step(W, M, S, D, t, eta, beta1, beta2, eps)
+                                      Adam, bias-corrected at step t[0]        (kernels/reference.py)
     gather_rows / scatter_rows        minibatch rows of a resident store, by an index array
     stop_converged(R, limits, active, steps)   per-sample stopping of inference
     scale_add(dst, src, alpha, mask)  dst <- dst + alpha mask * src   (the solvers' vector steps)
@@ -80,6 +86,12 @@ class Backend(Protocol):
     ) -> None: ...
     def latent_update(self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None, mask: Any | None) -> None: ...
     def weight_update(self, W: Any, Y: Any, G: Any, eta: float) -> None: ...
+    def weight_gradient(self, D: Any, Y: Any, G: Any) -> None: ...
+    def count_step(self, t: Any) -> None: ...
+    def momentum_weight_step(self, W: Any, V: Any, D: Any, eta: float, beta: float) -> None: ...
+    def adam_weight_step(
+        self, W: Any, M: Any, S: Any, D: Any, t: Any, eta: float, beta1: float, beta2: float, eps: float
+    ) -> None: ...
     def gather_rows(self, src: Any, index: Any, dst: Any) -> None: ...
     def scatter_rows(self, src: Any, index: Any, dst: Any) -> None: ...
     def stop_converged(self, R: Any, limits: Any, active: Any, steps: Any) -> None: ...
@@ -215,6 +227,50 @@ class NumpyBackend(_Scratch):
             np.add(W.W[rows], tc, out=W.W[rows])
             np.add(W.Wt[:, rows], tc.T, out=W.Wt[:, rows])
 
+    def weight_gradient(self, D: np.ndarray, Y: np.ndarray, G: np.ndarray) -> None:
+        # D <- (2 Y)^T G: one GEMM straight into D (it is W-sized already), 2 folded into Y
+        ys = self._buffer("weight_y", Y.shape)
+        np.multiply(Y, self.dtype.type(2.0), out=ys)
+        np.matmul(ys.T, G, out=D)
+
+    def count_step(self, t: np.ndarray) -> None:
+        t += 1
+
+    def _apply_weight_step(self, W: _Weights, step: np.ndarray) -> None:
+        # the same element-wise sums into W and into the columns of Wt: Wt stays W^T exactly
+        np.add(W.W, step, out=W.W)
+        np.add(W.Wt, step.T, out=W.Wt)
+
+    def momentum_weight_step(self, W: _Weights, V: np.ndarray, D: np.ndarray, eta: float, beta: float) -> None:
+        np.multiply(V, self.dtype.type(beta), out=V)
+        np.add(V, D, out=V)
+        step = self._buffer("optimizer_step", V.shape)
+        np.multiply(V, self.dtype.type(eta), out=step)
+        self._apply_weight_step(W, step)
+
+    def adam_weight_step(self, W: _Weights, M: np.ndarray, S: np.ndarray, D: np.ndarray, t: np.ndarray, eta: float,
+                         beta1: float, beta2: float, eps: float) -> None:
+        f = self.dtype.type
+        step = self._buffer("optimizer_step", M.shape)
+        np.multiply(M, f(beta1), out=M)
+        np.multiply(D, f(1.0 - beta1), out=step)
+        np.add(M, step, out=M)
+        np.multiply(S, f(beta2), out=S)
+        np.multiply(D, D, out=step)
+        np.multiply(step, f(1.0 - beta2), out=step)
+        np.add(S, step, out=S)
+        n = int(t[0])
+        c1, c2 = f(1.0 - beta1**n), f(1.0 - beta2**n)
+        np.divide(S, c2, out=step)
+        np.sqrt(step, out=step)
+        np.add(step, f(eps), out=step)  # step = sqrt(S / c2) + eps
+        denom = step
+        num = self._buffer("optimizer_num", M.shape)
+        np.divide(M, c1, out=num)
+        np.divide(num, denom, out=num)
+        np.multiply(num, f(eta), out=num)
+        self._apply_weight_step(W, num)
+
     def gather_rows(self, src: np.ndarray, index: np.ndarray, dst: np.ndarray) -> None:
         np.take(src, index, axis=0, out=dst)
 
@@ -341,6 +397,21 @@ class WarpBackend(_Scratch):
 
     def weight_update(self, W: Any, Y: Any, G: Any, eta: float) -> None:
         self._kernels.weight_update(W.W, Y, G, eta, Wt=W.Wt, tiles=self._tiles("weight", Y.shape[0]))
+
+    def weight_gradient(self, D: Any, Y: Any, G: Any) -> None:
+        # the weight kernel on zeroed "weights" D at eta 1: D <- 0 + 2 Y^T G
+        D.zero_()
+        self._kernels.weight_update(D, Y, G, 1.0, tiles=self._tiles("weight", Y.shape[0]))
+
+    def count_step(self, t: Any) -> None:
+        self._kernels.count_step(t)
+
+    def momentum_weight_step(self, W: Any, V: Any, D: Any, eta: float, beta: float) -> None:
+        self._kernels.momentum_weight_step(W.W, V, D, eta, beta, Wt=W.Wt)
+
+    def adam_weight_step(self, W: Any, M: Any, S: Any, D: Any, t: Any, eta: float, beta1: float, beta2: float,
+                         eps: float) -> None:
+        self._kernels.adam_weight_step(W.W, M, S, D, t, eta, beta1, beta2, eps, Wt=W.Wt)
 
     def gather_rows(self, src: Any, index: Any, dst: Any) -> None:
         self._kernels.gather_rows(src, index, dst)

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.network.optimizer import WeightOptimizer
 from vitaplace.engine.network.structure import NetworkView
 
 LATENT_INIT = 0.1
@@ -59,6 +60,8 @@ class BatchState:
         self.prior = 0.0
         # The top-down term (+2 E_above) of a node is applied once, with its first edge below.
         self.first_below = {e.upper: e.name for e in reversed(self.edges)}
+        #: the weight optimiser of a training run (`vitaplace.engine.network.optimizer`); None: the paper's SGD
+        self.optimizer: WeightOptimizer | None = None
 
     def load(self, inputs: Mapping[str, np.ndarray], latents: Mapping[str, np.ndarray] | None) -> None:
         """Host inputs and latents (default: all 0.1) into the buffers."""
@@ -105,7 +108,10 @@ class BatchState:
             )
 
     def weight_step(self) -> None:
-        """W <- W - eta_w dF/dW on every edge (eq. 4)."""
+        """W <- W - eta_w dF/dW on every edge (eq. 4), or the weight optimiser's step."""
+        if self.optimizer is not None:
+            self.optimizer.step(self.weights, self.Y, self.G, self.edges)
+            return
         for e in self.edges:
             self.be.weight_update(self.weights[e.name], self.Y[e.upper], self.G[e.name], e.eta_w)
 

@@ -31,6 +31,7 @@ from vitaplace.engine.base.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.network.backends import Backend
 from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
 from vitaplace.engine.network.inference import InferredSamples
+from vitaplace.engine.network.optimizer import WeightOptimizer
 from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.solver import GradientDescent, Solver
 from vitaplace.engine.network.structure import Edge, JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
@@ -231,7 +232,8 @@ class Network:
 
         Each sample's latents persist across epochs (initialised to 0.1, or ``latents`` to
         continue; that dict is updated in place). Per minibatch: T inference steps, then
-        one weight step (eq. 4). Inputs, latents and weights stay on the backend's device
+        one weight step (eq. 4; or the ``weight_optimizer``'s step from eq. 4's direction, its
+        state fresh for every call). Inputs, latents and weights stay on the backend's device
         for the whole run; a minibatch is one captured sequence (a CUDA graph on CUDA) and
         only its energies come back to the host.
         ``on_progress(epoch, energy)`` is called after every minibatch with the epoch (from 1)
@@ -253,6 +255,7 @@ class Network:
         states: dict[int, BatchState] = {}
         runs: dict[int, Callable[[], None]] = {}
         batches_per_epoch = math.ceil(n / cfg.batch_size)
+        optimizer = self._weight_optimizer(cfg, edges)
         for epoch in range(cfg.epochs):
             order = rng.permutation(n)
             totals = dict.fromkeys(history.energy, 0.0)
@@ -261,6 +264,7 @@ class Network:
                 index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
                 state = self._cached_state(states, len(index), present)
                 state.prior = cfg.latent_prior
+                state.optimizer = optimizer
                 if len(index) not in runs:
                     runs[len(index)] = be.capture(
                         functools.partial(state.minibatch, resident_x, resident_y, cfg.inference_steps)
@@ -285,6 +289,15 @@ class Network:
         self._sync_weights_to_host()
         self.train_latents = store
         return history
+
+    def _weight_optimizer(self, cfg: TrainingConfig, edges: Sequence[Edge]) -> WeightOptimizer | None:
+        """A fresh optimiser state for one training run (None: sgd, the fused step); not saved
+        with the model."""
+        if cfg.weight_optimizer == "sgd":
+            return None
+        shapes = {e.name: self.weights[e.name].shape for e in edges}
+        return WeightOptimizer(self.backend, cfg.weight_optimizer, edges, shapes, momentum=cfg.weight_momentum,
+                               beta1=cfg.adam_beta1, beta2=cfg.adam_beta2, eps=cfg.adam_eps)
 
     # ------------------------------------------------------------------ inference
     def infer(

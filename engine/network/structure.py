@@ -68,8 +68,11 @@ class TrainingConfig:
     latent steps per minibatch, and the seed of the random minibatch order. Settings and
     defaults: ``MupnetParams.training_config``.
 
-    ``latent_prior`` alone has a default, 0 (the paper's energy, and the plugin's default), so
-    that code written before it existed builds the same configuration."""
+    ``latent_prior`` and the weight optimiser's settings have defaults (the paper's energy
+    and plain SGD, the plugin's defaults), so that code written before they existed builds
+    the same configuration. ``weight_optimizer``: ``sgd`` (the paper's), ``momentum`` (heavy
+    ball, ``weight_momentum``) or ``adam`` (``adam_beta1``, ``adam_beta2``, ``adam_eps``);
+    `vitaplace.engine.network.optimizer`."""
 
     epochs: int
     batch_size: int
@@ -79,6 +82,14 @@ class TrainingConfig:
     converge_tol: float
     #: lambda of the Gaussian prior on the latents in the inference steps (0: the paper's energy)
     latent_prior: float = 0.0
+    #: the weight optimiser: sgd (the paper's plain step), momentum or adam
+    weight_optimizer: str = "sgd"
+    #: beta of the heavy-ball momentum (weight_optimizer momentum)
+    weight_momentum: float = 0.9
+    #: Adam's moment decays and epsilon (weight_optimizer adam)
+    adam_beta1: float = 0.9
+    adam_beta2: float = 0.999
+    adam_eps: float = 1e-8
 
 
 @dataclass

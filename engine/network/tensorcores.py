@@ -318,6 +318,26 @@ class CublasBackend(WarpBackend):
             self._gemm(W.W, self._operand(Y), self._gain(G), trans_a=True, alpha=2.0 * eta, beta=1.0)
             self._round_weights(W)
 
+    def weight_gradient(self, D: Any, Y: Any, G: Any) -> None:
+        # D <- 2 Y^T G by cuBLAS (beta 0: D's old contents are not read); D belongs to W's edge
+        with self._stream_for(None, (Y, G), (D,)):
+            self._gemm(D, self._operand(Y), self._gain(G), trans_a=True, alpha=2.0, beta=0.0)
+
+    def count_step(self, t: Any) -> None:
+        with self._stream_for(None, (t,), (t,)):
+            super().count_step(t)
+
+    def momentum_weight_step(self, W: _LowWeights, V: Any, D: Any, eta: float, beta: float) -> None:
+        with self._stream_for(None, (V, D), (W, V)):
+            self._kernels.momentum_weight_step(W.W, V, D, eta, beta)
+            self._round_weights(W)
+
+    def adam_weight_step(self, W: _LowWeights, M: Any, S: Any, D: Any, t: Any, eta: float, beta1: float,
+                         beta2: float, eps: float) -> None:
+        with self._stream_for(None, (M, S, D, t), (W, M, S)):
+            self._kernels.adam_weight_step(W.W, M, S, D, t, eta, beta1, beta2, eps)
+            self._round_weights(W)
+
     # ---------------------------------------------------------------- rows, stopping
     def fill(self, dst: Any, value: float) -> None:
         with self._stream_for(None, (), (dst,)):

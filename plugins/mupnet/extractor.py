@@ -36,6 +36,7 @@ from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.network.backends import Backend, BackendError, Precision
+from vitaplace.engine.network.optimizer import WeightOptimizerName
 from vitaplace.engine.network.pc import LATENT_INIT, JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.solver import Solver, SolverName, make_solver
@@ -101,6 +102,15 @@ class MupnetParams(ArchitectureParams):
         1e-3, description="test-time stop: mean squared error of the joint layer's predictions"
     )
     inference_steps: pydantic.PositiveInt = Field(20, description="T latent steps per minibatch before the weight step")
+    weight_optimizer: WeightOptimizerName = Field(
+        "sgd", description="weight update in training: sgd (the paper's plain step at eta_w), momentum (heavy ball, "
+        "weight_momentum) or adam (adam_beta1, adam_beta2, adam_eps; the eta_w values are then Adam's learning "
+        "rates); its state is not saved with the model (docs/MUPNET.md)",
+    )
+    weight_momentum: float = Field(0.9, gt=0, lt=1, description="beta of the momentum weight optimiser")
+    adam_beta1: float = Field(0.9, ge=0, lt=1, description="Adam's decay of the mean of the weight gradient")
+    adam_beta2: float = Field(0.999, ge=0, lt=1, description="Adam's decay of the mean square of the weight gradient")
+    adam_eps: pydantic.PositiveFloat = Field(1e-8, description="Adam's epsilon, added to the root mean square")
     max_steps: pydantic.PositiveInt = Field(3000, description="test-time inference step cap")
     latent_prior: pydantic.NonNegativeFloat = Field(
         0.0, description="lambda of a Gaussian prior on the latents, energy + lambda/2 ||y||^2, in training and at "
@@ -150,6 +160,8 @@ class MupnetParams(ArchitectureParams):
         return TrainingConfig(
             epochs=self.epochs, batch_size=self.batch_size, inference_steps=self.inference_steps, seed=self.seed,
             converge_window=self.converge_window, converge_tol=self.converge_tol, latent_prior=self.latent_prior,
+            weight_optimizer=self.weight_optimizer, weight_momentum=self.weight_momentum, adam_beta1=self.adam_beta1,
+            adam_beta2=self.adam_beta2, adam_eps=self.adam_eps,
         )
 
     def solver(self) -> Solver:

@@ -383,3 +383,24 @@ def test_the_precisions_are_spelled_once():
     for check in (known_precision, check_precision):
         with pytest.raises(BackendError, match=r"^unknown precision 'fp16'; valid: float32, tf32, bf16$"):
             check("fp16")
+
+
+@pytest.mark.parametrize("optimizer", ["momentum", "adam"])
+def test_weight_optimisers_on_the_tensor_core_backend_match_numpy(optimizer):
+    """The momentum and Adam weight steps through CublasBackend (HostBlas, float32 on the
+    CPU) train as on numpy, and bf16's rounded copies follow the optimiser's weights."""
+    rng = np.random.default_rng(3)
+    inputs = {m: rng.random((30, SMALL["modalities"][m]["input_size"])).astype(np.float32) for m in SMALL["modalities"]}
+    cfg = {"epochs": 2, "batch_size": 15, "inference_steps": 3, "seed": 0, "converge_window": 0,
+           "converge_tol": 0.01, "weight_optimizer": optimizer}
+    weights = {}
+    for name, backend in (("numpy", NumpyBackend()), ("float32", CublasBackend("float32", "cpu", blas=HostBlas())),
+                          ("bf16", CublasBackend("bf16", "cpu", blas=HostBlas()))):
+        net = Network(SMALL, seed=0, backend=backend)
+        net.train(inputs, cfg)
+        weights[name] = net.weights
+        if name == "bf16":
+            for handle in net.device_weights().values():
+                np.testing.assert_array_equal(low_to_float(handle.low), bf16(handle.W.numpy()))
+    for edge, w in weights["numpy"].items():
+        np.testing.assert_allclose(weights["float32"][edge], w, rtol=1e-5, atol=1e-6, err_msg=edge)

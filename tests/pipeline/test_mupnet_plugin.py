@@ -272,11 +272,16 @@ def test_diverging_latents_are_flagged_per_sample(mupnet_class, runs, caplog):
 # --------------------------------------------------------------------------- one schema
 
 
+#: TrainingConfig's fields added after the others, with the plugin's defaults (old code builds the same)
+LATER_TRAINING_FIELDS = ("latent_prior", "weight_optimizer", "weight_momentum", "adam_beta1", "adam_beta2",
+                         "adam_eps")
+
+
 def test_the_engine_configs_hold_no_defaults_of_their_own():
     """MuPNet's settings and defaults are MupnetParams alone: the engine's containers, the
-    network's seed and the inference step cap have none, but for the latent prior, added
-    after the others: its default is the plugin's, the paper's energy (0), in training and at
-    test time."""
+    network's seed and the inference step cap have none, but for the latent prior and the
+    weight optimiser's settings, added after the others: their defaults are the plugin's, the
+    paper's energy (0) and plain SGD, in training and at test time."""
     import dataclasses
     import inspect
 
@@ -285,8 +290,10 @@ def test_the_engine_configs_hold_no_defaults_of_their_own():
 
     for container in (ModalityConfig, JointConfig, NetworkConfig, TrainingConfig):
         for field in dataclasses.fields(container):
-            if (container, field.name) != (TrainingConfig, "latent_prior"):
+            if container is not TrainingConfig or field.name not in LATER_TRAINING_FIELDS:
                 assert field.default is dataclasses.MISSING, (container, field.name)
+            else:
+                assert field.default == MupnetParams.model_fields[field.name].default, field.name
             assert field.default_factory is dataclasses.MISSING, (container, field.name)
     assert inspect.signature(Network).parameters["seed"].default is inspect.Parameter.empty
     assert inspect.signature(Network.infer).parameters["max_steps"].default is inspect.Parameter.empty
@@ -312,7 +319,9 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
         "eta_w_joint": (float, 0.23), "threshold_visual": (float, 0.31), "threshold_tactile": (float, 0.32),
         "threshold_joint": (float, 0.33), "activation": (str, "tanh"), "slope": (float, 0.4), "epochs": (int, 17),
         "batch_size": (int, 19), "inference_steps": (int, 23), "seed": (int, 29), "converge_window": (int, 3),
-        "converge_tol": (float, 0.05), "latent_prior": (float, 0.07),
+        "converge_tol": (float, 0.05), "latent_prior": (float, 0.07), "weight_optimizer": (str, "adam"),
+        "weight_momentum": (float, 0.41), "adam_beta1": (float, 0.42), "adam_beta2": (float, 0.43),
+        "adam_eps": (float, 0.44),
     }
     params = pydantic.create_model("Changed", __base__=MupnetParams, **changed)()
     assert params.network_config(tactile_size=72) == NetworkConfig(
@@ -322,7 +331,7 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
         activation="tanh",
         slope=0.4,
     )
-    assert params.training_config() == TrainingConfig(17, 19, 23, 29, 3, 0.05, 0.07)
+    assert params.training_config() == TrainingConfig(17, 19, 23, 29, 3, 0.05, 0.07, "adam", 0.41, 0.42, 0.43, 0.44)
     only_touch = pydantic.create_model("OnlyTouch", __base__=MupnetParams, modalities=(list[str], ["tactile"]))()
     assert list(only_touch.network_config(tactile_size=72).modalities) == ["tactile"]
 
@@ -346,6 +355,11 @@ def test_the_fitted_network_is_built_from_the_params(fitted):
     ("activation", "relu", "Input should be 'leaky_relu', 'tanh', 'sigmoid' or 'linear'"),
     ("tactile_input", "sweep", "Input should be 'instant' or 'cycle'"),
     ("cycle_points", "0", "Input should be greater than 0"),
+    ("weight_optimizer", "rmsprop", "Input should be 'sgd', 'momentum' or 'adam'"),
+    ("weight_momentum", "0", "Input should be greater than 0"),
+    ("adam_eps", "0", "Input should be greater than 0"),
+    ("adam_beta2", "1", "Input should be less than 1"),
+    ("eta_w_joint", "-0.1", "Input should be greater than 0"),
 ])
 def test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path(capsys, key, value, message):
     from vitaplace.engine.cli.main import main
