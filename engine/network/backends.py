@@ -38,6 +38,7 @@ The tensor-core backend (precision tf32 or bf16) is `vitaplace.engine.network.te
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Literal, NamedTuple, Protocol, get_args
 
@@ -105,16 +106,16 @@ class Backend(Protocol):
     def capture(self, fn: Callable[[], None]) -> Callable[[], None]: ...
 
 
-class _Scratch:
+class _Scratch(ABC):
     """Scratch buffers cached per (use, shape): one instance must not be used from several
     threads at once."""
 
     def __init__(self) -> None:
         self._scratch: dict[tuple[str, tuple[int, ...]], Any] = {}
 
+    @abstractmethod
     def empty(self, shape: tuple[int, ...], dtype: type = np.float32) -> Any:
         """A zeroed array on the backend's device (each backend's own)."""
-        raise NotImplementedError
 
     def _buffer(self, use: str, shape: tuple[int, ...]) -> Any:
         buf = self._scratch.get((use, shape))

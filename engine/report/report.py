@@ -172,6 +172,13 @@ def _methods_section(methods: dict[str, dict[str, Any]]) -> list[str]:
     return lines + [""]
 
 
+def _facts(features: dict[str, dict[str, dict[str, Any]]], kind: str) -> list[tuple[str, str, dict[str, Any]]]:
+    """(method, run, facts) for every method and run whose features have facts of ``kind``
+    (`feature_facts`: ``inference``, ``tactile_range``)."""
+    return [(method, label, facts[kind]) for method, by_run in features.items()
+            for label, facts in by_run.items() if facts.get(kind)]
+
+
 def inference_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
     """Markdown table of the test-time inference steps per method and evaluation run, for
     methods whose features record them (`feature_facts`): median, 90th percentile and
@@ -180,7 +187,7 @@ def inference_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
     lines = [
         f"| {method} | {label} | {i['median']:.0f} | {i['p90']:.0f} | {i['max']} | "
         f"{100 * (1 - i['capped'] / i['samples']):.1f} | {_percent(i.get('stopped'), i['samples'])} |"
-        for method, by_run in features.items() for label, facts in by_run.items() if (i := facts.get("inference"))
+        for method, label, i in _facts(features, "inference")
     ]
     if not lines:
         return ""
@@ -369,7 +376,7 @@ def tactile_range_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
     lines = [
         f"| {method} | {label} | {_percent(r['inside'], r['values']) if r['values'] else '-'} | "
         f"{100 * r['channel_min']:.1f} | {r['channels_under']} of {r['channels']} | {r['beyond']:.3g} |"
-        for method, by_run in features.items() for label, facts in by_run.items() if (r := facts.get("tactile_range"))
+        for method, label, r in _facts(features, "tactile_range")
     ]
     if not lines:
         return ""
@@ -390,7 +397,7 @@ def _tactile_range_section(manifest: dict[str, Any]) -> list[str]:
         "their channel's range on the training run, the lowest channel's share, the channels with less than "
         f"{100 * IN_RANGE_SHARE:g} % inside, and how far the farthest value lies beyond [0, 1] in min-max scaled "
         "units (the channel's training range, floored by `tactile_min_range`, is 1). Under `tactile_scaling: clip` "
-        "such values are fed saturated at 0 or 1; otherwise as they are.",
+        "such values are fed saturated at the ends of the training range; otherwise as they are.",
         "",
         table,
         "",

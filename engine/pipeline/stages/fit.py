@@ -24,9 +24,9 @@ def fit(store: Store, scenario: Scenario, simulated: SimulateRecord) -> FitRecor
     """Every method fitted on the training run (or found in the cache)."""
     train = simulated.runs["train"]
     models, training, histories = {}, {}, {}
+    registry = store.registry
     for method in scenario.methods:
-        params = plan.params_for(scenario, store.registry, method)
-        registry = store.registry
+        params = plan.params_for(scenario, registry, method)
         key = fit_key(method.plugin, registry.version_of(method.plugin), registry.code_digest(method.plugin), params,
                       train)
         folder = outdir.model_dir(store.cache, method.name, key)
