@@ -18,6 +18,7 @@ starts it fresh.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from typing import Any, Literal, get_args
 
@@ -31,23 +32,20 @@ WeightOptimizerName = Literal["sgd", "momentum", "adam"]
 WEIGHT_OPTIMIZERS: tuple[str, ...] = get_args(WeightOptimizerName)
 
 
-class WeightOptimizer:
-    """The state and the step of a ``momentum`` or ``adam`` weight optimiser over ``edges``
-    (``weights``: the backend's handles; ``shapes``: each edge's W shape)."""
+class WeightOptimizer(ABC):
+    """The state and the step of a weight optimiser over ``edges`` (``shapes``: each edge's W
+    shape): per edge the step direction g = 2 Y^T G and the optimiser's moments, and the step
+    count t on the device. `make_weight_optimizer` builds one from its name."""
 
-    def __init__(self, backend: Backend, name: str, edges: Sequence[Edge], shapes: Mapping[str, tuple[int, ...]],
-                 *, momentum: float = 0.9, beta1: float = 0.9, beta2: float = 0.999, eps: float = 1e-8) -> None:
-        if name not in ("momentum", "adam"):
-            raise ValueError(f"unknown weight optimiser '{name}'; valid: {', '.join(WEIGHT_OPTIMIZERS)}")
-        self.be, self.name = backend, name
-        self.momentum, self.beta1, self.beta2, self.eps = momentum, beta1, beta2, eps
-        #: per edge, the step direction g = 2 Y^T G, and the moments (v; or m and s)
+    #: how many W-shaped moments per edge the rule keeps
+    MOMENTS = 0
+
+    def __init__(self, backend: Backend, edges: Sequence[Edge], shapes: Mapping[str, tuple[int, ...]]) -> None:
+        self.be = backend
         self.D = {e.name: backend.empty(shapes[e.name]) for e in edges}
-        moments = 1 if name == "momentum" else 2
         self.moments: dict[str, list[Any]] = {
-            e.name: [backend.empty(shapes[e.name]) for _ in range(moments)] for e in edges
+            e.name: [backend.empty(shapes[e.name]) for _ in range(self.MOMENTS)] for e in edges
         }
-        #: the step count t (Adam's bias correction), on the device
         self.t = backend.empty((1,), np.int32)
 
     @property
@@ -58,14 +56,56 @@ class WeightOptimizer:
     def step(self, weights: Mapping[str, Any], Y: Mapping[str, Any], G: Mapping[str, Any],
              edges: Sequence[Edge]) -> None:
         """One optimiser step on every edge from the minibatch's latents and gains."""
-        be = self.be
-        be.count_step(self.t)
+        self.be.count_step(self.t)
         for e in edges:
             D = self.D[e.name]
-            be.weight_gradient(D, Y[e.upper], G[e.name])
-            if self.name == "momentum":
-                (V,) = self.moments[e.name]
-                be.momentum_weight_step(weights[e.name], V, D, e.eta_w, self.momentum)
-            else:
-                M, S = self.moments[e.name]
-                be.adam_weight_step(weights[e.name], M, S, D, self.t, e.eta_w, self.beta1, self.beta2, self.eps)
+            self.be.weight_gradient(D, Y[e.upper], G[e.name])
+            self.edge_step(weights[e.name], self.moments[e.name], D, e.eta_w)
+
+    @abstractmethod
+    def edge_step(self, W: Any, moments: list[Any], D: Any, eta: float) -> None:
+        """One edge's step from its direction ``D`` and its ``moments``."""
+
+
+class Momentum(WeightOptimizer):
+    """Heavy ball: ``v <- beta v + g``, ``W <- W + eta_w v``."""
+
+    MOMENTS = 1
+
+    def __init__(self, backend: Backend, edges: Sequence[Edge], shapes: Mapping[str, tuple[int, ...]], *,
+                 momentum: float = 0.9) -> None:
+        super().__init__(backend, edges, shapes)
+        self.momentum = momentum
+
+    def edge_step(self, W: Any, moments: list[Any], D: Any, eta: float) -> None:
+        (V,) = moments
+        self.be.momentum_weight_step(W, V, D, eta, self.momentum)
+
+
+class Adam(WeightOptimizer):
+    """Adam with bias correction; each edge's eta_w is its learning rate."""
+
+    MOMENTS = 2
+
+    def __init__(self, backend: Backend, edges: Sequence[Edge], shapes: Mapping[str, tuple[int, ...]], *,
+                 beta1: float = 0.9, beta2: float = 0.999, eps: float = 1e-8) -> None:
+        super().__init__(backend, edges, shapes)
+        self.beta1, self.beta2, self.eps = beta1, beta2, eps
+
+    def edge_step(self, W: Any, moments: list[Any], D: Any, eta: float) -> None:
+        M, S = moments
+        self.be.adam_weight_step(W, M, S, D, self.t, eta, self.beta1, self.beta2, self.eps)
+
+
+def make_weight_optimizer(backend: Backend, name: str, edges: Sequence[Edge], shapes: Mapping[str, tuple[int, ...]],
+                          *, momentum: float = 0.9, beta1: float = 0.9, beta2: float = 0.999,
+                          eps: float = 1e-8) -> WeightOptimizer | None:
+    """The optimiser ``name`` names (the one place a name maps to a rule): None for ``sgd``
+    (the paper's fused step), else a fresh `Momentum` or `Adam` state."""
+    if name == "sgd":
+        return None
+    if name == "momentum":
+        return Momentum(backend, edges, shapes, momentum=momentum)
+    if name == "adam":
+        return Adam(backend, edges, shapes, beta1=beta1, beta2=beta2, eps=eps)
+    raise ValueError(f"unknown weight optimiser '{name}'; valid: {', '.join(WEIGHT_OPTIMIZERS)}")

@@ -31,7 +31,7 @@ from vitaplace.engine.base.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.network.backends import Backend
 from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
 from vitaplace.engine.network.inference import InferredSamples
-from vitaplace.engine.network.optimizer import WeightOptimizer
+from vitaplace.engine.network.optimizer import WeightOptimizer, make_weight_optimizer
 from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.solver import GradientDescent, Solver
 from vitaplace.engine.network.structure import Edge, JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
@@ -293,11 +293,9 @@ class Network:
     def _weight_optimizer(self, cfg: TrainingConfig, edges: Sequence[Edge]) -> WeightOptimizer | None:
         """A fresh optimiser state for one training run (None: sgd, the fused step); not saved
         with the model."""
-        if cfg.weight_optimizer == "sgd":
-            return None
         shapes = {e.name: self.weights[e.name].shape for e in edges}
-        return WeightOptimizer(self.backend, cfg.weight_optimizer, edges, shapes, momentum=cfg.weight_momentum,
-                               beta1=cfg.adam_beta1, beta2=cfg.adam_beta2, eps=cfg.adam_eps)
+        return make_weight_optimizer(self.backend, cfg.weight_optimizer, edges, shapes, momentum=cfg.weight_momentum,
+                                     beta1=cfg.adam_beta1, beta2=cfg.adam_beta2, eps=cfg.adam_eps)
 
     # ------------------------------------------------------------------ inference
     def infer(

@@ -7,7 +7,7 @@ import pytest
 from test_pc import SYNTH, TRAIN, synthetic
 
 from vitaplace.engine.network.backends import NumpyBackend
-from vitaplace.engine.network.optimizer import WeightOptimizer
+from vitaplace.engine.network.optimizer import make_weight_optimizer
 from vitaplace.engine.network.pc import Network
 from vitaplace.engine.network.structure import Edge
 from vitaplace.kernels import reference
@@ -28,7 +28,8 @@ def _two_steps(backend, name: str, eta: float, **settings) -> tuple[np.ndarray, 
     handle = backend.weights(W0)
     Y = backend.to_device(Y_EYE)
     G = backend.to_device(G_FIXED / 2)
-    opt = WeightOptimizer(backend, name, [edge], {"e": (2, 2)}, **settings)
+    opt = make_weight_optimizer(backend, name, [edge], {"e": (2, 2)}, **settings)
+    assert opt is not None
     for _ in range(2):
         opt.step({"e": handle}, {"u": Y}, {"e": G}, [edge])
     assert opt.steps == 2
@@ -63,7 +64,7 @@ def test_adam_two_steps_by_hand():
 
 def test_an_unknown_optimiser_is_refused():
     with pytest.raises(ValueError, match="unknown weight optimiser 'rmsprop'"):
-        WeightOptimizer(NumpyBackend(), "rmsprop", [_edge(0.1)], {"e": (2, 2)})
+        make_weight_optimizer(NumpyBackend(), "rmsprop", [_edge(0.1)], {"e": (2, 2)})
 
 
 @pytest.mark.parametrize("shape", [(3, 5), (37, 70)], ids=["3x5", "37x70"])
