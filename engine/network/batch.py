@@ -8,7 +8,7 @@ sequences only launches work, so it can be captured once and replayed.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -115,10 +115,13 @@ class BatchState:
         for e in self.edges:
             self.be.weight_update(self.weights[e.name], self.Y[e.upper], self.G[e.name], e.eta_w)
 
-    def minibatch(self, inputs: Mapping[str, object], latents: Mapping[str, object], steps: int) -> None:
-        """One training minibatch: rows ``index`` of the resident inputs and latents, T
-        inference steps, one weight step, the latents written back; how far the T steps moved
-        each sample's latents into ``moved`` and ``size2`` (`latent_change`)."""
+    def minibatch(self, inputs: Mapping[str, object], latents: Mapping[str, object],
+                  settle: Callable[[], None]) -> None:
+        """One training minibatch: rows ``index`` of the resident inputs and latents, the
+        latent steps ``settle`` takes on them (`plain_steps`, or a solver's: `Network.train`;
+        each leaves the errors of its final state in ``E``, ``G`` and ``R``), one weight step,
+        the latents written back; how far the steps moved each sample's latents into
+        ``moved`` and ``size2`` (`latent_change`)."""
         for node, x in self.X.items():
             self.be.gather_rows(inputs[node], self.index, x)
         be = self.be
@@ -126,7 +129,8 @@ class BatchState:
             be.gather_rows(latents[node], self.index, y)
             be.fill(self.Y_start[node], 0.0)
             be.scale_add(self.Y_start[node], y, 1.0, None)
-        self.train_steps(steps)
+        settle()
+        self.weight_step()
         be.fill(self.moved, 0.0)
         be.fill(self.size2, 0.0)
         for node, y in self.Y.items():
@@ -135,13 +139,18 @@ class BatchState:
             be.row_dot(y, y, 1.0, self.size2)
             be.scatter_rows(y, self.index, latents[node])
 
-    def train_steps(self, steps: int) -> None:
-        """The learning step on the loaded minibatch: T inference steps, then one weight step
-        (the energies of the final state in ``R``)."""
+    def plain_steps(self, steps: int) -> None:
+        """The paper's learning steps on the loaded minibatch: T plain inference steps at
+        eta_y (the energies of the final state in ``R``)."""
         self.predict_all(energy=steps == 0)
         for step in range(1, steps + 1):
             self.latent_step()
             self.predict_all(energy=step == steps)
+
+    def train_steps(self, steps: int) -> None:
+        """The paper's learning step on the loaded minibatch: T plain inference steps, then
+        one weight step."""
+        self.plain_steps(steps)
         self.weight_step()
 
     def start_inference(self, inputs: Mapping[str, object], carried: Mapping[str, np.ndarray] | None = None) -> None:
@@ -155,11 +164,18 @@ class BatchState:
                 self.be.fill(y, LATENT_INIT)
             else:
                 self.be.upload(carried[f"Y/{node}"], y)
-        self.be.fill(self.active, 1)
         if carried is None:
-            self.be.fill(self.steps, 0)
+            self.begin()
         else:
+            self.be.fill(self.active, 1)
             self.be.upload(carried["steps"], self.steps)
+            self.predict_all()
+
+    def begin(self) -> None:
+        """Inference from the loaded inputs and latents: every sample active, no steps taken,
+        the first prediction made."""
+        self.be.fill(self.active, 1)
+        self.be.fill(self.steps, 0)
         self.predict_all()
 
     def carry(self, keep: np.ndarray) -> dict[str, np.ndarray]:

@@ -33,10 +33,10 @@ from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
 from vitaplace.engine.network.inference import InferredSamples
 from vitaplace.engine.network.optimizer import WeightOptimizer, make_weight_optimizer
 from vitaplace.engine.network.selection import get_backend
-from vitaplace.engine.network.solver import GradientDescent, Solver
+from vitaplace.engine.network.solver import BatchSolver, GradientDescent, Solver
 from vitaplace.engine.network.structure import Edge, JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
 
-__all__ = ["LATENT_INIT", "BatchState", "Edge", "JointConfig", "ModalityConfig", "Network", "NetworkConfig",
+__all__ = ["LATENT_INIT", "BatchState", "Edge", "HeldOut", "JointConfig", "ModalityConfig", "Network", "NetworkConfig",
            "NetworkError", "TrainingConfig"]
 
 FORMAT_VERSION = 1
@@ -53,6 +53,9 @@ class TrainingHistory:
     #: per epoch, the median over samples of how far its T latent steps moved a sample's
     #: latents (`BatchState.latent_change`): how far from settled the persistent latents are
     latent_change: list[float] = field(default_factory=list)
+    #: per epoch, the energy per sample of the held-out samples at their settled latents
+    #: (`HeldOut`; empty without)
+    held_out: list[float] = field(default_factory=list)
 
     @property
     def epochs(self) -> int:
@@ -61,6 +64,18 @@ class TrainingHistory:
     def total(self) -> list[float]:
         """Energy per sample of each epoch, summed over the edges."""
         return [float(sum(values)) for values in zip(*self.energy.values(), strict=True)]
+
+
+@dataclass
+class HeldOut:
+    """Samples kept out of training whose energy `Network.train` measures after every epoch:
+    their (scaled) ``inputs``, inferred from the latents' start as at test time, by ``solver``
+    under ``latent_prior`` with a cap of ``max_steps`` steps."""
+
+    inputs: Mapping[str, np.ndarray]
+    solver: Solver
+    max_steps: int
+    latent_prior: float
 
 
 @dataclass
@@ -93,6 +108,12 @@ def glorot_uniform(rng: np.random.Generator, fan_in: int, fan_out: int) -> np.nd
     """Glorot/Xavier uniform init: U(-l, l), l = sqrt(6 / (fan_in + fan_out))."""
     limit = math.sqrt(6.0 / (fan_in + fan_out))
     return rng.uniform(-limit, limit, size=(fan_in, fan_out)).astype(np.float32)
+
+
+def _resumed_steps(steps: BatchSolver, count: int) -> None:
+    """A solver's ``count`` steps from the latents loaded in its state (training's)."""
+    steps.resume()
+    steps.steps(count)
 
 
 def converged(energies: Sequence[float], window: int, tol: float) -> bool:
@@ -227,15 +248,21 @@ class Network:
         training: TrainingConfig | Mapping,
         latents: dict[str, np.ndarray] | None = None,
         on_progress: Callable[[int, float], None] | None = None,
+        solver: Solver | None = None,
+        held_out: HeldOut | None = None,
     ) -> TrainingHistory:
         """Learn the weights from (already scaled) inputs of N samples.
 
         Each sample's latents persist across epochs (initialised to 0.1, or ``latents`` to
-        continue; that dict is updated in place). Per minibatch: T inference steps, then
-        one weight step (eq. 4; or the ``weight_optimizer``'s step from eq. 4's direction, its
-        state fresh for every call). Inputs, latents and weights stay on the backend's device
-        for the whole run; a minibatch is one captured sequence (a CUDA graph on CUDA) and
-        only its energies come back to the host.
+        continue; that dict is updated in place). Per minibatch: T inference steps (the
+        paper's plain steps at eta_y, or with ``solver`` T of its steps from the persistent
+        latents, each layer's step from the weights of that moment, a sample stopping early
+        only by the solver's relative rule), then one weight step (eq. 4; or the
+        ``weight_optimizer``'s step from eq. 4's direction, its state fresh for every call).
+        Inputs, latents and weights stay on the backend's device for the whole run; with the
+        paper's steps a minibatch is one captured sequence (a CUDA graph on CUDA) and only its
+        energies come back to the host. ``held_out``: after every epoch, the energy of those
+        samples at their settled latents (`TrainingHistory.held_out`).
         ``on_progress(epoch, energy)`` is called after every minibatch with the epoch (from 1)
         and the minibatch's energy per sample, for progress bars (as `infer`'s).
         Raises NetworkError naming the epoch and minibatch when an error becomes NaN/Inf.
@@ -265,12 +292,19 @@ class Network:
                 state = self._cached_state(states, len(index), present)
                 state.prior = cfg.latent_prior
                 state.optimizer = optimizer
-                if len(index) not in runs:
-                    runs[len(index)] = be.capture(
-                        functools.partial(state.minibatch, resident_x, resident_y, cfg.inference_steps)
-                    )
                 be.upload(index.astype(np.int32), state.index)
-                runs[len(index)]()
+                if solver is None:
+                    if len(index) not in runs:
+                        settle = functools.partial(state.plain_steps, cfg.inference_steps)
+                        runs[len(index)] = be.capture(
+                            functools.partial(state.minibatch, resident_x, resident_y, settle)
+                        )
+                    runs[len(index)]()
+                else:  # each layer's step depends on the weights: bound afresh, not captured
+                    steps = solver.bind(state, solver.node_steps(self, present, cfg.latent_prior))
+                    be.fill(state.limits, 0.0)  # no threshold stop in training
+                    state.minibatch(resident_x, resident_y, functools.partial(_resumed_steps, steps,
+                                                                              cfg.inference_steps))
                 energy = state.energies()
                 state.check_finite(energy, f"epoch {epoch + 1}, minibatch {b + 1}")
                 change[index] = state.latent_change()
@@ -281,6 +315,8 @@ class Network:
             for name, total in totals.items():
                 history.energy[name].append(total / n)
             history.latent_change.append(float(np.median(change)))
+            if held_out is not None:
+                history.held_out.append(self._held_out_energy(held_out))
             if converged(history.total(), cfg.converge_window, cfg.converge_tol):
                 history.converged = True
                 break
@@ -289,6 +325,13 @@ class Network:
         self._sync_weights_to_host()
         self.train_latents = store
         return history
+
+    def _held_out_energy(self, held_out: HeldOut) -> float:
+        """The energy per sample of the held-out samples at the latents test-time inference settles them at."""
+        result = self.infer(held_out.inputs, held_out.max_steps, solver=held_out.solver,
+                            latent_prior=held_out.latent_prior)
+        n = len(next(iter(held_out.inputs.values())))
+        return sum(self.energy(held_out.inputs, result.latents).values()) / n
 
     def _weight_optimizer(self, cfg: TrainingConfig, edges: Sequence[Edge]) -> WeightOptimizer | None:
         """A fresh optimiser state for one training run (None: sgd, the fused step); not saved

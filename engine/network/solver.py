@@ -125,6 +125,11 @@ class BatchSolver:
         sample's solver state too, so its steps go on as if uninterrupted."""
         self.state.start_inference(inputs, carried)
 
+    def resume(self) -> None:
+        """Start from the inputs and latents already in the state (training's persistent
+        latents: `Network.train` with a solver), the solver's own state fresh."""
+        self.state.begin()
+
     def carry(self, keep: np.ndarray) -> dict[str, np.ndarray]:
         """Host copies of the rows ``keep`` (a boolean mask) of all a sample's inference goes
         on from: its latents and steps (`BatchState.carry`) and its solver state."""
@@ -192,11 +197,18 @@ class ScaledSteps(BatchSolver):
         """After the first prediction: no momentum, full steps, the first step's norm into
         ``g0`` (the relative rule's reference); or the per-sample state in ``carried``."""
         super().start(inputs, carried)
-        be = self.state.be
         if carried is not None:
             for name, buf in self.per_sample().items():
-                be.upload(carried[name], buf)
+                self.state.be.upload(carried[name], buf)
             return
+        self._fresh()
+
+    def resume(self) -> None:
+        super().resume()
+        self._fresh()
+
+    def _fresh(self) -> None:
+        be = self.state.be
         for v in self.V.values():
             be.fill(v, 0.0)
         be.fill(self.scale, 1.0)

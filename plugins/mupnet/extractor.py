@@ -37,7 +37,16 @@ from tqdm.auto import tqdm
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.network.backends import Backend, BackendError, Precision
 from vitaplace.engine.network.optimizer import WeightOptimizerName
-from vitaplace.engine.network.pc import LATENT_INIT, JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
+from vitaplace.engine.network.pc import (
+    LATENT_INIT,
+    HeldOut,
+    JointConfig,
+    ModalityConfig,
+    Network,
+    NetworkConfig,
+    NetworkError,
+    TrainingConfig,
+)
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.solver import Solver, SolverName, make_solver
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
@@ -102,6 +111,16 @@ class MupnetParams(ArchitectureParams):
         1e-3, description="test-time stop: mean squared error of the joint layer's predictions"
     )
     inference_steps: pydantic.PositiveInt = Field(20, description="T latent steps per minibatch before the weight step")
+    training_inference: Literal["plain", "solver"] = Field(
+        "plain", description="the T latent steps of a training minibatch: plain (the paper's steps at eta_y) or solver "
+        "(steps of inference_solver from the persistent latents, each layer's step from the weights of that moment; "
+        "a departure from the paper, docs/MUPNET.md)",
+    )
+    held_out: float = Field(
+        0.0, ge=0, lt=1, description="share of the training run's samples (drawn with seed) kept out of training; "
+        "their energy at the latents test-time inference settles them at is measured after every epoch "
+        "(training.json, the report; 0: none, the paper's)",
+    )
     weight_optimizer: WeightOptimizerName = Field(
         "sgd", description="weight update in training: sgd (the paper's plain step at eta_w), momentum (heavy ball, "
         "weight_momentum) or adam (adam_beta1, adam_beta2, adam_eps; the eta_w values are then Adam's learning "
@@ -176,6 +195,13 @@ class MupnetParams(ArchitectureParams):
                              "curvature bound can be singular)")
         return value
 
+    @pydantic.model_validator(mode="after")
+    def _settling_solver(self) -> MupnetParams:
+        if self.training_inference == "solver" and self.inference_solver == "gd":
+            raise ValueError("training_inference solver takes the steps of a settling inference_solver "
+                             "(nesterov or preconditioned), not gd (that is training_inference plain)")
+        return self
+
     @pydantic.field_validator("precision")
     @classmethod
     def _precision_runs_here(cls, value: str, info: pydantic.ValidationInfo) -> str:
@@ -184,6 +210,16 @@ class MupnetParams(ArchitectureParams):
         except BackendError as exc:
             raise ValueError(str(exc)) from None
         return value
+
+
+def held_out_split(n: int, share: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The training samples and the held-out ones (each sorted): ``round(share * n)`` of the
+    ``n`` samples drawn at random with ``seed``; NetworkError when none would be left to train on."""
+    count = round(share * n)
+    if count >= n:
+        raise NetworkError(f"held_out {share} of a training run of {n} samples leaves none to train on")
+    held = np.random.default_rng(seed).permutation(n)[:count]
+    return np.setdiff1d(np.arange(n), held), np.sort(held)
 
 
 def presence(run: Run, modalities: Sequence[str]) -> np.ndarray:
@@ -227,6 +263,8 @@ class MupnetExtractor(FeatureExtractor):
         self.latent_change: list[float] = []
         #: the tactile channels' training range (None without the tactile modality)
         self.tactile_range: TactileRange | None = None
+        #: per epoch, the energy per sample of the held-out samples (`TrainingHistory.held_out`; empty without)
+        self.held_out: list[float] = []
 
     @classmethod
     def modalities(cls, params: ExtractorParams) -> frozenset[str]:
@@ -274,16 +312,22 @@ class MupnetExtractor(FeatureExtractor):
             self.network.set_scaler("tactile", *self.tactile_range.scaler())
         inputs = self._scaled(raw)
         training = p.training_config()
-        minibatches = training.epochs * math.ceil(len(train) / training.batch_size)
+        fitted, held = held_out_split(len(train), p.held_out, p.seed)
+        held_out = HeldOut({m: x[held] for m, x in inputs.items()}, p.solver(), p.max_steps,
+                           p.latent_prior) if len(held) else None
+        minibatches = training.epochs * math.ceil(len(fitted) / training.batch_size)
         with tqdm(total=minibatches, desc="train", unit="batch", disable=not self.progress) as bar:
             def on_progress(epoch: int, energy: float) -> None:
                 bar.update()
                 bar.set_postfix(epoch=epoch, F=f"{energy:.4g}")
 
-            history = self.network.train(inputs, training, on_progress=on_progress)
+            history = self.network.train({m: x[fitted] for m, x in inputs.items()}, training, on_progress=on_progress,
+                                         solver=p.solver() if p.training_inference == "solver" else None,
+                                         held_out=held_out)
         self.energy = history.energy
         self.converged = history.converged
         self.latent_change = history.latent_change
+        self.held_out = history.held_out
         self.train_norm_max = float(np.linalg.norm(self.network.train_latents["joint"], axis=1).max())
 
     def training_history(self) -> dict[str, list[float]]:
@@ -293,8 +337,9 @@ class MupnetExtractor(FeatureExtractor):
         epochs = len(next(iter(self.energy.values()), []))
         # latent_change: per epoch, the median of how far a minibatch's T steps moved a
         # sample's latents (relative): how far from settled training's persistent latents are
+        # held_out: per epoch, the energy per sample of the held-out samples at their settled latents
         return {"epochs": epochs, "max_epochs": self.params.epochs, "converged": self.converged,
-                "latent_change": self.latent_change}
+                "latent_change": self.latent_change, "held_out": self.held_out}
 
     def transform(self, run: Run) -> Features:
         if self.network is None:
@@ -369,7 +414,8 @@ class MupnetExtractor(FeatureExtractor):
         write_text_atomic(directory / "energy.json", json.dumps(self.energy))
         write_text_atomic(directory / "latent_norm.json", json.dumps({"train_max": self.train_norm_max}))
         write_text_atomic(directory / "training.json",
-                          json.dumps({"converged": self.converged, "latent_change": self.latent_change}))
+                          json.dumps({"converged": self.converged, "latent_change": self.latent_change,
+                                      "held_out": self.held_out}))
         if self.tactile_range is not None:
             self.tactile_range.save(directory)
 
@@ -381,6 +427,7 @@ class MupnetExtractor(FeatureExtractor):
         record = json.loads(training.read_text()) if training.exists() else {}
         self.converged = bool(record.get("converged", False))
         self.latent_change = list(record.get("latent_change", []))
+        self.held_out = list(record.get("held_out", []))
         norm = directory / "latent_norm.json"
         self.train_norm_max = json.loads(norm.read_text())["train_max"] if norm.exists() else math.inf
         self.tactile_range = TactileRange.load(directory) if "tactile" in self.params.modalities else None
