@@ -111,12 +111,6 @@ def _times(x: wp.float32, y: wp.float32) -> wp.float32:
 
 @wp.func
 @no_type_check
-def _weighted_square(x: wp.float32, pi: wp.float32) -> wp.float32:
-    return pi * x * x
-
-
-@wp.func
-@no_type_check
 def _below(c: wp.int32, n: wp.int32) -> wp.float32:
     return wp.where(c < n, wp.float32(1.0), wp.float32(0.0))
 
@@ -201,7 +195,7 @@ def _predict_kernel(
                 left = wp.tile_ones(shape=(tn,), dtype=wp.int32) * (X.shape[1] - col)
                 e = e * wp.tile_broadcast(wp.tile_map(_below, cols, left), shape=(tm, tn))
             if wp.static(weighted):
-                squares = wp.tile_map(_weighted_square, e, weight)
+                squares = wp.tile_map(_times, wp.tile_map(_square, e), weight)
             else:
                 squares = wp.tile_map(_square, e)
             wp.tile_store(row_partial[j], wp.tile_sum(squares, axis=1), offset=row)
