@@ -25,7 +25,7 @@ from vitaplace.engine.base.cpus import usable_cpus
 from vitaplace.kernels.tiles import TileConfig
 
 __all__ = [
-    "BF16_2D", "F32_2D", "F32_3D", "F64", "F64_2D", "I32", "check", "check_type", "ensure_init", "placeholder",
+    "BF16_2D", "F32", "F32_2D", "F32_3D", "F64", "F64_2D", "I32", "check", "check_type", "ensure_init", "placeholder",
     "planned_kernels", "planning", "preload", "simt_launch", "tiled_kernel", "tiled_launch",
 ]
 
@@ -35,6 +35,7 @@ F32_3D: wp.array3d = wp.array3d(dtype=wp.float32)
 F64_2D: wp.array2d = wp.array2d(dtype=wp.float64)
 BF16_2D: wp.array2d = wp.array2d(dtype=wp.bfloat16)
 I32: wp.array = wp.array(dtype=wp.int32)
+F32: wp.array = wp.array(dtype=wp.float32)
 F64: wp.array = wp.array(dtype=wp.float64)
 
 #: Element-wise / per-row kernels: threads per block on CUDA.

@@ -2,8 +2,10 @@
 
 :func:`predict` runs the fused tile GEMM ``A = Y @ W`` with its element-wise epilogue
 ``P = phi(A)``, ``E = X - P``, ``G = phi'(A) * E`` and each row's ``sum(E**2)`` (the
-per-sample energy of the edge); :func:`predict_epilogue` runs the epilogue alone on a
-product computed elsewhere (cuBLAS). ``kernels/reference.py`` is the numpy specification.
+per-sample energy of the edge); given the edge's error precisions ``pi`` (one per column),
+``G = pi * phi'(A) * E`` and the row energies ``sum(pi * E**2)``, in the same kernel;
+:func:`predict_epilogue` runs the epilogue alone on a product computed elsewhere(cuBLAS).
+``kernels/reference.py`` is the numpy specification.
 
 Per-row energies are written per column tile and summed by a second small kernel in a fixed
 order: no atomics, so results are bitwise reproducible run to run on one device.
@@ -16,6 +18,7 @@ import warp as wp
 
 from vitaplace.kernels.launch import (
     BF16_2D,
+    F32,
     F32_2D,
     F64_2D,
     check,
@@ -102,6 +105,12 @@ def _square(x: wp.float32) -> wp.float32:
 
 @wp.func
 @no_type_check
+def _times(x: wp.float32, y: wp.float32) -> wp.float32:
+    return x * y
+
+
+@wp.func
+@no_type_check
 def _below(c: wp.int32, n: wp.int32) -> wp.float32:
     return wp.where(c < n, wp.float32(1.0), wp.float32(0.0))
 
@@ -128,10 +137,12 @@ def _check_activation(name: str) -> None:
 @functools.cache
 def _predict_kernel(
     tiles: TileConfig, activation: str, store_prediction: bool, with_energy: bool, gemm: bool = True,
-    low_gain: bool = False,
+    low_gain: bool = False, weighted: bool = False,
 ) -> wp.Kernel:
     """(a) GEMM M=B, N=n_below, K=n_l, then the epilogue; ``row_partial[j, r]`` receives
-    row r's sum of squared errors over column tile j (when ``with_energy``).
+    row r's sum of squared errors over column tile j (when ``with_energy``). With
+    ``weighted`` the gain and the squared errors are multiplied by the column's precision
+    ``pi[c]``.
 
     Without ``gemm`` only the epilogue runs, on the product read from ``A`` (computed
     elsewhere, e.g. by cuBLAS); with ``low_gain`` G is also written in bfloat16 to ``G_low``
@@ -152,6 +163,7 @@ def _predict_kernel(
         G: F32_2D,
         row_partial: F32_2D,
         G_low: BF16_2D,
+        pi: F32,
     ):
         i, j = wp.tid()
         row, col = i * tm, j * tn
@@ -166,6 +178,9 @@ def _predict_kernel(
         p = wp.tile_map(phi, a, slope)
         e = wp.tile_load(X, shape=(tm, tn), offset=(row, col)) - p
         g = wp.tile_map(gain, a, e, slope)
+        if wp.static(weighted):
+            weight = wp.tile_broadcast(wp.tile_load(pi, shape=(tn,), offset=(col,)), shape=(tm, tn))
+            g = wp.tile_map(_times, g, weight)
         if wp.static(store_prediction):
             wp.tile_store(A, a, offset=(row, col))
             wp.tile_store(P, p, offset=(row, col))
@@ -179,9 +194,13 @@ def _predict_kernel(
                 cols = wp.tile_arange(tn, dtype=wp.int32)
                 left = wp.tile_ones(shape=(tn,), dtype=wp.int32) * (X.shape[1] - col)
                 e = e * wp.tile_broadcast(wp.tile_map(_below, cols, left), shape=(tm, tn))
-            wp.tile_store(row_partial[j], wp.tile_sum(wp.tile_map(_square, e), axis=1), offset=row)
+            if wp.static(weighted):
+                squares = wp.tile_map(_times, wp.tile_map(_square, e), weight)
+            else:
+                squares = wp.tile_map(_square, e)
+            wp.tile_store(row_partial[j], wp.tile_sum(squares, axis=1), offset=row)
 
-    tag = ("AP" if store_prediction else "EG") + ("R" if with_energy else "")
+    tag = ("AP" if store_prediction else "EG") + ("R" if with_energy else "") + ("_pi" if weighted else "")
     kind = "predict" if gemm else "epilogue"
     tag += "_Glow" if low_gain else ""
     return tiled_kernel(predict_kernel, f"pc_{kind}_{activation}_{tag}_{tm}x{tn}x{tk}", tiles)
@@ -222,10 +241,13 @@ def predict(
     A: wp.array | None = None,
     P: wp.array | None = None,
     tiles: TileConfig | None = None,
+    precision: wp.array | None = None,
 ) -> None:
     """Kernel (a): ``E = X - phi(Y @ W)``, ``G = phi'(Y @ W) * E``; with ``row_energy``,
     also ``row_energy[slot, r] = sum_c E[r, c]**2`` (float64); with ``A`` and ``P``, also
-    ``A = Y @ W`` and ``P = phi(A)``.
+    ``A = Y @ W`` and ``P = phi(A)``. With ``precision`` (``pi``, n_below float32, the
+    edge's error precisions) ``G = pi * phi'(Y @ W) * E`` and ``row_energy[slot, r] =
+    sum_c pi[c] E[r, c]**2``.
 
     Shapes: ``Y`` (B x n_l), ``W`` (n_l x n_below); ``X``, ``E``, ``G`` (and ``A``, ``P``)
     (B x n_below), float32; ``row_energy`` (slots x B) float64 with ``row_partial`` the
@@ -248,9 +270,10 @@ def predict(
     with_energy = row_energy is not None
     _check_energy_buffers(row_partial, row_energy, slot, b, n_below, cfg, device)
     _launch_predict(
-        _predict_kernel(cfg, activation, store, with_energy), cfg, b, n_below, row_partial, row_energy, slot,
+        _predict_kernel(cfg, activation, store, with_energy, weighted=precision is not None), cfg, b, n_below,
+        row_partial, row_energy, slot,
         [Y, W, X, wp.float32(slope), A if store else E, P if store else E, E, G, row_partial if with_energy else E,
-         placeholder(device, wp.bfloat16)],
+         placeholder(device, wp.bfloat16), _precision_arg(precision, n_below, device)],
         device,
     )
 
@@ -267,10 +290,11 @@ def predict_epilogue(
     slope: float = 0.2,
     G_low: wp.array | None = None,
     tiles: TileConfig | None = None,
+    precision: wp.array | None = None,
 ) -> None:
     """Kernel (a) without its GEMM: ``E = X - phi(A)``, ``G = phi'(A) * E`` from a product
-    ``A = Y @ W`` computed elsewhere (cuBLAS), the row energies as in :func:`predict`, and
-    with ``G_low`` (bfloat16, B x n_below) G rounded to bfloat16 as well."""
+    ``A = Y @ W`` computed elsewhere (cuBLAS), the row energies and ``precision`` as in
+    :func:`predict`, and with ``G_low`` (bfloat16, B x n_below) G rounded to bfloat16 as well."""
     _check_activation(activation)
     ensure_init()
     check_type("A", A)
@@ -285,12 +309,20 @@ def predict_epilogue(
     _check_energy_buffers(row_partial, row_energy, slot, b, n_below, cfg, device)
     low = G_low is not None
     _launch_predict(
-        _predict_kernel(cfg, activation, False, with_energy, gemm=False, low_gain=low), cfg, b, n_below, row_partial,
-        row_energy, slot,
+        _predict_kernel(cfg, activation, False, with_energy, gemm=False, low_gain=low, weighted=precision is not None),
+        cfg, b, n_below, row_partial, row_energy, slot,
         [E, E, X, wp.float32(slope), A, E, E, G, row_partial if with_energy else E,
-         G_low if low else placeholder(device, wp.bfloat16)],
+         G_low if low else placeholder(device, wp.bfloat16), _precision_arg(precision, n_below, device)],
         device,
     )
+
+
+def _precision_arg(precision: wp.array | None, n_below: int, device: wp.DeviceLike) -> wp.array:
+    """The precision vector (checked: n_below float32 on ``device``) or a placeholder."""
+    if precision is None:
+        return placeholder(device, wp.float32, 1)
+    check("precision", precision, (n_below,), device)
+    return precision
 
 
 def _launch_predict(

@@ -14,7 +14,10 @@ below (or the sensory input) ``X`` (B x n_below)::
     dF/dY = -2 G @ W.T + 2 E_above      (E_above absent for the top / joint layer)
     dF/dW = -2 Y.T @ G
 
-with the energy ``F = sum_l ||E_l||^2`` (no 1/2).
+with the energy ``F = sum_l ||E_l||^2`` (no 1/2). With error precisions (one ``pi`` per
+channel of the layer below, per edge) the energy is ``F = sum_l sum_c pi_c E_lc^2``, ``G``
+carries the edge's own ``pi`` (``G = pi * phi'(A) * E``) and the top-down term the edge
+above's: ``dF/dY = -2 G @ W.T + 2 pi_above * E_above``; ``dF/dW = -2 Y.T @ G`` unchanged in form.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ __all__ = [
     "activation",
     "activation_derivative",
     "predict",
+    "energy",
     "latent_step",
     "weight_step",
     "momentum_weight_step",
@@ -91,17 +95,27 @@ def predict(
     X: np.ndarray,
     name: str = "leaky_relu",
     slope: float = 0.2,
+    precision: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Prediction, error and gain of one layer.
 
     Returns ``(A, P, E, G)`` with ``A = Y @ W``, ``P = phi(A)``, ``E = X - P`` and
-    ``G = phi'(A) * E``.
+    ``G = phi'(A) * E``, times ``precision`` (the edge's error precisions, one per column) when given.
     """
     A = Y @ W
     P = activation(A, name, slope)
     E = X - P
     G = activation_derivative(A, name, slope) * E
+    if precision is not None:
+        G = G * np.asarray(precision, G.dtype)
     return A, P, E, G
+
+
+def energy(E: np.ndarray, precision: np.ndarray | None = None) -> np.ndarray:
+    """Each row's energy ``sum_c pi_c E[r, c]^2`` (``pi`` 1 when ``precision`` is None), in float64."""
+    E = np.asarray(E, np.float64)
+    pi = np.ones(E.shape[1]) if precision is None else np.asarray(precision, np.float64)
+    return (E * E) @ pi
 
 
 def latent_step(
@@ -110,16 +124,20 @@ def latent_step(
     W: np.ndarray,
     eta: float,
     E_above: np.ndarray | None = None,
+    precision_above: np.ndarray | None = None,
 ) -> np.ndarray:
     """One gradient step on the latent; returns the new ``Y``.
 
-    ``Y - eta * dF/dY`` with ``dF/dY = -2 G @ W.T + 2 E_above``, i.e.
-    ``Y + 2 eta G @ W.T - 2 eta E_above``. ``E_above`` is the error of the layer above
-    (whose target is ``Y``); pass ``None`` for the top / joint layer.
+    ``Y - eta * dF/dY`` with ``dF/dY = -2 G @ W.T + 2 pi_above E_above``, i.e.
+    ``Y + 2 eta G @ W.T - 2 eta pi_above E_above``. ``E_above`` is the error of the layer above
+    (whose target is ``Y``); pass ``None`` for the top / joint layer. ``precision_above``:
+    that edge's error precisions (one per column of ``Y``; None: 1).
     """
     two_eta = Y.dtype.type(2 * eta)
     out = Y + two_eta * (G @ W.T)
     if E_above is not None:
+        if precision_above is not None:
+            E_above = np.asarray(precision_above, E_above.dtype) * E_above
         out = out - two_eta * E_above
     return out
 

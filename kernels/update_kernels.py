@@ -1,14 +1,18 @@
 """Kernels (b) and (c), the gradient steps of a layer's latent and weights, on CPU or CUDA.
 
-(b) :func:`latent_update`  ``Y <- Y + 2 eta m * (G @ W.T - E_above)`` in place (``m`` the
-                           per-sample 0/1 mask of samples still being updated; reads the
-                           transposed copy ``Wt`` of ``W``); :func:`latent_apply` the same
-                           step from a product computed elsewhere (cuBLAS)
+(b) :func:`latent_update`  ``Y <- Y + 2 eta m * (G @ W.T - pi_above * E_above)`` in place
+                           (``m`` the per-sample 0/1 mask of samples still being updated;
+                           ``pi_above`` the error precisions of the edge above, 1 when not
+                           given; reads the transposed copy ``Wt`` of ``W``);
+                           :func:`latent_apply` the same step from a product computed
+                           elsewhere (cuBLAS)
 (c) :func:`weight_update`  ``W <- W + 2 eta Y.T @ G`` and ``Wt <- W.T`` (in place)
 (d) :func:`momentum_weight_step`, :func:`adam_weight_step`, :func:`count_step`
                            the element-wise weight steps of the momentum and Adam optimisers
                            from a step direction ``D = 2 Y.T @ G`` (:func:`weight_update` on
                            zeroed ``D`` with eta 1), keeping ``Wt <- W.T``; the step count
+(e) :func:`column_squares` ``out[c] += sum_r E[r, c]^2`` (float64): a minibatch's squared
+                           errors per channel, summed over an epoch for the error precisions
 
 The latent update's GEMM has few output tiles (batch x n_l) and a long K (n_below), so on
 CUDA it is split along K: each split writes its partial product to a scratch buffer and a
@@ -25,8 +29,10 @@ from typing import no_type_check
 import warp as wp
 
 from vitaplace.kernels.launch import (
+    F32,
     F32_2D,
     F32_3D,
+    F64,
     I32,
     check,
     check_type,
@@ -39,8 +45,8 @@ from vitaplace.kernels.launch import (
 from vitaplace.kernels.tiles import TileConfig, cdiv, latent_splits, tile_config
 
 __all__ = [
-    "adam_weight_step", "count_step", "latent_apply", "latent_scratch_shape", "latent_update", "momentum_weight_step",
-    "weight_update",
+    "adam_weight_step", "column_squares", "count_step", "latent_apply", "latent_scratch_shape", "latent_update",
+    "momentum_weight_step", "weight_update",
 ]
 
 # --------------------------------------------------------------------------------------
@@ -54,10 +60,17 @@ def _row_gate(active: wp.int32) -> wp.float32:
     return wp.where(active != 0, wp.float32(1.0), wp.float32(0.0))
 
 
+@wp.func
+@no_type_check
+def _times(x: wp.float32, y: wp.float32) -> wp.float32:
+    return x * y
+
+
 @functools.cache
-def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool) -> wp.Kernel:
+def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool, weighted: bool = False) -> wp.Kernel:
     """(b) in one kernel: ``Y += 2 eta * mask * (G @ Wt - E_above)``, GEMM M=B, N=n_l,
-    K=n_below (``Wt`` = W transposed, n_below x n_l).
+    K=n_below (``Wt`` = W transposed, n_below x n_l); with ``weighted``, ``pi_above[c] *
+    E_above`` in place of ``E_above``.
 
     Output tile (i, j) reads only Y's tile (i, j), after its GEMM, so Y is updated in place.
     """
@@ -65,7 +78,7 @@ def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool) -> 
 
     @no_type_check
     def latent_kernel(
-        Y: F32_2D, G: F32_2D, Wt: F32_2D, E_above: F32_2D, mask: I32, two_eta: wp.float32
+        Y: F32_2D, G: F32_2D, Wt: F32_2D, E_above: F32_2D, mask: I32, two_eta: wp.float32, pi_above: F32
     ):
         i, j = wp.tid()
         row, col = i * tm, j * tn
@@ -75,14 +88,19 @@ def _latent_fused_kernel(tiles: TileConfig, has_above: bool, has_mask: bool) -> 
             w = wp.tile_load(Wt, shape=(tk, tn), offset=(k * tk, col))
             wp.tile_matmul(g, w, d)
         if wp.static(has_above):
-            d = d - wp.tile_load(E_above, shape=(tm, tn), offset=(row, col))
+            e = wp.tile_load(E_above, shape=(tm, tn), offset=(row, col))
+            if wp.static(weighted):
+                pi = wp.tile_broadcast(wp.tile_load(pi_above, shape=(tn,), offset=(col,)), shape=(tm, tn))
+                e = wp.tile_map(_times, e, pi)
+            d = d - e
         d = d * two_eta
         if wp.static(has_mask):
             gate = wp.tile_map(_row_gate, wp.tile_load(mask, shape=(tm,), offset=(row,)))
             d = d * wp.tile_broadcast(wp.tile_reshape(gate, shape=(tm, 1)), shape=(tm, tn))
         wp.tile_store(Y, wp.tile_load(Y, shape=(tm, tn), offset=(row, col)) + d, offset=(row, col))
 
-    name = f"pc_latent_{'above' if has_above else 'top'}_{'masked' if has_mask else 'all'}_{tm}x{tn}x{tk}"
+    above = ("above_pi" if weighted else "above") if has_above else "top"
+    name = f"pc_latent_{above}_{'masked' if has_mask else 'all'}_{tm}x{tn}x{tk}"
     return tiled_kernel(latent_kernel, name, tiles)
 
 
@@ -107,13 +125,13 @@ def _latent_gemm_kernel(tiles: TileConfig) -> wp.Kernel:
 
 
 @functools.cache
-def _latent_step_kernel(has_above: bool, has_mask: bool) -> wp.Kernel:
+def _latent_step_kernel(has_above: bool, has_mask: bool, weighted: bool = False) -> wp.Kernel:
     """(b, split along K: epilogue) ``Y += 2 eta * mask * (sum_s D[s] - E_above)``, the
-    splits summed in order."""
+    splits summed in order; with ``weighted``, ``pi_above[c] * E_above``."""
 
     @no_type_check
     def latent_step_kernel(
-        Y: F32_2D, D: F32_3D, E_above: F32_2D, mask: I32, two_eta: wp.float32
+        Y: F32_2D, D: F32_3D, E_above: F32_2D, mask: I32, two_eta: wp.float32, pi_above: F32
     ):
         r, c = wp.tid()
         if wp.static(has_mask):
@@ -123,10 +141,14 @@ def _latent_step_kernel(has_above: bool, has_mask: bool) -> wp.Kernel:
         for s in range(1, D.shape[0]):
             d += D[s, r, c]
         if wp.static(has_above):
-            d -= E_above[r, c]
+            if wp.static(weighted):
+                d -= pi_above[c] * E_above[r, c]
+            else:
+                d -= E_above[r, c]
         Y[r, c] = Y[r, c] + two_eta * d
 
-    name = f"pc_latent_step_{'above' if has_above else 'top'}_{'masked' if has_mask else 'all'}"
+    above = ("above_pi" if weighted else "above") if has_above else "top"
+    name = f"pc_latent_step_{above}_{'masked' if has_mask else 'all'}"
     return tiled_kernel(latent_step_kernel, name)
 
 
@@ -205,6 +227,18 @@ def _count_kernel(t: I32):
     t[0] = t[0] + 1
 
 
+@wp.kernel(enable_backward=False, module="unique")
+@no_type_check
+def _column_squares_kernel(E: F32_2D, out: F64):
+    """(e) out[c] += sum over rows of E[r, c]^2, in float64, in row order."""
+    c = wp.tid()
+    s = wp.float64(0.0)
+    for r in range(E.shape[0]):
+        e = wp.float64(E[r, c])
+        s += e * e
+    out[c] = out[c] + s
+
+
 # --------------------------------------------------------------------------------------
 # Operations
 # --------------------------------------------------------------------------------------
@@ -223,10 +257,13 @@ def latent_scratch_shape(
 def latent_update(
     Y: wp.array, G: wp.array, Wt: wp.array, eta: float, scratch: wp.array | None = None,
     E_above: wp.array | None = None, mask: wp.array | None = None, tiles: TileConfig | None = None,
+    precision_above: wp.array | None = None,
 ) -> None:
-    """Kernel (b), in place: ``Y <- Y + 2 eta * mask * (G @ Wt - E_above)``.
+    """Kernel (b), in place: ``Y <- Y + 2 eta * mask * (G @ Wt - pi_above * E_above)``.
 
-    The gradient step ``Y - eta dF/dY`` with ``dF/dY = -2 G @ W.T + 2 E_above``; it takes
+    The gradient step ``Y - eta dF/dY`` with ``dF/dY = -2 G @ W.T + 2 pi_above E_above``
+    (``precision_above``: the error precisions of the edge above, n_l float32; None: 1;
+    ``G`` already carries this edge's own, `predict`); it takes
     ``Wt`` = W transposed (n_below x n_l, kept by :func:`weight_update`) so that the long
     K runs down the rows of both operands. ``Y`` (B x n_l), ``G`` (B x n_below),
     ``E_above`` (B x n_l) or ``None`` (top / joint layer), ``mask`` (B,) int32 (0: leave
@@ -252,15 +289,16 @@ def latent_update(
         check("E_above", E_above, (b, n_l), device)
     if mask is not None:
         check("mask", mask, (b,), device, wp.int32)
+    pi_arg, weighted = _precision_above(precision_above, E_above, n_l, device)
     cfg = tiles or tile_config(device, "latent", b)
     has_above, has_mask = E_above is not None, mask is not None
     above_arg = E_above if has_above else Y
     mask_arg = mask if has_mask else placeholder(device, wp.int32, 1)
     if scratch is None or scratch.shape[0] <= 1:
         tiled_launch(
-            _latent_fused_kernel(cfg, has_above, has_mask),
+            _latent_fused_kernel(cfg, has_above, has_mask, weighted),
             (cdiv(b, cfg.tm), cdiv(n_l, cfg.tn)),
-            [Y, G, Wt, above_arg, mask_arg, wp.float32(2.0 * eta)],
+            [Y, G, Wt, above_arg, mask_arg, wp.float32(2.0 * eta), pi_arg],
             cfg.block_dim,
             device,
         )
@@ -275,14 +313,25 @@ def latent_update(
         cfg.block_dim,
         device,
     )
-    _launch_latent_step(Y, scratch, eta, E_above, mask)
+    _launch_latent_step(Y, scratch, eta, E_above, mask, pi_arg, weighted)
+
+
+def _precision_above(precision_above: wp.array | None, E_above: wp.array | None, n_l: int,
+                     device: wp.DeviceLike) -> tuple[wp.array, bool]:
+    """The kernels' argument for ``precision_above`` (checked; a placeholder when None) and
+    whether the top-down term is weighted (only where there is an edge above)."""
+    if precision_above is None or E_above is None:
+        return placeholder(device, wp.float32, 1), False
+    check("precision_above", precision_above, (n_l,), device)
+    return precision_above, True
 
 
 def latent_apply(
-    Y: wp.array, D: wp.array, eta: float, E_above: wp.array | None = None, mask: wp.array | None = None
+    Y: wp.array, D: wp.array, eta: float, E_above: wp.array | None = None, mask: wp.array | None = None,
+    precision_above: wp.array | None = None,
 ) -> None:
     """The step of kernel (b) from a product ``D = G @ W.T`` computed elsewhere (cuBLAS),
-    in place: ``Y <- Y + 2 eta * mask * (D - E_above)``; ``D`` (B x n_l) float32, the
+    in place: ``Y <- Y + 2 eta * mask * (D - pi_above * E_above)``; ``D`` (B x n_l) float32, the
     rest as in :func:`latent_update`."""
     ensure_init()
     check_type("Y", Y)
@@ -293,18 +342,21 @@ def latent_apply(
         check("E_above", E_above, (b, n_l), device)
     if mask is not None:
         check("mask", mask, (b,), device, wp.int32)
-    _launch_latent_step(Y, D.reshape((1, b, n_l)), eta, E_above, mask)
+    pi_arg, weighted = _precision_above(precision_above, E_above, n_l, device)
+    _launch_latent_step(Y, D.reshape((1, b, n_l)), eta, E_above, mask, pi_arg, weighted)
 
 
-def _launch_latent_step(Y: wp.array, D: wp.array, eta: float, E_above: wp.array | None, mask: wp.array | None) -> None:
-    """``Y += 2 eta * mask * (sum_s D[s] - E_above)`` (D: splits x B x n_l)."""
+def _launch_latent_step(Y: wp.array, D: wp.array, eta: float, E_above: wp.array | None, mask: wp.array | None,
+                        pi_above: wp.array, weighted: bool) -> None:
+    """``Y += 2 eta * mask * (sum_s D[s] - pi_above * E_above)`` (D: splits x B x n_l; ``pi_above``
+    read only when ``weighted``)."""
     device = Y.device
     has_above, has_mask = E_above is not None, mask is not None
     simt_launch(
-        _latent_step_kernel(has_above, has_mask),
+        _latent_step_kernel(has_above, has_mask, weighted),
         tuple(Y.shape),
         [Y, D, E_above if has_above else Y, mask if has_mask else placeholder(device, wp.int32, 1),
-         wp.float32(2.0 * eta)],
+         wp.float32(2.0 * eta), pi_above],
         device,
     )
 
@@ -388,3 +440,12 @@ def count_step(t: wp.array) -> None:
     check_type("t", t, wp.int32, 1)
     check("t", t, (1,), t.device, wp.int32)
     simt_launch(_count_kernel, 1, [t], t.device)
+
+
+def column_squares(E: wp.array, out: wp.array) -> None:
+    """(e) ``out[c] <- out[c] + sum_r E[r, c]**2`` (the sum in float64, in row order; no
+    atomics); ``E`` (B x n) float32, ``out`` (n,) float64."""
+    ensure_init()
+    check_type("E", E)
+    check("out", out, (E.shape[1],), E.device, wp.float64)
+    simt_launch(_column_squares_kernel, E.shape[1], [E, out], E.device)

@@ -5,6 +5,7 @@
 (c) ``weight_update``: the weight step, keeping ``W.T`` (update_kernels)
 (c') ``momentum_weight_step``, ``adam_weight_step``, ``count_step``: the weight optimisers'
      element-wise steps, from the direction ``weight_update`` writes into zeroed weights (update_kernels)
+(c'') ``column_squares``: per-channel sums of squared errors (the error precisions' estimate) (update_kernels)
 (d) ``gather_rows``, ``scatter_rows``, ``to_bfloat16``: copies on the device (copy_kernels)
 (e) ``stop_converged``: per-sample stopping of inference (solver_kernels)
 
@@ -20,6 +21,7 @@ from vitaplace.kernels.solver_kernels import stop_converged
 from vitaplace.kernels.tiles import TileConfig, latent_splits, set_tile_config, tile_config
 from vitaplace.kernels.update_kernels import (
     adam_weight_step,
+    column_squares,
     count_step,
     latent_apply,
     latent_scratch_shape,
@@ -29,7 +31,7 @@ from vitaplace.kernels.update_kernels import (
 )
 
 __all__ = [
-    "ACTIVATIONS", "TileConfig", "adam_weight_step", "count_step", "gather_rows", "latent_apply",
+    "ACTIVATIONS", "TileConfig", "adam_weight_step", "column_squares", "count_step", "gather_rows", "latent_apply",
     "latent_scratch_shape", "latent_splits", "latent_update", "momentum_weight_step", "planned_kernels", "planning",
     "predict", "predict_epilogue", "preload", "row_partial_shape", "scatter_rows", "set_tile_config",
     "stop_converged", "tile_config", "to_bfloat16", "weight_update",

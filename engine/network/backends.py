@@ -4,12 +4,14 @@ A backend owns array storage and the operations the network is built from:
 
     weights(W) / upload_weights(W, h) / weights_to_host(h)
                                       a layer's weights onto the device (new, or in place) and back
-    predict(Y, W, X, E, G, R, k)      A = Y W, E = X - phi(A), G = phi'(A) * E, and with R:
-                                      R[k, r] = sum_c E[r, c]^2   (per-sample energy, float64)
-    latent_update(Y, G, W, eta, E_up, mask)
-                                      Y <- Y + 2 eta mask * (G W^T - E_up)      (-eta dF/dY)
+    predict(Y, W, X, E, G, R, k, pi)  A = Y W, E = X - phi(A), G = pi * phi'(A) * E, and with R:
+                                      R[k, r] = sum_c pi_c E[r, c]^2   (per-sample energy, float64;
+                                      pi: the edge's error precisions, 1 when None)
+    latent_update(Y, G, W, eta, E_up, mask, pi_up)
+                                      Y <- Y + 2 eta mask * (G W^T - pi_up * E_up)   (-eta dF/dY)
     weight_update(W, Y, G, eta)       W <- W + 2 eta (Y^T G)                    (-eta dF/dW)
     weight_gradient(D, Y, G)          D <- 2 Y^T G, the step direction -dF/dW (D shaped as W)
+    column_squares(E, S)              S[c] += sum_r E[r, c]^2 (float64): the error precisions' estimate
     count_step(t)                     t[0] += 1: an optimiser's step count, on the device
     momentum_weight_step(W, V, D, eta, beta)
                                       V <- beta V + D, W <- W + eta V          (heavy ball)
@@ -83,9 +85,14 @@ class Backend(Protocol):
     def upload_weights(self, host: np.ndarray, handle: Any) -> None: ...
     def weights_to_host(self, handle: Any) -> np.ndarray: ...
     def predict(
-        self, Y: Any, W: Any, X: Any, E: Any, G: Any, R: Any | None, slot: int, activation: str, slope: float
+        self, Y: Any, W: Any, X: Any, E: Any, G: Any, R: Any | None, slot: int, activation: str, slope: float,
+        precision: Any | None = None,
     ) -> None: ...
-    def latent_update(self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None, mask: Any | None) -> None: ...
+    def latent_update(
+        self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None, mask: Any | None,
+        precision_above: Any | None = None,
+    ) -> None: ...
+    def column_squares(self, E: Any, out: Any) -> None: ...
     def weight_update(self, W: Any, Y: Any, G: Any, eta: float) -> None: ...
     def weight_gradient(self, D: Any, Y: Any, G: Any) -> None: ...
     def count_step(self, t: Any) -> None: ...
@@ -172,7 +179,8 @@ class NumpyBackend(_Scratch):
 
     def weights(self, host: np.ndarray) -> _Weights:
         W = np.array(host, dtype=self.dtype)
-        return _Weights(W, np.ascontiguousarray(W.T))
+        # a copy: for a single row or column W.T is contiguous already and would be W's own memory
+        return _Weights(W, np.array(W.T, order="C"))
 
     def upload_weights(self, host: np.ndarray, handle: _Weights) -> None:
         self.upload(host, handle.W)
@@ -182,7 +190,7 @@ class NumpyBackend(_Scratch):
         return handle.W.copy()
 
     def predict(self, Y: np.ndarray, W: _Weights, X: np.ndarray, E: np.ndarray, G: np.ndarray, R: np.ndarray | None,
-                slot: int, activation: str, slope: float) -> None:
+                slot: int, activation: str, slope: float, precision: np.ndarray | None = None) -> None:
         A = self._buffer("A", E.shape)
         np.matmul(Y, W.W, out=A)
         if activation == "leaky_relu" and 0.0 <= slope <= 1.0:
@@ -197,15 +205,26 @@ class NumpyBackend(_Scratch):
         else:
             np.subtract(X, reference.activation(A, activation, slope), out=E)
             np.multiply(reference.activation_derivative(A, activation, slope), E, out=G)
-        if R is not None:
-            R[slot] = np.einsum("ij,ij->i", E, E)  # float32 row sums, stored as float64
+        if precision is None:
+            if R is not None:
+                R[slot] = np.einsum("ij,ij->i", E, E)  # float32 row sums, stored as float64
+            return
+        np.multiply(G, precision, out=G)
+        if R is not None:  # (pi E) . E: the unweighted sum's own order, so pi = 1 gives its bits
+            weighted = self._buffer("weighted_error", E.shape)
+            np.multiply(E, precision, out=weighted)
+            R[slot] = np.einsum("ij,ij->i", weighted, E)
 
     def latent_update(self, Y: np.ndarray, G: np.ndarray, W: _Weights, eta: float, E_above: np.ndarray | None,
-                      mask: np.ndarray | None) -> None:
-        # Y <- Y + 2 eta (G W^T - E_above): GEMM into a (batch x n_l) scratch, then small passes.
+                      mask: np.ndarray | None, precision_above: np.ndarray | None = None) -> None:
+        # Y <- Y + 2 eta (G W^T - pi_above E_above): GEMM into a (batch x n_l) scratch, then small passes.
         t = self._buffer("latent", Y.shape)
         np.matmul(G, W.Wt, out=t)
         if E_above is not None:
+            if precision_above is not None:
+                e = self._buffer("latent_above", Y.shape)
+                np.multiply(E_above, precision_above, out=e)
+                E_above = e
             np.subtract(t, E_above, out=t)
         np.multiply(t, self.dtype.type(2.0 * eta), out=t)
         if mask is not None:
@@ -236,6 +255,9 @@ class NumpyBackend(_Scratch):
 
     def count_step(self, t: np.ndarray) -> None:
         t += 1
+
+    def column_squares(self, E: np.ndarray, out: np.ndarray) -> None:
+        out += np.einsum("ij,ij->j", E, E, dtype=np.float64)
 
     def _apply_weight_step(self, W: _Weights, step: np.ndarray) -> None:
         # the same element-wise sums into W and into the columns of Wt: Wt stays W^T exactly
@@ -382,19 +404,22 @@ class WarpBackend(_Scratch):
         return handle.W.numpy().copy()
 
     def predict(self, Y: Any, W: Any, X: Any, E: Any, G: Any, R: Any | None, slot: int, activation: str,
-                slope: float) -> None:
+                slope: float, precision: Any | None = None) -> None:
         k = self._kernels
         tiles = self._tiles("predict", Y.shape[0])
         partial = (None if R is None
                    else self._buffer("row_partial", k.row_partial_shape(Y.shape[0], W.W.shape[1], tiles)))
-        k.predict(Y, W.W, X, E, G, partial, R, slot, activation=activation, slope=slope, tiles=tiles)
+        k.predict(Y, W.W, X, E, G, partial, R, slot, activation=activation, slope=slope, tiles=tiles,
+                  precision=precision)
 
-    def latent_update(self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None, mask: Any | None) -> None:
+    def latent_update(self, Y: Any, G: Any, W: Any, eta: float, E_above: Any | None, mask: Any | None,
+                      precision_above: Any | None = None) -> None:
         k = self._kernels
         tiles = self._tiles("latent", Y.shape[0])
         shape = k.latent_scratch_shape(Y.shape[0], Y.shape[1], W.W.shape[1], self._device, tiles)
         scratch = self._buffer("latent", shape) if shape[0] else None
-        k.latent_update(Y, G, W.Wt, eta, scratch, E_above=E_above, mask=mask, tiles=tiles)
+        k.latent_update(Y, G, W.Wt, eta, scratch, E_above=E_above, mask=mask, tiles=tiles,
+                        precision_above=precision_above)
 
     def weight_update(self, W: Any, Y: Any, G: Any, eta: float) -> None:
         self._kernels.weight_update(W.W, Y, G, eta, Wt=W.Wt, tiles=self._tiles("weight", Y.shape[0]))
@@ -406,6 +431,9 @@ class WarpBackend(_Scratch):
 
     def count_step(self, t: Any) -> None:
         self._kernels.count_step(t)
+
+    def column_squares(self, E: Any, out: Any) -> None:
+        self._kernels.column_squares(E, out)
 
     def momentum_weight_step(self, W: Any, V: Any, D: Any, eta: float, beta: float) -> None:
         self._kernels.momentum_weight_step(W.W, V, D, eta, beta, Wt=W.Wt)

@@ -15,6 +15,7 @@ import numpy as np
 
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.network.optimizer import WeightOptimizer
+from vitaplace.engine.network.precision import PrecisionEstimator
 from vitaplace.engine.network.structure import NetworkView
 
 LATENT_INIT = 0.1
@@ -62,6 +63,10 @@ class BatchState:
         self.first_below = {e.upper: e.name for e in reversed(self.edges)}
         #: the weight optimiser of a training run (`vitaplace.engine.network.optimizer`); None: the paper's SGD
         self.optimizer: WeightOptimizer | None = None
+        #: the error precisions per edge on the device (None: all 1, the paper's kernels)
+        self.Pi = net.device_precisions()
+        #: a training run's sums of squared errors for the error precisions; None: not estimated
+        self.estimator: PrecisionEstimator | None = None
 
     def load(self, inputs: Mapping[str, np.ndarray], latents: Mapping[str, np.ndarray] | None) -> None:
         """Host inputs and latents (default: all 0.1) into the buffers."""
@@ -82,7 +87,10 @@ class BatchState:
         for slot, e in enumerate(self.edges):
             n = e.name
             self.be.predict(self.Y[e.upper], self.weights[n], self._node(e.lower), self.E[n], self.G[n], R, slot, act,
-                            slope)
+                            slope, self._precision(n))
+
+    def _precision(self, edge: str | None) -> Any | None:
+        return None if self.Pi is None or edge is None else self.Pi[edge]
 
     def energies(self) -> dict[str, float]:
         """F per edge (eq. 2) of the last `predict_all` (waits for the device)."""
@@ -104,7 +112,7 @@ class BatchState:
             above = self.edge_above.get(e.upper) if self.first_below[e.upper] == e.name else None
             self.be.latent_update(
                 targets[e.upper], self.G[e.name], self.weights[e.name], eta[e.upper], self.E[above] if above else None,
-                mask,
+                mask, self._precision(above),
             )
 
     def weight_step(self) -> None:
@@ -121,7 +129,8 @@ class BatchState:
         latent steps ``settle`` takes on them (`plain_steps`, or a solver's: `Network.train`;
         each leaves the errors of its final state in ``E``, ``G`` and ``R``), one weight step,
         the latents written back; how far the steps moved each sample's latents into
-        ``moved`` and ``size2`` (`latent_change`)."""
+        ``moved`` and ``size2`` (`latent_change`); the final errors into the ``estimator``'s
+        sums, when there is one."""
         for node, x in self.X.items():
             self.be.gather_rows(inputs[node], self.index, x)
         be = self.be
@@ -131,6 +140,8 @@ class BatchState:
             be.scale_add(self.Y_start[node], y, 1.0, None)
         settle()
         self.weight_step()
+        if self.estimator is not None:
+            self.estimator.accumulate(self.E)
         be.fill(self.moved, 0.0)
         be.fill(self.size2, 0.0)
         for node, y in self.Y.items():

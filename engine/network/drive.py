@@ -6,7 +6,7 @@ convention: upper node ``joint``, lower node ``m.L``). With the energy of
 the joint layer has no edge above it, so its gradient is a sum of one term per modality edge
 and the prior's term (eq. 3 of `vitaplace.engine.network.pc`):
 
-    dF/dY_joint = sum_m T_m + lambda Y_joint,   T_m = -2 G_m W_m^T,   G_m = phi'(Y_joint W_m) * E_m
+    dF/dY_joint = sum_m T_m + lambda Y_joint,   T_m = -2 G_m W_m^T,   G_m = pi_m * phi'(Y_joint W_m) * E_m
 
 ``T_m`` is the gradient of that edge's own energy ``||E_m||^2`` in the joint latent: how hard
 modality ``m`` pulls the joint latent. A modality's *share* of the drive is
@@ -42,7 +42,8 @@ class JointDrive:
     ``terms[m]`` (samples x joint size) is ``T_m``; ``errors[m]`` the edge's prediction error
     ``E_m`` (samples x size of the top node of ``m``); ``prior`` is ``lambda Y_joint``;
     ``curvature[m]`` (samples) the trace of the edge's Gauss-Newton Hessian in the joint
-    latent, ``2 sum_j phi'(A_j)^2 ||W_m[:, j]||^2``.
+    latent, ``2 sum_j pi_j phi'(A_j)^2 ||W_m[:, j]||^2`` (``pi`` the edge's error precisions, 1
+    unless the network weighs its errors).
     """
 
     terms: dict[str, np.ndarray]
@@ -101,8 +102,9 @@ def joint_drive(net: NetworkView, inputs: Mapping[str, np.ndarray], latents: Map
             continue
         lower = inputs[e.modality] if e.lower == net.input_node(e.modality) else latents[e.lower]
         w = np.asarray(weights[e.name], np.float64)
-        a, _, error, gain = predict(joint, w, np.asarray(lower, np.float64), act, slope)
+        pi = np.asarray(net.precisions[e.name], np.float64) if net.weighted else np.ones(w.shape[1])
+        a, _, error, gain = predict(joint, w, np.asarray(lower, np.float64), act, slope, precision=pi)
         terms[e.modality] = -2.0 * gain @ w.T
         errors[e.modality] = error
-        curvature[e.modality] = 2.0 * activation_derivative(a, act, slope) ** 2 @ (w * w).sum(axis=0)
+        curvature[e.modality] = 2.0 * (activation_derivative(a, act, slope) ** 2 * pi) @ (w * w).sum(axis=0)
     return JointDrive(terms, errors, prior * joint, curvature)

@@ -12,7 +12,10 @@ lower node:
 
 Inference moves every latent one step down its gradient from the same state; learning
 moves each edge's weights down eq. 4 after T inference steps. (The paper prints the update
-without phi' and with the top-down sign flipped; this follows the gradient.)
+without phi' and with the top-down sign flipped; this follows the gradient.) With error
+precisions pi (``precision_weighting``, `vitaplace.engine.network.precision`) eq. 2 weighs
+each error channel, F = sum_edges sum_c pi_c E_c^2: G carries its edge's pi and the
+top-down term of eq. 3 is 2 pi_above E_above.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from vitaplace.engine.network.backends import Backend
 from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
 from vitaplace.engine.network.inference import InferredSamples
 from vitaplace.engine.network.optimizer import WeightOptimizer, make_weight_optimizer
+from vitaplace.engine.network.precision import PRECISION_WEIGHTINGS, PrecisionEstimator
 from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.solver import BatchSolver, GradientDescent, Solver
 from vitaplace.engine.network.structure import Edge, JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
@@ -152,6 +156,12 @@ class Network:
         }
         self.scalers: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._device_weights: dict[str, object] | None = None
+        #: error precisions per edge, one per channel of its lower node (all 1: the paper's energy)
+        self.precisions = {e.name: np.ones(self.sizes[e.lower], np.float32) for e in self.edges}
+        #: whether the precisions are used (set by `set_precisions` and by weighted training);
+        #: otherwise the backends run the paper's kernels, without them
+        self.weighted = False
+        self._device_precisions: dict[str, object] | None = None
 
     # ------------------------------------------------------------------ structure helpers
     @property
@@ -223,6 +233,29 @@ class Network:
         self._sync_weights_to_host()
         return self.weights
 
+    def set_precisions(self, precisions: Mapping[str, np.ndarray]) -> None:
+        """Replace error precisions (by edge name; one positive value per channel of the edge's
+        lower node) and use them from now on; the backend copies are updated in place."""
+        for name, pi in precisions.items():
+            if name not in self.precisions or np.shape(pi) != self.precisions[name].shape:
+                raise NetworkError(f"precisions '{name}' unknown or misshaped: {np.shape(pi)}")
+            if not np.all(np.isfinite(pi)) or np.any(np.asarray(pi) <= 0):
+                raise NetworkError(f"precisions '{name}' must be finite and > 0")
+        self.precisions.update({name: np.array(pi, np.float32) for name, pi in precisions.items()})
+        self.weighted = True
+        if self._device_precisions is not None:
+            for name in precisions:
+                self.backend.upload(self.precisions[name], self._device_precisions[name])
+
+    def device_precisions(self) -> dict[str, object] | None:
+        """The backend's copies of the precisions (made on first use), or None while they are
+        not used (`weighted`)."""
+        if not self.weighted:
+            return None
+        if self._device_precisions is None:
+            self._device_precisions = {name: self.backend.to_device(pi.copy()) for name, pi in self.precisions.items()}
+        return self._device_precisions
+
     def batch_state(self, batch: int, modalities: Sequence[str] | None = None) -> BatchState:
         """Buffers for a minibatch of ``batch`` samples of the given (default: all) modalities."""
         return BatchState(self, batch, self.modalities if modalities is None else modalities)
@@ -262,7 +295,9 @@ class Network:
         Inputs, latents and weights stay on the backend's device for the whole run; with the
         paper's steps a minibatch is one captured sequence (a CUDA graph on CUDA) and only its
         energies come back to the host. ``held_out``: after every epoch, the energy of those
-        samples at their settled latents (`TrainingHistory.held_out`).
+        samples at their settled latents (`TrainingHistory.held_out`). With
+        ``precision_weighting`` the error precisions are estimated from each epoch's final errors
+        and used from the next epoch on.
         ``on_progress(epoch, energy)`` is called after every minibatch with the epoch (from 1)
         and the minibatch's energy per sample, for progress bars (as `infer`'s).
         Raises NetworkError naming the epoch and minibatch when an error becomes NaN/Inf.
@@ -283,6 +318,7 @@ class Network:
         runs: dict[int, Callable[[], None]] = {}
         batches_per_epoch = math.ceil(n / cfg.batch_size)
         optimizer = self._weight_optimizer(cfg, edges)
+        estimator = self._precision_estimator(cfg, edges)
         for epoch in range(cfg.epochs):
             order = rng.permutation(n)
             totals = dict.fromkeys(history.energy, 0.0)
@@ -292,6 +328,7 @@ class Network:
                 state = self._cached_state(states, len(index), present)
                 state.prior = cfg.latent_prior
                 state.optimizer = optimizer
+                state.estimator = estimator
                 be.upload(index.astype(np.int32), state.index)
                 if solver is None:
                     if len(index) not in runs:
@@ -315,6 +352,8 @@ class Network:
             for name, total in totals.items():
                 history.energy[name].append(total / n)
             history.latent_change.append(float(np.median(change)))
+            if estimator is not None:
+                self.set_precisions(estimator.end_epoch(n))
             if held_out is not None:
                 history.held_out.append(self._held_out_energy(held_out))
             if converged(history.total(), cfg.converge_window, cfg.converge_tol):
@@ -339,6 +378,17 @@ class Network:
         shapes = {e.name: self.weights[e.name].shape for e in edges}
         return make_weight_optimizer(self.backend, cfg.weight_optimizer, edges, shapes, momentum=cfg.weight_momentum,
                                      beta1=cfg.adam_beta1, beta2=cfg.adam_beta2, eps=cfg.adam_eps)
+
+    def _precision_estimator(self, cfg: TrainingConfig, edges: Sequence[Edge]) -> PrecisionEstimator | None:
+        """The error precisions' estimate of one training run (None: ``none``, the precisions
+        left as they are); the precisions are in use from its first epoch, at their values then."""
+        if cfg.precision_weighting not in PRECISION_WEIGHTINGS:
+            raise NetworkError(f"unknown precision_weighting '{cfg.precision_weighting}'; valid: "
+                               f"{', '.join(PRECISION_WEIGHTINGS)}")
+        if cfg.precision_weighting == "none":
+            return None
+        self.weighted = True
+        return PrecisionEstimator(self.backend, edges, self.sizes, cfg.precision_weighting, cfg.precision_floor)
 
     # ------------------------------------------------------------------ inference
     def infer(
@@ -394,7 +444,8 @@ class Network:
 
     # ------------------------------------------------------------------ persistence
     def save(self, directory: str | Path) -> Path:
-        """Write config.json, weights.npz and scalers.npz to ``directory`` (each atomically)."""
+        """Write config.json, weights.npz, precisions.npz (the error precisions, when in use)
+        and scalers.npz to ``directory`` (each atomically)."""
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
         self._sync_weights_to_host()
@@ -410,12 +461,20 @@ class Network:
         }
         with atomic_path(directory / "scalers.npz") as tmp, open(tmp, "wb") as f:
             np.savez(f, **scalers)
+        precisions = directory / "precisions.npz"
+        if self.weighted:
+            arrays = dict(self.precisions)
+            with atomic_path(precisions) as tmp, open(tmp, "wb") as f:
+                np.savez(f, **arrays)
+        else:
+            precisions.unlink(missing_ok=True)
         write_text_atomic(directory / "config.json", json.dumps(meta, indent=2))
         return directory
 
     @classmethod
     def load(cls, directory: str | Path, backend: str | Backend = "auto") -> Network:
-        """Read a network written by `save`; refuses other format versions."""
+        """Read a network written by `save`; refuses other format versions. Without
+        precisions.npz (unweighted, or saved before precision weighting) every precision is 1."""
         directory = Path(directory)
         meta_path = directory / "config.json"
         try:
@@ -437,6 +496,12 @@ class Network:
                 net.set_weights({e.name: weights[e.name] for e in net.edges})
             except NetworkError as exc:
                 raise NetworkError(f"{directory / 'weights.npz'}: {exc}") from None
+        if (directory / "precisions.npz").exists():
+            with np.load(directory / "precisions.npz") as precisions:
+                try:
+                    net.set_precisions({key: precisions[key] for key in precisions.files})
+                except NetworkError as exc:
+                    raise NetworkError(f"{directory / 'precisions.npz'}: {exc}") from None
         with np.load(directory / "scalers.npz") as scalers:
             for key in scalers.files:
                 m, part = key.split("/")

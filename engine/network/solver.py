@@ -1,9 +1,10 @@
 """Test-time solvers of MuPNet's latents (docs/MUPNET.md, "Test-time inference that settles").
 
 The energy of the latents with frozen weights, with the optional Gaussian prior of standard
-predictive coding (``prior`` = lambda; 0: the paper's energy),
+predictive coding (``prior`` = lambda; 0: the paper's energy) and the network's error
+precisions ``pi`` (1 everywhere unless trained with ``precision_weighting``),
 
-    F_lambda(Y) = sum_edges ||E||^2 + lambda / 2 sum_latents ||Y||^2,
+    F_lambda(Y) = sum_edges sum_c pi_c E_c^2 + lambda / 2 sum_latents ||Y||^2,
 
 is minimised per sample by a `Solver`, the value `Network.infer` is given (`make_solver` builds
 one from the MuPNet plugin's ``inference_solver``, the one place a name becomes a solver):
@@ -58,49 +59,71 @@ def _largest_gain(activation: str, slope: float) -> float:
     return max(1.0, slope) if gain is None else gain
 
 
+def _scaled_weights(weights: Mapping[str, np.ndarray], precisions: Mapping[str, np.ndarray] | None,
+                    name: str) -> np.ndarray:
+    """``W diag(sqrt(pi))`` of edge ``name`` in float64 (``W`` where it has no precisions):
+    its Gram matrix is ``W diag(pi) W^T``."""
+    w = np.asarray(weights[name], np.float64)
+    if precisions is None or name not in precisions:
+        return w
+    return w * np.sqrt(np.asarray(precisions[name], np.float64))
+
+
+def _largest_precision(precisions: Mapping[str, np.ndarray] | None, name: str) -> float:
+    return 1.0 if precisions is None or name not in precisions else float(np.max(precisions[name]))
+
+
 def curvature_steps(
     weights: Mapping[str, np.ndarray], edges: Sequence, nodes: Sequence[str], activation: str, slope: float,
-    prior: float,
+    prior: float, precisions: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, float]:
-    """Per latent node 1 / L, L = 2 g^2 sum_{edges below} ||W||_2^2 + 2 [an edge above] + prior.
+    """Per latent node 1 / L, L = 2 g^2 sum_{edges below} ||W diag(pi) W^T||_2 + 2 max(pi_above) + prior.
 
-    L bounds the node's diagonal block of the energy's Gauss-Newton Hessian ``2 J^T J`` (the
-    Hessian itself almost everywhere for a piecewise-linear activation) for every sample; g
-    is the largest phi'. ``||W||_2^2`` is the largest eigenvalue of the smaller Gram matrix
-    (float64), raised by 1e-6 relative for rounding.
+    L bounds the node's diagonal block of the energy's Gauss-Newton Hessian
+    ``2 J^T diag(pi) J`` (the Hessian itself almost everywhere for a piecewise-linear
+    activation) for every sample; g is the largest phi', ``pi`` each edge's error precisions
+    (``precisions``; 1 where not given). ``||W diag(pi) W^T||_2`` (``||W||_2^2`` at pi = 1) is
+    the largest eigenvalue of the smaller Gram matrix of ``W diag(sqrt(pi))`` (float64),
+    raised by 1e-6 relative for rounding; each term is the exact norm of its own block, so
+    their sum bounds the block.
     """
     gain = _largest_gain(activation, slope)
     bound = dict.fromkeys(nodes, prior)
     for e in edges:
-        w = np.asarray(weights[e.name], np.float64)
+        w = _scaled_weights(weights, precisions, e.name)
         gram = w @ w.T if w.shape[0] <= w.shape[1] else w.T @ w
         bound[e.upper] += 2.0 * gain**2 * float(np.linalg.eigvalsh(gram)[-1]) * (1 + 1e-6)
         if e.lower in bound:
-            bound[e.lower] += 2.0
+            bound[e.lower] += 2.0 * _largest_precision(precisions, e.name)
     return {node: 1.0 / b for node, b in bound.items()}
 
 
 def curvature_preconditioners(
     weights: Mapping[str, np.ndarray], edges: Sequence, nodes: Sequence[str], activation: str, slope: float,
-    prior: float,
+    prior: float, precisions: Mapping[str, np.ndarray] | None = None,
 ) -> dict[str, np.ndarray]:
-    """Per latent node P = B^-1, B = 2 g^2 sum_{edges below} W W^T + (2 [an edge above] + prior) I.
+    """Per latent node P = B^-1, B = 2 g^2 sum_{edges below} W diag(pi) W^T + 2 diag(pi_above) + prior I.
 
-    B bounds the node's diagonal block of the Gauss-Newton Hessian ``2 J^T J`` for every
-    sample (``J^T J = W diag(phi'^2) W^T <= g^2 W W^T``); `curvature_steps`' L is its largest
-    eigenvalue (a bound of it where two edges are below, the joint's). With a prior B >= prior I
-    is invertible; it is inverted in float64 through its eigenvalues (symmetric, so P is too).
+    B bounds the node's diagonal block of the Gauss-Newton Hessian ``2 J^T diag(pi) J`` for
+    every sample (``J^T diag(pi) J = W diag(pi phi'^2) W^T <= g^2 W diag(pi) W^T``, the edge
+    above's term ``2 diag(pi_above)`` exactly; ``pi`` 1 where ``precisions`` gives none);
+    `curvature_steps`' L bounds its largest eigenvalue. With a prior B >= prior I is
+    invertible; it is inverted in float64 through its eigenvalues (symmetric, so P is too).
     """
     gain = _largest_gain(activation, slope)
     bound: dict[str, np.ndarray] = {}
     for e in edges:
-        w = np.asarray(weights[e.name], np.float64)
+        w = _scaled_weights(weights, precisions, e.name)
         bound[e.upper] = bound.get(e.upper, 0.0) + 2.0 * gain**2 * (w @ w.T)
-    above = {e.lower for e in edges}
+    above = {e.lower: e.name for e in edges}
     out = {}
     for node in nodes:
-        values, vectors = np.linalg.eigh(bound[node])
-        values = np.maximum(values, 0.0) + prior + (2.0 if node in above else 0.0)
+        block, identity = bound[node], 2.0 if node in above else 0.0
+        if node in above and precisions is not None and above[node] in precisions:
+            # 2 diag(pi_above) is no multiple of I: into the matrix, before the eigendecomposition
+            block, identity = block + 2.0 * np.diag(np.asarray(precisions[above[node]], np.float64)), 0.0
+        values, vectors = np.linalg.eigh(block)
+        values = np.maximum(values, 0.0) + prior + identity
         if values[0] <= 0.0:
             raise ValueError(f"the curvature bound of latent node '{node}' is singular; the preconditioned "
                              "solver needs a latent prior > 0")
@@ -281,7 +304,8 @@ class GradientDescent(Solver):
 def _bound(net: NetworkView, present: Sequence[str], prior: float) -> tuple:
     """The arguments of the curvature bounds (`curvature_steps`) of the modalities ``present``."""
     weights = net.host_weights()
-    return weights, net.active_edges(present), net.latent_nodes(present), net.config.activation, net.config.slope, prior
+    return (weights, net.active_edges(present), net.latent_nodes(present), net.config.activation, net.config.slope,
+            prior, net.precisions if net.weighted else None)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -72,7 +72,10 @@ class TrainingConfig:
     and plain SGD, the plugin's defaults), so that code written before they existed builds
     the same configuration. ``weight_optimizer``: ``sgd`` (the paper's), ``momentum`` (heavy
     ball, ``weight_momentum``) or ``adam`` (``adam_beta1``, ``adam_beta2``, ``adam_eps``);
-    `vitaplace.engine.network.optimizer`."""
+    `vitaplace.engine.network.optimizer`. ``precision_weighting`` (default ``none``, the
+    paper's energy): how training estimates the error precisions after each epoch
+    (`vitaplace.engine.network.precision`); the precisions themselves belong to the network
+    and are saved with it."""
 
     epochs: int
     batch_size: int
@@ -90,6 +93,10 @@ class TrainingConfig:
     adam_beta1: float = 0.9
     adam_beta2: float = 0.999
     adam_eps: float = 1e-8
+    #: error precisions estimated after each epoch: none (all 1), layer (one per edge) or channel
+    precision_weighting: str = "none"
+    #: the floor of an error variance in that estimate (pi <= 1 / floor before the normalisation)
+    precision_floor: float = 1e-3
 
 
 @dataclass
@@ -112,9 +119,13 @@ class NetworkView(Protocol):
     config: NetworkConfig
     sizes: dict[str, int]
     eta_y: dict[str, float]
+    #: host error precisions per edge (one per channel of its lower node), and whether they are in use
+    precisions: dict[str, np.ndarray]
+    weighted: bool
 
     def input_node(self, modality: str) -> str: ...
     def latent_nodes(self, modalities: Sequence[str]) -> list[str]: ...
     def active_edges(self, modalities: Sequence[str]) -> list[Edge]: ...
     def device_weights(self) -> dict[str, object]: ...
     def host_weights(self) -> dict[str, np.ndarray]: ...
+    def device_precisions(self) -> dict[str, object] | None: ...

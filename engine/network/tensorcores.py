@@ -290,8 +290,8 @@ class CublasBackend(WarpBackend):
 
     # ---------------------------------------------------------------- the step
     def predict(self, Y: Any, W: _LowWeights, X: Any, E: Any, G: Any, R: Any | None, slot: int, activation: str,
-                slope: float) -> None:
-        with self._stream_for(W, (Y, W, X), (E, G, None if R is None else (R.ptr, slot))):
+                slope: float, precision: Any | None = None) -> None:
+        with self._stream_for(W, (Y, W, X, precision), (E, G, None if R is None else (R.ptr, slot))):
             k = self._kernels
             A = self._buffer("product", tuple(E.shape))
             self._gemm(A, self._operand(Y), W.W if W.low is None else W.low)
@@ -300,17 +300,18 @@ class CublasBackend(WarpBackend):
             partial = None if R is None else self._buffer("row_partial", shape)
             G_low = self._low_buffer("gain", G) if self.precision == "bf16" else None
             k.predict_epilogue(A, X, E, G, partial, R, slot, activation=activation, slope=slope, G_low=G_low,
-                               tiles=tiles)
+                               tiles=tiles, precision=precision)
 
     def _gain(self, G: Any) -> Any:
         """G at the working precision: its bfloat16 copy, written by the last predict."""
         return self._low_buffer("gain", G) if self.precision == "bf16" else G
 
-    def latent_update(self, Y: Any, G: Any, W: _LowWeights, eta: float, E_above: Any | None, mask: Any | None) -> None:
-        with self._stream_for(W, (G, W, E_above, mask), (Y,)):
+    def latent_update(self, Y: Any, G: Any, W: _LowWeights, eta: float, E_above: Any | None, mask: Any | None,
+                      precision_above: Any | None = None) -> None:
+        with self._stream_for(W, (G, W, E_above, mask, precision_above), (Y,)):
             D = self._buffer("latent", tuple(Y.shape))
             self._gemm(D, self._gain(G), W.W if W.low is None else W.low, trans_b=True)
-            self._kernels.latent_apply(Y, D, eta, E_above=E_above, mask=mask)
+            self._kernels.latent_apply(Y, D, eta, E_above=E_above, mask=mask, precision_above=precision_above)
 
     def weight_update(self, W: _LowWeights, Y: Any, G: Any, eta: float) -> None:
         # W <- W + 2 eta Y^T G accumulated by cuBLAS in float32 into the float32 master copy
@@ -326,6 +327,10 @@ class CublasBackend(WarpBackend):
     def count_step(self, t: Any) -> None:
         with self._stream_for(None, (t,), (t,)):
             super().count_step(t)
+
+    def column_squares(self, E: Any, out: Any) -> None:
+        with self._stream_for(None, (E, out), (out,)):
+            super().column_squares(E, out)
 
     def momentum_weight_step(self, W: _LowWeights, V: Any, D: Any, eta: float, beta: float) -> None:
         with self._stream_for(None, (V, D), (W, V)):

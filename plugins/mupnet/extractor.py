@@ -47,6 +47,7 @@ from vitaplace.engine.network.pc import (
     NetworkError,
     TrainingConfig,
 )
+from vitaplace.engine.network.precision import PrecisionWeighting
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.solver import Solver, SolverName, make_solver
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
@@ -130,6 +131,15 @@ class MupnetParams(ArchitectureParams):
     adam_beta1: float = Field(0.9, ge=0, lt=1, description="Adam's decay of the mean of the weight gradient")
     adam_beta2: float = Field(0.999, ge=0, lt=1, description="Adam's decay of the mean square of the weight gradient")
     adam_eps: pydantic.PositiveFloat = Field(1e-8, description="Adam's epsilon, added to the root mean square")
+    precision_weighting: PrecisionWeighting = Field(
+        "none", description="error precisions (inverse variances) weighing each prediction error in the energy, "
+        "estimated after every training epoch and saved with the model: none (all 1, the paper's energy), layer "
+        "(one per edge) or channel (one per channel of the layer predicted); not the GEMM `precision` "
+        "(docs/MUPNET.md)",
+    )
+    precision_floor: pydantic.PositiveFloat = Field(
+        1e-3, description="floor of an error variance when estimating the error precisions (precision_weighting)"
+    )
     max_steps: pydantic.PositiveInt = Field(3000, description="test-time inference step cap")
     latent_prior: pydantic.NonNegativeFloat = Field(
         0.0, description="lambda of a Gaussian prior on the latents, energy + lambda/2 ||y||^2, in training and at "
@@ -180,7 +190,8 @@ class MupnetParams(ArchitectureParams):
             epochs=self.epochs, batch_size=self.batch_size, inference_steps=self.inference_steps, seed=self.seed,
             converge_window=self.converge_window, converge_tol=self.converge_tol, latent_prior=self.latent_prior,
             weight_optimizer=self.weight_optimizer, weight_momentum=self.weight_momentum, adam_beta1=self.adam_beta1,
-            adam_beta2=self.adam_beta2, adam_eps=self.adam_eps,
+            adam_beta2=self.adam_beta2, adam_eps=self.adam_eps, precision_weighting=self.precision_weighting,
+            precision_floor=self.precision_floor,
         )
 
     def solver(self) -> Solver:

@@ -274,14 +274,14 @@ def test_diverging_latents_are_flagged_per_sample(mupnet_class, runs, caplog):
 
 #: TrainingConfig's fields added after the others, with the plugin's defaults (old code builds the same)
 LATER_TRAINING_FIELDS = ("latent_prior", "weight_optimizer", "weight_momentum", "adam_beta1", "adam_beta2",
-                         "adam_eps")
+                         "adam_eps", "precision_weighting", "precision_floor")
 
 
 def test_the_engine_configs_hold_no_defaults_of_their_own():
     """MuPNet's settings and defaults are MupnetParams alone: the engine's containers, the
     network's seed and the inference step cap have none, but for the latent prior and the
-    weight optimiser's settings, added after the others: their defaults are the plugin's, the
-    paper's energy (0) and plain SGD, in training and at test time."""
+    weight optimiser's and the error precisions' settings, added after the others: their defaults
+    are the plugin's, the paper's energy (0, every precision 1) and plain SGD, in training and at test time."""
     import dataclasses
     import inspect
 
