@@ -23,6 +23,7 @@ from __future__ import annotations
 import functools
 import json
 import math
+import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -60,6 +61,8 @@ class TrainingHistory:
     #: per epoch, the energy per sample of the held-out samples at their settled latents
     #: (`HeldOut`; empty without)
     held_out: list[float] = field(default_factory=list)
+    #: CPU seconds (this process) spent measuring the held-out energy, not training
+    held_out_cpu_s: float = 0.0
 
     @property
     def epochs(self) -> int:
@@ -355,7 +358,9 @@ class Network:
             if estimator is not None:
                 self.set_precisions(estimator.end_epoch(n))
             if held_out is not None:
+                start = time.process_time()
                 history.held_out.append(self._held_out_energy(held_out))
+                history.held_out_cpu_s += time.process_time() - start
             if converged(history.total(), cfg.converge_window, cfg.converge_tol):
                 history.converged = True
                 break

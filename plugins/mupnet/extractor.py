@@ -76,11 +76,11 @@ class ArchitectureParams(InputParams):
     )
     slope: pydantic.NonNegativeFloat = Field(0.2, description="negative slope of the leaky ReLU")
     epochs: pydantic.PositiveInt = Field(
-        10, description="passes over the training run (the maximum when converge_window > 0)"
+        3000, description="passes over the training run (the maximum when converge_window > 0; the paper: 10)"
     )
     converge_window: pydantic.NonNegativeInt = Field(
-        0, description="stop once the training energy (the autoencoder: its reconstruction error) fell by less "
-        "than converge_tol over this many epochs (0: run all epochs)",
+        20, description="stop once the training energy (the autoencoder: its reconstruction error) fell by less "
+        "than converge_tol over this many epochs (0: run all epochs, the paper's)",
     )
     converge_tol: float = Field(
         0.01, gt=0, lt=1, description="relative improvement of the training energy over converge_window epochs "
@@ -91,7 +91,10 @@ class ArchitectureParams(InputParams):
 
 
 class MupnetParams(ArchitectureParams):
-    """Network, training and test-time inference settings (defaults: the MuPNet paper/code).
+    """Network, training and test-time inference settings. The architecture, step sizes and
+    thresholds default to the MuPNet paper/code; training and test-time inference default to
+    the converging training and the settling solver (docs/MUPNET.md, "Defaults"); the paper's
+    algorithm is scenarios/paper.yaml's.
 
     The one definition of these settings: the engine's network and training configurations
     are built from them (`network_config`, `training_config`)."""
@@ -111,19 +114,21 @@ class MupnetParams(ArchitectureParams):
     threshold_joint: pydantic.NonNegativeFloat = Field(
         1e-3, description="test-time stop: mean squared error of the joint layer's predictions"
     )
-    inference_steps: pydantic.PositiveInt = Field(20, description="T latent steps per minibatch before the weight step")
+    inference_steps: pydantic.PositiveInt = Field(
+        5, description="T latent steps per minibatch before the weight step (the paper: 20 plain steps)"
+    )
     training_inference: Literal["plain", "solver"] = Field(
-        "plain", description="the T latent steps of a training minibatch: plain (the paper's steps at eta_y) or solver "
+        "solver", description="the T latent steps of a training minibatch: plain (the paper's steps at eta_y) or solver "
         "(steps of inference_solver from the persistent latents, each layer's step from the weights of that moment; "
         "a departure from the paper, docs/MUPNET.md)",
     )
     held_out: float = Field(
-        0.0, ge=0, lt=1, description="share of the training run's samples (drawn with seed) kept out of training; "
+        0.1, ge=0, lt=1, description="share of the training run's samples (drawn with seed) kept out of training; "
         "their energy at the latents test-time inference settles them at is measured after every epoch "
         "(training.json, the report; 0: none, the paper's)",
     )
     weight_optimizer: WeightOptimizerName = Field(
-        "sgd", description="weight update in training: sgd (the paper's plain step at eta_w), momentum (heavy ball, "
+        "momentum", description="weight update in training: sgd (the paper's plain step at eta_w), momentum (heavy ball, "
         "weight_momentum) or adam (adam_beta1, adam_beta2, adam_eps; the eta_w values are then Adam's learning "
         "rates); its state is not saved with the model (docs/MUPNET.md)",
     )
@@ -140,13 +145,13 @@ class MupnetParams(ArchitectureParams):
     precision_floor: pydantic.PositiveFloat = Field(
         1e-3, description="floor of an error variance when estimating the error precisions (precision_weighting)"
     )
-    max_steps: pydantic.PositiveInt = Field(3000, description="test-time inference step cap")
+    max_steps: pydantic.PositiveInt = Field(1000, description="test-time inference step cap (the paper: 3000)")
     latent_prior: pydantic.NonNegativeFloat = Field(
-        0.0, description="lambda of a Gaussian prior on the latents, energy + lambda/2 ||y||^2, in training and at "
+        1.0, description="lambda of a Gaussian prior on the latents, energy + lambda/2 ||y||^2, in training and at "
         "test time (0: the paper's energy, which has no fixed point to settle at; docs/MUPNET.md)",
     )
     inference_solver: SolverName = Field(
-        "gd", description="test-time solver: gd (the paper's plain steps at eta_y), nesterov (momentum with "
+        "preconditioned", description="test-time solver: gd (the paper's plain steps at eta_y), nesterov (momentum with "
         "restarts, each layer's step from its curvature bound) or preconditioned (the same with each layer's "
         "bound as a matrix; needs latent_prior > 0)",
     )
@@ -154,7 +159,7 @@ class MupnetParams(ArchitectureParams):
         0.9, gt=0, lt=1, description="the momentum of the nesterov and preconditioned solvers"
     )
     inference_rtol: pydantic.PositiveFloat | None = Field(
-        None, description="test-time stop also when a sample's step has shrunk below this fraction of its first "
+        3e-6, description="test-time stop also when a sample's step has shrunk below this fraction of its first "
         "step (None: the per-layer thresholds alone, the paper's rule)",
     )
     backend: Literal["auto", "numpy", "warp"] = Field(
@@ -276,6 +281,8 @@ class MupnetExtractor(FeatureExtractor):
         self.tactile_range: TactileRange | None = None
         #: per epoch, the energy per sample of the held-out samples (`TrainingHistory.held_out`; empty without)
         self.held_out: list[float] = []
+        #: CPU seconds of this process `fit` spent measuring the held-out energy (not training)
+        self.held_out_cpu_s = 0.0
 
     @classmethod
     def modalities(cls, params: ExtractorParams) -> frozenset[str]:
@@ -339,6 +346,7 @@ class MupnetExtractor(FeatureExtractor):
         self.converged = history.converged
         self.latent_change = history.latent_change
         self.held_out = history.held_out
+        self.held_out_cpu_s = history.held_out_cpu_s
         self.train_norm_max = float(np.linalg.norm(self.network.train_latents["joint"], axis=1).max())
 
     def training_history(self) -> dict[str, list[float]]:
