@@ -6,7 +6,11 @@ scaled by ``tactile_scaling`` fitted on the training run), trains the network, a
 ``transform`` infers the joint latent of every sample with frozen weights (a progress bar
 over the samples unless ``progress`` is off, then one log line: samples, step cap, seconds);
 tactile values outside the training range are reported once per run and measured per sample
-(``tactile_inside``, ``tactile_beyond``: `inputs.range_measure`). Distance: L2.
+(``tactile_inside``, ``tactile_beyond``: `inputs.range_measure`). A network fed both
+modalities also records per sample vision's share of the drive on the joint latent at the
+settled point (``drive_visual_share``: `vitaplace.engine.network.drive`; ``drive_measured``
+says which samples had both modalities, the others read 0 and are left out of the report's
+facts). Distance: L2.
 
 Missing modalities (`Run.lacks`: a query drop-out): a sample without the camera is inferred
 from its tactile input alone, one without the whiskers from its visual input alone - the
@@ -36,8 +40,17 @@ from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.network.backends import Backend, BackendError, Precision
+from vitaplace.engine.network.drive import joint_drive
 from vitaplace.engine.network.optimizer import WeightOptimizerName
-from vitaplace.engine.network.pc import LATENT_INIT, JointConfig, ModalityConfig, Network, NetworkConfig, TrainingConfig
+from vitaplace.engine.network.pc import (
+    LATENT_INIT,
+    InferenceResult,
+    JointConfig,
+    ModalityConfig,
+    Network,
+    NetworkConfig,
+    TrainingConfig,
+)
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.solver import Solver, SolverName, make_solver
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
@@ -306,7 +319,8 @@ class MupnetExtractor(FeatureExtractor):
         start = time.perf_counter()
         with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress,
                   leave=False) as bar:
-            latent, steps, stopped, settled = self._infer(run, inputs, bar.update)
+            features = self._infer(run, inputs, bar.update)
+        latent, steps, settled = features["latent"], features["inference_steps"], features["inference_settled"]
         log.info(
             "mupnet: test-time inference of %d samples of run %r (step cap %d, %d reached it, at most %d steps) "
             "in %.1f s", len(run), run.name, self.params.max_steps, int((~settled).sum()),
@@ -321,40 +335,55 @@ class MupnetExtractor(FeatureExtractor):
                 len(where), len(latent), run.name, DIVERGED_FACTOR, self.train_norm_max,
                 ", ".join(map(str, where[:10])),
             )
-        # per sample: inference steps taken, whether its errors fell under their thresholds and
-        # whether a stopping rule (those, or inference_rtol's) ended it before the cap (the
-        # report gives their distribution)
-        features = {"latent": latent, "diverged": diverged, "inference_steps": steps, "inference_stopped": stopped,
-                    "inference_settled": settled}
+        features["diverged"] = diverged
         if run.missing:  # samples with none of the network's modalities (a query drop-out)
-            features["uninformed"] = ~presence(run, self.params.modalities).any(axis=1)
+            features["uninformed"] = presence(run, self.params.modalities).sum(axis=1) == 0
         if self.tactile_range is not None:  # the tactile values inside the training range (without whiskers: unfed)
             features |= range_measure(raw["tactile"], self.tactile_range, ~run.lacks("whiskers"))
         return features
 
-    def _infer(self, run: Run, inputs: dict[str, np.ndarray],
-               on_progress: Callable[[int], object]) -> tuple[np.ndarray, ...]:
+    def _infer(self, run: Run, inputs: dict[str, np.ndarray], on_progress: Callable[[int], object]) -> Features:
         """Joint latents, steps, stopped flags (under the thresholds) and settled flags (a
         stopping rule ended it before the cap) of every sample, each group of samples
-        (`presence_groups`) inferred from the modalities it has."""
+        (`presence_groups`) inferred from the modalities it has; with both modalities in the
+        network, vision's share of the joint drive too (`_drive_share`)."""
         assert self.network is not None
-        groups = presence_groups(run, self.params.modalities)
-        latent = np.full((len(run), self.params.joint_size), LATENT_INIT, dtype=np.float32)
-        steps = np.zeros(len(run), dtype=np.int64)
-        stopped, settled = np.ones(len(run), dtype=bool), np.ones(len(run), dtype=bool)
-        for present, index in groups:
+        n, both = len(run), set(self.params.modalities) == set(SENSOR_OF)
+        # per sample: inference steps taken, whether its errors fell under their thresholds and
+        # whether a stopping rule (those, or inference_rtol's) ended it before the cap (the
+        # report gives their distribution)
+        features: Features = {
+            "latent": np.full((n, self.params.joint_size), LATENT_INIT, dtype=np.float32),
+            "inference_steps": np.zeros(n, dtype=np.int64), "inference_stopped": np.ones(n, dtype=bool),
+            "inference_settled": np.ones(n, dtype=bool),
+        }
+        if both:
+            features |= {"drive_visual_share": np.zeros(n, np.float32), "drive_measured": np.zeros(n, bool)}
+        for present, index in presence_groups(run, self.params.modalities):
             if not present:
                 warn_once(run, "mupnet: no modality", f"run {run.name}: {len(index)} samples have none of mupnet's "
                           f"modalities ({', '.join(self.params.modalities)}): their joint latent is its start, "
                           f"{LATENT_INIT}, and they are never a match (distance +inf)")
                 on_progress(len(index))
                 continue
-            result = self.network.infer({m: inputs[m][index] for m in present}, max_steps=self.params.max_steps,
-                                        on_progress=on_progress, solver=self.params.solver(),
-                                        latent_prior=self.params.latent_prior, sample_ids=index)
-            latent[index], steps[index] = result.latents["joint"], result.steps_per_sample
-            stopped[index], settled[index] = result.stopped, result.settled
-        return latent, steps, stopped, settled
+            group = {m: inputs[m][index] for m in present}
+            result = self.network.infer(group, max_steps=self.params.max_steps, on_progress=on_progress,
+                                        solver=self.params.solver(), latent_prior=self.params.latent_prior,
+                                        sample_ids=index)
+            for key, value in (("latent", result.latents["joint"]), ("inference_steps", result.steps_per_sample),
+                               ("inference_stopped", result.stopped), ("inference_settled", result.settled)):
+                features[key][index] = value
+            if set(present) == set(SENSOR_OF):
+                features["drive_visual_share"][index] = self._drive_share(group, result)
+                features["drive_measured"][index] = True
+        return features
+
+    def _drive_share(self, inputs: dict[str, np.ndarray], result: InferenceResult) -> np.ndarray:
+        """Per sample, vision's share ``||T_v|| / (||T_v|| + ||T_t||)`` of the drive on the joint
+        latent at the latents ``result`` settled at (`joint_drive`; the prior's term is not part
+        of the share, the prior acts through where the latents settled)."""
+        assert self.network is not None
+        return joint_drive(self.network, inputs, result.latents).shares()["visual"]
 
     def distance(self, query: Features, reference: Features) -> np.ndarray:
         d = cdist(query["latent"], reference["latent"])

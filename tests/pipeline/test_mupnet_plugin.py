@@ -137,8 +137,9 @@ def test_joint_latents_recognise_revisits(fitted, runs):
     a, b = runs
     features = fitted.transform(b)
     range_measure = {"tactile_inside", "tactile_beyond", "tactile_measured"}  # the tactile range measure
+    drive = {"drive_visual_share", "drive_measured"}  # vision's share of the joint drive (test_drive_share.py)
     assert set(features) == {"latent", "diverged", "inference_steps", "inference_stopped", "inference_settled",
-                             *range_measure}
+                             *range_measure, *drive}
     assert not features["diverged"].any()
     steps, stopped = features["inference_steps"], features["inference_stopped"]
     assert np.array_equal(features["inference_settled"], stopped)  # the paper's rule: the thresholds alone
