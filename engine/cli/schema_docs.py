@@ -33,7 +33,15 @@ from vitaplace.engine.config.scenario import (
     TrainingData,
 )
 from vitaplace.engine.sim.condition import CameraCondition, Condition, LightCondition, Occlusion
-from vitaplace.engine.sim.controllers import ForagingGains, ForagingRun, OrbitRun, RouteRun, StationsRun, TeleopRun
+from vitaplace.engine.sim.controllers import (
+    ForagingGains,
+    ForagingRun,
+    OrbitRun,
+    RouteRun,
+    StationsRun,
+    TeleopRun,
+    VisitsRun,
+)
 from vitaplace.engine.sim.environment import (
     ArenaSpec,
     BoardSpec,
@@ -64,6 +72,8 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
      "sensors lost at query time (docs/plugins.md, Missing modalities)"),
     ("run (kind: foraging): ForagingRun", ForagingRun, "a foraging run (training); each kind has only its own keys"),
     ("run.gains: ForagingGains", ForagingGains, "the gains and thresholds of the foraging states"),
+    ("run (kind: visits): VisitsRun", VisitsRun,
+     "foraging with station-style visits to the tactile landmarks (training); its foraging keys are foraging's"),
     ("run (kind: teleop): TeleopRun", TeleopRun, "an emulated keyboard teleoperator's drive (evaluation)"),
     ("run (kind: stations): StationsRun", StationsRun,
      "the teleoperator whisking the same K tactile stations in every drive (evaluation)"),

@@ -204,10 +204,10 @@ class EvaluationPair(_RunSource):
     @pydantic.model_validator(mode="after")
     def _simulated_or_recorded(self) -> EvaluationPair:
         self._check_source("datasets", self.datasets is not None, environment_allowed=True)
-        if self.query_off_route and (self.run is None or self.run.kind == "foraging"):
+        if self.query_off_route and (self.run is None or self.run.kind in ("foraging", "visits")):
             raise ValueError(
                 "query_off_route needs a simulated teleop, stations, route or orbit run "
-                "(not recorded runs, not foraging)"
+                "(not recorded runs, not foraging or visits)"
             )
         conditions = [k for k in ("query_condition", "reference_condition") if getattr(self, k) is not None]
         if conditions and self.run is None:

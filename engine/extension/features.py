@@ -165,7 +165,10 @@ def feature_facts(features: Features) -> dict[str, Any]:
     (N,) the farthest excess beyond [0, 1] in scaled units; ``tactile_measured``: (N,) bool,
     the samples measured, every one where absent), the values measured and inside, the
     channels, the lowest channel's share inside, the channels under `IN_RANGE_SHARE` and the
-    largest excess."""
+    largest excess; and, for features that record vision's share of the drive on the joint
+    latent (``drive_visual_share``, (N,); ``drive_measured``: (N,) bool, the samples with both
+    modalities, every one where absent), the samples measured and the share's 10th percentile,
+    median and 90th percentile over them (None without any)."""
     arrays = sorted(k for k, v in features.items() if v.dtype.kind == "f" and v.ndim >= 2)
     facts: dict[str, Any] = {"arrays": arrays, "zero": [k for k in arrays if not features[k].any()]}
     if "inference_steps" in features and "inference_stopped" in features:
@@ -186,4 +189,10 @@ def feature_facts(features: Features) -> dict[str, Any]:
             "channels_under": int((per_channel < IN_RANGE_SHARE).sum()),
             "beyond": float(beyond[measured].max(initial=0.0)), "samples": int(measured.sum()),
         }
+    if "drive_visual_share" in features:
+        share = np.asarray(features["drive_visual_share"], np.float64)
+        if "drive_measured" in features:
+            share = share[features["drive_measured"].astype(bool)]
+        p10, median, p90 = (float(v) for v in np.percentile(share, [10, 50, 90])) if len(share) else (None,) * 3
+        facts["drive"] = {"samples": len(share), "p10": p10, "median": median, "p90": p90}
     return facts

@@ -351,21 +351,20 @@ def _dropout_section(rows: Sequence[ResultRow]) -> list[str]:
     ]
 
 
+def _section(heading: str, text: str, table: str) -> list[str]:
+    """A report section: its heading, what it shows and its table; none without a table."""
+    return [f"## {heading}", "", text, "", table, ""] if table else []
+
+
 def _inference_section(manifest: dict[str, Any]) -> list[str]:
-    inference = inference_table(manifest["features"])
-    if not inference:
-        return []
-    return [
-        "## Test-time inference",
-        "",
+    return _section(
+        "Test-time inference",
         "Each sample's latents are inferred until its prediction errors fall under their "
         "thresholds or, where the method has a relative rule (`inference_rtol`), its step has "
         "shrunk below that fraction of its first; otherwise up to the method's step cap "
         "(`max_steps`). A sample is settled when a rule ended it before the cap.",
-        "",
-        inference,
-        "",
-    ]
+        inference_table(manifest["features"]),
+    )
 
 
 def tactile_range_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
@@ -386,22 +385,42 @@ def tactile_range_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
 
 
 def _tactile_range_section(manifest: dict[str, Any]) -> list[str]:
-    table = tactile_range_table(manifest["features"])
-    if not table:
-        return []
-    return [
-        "## Tactile inputs inside the training range",
-        "",
+    return _section(
+        "Tactile inputs inside the training range",
         "Each tactile channel is scaled on the training run (`tactile_scaling`). Per method and evaluation run: "
         "the share of the run's tactile values (samples x channels, samples without whiskers left out) inside "
         "their channel's range on the training run, the lowest channel's share, the channels with less than "
         f"{100 * IN_RANGE_SHARE:g} % inside, and how far the farthest value lies beyond [0, 1] in min-max scaled "
         "units (the channel's training range, floored by `tactile_min_range`, is 1). Under `tactile_scaling: clip` "
         "such values are fed saturated at the ends of the training range; otherwise as they are.",
-        "",
-        table,
-        "",
+        tactile_range_table(manifest["features"]),
+    )
+
+
+def drive_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
+    """Markdown table, per method and evaluation run with vision's share of the joint drive
+    (`feature_facts`' ``drive``): samples with both modalities, the share's median, 10-90 %."""
+    lines = [
+        f"| {method} | {label} | {d['samples']} | "
+        + (f"{d['median']:.3f} | {d['p10']:.3f} - {d['p90']:.3f} |" if d["samples"] else "- | - |")
+        for method, label, d in _facts(features, "drive")
     ]
+    if not lines:
+        return ""
+    return "\n".join(["| method | run | samples with both modalities | vision's share, median | 10-90 % |",
+                      "|---|---|---|---|---|", *lines])
+
+
+def _drive_section(manifest: dict[str, Any]) -> list[str]:
+    return _section(
+        "Which modality drives the joint latent",
+        "Per learned method fed both modalities and evaluation run: at each sample's settled latents, vision's "
+        "share of the drive on the joint latent, ||T_v|| / (||T_v|| + ||T_t||), T_m being the gradient of the "
+        "joint edge of modality m's energy in the joint latent (docs/MUPNET.md, \"Which modality drives the joint "
+        "latent\"); 0.5 is an equal pull, touch's share is 1 minus vision's. Samples missing a modality (a query "
+        "drop-out) are left out.",
+        drive_table(manifest["features"]),
+    )
 
 
 def _evaluation_sections(out: Path, rows: Sequence[ResultRow]) -> list[str]:
@@ -566,6 +585,7 @@ def write_report(out: Path) -> None:
         *_methods_section(manifest["methods"]),
         *_inference_section(manifest),
         *_tactile_range_section(manifest),
+        *_drive_section(manifest),
         *_evaluation_sections(out, rows),
         *_training_section(out, list(manifest["methods"]), manifest["training"]),
         *_inputs_section(manifest),

@@ -10,7 +10,9 @@ scenario knows both (`vitaplace.engine.config.loading.load_scenario`):
   (the route or orbit moved that far to the left of travel) with the body inside the arena;
 * ``control_hz`` at least ``whisk_hz``: the controller acts at least once per sample;
 * a stations run: the environment has a route and tactile landmarks, ``stations`` names
-  tactile landmarks of it, ``station_count`` is no more than there are (`station_indices`).
+  tactile landmarks of it, ``station_count`` is no more than there are (`station_indices`);
+  a visits run: the environment has a route (its visitor is the station driver) and tactile
+  landmarks.
 
 `estimated_seconds` says how long a run takes on one core, from the simulator's measured
 rates (docs/PERFORMANCE.md), so a long simulation is announced with an estimate.
@@ -58,6 +60,10 @@ def check_run(env: EnvironmentSpec, run: RunSpec, robot: RobotSpec) -> None:
     """Raise `ImplausibleRun` naming the first setting of ``run`` that cannot be right in ``env``."""
     if run.kind in ("route", "teleop") and len(env.route) < 2:  # both drive along the environment's loop
         raise ImplausibleRun("kind", f"a {run.kind} run needs the environment's route; {env.name!r} has none")
+    if run.kind == "visits" and (len(env.route) < 2 or not any(lm.tactile for lm in env.landmarks)):
+        raise ImplausibleRun("kind", f"a visits run needs the environment's route and tactile landmarks; "
+                             f"{env.name!r} has {len(env.route)} route waypoints and "
+                             f"{sum(lm.tactile for lm in env.landmarks)} tactile landmarks")
     if run.kind == "stations":
         try:
             station_indices(env, run)
@@ -77,7 +83,7 @@ def check_run(env: EnvironmentSpec, run: RunSpec, robot: RobotSpec) -> None:
         if np.any(np.abs(centre) + run.orbit_radius + BODY_RADIUS > half):
             raise ImplausibleRun("orbit_radius", f"an orbit of {run.orbit_radius:g} m around ({centre[0]:g}, "
                                  f"{centre[1]:g}) takes the robot (radius {BODY_RADIUS} m) outside {_arena(env)}")
-    if run.kind != "foraging" and run.off_route_fraction > 0:
+    if isinstance(run, (TeleopRun, StationsRun, RouteRun, OrbitRun)) and run.off_route_fraction > 0:
         detour = _detour(env, run)
         bad = _outside(detour, env)
         if bad.any():

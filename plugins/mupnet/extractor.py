@@ -6,7 +6,11 @@ scaled by ``tactile_scaling`` fitted on the training run), trains the network, a
 ``transform`` infers the joint latent of every sample with frozen weights (a progress bar
 over the samples unless ``progress`` is off, then one log line: samples, step cap, seconds);
 tactile values outside the training range are reported once per run and measured per sample
-(``tactile_inside``, ``tactile_beyond``: `inputs.range_measure`). Distance: L2.
+(``tactile_inside``, ``tactile_beyond``: `inputs.range_measure`). A network fed both
+modalities also records per sample vision's share of the drive on the joint latent at the
+settled point (``drive_visual_share``: `vitaplace.engine.network.drive`; ``drive_measured``
+says which samples had both modalities, the others read 0 and are left out of the report's
+facts). Distance: L2.
 
 Missing modalities (`Run.lacks`: a query drop-out): a sample without the camera is inferred
 from its tactile input alone, one without the whiskers from its visual input alone - the
@@ -36,10 +40,12 @@ from tqdm.auto import tqdm
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.network.backends import Backend, BackendError, Precision
+from vitaplace.engine.network.drive import joint_drive
 from vitaplace.engine.network.optimizer import WeightOptimizerName
 from vitaplace.engine.network.pc import (
     LATENT_INIT,
     HeldOut,
+    InferenceResult,
     JointConfig,
     ModalityConfig,
     Network,
@@ -90,6 +96,17 @@ class ArchitectureParams(InputParams):
     seed: int = Field(0, description="network initialisation and minibatch order")
 
 
+#: the MuPNet paper's algorithm where the plugin's defaults depart from it (docs/MUPNET.md,
+#: "Defaults"): min-max touch unclipped, all epochs, T = 20 plain latent steps and plain SGD per
+#: minibatch, no held-out samples, plain test-time steps on the energy without a prior, stopped
+#: by the thresholds or at 3000 steps (scenarios/paper.yaml pins these)
+PAPER_ALGORITHM: dict[str, Any] = {
+    "tactile_scaling": "range", "epochs": 10, "converge_window": 0, "inference_steps": 20,
+    "training_inference": "plain", "weight_optimizer": "sgd", "held_out": 0.0, "max_steps": 3000,
+    "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None,
+}
+
+
 class MupnetParams(ArchitectureParams):
     """Network, training and test-time inference settings. The architecture, step sizes and
     thresholds default to the MuPNet paper/code; training and test-time inference default to
@@ -118,9 +135,9 @@ class MupnetParams(ArchitectureParams):
         5, description="T latent steps per minibatch before the weight step (the paper: 20 plain steps)"
     )
     training_inference: Literal["plain", "solver"] = Field(
-        "solver", description="the T latent steps of a training minibatch: plain (the paper's steps at eta_y) or solver "
-        "(steps of inference_solver from the persistent latents, each layer's step from the weights of that moment; "
-        "a departure from the paper, docs/MUPNET.md)",
+        "solver", description="the T latent steps of a training minibatch: plain (the paper's steps at eta_y) or "
+        "solver (steps of inference_solver from the persistent latents, each layer's step from the weights of that "
+        "moment; a departure from the paper, docs/MUPNET.md)",
     )
     held_out: float = Field(
         0.1, ge=0, lt=1, description="share of the training run's samples (drawn with seed) kept out of training; "
@@ -128,8 +145,8 @@ class MupnetParams(ArchitectureParams):
         "(training.json, the report; 0: none, the paper's)",
     )
     weight_optimizer: WeightOptimizerName = Field(
-        "momentum", description="weight update in training: sgd (the paper's plain step at eta_w), momentum (heavy ball, "
-        "weight_momentum) or adam (adam_beta1, adam_beta2, adam_eps; the eta_w values are then Adam's learning "
+        "momentum", description="weight update in training: sgd (the paper's plain step at eta_w), momentum (heavy "
+        "ball, weight_momentum) or adam (adam_beta1, adam_beta2, adam_eps; the eta_w values are then Adam's learning "
         "rates); its state is not saved with the model (docs/MUPNET.md)",
     )
     weight_momentum: float = Field(0.9, gt=0, lt=1, description="beta of the momentum weight optimiser")
@@ -151,8 +168,8 @@ class MupnetParams(ArchitectureParams):
         "test time (0: the paper's energy, which has no fixed point to settle at; docs/MUPNET.md)",
     )
     inference_solver: SolverName = Field(
-        "preconditioned", description="test-time solver: gd (the paper's plain steps at eta_y), nesterov (momentum with "
-        "restarts, each layer's step from its curvature bound) or preconditioned (the same with each layer's "
+        "preconditioned", description="test-time solver: gd (the paper's plain steps at eta_y), nesterov (momentum "
+        "with restarts, each layer's step from its curvature bound) or preconditioned (the same with each layer's "
         "bound as a matrix; needs latent_prior > 0)",
     )
     inference_momentum: float = Field(
@@ -370,7 +387,8 @@ class MupnetExtractor(FeatureExtractor):
         start = time.perf_counter()
         with tqdm(total=len(run), desc=f"infer {run.name}", unit="sample", disable=not self.progress,
                   leave=False) as bar:
-            latent, steps, stopped, settled = self._infer(run, inputs, bar.update)
+            features = self._infer(run, inputs, bar.update)
+        latent, steps, settled = features["latent"], features["inference_steps"], features["inference_settled"]
         log.info(
             "mupnet: test-time inference of %d samples of run %r (step cap %d, %d reached it, at most %d steps) "
             "in %.1f s", len(run), run.name, self.params.max_steps, int((~settled).sum()),
@@ -385,40 +403,55 @@ class MupnetExtractor(FeatureExtractor):
                 len(where), len(latent), run.name, DIVERGED_FACTOR, self.train_norm_max,
                 ", ".join(map(str, where[:10])),
             )
-        # per sample: inference steps taken, whether its errors fell under their thresholds and
-        # whether a stopping rule (those, or inference_rtol's) ended it before the cap (the
-        # report gives their distribution)
-        features = {"latent": latent, "diverged": diverged, "inference_steps": steps, "inference_stopped": stopped,
-                    "inference_settled": settled}
+        features["diverged"] = diverged
         if run.missing:  # samples with none of the network's modalities (a query drop-out)
-            features["uninformed"] = ~presence(run, self.params.modalities).any(axis=1)
+            features["uninformed"] = presence(run, self.params.modalities).sum(axis=1) == 0
         if self.tactile_range is not None:  # the tactile values inside the training range (without whiskers: unfed)
             features |= range_measure(raw["tactile"], self.tactile_range, ~run.lacks("whiskers"))
         return features
 
-    def _infer(self, run: Run, inputs: dict[str, np.ndarray],
-               on_progress: Callable[[int], object]) -> tuple[np.ndarray, ...]:
+    def _infer(self, run: Run, inputs: dict[str, np.ndarray], on_progress: Callable[[int], object]) -> Features:
         """Joint latents, steps, stopped flags (under the thresholds) and settled flags (a
         stopping rule ended it before the cap) of every sample, each group of samples
-        (`presence_groups`) inferred from the modalities it has."""
+        (`presence_groups`) inferred from the modalities it has; with both modalities in the
+        network, vision's share of the joint drive too (`_drive_share`)."""
         assert self.network is not None
-        groups = presence_groups(run, self.params.modalities)
-        latent = np.full((len(run), self.params.joint_size), LATENT_INIT, dtype=np.float32)
-        steps = np.zeros(len(run), dtype=np.int64)
-        stopped, settled = np.ones(len(run), dtype=bool), np.ones(len(run), dtype=bool)
-        for present, index in groups:
+        n, both = len(run), set(self.params.modalities) == set(SENSOR_OF)
+        # per sample: inference steps taken, whether its errors fell under their thresholds and
+        # whether a stopping rule (those, or inference_rtol's) ended it before the cap (the
+        # report gives their distribution)
+        features: Features = {
+            "latent": np.full((n, self.params.joint_size), LATENT_INIT, dtype=np.float32),
+            "inference_steps": np.zeros(n, dtype=np.int64), "inference_stopped": np.ones(n, dtype=bool),
+            "inference_settled": np.ones(n, dtype=bool),
+        }
+        if both:
+            features |= {"drive_visual_share": np.zeros(n, np.float32), "drive_measured": np.zeros(n, bool)}
+        for present, index in presence_groups(run, self.params.modalities):
             if not present:
                 warn_once(run, "mupnet: no modality", f"run {run.name}: {len(index)} samples have none of mupnet's "
                           f"modalities ({', '.join(self.params.modalities)}): their joint latent is its start, "
                           f"{LATENT_INIT}, and they are never a match (distance +inf)")
                 on_progress(len(index))
                 continue
-            result = self.network.infer({m: inputs[m][index] for m in present}, max_steps=self.params.max_steps,
-                                        on_progress=on_progress, solver=self.params.solver(),
-                                        latent_prior=self.params.latent_prior, sample_ids=index)
-            latent[index], steps[index] = result.latents["joint"], result.steps_per_sample
-            stopped[index], settled[index] = result.stopped, result.settled
-        return latent, steps, stopped, settled
+            group = {m: inputs[m][index] for m in present}
+            result = self.network.infer(group, max_steps=self.params.max_steps, on_progress=on_progress,
+                                        solver=self.params.solver(), latent_prior=self.params.latent_prior,
+                                        sample_ids=index)
+            for key, value in (("latent", result.latents["joint"]), ("inference_steps", result.steps_per_sample),
+                               ("inference_stopped", result.stopped), ("inference_settled", result.settled)):
+                features[key][index] = value
+            if set(present) == set(SENSOR_OF):
+                features["drive_visual_share"][index] = self._drive_share(group, result)
+                features["drive_measured"][index] = True
+        return features
+
+    def _drive_share(self, inputs: dict[str, np.ndarray], result: InferenceResult) -> np.ndarray:
+        """Per sample, vision's share ``||T_v|| / (||T_v|| + ||T_t||)`` of the drive on the joint
+        latent at the latents ``result`` settled at (`joint_drive`; the prior's term is not part
+        of the share, the prior acts through where the latents settled)."""
+        assert self.network is not None
+        return joint_drive(self.network, inputs, result.latents).shares()["visual"]
 
     def distance(self, query: Features, reference: Features) -> np.ndarray:
         d = cdist(query["latent"], reference["latent"])

@@ -78,9 +78,10 @@ class InputParams(ExtractorParams):
         "that barely moved in training is not blown up to unit range",
     )
     tactile_scaling: TactileScaling = Field(
-        "range", description="how each tactile channel is scaled from the training run: range: (x - min) / "
-        "max(max - min, tactile_min_range), not clipped (the paper's); clip: the same clipped to the training range, "
-        "so values beyond it saturate at its ends; robust: (x - median) / max(IQR, tactile_min_range), not clipped "
+        "clip", description="how each tactile channel is scaled from the training run: range: (x - min) / "
+        "max(max - min, tactile_min_range), not clipped (the paper's); clip (the default): the same clipped to the "
+        "training range, so values beyond it saturate at its ends and the network is never fed touch it has not "
+        "seen; robust: (x - median) / max(IQR, tactile_min_range), not clipped "
         "(the cycle input's contact flags keep their 0/1 scale; docs/MUPNET.md)",
     )
 

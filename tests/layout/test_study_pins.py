@@ -39,13 +39,25 @@ def test_a_committed_study_resolves_to_what_it_ran(name):
 
 
 def test_paper_yaml_pins_the_paper_s_algorithm():
+    from vitaplace.plugins.mupnet.extractor import PAPER_ALGORITHM
+
     (params,) = resolved("paper").values()
-    assert {k: params[k] for k in ("training_inference", "inference_steps", "weight_optimizer", "held_out",
-                                   "converge_window", "latent_prior", "inference_solver", "inference_rtol",
-                                   "max_steps", "batch_size", "precision_weighting")} == {
-        "training_inference": "plain", "inference_steps": 20, "weight_optimizer": "sgd", "held_out": 0.0,
-        "converge_window": 0, "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None,
-        "max_steps": 3000, "batch_size": 150, "precision_weighting": "none"}
+    expected = {**PAPER_ALGORITHM, "epochs": 10000}  # the paper's schedule at full scale (a GPU's)
+    assert {k: params[k] for k in expected} == expected
+    assert params["batch_size"] == 150 and params["precision_weighting"] == "none"
+
+
+def test_the_paper_s_algorithm_is_what_the_paper_prints():
+    """The constant itself, by hand from the paper/code: 10 epochs of T = 20 plain steps and
+    plain SGD, min-max touch, no prior, plain test-time steps to 3000."""
+    from vitaplace.plugins.mupnet.extractor import PAPER_ALGORITHM, MupnetParams
+
+    assert PAPER_ALGORITHM == {
+        "tactile_scaling": "range", "epochs": 10, "converge_window": 0, "inference_steps": 20,
+        "training_inference": "plain", "weight_optimizer": "sgd", "held_out": 0.0, "max_steps": 3000,
+        "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None}
+    params = MupnetParams(**PAPER_ALGORITHM)
+    assert params.training_config().weight_optimizer == "sgd" and params.solver().rtol is None
 
 
 def test_the_touch_benchmark_trains_to_the_criterion_with_the_defaults():

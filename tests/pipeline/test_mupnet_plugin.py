@@ -15,6 +15,7 @@ from scipy.spatial.distance import cdist
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.extension.features import ExtractorParamsError
 from vitaplace.engine.extension.registry import discover
+from vitaplace.plugins.mupnet.extractor import PAPER_ALGORITHM
 
 N = 80  # samples per run
 H, W = 8, 10  # image size
@@ -24,6 +25,7 @@ SPACING = 2 * np.pi * RADIUS / N  # arc length between consecutive samples [m]
 TAU = 2 * SPACING  # revisit tolerance [m]
 
 PARAMS = {
+    **PAPER_ALGORITHM,  # the paper's training and test-time rule (the defaults' are tested in test_training_options)
     "image_size": (H, W),
     "visual_layers": [20],
     "tactile_layers": [10],
@@ -137,8 +139,9 @@ def test_joint_latents_recognise_revisits(fitted, runs):
     a, b = runs
     features = fitted.transform(b)
     range_measure = {"tactile_inside", "tactile_beyond", "tactile_measured"}  # the tactile range measure
+    drive = {"drive_visual_share", "drive_measured"}  # vision's share of the joint drive (test_drive_share.py)
     assert set(features) == {"latent", "diverged", "inference_steps", "inference_stopped", "inference_settled",
-                             *range_measure}
+                             *range_measure, *drive}
     assert not features["diverged"].any()
     steps, stopped = features["inference_steps"], features["inference_stopped"]
     assert np.array_equal(features["inference_settled"], stopped)  # the paper's rule: the thresholds alone
@@ -281,7 +284,9 @@ def test_the_engine_configs_hold_no_defaults_of_their_own():
     """MuPNet's settings and defaults are MupnetParams alone: the engine's containers, the
     network's seed and the inference step cap have none, but for the latent prior and the
     weight optimiser's and the error precisions' settings, added after the others: their defaults
-    are the plugin's, the paper's energy (0, every precision 1) and plain SGD, in training and at test time."""
+    are the paper's (the paper's energy, 0, every precision 1, and plain SGD, so that code
+    written before them builds the same configuration), which the plugin's are too except
+    where the plugin's defaults depart from the paper (`PAPER_ALGORITHM`)."""
     import dataclasses
     import inspect
 
@@ -293,11 +298,12 @@ def test_the_engine_configs_hold_no_defaults_of_their_own():
             if container is not TrainingConfig or field.name not in LATER_TRAINING_FIELDS:
                 assert field.default is dataclasses.MISSING, (container, field.name)
             else:
-                assert field.default == MupnetParams.model_fields[field.name].default, field.name
+                paper = PAPER_ALGORITHM.get(field.name, MupnetParams.model_fields[field.name].default)
+                assert field.default == paper, field.name
             assert field.default_factory is dataclasses.MISSING, (container, field.name)
     assert inspect.signature(Network).parameters["seed"].default is inspect.Parameter.empty
     assert inspect.signature(Network.infer).parameters["max_steps"].default is inspect.Parameter.empty
-    prior = MupnetParams.model_fields["latent_prior"].default
+    prior = PAPER_ALGORITHM["latent_prior"]
     assert prior == 0.0
     assert TrainingConfig(1, 1, 1, 0, 0, 0.01).latent_prior == prior
     assert inspect.signature(Network.infer).parameters["latent_prior"].default == prior
@@ -337,10 +343,11 @@ def test_a_changed_schema_default_reaches_the_engine_configs():
 
 
 def test_the_solver_is_built_from_the_params():
-    from vitaplace.engine.network.solver import GradientDescent, Nesterov
+    from vitaplace.engine.network.solver import GradientDescent, Nesterov, Preconditioned
     from vitaplace.plugins.mupnet.extractor import MupnetParams
 
-    assert MupnetParams().solver() == GradientDescent()  # the paper's loop
+    assert MupnetParams(**PAPER_ALGORITHM).solver() == GradientDescent()  # the paper's loop
+    assert MupnetParams().solver() == Preconditioned(momentum=0.9, rtol=3e-6)  # the default: settling
     params = MupnetParams(inference_solver="nesterov", inference_momentum=0.8, inference_rtol=1e-5)
     assert params.solver() == Nesterov(momentum=0.8, rtol=1e-5)
 

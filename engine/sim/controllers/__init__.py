@@ -34,6 +34,10 @@ Station drives (``stations``, `StationDriver`): the same teleoperator, whisking 
 tactile stations (each derived from a named landmark: `stations_of`) in every drive, from
 jittered approach poses, so that a touched query has a touched true match.
 
+Landmark visits (``visits``, `VisitsController`, training runs): foraging that breaks off,
+for ``visit_share`` of the run's time, to whisk the tactile landmark nearest the robot as a
+station drive does (`Visitor`, the station driver), from an approach pose drawn per visit.
+
 Route following (``route``): pure pursuit along the environment's closed waypoint loop,
 facing the direction of travel.
 
@@ -53,7 +57,7 @@ not revisits and true negatives occur.
 The package, one module per concern: `common` (the `Observation`, noise, the rate limiter),
 `safety` (`SafetyGuard`, `Headway`), `settings` (the run settings per kind: `RunSpec`,
 `run_spec`, `key_form`), `foraging`, `teleop` (the driver and its modes), `stations` (the station
-driver, its stations), `route` (route and orbit),
+driver, its stations), `visits` (foraging with landmark visits), `route` (route and orbit),
 `factory` (`make_controller`). This module re-exports their public names.
 """
 
@@ -87,6 +91,7 @@ from vitaplace.engine.sim.controllers.settings import (
     RunSpec,
     StationsRun,
     TeleopRun,
+    VisitsRun,
     key_form,
     legacy_gain_paths,
     nest_legacy_gains,
@@ -111,6 +116,7 @@ from vitaplace.engine.sim.controllers.teleop import (
     TeleopDriver,
     TeleopMode,
 )
+from vitaplace.engine.sim.controllers.visits import Visitor, VisitsController
 
 __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "TeleopDriver", "make_controller",
            "SafetyGuard", "Headway", "Surroundings", "Attention", "ForagingState", "Wander", "Orient", "Explore",
@@ -119,4 +125,4 @@ __all__ = ["RunSpec", "Observation", "ForagingController", "RouteFollower", "Tel
            "run_spec", "recorded_run_spec", "key_form", "legacy_gain_paths", "nest_legacy_gains",
            "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "RUN_KINDS", "V6_DEFAULTS",
            "TeleopMode", "Drive", "Approach", "Hold", "TELEOP_TRANSITIONS", "StationsRun", "StationDriver", "Station",
-           "ToStation", "STATION_TRANSITIONS", "stations_of"]
+           "ToStation", "STATION_TRANSITIONS", "stations_of", "VisitsRun", "VisitsController", "Visitor"]

@@ -12,20 +12,25 @@ from vitaplace.engine.sim.controllers.route import RouteFollower
 from vitaplace.engine.sim.controllers.settings import RunSpec
 from vitaplace.engine.sim.controllers.stations import StationDriver
 from vitaplace.engine.sim.controllers.teleop import TeleopDriver
+from vitaplace.engine.sim.controllers.visits import VisitsController
 from vitaplace.engine.sim.environment import EnvironmentSpec
 
 
 def make_controller(
     env: EnvironmentSpec, spec: RunSpec, rng: np.random.Generator, sample_period: float = 0.5
-) -> tuple[ForagingController | TeleopDriver | StationDriver | RouteFollower, tuple[float, float, float]]:
+) -> tuple[ForagingController | VisitsController | TeleopDriver | StationDriver | RouteFollower,
+           tuple[float, float, float]]:
     """The controller for ``spec.kind`` and its start pose ``(x, y, yaw_rad)``; ``sample_period``
     [s] (one whisk cycle) places the off-route part (route, orbit: at the end of the run;
     teleop, stations: their detours) and sets the teleoperator's hold times."""
     if spec.kind == "foraging":
         ctrl = ForagingController(spec, env.obstacles, rng)
         return ctrl, ctrl.start_pose(env.start)
-    if spec.kind in ("teleop", "stations", "route") and not env.route:
+    if spec.kind in ("teleop", "stations", "visits", "route") and not env.route:
         raise ValueError(f"environment {env.name!r} has no route: a {spec.kind!r} run needs route waypoints")
+    if spec.kind == "visits":
+        visits = VisitsController(spec, env, rng, sample_period)
+        return visits, visits.start_pose(env.start)
     if spec.kind == "teleop":
         driver = TeleopDriver(spec, env, rng, sample_period)
         return driver, driver.start_pose()

@@ -324,6 +324,16 @@ class ForagingController:
         x, y, yaw = self.spec.start if self.spec.start is not None else default
         return (x, y, math.radians(yaw))
 
+    def resume(self, t: float, pose: np.ndarray, current: tuple[float, ...]) -> None:
+        """Take the robot over again at time ``t`` from another driver (`VisitsController`),
+        the base moving at ``current`` (forward speed, turn rate): wandering, with contacts
+        ignored for ``refractory_time`` as after leaving an object."""
+        self.mode = "wander"
+        self.attention.refractory_until = t + self.spec.refractory_time
+        self.headway.restart(pose, t)
+        self._limit.state[:] = current[:2]
+        self._last_t = t
+
     def sense(self, obs: Observation, dt: float) -> Surroundings:
         """The observation with the obstacle distances at the base, the head and
         `PROBE_AHEAD` beyond the snout, and the wandering turn rate advanced by ``dt``."""

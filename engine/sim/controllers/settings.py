@@ -1,7 +1,7 @@
 """The settings of a run: one model per run kind, a discriminated union on ``kind``.
 
-`RunSpec` names "the settings of a run": `ForagingRun`, `TeleopRun`, `StationsRun`, `RouteRun` or
-`OrbitRun`, chosen by ``kind``, each with only the fields its controller (and the
+`RunSpec` names "the settings of a run": `ForagingRun`, `VisitsRun`, `TeleopRun`, `StationsRun`,
+`RouteRun` or `OrbitRun`, chosen by ``kind``, each with only the fields its controller (and the
 simulation loop) uses; the foraging states' gains and thresholds are the nested
 `ForagingGains` (``gains:``). A model's dump is exact: every field, gains included.
 `run_spec` builds one from a mapping (``run_spec({"kind": "route", "n_samples": 8})``).
@@ -32,9 +32,9 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 from vitaplace.engine.sim.condition import Condition, is_default
 
-__all__ = ["RunSpec", "ForagingGains", "ForagingRun", "TeleopRun", "StationsRun", "RouteRun", "OrbitRun", "run_spec",
-           "recorded_run_spec", "key_form", "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "V6_DEFAULTS", "TELEOP_SPEED",
-           "RUN_KINDS"]
+__all__ = ["RunSpec", "ForagingGains", "ForagingRun", "VisitsRun", "TeleopRun", "StationsRun", "RouteRun", "OrbitRun",
+           "run_spec", "recorded_run_spec", "key_form", "rename_legacy_run_keys", "RENAMED_RUN_KEYS", "V6_DEFAULTS",
+           "TELEOP_SPEED", "RUN_KINDS"]
 
 #: the teleop keys' nominal speed [m/s] for the WhiskEye (see docs/SIMULATION.md)
 TELEOP_SPEED = 0.3
@@ -177,10 +177,9 @@ class _OffPath(_Run):
     )
 
 
-class ForagingRun(_Run):
-    """Tactile-attention foraging (training runs): `ForagingController`."""
+class _Foraging(_Run):
+    """The fields of the kinds that forage (foraging, visits): `ForagingController`."""
 
-    kind: Literal["foraging"] = Field(description="foraging: tactile-attention exploration (training)")
     max_turn_rate_deg: float = Field(90.0, gt=0, le=720, description="turn-rate limit [deg/s]")
     wander_turn_deg: float = Field(20.0, ge=0, description="std of the wandering turn rate [deg/s]")
     explore_time: tuple[float, float] = Field((3.0, 8.0), description="range of the exploration bout length [s]")
@@ -191,11 +190,27 @@ class ForagingRun(_Run):
     )
 
     @model_validator(mode="after")
-    def _check(self) -> ForagingRun:
+    def _check(self) -> _Foraging:
         lo, hi = self.explore_time
         if not 0 < lo <= hi:
             raise ValueError("explore_time must be [min, max] with 0 < min <= max")
         return self
+
+
+class ForagingRun(_Foraging):
+    """Tactile-attention foraging (training runs): `ForagingController`."""
+
+    kind: Literal["foraging"] = Field(description="foraging: tactile-attention exploration (training)")
+
+
+def _check_hold(hold_cycles: tuple[int, int], n_samples: int) -> None:
+    """A ValueError naming ``hold_cycles`` unless 1 <= min <= max and min <= ``n_samples``."""
+    lo, hi = hold_cycles
+    if not 1 <= lo <= hi:
+        raise ValueError("hold_cycles must be [min, max] with 1 <= min <= max")
+    if lo > n_samples:  # a long maximum shows as the stuck-run warning (a quarter of the run)
+        raise ValueError(f"hold_cycles: every hold ({lo} whisk cycles at least) is longer than the run's "
+                         f"{n_samples} samples; expected min <= n_samples")
 
 
 class _Teleoperated(_OffPath):
@@ -228,12 +243,7 @@ class _Teleoperated(_OffPath):
 
     @model_validator(mode="after")
     def _check(self) -> _Teleoperated:
-        lo, hi = self.hold_cycles
-        if not 1 <= lo <= hi:
-            raise ValueError("hold_cycles must be [min, max] with 1 <= min <= max")
-        if lo > self.n_samples:  # a long maximum shows as the stuck-run warning (a quarter of the run)
-            raise ValueError(f"hold_cycles: every hold ({lo} whisk cycles at least) is longer than the run's "
-                             f"{self.n_samples} samples; expected min <= n_samples")
+        _check_hold(self.hold_cycles, self.n_samples)
         if self.off_route_fraction > 0 and self.detour_count > self.n_samples:
             raise ValueError(f"detour_count: {self.detour_count} detours in a run of {self.n_samples} samples; "
                              "expected at most n_samples")
@@ -295,6 +305,58 @@ class StationsRun(_Teleoperated):
         return self
 
 
+class VisitsRun(_Foraging):
+    """Foraging that breaks off to whisk the environment's tactile landmarks as station drives
+    do (training runs): `VisitsController` (docs/SIMULATION.md, "Landmark visits")."""
+
+    kind: Literal["visits"] = Field(description="visits: foraging alternating with station-style visits to the "
+                                    "environment's tactile landmarks (training)")
+    visit_share: float = Field(
+        0.5, gt=0, le=1, description="share of the run's time spent visiting landmarks (driving to the approach "
+        "pose, approaching, holding, backing off); the rest is foraging"
+    )
+    visit_distance: tuple[float, float] = Field(
+        (0.1, 0.3), description="each approach starts facing the landmark with the head this far from its outline, "
+        "uniform in [min, max] (drawn per visit) [m]"
+    )
+    visit_spread_deg: float = Field(
+        30.0, ge=0, le=180, description="... along a heading within +-this of the robot's when the visit starts, "
+        "uniform (drawn per visit) [deg]"
+    )
+    visit_heading_jitter_deg: float = Field(
+        5.0, ge=0, le=45, description="each approach faces the landmark's nearest point plus a uniform angle within "
+        "+-this (drawn per visit) [deg]"
+    )
+    hold_cycles: tuple[int, int] = Field(
+        (4, 6), description="whisk cycles with contact held at each landmark, uniform in [min, max] (drawn per visit)"
+    )
+    touch_gap: float = Field(
+        0.06, gt=0, le=0.2, description="a landmark is approached until the whiskers touch it and the head is this "
+        "close [m]"
+    )
+
+    @model_validator(mode="after")
+    def _check_visits(self) -> VisitsRun:
+        lo, hi = self.visit_distance
+        if not 0 < lo <= hi <= 2:
+            raise ValueError("visit_distance must be [min, max] with 0 < min <= max <= 2 [m]")
+        _check_hold(self.hold_cycles, self.n_samples)
+        return self
+
+    def foraging(self) -> ForagingRun:
+        """The settings of its foraging: its own foraging fields."""
+        fields = {k: getattr(self, k) for k in ForagingRun.model_fields if k != "kind"}
+        return ForagingRun(kind="foraging", **fields)
+
+    def stations(self) -> StationsRun:
+        """The settings of its visits: a stations run of the teleoperator's defaults with its
+        hold, touch gap and heading jitter (the approach pose is drawn by `VisitsController`)."""
+        return StationsRun(kind="stations", n_samples=self.n_samples, max_accel=self.max_accel,
+                           avoid_margin=self.avoid_margin, control_hz=self.control_hz, hold_cycles=self.hold_cycles,
+                           touch_gap=self.touch_gap, station_jitter=0.0,
+                           station_heading_jitter_deg=self.visit_heading_jitter_deg)
+
+
 class _Laps(_OffPath):
     """The fields of the kinds that drive noisy laps of a loop (route, orbit): `RouteFollower`."""
 
@@ -323,10 +385,10 @@ class OrbitRun(_Laps):
 
 
 #: the settings of a run: one model per ``kind``
-AnyRun = ForagingRun | TeleopRun | StationsRun | RouteRun | OrbitRun
+AnyRun = ForagingRun | VisitsRun | TeleopRun | StationsRun | RouteRun | OrbitRun
 RunSpec = Annotated[AnyRun, Field(discriminator="kind")]
-RUN_KINDS: dict[str, type[_Run]] = {"foraging": ForagingRun, "teleop": TeleopRun, "stations": StationsRun,
-                                     "route": RouteRun, "orbit": OrbitRun}
+RUN_KINDS: dict[str, type[_Run]] = {"foraging": ForagingRun, "visits": VisitsRun, "teleop": TeleopRun,
+                                     "stations": StationsRun, "route": RouteRun, "orbit": OrbitRun}
 _ADAPTER: TypeAdapter[AnyRun] = TypeAdapter(RunSpec)
 
 
@@ -367,7 +429,7 @@ def key_form(run: AnyRun) -> dict[str, Any]:
         if new in own:
             own[old] = own.pop(new)
     flat = {**V6_DEFAULTS, **own}
-    if isinstance(run, ForagingRun):
+    if isinstance(run, _Foraging):
         default = ForagingGains()
         flat.update({k: v for k, v in run.gains.model_dump(mode="json").items() if v != getattr(default, k)})
     return flat
