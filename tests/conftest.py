@@ -71,3 +71,28 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     if hiding:
         raise pytest.UsageError("xfail hides a known defect; mark it @pytest.mark.bug(...) instead: "
                                 f"{', '.join(hiding)}")
+
+
+#: the paper's training and touch scaling, pinned in the committed study scenarios' MuPNet methods
+#: (tests/layout/test_study_pins.py), and the touch scaling in their autoencoder controls
+_CPU_PINS = {"training_inference": "plain", "inference_steps": 20, "weight_optimizer": "sgd", "held_out": 0.0,
+             "tactile_scaling": "range"}
+_STUDIES = ("paper-cpu", "coloured-cpu", "paper-cpu-physical", "paper-cpu-controls", "study2", "study2-budget",
+            "study2-dropout", "study2-faithful")
+#: per scenario and plugin, the parameters added since ad309c2 (with their values)
+SINCE_AD309C2: dict[tuple[str, str], dict[str, object]] = {
+    **{(name, "mupnet"): _CPU_PINS for name in _STUDIES},
+    **{(name, "autoencoder"): {"tactile_scaling": "range"} for name in _STUDIES},
+    ("paper", "mupnet"): {"training_inference": "plain", "weight_optimizer": "sgd", "held_out": 0.0,
+                          "converge_window": 0, "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None,
+                          "tactile_scaling": "range"},
+}
+#: per scenario and plugin, parameters its file gave at ad309c2 and no longer gives (their values then)
+REMOVED_SINCE_AD309C2: dict[tuple[str, str], dict[str, object]] = {("touch-benchmark", "mupnet"): {"epochs": 90}}
+
+
+def ad309c2_params(name: str, plugin: str, params: dict) -> dict:
+    """The given parameters as the scenario's file at ad309c2 gave them (`SINCE_AD309C2`)."""
+    added = SINCE_AD309C2.get((name, plugin), {})
+    assert all(params[k] == v for k, v in added.items()), f"{name}: the pins changed"
+    return {**{k: v for k, v in params.items() if k not in added}, **REMOVED_SINCE_AD309C2.get((name, plugin), {})}

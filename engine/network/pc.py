@@ -333,18 +333,7 @@ class Network:
                 state.optimizer = optimizer
                 state.estimator = estimator
                 be.upload(index.astype(np.int32), state.index)
-                if solver is None:
-                    if len(index) not in runs:
-                        settle = functools.partial(state.plain_steps, cfg.inference_steps)
-                        runs[len(index)] = be.capture(
-                            functools.partial(state.minibatch, resident_x, resident_y, settle)
-                        )
-                    runs[len(index)]()
-                else:  # each layer's step depends on the weights: bound afresh, not captured
-                    steps = solver.bind(state, solver.node_steps(self, present, cfg.latent_prior))
-                    be.fill(state.limits, 0.0)  # no threshold stop in training
-                    state.minibatch(resident_x, resident_y, functools.partial(_resumed_steps, steps,
-                                                                              cfg.inference_steps))
+                self._minibatch(state, runs, resident_x, resident_y, cfg, solver, present)
                 energy = state.energies()
                 state.check_finite(energy, f"epoch {epoch + 1}, minibatch {b + 1}")
                 change[index] = state.latent_change()
@@ -369,6 +358,22 @@ class Network:
         self._sync_weights_to_host()
         self.train_latents = store
         return history
+
+    def _minibatch(self, state: BatchState, runs: dict[int, Callable[[], None]], inputs: Mapping[str, object],
+                   latents: Mapping[str, object], cfg: TrainingConfig, solver: Solver | None,
+                   present: Sequence[str]) -> None:
+        """One training minibatch on ``state`` (its rows uploaded): with the paper's steps a
+        sequence captured once per batch size (``runs``), with ``solver`` its steps bound
+        afresh from the weights of this moment (not captured)."""
+        if solver is None:
+            if state.batch not in runs:
+                settle = functools.partial(state.plain_steps, cfg.inference_steps)
+                runs[state.batch] = self.backend.capture(functools.partial(state.minibatch, inputs, latents, settle))
+            runs[state.batch]()
+            return
+        steps = solver.bind(state, solver.node_steps(self, present, cfg.latent_prior))
+        self.backend.fill(state.limits, 0.0)  # no threshold stop in training
+        state.minibatch(inputs, latents, functools.partial(_resumed_steps, steps, cfg.inference_steps))
 
     def _held_out_energy(self, held_out: HeldOut) -> float:
         """The energy per sample of the held-out samples at the latents test-time inference settles them at."""

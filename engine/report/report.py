@@ -41,6 +41,7 @@ from vitaplace.engine.outputs.outdir import (
 )
 from vitaplace.engine.outputs.rows import Difficulty, ResultRow, SequenceMatching, parse_row
 from vitaplace.engine.report import figures
+from vitaplace.engine.report.training import training_section
 
 #: the manifest entries the report reads (a change to one of them changes the report's key)
 MANIFEST_KEYS = ("scenario", "seed", "vitaplace_version", "git_commit", "git_dirty", "packages", "plugins", "recorded",
@@ -454,37 +455,6 @@ def _evaluation_sections(out: Path, rows: Sequence[ResultRow]) -> list[str]:
     return sections
 
 
-def _training_section(out: Path, methods: list[str], summaries: dict[str, dict[str, Any]]) -> list[str]:
-    """The training energy per layer of each method that recorded it, whether it met its
-    convergence criterion, how far from settled its persistent latents were at the end and its
-    held-out energy (the methods that measure them)."""
-    sections = []
-    for name in methods:
-        path = training_path(out, name)
-        if path.is_file():
-            figures.plot_energy(out / FIGURES / f"training-{name}", json.loads(path.read_text()),
-                                title=f"{name}: training energy per layer")
-            sections += [f"![training {name}](figures/training-{name}.png)", ""]
-        summary = summaries.get(name, {})
-        if "converged" in summary and "epochs" in summary:
-            ended = ("met its convergence criterion" if summary["converged"] else
-                     "stopped at its epoch cap without meeting its convergence criterion")
-            sections += [f"{name}: training {ended} after {summary['epochs']} epochs.", ""]
-        change = summary.get("latent_change")
-        if change:
-            sections += [f"{name}: in its last epoch, each minibatch's latent steps still moved a sample's latents "
-                         f"by a median {100 * change[-1]:.2g} % (relative; {100 * change[0]:.2g} % in the first "
-                         "epoch; every epoch in manifest.json's training record). Latents that had settled would "
-                         "not move.", ""]
-        held = summary.get("held_out")
-        if held:
-            best = int(np.argmin(held))
-            sections += [f"{name}: held-out energy per sample (samples kept out of training, at the latents test-time "
-                         f"inference settles them at) {held[-1]:.4g} after the last epoch, {held[0]:.4g} after the "
-                         f"first, lowest {held[best]:.4g} after epoch {best + 1}.", ""]
-    return ["## Training", "", *sections] if sections else []
-
-
 def _provenance_section(manifest: dict[str, Any]) -> list[str]:
     packages = ", ".join(f"{name} {v}" for name, v in manifest["packages"].items() if v)
     plugins = ", ".join(sorted({f"{p['distribution']} {p['version']}" for p in manifest["plugins"].values()}))
@@ -587,7 +557,7 @@ def write_report(out: Path) -> None:
         *_tactile_range_section(manifest),
         *_drive_section(manifest),
         *_evaluation_sections(out, rows),
-        *_training_section(out, list(manifest["methods"]), manifest["training"]),
+        *training_section(out, list(manifest["methods"]), manifest["training"]),
         *_inputs_section(manifest),
         *_provenance_section(manifest),
     ]

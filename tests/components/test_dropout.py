@@ -11,7 +11,7 @@ from vitaplace.engine.cli.main import main
 from vitaplace.engine.data.dataset import Run, dropout_masks
 from vitaplace.kernels import reference as ref
 from vitaplace.plugins.handcrafted.extractor import HandcraftedExtractor
-from vitaplace.plugins.mupnet.extractor import MupnetExtractor
+from vitaplace.plugins.mupnet.extractor import PAPER_ALGORITHM, MupnetExtractor
 
 # --------------------------------------------------------------------------- the masks
 
@@ -107,7 +107,9 @@ def test_handcrafted_features_of_a_lost_sensor_do_not_depend_on_its_data(seed):
 
 # --------------------------------------------------------------------------- MuPNet
 
-TINY_NET = {"image_size": [6, 8], "visual_layers": [10], "tactile_layers": [5], "joint_size": 4, "epochs": 2,
+#: the paper's plain test-time steps (the float64 reference below takes them), on a tiny network
+TINY_NET = {**PAPER_ALGORITHM, "image_size": [6, 8], "visual_layers": [10], "tactile_layers": [5], "joint_size": 4,
+            "epochs": 2,
             "batch_size": 6, "backend": "numpy", "threshold_visual": 0.0, "threshold_tactile": 0.0,
             "threshold_joint": 0.0, "max_steps": 25}
 

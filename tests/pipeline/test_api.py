@@ -146,8 +146,8 @@ BAD_CALLS = {
                                     r"quickstart\.yaml: scoring\.tua: unknown key; "
                                     r"did you mean 'tau'\? \(valid keys: .*\)$"),
         "a misspelt run kind": (lambda: vitaplace.load_scenario("quickstart", {"train.run.kind": "foragin"}),
-                                r"quickstart\.yaml: train\.run\.kind: expected one of foraging, teleop, stations, "
-                                r"route, orbit, got 'foragin'; did you mean 'foraging'\?$"),
+                                r"quickstart\.yaml: train\.run\.kind: expected one of foraging, visits, teleop, "
+                                r"stations, route, orbit, got 'foragin'; did you mean 'foraging'\?$"),
         "a misspelt plugin parameter": (lambda: vitaplace.load_scenario("quickstart", {"methods.0.params.epoch": 3}),
                                         r"quickstart\.yaml: methods\.0\.params: extractor 'mupnet': epoch: "
                                         r"unknown key; did you mean 'epochs'\? \(valid keys: .*\bepochs\b.*\)$"),
@@ -190,7 +190,7 @@ BAD_CALLS = {
     },
     "simulate": {
         "an unknown kind": (lambda: vitaplace.simulate("e1", kind="teleport"),
-                            r"^kind='teleport': expected one of foraging, teleop, stations, route, orbit; "
+                            r"^kind='teleport': expected one of foraging, visits, teleop, stations, route, orbit; "
                             r"did you mean 'teleop'\?$"),
         "no samples": (lambda: vitaplace.simulate("e1", n_samples=0), r"^n_samples=0: expected a whole number >= 1$"),
         "samples as text": (lambda: vitaplace.simulate("e1", n_samples="many"),

@@ -941,6 +941,15 @@ def test_report_states_sample_counts_and_method_parameters(quiet_json_run):
     assert len(change) >= 1 and all(c > 0 for c in change)  # measured every epoch; latents still move
     assert (f"L: in its last epoch, each minibatch's latent steps still moved a sample's latents by a median "
             f"{100 * change[-1]:.2g} % (relative; {100 * change[0]:.2g} % in the first epoch") in report
+    training = json.loads((out / "manifest.json").read_text())["training"]["L"]
+    assert training["epochs"] == 2 and training["converged"] is False  # 2 epochs, a window of 20
+    assert "L: training stopped at its epoch cap without meeting its convergence criterion after 2 epochs." in report
+    held = training["held_out"]  # the default held-out tenth of 12 samples: 1, measured after each epoch
+    assert len(held) == 2 and all(h > 0 for h in held)
+    best = 0 if held[0] <= held[1] else 1
+    assert (f"L: held-out energy per sample (samples kept out of training, at the latents test-time inference "
+            f"settles them at) {held[-1]:.4g} after the last epoch, {held[0]:.4g} after the first, lowest "
+            f"{held[best]:.4g} after epoch {best + 1}.") in report
 
 
 def _copy_without_cache(out: Path, to: Path) -> Path:

@@ -14,7 +14,7 @@ Since then the scenario files changed on purpose, and only so: when the MuPNet p
 defaults became the converging training and the settling solver, the committed study
 scenarios (and paper.yaml) were given the then-defaults explicitly, so that they still run
 what they ran, and the touch benchmark left its 90-epoch cap to the new default's criterion.
-`SINCE_AD309C2` lists those edits; they are undone on the given parameters before the fit key
+`conftest.SINCE_AD309C2` lists those edits; they are undone on the given parameters before the fit key
 is computed, so every other part of every key is still checked against ad309c2's."""
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from conftest import ad309c2_params  # noqa: E402
 from vitaplace.engine.config.loading import load_scenario  # noqa: E402
 from vitaplace.engine.extension.registry import discover  # noqa: E402
 from vitaplace.engine.outputs import outdir  # noqa: E402
@@ -39,31 +40,6 @@ ROOT = Path(__file__).resolve().parents[2]
 PINNED = json.loads((ROOT / "tests" / "data" / "stage_keys_ad309c2.json").read_text())
 SAMPLES = 50
 CACHE = Path("unused") / "cache"
-#: the paper's training and touch scaling, pinned in the committed study scenarios' MuPNet methods
-#: (tests/layout/test_study_pins.py), and the touch scaling in their autoencoder controls
-_CPU_PINS = {"training_inference": "plain", "inference_steps": 20, "weight_optimizer": "sgd", "held_out": 0.0,
-             "tactile_scaling": "range"}
-_STUDIES = ("paper-cpu", "coloured-cpu", "paper-cpu-physical", "paper-cpu-controls", "study2", "study2-budget",
-            "study2-dropout", "study2-faithful")
-#: per scenario and plugin, the parameters added since ad309c2 (with their values)
-SINCE_AD309C2: dict[tuple[str, str], dict[str, object]] = {
-    **{(name, "mupnet"): _CPU_PINS for name in _STUDIES},
-    **{(name, "autoencoder"): {"tactile_scaling": "range"} for name in _STUDIES},
-    ("paper", "mupnet"): {"training_inference": "plain", "weight_optimizer": "sgd", "held_out": 0.0,
-                          "converge_window": 0, "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None,
-                          "tactile_scaling": "range"},
-}
-#: per scenario and plugin, parameters its file gave at ad309c2 and no longer gives (their values then)
-REMOVED_SINCE_AD309C2: dict[tuple[str, str], dict[str, object]] = {("touch-benchmark", "mupnet"): {"epochs": 90}}
-
-
-def ad309c2_params(name: str, plugin: str, params: dict) -> dict:
-    """The given parameters as the scenario's file at ad309c2 gave them (`SINCE_AD309C2`)."""
-    added = SINCE_AD309C2.get((name, plugin), {})
-    assert all(params[k] == v for k, v in added.items()), f"{name}: the pins changed"
-    return {**{k: v for k, v in params.items() if k not in added}, **REMOVED_SINCE_AD309C2.get((name, plugin), {})}
-
-
 def stage_keys(name: str) -> dict[str, str]:
     """Every stage key of shipped scenario ``name`` from the stand-in records (module docstring)."""
     scenario, _ = load_scenario(name)

@@ -77,12 +77,14 @@ def test_robust_floors_the_iqr_and_keeps_the_contact_flags_on_their_own_scale():
 
 
 def test_the_default_scales_as_before_the_option():
-    """range (the default) feeds (x - low) * (1 / max(high - low, floor)), bit for bit the
-    expression the scaling had before tactile_scaling, and returns the scaled array itself."""
+    """range (the paper's, the default before clip) feeds (x - low) * (1 / max(high - low, floor)),
+    bit for bit the expression the scaling had before tactile_scaling, and returns the scaled
+    array itself; the default is now clip."""
     rng = np.random.default_rng(3)
     train, test = rng.normal(0, 0.3, (40, 9)).astype(np.float32), rng.normal(0, 0.6, (30, 9)).astype(np.float32)
     train[:, 4] = 0.01  # a flat channel: the floor
-    default = TactileRange.fit(train, MupnetParams())
+    assert MupnetParams().tactile_scaling == "clip"
+    default = TactileRange.fit(train, MupnetParams(tactile_scaling="range"))
     assert default.scaling == "range" and default.center is None
     low, high = train.min(axis=0), train.max(axis=0)
     span = np.maximum(high - low, np.float32(0.05))
@@ -200,7 +202,8 @@ def test_the_measure_is_in_range_units_and_the_warning_quotes_its_maximum():
     # only y's 0.02 (scaled 0.4) outside: outside the range, 0 beyond [0, 1] (not -0.4)
     run = Run.from_arrays(images=np.zeros((1, 2, 2, 3), np.uint8), theta=np.zeros((1, 1)), xy=np.zeros((1, 1, 2)),
                           poses=np.zeros((1, 3)), name="Y")
-    report_out_of_range(run, values[:1] * [0, 0, 1], TactileRange.fit(train, MupnetParams()), MupnetParams(), "m")
+    paper = MupnetParams(tactile_scaling="range")
+    report_out_of_range(run, values[:1] * [0, 0, 1], TactileRange.fit(train, paper), paper, "m")
     assert "up to 0 scaled units beyond [0, 1]); they are not clipped" in run.warnings["m tactile range (instant)"]
 
 
