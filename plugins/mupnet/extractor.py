@@ -175,9 +175,9 @@ class MupnetParams(ArchitectureParams):
     inference_momentum: float = Field(
         0.9, gt=0, lt=1, description="the momentum of the nesterov and preconditioned solvers"
     )
-    inference_rtol: pydantic.PositiveFloat | None = Field(
-        3e-6, description="test-time stop also when a sample's step has shrunk below this fraction of its first "
-        "step (None: the per-layer thresholds alone, the paper's rule)",
+    inference_rtol: float | None = Field(
+        3e-6, gt=0, lt=1, description="test-time stop also when a sample's step has shrunk below this fraction "
+        "(0 < rtol < 1) of its first step (None: the per-layer thresholds alone, the paper's rule)",
     )
     backend: Literal["auto", "numpy", "warp"] = Field(
         "auto", description="auto (warp on CUDA, numpy otherwise), numpy or warp"

@@ -211,9 +211,17 @@ def test_transform_before_fit_is_an_error(mupnet_class, runs):
         ({"eta_y_joint": "fast"}, "eta_y_joint"),
         ({"backend": "tpu"}, "backend"),
         ({"image_size": (8,)}, "image_size"),
+        ({"inference_rtol": 1.0}, "inference_rtol"),  # >= 1 would stop every sample before its first step
+        ({"inference_rtol": 0.0}, "inference_rtol"),
+        ({"weight_optimizer": "lion"}, "weight_optimizer"),
+        ({"precision_weighting": "sample"}, "precision_weighting"),
+        ({"eta_w_joint": 0.0}, "eta_w_joint"),
+        ({"held_out": 1.0}, "held_out"),
+        ({"training_inference": "solver", "inference_solver": "gd"}, "training_inference"),
     ],
     ids=["duplicate-modalities", "no-modality", "unknown-modality", "unknown-key", "zero-epochs", "wrong-type",
-         "unknown-backend", "bad-image-size"],
+         "unknown-backend", "bad-image-size", "rtol-one", "rtol-zero", "unknown-optimiser", "unknown-precision",
+         "zero-rate", "all-held-out", "solver-training-with-gd"],
 )
 def test_params_errors_name_extractor_and_key(mupnet_class, params, key):
     with pytest.raises(ExtractorParamsError) as info:
