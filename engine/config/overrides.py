@@ -24,7 +24,12 @@ def apply_overrides(data: dict[str, Any], assignments: Sequence[str], source: st
             raise ScenarioError(f"{source} '{assignment}': expected key.path=value or key.path+=value")
         first, dot, rest = key.partition(".")
         key = current_key(first, f"{source} '{assignment}'") + dot + rest
-        value = yaml.safe_load(raw) if raw else ""
+        try:
+            value = yaml.safe_load(raw) if raw else ""
+        except yaml.YAMLError as exc:
+            problem = getattr(exc, "problem", None) or type(exc).__name__
+            raise ScenarioError(f"{source} '{assignment}': the value is not YAML ({problem}); a text with YAML's "
+                                "special characters needs quotes") from None
         node: Any = data
         parts = key.split(".")
         for i, part in enumerate(parts):

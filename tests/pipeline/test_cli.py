@@ -157,6 +157,15 @@ def test_bad_override_is_reported(tmp_path):
     assert result.returncode == 2 and "expected key.path=value" in result.stderr
 
 
+def test_an_override_value_that_is_not_yaml_is_one_line(tmp_path):
+    path = write_scenario(tmp_path, valid_scenario())
+    result = run_cli(["validate", str(path), "--set", "scoring.tau=[0.3"])
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "vitaplace: error: --set 'scoring.tau=[0.3': the value is not YAML (expected ',' or ']', but got "
+        "'<stream end>'); a text with YAML's special characters needs quotes"]
+
+
 def re_line(text: str, pattern: str) -> bool:
     import re
 
