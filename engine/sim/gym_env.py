@@ -93,11 +93,17 @@ class WhiskEyeEnv(gymnasium.Env):
         self._actions: list[list[float]] = []
         self._start: tuple[float, float, float] | None = None
         self._seed: int | None = None
+        self._closed = False
+
+    def _open(self, call: str) -> None:
+        if self._closed:
+            raise RuntimeError(f"{call}: this WhiskEyeEnv is closed; make a new one (gymnasium.make)")
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        self._open("reset()")
         super().reset(seed=seed)
         if seed is not None:
             self._seed = int(seed)
@@ -114,6 +120,7 @@ class WhiskEyeEnv(gymnasium.Env):
         return obs, {"time": 0.0, "whisker_contacts": 0}
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        self._open("step()")
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (4,) or not np.all(np.isfinite(a)) or not self.action_space.contains(a.astype(np.float32)):
             raise ValueError(f"action {np.asarray(action).tolist()!r} is outside the action space (forward, strafe, "
@@ -145,7 +152,11 @@ class WhiskEyeEnv(gymnasium.Env):
         return None
 
     def close(self) -> None:
-        self._sim.close()
+        """Release the simulator (its renderer); a second call does nothing, and `reset` or
+        `step` after it raise one line."""
+        if not self._closed:
+            self._sim.close()
+            self._closed = True
 
     # ------------------------------------------------------------------ recording
     def write_run(self, path: str | Path, name: str = "gym") -> Path:

@@ -224,3 +224,13 @@ def test_recorded_drives_are_scored_like_any_other_run(tmp_path):
     row = next(r for r in rows if r["direction"] == "query-to-reference")
     assert (row["environment"], row["method"], row["n_queries"], row["n_references"]) == ("E1", "H", 8, 10)
     assert row["n_revisit"] == 8 and 0.0 <= row["max_f1"] <= 1.0
+
+
+def test_a_closed_environment_refuses_in_one_line(bare):
+    bare.reset(seed=0)
+    bare.close()
+    bare.close()  # a second close does nothing (the fixture's close too)
+    with pytest.raises(RuntimeError, match=r"^step\(\): this WhiskEyeEnv is closed; make a new one"):
+        bare.step([0.0, 0.0, 0.0, 1.0])
+    with pytest.raises(RuntimeError, match=r"^reset\(\): this WhiskEyeEnv is closed"):
+        bare.reset(seed=1)
