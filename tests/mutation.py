@@ -661,6 +661,8 @@ MUTANTS = [
     m("gym: the whisk amplitude ignored", "sim.simulate",
       "self._cmd = [hi + share * (float(c) - hi) for c in", "self._cmd = [float(c) for c in",
       *t("gym", "test_whisk_amplitude_zero_holds_the_whiskers_and_a_wall_bends_them")),
+    m("video: any extension accepted", "video", "    if path.suffix.lower() not in FORMATS:",
+      "    if False:", *t("video", "test_video_refuses_bad_settings_in_one_line_before_drawing[out another format]")),
     m("gym: a closed environment steps on", "sim.gym_env", '        self._open("step()")\n', "",
       *t("gym", "test_a_closed_environment_refuses_in_one_line")),
     m("gym: strafe and turn swapped", "sim.gym_env",

@@ -54,8 +54,8 @@ def _writer(suffix: str, fps: float) -> animation.AbstractMovieWriter:
 
 def check_video(run: Run, path: Path, fps: float) -> None:
     """UserError, one line, unless ``run`` has samples, ``fps`` is inside `FPS_RANGE` (so
-    finite) and ``path`` can be written (not a folder, its folder writable): checked
-    before anything is drawn."""
+    finite) and ``path`` can be written (not a folder, one of the `FORMATS`, its folder
+    writable): checked before anything is drawn."""
     low, high = FPS_RANGE
     if not (isinstance(fps, (int, float)) and low <= fps <= high):
         raise UserError(f"--fps {fps}: expected frames per second in [{low:g}, {high:g}]")
@@ -63,6 +63,10 @@ def check_video(run: Run, path: Path, fps: float) -> None:
         raise UserError(f"{run.name}: the run has no samples; nothing to animate")
     if path.is_dir():
         raise UserError(f"--out {path}: is a folder; expected the video file to write (e.g. {path / 'run.gif'})")
+    if path.suffix.lower() not in FORMATS:
+        given = f"ends in {path.suffix!r}" if path.suffix else "has no extension"
+        raise UserError(f"--out {path}: {given}; expected a video file ending in {' or '.join(FORMATS)} "
+                        f"(e.g. {path.with_suffix('.gif')})")
     writable_dir(path.parent)
 
 

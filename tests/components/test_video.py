@@ -94,6 +94,10 @@ REFUSED = {
     "step 0": (["--step", "0"], "--step 0: expected a whole number >= 1"),
     "out under a file": (["--out", "{tmp}/file/v.gif"], "--out {tmp}/file: exists and is not a directory"),
     "out a folder": (["--out", "{tmp}/folder"], "--out {tmp}/folder: is a folder"),
+    "out without an extension": (["--out", "{tmp}/video"], "--out {tmp}/video: has no extension; expected a video "
+                                 "file ending in .gif or .mp4 (e.g. {tmp}/video.gif)"),
+    "out another format": (["--out", "{tmp}/v.avi"], "--out {tmp}/v.avi: ends in '.avi'; expected a video file "
+                           "ending in .gif or .mp4"),
 }
 
 
