@@ -40,7 +40,9 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
     """
     path = resolve_path(name)
     log.debug("scenario %s: file %s, %d override(s)", name, path.resolve(), len(overrides))
-    raw = apply_overrides(_load_raw(path), overrides)
+    raw = _load_raw(path)
+    if overrides:  # an override's environment or run-file path: from the working folder, or a shipped name
+        raw = _absolute_paths(apply_overrides(raw, overrides), Path.cwd())
     try:
         scenario = Scenario.model_validate(raw)
     except pydantic.ValidationError as exc:

@@ -277,6 +277,19 @@ def test_overrides_as_a_mapping_or_as_set_strings_mean_the_same():
         vitaplace.run("quickstart", until="plot")
 
 
+def test_an_overridden_environment_is_a_shipped_name_or_a_path_from_the_working_folder(tmp_path, monkeypatch):
+    from vitaplace.engine.base.shipped import shipped_file
+
+    shipped = shipped_file("e2")
+    assert shipped is not None and shipped.name == "e2.yaml"
+    assert vitaplace.load_scenario("quickstart", {"train.environment": "e2"}).train.environment == shipped.resolve()
+    (tmp_path / "mine.yaml").write_text(shipped.read_text())
+    monkeypatch.chdir(tmp_path)
+    scenario = vitaplace.load_scenario("quickstart", {"evaluations.0.environment": "mine.yaml"})
+    assert scenario.evaluations[0].environment == (tmp_path / "mine.yaml").resolve()
+    assert scenario.train.environment == shipped_file("e1").resolve()  # the scenario file's own
+
+
 @pytest.mark.slow
 def test_the_documented_example_runs_as_written(tmp_path):
     doc = (ROOT / "docs" / "API.md").read_text()
