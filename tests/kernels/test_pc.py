@@ -11,30 +11,8 @@ import numpy as np
 import pytest
 from scipy.spatial.distance import cdist
 
-from conftest import cuda_present
 from vitaplace.engine.network.backends import NumpyBackend
 from vitaplace.engine.network.pc import Network, NetworkError
-from vitaplace.engine.network.selection import get_backend
-
-#: The behavioural tests (inference lowers the energy, training lowers the error, samples stop
-#: on their own, ...) run on every backend: numpy, Warp on the CPU, Warp on CUDA (skipped
-#: without a CUDA device). The maths tests (finite differences in float64) stay on numpy.
-BACKENDS = [
-    pytest.param(("numpy", None), id="numpy"),
-    pytest.param(("warp", "cpu"), id="warp-cpu"),
-    pytest.param(("warp", "cuda"), id="warp-cuda", marks=pytest.mark.cuda),
-]
-
-
-@pytest.fixture(scope="module", params=BACKENDS)
-def backend(request):
-    """A function giving a fresh backend of the parametrised kind (a network owns its backend)."""
-    name, device = request.param
-    if device == "cuda" and not cuda_present():
-        pytest.skip("no CUDA device")
-    if name == "warp":
-        pytest.importorskip("warp")
-    return lambda: get_backend(name, device)
 
 SMALL = {
     "modalities": {

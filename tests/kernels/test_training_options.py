@@ -9,17 +9,10 @@ from the code under test's own steps.
 import numpy as np
 import pytest
 
-from conftest import cuda_present
 from vitaplace.engine.network.pc import HeldOut, Network, NetworkError
-from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.solver import make_solver
 from vitaplace.plugins.mupnet.extractor import MupnetParams, held_out_split
 
-BACKENDS = [
-    pytest.param(("numpy", None), id="numpy"),
-    pytest.param(("warp", "cpu"), id="warp-cpu"),
-    pytest.param(("warp", "cuda"), id="warp-cuda", marks=pytest.mark.cuda),
-]
 LINEAR = {
     "modalities": {
         "visual": {"input_size": 5, "layers": [3], "eta_y": 0.01, "eta_w": 0.0, "threshold": 0.0},
@@ -32,16 +25,6 @@ LINEAR = {
 PRIOR = 0.5
 TRAIN = {"epochs": 1, "batch_size": 4, "inference_steps": 400, "seed": 0, "converge_window": 0, "converge_tol": 0.01,
          "latent_prior": PRIOR}
-
-
-@pytest.fixture(params=BACKENDS)
-def backend(request):
-    name, device = request.param
-    if device == "cuda" and not cuda_present():
-        pytest.skip("no CUDA device")
-    if name == "warp":
-        pytest.importorskip("warp")
-    return lambda: get_backend(name, device)
 
 
 def errors(net: Network, x: dict[str, np.ndarray], y: dict[str, np.ndarray]) -> np.ndarray:
