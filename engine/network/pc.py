@@ -376,11 +376,11 @@ class Network:
         state.minibatch(inputs, latents, functools.partial(_resumed_steps, steps, cfg.inference_steps))
 
     def _held_out_energy(self, held_out: HeldOut) -> float:
-        """The energy per sample of the held-out samples at the latents test-time inference settles them at."""
+        """The energy per sample of the held-out samples at the latents test-time inference settles
+        them at: each edge's mean squared error (over samples, `InferenceResult.mse`) times its width."""
         result = self.infer(held_out.inputs, held_out.max_steps, solver=held_out.solver,
                             latent_prior=held_out.latent_prior)
-        n = len(next(iter(held_out.inputs.values())))
-        return sum(self.energy(held_out.inputs, result.latents).values()) / n
+        return sum(result.mse[e.name] * self.sizes[e.lower] for e in self.active_edges(list(held_out.inputs)))
 
     def _weight_optimizer(self, cfg: TrainingConfig, edges: Sequence[Edge]) -> WeightOptimizer | None:
         """A fresh optimiser state for one training run (None: sgd, the fused step); not saved
