@@ -26,7 +26,7 @@ from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run
 from vitaplace.plugins.autoencoder.model import Autoencoder, Encoder, OptimizerName, TrainingSettings, train
 from vitaplace.plugins.mupnet.extractor import ArchitectureParams
-from vitaplace.plugins.mupnet.inputs import TactileRange, range_measure, raw_inputs, report_out_of_range
+from vitaplace.plugins.mupnet.inputs import TactileRange, range_measure, raw_inputs, report_out_of_range, training_range
 
 WEIGHTS_FILE = "weights.npz"
 
@@ -84,7 +84,7 @@ class AutoencoderExtractor(FeatureExtractor):
         p = self.params
         raw = raw_inputs(train_run, p)
         if "tactile" in raw:
-            self.tactile_range = TactileRange.fit(raw["tactile"], p)
+            self.tactile_range = training_range(train_run, raw["tactile"], p, self.name)
         inputs = self._scaled(raw)
         layers = {"visual": p.visual_layers, "tactile": p.tactile_layers}
         self.model = Autoencoder({m: [x.shape[1], *layers[m]] for m, x in inputs.items()}, p.joint_size,

@@ -57,7 +57,14 @@ from vitaplace.engine.network.precision import PrecisionWeighting
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.solver import Solver, SolverName, make_solver
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
-from vitaplace.plugins.mupnet.inputs import InputParams, TactileRange, range_measure, raw_inputs, report_out_of_range
+from vitaplace.plugins.mupnet.inputs import (
+    InputParams,
+    TactileRange,
+    range_measure,
+    raw_inputs,
+    report_out_of_range,
+    training_range,
+)
 
 log = logging.getLogger("vitaplace.mupnet")
 #: a test-time joint latent longer than this many times the longest training one has diverged
@@ -343,7 +350,7 @@ class MupnetExtractor(FeatureExtractor):
         if "visual" in raw:
             self.network.set_scaler("visual", np.zeros(1, np.float32), np.full(1, 1 / 255, np.float32))
         if "tactile" in raw:
-            self.tactile_range = TactileRange.fit(raw["tactile"], p)
+            self.tactile_range = training_range(train, raw["tactile"], p, self.name)
             self.network.set_scaler("tactile", *self.tactile_range.scaler())
         inputs = self._scaled(raw)
         training = p.training_config()

@@ -39,6 +39,7 @@ from pydantic import Field
 from scipy.ndimage import zoom
 
 from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.data.dataset import TOUCH_THRESHOLD
 from vitaplace.plugin import ExtractorParams, Run, warn_once
 
@@ -157,6 +158,18 @@ def raw_inputs(run: Run, params: InputParams) -> dict[str, np.ndarray]:
     if "tactile" in params.modalities:
         inputs["tactile"] = tactile_values(run, params)
     return inputs
+
+
+def training_range(run: Run, values: np.ndarray, params: InputParams, who: str) -> TactileRange:
+    """The tactile channels' range on the training ``run`` (`TactileRange.fit` of its ``values``);
+    UserError naming ``who``'s modalities when no sample of the run touches anything: every
+    channel would then be scaled from the whiskers at rest, and each touch seen later would lie
+    outside it."""
+    if not touched(run, params).any():
+        raise UserError(f"{who}: modalities include 'tactile' but no sample of the training run {run.name!r} touches "
+                        f"anything (no whisker deflected past {TOUCH_THRESHOLD}): train on a run whose drive reaches "
+                        "landmarks (a foraging or visits run), or set modalities: [visual]")
+    return TactileRange.fit(values, params)
 
 
 def _inverse(span: np.ndarray) -> np.ndarray:

@@ -15,8 +15,9 @@ import pytest
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from vitaplace.engine.base.errors import UserError  # noqa: E402
 from vitaplace.engine.cli.main import main  # noqa: E402
-from vitaplace.engine.data.dataset import Run  # noqa: E402
+from vitaplace.engine.data.dataset import TOUCH_THRESHOLD, Run  # noqa: E402
 from vitaplace.engine.extension.features import feature_facts  # noqa: E402
 from vitaplace.engine.extension.registry import discover  # noqa: E402
 from vitaplace.engine.report.report import tactile_range_table  # noqa: E402
@@ -215,3 +216,28 @@ def test_the_report_tabulates_the_measure_per_method_and_run():
                                             "channels under 99 % |")
     assert table.splitlines()[2:] == ["| L | E1/query | 83.3 | 50.0 | 1 of 3 | 0.1 |"]
     assert tactile_range_table({"H": {"E1/query": {}}}) == ""
+
+
+@pytest.mark.parametrize("plugin", ["mupnet", "autoencoder"])
+def test_a_training_run_that_touches_nothing_is_refused_when_touch_is_fed(plugin):
+    """Every whisker at rest (xy 0, below the touch threshold) in every training sample: the
+    tactile range would be the rest position's, so fitting is refused naming the modalities;
+    one sample pushed past the threshold is enough to fit, and vision alone needs no touch."""
+    extractor_class = discover(only=plugin).get(plugin)
+    params = TINY if plugin == "mupnet" else {k: v for k, v in TINY.items()
+                                              if k not in ("inference_steps", "max_steps", "backend")}
+    still = places_run(2)
+    still.xy[...] = 0.0
+    with pytest.raises(UserError, match=r"modalities include 'tactile' but no sample of the training run 'run' "
+                                        r"touches anything"):
+        extractor_class({**params, "modalities": ["visual", "tactile"]}).fit(still)
+    visual = extractor_class({**params, "modalities": ["visual"]})
+    visual.progress = False
+    visual.fit(still)
+    one_touch = places_run(2)
+    one_touch.xy[...] = 0.0
+    one_touch.xy[5, 7] = [2 * TOUCH_THRESHOLD, 0.0]
+    extractor = extractor_class({**params, "modalities": ["tactile"]})
+    extractor.progress = False
+    extractor.fit(one_touch)
+    assert extractor.tactile_range is not None
