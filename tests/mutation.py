@@ -171,6 +171,7 @@ MODULES = {
     "complementarity": "engine/evaluation/complementarity.py",
     "cli.difficulty": "engine/cli/difficulty.py",
     "hypotheses": "engine/study/hypotheses.py",
+    "results.tables": "docs/results/tables.py",
 }
 
 
@@ -1633,6 +1634,24 @@ MUTANTS = [
     m("hypotheses: a secondary decided on its unadjusted p", "hypotheses",
       "decision(stats, adjusted, tost))", "decision(stats, p, tost))",
       *t("hypotheses", "test_a_family_is_decided_on_exact_sign_flip_p_with_holm_over_the_secondaries_only")),
+    m("rank bootstrap: each method draws its own seeds (unpaired)", "results.tables",
+      "        scores = np.stack([values[draws].mean(axis=(1, 2)) for values in methods.values()])",
+      "        scores = np.stack([values[np.random.default_rng(i).integers(0, n, size=draws.shape)].mean(axis=(1, 2))\n"
+      "                           for i, values in enumerate(methods.values())])",
+      *t("results_doc", "test_rank_replicates_ranks_each_resample_of_the_seeds_paired_across_methods")),
+    m("rank bootstrap: the lowest mean rank ranked first", "results.tables",
+      "(-scores).argsort(axis=0, kind=\"stable\")", "scores.argsort(axis=0, kind=\"stable\")",
+      *t("results_doc", "test_rank_replicates_ranks_each_resample_of_the_seeds_paired_across_methods")),
+    m("mean ranks: a tie for the lowest given to every tied method whole", "results.tables",
+      "float((lowest[i] / lowest.sum(axis=0)).mean())", "float(lowest[i].mean())",
+      *t("results_doc", "test_mean_ranks_average_over_the_points_a_method_ran_in_and_share_ties")),
+    m("fusion headroom: the oracle against vision alone", "results.tables",
+      'c["oracle_r1"] - max(c["vision_r1"], c["touch_r1"])', 'c["oracle_r1"] - c["vision_r1"]',
+      *t("results_doc", "test_every_table_in_results_md_is_computed_from_the_committed_summaries")),
+    m("tactile range: the first warning's excess, not the largest", "results.tables",
+      "    return max(float(match.group(1)) for match in found if match)",
+      "    return next(float(match.group(1)) for match in found if match)",
+      *t("results_doc", "test_the_second_studys_corrected_sentences_quote_the_committed_numbers")),
 ]
 
 #: Mutants that cannot change a result, kept to document why they survive.

@@ -28,13 +28,17 @@ import csv
 import dataclasses
 import functools
 import json
+import re
 import statistics
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
+
+import numpy as np
 
 from vitaplace.engine.study import hypotheses
 from vitaplace.engine.study.hypotheses import INTERACTION_LIMITS, endpoint_tests, paired, versus_best
+from vitaplace.engine.study.summary import LEVEL
 
 HERE = Path(__file__).resolve().parent
 #: touch model -> the sweep folder of its scenario
@@ -645,6 +649,81 @@ def study2_rank() -> str:
                      "mean rank, single samples", "mean rank, all"], body)
 
 
+#: resamples of the seeds for the rank intervals, and the seed of their generator
+RANK_RESAMPLES = 2000
+RANK_SEED = 0
+
+
+def rank_replicates(points: Mapping[str, Mapping[str, np.ndarray]], resamples: int = RANK_RESAMPLES,
+                    seed: int = RANK_SEED) -> dict[str, dict[str, np.ndarray]]:
+    """Bootstrap of the ranking over seeds. ``points``: point -> method -> max F1 per seed and
+    cell, shape (seeds, cells), the same seeds in every point. Each resample draws the seeds
+    with replacement once, for every method and point (paired), and ranks each point's
+    methods by their mean over the drawn seeds and the cells (1 = highest; exact ties go to
+    the method named first). Returns point -> method -> its rank in each resample."""
+    n = len(next(iter(next(iter(points.values())).values())))
+    draws = np.random.default_rng(seed).integers(0, n, size=(resamples, n))
+    ranks = {}
+    for key, methods in points.items():
+        scores = np.stack([values[draws].mean(axis=(1, 2)) for values in methods.values()])
+        ranks[key] = dict(zip(methods, (-scores).argsort(axis=0, kind="stable").argsort(axis=0) + 1, strict=True))
+    return ranks
+
+
+def _point_values(key: str) -> dict[str, np.ndarray]:
+    """Method -> its max F1 per seed (rows, in seed order) and cell of one arm/point (columns)."""
+    values, cells = _per_seed(key), [(w, d) for _, w, d in cells2([key])]
+    seeds = sorted(values[(cells[0][0], "L", cells[0][1])])
+    return {m: np.array([[values[(w, m, d)][s] for w, d in cells] for s in seeds])
+            for m in methods_of(key.split("/")[0])}
+
+
+def _interval(replicates: np.ndarray, digits: int = 0) -> str:
+    """The (1 - LEVEL)/2 and (1 + LEVEL)/2 percentiles of replicates, as observed values."""
+    low, high = np.quantile(replicates, [(1 - LEVEL) / 2, (1 + LEVEL) / 2], method="inverted_cdf")
+    return f"[{low:.{digits}f}, {high:.{digits}f}]"
+
+
+#: the groups of points a mean rank is taken over: the three arms' single samples, all five points
+RANK_GROUPS = {"single samples": [k for k in POINTS if k.endswith("/length=1")], "all": list(POINTS)}
+
+
+def mean_ranks(ranks: Mapping[str, Mapping[str, np.ndarray]],
+               points: Sequence[str]) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Each method's mean rank over ``points`` (those it ran in) per resample of
+    `rank_replicates`, and the share of resamples in which it is the lowest (ties share it)."""
+    methods = list(dict.fromkeys(m for k in points for m in ranks[k]))
+    mean = {m: np.mean([ranks[k][m] for k in points if m in ranks[k]], axis=0) for m in methods}
+    table = np.stack(list(mean.values()))
+    lowest = table == table.min(axis=0)
+    return mean, {m: float((lowest[i] / lowest.sum(axis=0)).mean()) for i, m in enumerate(methods)}
+
+
+def study2_rank_intervals() -> str:
+    """How sure the ranking is: each method's rank per arm and matching (`study2_rank`) with
+    its 95 % percentile interval over `RANK_RESAMPLES` resamples of the eight seeds, paired
+    across methods, arms and matchings (`rank_replicates`); its mean rank over the three
+    arms' single samples and over all five points, each with its interval and the share of
+    resamples in which it is the lowest (`mean_ranks`: the best method overall)."""
+    ranks = rank_replicates({key: _point_values(key) for key in POINTS})
+    point = {key: {m: i + 1 for i, m in enumerate(sorted(a, key=lambda m: -a[m]))}
+             for key, a in ((k, _averages(k)) for k in POINTS)}
+    groups = {name: mean_ranks(ranks, keys) for name, keys in RANK_GROUPS.items()}
+
+    def estimate(m: str, keys: Sequence[str]) -> float:
+        return statistics.fmean(point[k][m] for k in keys if m in point[k])
+
+    body = []
+    for m in sorted(METHODS2, key=lambda m: estimate(m, RANK_GROUPS["single samples"])):
+        cells = [f"{point[k][m]} {_interval(ranks[k][m])}" if m in point[k] else "–" for k in POINTS]
+        for name, (mean, best) in groups.items():
+            cells += [f"{estimate(m, RANK_GROUPS[name]):.1f} {_interval(mean[m], 1)}", f"{100 * best[m]:.1f}"]
+        body.append([m, *cells])
+    return markdown(["method", *(f"{k.split('/')[0]}, {MATCHING[k.split('/')[1]]}" for k in POINTS),
+                     *(f"{label}, {name}" for name in RANK_GROUPS
+                       for label in ("mean rank", "lowest mean rank, % of resamples"))], body)
+
+
 def study2_settled() -> str:
     """Settledness of the MuPNet methods' test-time inference per evaluation drive, from each
     seed's manifest: the share of samples that ended before the 1000-step cap (settled: the
@@ -686,25 +765,45 @@ def study2_training() -> str:
     return markdown(["arm", "method", "seeds", "epochs trained", "converged"], body)
 
 
+@functools.cache  # callers do not mutate it
+def _complementarity(arm: str) -> list[list[dict]]:
+    """Each seed's complementarity.json (single samples) of one arm, in seed order."""
+    folder = ARMS[arm][0] / "length=1" / "seeds"
+    return [json.loads((folder / f"seed-{seed}" / "complementarity.json").read_text())
+            for seed in sorted(_seed_manifests(arm))]
+
+
+def complementarity_pairs(arm: str, world: str, direction: str, vision: str) -> list[dict]:
+    """Per seed, the complementarity of ``vision`` and its touch-only pair in one cell."""
+    return [next(c for c in seed if (c["environment"], c["direction"], c["vision"]) == (world, direction, vision))
+            for seed in _complementarity(arm)]
+
+
+def fusion_headroom(arm: str, world: str, direction: str, vision: str) -> float:
+    """The most a fusion of ``vision`` and its touch-only pair could add to recall@1: the mean
+    over seeds of the oracle recall@1 (either right) minus the better single modality's."""
+    return statistics.fmean(c["oracle_r1"] - max(c["vision_r1"], c["touch_r1"])
+                            for c in complementarity_pairs(arm, world, direction, vision))
+
+
 def study2_complementarity() -> str:
     """Per evaluation and direction, single samples: each vision/touch pair's recall@1 failures
-    of vision that touch gets right (rescued of wrong, summed over seeds) and its oracle
-    recall@1 (either right), median over seeds, from each seed's complementarity.json."""
+    of vision that touch gets right (rescued of wrong, summed over seeds), its oracle recall@1
+    (either right; median over seeds) and its headroom (`fusion_headroom`: mean over seeds of
+    the oracle minus the better single modality), from each seed's complementarity.json."""
     body = []
-    for arm, (folder, _, worlds, _) in ARMS.items():
-        seeds = [json.loads(p.read_text()) for p in (folder / "length=1" / "seeds").glob("seed-*/complementarity.json")]
+    for arm, (_, _, worlds, _) in ARMS.items():
         for world in worlds:
             for direction, arrow in DIRECTIONS.items():
                 cells = [arm, world, arrow]
-                for vision, touch in (("L-V", "L-T"), ("H-V", "H-T")):
-                    pairs_found = [next(c for c in seed if (c["environment"], c["direction"], c["vision"], c["touch"])
-                                        == (world, direction, vision, touch)) for seed in seeds]
-                    cells += [f"{sum(c['rescued'] for c in pairs_found)} of "
-                              f"{sum(c['vision_wrong'] for c in pairs_found)}",
-                              pct(statistics.median(c["oracle_r1"] for c in pairs_found))]
+                for vision in ("L-V", "H-V"):
+                    found = complementarity_pairs(arm, world, direction, vision)
+                    cells += [f"{sum(c['rescued'] for c in found)} of {sum(c['vision_wrong'] for c in found)}",
+                              pct(statistics.median(c["oracle_r1"] for c in found)),
+                              f"{100 * fusion_headroom(arm, world, direction, vision):+.1f}"]
                 body.append(cells)
-    return markdown(["arm", "evaluation", "direction", "L-T rescues of L-V", "L oracle R@1 %", "H-T rescues of H-V",
-                     "H oracle R@1 %"], body)
+    return markdown(["arm", "evaluation", "direction", "L-T rescues of L-V", "L oracle R@1 %, median",
+                     "L headroom, points", "H-T rescues of H-V", "H oracle R@1 %, median", "H headroom, points"], body)
 
 
 def _budget_values(epochs: int) -> tuple[dict[tuple[str, str, str], float], dict]:
@@ -732,6 +831,20 @@ def study2_budget() -> str:
                                                         f"{', converged' if m['training'][method]['converged'] else ''}"
                                                         for _, m in runs.values())])
     return markdown(["evaluation", "direction", *(f"{e} epochs: L / L-V / L − L-V" for e in BUDGET_EPOCHS)], body)
+
+
+#: the amount a tactile-range warning gives: "up to X scaled units beyond [0, 1]"
+RANGE_EXCESS = re.compile(r"up to ([0-9.]+) scaled units beyond")
+
+
+def tactile_range_excess(tactile_input: str) -> float:
+    """The farthest any evaluation's touch lies beyond the training run's range, in scaled
+    units, over the tactile-range warnings (``... tactile range (INPUT...)``) of every arm's
+    seeds for one ``tactile_input`` ("instant" or "cycle")."""
+    found = [RANGE_EXCESS.search(message) for arm in ARMS for manifest in _seed_manifests(arm).values()
+             for checks in manifest["warnings"].values() for check, message in checks.items()
+             if f"tactile range ({tactile_input}" in check]
+    return max(float(match.group(1)) for match in found if match)
 
 
 def study2_warnings() -> str:
@@ -778,6 +891,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "study2-best": study2_best,
     "study2-overall": study2_overall,
     "study2-rank": study2_rank,
+    "study2-rank-intervals": study2_rank_intervals,
     "study2-contrasts": study2_contrasts,
     "study2-decomposition": study2_decomposition,
     "study2-complementarity": study2_complementarity,

@@ -226,3 +226,253 @@ def test_the_budget_trend_trained_l_and_l_v_at_its_epoch_cap_on_seed_0(epochs):
         assert trained["max_epochs"] == epochs and 1 <= trained["epochs"] <= epochs
     values, _ = tables._budget_values(epochs)
     assert {(w, m) for w, m, _ in values} == {(w, m) for w in tables.ARMS["touch"][2] for m in ("L", "L-V")}
+
+
+def test_rank_replicates_ranks_each_resample_of_the_seeds_paired_across_methods():
+    """Closed forms: a method ahead in every seed is first in every resample; one ahead only
+    when seed 0 is drawn at least twice of three is first with probability
+    P(Binomial(3, 1/3) >= 2) = 7/27; a method 0.01 above another in every seed stays above it in
+    every resample only if the seeds are drawn once for both (paired), although the seeds
+    differ by far more."""
+    import numpy as np
+
+    tables = tables_module()
+    n = 20000
+    ranks = tables.rank_replicates({
+        "a": {"X": np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 0.0]]), "Y": np.full((3, 2), 0.25),
+              "Z": np.full((3, 2), -1.0)},
+        "b": {"P": np.array([[0.0], [0.5], [0.9]]), "Q": np.array([[0.01], [0.51], [0.91]])}}, resamples=n, seed=1)
+    assert ranks["a"]["Z"].tolist() == [3] * n
+    # X's mean over the drawn seeds and cells is (seed-0 draws) / 6: above Y's 0.25 when drawn >= 2 times
+    assert np.mean(ranks["a"]["X"] == 1) == pytest.approx(7 / 27, abs=0.01)
+    assert sorted(set(ranks["a"]["X"].tolist())) == [1, 2] and (ranks["a"]["X"] + ranks["a"]["Y"] == 3).all()
+    assert ranks["b"]["Q"].tolist() == [1] * n and ranks["b"]["P"].tolist() == [2] * n
+
+
+def test_mean_ranks_average_over_the_points_a_method_ran_in_and_share_ties():
+    import numpy as np
+
+    tables = tables_module()
+    ranks = {"p1": {"X": np.array([1, 2]), "Y": np.array([2, 1]), "A": np.array([3, 3])},
+             "p2": {"X": np.array([1, 1]), "Y": np.array([2, 2])}}
+    mean, best = tables.mean_ranks(ranks, ["p1", "p2"])
+    assert mean["X"].tolist() == [1.0, 1.5] and mean["Y"].tolist() == [2.0, 1.5] and mean["A"].tolist() == [3.0, 3.0]
+    # resample 1: X alone lowest; resample 2: X and Y tie and share it
+    assert best == {"X": 0.75, "Y": 0.25, "A": 0.0}
+
+
+def test_the_rank_table_ranks_the_per_seed_values_of_every_cell():
+    """The arrays ranked are the summaries' per-seed max F1: each method's mean over seeds and
+    cells is the ranking's own average (`study2_rank`'s), for every arm and matching."""
+    tables = tables_module()
+    for key in tables.POINTS:
+        values, averages = tables._point_values(key), tables._averages(key)
+        assert set(values) == set(averages)
+        for method, array in values.items():
+            assert array.shape == (8, len(tables.cells2([key])))
+            assert array.mean() == pytest.approx(averages[method], abs=1e-12)
+
+
+def _complementarity_files(folder: str) -> list[list[dict]]:
+    import json
+
+    return [json.loads((RESULTS / folder / "length=1" / "seeds" / f"seed-{s}" / "complementarity.json").read_text())
+            for s in range(8)]
+
+
+def _percent_points(x: float) -> str:
+    """A difference of proportions as the prose writes it: points, one decimal, a true minus."""
+    return f"{100 * x:.1f}".replace("-", "−")
+
+
+def second_study_numbers() -> dict[str, str]:
+    """Every number the corrected text of the second study quotes, recomputed from the
+    committed files (summaries, complementarity.json, manifests), formatted as written."""
+    import json
+
+    tables = tables_module()
+    pts, p = _percent_points, tables.p_value
+    touch, faithful, dropout = "touch/length=1", "faithful/length=1", "drop-out/length=1"
+
+    def diff(key: str, world: str, direction: str, a: str, b: str) -> dict[str, str]:
+        return tables._difference(key, world, direction, a, b)
+
+    out: dict[str, str] = {}
+    primary = tables.endpoints()[0]
+    out["primary"] = pts(primary["stats"]["mean"])
+    out["primary_low"], out["primary_high"] = pts(primary["stats"]["boot_low"]), pts(primary["stats"]["boot_high"])
+    out["primary_p"] = p(primary["p"])
+    out["primary_abs"] = out["primary"].removeprefix("−")
+    lv = diff(touch, "alike-shapes", tables.Q2R, "L", "L-V")
+    out["l_lv"], out["l_lv_low"], out["l_lv_high"] = pts(float(lv["mean"])), pts(float(lv["boot_low"])), pts(
+        float(lv["boot_high"]))
+    out["l_lv_p"] = p(lv["p_sign_flip"])
+    out["lf_lv"] = pts(float(diff(touch, "alike-shapes", tables.Q2R, "L-F", "L-V")["mean"]))
+    # the aliasing gate (H-V max F1 <= 85 %), seeds that fail it, each direction
+    for direction, name in ((tables.Q2R, "q2r"), (tables.R2Q, "r2q")):
+        gates = [next(r for r in seed if (r["environment"], r["direction"]) == ("alike-shapes", direction))["gates"]
+                 for seed in tables._gate_rows("touch").values()]
+        assert all(g["hv_max_f1_max"]["gate"] == 0.85 for g in gates) and len(gates) == 8
+        out[f"gate_failed_{name}"] = str(sum(g["hv_max_f1_max"]["value"] > 0.85 for g in gates))
+    # a fusion's headroom: mean over seeds of oracle recall@1 minus the better single modality (read here, not
+    # through tables.py)
+    def headroom(folder: str, world: str, direction: str, vision: str) -> float:
+        cells = [next(c for c in seed if (c["environment"], c["direction"], c["vision"]) == (world, direction, vision))
+                 for seed in _complementarity_files(folder)]
+        return statistics.fmean(c["oracle_r1"] - max(c["vision_r1"], c["touch_r1"]) for c in cells)
+
+    out["room_l"] = pts(headroom("study2-sweep", "alike-shapes", tables.Q2R, "L-V"))
+    out["room_h"] = pts(headroom("study2-sweep", "alike-shapes", tables.Q2R, "H-V"))
+    room = [headroom(folder, world, direction, vision)
+            for folder, world, directions in (("study2-sweep", "distinct-shapes-dusk", (tables.Q2R, tables.R2Q)),
+                                              ("study2-dropout-sweep", "distinct-shapes-dropout", (tables.Q2R,)))
+            for direction in directions for vision in ("L-V", "H-V")]
+    out["room_min"], out["room_max"] = pts(min(room)), pts(max(room))
+    for key, world, direction, name in ((touch, "distinct-shapes-dusk", tables.Q2R, "dusk_q2r"),
+                                        (touch, "distinct-shapes-dusk", tables.R2Q, "dusk_r2q"),
+                                        (dropout, "distinct-shapes-dropout", tables.Q2R, "dropout")):
+        out[f"l_h_{name}"] = pts(float(diff(key, world, direction, "L", "H")["mean"]))
+    # E3: the endpoint, the other direction, and the hand-crafted fusion and vision against L
+    e3 = tables.endpoints()[6]
+    assert (e3["world"], e3["comparators"]) == ("E3", ("H",))
+    out["e3"], out["e3_low"], out["e3_high"] = (pts(e3["stats"]["mean"]), pts(e3["stats"]["boot_low"]),
+                                                pts(e3["stats"]["boot_high"]))
+    out["e3_holm"] = p(e3["p_holm"])
+    r2q = diff(faithful, "E3", tables.R2Q, "L", "H")
+    out["e3_r2q"], out["e3_r2q_low"], out["e3_r2q_high"] = (pts(float(r2q["mean"])), pts(float(r2q["boot_low"])),
+                                                            pts(float(r2q["boot_high"])))
+    out["e3_r2q_p"] = p(r2q["p_sign_flip"])
+    out["e3_hf"] = pts(float(diff(faithful, "E3", tables.Q2R, "H-F", "L")["mean"]))
+    out["e3_hv"] = pts(float(diff(faithful, "E3", tables.Q2R, "H-V", "L")["mean"]))
+    # the rank's uncertainty
+    ranks = tables.rank_replicates({key: tables._point_values(key) for key in tables.POINTS})
+    single, every = tables.RANK_GROUPS["single samples"], tables.RANK_GROUPS["all"]
+    mean_single, best_single = tables.mean_ranks(ranks, single)
+    _, best_all = tables.mean_ranks(ranks, every)
+    assert (ranks[touch]["H-F"] >= 1).all() and len(ranks[touch]["H-F"]) == 2000
+    rank = {k: {m: i + 1 for i, m in enumerate(sorted(a, key=lambda m: -a[m]))}
+            for k, a in ((k, tables._averages(k)) for k in tables.POINTS)}
+    out["hf_rank"] = f"{statistics.fmean(rank[k]['H-F'] for k in single):.1f}"
+    out["hf_rank_interval"] = tables._interval(mean_single["H-F"], 1)
+    for m in ("H-F", "H-V", "L-F"):
+        out[f"best_{m}"] = f"{100 * best_single[m]:.1f}"
+        out[f"best_all_{m}"] = f"{100 * best_all[m]:.1f}"
+    # the weight chosen on the drop-out arm's second draw of alike-shapes against the primary cell's
+    weights = [tables._per_seed(key, "fusion.weight")[("alike-shapes", "L-F", tables.Q2R)] for key in (touch, dropout)]
+    out["weights_equal"] = str(sum(weights[0][s] == weights[1][s] for s in range(8)))
+    # the drop-out condition's touch is the touch arm's alike-shapes touch, seed by seed
+    for method in ("L-T", "H-T"):
+        for direction in tables.DIRECTIONS:
+            assert (tables._per_seed(dropout)[("distinct-shapes-dropout", method, direction)]
+                    == tables._per_seed(touch)[("alike-shapes", method, direction)])
+    # the tactile range: the farthest "up to X scaled units beyond" of every arm's range warnings (read here)
+    excess: dict[str, float] = {}
+    for path in RESULTS.glob("study2-*sweep/length=1/seeds/seed-*/manifest.json"):
+        for checks in json.loads(path.read_text())["warnings"].values():
+            for check, message in checks.items():
+                found = re.search(r"tactile range \((instant|cycle).*up to ([0-9.]+) scaled", check + message)
+                if found:
+                    excess[found[1]] = max(excess.get(found[1], 0.0), float(found[2]))
+    assert excess == {"instant": tables.tactile_range_excess("instant"), "cycle": tables.tactile_range_excess("cycle")}
+    out["range_instant"], out["range_cycle"] = f"{excess['instant']:g}", f"{excess['cycle']:g}"
+    # what changed between the studies' L on E3, from the manifests
+    first = json.loads((RESULTS / "paper-cpu-sweep" / "seeds" / "seed-0" / "manifest.json").read_text())["methods"]["L"]
+    second = tables._seed_manifests("faithful")[0]["methods"]["L"]
+    assert "latent_prior" not in first["params"] and "latent_prior" not in first["defaults"]
+    out["steps_second"], out["steps_first"] = str(second["params"]["max_steps"]), str(first["params"]["max_steps"])
+    out["prior"] = f"{second['params']['latent_prior']:g}"
+    out["epochs_second"], out["epochs_first"] = str(second["params"]["epochs"]), str(first["params"]["epochs"])
+    words = {6: "six", 8: "eight"}
+    out["seeds_second"] = words[len(tables._seed_manifests("faithful"))]
+    out["seeds_first"] = words[len({r["seed"] for r in rows("paper-cpu-sweep", "sweep-seeds.csv")})]
+    # A against L: the optimiser and its rate; MuPNet's touch step over its vision step
+    a, l_ = tables._seed_manifests("touch")[0]["methods"]["A"], tables._seed_manifests("touch")[0]["methods"]["L"]
+    assert a["defaults"]["optimizer"] == "adam" and a["defaults"]["encoder"] == "learned"
+    # A has no latent prior; MuPNet's weights took plain steps (the study predates `weight_optimizer`)
+    assert "latent_prior" not in a["params"] and "weight_optimizer" not in {**l_["params"], **l_["defaults"]}
+    out["a_rate"] = f"{a['defaults']['learning_rate']:g}"
+    ratios = {l_["defaults"][f"eta_{k}_tactile"] / l_["defaults"][f"eta_{k}_visual"] for k in ("y", "w")}
+    assert len(ratios) == 1
+    out["touch_step"] = f"{ratios.pop():.0f}"
+    # seed 0's L-V, alike-shapes, query to reference: the study against the budget trend's rerun at its cap
+    rerun, _ = tables._budget_values(70)
+    out["machine"] = pts(abs(tables._per_seed(touch)[("alike-shapes", "L-V", tables.Q2R)][0]
+                             - rerun[("alike-shapes", "L-V", tables.Q2R)]))
+    return out
+
+
+#: (file, a sentence of the second study's text with its numbers as {names} of `second_study_numbers`)
+SECOND_STUDY_QUOTES = (
+    ("README.md", "H-V's max F1 above 85 % in {gate_failed_q2r} of 8 seeds query to reference, {gate_failed_r2q} of 8 "
+                  "the other way"),
+    ("README.md", "a fusion could add at most +{room_l} points of recall@1 to L's codes there and +{room_h} to H's"),
+    ("README.md", "the joint code is **{primary_abs} points of max F1 below**"),
+    ("README.md", "(bootstrap 95 % [{primary_low}, {primary_high}], p = {primary_p}); against vision alone "
+                  "(L − L-V {l_lv} points [{l_lv_low}, {l_lv_high}], p = {l_lv_p}) a loss is not shown"),
+    ("README.md", "where a fusion could add {room_min}–{room_max} points, the hand-crafted H beats L ({l_h_dusk_q2r}, "
+                  "{l_h_dusk_r2q} and {l_h_dropout} points, unadjusted)"),
+    ("README.md", "On the faithful E3 L beats H query to reference only (+{e3}, Holm-corrected; reference to query "
+                  "+{e3_r2q}, p = {e3_r2q_p}), and there H-F and H-V beat L by {e3_hf} and {e3_hv} points"),
+    ("README.md", "the best mean rank over the three arms ({hf_rank}, 95 % {hf_rank_interval} over resamples of the "
+                  "seeds; the lowest in {best_H-F} % of them)"),
+    ("docs/RESULTS.md", "there E3's L − H is +{e3} points [{e3_low}, {e3_high}] query to reference, Holm-corrected, "
+                        "and +{e3_r2q} (p = {e3_r2q_p}) reference to query"),
+    ("docs/RESULTS.md", "on this cell L-F − L-V = +{lf_lv} points, about half of the primary's {primary}, and on the "
+                        "drop-out arm's second draw of `alike-shapes` the weight chosen there is this cell's in only "
+                        "{weights_equal} of 8 seeds"),
+    ("docs/RESULTS.md", "L-F − L-V = +{lf_lv} points of the {primary} is that fusion's gain over vision alone. Against "
+                        "vision alone L − L-V = {l_lv} points [{l_lv_low}, {l_lv_high}], p = {l_lv_p}: a loss is not "
+                        "shown. The cell failed its aliasing gate (H-V above 85 % in {gate_failed_q2r} of 8 seeds "
+                        "query to reference, {gate_failed_r2q} of 8 the other way), and a fusion could add at most "
+                        "+{room_l} points of recall@1 to L's codes there (+{room_h} to H's)"),
+    ("docs/RESULTS.md", "**L now beats H query to reference** (+{e3} [{e3_low}, {e3_high}], Holm p = {e3_holm}; not "
+                        "within ±5 points), not the other way (+{e3_r2q} [{e3_r2q_low}, {e3_r2q_high}], "
+                        "p = {e3_r2q_p}), and there H-F and H-V beat L by {e3_hf} and {e3_hv} points"),
+    ("docs/RESULTS.md", "(mean rank {hf_rank} {hf_rank_interval} over the three arms' single samples, the lowest in "
+                        "{best_H-F} % of 2000 resamples of the seeds; H-V in {best_H-V} %, L-F in {best_L-F} %"),
+    ("docs/RESULTS.md", "could add at most +{room_l} points of recall@1 to L's pair there and +{room_h} to H's"),
+    ("docs/RESULTS.md", "At dusk and under drop-out a fusion could add {room_min}–{room_max} points."),
+    ("docs/RESULTS.md", "H-F has the lowest mean rank over the single samples in {best_H-F} % of the resamples, H-V in "
+                        "{best_H-V} % and L-F in {best_L-F} %; over all five points H-F and L-F share it "
+                        "({best_all_H-F} % and {best_all_L-F} %)"),
+    ("docs/RESULTS.md", "its optimiser (Adam at a learning rate of {a_rate}, against MuPNet's plain steps), its step "
+                        "sizes (one for every layer, where MuPNet's touch layers step {touch_step}× its vision "
+                        "layers')"),
+    ("docs/RESULTS.md", "(warnings below: up to {range_cycle} scaled units beyond [0, 1])"),
+    ("docs/RESULTS.md", "Reference to query L − H is +{e3_r2q} (p = {e3_r2q_p}): the change is shown in one "
+                        "direction."),
+    ("docs/RESULTS.md", "the test-time solver (settling, at most {steps_second} steps, against plain steps to "
+                        "{steps_first}), the latent prior ({prior}, which also enters training, against none), the "
+                        "epochs ({epochs_second} against {epochs_first}) and the seeds ({seeds_second} against "
+                        "{seeds_first}) all changed"),
+    ("docs/RESULTS.md", "by up to {range_instant} scaled units for the single instant and {range_cycle} for the whisk "
+                        "cycle's eight points"),
+    ("docs/RESULTS.md", "({primary} points, the pre-registered primary endpoint; +{lf_lv} of it is that fusion's "
+                        "in-sample gain over vision alone)"),
+    ("docs/RESULTS.md", "Against vision alone a loss is not shown ({l_lv}, p = {l_lv_p}). That cell failed its "
+                        "aliasing gate (H-V 87.6 %) and left a fusion at most +{room_l} points of recall@1"),
+    ("docs/RESULTS.md", "L beats the hand-crafted H (+{e3} points, Holm-corrected; reference to query +{e3_r2q}, "
+                        "p = {e3_r2q_p})"),
+    ("docs/RESULTS.md", "H-V and H-F beat L by {e3_hv} and {e3_hf} points"),
+    ("docs/RESULTS.md", "(dusk and drop-out, {room_min}–{room_max} points) the hand-crafted H beats L ({l_h_dusk_q2r}, "
+                        "{l_h_dusk_r2q} and {l_h_dropout} points, unadjusted)"),
+    ("docs/RESULTS.md", "H-F has the best mean rank, in {best_H-F} % of the seed resamples"),
+    ("docs/RESULTS.md", "That the joint code loses to vision alone: {l_lv} points, p = {l_lv_p}."),
+    ("docs/RESULTS.md", "(a fusion's headroom +{room_l} points of recall@1)"),
+    ("docs/RESULTS.md", "moved {machine} points in one cell (the budget trend)"),
+)
+
+
+def test_the_second_studys_corrected_sentences_quote_the_committed_numbers():
+    """Each corrected sentence of the README's and RESULTS.md's second study, with its numbers
+    recomputed from the committed files, stands in the text (line breaks and quote marks
+    aside): a number that does not match the files fails."""
+    numbers = second_study_numbers()
+    texts = {name: " ".join(re.sub(r"^> ?", "", (ROOT / name).read_text(), flags=re.M).split())
+             for name, _ in SECOND_STUDY_QUOTES}
+    missing = []
+    for name, quote in SECOND_STUDY_QUOTES:
+        sentence = re.sub(r"\{([\w-]+)\}", lambda m: numbers[m[1]], quote)
+        if sentence not in texts[name]:
+            missing.append(f"{name}: {sentence}")
+    assert not missing, "\n".join(missing)
