@@ -17,6 +17,7 @@ import json
 from typing import Any
 
 from vitaplace.engine.config.scenario import Gates, Scenario
+from vitaplace.engine.evaluation.complementarity import count_text
 from vitaplace.engine.outputs.rows import ResultRow
 
 __all__ = ["FAMILY", "GATES", "VISION", "TOUCH", "difficulty_rows", "family_overrides", "gate_results", "table"]
@@ -100,6 +101,7 @@ def table(rows: list[dict[str, Any]]) -> str:
         gated = {gate: _gated(g[gate], is_min) for gate, (_, is_min) in GATES.items()}
         cells = [measured["environment"], measured["direction"], _pct(d["touch_both_share"]),
                  _pct(d["touch_one_side_share"]), gated["touch_correspondence_min"],
-                 f"{c['rescued']} of {c['vision_wrong']}: {gated['rescue_min']}", gated["hv_max_f1_max"]]
+                 f"{count_text(c['rescued'])} of {count_text(c['vision_wrong'])}: {gated['rescue_min']}",
+                 gated["hv_max_f1_max"]]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

@@ -6,13 +6,24 @@ Conventions (single-best-match VPR, as VPR_Tutorial's ``createPR(..., matching='
   (lower = more similar); ``gtm[i, j]`` the ground-truth distance (metres; ``+inf`` where
   the two headings differ by more than the heading tolerance, `ground_truth_matrix`).  Rows
   are queries, columns references.
-* For query ``i``: best match ``j* = argmin_j tme[i, j]`` (ties -> lowest ``j``);
-  a true revisit exists when ``min_j gtm[i, j] <= tau``; the match is accepted when
-  ``tme[i, j*] <= delta``.
-* TP = accepted and ``gtm[i, j*] <= tau``; FP = accepted and ``gtm[i, j*] > tau``;
-  FN = true revisit and not TP (so an accepted-but-wrong match of a query with a true
-  revisit is both FP and FN); TN = no true revisit and rejected.  TP + FN = number of queries
-  with a true revisit.
+* For query ``i``: best match ``j* = argmin_j tme[i, j]``; a true revisit exists when
+  ``min_j gtm[i, j] <= tau``; the match is accepted when ``tme[i, j*] <= delta``.
+* **Ties**: the best distance may be shared by ``m`` references (exact
+  equality of distances, no tolerance), ``c`` of them true matches.  Every measure is the
+  expected value under a uniformly random choice among them: the best match is correct with
+  ``correct_share = c / m``, so a tied query counts ``c / m`` of a TP and ``1 - c / m`` of an
+  FP when accepted (the best distance, hence acceptance, is the same whichever is chosen),
+  and recall@K counts the probability that a true match is among the first K when the tie
+  group that straddles rank K is drawn at random.  No rule that favours a method: the
+  lowest index, VPR_Tutorial's ``argmax``, would make a method whose distances are all
+  equal right whenever reference 0 happens to be a true match.  Untied, ``c / m`` is 0 or 1
+  and every measure is the plain count.  ``best_match`` keeps the lowest index of the tie
+  (what the figures draw); ``tied_share`` (`evaluate`) is the share of queries whose best
+  distance is finite and shared.
+* TP = accepted and correct; FP = accepted and not correct; FN = true revisit and not TP
+  (so an accepted-but-wrong match of a query with a true revisit is both FP and FN);
+  TN = no true revisit and rejected.  TP + FN = number of queries with a true revisit.
+  With ties TP, FP and FN are expected counts, fractional where a tie splits a query.
 * precision = TP / (TP + FP), **defined as 1.0 when nothing is accepted** (TP + FP == 0) —
   the point (recall 0, precision 1) that VPR_Tutorial prepends to every PR curve and that
   scikit-learn's ``precision_recall_curve`` appends;
@@ -44,6 +55,7 @@ from scipy.spatial.distance import cdist
 __all__ = [
     "Decisions",
     "PRCurve",
+    "count_value",
     "decide",
     "evaluate",
     "f1_at_threshold_of",
@@ -137,73 +149,81 @@ def ground_truth_matrix(query_poses: ArrayLike, reference_poses: ArrayLike,
 # --------------------------------------------------------------------------- decisions
 
 
+def count_value(count: float) -> int | float:
+    """A count as the summaries hold it: an int when whole (no tie split it), else the
+    expected count as a float."""
+    count = float(count)
+    return int(count) if count.is_integer() else count
+
+
 @dataclass(frozen=True)
 class Decisions:
-    """Per-query single-best-match decisions at one (tau, delta)."""
+    """Per-query single-best-match decisions at one (tau, delta); tp, fp, fn, tn are each
+    query's expected share of a TP, FP, FN, TN under the tie rule (module docstring): 0 or 1
+    unless a tie splits the query."""
 
-    best_match: np.ndarray  # int (Q,)  j* = argmin_j tme[i, j]
+    best_match: np.ndarray  # int (Q,)  j* = argmin_j tme[i, j], the lowest index of a tie
     best_tme: np.ndarray  # float (Q,)
     best_gtm: np.ndarray  # float (Q,)  gtm[i, j*]
     has_revisit: np.ndarray  # bool (Q,)  min_j gtm[i, j] <= tau
     accepted: np.ndarray  # bool (Q,)  best_tme <= delta
-    tp: np.ndarray
+    tp: np.ndarray  # float (Q,)
     fp: np.ndarray
     fn: np.ndarray
     tn: np.ndarray
     tau: float
     delta: float
+    n_best: np.ndarray  # int (Q,)  references at the best distance (0: no answer)
+    correct_share: np.ndarray  # float (Q,)  c / m: the share of them that are true matches
 
     @property
     def n_queries(self) -> int:
         return int(self.best_match.shape[0])
 
     @property
-    def counts(self) -> dict[str, int]:
-        """Plain-int counts: tp, fp, fn, tn, n_queries, n_revisit, n_accepted."""
+    def counts(self) -> dict[str, int | float]:
+        """Counts (`count_value`: ints unless a tie splits one): tp, fp, fn, tn, n_queries,
+        n_revisit, n_accepted."""
         return {
-            "tp": int(self.tp.sum()),
-            "fp": int(self.fp.sum()),
-            "fn": int(self.fn.sum()),
-            "tn": int(self.tn.sum()),
+            "tp": count_value(self.tp.sum()),
+            "fp": count_value(self.fp.sum()),
+            "fn": count_value(self.fn.sum()),
+            "tn": count_value(self.tn.sum()),
             "n_queries": self.n_queries,
             "n_revisit": int(self.has_revisit.sum()),
             "n_accepted": int(self.accepted.sum()),
         }
 
     @property
-    def correct(self) -> np.ndarray:
-        """Per query: its best match is a true match, and it has an answer (a finite best
-        distance; a query no reference can be compared with is never right)."""
-        return _correct(self.best_gtm, self.best_tme, self.tau)
-
-    @property
     def outcome(self) -> np.ndarray:
-        """Per-query label: 'TP', 'FP', 'FP+FN' (accepted, wrong, a revisit existed), 'FN', 'TN'."""
+        """Per-query label: 'TP', 'FP', 'FP+FN' (accepted, wrong, a revisit existed), 'FN',
+        'TN', and 'TP|FP' for an accepted query whose tied best matches are partly true
+        matches (its share of each in ``tp`` and ``fp``)."""
         out = np.full(self.n_queries, "TN", dtype=object)
-        out[self.fn] = "FN"
-        out[self.fp] = "FP"
-        out[self.fp & self.fn] = "FP+FN"
-        out[self.tp] = "TP"
+        out[self.fn == 1] = "FN"
+        out[self.fp == 1] = "FP"
+        out[(self.fp == 1) & (self.fn == 1)] = "FP+FN"
+        out[self.tp == 1] = "TP"
+        out[(self.tp > 0) & (self.tp < 1)] = "TP|FP"
         return out.astype(str)
 
 
-def _correct(best_gtm: np.ndarray, best_tme: np.ndarray, tau: float) -> np.ndarray:
-    """A best match is correct when it is a true match and the query has an answer: a query
-    whose every distance is +inf (a method that cannot compare it, e.g. vision only without
-    its camera) is never accepted, never correct."""
-    return (best_gtm <= tau) & np.isfinite(best_tme)
+def _revisits(gtm: np.ndarray, tau: float) -> np.ndarray:
+    """Per query: whether it has a true match (``min_j gtm[i, j] <= tau``)."""
+    return gtm.min(axis=1) <= tau
 
 
-def _best(
-    tme: np.ndarray, gtm: np.ndarray, tau: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    rows = np.arange(tme.shape[0])
-    best_match = np.argmin(tme, axis=1)  # ties -> lowest reference index
-    best_tme = tme[rows, best_match]
-    best_gtm = gtm[rows, best_match]
-    has_revisit = gtm.min(axis=1) <= tau
-    correct = _correct(best_gtm, best_tme, tau)  # implies has_revisit
-    return best_match, best_tme, best_gtm, has_revisit, correct
+def _ties(tme: np.ndarray, gtm: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per query: the best distance, how many references share it (0 where it is +inf: no
+    answer) and the share of those that are true matches (0 without an answer: a query whose
+    every distance is +inf, a method that cannot compare it, is never right)."""
+    best_tme = tme.min(axis=1)
+    at_best = tme == best_tme[:, None]
+    answered = np.isfinite(best_tme)
+    n_best = np.where(answered, at_best.sum(axis=1), 0)
+    true_at_best = (at_best & (gtm <= tau)).sum(axis=1)
+    correct_share = np.divide(true_at_best, n_best, out=np.zeros(len(tme)), where=n_best > 0)
+    return best_tme, n_best, correct_share
 
 
 def decide(tme: ArrayLike, gtm: ArrayLike, tau: float, delta: float) -> Decisions:
@@ -213,24 +233,25 @@ def decide(tme: ArrayLike, gtm: ArrayLike, tau: float, delta: float) -> Decision
     delta = float(delta)
     if np.isnan(delta):
         raise ValueError("delta must not be NaN")
-    best_match, best_tme, best_gtm, has_revisit, correct = _best(tme_a, gtm_a, tau)
+    best_tme, n_best, correct_share = _ties(tme_a, gtm_a, tau)
+    best_match = np.argmin(tme_a, axis=1)
+    has_revisit = _revisits(gtm_a, tau)
     accepted = (best_tme <= delta) & np.isfinite(best_tme)
-    tp = accepted & correct
-    fp = accepted & ~correct
-    fn = has_revisit & ~tp
-    tn = ~has_revisit & ~accepted
+    tp = np.where(accepted, correct_share, 0.0)
     return Decisions(
         best_match=best_match,
         best_tme=best_tme,
-        best_gtm=best_gtm,
+        best_gtm=gtm_a[np.arange(len(gtm_a)), best_match],
         has_revisit=has_revisit,
         accepted=accepted,
         tp=tp,
-        fp=fp,
-        fn=fn,
-        tn=tn,
+        fp=np.where(accepted, 1.0 - correct_share, 0.0),
+        fn=np.where(has_revisit, 1.0 - tp, 0.0),
+        tn=(~has_revisit & ~accepted).astype(float),
         tau=tau,
         delta=delta,
+        n_best=n_best,
+        correct_share=correct_share,
     )
 
 
@@ -307,7 +328,8 @@ def pr_curve(tme: ArrayLike, gtm: ArrayLike, tau: float, deltas: Iterable[float]
     """
     tme_a, gtm_a = _check_matrices(tme, gtm)
     tau = _check_tau(tau)
-    _, best_tme, _, has_revisit, correct = _best(tme_a, gtm_a, tau)
+    best_tme, _, correct_share = _ties(tme_a, gtm_a, tau)
+    has_revisit = _revisits(gtm_a, tau)
     if deltas is None:
         d = np.concatenate(([-np.inf], np.unique(best_tme[np.isfinite(best_tme)])))
     else:
@@ -316,11 +338,14 @@ def pr_curve(tme: ArrayLike, gtm: ArrayLike, tau: float, deltas: Iterable[float]
             raise ValueError("deltas must contain at least one threshold")
         if np.isnan(d).any():
             raise ValueError("deltas must not contain NaN")
-    # TP(delta) = #correct best matches with best_tme <= delta, FP likewise for wrong ones.
-    tme_correct = np.sort(best_tme[correct])
-    tme_wrong = np.sort(best_tme[~correct & np.isfinite(best_tme)])  # no answer: never accepted
-    tp = np.searchsorted(tme_correct, d, side="right").astype(np.int64)
-    fp = np.searchsorted(tme_wrong, d, side="right").astype(np.int64)
+    # TP(delta) = the correct shares of the best matches with best_tme <= delta, FP the rest
+    # of them; a query without an answer (best_tme +inf) is never accepted.
+    answered = np.isfinite(best_tme)
+    order = np.argsort(best_tme[answered], kind="stable")
+    share = correct_share[answered][order]
+    accepted = np.searchsorted(best_tme[answered][order], d, side="right")
+    tp = np.concatenate(([0.0], np.cumsum(share)))[accepted]
+    fp = np.concatenate(([0.0], np.cumsum(1.0 - share)))[accepted]
     n_revisit = int(has_revisit.sum())
     fn = n_revisit - tp
     precision = _safe_div(tp, tp + fp, 1.0)
@@ -344,7 +369,11 @@ def pr_curve(tme: ArrayLike, gtm: ArrayLike, tau: float, deltas: Iterable[float]
 
 def recall_at_k(tme: ArrayLike, gtm: ArrayLike, tau: float, ks: Sequence[int] = (1, 5, 10)) -> dict[int, float]:
     """Fraction of queries with a true revisit for which one of the K lowest-TME references
-    lies within ``tau`` (ties in TME broken towards the lower reference index).
+    lies within ``tau``, in expectation over a uniformly random order of tied distances (module
+    docstring): with ``L`` references strictly nearer than the K-th nearest distance ``v`` and
+    ``m`` at ``v``, ``c`` of them true matches, a query without a true match among the ``L``
+    counts ``1 - C(m - c, K - L) / C(m, K - L)`` (the hypergeometric chance that the ``K - L``
+    drawn from the tie include one); an entry at +inf is never a hit.
 
     K larger than the number of references is clamped to it; 0.0 when no query has a revisit.
     """
@@ -353,18 +382,25 @@ def recall_at_k(tme: ArrayLike, gtm: ArrayLike, tau: float, ks: Sequence[int] = 
     ks_list = [int(k) for k in ks]
     if any(k < 1 for k in ks_list):
         raise ValueError(f"every K must be >= 1, got {ks_list}")
-    has_revisit = gtm_a.min(axis=1) <= tau
-    n_revisit = int(has_revisit.sum())
-    if n_revisit == 0 or not ks_list:
+    has_revisit = _revisits(gtm_a, tau)
+    if not has_revisit.any() or not ks_list:
         return {k: 0.0 for k in ks_list}
-    n_ref = tme_a.shape[1]
-    kmax = min(max(ks_list), n_ref)
     t = tme_a[has_revisit]
-    g = gtm_a[has_revisit]
-    order = np.argsort(t, axis=1, kind="stable")[:, :kmax]
-    hit = (np.take_along_axis(g, order, axis=1) <= tau) & np.isfinite(np.take_along_axis(t, order, axis=1))
-    hit_upto = np.logical_or.accumulate(hit, axis=1)  # hit within the first k candidates
-    return {k: float(hit_upto[:, min(k, n_ref) - 1].mean()) for k in ks_list}
+    true = (gtm_a[has_revisit] <= tau) & np.isfinite(t)
+    ranked = np.sort(t, axis=1)
+    out = {}
+    for k in ks_list:
+        kk = min(k, t.shape[1])
+        v = ranked[:, kk - 1 : kk]
+        nearer, at_v = t < v, t == v
+        drawn = kk - nearer.sum(axis=1)  # K - L, at least 1
+        m, c = at_v.sum(axis=1), (at_v & true).sum(axis=1)
+        miss = np.ones(len(t))  # C(m - c, drawn) / C(m, drawn) as a product of drawn factors
+        for i in range(int(drawn.max())):
+            miss *= np.where(i < drawn, np.maximum(m - c - i, 0) / np.maximum(m - i, 1), 1.0)
+        hit = np.where((nearer & true).any(axis=1), 1.0, 1.0 - miss)
+        out[k] = float(hit.mean())
+    return out
 
 
 # --------------------------------------------------------------------------- summary
@@ -383,8 +419,10 @@ def evaluate(
 
     Keys: n_queries, n_references, n_revisit, tau, max_f1, precision_at_max_f1,
     recall_at_max_f1, delta_at_max_f1, auc,
-    auc_method, recall_at_100_precision, recall_at_k ({"1": ..., ...}, string keys so JSON round-trips), and when
-    ``delta`` is given: delta, precision, recall, f1, tp, fp, fn, tn, n_accepted.
+    auc_method, recall_at_100_precision, recall_at_k ({"1": ..., ...}, string keys so JSON round-trips),
+    tied_share (the share of queries whose best distance is finite and shared: the tie rule
+    decided them), and when ``delta`` is given: delta, precision, recall, f1, tp, fp, fn, tn
+    (`count_value`s), n_accepted.
     ``curve``: the default-sweep `pr_curve` of the same matrices, when already computed.
     """
     tme_a, gtm_a = _check_matrices(tme, gtm)
@@ -405,6 +443,7 @@ def evaluate(
         "auc_method": "average_precision_stepwise",
         "recall_at_100_precision": curve.recall_at_full_precision,
         "recall_at_k": {str(k): float(v) for k, v in rk.items()},
+        "tied_share": float(np.mean(_ties(tme_a, gtm_a, tau)[1] > 1)),
     }
     if delta is not None:
         dec = decide(tme_a, gtm_a, tau, delta)

@@ -36,15 +36,18 @@ def export_decisions_csv(
     decisions: Decisions,
     extra_columns: Mapping[str, Sequence] | None = None,
 ) -> None:
-    """Write one row per query (atomically): query, best_match, best_tme, best_gtm,
-    has_revisit (0/1), accepted (0/1), outcome ('TP', 'FP', 'FP+FN', 'FN', 'TN'), then any
-    ``extra_columns`` (each a sequence with one value per query)."""
+    """Write one row per query (atomically): query, best_match (the lowest index of a tie),
+    best_tme, best_gtm, has_revisit (0/1), accepted (0/1), outcome ('TP', 'FP', 'FP+FN', 'FN',
+    'TN', 'TP|FP': `Decisions.outcome`), n_best (references at the best distance), correct_share
+    (the share of those that are true matches), then any ``extra_columns`` (each a sequence
+    with one value per query)."""
     n = decisions.n_queries
     extra = dict(extra_columns or {})
     for name, col in extra.items():
         if len(col) != n:
             raise ValueError(f"extra column {name!r} has {len(col)} values, expected {n} (one per query)")
-    header = ["query", "best_match", "best_tme", "best_gtm", "has_revisit", "accepted", "outcome", *extra]
+    header = ["query", "best_match", "best_tme", "best_gtm", "has_revisit", "accepted", "outcome", "n_best",
+              "correct_share", *extra]
     outcome = decisions.outcome
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="", encoding="utf-8") as fh:
@@ -60,6 +63,8 @@ def export_decisions_csv(
                         int(bool(decisions.has_revisit[i])),
                         int(bool(decisions.accepted[i])),
                         outcome[i],
+                        int(decisions.n_best[i]),
+                        repr(float(decisions.correct_share[i])),
                         *(extra[k][i] for k in extra),
                     ]
                 )
@@ -94,9 +99,14 @@ def _load(cls: type[_Saved], path: str | os.PathLike) -> _Saved:
     with np.load(path) as data:
         values: dict[str, Any] = {}
         for f in dataclasses.fields(cls):
-            arr = data[f.name]
-            values[f.name] = arr.item() if arr.ndim == 0 else arr
-        return cls(**values)
+            if f.name in data:
+                arr = data[f.name]
+                values[f.name] = arr.item() if arr.ndim == 0 else arr
+    if cls is Decisions and "n_best" not in values:  # written before the tie rule: by the lowest index
+        answered = np.isfinite(values["best_tme"])
+        values["n_best"] = answered.astype(int)
+        values["correct_share"] = (answered & (values["best_gtm"] <= values["tau"])).astype(float)
+    return cls(**values)
 
 
 def load_curve(path: str | os.PathLike) -> PRCurve:

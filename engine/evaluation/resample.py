@@ -59,22 +59,33 @@ def block_draws(n_queries: int, seed: int, resamples: int | None = None) -> list
 def compact_matrices(tme: np.ndarray, gtm: np.ndarray, kmax: int) -> tuple[np.ndarray, np.ndarray]:
     """Per query, the few references that decide its scores, so that replicates are cheap.
 
-    Each row keeps its ``kmax`` nearest references in TME, in stable order (ties by
-    reference index, as `recall_at_k` ranks them), then its nearest reference in ground
-    truth when not among those, else the next in TME order: ``min(kmax + 1, R)`` columns.
-    Any later column ranks after the first ``kmax`` (larger TME, or equal TME and a larger
-    index), so `evaluate` of any set of rows of the compact matrices equals that of the same
-    rows of the full ones for K <= ``kmax`` (``n_references`` aside): the best match and its
-    tie-break, whether a revisit exists and the K nearest references are unchanged."""
+    Each row keeps, in stable order (ties by reference index), its references up to the
+    ``kmax``-th nearest in TME and every reference tied with that one (the tie rule counts the
+    whole tie: `vitaplace.engine.evaluation.evaluate`; a tie at +inf, never a hit, is cut at
+    ``kmax``), then its nearest reference in ground truth when not among those; the rows are
+    padded to one width with columns that match nothing (+inf in both). Any later column ranks
+    after every kept tie, so `evaluate` of any set of rows of the compact matrices equals that
+    of the same rows of the full ones for K <= ``kmax`` (``n_references`` aside): the best match
+    and its tie, whether a revisit exists and the ties up to rank K are unchanged."""
     n_ref = tme.shape[1]
-    width = min(kmax + 1, n_ref)
-    if width == n_ref:
+    if kmax + 1 >= n_ref:
         return tme, gtm
-    keep = np.argsort(tme, axis=1, kind="stable")[:, :width]
+    order = np.argsort(tme, axis=1, kind="stable")
+    edge = np.take_along_axis(tme, order[:, kmax - 1 : kmax], axis=1)
+    kept = np.where(np.isfinite(edge[:, 0]), (tme <= edge).sum(axis=1), kmax)
+    width = int(kept.max()) + 1
+    if width >= n_ref:
+        return tme, gtm
+    rows = np.arange(len(tme))
+    columns = np.arange(width)
+    keep = np.where(columns < kept[:, None], order[:, :width], -1)  # -1: a padding column
     nearest = np.argmin(gtm, axis=1)
-    absent = ~(keep[:, :kmax] == nearest[:, None]).any(axis=1)
-    keep[absent, kmax] = nearest[absent]
-    return np.take_along_axis(tme, keep, axis=1), np.take_along_axis(gtm, keep, axis=1)
+    absent = ~(keep == nearest[:, None]).any(axis=1)
+    keep[rows[absent], kept[absent]] = nearest[absent]
+    padded = keep < 0
+    tme_c = np.where(padded, np.inf, np.take_along_axis(tme, np.maximum(keep, 0), axis=1))
+    gtm_c = np.where(padded, np.inf, np.take_along_axis(gtm, np.maximum(keep, 0), axis=1))
+    return tme_c, gtm_c
 
 
 def replicate_rows(tme: np.ndarray, gtm: np.ndarray, row: Mapping[str, Any], seed: int,

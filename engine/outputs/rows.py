@@ -98,6 +98,9 @@ UnitOrNull = Annotated[float | None, pydantic.BeforeValidator(_Number(0, 1, null
 Count = Annotated[int, pydantic.BeforeValidator(_Number(0, whole=True, what="a whole number (>= 0)"))]
 CountOrNull = Annotated[int | None, pydantic.BeforeValidator(_Number(0, nullable=True, whole=True,
                                                                      what="a whole number (>= 0) or null"))]
+#: a count that a tie may split (the expected count under the tie rule): whole unless one did
+ExpectedCountOrNull = Annotated[int | float | None, pydantic.BeforeValidator(
+    _Number(0, nullable=True, what="a count (>= 0; fractional where a tie splits it) or null"))]
 Positive = Annotated[int, pydantic.BeforeValidator(_Number(1, whole=True, what="a whole number (>= 1)"))]
 
 
@@ -178,13 +181,14 @@ class ResultRow(_Part):
     auc_method: Annotated[str | None, pydantic.BeforeValidator(_Name("text naming how AUC was computed", True))] = None
     recall_at_100_precision: UnitOrNull = None
     recall_at_k: Annotated[dict[str, Unit] | None, pydantic.BeforeValidator(_recall_keys)] = None
+    tied_share: UnitOrNull = None  #: the share of queries whose best match is tied (the tie rule decided them)
     delta: RealOrNull = None  #: the fixed ``scoring.delta`` and the scores there, when one is set
     precision: UnitOrNull = None
     recall: UnitOrNull = None
     f1: UnitOrNull = None
-    tp: CountOrNull = None
-    fp: CountOrNull = None
-    fn: CountOrNull = None
+    tp: ExpectedCountOrNull = None
+    fp: ExpectedCountOrNull = None
+    fn: ExpectedCountOrNull = None
     tn: CountOrNull = None
     n_accepted: CountOrNull = None
     heading_tolerance_deg: DistanceOrNull = None  #: null: position only

@@ -18,7 +18,7 @@ from vitaplace.engine.outputs.rows import ResultRow, parse_row
 RESULT_COLUMNS = (
     "environment", "method", "direction", "max_f1", "precision_at_max_f1", "recall_at_max_f1",
     "delta_at_max_f1", "auc", "recall_at_100_precision", "f1_at_e1_threshold", "e1_threshold", "delta", "precision",
-    "recall", "f1", "n_queries", "n_references", "n_revisit",
+    "recall", "f1", "n_queries", "n_references", "n_revisit", "tied_share",
 )
 
 

@@ -28,7 +28,7 @@ from vitaplace.engine.outputs.outdir import PR_CURVE, evaluation_dir
 
 __all__ = ["plot_energy", "plot_matrices", "plot_pr_curves", "plot_trajectories", "OUTCOME_COLOURS"]
 
-OUTCOME_COLOURS = {"TP": "tab:green", "FP": "tab:red", "FN": "tab:orange", "TN": "tab:grey"}
+OUTCOME_COLOURS = {"TP": "tab:green", "FP": "tab:red", "TP|FP": "tab:olive", "FN": "tab:orange", "TN": "tab:grey"}
 #: percentiles of the feature distances that span the TME colour scale: a few far-off samples
 #: (e.g. touch outliers) would otherwise stretch it until the matches are all one colour
 TME_PERCENTILES = (1.0, 90.0)
@@ -58,19 +58,18 @@ def _save(fig: Figure, out_stem: str | os.PathLike) -> list[Path]:
 
 
 def _primary_outcome(decisions: Decisions) -> np.ndarray:
-    """One colour class per query: TP, FP (accepted and wrong, whether or not also FN), FN, TN."""
-    out = np.full(decisions.n_queries, "TN", dtype=object)
-    out[decisions.fn] = "FN"
-    out[decisions.fp] = "FP"
-    out[decisions.tp] = "TP"
-    return out
+    """One colour class per query: TP, FP (accepted and wrong, whether or not also FN), TP|FP
+    (accepted, tied between true and wrong matches), FN, TN."""
+    outcome = decisions.outcome
+    return np.where(outcome == "FP+FN", "FP", outcome)
 
 
 def plot_matrices(out_stem: str | os.PathLike, tme: ArrayLike, gtm: ArrayLike, decisions: Decisions,
                   title: str = "") -> list[Path]:
     """GTM and TME heat maps side by side (rows = queries, columns = references) with the
     decision of each query drawn as a dot at (query, best match): green TP, red FP
-    (accepted and wrong), orange FN (rejected although a revisit existed), grey TN.
+    (accepted and wrong), olive TP|FP (accepted, tied between true and wrong matches; drawn at
+    the lowest index of the tie), orange FN (rejected although a revisit existed), grey TN.
     The TME colours span the `TME_PERCENTILES` of its values (its colour bar says so); GTM
     cells that are infinite (headings further apart than the tolerance) stay blank."""
     tme = np.asarray(tme, dtype=float)
@@ -228,7 +227,8 @@ def _landmark_patch(lm: Mapping) -> Patch:
 def plot_trajectories(out_stem: str | os.PathLike, query_poses: ArrayLike, reference_poses: ArrayLike,
                       decisions: Decisions, arena: Mapping | None = None, title: str = "") -> list[Path]:
     """Top view of the query and reference runs over the arena, with accepted matches drawn
-    as segments from query pose to matched reference pose (green TP, red FP)."""
+    as segments from query pose to matched reference pose (green TP, red FP, olive TP|FP: a
+    tie between true and wrong matches, drawn to its lowest index)."""
     q = np.asarray(query_poses, dtype=float)[:, :2]
     r = np.asarray(reference_poses, dtype=float)[:, :2]
     fig = _new_figure((6.5, 6.5))
@@ -242,9 +242,9 @@ def plot_trajectories(out_stem: str | os.PathLike, query_poses: ArrayLike, refer
             ax.add_patch(_landmark_patch(lm))
     ax.plot(r[:, 0], r[:, 1], "-", color="tab:blue", lw=1.2, label="reference run", zorder=2)
     ax.plot(q[:, 0], q[:, 1], "-", color="tab:purple", lw=1.2, label="query run", zorder=2)
-    bm = decisions.best_match
-    for mask, colour, label in ((decisions.tp, "tab:green", "TP match"), (decisions.fp, "tab:red", "FP match")):
-        idx = np.flatnonzero(mask)
+    bm, outcome = decisions.best_match, _primary_outcome(decisions)
+    for kind in ("TP", "FP", "TP|FP"):
+        idx, colour, label = np.flatnonzero(outcome == kind), OUTCOME_COLOURS[kind], f"{kind} match"
         if idx.size:
             segs = np.stack([q[idx], r[bm[idx]]], axis=1)
             ax.add_collection(LineCollection(list(segs), colors=colour, linewidths=0.8, alpha=0.8, zorder=3,

@@ -20,6 +20,7 @@ import yaml
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.evaluation.complementarity import count_text
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
 from vitaplace.engine.extension.features import IN_RANGE_SHARE
@@ -58,13 +59,18 @@ def _pct(value: Any) -> str:
     return "–" if value is None else f"{100 * float(value):.2f}"
 
 
+#: a share of queries with a tied best match from which the report warns
+TIED_WARNING = 0.1
+
+
 def results_table(rows: Sequence[ResultRow]) -> str:
     """Markdown table: one row per environment x method x direction (F1, P, R in %; F1 at
-    the training world's threshold, ``f1_at_e1_threshold``)."""
+    the training world's threshold, ``f1_at_e1_threshold``; recall@K; the share of queries
+    whose best match is tied), then a warning per row where that share is `TIED_WARNING` or more."""
     ks = sorted({k for row in rows for k in row.recall_at_k or {}}, key=int)
     header = ["environment", "method", "direction", "max F1 %", "P %", "R %", "AUC", "δ at max F1",
               "F1 % at training δ"]
-    header += [f"R@{k} %" for k in ks]
+    header += [f"R@{k} %" for k in ks] + ["tied best %"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in rows:
         cells = [
@@ -73,9 +79,13 @@ def results_table(rows: Sequence[ResultRow]) -> str:
             f"{row.auc:.3f}", "–" if row.delta_at_max_f1 is None else f"{row.delta_at_max_f1:.4g}",
             _pct(row.f1_at_e1_threshold),
         ]
-        cells += [_pct((row.recall_at_k or {}).get(k)) for k in ks]
+        cells += [_pct((row.recall_at_k or {}).get(k)) for k in ks] + [_pct(row.tied_share)]
         lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    return "\n".join(lines)
+    warnings = [
+        f"- WARNING {row.method} in {row.environment} ({row.direction}): the best match of {_pct(row.tied_share)} % "
+        "of the queries is tied, so its scores count those queries by the tie rule (correct in proportion), not "
+        "by a match it found" for row in rows if row.tied_share is not None and row.tied_share >= TIED_WARNING]
+    return "\n".join(lines + ([""] + warnings if warnings else []))
 
 
 def _per_pair(rows: Sequence[ResultRow]) -> list[ResultRow]:
@@ -133,7 +143,7 @@ def complementarity_table(records: list[dict[str, Any]]) -> str:
     ]
     for c in records:
         cells = [c["environment"], c["direction"], c["vision"], c["touch"], str(c["n_revisit"]),
-                 _pct(c["vision_r1"]), _pct(c["touch_r1"]), str(c["vision_wrong"]), str(c["rescued"]),
+                 _pct(c["vision_r1"]), _pct(c["touch_r1"]), count_text(c["vision_wrong"]), count_text(c["rescued"]),
                  _pct(c["rescue"]), _pct(c["oracle_r1"])]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)
@@ -271,7 +281,9 @@ def _header(manifest: dict[str, Any], description: str, rows: Sequence[ResultRow
         f"maximised the method's F1 in the training world's evaluation, applied unchanged. Training world: "
         f"{manifest['training_world']}. "
         "AUC is the step-wise average precision: the sum over acceptance thresholds δ, in increasing order, of the "
-        "recall gained times the precision there (the area under the drawn step curve; 1 is perfect).",
+        "recall gained times the precision there (the area under the drawn step curve; 1 is perfect). A query whose "
+        "best distance several references share (tied best %) counts as correct in proportion to the true matches "
+        "among them, the expected value of a random pick, at every measure (docs/DESIGN.md, \"Ties\").",
         "",
         results_table(rows),
         "",

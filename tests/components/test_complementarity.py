@@ -7,7 +7,7 @@ import pytest
 from vitaplace.engine.config.methods import complementarity_pairs
 from vitaplace.engine.config.scenario import Scenario
 from vitaplace.engine.evaluation import evaluate as ev
-from vitaplace.engine.evaluation.complementarity import COMPLEMENTARITY_KEYS, complementarity
+from vitaplace.engine.evaluation.complementarity import COMPLEMENTARITY_KEYS, complementarity, count_text
 from vitaplace.engine.extension.registry import discover
 from vitaplace.plugin import ExtractorParams, FeatureExtractor
 
@@ -29,9 +29,10 @@ VISION = np.array([
     [0.9, 0.1, 0.5],
     [0.1, 0.2, 0.3],
 ])
-# touch best matches: q0 r0 (right: rescues q0), q1 r0 (wrong), q2 r1 (tie r1/r2 -> lowest,
-# wrong: q2 not rescued), q3 r2 (wrong), q4 r2 -> R@1 1/4; rescued 1 of 2; the oracle is
-# right on q0, q1, q3: 3/4
+# touch best matches: q0 r0 (right: rescues q0), q1 r0 (wrong), q2 a tie of r1 (wrong) and r2
+# (right): right half the time, rescuing q2 by 1/2 (the lowest index, r1, would never rescue
+# it), q3 r2 (wrong), q4 r2 -> R@1 (1 + 1/2)/4 = 3/8; rescued 1 + 1/2 of 2: 3/4; the oracle is
+# right on q0, q1, q3 and half of q2: 7/8
 TOUCH = np.array([
     [0.1, 0.5, 0.5],
     [0.1, 0.5, 0.5],
@@ -48,12 +49,27 @@ def decisions(tme, gtm=GTM):
 def test_complementarity_hand_case():
     c = complementarity(decisions(VISION), decisions(TOUCH))
     assert list(c) == list(COMPLEMENTARITY_KEYS)
-    assert c == {"n_revisit": 4, "vision_r1": 0.5, "touch_r1": 0.25, "vision_wrong": 2, "rescued": 1,
-                 "rescue": 0.5, "oracle_r1": 0.75}
-    # the roles swapped: touch's wrong q1, q2, q3; vision gets q1 and q3 right -> 2 of 3
+    assert c == {"n_revisit": 4, "vision_r1": 0.5, "touch_r1": 0.375, "vision_wrong": 2, "rescued": 1.5,
+                 "rescue": 0.75, "oracle_r1": 0.875}
+    # the roles swapped: touch wrong on q1, q3 and half of q2 (2.5); vision gets q1 and q3 right,
+    # q2 never -> 2 of 2.5
     swapped = complementarity(decisions(TOUCH), decisions(VISION))
-    assert (swapped["vision_wrong"], swapped["rescued"], swapped["rescue"]) == (3, 2, pytest.approx(2 / 3))
-    assert swapped["oracle_r1"] == 0.75
+    assert (swapped["vision_wrong"], swapped["rescued"], swapped["rescue"]) == (2.5, 2, pytest.approx(0.8))
+    assert swapped["oracle_r1"] == 0.875
+
+
+def test_ties_on_both_sides_are_independent_draws():
+    # one query, four references, r0 and r1 true matches; vision ties r0 (right) with r2, r3
+    # (1/3 right), touch ties r1 (right) with r2 (1/2 right): vision wrong 2/3 of a query, touch
+    # right on half of that (1/3 rescued, rescue 1/2), the oracle right 1 - (2/3)(1/2) = 2/3
+    gtm = np.array([[0.1, 0.2, 1.0, 1.0]])
+    vision = decisions(np.array([[0.1, 0.5, 0.1, 0.1]]), gtm)
+    touch = decisions(np.array([[0.9, 0.2, 0.2, 0.7]]), gtm)
+    c = complementarity(vision, touch)
+    assert c == {"n_revisit": 1, "vision_r1": pytest.approx(1 / 3), "touch_r1": 0.5,
+                 "vision_wrong": pytest.approx(2 / 3), "rescued": pytest.approx(1 / 3), "rescue": pytest.approx(0.5),
+                 "oracle_r1": pytest.approx(2 / 3)}
+    assert [count_text(c["vision_wrong"]), count_text(2), count_text(2.0)] == ["0.67", "2", "2"]
 
 
 def test_complementarity_when_vision_is_never_wrong_or_no_query_has_a_true_match():

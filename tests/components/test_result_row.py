@@ -47,6 +47,8 @@ def test_a_row_keeps_the_fields_it_was_given_in_the_schemas_order():
     assert list(shuffled.dump()) == list(ROW)
     assert parse_row(row, "row") is row
     assert parse_row({**ROW, "n_queries": 4.0}, "row").n_queries == 4  # a whole float is a count
+    split = parse_row({**ROW, "tied_share": 0.5, "tp": 1.25, "fp": 2, "tn": 1}, "row").dump()
+    assert (split["tied_share"], split["tp"], split["fp"]) == (0.5, 1.25, 2) and type(split["fp"]) is int
 
 
 BAD = {
@@ -62,7 +64,10 @@ BAD = {
                  "field 'recall_at_k' is {'0': 0.5}, expected a mapping from K (1, 5, ...) to a recall, or null"),
     "recall@K as text": ({"recall_at_k": {"5": "x"}}, "field 'recall_at_k.5' is 'x', expected a finite number"),
     "an empty method": ({"method": ""}, "field 'method' is '', expected a non-empty name"),
-    "a negative count": ({"tp": -1}, "field 'tp' is -1, expected a whole number (>= 0) or null"),
+    "a negative count": ({"tn": -1}, "field 'tn' is -1, expected a whole number (>= 0) or null"),
+    "a negative expected count": ({"tp": -1}, "field 'tp' is -1, expected a count (>= 0; fractional where a tie "
+                                              "splits it) or null"),
+    "a fraction of a true negative": ({"tn": 0.5}, "field 'tn' is 0.5, expected a whole number (>= 0) or null"),
     "a share over 1": ({"difficulty": {"chance_r1": 2.0}},
                        "field 'difficulty.chance_r1' is 2.0, expected a number in [0, 1]"),
     "a fusion without a weight": ({"fusion": {"sigma_vision": 1.0, "sigma_touch": 1.0, "selection_max_f1": 0.5}},

@@ -11,9 +11,11 @@ import yaml
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vitaplace.engine.cli.difficulty import GATES, gate_results  # noqa: E402
+from vitaplace.engine.cli.difficulty import GATES, gate_results, table  # noqa: E402
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.config.scenario import Gates  # noqa: E402
+from vitaplace.engine.evaluation import evaluate as ev  # noqa: E402
+from vitaplace.engine.evaluation.complementarity import complementarity  # noqa: E402
 
 ENV_E1 = str(Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml")
 
@@ -39,6 +41,22 @@ def test_gates_by_hand(gates, values, expected):
     assert [r["gate"] for r in results.values()] == [gates.get(g) for g in GATES]
 
 
+def test_the_rescue_gate_reads_tied_best_matches_in_proportion():
+    # tau 0.3; q0's true match r0, q1's r1. Vision is wrong on both (best r1, r0). Touch is right
+    # on q0 and ties r0 (wrong) with r1 (right) on q1: rescued 1 + 1/2 of 2, 75 %, which meets a
+    # 70 % gate (the lowest index, r0, would rescue 1 of 2 and miss it)
+    gtm = np.array([[0.1, 1.0], [1.0, 0.1]])
+    vision = ev.decide(np.array([[0.5, 0.1], [0.1, 0.5]]), gtm, 0.3, np.inf)
+    touch = ev.decide(np.array([[0.1, 0.5], [0.2, 0.2]]), gtm, 0.3, np.inf)
+    c = complementarity(vision, touch)
+    assert (c["rescued"], c["vision_wrong"], c["rescue"]) == (1.5, 2, 0.75)
+    gates = gate_results(Gates(rescue_min=0.7), {"touch_correspondence": 1.0, "rescue": c["rescue"], "hv_max_f1": 0.0})
+    assert gates["rescue_min"] == {"gate": 0.7, "value": 0.75, "met": True}
+    measured = {"environment": "E", "direction": "query-to-reference", "complementarity": c, "gates": gates,
+                "difficulty": {"touch_both_share": 1.0, "touch_one_side_share": 0.0}}
+    assert table([measured]).splitlines()[2].split(" | ")[5] == "1.50 of 2: 75.0 % (>= 70.0 %)"
+
+
 def test_difficulty_runs_the_handcrafted_family_alone_and_prints_gates(tmp_path, capsys):
     scenario = {
         "name": "d",
@@ -61,19 +79,23 @@ def test_difficulty_runs_the_handcrafted_family_alone_and_prints_gates(tmp_path,
     row = rows[0]
     results = {r["method"]: r for r in json.loads((out / "results.json").read_text())}
     assert row["difficulty"] == results["H"]["difficulty"] and row["hv_max_f1"] == results["H-V"]["max_f1"]
-    # the complementarity by a plain loop over the two evaluations' matrices
+    # the complementarity by a plain loop over the two evaluations' matrices: each query's
+    # chance of being right, the share of true matches among its tied best references
     right = {}
     for method in ("H-V", "H-T"):
         with np.load(out / "evaluations" / "E1" / method / "query-to-reference" / "matrices.npz") as m:
             tme, gtm = m["tme"], m["gtm"]
         revisit = [i for i in range(len(tme)) if gtm[i].min() <= 0.3]
-        right[method] = {i for i in revisit if gtm[i, int(np.argmin(tme[i]))] <= 0.3}
-    wrong = set(revisit) - right["H-V"]
+        right[method] = {i: float(np.mean([gtm[i, j] <= 0.3 for j in range(tme.shape[1]) if tme[i, j] == tme[i].min()]))
+                         for i in revisit}
+    v, t = right["H-V"], right["H-T"]
     c = row["complementarity"]
     assert (c["vision"], c["touch"], c["n_revisit"]) == ("H-V", "H-T", len(revisit))
-    assert (c["vision_r1"], c["touch_r1"]) == (len(right["H-V"]) / len(revisit), len(right["H-T"]) / len(revisit))
-    assert (c["vision_wrong"], c["rescued"]) == (len(wrong), len(wrong & right["H-T"]))
-    assert c["oracle_r1"] == pytest.approx(len(right["H-V"] | right["H-T"]) / len(revisit))
+    assert (c["vision_r1"], c["touch_r1"]) == (pytest.approx(sum(v.values()) / len(revisit)),
+                                               pytest.approx(sum(t.values()) / len(revisit)))
+    assert (c["vision_wrong"], c["rescued"]) == (pytest.approx(sum(1 - v[i] for i in revisit)),
+                                                 pytest.approx(sum((1 - v[i]) * t[i] for i in revisit)))
+    assert c["oracle_r1"] == pytest.approx(sum(1 - (1 - v[i]) * (1 - t[i]) for i in revisit) / len(revisit))
     assert json.loads((out / "complementarity.json").read_text()) == [
         {"environment": "E1", "direction": "query-to-reference", **c}]
     gates = row["gates"]

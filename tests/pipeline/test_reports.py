@@ -270,3 +270,19 @@ def test_the_complementarity_table_and_its_absence_in_older_folders(tmp_path):
     table = section[4].splitlines()
     assert table[2] == "| E1 | query-to-reference | H-V | H-T | 4 | 50.00 | 25.00 | 2 | 1 | 50.00 | 75.00 |"
     assert table[3] == "| E1 | query-to-reference | H-V | H-T | 4 | 50.00 | 25.00 | 0 | 0 | – | 75.00 |"
+
+
+def test_the_results_table_shows_the_tied_share_and_warns_from_a_tenth():
+    from vitaplace.engine.outputs.rows import parse_row
+    from vitaplace.engine.report.report import results_table
+
+    base = {"environment": "E1", "direction": "query-to-reference", "n_queries": 4, "n_revisit": 3, "tau": 0.3,
+            "max_f1": 0.5, "auc": 0.25}
+    rows = [parse_row({**base, "method": name, **extra}, "row") for name, extra in
+            (("H-T", {"tied_share": 0.76}), ("H-V", {"tied_share": 0.0999}), ("old", {}))]
+    lines = results_table(rows).splitlines()
+    assert lines[0].endswith("| tied best % |")
+    assert [line.rsplit(" | ", 1)[1] for line in lines[2:5]] == ["76.00 |", "9.99 |", "– |"]
+    assert lines[5:] == ["", "- WARNING H-T in E1 (query-to-reference): the best match of 76.00 % of the queries is "
+                         "tied, so its scores count those queries by the tie rule (correct in proportion), not by a "
+                         "match it found"]

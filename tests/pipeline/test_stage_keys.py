@@ -15,7 +15,11 @@ defaults became the converging training and the settling solver, the committed s
 scenarios (and paper.yaml) were given the then-defaults explicitly, so that they still run
 what they ran, and the touch benchmark left its 90-epoch cap to the new default's criterion.
 `conftest.SINCE_AD309C2` lists those edits; they are undone on the given parameters before the fit key
-is computed, so every other part of every key is still checked against ad309c2's."""
+is computed, so every other part of every key is still checked against ad309c2's. The
+evaluate stage's version went from ad309c2's 7 to 8 when its tie rule changed (a tied best
+match counted in proportion, not by its lowest index), so that every cached evaluation is
+scored again: the keys are computed with version 7 here, and today's version is checked to
+differ."""
 
 from __future__ import annotations
 
@@ -32,7 +36,15 @@ from vitaplace.engine.config.loading import load_scenario  # noqa: E402
 from vitaplace.engine.extension.registry import discover  # noqa: E402
 from vitaplace.engine.outputs import outdir  # noqa: E402
 from vitaplace.engine.pipeline import plan  # noqa: E402
-from vitaplace.engine.pipeline.keys import evaluate_key, features_key, fit_key, fusion_key, recorded_key, simulate_key  # noqa: E402
+from vitaplace.engine.pipeline.keys import (  # noqa: E402
+    STAGE_VERSION,
+    evaluate_key,
+    features_key,
+    fit_key,
+    fusion_key,
+    recorded_key,
+    simulate_key,
+)
 from vitaplace.engine.pipeline.records import FeaturesFile, ModelFile, RunFile  # noqa: E402
 from vitaplace.engine.pipeline.stages.fuse import selection  # noqa: E402
 
@@ -40,6 +52,10 @@ ROOT = Path(__file__).resolve().parents[2]
 PINNED = json.loads((ROOT / "tests" / "data" / "stage_keys_ad309c2.json").read_text())
 SAMPLES = 50
 CACHE = Path("unused") / "cache"
+#: the evaluate stage's version at ad309c2
+AD309C2_EVALUATE_VERSION = 7
+
+
 def stage_keys(name: str) -> dict[str, str]:
     """Every stage key of shipped scenario ``name`` from the stand-in records (module docstring)."""
     scenario, _ = load_scenario(name)
@@ -82,5 +98,12 @@ def test_every_shipped_scenario_is_pinned():
 
 
 @pytest.mark.parametrize("name", sorted(PINNED))
-def test_the_stage_keys_of_a_shipped_scenario_are_unchanged(name):
+def test_the_stage_keys_of_a_shipped_scenario_are_unchanged(name, monkeypatch):
+    monkeypatch.setitem(STAGE_VERSION, "evaluate", AD309C2_EVALUATE_VERSION)
     assert stage_keys(name) == PINNED[name]
+
+
+def test_the_tie_rule_changed_every_evaluate_key():
+    assert STAGE_VERSION["evaluate"] > AD309C2_EVALUATE_VERSION
+    today = stage_keys("quickstart")
+    assert all(today[k] != v for k, v in PINNED["quickstart"].items() if k.startswith("evaluate:"))
