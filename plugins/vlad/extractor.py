@@ -44,7 +44,7 @@ class VladParams(ImageDescriptorParams):
     patch_size: int = pydantic.Field(16, ge=2, description="diameter of a keypoint's patch [px] (SIFT's size)")
     max_descriptors: int = pydantic.Field(
         50_000, ge=1, description="at most this many training descriptors (drawn by seed) enter k-means")
-    seed: int = pydantic.Field(0, ge=0, description="seed of the descriptors drawn and of k-means++")
+    seed: int = pydantic.Field(0, ge=0, le=2**32 - 1, description="seed of the descriptors drawn and of k-means++")
 
 
 def grid(rows: int, cols: int, step: int, patch: int) -> list[tuple[float, float]]:
@@ -89,7 +89,8 @@ class VladExtractor(ImageDescriptorExtractor):
         return self.params.clusters * SIFT_SIZE
 
     def local_descriptors(self, images: np.ndarray) -> list[np.ndarray]:
-        """Dense SIFT of each image: one (m, 128) float64 array per image."""
+        """Dense SIFT of each image: one (m, 128) float32 array per image (SIFT's own type, half
+        the memory of the training run's descriptors that k-means holds)."""
         cv2 = require("cv2", "opencv-python-headless", self.name)
         sift = cv2.SIFT_create()
         p = self.params
@@ -97,7 +98,7 @@ class VladExtractor(ImageDescriptorExtractor):
         out = []
         for image in np.rint(grey(images) * 255).astype(np.uint8):
             _, found = sift.compute(image, [cv2.KeyPoint(x, y, p.patch_size, 0) for x, y in centres])
-            out.append(np.zeros((0, SIFT_SIZE)) if found is None else found.astype(np.float64))
+            out.append(np.zeros((0, SIFT_SIZE), np.float32) if found is None else found)
         return out
 
     def describe(self, images: np.ndarray) -> np.ndarray:
@@ -111,7 +112,7 @@ class VladExtractor(ImageDescriptorExtractor):
 
     def fit(self, train: Run) -> None:
         p = self.params
-        descriptors = np.concatenate([np.zeros((0, SIFT_SIZE))] + [
+        descriptors = np.concatenate([np.zeros((0, SIFT_SIZE), np.float32)] + [
             x for images in self.image_batches(train) for x in self.local_descriptors(images)])
         if len(descriptors) < p.clusters:
             raise ExtractorParamsError(f"extractor '{self.name}': clusters={p.clusters} is more than the "
