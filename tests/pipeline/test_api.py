@@ -298,7 +298,7 @@ def test_the_documented_example_runs_as_written(tmp_path):
     script.write_text(blocks[0])
     result = _python(script, tmp_path)
     assert result.returncode == 0, result.stderr[-3000:]
-    assert f"vitaplace {version('vitaplace')} extractors: autoencoder, handcrafted, mupnet" in result.stdout
+    assert f"vitaplace {version('vitaplace')} extractors: autoencoder, handcrafted, hog, mupnet, vlad" in result.stdout
     assert re.search(r"^E1 H max F1 [01]\.\d{3} AUC [01]\.\d{3}$", result.stdout, flags=re.M), result.stdout
     assert re.search(r"train-\w+\.h5: 12 samples", result.stdout)
     assert "outside `if __name__" not in result.stderr
