@@ -1,13 +1,12 @@
-"""The vision baselines in a scenario, through the entry points pyproject.toml declares: HOG as
-the vision half of a late fusion with H-T runs end to end, and a scenario naming a baseline
-whose library is missing stops at validate in one line naming the extra."""
+"""The vision baselines in a scenario, through their entry points: HOG as the vision half of a
+late fusion with H-T runs end to end, and a scenario naming a baseline whose library is
+missing stops at validate in one line naming the extra."""
 
 from __future__ import annotations
 
 import json
 import os
 import sys
-from importlib.metadata import EntryPoint
 from pathlib import Path
 
 import pytest
@@ -15,24 +14,12 @@ import yaml
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-import vitaplace.engine.extension.registry as registry_module  # noqa: E402
 from vitaplace.engine.cli.main import main  # noqa: E402
 
-tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
 pytest.importorskip("skimage", reason="the extra vision (scikit-image) is not installed")
 
 ROOT = Path(__file__).resolve().parents[2]
 ENVS = ROOT / "scenarios" / "environments"
-GROUP = "vitaplace.features"
-
-
-@pytest.fixture(autouse=True)
-def declared_plugins(monkeypatch):
-    """Discovery sees the entry points pyproject.toml declares, as an install of this tree would."""
-    declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["entry-points"][GROUP]
-    eps = [EntryPoint(name=name, value=value, group=GROUP) for name, value in declared.items()]
-    monkeypatch.setattr(registry_module, "entry_points", lambda group: eps if group == GROUP else [])
-    monkeypatch.delenv(registry_module.ONLY_ENV, raising=False)
 
 
 def tiny_scenario(path: Path) -> Path:
