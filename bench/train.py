@@ -17,7 +17,10 @@ The rules (each a set of plugin parameters over the scenario's own; RULES below)
 * ``momentum``, ``adam``: the paper's steps, the weight optimiser changed;
 * ``solver``: T steps of the scenario's settling solver from the persistent latents, SGD;
 * ``converging``: the plugin's converging training (solver steps, T = 5, momentum on the weights);
-* ``converging+layer``, ``converging+channel``: the same with precision-weighted errors.
+* ``converging+layer``, ``converging+channel``: the same with precision-weighted errors;
+* ``converging+rows``: the same with every weight row held at its initial norm
+  (``weight_norm: rows``: the energy then has a minimum), at the scenario's latent prior and
+  at latent_prior 0.1 and 0.01 (the prior sets how far the held-out errors can fall under the norm).
 
 Timing: each round fits every rule once, ``paper`` first; a rule's CPU seconds to the criterion
 (this process's CPU time in ``fit``, less the held-out measurement's) are divided by the
@@ -68,6 +71,9 @@ RULES: dict[str, dict[str, Any]] = {
     "converging": CONVERGING,
     "converging+layer": {**CONVERGING, "precision_weighting": "layer"},
     "converging+channel": {**CONVERGING, "precision_weighting": "channel"},
+    "converging+rows": {**CONVERGING, "weight_norm": "rows"},
+    "converging+rows, prior 0.1": {**CONVERGING, "weight_norm": "rows", "latent_prior": 0.1},
+    "converging+rows, prior 0.01": {**CONVERGING, "weight_norm": "rows", "latent_prior": 0.01},
 }
 
 
@@ -142,11 +148,11 @@ def main(argv: list[str] | None = None) -> int:
         out["networks"][network] = {"run": path, "params": base, "rules": table}
         print(f"\n{network} ({NETWORKS[network][0]}'s {NETWORKS[network][1]}), {out['machine']}, one BLAS thread, "
               f"median of {args.rounds} paired rounds; x paper: the median of the per-round CPU ratios (their range)")
-        print(f"{'rule':<20} {'epochs':>6} {'conv':>5} {'cpu s':>8} {'wall s':>8} {'x paper':>7} {'range':>11} "
+        print(f"{'rule':<28} {'epochs':>6} {'conv':>5} {'cpu s':>8} {'wall s':>8} {'x paper':>7} {'range':>11} "
               f"{'energy':>8} {'held-out':>8} {'(min)':>8} {'to paper held-out: epoch, cpu s':>32}")
         for rule, row in table.items():
             spread = f"{row['ratio_min']:.2f}-{row['ratio_max']:.2f}"
-            print(f"{rule:<20} {row['epochs']:>6} {'yes' if row['converged'] else 'no':>5} {row['cpu_s']:>8.1f} "
+            print(f"{rule:<28} {row['epochs']:>6} {'yes' if row['converged'] else 'no':>5} {row['cpu_s']:>8.1f} "
                   f"{row['wall_s']:>8.1f} {row['ratio_median']:>7.2f} {spread:>11} {row['energy']:>8.3f} "
                   f"{row['held_out']:>8.3f} {row['held_out_min']:>8.3f} {reached(row):>32}")
         paper = table["paper"]

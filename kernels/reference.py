@@ -34,6 +34,7 @@ __all__ = [
     "weight_step",
     "momentum_weight_step",
     "adam_weight_step",
+    "project_rows",
 ]
 
 #: Names accepted by :func:`activation` and :func:`activation_derivative`.
@@ -170,3 +171,11 @@ def adam_weight_step(W: np.ndarray, M: np.ndarray, S: np.ndarray, D: np.ndarray,
     S = t(beta2) * S + t(1.0 - beta2) * (D * D)
     c1, c2 = t(1.0 - beta1**step), t(1.0 - beta2**step)
     return W + t(eta) * (M / c1) / (np.sqrt(S / c2) + t(eps)), M, S
+
+
+def project_rows(W: np.ndarray, norms: np.ndarray) -> np.ndarray:
+    """``W`` with each row rescaled to ``norms`` (``weight_norm: rows``): row r times
+    ``float32(norms[r] / |W[r]|)``, the norm taken in float64; a zero row is kept."""
+    current = np.sqrt(np.einsum("ij,ij->i", W.astype(np.float64), W.astype(np.float64)))
+    factor = np.where(current > 0, norms / np.where(current > 0, current, 1.0), 1.0).astype(W.dtype)
+    return W * factor[:, None]

@@ -13,6 +13,8 @@
                            zeroed ``D`` with eta 1), keeping ``Wt <- W.T``; the step count
 (e) :func:`column_squares` ``out[c] += sum_r E[r, c]^2`` (float64): a minibatch's squared
                            errors per channel, summed over an epoch for the error precisions
+(f) :func:`project_rows`   each row of ``W`` rescaled to a given norm (``weight_norm: rows``),
+                           keeping ``Wt <- W.T``
 
 The latent update's GEMM has few output tiles (batch x n_l) and a long K (n_below), so on
 CUDA it is split along K: each split writes its partial product to a scratch buffer and a
@@ -46,7 +48,7 @@ from vitaplace.kernels.tiles import TileConfig, cdiv, latent_splits, tile_config
 
 __all__ = [
     "adam_weight_step", "column_squares", "count_step", "latent_apply", "latent_scratch_shape", "latent_update",
-    "momentum_weight_step", "weight_update",
+    "momentum_weight_step", "project_rows", "weight_update",
 ]
 
 # --------------------------------------------------------------------------------------
@@ -219,6 +221,30 @@ def _adam_weight_kernel(with_transpose: bool) -> wp.Kernel:
             Wt[c, r] = w
 
     return tiled_kernel(adam_weight_kernel, f"pc_adam_weight_{'WWt' if with_transpose else 'W'}")
+
+
+@functools.cache
+def _project_rows_kernel(with_transpose: bool) -> wp.Kernel:
+    """(f) ``W[r] <- W[r] * float32(norms[r] / |W[r]|)`` (``|W[r]|`` summed in float64 in
+    column order; a zero row kept), and ``Wt = W.T`` when asked. One thread per row."""
+
+    @no_type_check
+    def project_rows_kernel(W: F32_2D, norms: F64, Wt: F32_2D):
+        r = wp.tid()
+        s = wp.float64(0.0)
+        for c in range(W.shape[1]):
+            w64 = wp.float64(W[r, c])
+            s += w64 * w64
+        f = wp.float32(1.0)
+        if s > wp.float64(0.0):
+            f = wp.float32(norms[r] / wp.sqrt(s))
+        for c in range(W.shape[1]):
+            w = W[r, c] * f
+            W[r, c] = w
+            if wp.static(with_transpose):
+                Wt[c, r] = w
+
+    return tiled_kernel(project_rows_kernel, f"pc_project_rows_{'WWt' if with_transpose else 'W'}")
 
 
 @wp.kernel(enable_backward=False, module="unique")
@@ -449,3 +475,12 @@ def column_squares(E: wp.array, out: wp.array) -> None:
     check_type("E", E)
     check("out", out, (E.shape[1],), E.device, wp.float64)
     simt_launch(_column_squares_kernel, E.shape[1], [E, out], E.device)
+
+
+def project_rows(W: wp.array, norms: wp.array, Wt: wp.array | None = None) -> None:
+    """(f) Each row of ``W`` (n_l x n_below, float32) rescaled in place to ``norms`` (n_l,
+    float64): ``W[r] <- W[r] * float32(norms[r] / |W[r]|)``, its norm summed in float64; a
+    zero row is kept. ``Wt <- W.T`` of the result when ``Wt`` is given."""
+    _check_optimizer_arrays(W, Wt)
+    check("norms", norms, (W.shape[0],), W.device, wp.float64)
+    simt_launch(_project_rows_kernel(Wt is not None), W.shape[0], [W, norms, Wt if Wt is not None else W], W.device)

@@ -6,6 +6,7 @@
 (c') ``momentum_weight_step``, ``adam_weight_step``, ``count_step``: the weight optimisers'
      element-wise steps, from the direction ``weight_update`` writes into zeroed weights (update_kernels)
 (c'') ``column_squares``: per-channel sums of squared errors (the error precisions' estimate) (update_kernels)
+(c''') ``project_rows``: each row of ``W`` rescaled to a given norm, keeping ``W.T`` (update_kernels)
 (d) ``gather_rows``, ``scatter_rows``, ``to_bfloat16``: copies on the device (copy_kernels)
 (e) ``stop_converged``: per-sample stopping of inference (solver_kernels)
 
@@ -27,12 +28,13 @@ from vitaplace.kernels.update_kernels import (
     latent_scratch_shape,
     latent_update,
     momentum_weight_step,
+    project_rows,
     weight_update,
 )
 
 __all__ = [
     "ACTIVATIONS", "TileConfig", "adam_weight_step", "column_squares", "count_step", "gather_rows", "latent_apply",
     "latent_scratch_shape", "latent_splits", "latent_update", "momentum_weight_step", "planned_kernels", "planning",
-    "predict", "predict_epilogue", "preload", "row_partial_shape", "scatter_rows", "set_tile_config",
+    "predict", "predict_epilogue", "preload", "project_rows", "row_partial_shape", "scatter_rows", "set_tile_config",
     "stop_converged", "tile_config", "to_bfloat16", "weight_update",
 ]

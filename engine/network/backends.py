@@ -17,6 +17,7 @@ A backend owns array storage and the operations the network is built from:
                                       V <- beta V + D, W <- W + eta V          (heavy ball)
     adam_weight_step(W, M, S, D, t, eta, beta1, beta2, eps)
                                       Adam, bias-corrected at step t[0]        (kernels/reference.py)
+    project_rows(W, norms)            W[r] <- W[r] norms[r] / |W[r]|   (weight_norm rows; norms float64)
     gather_rows / scatter_rows        minibatch rows of a resident store, by an index array
     stop_converged(R, limits, active, steps)   per-sample stopping of inference
     scale_add(dst, src, alpha, mask)  dst <- dst + alpha mask * src   (the solvers' vector steps)
@@ -97,6 +98,7 @@ class Backend(Protocol):
     def weight_gradient(self, D: Any, Y: Any, G: Any) -> None: ...
     def count_step(self, t: Any) -> None: ...
     def momentum_weight_step(self, W: Any, V: Any, D: Any, eta: float, beta: float) -> None: ...
+    def project_rows(self, W: Any, norms: Any) -> None: ...
     def adam_weight_step(
         self, W: Any, M: Any, S: Any, D: Any, t: Any, eta: float, beta1: float, beta2: float, eps: float
     ) -> None: ...
@@ -271,6 +273,10 @@ class NumpyBackend(_Scratch):
         np.multiply(V, self.dtype.type(eta), out=step)
         self._apply_weight_step(W, step)
 
+    def project_rows(self, W: _Weights, norms: np.ndarray) -> None:
+        W.W[...] = reference.project_rows(W.W, norms)
+        W.Wt[...] = W.W.T
+
     def adam_weight_step(self, W: _Weights, M: np.ndarray, S: np.ndarray, D: np.ndarray, t: np.ndarray, eta: float,
                          beta1: float, beta2: float, eps: float) -> None:
         f = self.dtype.type
@@ -437,6 +443,9 @@ class WarpBackend(_Scratch):
 
     def momentum_weight_step(self, W: Any, V: Any, D: Any, eta: float, beta: float) -> None:
         self._kernels.momentum_weight_step(W.W, V, D, eta, beta, Wt=W.Wt)
+
+    def project_rows(self, W: Any, norms: Any) -> None:
+        self._kernels.project_rows(W.W, norms, Wt=W.Wt)
 
     def adam_weight_step(self, W: Any, M: Any, S: Any, D: Any, t: Any, eta: float, beta1: float, beta2: float,
                          eps: float) -> None:

@@ -63,6 +63,8 @@ class BatchState:
         self.first_below = {e.upper: e.name for e in reversed(self.edges)}
         #: the weight optimiser of a training run (`vitaplace.engine.network.optimizer`); None: the paper's SGD
         self.optimizer: WeightOptimizer | None = None
+        #: per edge, the device norms ``weight_norm: rows`` holds W's rows at (empty: none)
+        self.row_norms: Mapping[str, Any] = {}
         #: the error precisions per edge on the device (None: all 1, the paper's kernels)
         self.Pi = net.device_precisions()
         #: a training run's sums of squared errors for the error precisions; None: not estimated
@@ -116,12 +118,15 @@ class BatchState:
             )
 
     def weight_step(self) -> None:
-        """W <- W - eta_w dF/dW on every edge (eq. 4), or the weight optimiser's step."""
+        """W <- W - eta_w dF/dW on every edge (eq. 4), or the weight optimiser's step; then
+        each row of W back to its norm in ``row_norms``, when given."""
         if self.optimizer is not None:
             self.optimizer.step(self.weights, self.Y, self.G, self.edges)
-            return
-        for e in self.edges:
-            self.be.weight_update(self.weights[e.name], self.Y[e.upper], self.G[e.name], e.eta_w)
+        else:
+            for e in self.edges:
+                self.be.weight_update(self.weights[e.name], self.Y[e.upper], self.G[e.name], e.eta_w)
+        for name, norms in self.row_norms.items():
+            self.be.project_rows(self.weights[name], norms)
 
     def minibatch(self, inputs: Mapping[str, object], latents: Mapping[str, object],
                   settle: Callable[[], None]) -> None:

@@ -1,4 +1,5 @@
-"""Weight optimisers of MuPNet's training: ``sgd`` (the paper's), ``momentum`` or ``adam``.
+"""Weight optimisers of MuPNet's training: ``sgd`` (the paper's), ``momentum`` or ``adam``;
+and the weights' norm constraint ``weight_norm``.
 
 The paper moves each edge's weights one plain step down eq. 4 per minibatch,
 ``W <- W + eta_w g`` with ``g = 2 Y^T G`` (= -dF/dW): ``sgd``, the backend's fused
@@ -14,6 +15,13 @@ departure from the paper), written with the backend's own operations:
 The state (``v``, or ``m`` and ``s``, per edge, and the step count ``t``) lives on the
 backend for one `Network.train` run: it is not saved with the model, and training always
 starts it fresh.
+
+``weight_norm: rows`` projects every row of every edge's W (the projective field of one unit
+of the layer above) back to its norm at the start of training after each weight step, as
+sparse coding keeps its basis functions at a fixed norm. Without it the energy under a latent
+prior has no minimum: scaling a row up by c and its unit's latents down by c keeps every
+prediction and shrinks the prior's term, so training can lower the energy for ever by growing
+the weights (docs/MUPNET.md, "What the criterion can and cannot say").
 """
 
 from __future__ import annotations
@@ -30,6 +38,9 @@ from vitaplace.engine.network.structure import Edge
 #: the weight optimisers (MuPNet's ``weight_optimizer`` parameter is this type)
 WeightOptimizerName = Literal["sgd", "momentum", "adam"]
 WEIGHT_OPTIMIZERS: tuple[str, ...] = get_args(WeightOptimizerName)
+#: the weights' norm constraints (MuPNet's ``weight_norm`` parameter is this type)
+WeightNorm = Literal["none", "rows"]
+WEIGHT_NORMS: tuple[str, ...] = get_args(WeightNorm)
 
 
 class WeightOptimizer(ABC):
@@ -109,3 +120,18 @@ def make_weight_optimizer(backend: Backend, name: str, edges: Sequence[Edge], sh
     if name == "adam":
         return Adam(backend, edges, shapes, beta1=beta1, beta2=beta2, eps=eps)
     raise ValueError(f"unknown weight optimiser '{name}'; valid: {', '.join(WEIGHT_OPTIMIZERS)}")
+
+
+def row_norms(backend: Backend, name: str, weights: Mapping[str, np.ndarray], edges: Sequence[Edge]) -> dict[str, Any]:
+    """Per edge, the float64 norms of its W's rows on the device, which ``weight_norm: rows``
+    holds them at (`Backend.project_rows`); empty for ``none``."""
+    if name not in WEIGHT_NORMS:
+        raise ValueError(f"unknown weight_norm '{name}'; valid: {', '.join(WEIGHT_NORMS)}")
+    if name == "none":
+        return {}
+    norms = {}
+    for e in edges:
+        host = np.linalg.norm(np.asarray(weights[e.name], np.float64), axis=1)
+        norms[e.name] = backend.empty(host.shape, np.float64)
+        backend.upload(host, norms[e.name])
+    return norms

@@ -35,7 +35,7 @@ from vitaplace.engine.base.atomic import atomic_path, write_text_atomic
 from vitaplace.engine.network.backends import Backend
 from vitaplace.engine.network.batch import LATENT_INIT, BatchState, NetworkError
 from vitaplace.engine.network.inference import InferredSamples
-from vitaplace.engine.network.optimizer import WeightOptimizer, make_weight_optimizer
+from vitaplace.engine.network.optimizer import WeightOptimizer, make_weight_optimizer, row_norms
 from vitaplace.engine.network.precision import PRECISION_WEIGHTINGS, PrecisionEstimator
 from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.solver import BatchSolver, GradientDescent, Solver
@@ -321,6 +321,7 @@ class Network:
         runs: dict[int, Callable[[], None]] = {}
         batches_per_epoch = math.ceil(n / cfg.batch_size)
         optimizer = self._weight_optimizer(cfg, edges)
+        norms = row_norms(be, cfg.weight_norm, self.host_weights(), edges)
         estimator = self._precision_estimator(cfg, edges)
         for epoch in range(cfg.epochs):
             order = rng.permutation(n)
@@ -330,8 +331,7 @@ class Network:
                 index = np.sort(order[b * cfg.batch_size : (b + 1) * cfg.batch_size])
                 state = self._cached_state(states, len(index), present)
                 state.prior = cfg.latent_prior
-                state.optimizer = optimizer
-                state.estimator = estimator
+                state.optimizer, state.row_norms, state.estimator = optimizer, norms, estimator
                 be.upload(index.astype(np.int32), state.index)
                 self._minibatch(state, runs, resident_x, resident_y, cfg, solver, present)
                 energy = state.energies()

@@ -75,7 +75,9 @@ class TrainingConfig:
     `vitaplace.engine.network.optimizer`. ``precision_weighting`` (default ``none``, the
     paper's energy): how training estimates the error precisions after each epoch
     (`vitaplace.engine.network.precision`); the precisions themselves belong to the network
-    and are saved with it."""
+    and are saved with it. ``weight_norm`` (default ``none``, the paper's): ``rows`` keeps
+    each row of every edge's W (a unit's projective field) at its norm at the start of
+    training, projecting it back after every weight step."""
 
     epochs: int
     batch_size: int
@@ -97,6 +99,8 @@ class TrainingConfig:
     precision_weighting: str = "none"
     #: the floor of an error variance in that estimate (pi <= 1 / floor before the normalisation)
     precision_floor: float = 1e-3
+    #: none, or rows: every row of W held at its norm at the start of training
+    weight_norm: str = "none"
 
 
 @dataclass

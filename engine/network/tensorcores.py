@@ -337,6 +337,11 @@ class CublasBackend(WarpBackend):
             self._kernels.momentum_weight_step(W.W, V, D, eta, beta)
             self._round_weights(W)
 
+    def project_rows(self, W: _LowWeights, norms: Any) -> None:
+        with self._stream_for(None, (norms,), (W,)):
+            self._kernels.project_rows(W.W, norms)
+            self._round_weights(W)
+
     def adam_weight_step(self, W: _LowWeights, M: Any, S: Any, D: Any, t: Any, eta: float, beta1: float,
                          beta2: float, eps: float) -> None:
         with self._stream_for(None, (M, S, D, t), (W, M, S)):

@@ -41,7 +41,7 @@ from tqdm.auto import tqdm
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.network.backends import Backend, BackendError, Precision
 from vitaplace.engine.network.drive import joint_drive
-from vitaplace.engine.network.optimizer import WeightOptimizerName
+from vitaplace.engine.network.optimizer import WeightNorm, WeightOptimizerName
 from vitaplace.engine.network.pc import (
     LATENT_INIT,
     HeldOut,
@@ -157,6 +157,11 @@ class MupnetParams(ArchitectureParams):
         "rates); its state is not saved with the model (docs/MUPNET.md)",
     )
     weight_momentum: float = Field(0.9, gt=0, lt=1, description="beta of the momentum weight optimiser")
+    weight_norm: WeightNorm = Field(
+        "none", description="norm constraint on the weights in training: none (the paper's) or rows (every row of "
+        "every W, one unit's projective field, held at its norm at the start of training, as sparse coding holds "
+        "its basis functions; gives the energy under latent_prior a minimum, docs/MUPNET.md)",
+    )
     adam_beta1: float = Field(0.9, ge=0, lt=1, description="Adam's decay of the mean of the weight gradient")
     adam_beta2: float = Field(0.999, ge=0, lt=1, description="Adam's decay of the mean square of the weight gradient")
     adam_eps: pydantic.PositiveFloat = Field(1e-8, description="Adam's epsilon, added to the root mean square")
@@ -220,7 +225,7 @@ class MupnetParams(ArchitectureParams):
             converge_window=self.converge_window, converge_tol=self.converge_tol, latent_prior=self.latent_prior,
             weight_optimizer=self.weight_optimizer, weight_momentum=self.weight_momentum, adam_beta1=self.adam_beta1,
             adam_beta2=self.adam_beta2, adam_eps=self.adam_eps, precision_weighting=self.precision_weighting,
-            precision_floor=self.precision_floor,
+            precision_floor=self.precision_floor, weight_norm=self.weight_norm,
         )
 
     def solver(self) -> Solver:
