@@ -8,7 +8,8 @@ where a run file's sample is taken.
 
 * action: Box (4,) float32, (forward [m/s], strafe leftward [m/s], turn [rad/s], whisk
   amplitude [share of the full amplitude, 0..1]); held for the cycle and re-issued to the
-  base at the run's control rate, as a controller's command is.
+  base at the run's control rate, as a controller's command is. An action outside the Box,
+  or not numbers, is refused in one line (Gymnasium's ``ClipAction`` wrapper clips instead).
 * observation: Dict of ``image`` (H, W, 3) uint8 (the robot's camera), ``theta`` (24,) the
   protraction angles [rad], ``xy`` (24, 2) the two-axis whisker deflections (the run file's
   fields of the same names) and ``pose`` (3,) the base's ground-truth x, y [m] and yaw [rad].
@@ -16,6 +17,8 @@ where a run file's sample is taken.
   clearance around body and head); ``options={"start": [x, y, yaw_deg]}`` places it.
 * terminated when the chassis or head touches the world; truncated by ``max_episode_steps``
   (the registered ids: 1000 steps, 500 s).
+* the camera is made at the first frame, in the process that steps: ``gymnasium.make_vec``
+  with ``vectorization_mode="async"`` works with forked workers as well as spawned ones.
 * ``record=True`` keeps the episode's steps; `WhiskEyeEnv.write_run` writes them as a run
   file (the format ``vitaplace simulate`` writes, atomically), to be scored like any other.
 """
@@ -121,11 +124,7 @@ class WhiskEyeEnv(gymnasium.Env):
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         self._open("step()")
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (4,) or not np.all(np.isfinite(a)) or not self.action_space.contains(a.astype(np.float32)):
-            raise ValueError(f"action {np.asarray(action).tolist()!r} is outside the action space (forward, strafe, "
-                             f"turn, whisk amplitude) within "
-                             f"{self.action_space.low.tolist()}..{self.action_space.high.tolist()}")
+        a = self._action(action)
         if self._start is None:
             raise RuntimeError("call reset() before step()")
         sim = self._sim
@@ -190,6 +189,24 @@ class WhiskEyeEnv(gymnasium.Env):
                                 {"gym": len(st)})
 
     # ------------------------------------------------------------------ helpers
+    def _action(self, action: Any) -> np.ndarray:
+        """``action`` as a float64 (4,) array; one line naming it when it is not numbers of
+        that shape or lies outside the Box: refused, not clipped (Gymnasium leaves clipping to
+        its ``ClipAction`` wrapper)."""
+        try:
+            a = np.asarray(action)
+        except ValueError:  # a ragged sequence
+            a = np.asarray(None)
+        if a.dtype.kind not in "biuf":
+            raise ValueError(f"action {_one_line(action)} is not numbers: expected an array of shape (4,), float32 "
+                             "(forward, strafe, turn, whisk amplitude)")
+        box = self.action_space
+        if a.shape != box.shape or not np.all(np.isfinite(a)) or not box.contains(a.astype(np.float32)):
+            raise ValueError(f"action {_one_line(a.tolist())} is outside the action space (forward, strafe, turn, "
+                             f"whisk amplitude) within {box.low.tolist()}..{box.high.tolist()}; "
+                             "gymnasium.wrappers.ClipAction clips actions into it")
+        return a.astype(np.float64)
+
     def _observe(self) -> dict[str, np.ndarray]:
         sim = self._sim
         self._image = sim.render(out=self._image)
@@ -226,6 +243,12 @@ class WhiskEyeEnv(gymnasium.Env):
             if footprint_clearance(obstacles, np.array([[x, y]]), np.array([yaw]))[0] >= START_CLEARANCE:
                 return (float(x), float(y), float(yaw))
         raise ValueError(f"{self.environment.name}: no start pose with {START_CLEARANCE} m of clearance found")
+
+
+def _one_line(value: Any, width: int = 80) -> str:
+    """``repr(value)`` on one line, cut at ``width`` characters."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= width else text[:width - 3] + "..."
 
 
 def register_envs() -> None:
