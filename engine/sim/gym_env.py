@@ -64,6 +64,7 @@ class WhiskEyeEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
     action_space: spaces.Box
+    observation_space: spaces.Dict
 
     def __init__(self, environment: str | Path | EnvironmentSpec = "e1", robot: RobotSpec | dict | None = None,
                  render_mode: str | None = None, record: bool = False) -> None:
@@ -93,7 +94,7 @@ class WhiskEyeEnv(gymnasium.Env):
         })
         self._image = np.zeros((h, w, 3), dtype=np.uint8)
         self._steps: list[dict[str, Any]] = []
-        self._actions: list[list[float]] = []
+        self._last: dict[str, Any] | None = None  #: the last step, recorded or not (`last_sample`)
         self._start: tuple[float, float, float] | None = None
         self._seed: int | None = None
         self._closed = False
@@ -118,7 +119,7 @@ class WhiskEyeEnv(gymnasium.Env):
         self._sim.reset(pose)
         self._sim.set_whisk_amplitude(1.0)
         self._sim.body_collisions = 0
-        self._start, self._steps, self._actions = pose, [], []
+        self._start, self._steps, self._last = pose, [], None
         obs = self._observe()
         return obs, {"time": 0.0, "whisker_contacts": 0}
 
@@ -136,11 +137,11 @@ class WhiskEyeEnv(gymnasium.Env):
         series, points, normals = sim.cycle(self._ticks)
         obs = self._observe()
         touched = sum(len(p) for p in points)
+        self._last = {"obs": obs, "series": series.astype(np.float32), "time": float(sim.data.time),
+                      "pose": sim.sim.pose(sim.data), "points": np.concatenate(points),
+                      "normals": np.concatenate(normals), "action": [forward, strafe, turn, amplitude]}
         if self.record:
-            self._steps.append({"obs": obs, "series": series.astype(np.float32), "time": float(sim.data.time),
-                                "pose": sim.sim.pose(sim.data), "points": np.concatenate(points),
-                                "normals": np.concatenate(normals)})
-            self._actions.append([forward, strafe, turn, amplitude])
+            self._steps.append(self._last)
         terminated = sim.body_collisions > collisions
         info = {"time": float(sim.data.time), "whisker_contacts": int(touched), "body_collision": terminated}
         return obs, 0.0, terminated, False, info
@@ -170,7 +171,16 @@ class WhiskEyeEnv(gymnasium.Env):
 
     def recorded_run(self, name: str = "gym") -> Run:
         """The episode's steps as an in-memory `Run` (see `write_run`)."""
-        st = self._steps
+        return self._run(self._steps, name)
+
+    def last_sample(self, name: str = "sample") -> Run:
+        """The last step as a one-sample in-memory `Run`, recorded or not: what a feature
+        extractor's ``transform`` reads, as it reads a run file's sample."""
+        if self._last is None:
+            raise ValueError("last_sample: no step taken since reset")
+        return self._run([self._last], name)
+
+    def _run(self, st: list[dict[str, Any]], name: str) -> Run:
         counts = np.concatenate([[0], np.cumsum([len(s["points"]) for s in st])]).astype(np.int64)
         samples = Samples(
             images=np.stack([s["obs"]["image"] for s in st]),
@@ -183,7 +193,7 @@ class WhiskEyeEnv(gymnasium.Env):
         )
         x, y, yaw = self._start  # type: ignore[misc]
         settings = {"kind": "gym", "n_samples": len(st), "start": [x, y, math.degrees(yaw)],
-                    "control_hz": CONTROL_HZ, "actions": self._actions}
+                    "control_hz": CONTROL_HZ, "actions": [s["action"] for s in st]}
         seed = -1 if self._seed is None else self._seed
         return run_from_samples(self._sim, samples, self.environment, settings, self.robot, seed, name,
                                 {"gym": len(st)})
