@@ -8,7 +8,8 @@ where a run file's sample is taken.
 
 * action: Box (4,) float32, (forward [m/s], strafe leftward [m/s], turn [rad/s], whisk
   amplitude [share of the full amplitude, 0..1]); held for the cycle and re-issued to the
-  base at the run's control rate, as a controller's command is.
+  base at the run's control rate, as a controller's command is. An action outside the Box,
+  or not numbers, is refused in one line (Gymnasium's ``ClipAction`` wrapper clips instead).
 * observation: Dict of ``image`` (H, W, 3) uint8 (the robot's camera), ``theta`` (24,) the
   protraction angles [rad], ``xy`` (24, 2) the two-axis whisker deflections (the run file's
   fields of the same names) and ``pose`` (3,) the base's ground-truth x, y [m] and yaw [rad].
@@ -16,6 +17,8 @@ where a run file's sample is taken.
   clearance around body and head); ``options={"start": [x, y, yaw_deg]}`` places it.
 * terminated when the chassis or head touches the world; truncated by ``max_episode_steps``
   (the registered ids: 1000 steps, 500 s).
+* the camera is made at the first frame, in the process that steps: ``gymnasium.make_vec``
+  with ``vectorization_mode="async"`` works with forked workers as well as spawned ones.
 * ``record=True`` keeps the episode's steps; `WhiskEyeEnv.write_run` writes them as a run
   file (the format ``vitaplace simulate`` writes, atomically), to be scored like any other.
 """
@@ -61,6 +64,7 @@ class WhiskEyeEnv(gymnasium.Env):
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 2}
     action_space: spaces.Box
+    observation_space: spaces.Dict
 
     def __init__(self, environment: str | Path | EnvironmentSpec = "e1", robot: RobotSpec | dict | None = None,
                  render_mode: str | None = None, record: bool = False) -> None:
@@ -90,7 +94,7 @@ class WhiskEyeEnv(gymnasium.Env):
         })
         self._image = np.zeros((h, w, 3), dtype=np.uint8)
         self._steps: list[dict[str, Any]] = []
-        self._actions: list[list[float]] = []
+        self._last: dict[str, Any] | None = None  #: the last step, recorded or not (`last_sample`)
         self._start: tuple[float, float, float] | None = None
         self._seed: int | None = None
         self._closed = False
@@ -115,17 +119,13 @@ class WhiskEyeEnv(gymnasium.Env):
         self._sim.reset(pose)
         self._sim.set_whisk_amplitude(1.0)
         self._sim.body_collisions = 0
-        self._start, self._steps, self._actions = pose, [], []
+        self._start, self._steps, self._last = pose, [], None
         obs = self._observe()
         return obs, {"time": 0.0, "whisker_contacts": 0}
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         self._open("step()")
-        a = np.asarray(action, dtype=np.float64)
-        if a.shape != (4,) or not np.all(np.isfinite(a)) or not self.action_space.contains(a.astype(np.float32)):
-            raise ValueError(f"action {np.asarray(action).tolist()!r} is outside the action space (forward, strafe, "
-                             f"turn, whisk amplitude) within "
-                             f"{self.action_space.low.tolist()}..{self.action_space.high.tolist()}")
+        a = self._action(action)
         if self._start is None:
             raise RuntimeError("call reset() before step()")
         sim = self._sim
@@ -137,11 +137,11 @@ class WhiskEyeEnv(gymnasium.Env):
         series, points, normals = sim.cycle(self._ticks)
         obs = self._observe()
         touched = sum(len(p) for p in points)
+        self._last = {"obs": obs, "series": series.astype(np.float32), "time": float(sim.data.time),
+                      "pose": sim.sim.pose(sim.data), "points": np.concatenate(points),
+                      "normals": np.concatenate(normals), "action": [forward, strafe, turn, amplitude]}
         if self.record:
-            self._steps.append({"obs": obs, "series": series.astype(np.float32), "time": float(sim.data.time),
-                                "pose": sim.sim.pose(sim.data), "points": np.concatenate(points),
-                                "normals": np.concatenate(normals)})
-            self._actions.append([forward, strafe, turn, amplitude])
+            self._steps.append(self._last)
         terminated = sim.body_collisions > collisions
         info = {"time": float(sim.data.time), "whisker_contacts": int(touched), "body_collision": terminated}
         return obs, 0.0, terminated, False, info
@@ -171,7 +171,16 @@ class WhiskEyeEnv(gymnasium.Env):
 
     def recorded_run(self, name: str = "gym") -> Run:
         """The episode's steps as an in-memory `Run` (see `write_run`)."""
-        st = self._steps
+        return self._run(self._steps, name)
+
+    def last_sample(self, name: str = "sample") -> Run:
+        """The last step as a one-sample in-memory `Run`, recorded or not: what a feature
+        extractor's ``transform`` reads, as it reads a run file's sample."""
+        if self._last is None:
+            raise ValueError("last_sample: no step taken since reset")
+        return self._run([self._last], name)
+
+    def _run(self, st: list[dict[str, Any]], name: str) -> Run:
         counts = np.concatenate([[0], np.cumsum([len(s["points"]) for s in st])]).astype(np.int64)
         samples = Samples(
             images=np.stack([s["obs"]["image"] for s in st]),
@@ -184,12 +193,30 @@ class WhiskEyeEnv(gymnasium.Env):
         )
         x, y, yaw = self._start  # type: ignore[misc]
         settings = {"kind": "gym", "n_samples": len(st), "start": [x, y, math.degrees(yaw)],
-                    "control_hz": CONTROL_HZ, "actions": self._actions}
+                    "control_hz": CONTROL_HZ, "actions": [s["action"] for s in st]}
         seed = -1 if self._seed is None else self._seed
         return run_from_samples(self._sim, samples, self.environment, settings, self.robot, seed, name,
                                 {"gym": len(st)})
 
     # ------------------------------------------------------------------ helpers
+    def _action(self, action: Any) -> np.ndarray:
+        """``action`` as a float64 (4,) array; one line naming it when it is not numbers of
+        that shape or lies outside the Box: refused, not clipped (Gymnasium leaves clipping to
+        its ``ClipAction`` wrapper)."""
+        try:
+            a = np.asarray(action)
+        except ValueError:  # a ragged sequence
+            a = np.asarray(None)
+        if a.dtype.kind not in "biuf":
+            raise ValueError(f"action {_one_line(action)} is not numbers: expected an array of shape (4,), float32 "
+                             "(forward, strafe, turn, whisk amplitude)")
+        box = self.action_space
+        if a.shape != box.shape or not np.all(np.isfinite(a)) or not box.contains(a.astype(np.float32)):
+            raise ValueError(f"action {_one_line(a.tolist())} is outside the action space (forward, strafe, turn, "
+                             f"whisk amplitude) within {box.low.tolist()}..{box.high.tolist()}; "
+                             "gymnasium.wrappers.ClipAction clips actions into it")
+        return a.astype(np.float64)
+
     def _observe(self) -> dict[str, np.ndarray]:
         sim = self._sim
         self._image = sim.render(out=self._image)
@@ -226,6 +253,12 @@ class WhiskEyeEnv(gymnasium.Env):
             if footprint_clearance(obstacles, np.array([[x, y]]), np.array([yaw]))[0] >= START_CLEARANCE:
                 return (float(x), float(y), float(yaw))
         raise ValueError(f"{self.environment.name}: no start pose with {START_CLEARANCE} m of clearance found")
+
+
+def _one_line(value: Any, width: int = 80) -> str:
+    """``repr(value)`` on one line, cut at ``width`` characters."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= width else text[:width - 3] + "..."
 
 
 def register_envs() -> None:

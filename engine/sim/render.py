@@ -6,6 +6,12 @@ shadows, and the scene flags for shadows and reflections are switched off here. 
 offscreen buffer is only as large as the largest image requested. The robot's own geoms
 (group 3) are hidden from its camera. Measured here (Mesa llvmpipe, 2 cores): ~1 ms per
 120x160 frame instead of ~35 ms with MuJoCo's default quality settings.
+
+Processes: a renderer belongs to the process that made it. EGL's state does not survive
+``fork``: a child forked from a process that had made an EGL context hangs making its own
+(measured here, Mesa llvmpipe), so `Camera` refuses there in one line instead, and a camera
+inherited over ``fork`` is never used or freed in the child (freeing it touches the parent's
+GL state). Make cameras lazily, in the process that renders (as `Simulator` does).
 """
 
 from __future__ import annotations
@@ -24,6 +30,11 @@ from vitaplace.engine.sim.robot import ROBOT_GROUP  # noqa: E402
 
 __all__ = ["Camera", "GLUnavailableError", "gl_help"]
 
+#: the process that made this process's first GL context; a forked child inherits it
+_GL_MAKER: dict[str, int | None] = {"pid": None}
+#: renderers inherited over fork: kept referenced so that nothing frees them in this process
+_INHERITED: list[mujoco.Renderer] = []
+
 
 def gl_help(cause: BaseException | str | None = None) -> str:
     backend = os.environ.get("MUJOCO_GL", "(unset)")
@@ -34,6 +45,18 @@ def gl_help(cause: BaseException | str | None = None) -> str:
     if cause is not None:
         msg += f" Underlying error: {cause}"
     return msg
+
+
+def check_fork_safe() -> None:
+    """Raise GLUnavailableError when this process was forked from one that had made an EGL
+    context: making another one here would hang."""
+    maker = _GL_MAKER["pid"]
+    if maker is not None and maker != os.getpid() and os.environ.get("MUJOCO_GL", "").lower() == "egl":
+        raise GLUnavailableError(
+            f"this process was forked from process {maker} after that one had made an EGL context, and EGL "
+            f"cannot make another one after fork: start the worker processes with the 'spawn' or 'forkserver' "
+            f"method (Gymnasium: vector_kwargs={{'context': 'spawn'}}), or fork before the first frame is rendered"
+        )
 
 
 class Camera:
@@ -50,12 +73,16 @@ class Camera:
         camera: str | int = "eye",
         show_robot: bool = False,
     ) -> None:
+        check_fork_safe()
         try:
             self._renderer = mujoco.Renderer(model, height=height, width=width)
         except ValueError:
             raise
         except Exception as exc:  # GL library missing / no display / context creation failed
             raise GLUnavailableError(gl_help(exc)) from exc
+        self.pid = os.getpid()  #: the process this camera renders in
+        if _GL_MAKER["pid"] is None:
+            _GL_MAKER["pid"] = self.pid
         scene = self._renderer.scene
         scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
@@ -81,8 +108,13 @@ class Camera:
         return img
 
     def close(self) -> None:
-        if getattr(self, "_renderer", None) is not None:
-            self._renderer.close()
+        """Free the renderer; one inherited over fork is only let go of (see the module)."""
+        renderer = getattr(self, "_renderer", None)
+        if renderer is not None:
+            if self.pid == os.getpid():
+                renderer.close()
+            else:
+                _INHERITED.append(renderer)
             self._renderer = None
 
     def __enter__(self) -> Camera:

@@ -21,6 +21,7 @@ import hashlib
 import json
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, NamedTuple
@@ -62,7 +63,9 @@ class Simulator:
     """Steps one robot in one environment, whisk cycle by whisk cycle.
 
     Lower-level than `simulate_run` (which is what the scenario runner calls); tests and
-    benchmarks use it to place the robot and read its sensors directly. ``condition`` (a run's
+    benchmarks use it to place the robot and read its sensors directly. Its camera is made at
+    the first `render`, in the process that renders (again in a process forked after that), so
+    a Simulator made in one process may step in another. ``condition`` (a run's
     lighting and camera state, `engine/sim/condition.py`) changes the model's lights and
     degrades every rendered frame, its noise drawn from ``seed``'s camera stream (`noise_rng`).
     """
@@ -76,7 +79,8 @@ class Simulator:
         self.sim: SimModel = build_model(environment, self.robot, light=self.condition.light)
         self.model = self.sim.model
         self.data = self.sim.new_data((0.0, 0.0, 0.0))
-        self.camera = Camera(self.model, self.robot.camera_width, self.robot.camera_height) if camera else None
+        self._camera_on = camera
+        self.camera: Camera | None = None  #: made by the first `render` (in the process rendering)
         self.series_steps = self.robot.series_steps()
         self._chunks = np.diff(np.concatenate([[-1], self.series_steps]))  # steps before each series sample
         self._cmd = [float(c) for c in self.sim.whisk_command]
@@ -148,8 +152,12 @@ class Simulator:
         return series, points, normals
 
     def render(self, out: np.ndarray | None = None) -> np.ndarray:
-        if self.camera is None:
+        if not self._camera_on:
             raise RuntimeError("this Simulator was created with camera=False")
+        if self.camera is None or self.camera.pid != os.getpid():
+            if self.camera is not None:
+                self.camera.close()  # inherited over fork: let go of, not freed
+            self.camera = Camera(self.model, self.robot.camera_width, self.robot.camera_height)
         image = self.camera.render(self.data, out=out)
         image[...] = degrade(image, self.condition.camera, self._noise)
         return image

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import signal
 import subprocess
 import sys
 
@@ -164,7 +165,9 @@ def test_bad_input_is_one_clear_line(bare, tmp_path):
         WhiskEyeEnv(environment="e1", render_mode="human")
     bare.reset(seed=0)
     for action in ([2.0, 0, 0, 1], [0, 0, 0, 1.5], [0, 0, 0, -0.1], [0.1, 0, 0], [np.nan, 0, 0, 1]):
-        with pytest.raises(ValueError, match=r"^action .* is outside the action space") as err:
+        with pytest.raises(ValueError, match=r"^action .* is outside the action space .*"
+                                             r"\[-1\.0, -1\.0, -1\.0, 0\.0\]\.\.\[1\.0, 1\.0, 1\.0, 1\.0\]; "
+                                             r"gymnasium\.wrappers\.ClipAction clips") as err:
             bare.step(np.array(action, dtype=np.float32))
         assert "\n" not in str(err.value)
     with pytest.raises(ValueError, match=r"unknown option 'pose' \(options: start\)"):
@@ -234,3 +237,86 @@ def test_a_closed_environment_refuses_in_one_line(bare):
         bare.step([0.0, 0.0, 0.0, 1.0])
     with pytest.raises(RuntimeError, match=r"^reset\(\): this WhiskEyeEnv is closed"):
         bare.reset(seed=1)
+
+
+def test_the_camera_is_made_at_the_first_frame_in_the_process_that_renders(bare):
+    """Constructing the environment makes no GL context (a vector environment's parent makes
+    one to read the spaces); a camera whose process is not this one (inherited over fork) is
+    never used: the next frame makes a new one, and the old renderer is not freed here."""
+    from vitaplace.engine.sim import render
+
+    assert bare._sim.camera is None
+    first, _ = bare.reset(options={"start": [0.0, 0.0, 0.0]})
+    camera = bare._sim.camera
+    assert camera is not None and camera.pid == os.getpid()
+    camera.pid = -1  # as if made by the process this one was forked from
+    again, _ = bare.reset(options={"start": [0.0, 0.0, 0.0]})
+    assert bare._sim.camera is not camera and bare._sim.camera.pid == os.getpid()
+    assert render._INHERITED[-1] is not None and camera._renderer is None
+    np.testing.assert_array_equal(again["image"], first["image"])
+
+
+ASYNC = """
+import os, sys
+import gymnasium, numpy as np
+import vitaplace.engine.sim.gym_env
+from vitaplace.engine.sim.glsetup import GLUnavailableError
+
+def drive(context):
+    env = gymnasium.make_vec("WhiskEye-E1-v0", num_envs=2, vectorization_mode="async",
+                             vector_kwargs={"context": context}, robot={"camera_width": 32, "camera_height": 24})
+    obs, _ = env.reset(seed=0)
+    for _ in range(2):
+        obs = env.step(np.array([[0.2, 0.0, 0.0, 1.0]] * 2, dtype=np.float32))[0]
+    env.close()
+    print(context, *obs["pose"].ravel().tolist(), obs["image"].shape)
+
+if __name__ == "__main__":
+    drive("fork")
+    drive("spawn")
+    one = gymnasium.make("WhiskEye-E1-v0", robot={"camera_width": 32, "camera_height": 24})
+    one.reset(seed=0)  # this process has made an EGL context now: a forked worker cannot
+    try:
+        drive("fork")
+    except GLUnavailableError as exc:
+        print("refused", exc)
+"""
+
+
+def test_make_vec_sync_and_async_with_fork_and_spawn(tmp_path):
+    """Sync in this process; async in a fresh one (this one has rendered already) with forked
+    and spawned workers, which step as the sync environments do; a worker forked after its
+    parent made an EGL context refuses in one line instead of hanging."""
+    sync = gymnasium.make_vec("WhiskEye-E1-v0", num_envs=2, vectorization_mode="sync", robot=SMALL)
+    obs, _ = sync.reset(seed=0)
+    for _ in range(2):
+        obs = sync.step(np.array([[0.2, 0.0, 0.0, 1.0]] * 2, dtype=np.float32))[0]
+    sync.close()
+    assert obs["image"].shape == (2, 24, 32, 3)
+    script = tmp_path / "drive_async.py"
+    script.write_text(ASYNC)
+    if os.environ.get("MUJOCO_GL", "egl") != "egl":
+        pytest.skip("the fork refusal is for EGL")
+    # its own session: a worker that hangs is ended with it
+    proc = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        stdout, stderr = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        stdout, stderr = proc.communicate()
+    assert proc.returncode == 0, stdout + stderr[-2000:]
+    lines = stdout.splitlines()
+    assert [line.split()[0] for line in lines] == ["fork", "spawn", "refused"], stdout
+    for line in lines[:2]:
+        np.testing.assert_allclose([float(v) for v in line.split()[1:7]], obs["pose"].ravel(), atol=1e-5)
+    assert "forked from process" in lines[2] and "'spawn'" in lines[2]
+
+
+@pytest.mark.parametrize("action", ["fast", ["a", "b", "c", "d"], None, {"forward": 1.0}, [0.1, [0.0, 0.0], 0.0]])
+def test_an_action_that_is_not_numbers_is_refused_naming_it(bare, action):
+    bare.reset(seed=0)
+    with pytest.raises(ValueError, match=r"^action .* is not numbers: expected an array of shape \(4,\), float32"
+                                         r" \(forward, strafe, turn, whisk amplitude\)$") as err:
+        bare.step(action)
+    assert "\n" not in str(err.value) and repr(action)[:6] in str(err.value)
