@@ -47,7 +47,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("vitaplace.plugin", "vitaplace.testing"),  # the plugin API and its contract suite
     ("vitaplace.plugins", "vitaplace.engine.config"),  # the shipped plugins; scenarios
     ("vitaplace.engine.evaluation",),  # metrics: matching, PR curves, difficulty
-    ("vitaplace.engine.report",),  # one run's report, from its output folder
+    ("vitaplace.engine.report", "vitaplace.engine.export"),  # one run's report; the benchmark as data
     # the pipeline's floors: what stages hand on and the files a run writes beside its stages;
     # the cache keys, a scenario's plan, simulation jobs, the manifest; the stage store and
     # scoring of one evaluation folder; the stages, one module each, none importing another;
