@@ -155,13 +155,13 @@ def verified(folder: Path) -> set[str]:
     listed = set()
     for number, line in enumerate(sums.read_text().splitlines(), 1):
         match = _SUM_LINE.match(line)
-        name = PurePosixPath(match.group(2)) if match else None
-        if name is None or name.is_absolute() or ".." in name.parts:
+        if match is None or PurePosixPath(match.group(2)).is_absolute() or ".." in PurePosixPath(match.group(2)).parts:
             raise ExportError(f"{sums}: line {number} is not '<sha256>  <file in the package>'")
+        name = PurePosixPath(match.group(2))
         path = folder / name
         if not path.is_file():
             raise ExportError(f"{path}: listed in {SUMS} but missing")
-        if digest(path) != match.group(1):  # type: ignore[union-attr]  # matched: name is not None
+        if digest(path) != match.group(1):
             raise ExportError(f"{path}: its SHA-256 differs from {SUMS}: the file changed or is damaged")
         listed.add(name.as_posix())
     return listed

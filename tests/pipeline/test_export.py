@@ -178,6 +178,9 @@ def test_a_changed_missing_or_unlisted_file_is_refused_naming_it(exported, tmp_p
     sums.write_text("".join(line + "\n" for line in sums.read_text().splitlines() if "alike-shapes.npz" not in line))
     with pytest.raises(ExportError, match=rf"^{truth}: not listed in {sums}$"):
         read_package(package)
+    sums.write_text(f"{'0' * 64}  ../outside.h5\n")  # a file outside the package
+    with pytest.raises(ExportError, match=rf"^{sums}: line 1 is not '<sha256>  <file in the package>'$"):
+        read_package(package)
     sums.unlink()
     with pytest.raises(ExportError, match=rf"^{sums}: missing"):
         read_package(package)
