@@ -108,6 +108,16 @@ def difficulty_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def export_command(args: argparse.Namespace) -> int:
+    """`vitaplace export SCENARIO --out DIR`: its evaluations for VPR tools and/or its runs as a package."""
+    from vitaplace.engine.cli.export import export_scenario
+
+    written = export_scenario(args.scenario, args.overrides, args.out, args.format, args.runs, not args.no_progress,
+                              _setup_logging)
+    print("\n".join(f"wrote {path}" for path in written))
+    return 0
+
+
 def _report_folder(args: argparse.Namespace) -> int:
     """`vitaplace report OUT`: report.md and the figures rebuilt from a run's output folder alone."""
     from vitaplace.engine.report.report import rebuild_report

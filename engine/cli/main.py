@@ -1,5 +1,6 @@
 """Command-line interface: ``vitaplace COMMAND``, COMMAND one of
-``run|validate|config|simulate|train|evaluate|report|difficulty|plugins|sweep|aggregate|sensitivity|import|view|video``.
+``run|validate|config|simulate|train|evaluate|report|difficulty|export|plugins|sweep|aggregate|sensitivity|import|
+view|video``.
 
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
@@ -29,6 +30,7 @@ from vitaplace.engine.cli.commands import (
     config_command,
     difficulty_command,
     evaluate_command,
+    export_command,
     import_command,
     plugins_command,
     report_command,
@@ -89,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_stage_commands(sub, common)
     _add_inspection_commands(sub, common)
     _add_import_command(sub, common)
+    _add_export_command(sub, common)
     _add_sweep_command(sub, common)
     _add_study_commands(sub, common)
     _add_viewing_commands(sub, common)
@@ -160,6 +163,22 @@ def _add_import_command(sub: argparse._SubParsersAction, common: argparse.Argume
     p.add_argument("--tactile-model", choices=("physical", "penetration"), default="physical",
                    help="what the whiskers' xy are: physical (sprung whiskers, MultiPredNet's Gazebo WhiskEye; the "
                    "default) or penetration (docs/SIMULATION.md); recorded in the run file")
+
+
+def _add_export_command(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:
+    """``export SCENARIO --out DIR``: the scenario's runs as data other tools read (docs/DATA.md)."""
+    p = sub.add_parser("export", parents=[common],
+                       help="write a scenario's evaluations as VPR image folders with ground truth, and its runs as a "
+                       "checksummed package (docs/DATA.md)")
+    p.set_defaults(handler=export_command)
+    _add_scenario_args(p, out=False)
+    p.add_argument("--out", type=Path, required=True, help="the folder to write (empty, or an export of this format)")
+    p.add_argument("--format", choices=("vpr", "package", "both"), default="both",
+                   help="vpr: image folders and positives per evaluation; package: run files, ground truth, "
+                   "datasheet and checksums; both (the default)")
+    p.add_argument("--runs", type=Path, help="where the runs are recorded and cached, as `vitaplace simulate` "
+                   "does (default: runs/<scenario name>-export)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
 
 
 def _add_study_commands(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:

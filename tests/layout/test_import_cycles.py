@@ -47,7 +47,8 @@ LAYERS: list[tuple[str, ...]] = [
     ("vitaplace.plugin", "vitaplace.testing"),  # the plugin API and its contract suite
     ("vitaplace.plugins", "vitaplace.engine.config"),  # the shipped plugins; scenarios
     ("vitaplace.engine.evaluation",),  # metrics: matching, PR curves, difficulty
-    ("vitaplace.engine.report", "vitaplace.engine.tasks"),  # one run's report; reinforcement-learning tasks
+    # one run's report; reinforcement-learning tasks; the benchmark as data
+    ("vitaplace.engine.report", "vitaplace.engine.tasks", "vitaplace.engine.export"),
     # the pipeline's floors: what stages hand on and the files a run writes beside its stages;
     # the cache keys, a scenario's plan, simulation jobs, the manifest; the stage store and
     # scoring of one evaluation folder; the stages, one module each, none importing another;

@@ -46,6 +46,7 @@ REQUIRED: dict[str, tuple[str, ...]] = {
     "vitaplace.engine.sim.simulate_run": ("environment", "run", "seed"),
     "vitaplace.engine.sim.run_spec": (),
     "vitaplace.engine.data.dataset.write_run": ("path", "run"),
+    "vitaplace.engine.export.read_package": ("folder",),
     "vitaplace.engine.network.pc.Network": ("config", "seed"),
     "vitaplace.engine.network.pc.Network.train": ("inputs", "training"),
     "vitaplace.engine.network.pc.Network.infer": ("inputs", "max_steps"),
