@@ -1216,3 +1216,27 @@ def test_ctrl_c_before_the_command_starts_is_one_line(capsys, monkeypatch):
     assert main(["validate", "quickstart"]) == 130
     assert capsys.readouterr().err.strip().splitlines() == [
         "vitaplace: interrupted; finished stages are cached, run again to resume"]
+
+
+@pytest.mark.parametrize("setting, expected", [
+    # kv = 2 zeta sqrt(kp I) overflows: the servo's gain kp / |kp - I w^2 + i kv w| is 0
+    pytest.param("servo_damping_ratio=1e308", r"robot: servo_kp 10, servo_damping_ratio 1e\+308 .* a gain of 0 at "
+                 r"whisk_hz 2", id="damping"),
+    pytest.param("servo_armature=1e308", r"robot: .*servo_armature 1e\+308 leave the protraction servo a gain of 0",
+                 id="armature"),
+    # gain ~ kp / (I w^2) ~ 1e-299: a command of ~1e299 rad, past MuJoCo's 1e10 on any control
+    pytest.param("servo_kp=1e-300", r"robot: servo_kp 1e-300, .* beyond MuJoCo's bound of 1e\+10 rad", id="kp"),
+    # the base's pose servo gain m (2 pi 10 Hz)^2 overflows
+    pytest.param("base_mass=1e308", r"robot: base_mass 1e\+308 kg and base_servo_hz 10 give the base's pose servo an "
+                 "infinite gain", id="base_mass"),
+])
+def test_a_robot_the_simulator_cannot_drive_is_one_line(tmp_path, setting, expected):
+    """Settings inside every key's own range whose servo gains overflow: one line naming the
+    robot's keys, not a ZeroDivisionError or a MuJoCo warning per physics step."""
+    import re
+
+    path = write_scenario(tmp_path, valid_scenario())
+    result = run_cli(["-q", "simulate", str(path), "--out", str(tmp_path / "out"), "--set", f"robot.{setting}"])
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-800:]
+    assert re.search(expected, lines[0]), lines[0]
