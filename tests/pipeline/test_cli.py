@@ -1240,3 +1240,29 @@ def test_a_robot_the_simulator_cannot_drive_is_one_line(tmp_path, setting, expec
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-800:]
     assert re.search(expected, lines[0]), lines[0]
+
+
+@pytest.mark.parametrize("argv, expected", [
+    pytest.param(["--samples", "0"], "--samples 0: expected a number of samples, at least 1", id="0"),  # was 200
+    pytest.param(["--samples", "-3"], "--samples -3: expected a number of samples, at least 1", id="-3"),
+    pytest.param(["--seed", "-1"], "--seed -1: expected a whole number >= 0", id="seed"),
+    pytest.param(["--samples", "10000000000"], "--samples 10000000000: 10000000000 samples of 120x160 frames need ",
+                 id="memory"),
+    pytest.param(["--out", "FILE"], "--out FILE: exists and is not a directory", id="file"),
+    pytest.param(["--out", "FOLDER"], "FOLDER/e1-foraging-seed0.h5: is a folder; expected the run file to write there",
+                 id="folder"),
+])
+def test_simulate_an_environment_refuses_bad_options_before_simulating(tmp_path, capsys, monkeypatch, argv,
+                                                                          expected):
+    from vitaplace.engine.sim import simulate
+
+    def never(*args, **kwargs):
+        raise AssertionError("simulated before the options were checked")
+
+    monkeypatch.setattr(simulate, "simulate_run", never)
+    (tmp_path / "FILE").write_text("x")
+    (tmp_path / "FOLDER" / "e1-foraging-seed0.h5").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "e1", "--no-progress", *argv]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"vitaplace: error: {expected}"), lines
