@@ -1266,3 +1266,15 @@ def test_simulate_an_environment_refuses_bad_options_before_simulating(tmp_path,
     assert main(["simulate", "e1", "--no-progress", *argv]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"vitaplace: error: {expected}"), lines
+
+
+@pytest.mark.parametrize("key", ["train.dataset", "train.environment"])
+def test_a_folder_where_a_file_is_expected_is_named_as_a_folder(tmp_path, capsys, key):
+    data = valid_scenario()
+    if key == "train.dataset":
+        data["train"] = {"dataset": str(tmp_path)}
+    else:
+        data["train"]["environment"] = str(tmp_path)
+    assert main(["validate", str(write_scenario(tmp_path, data))]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"{key}: '{tmp_path}' is a folder; expected a file" in lines[0], lines
