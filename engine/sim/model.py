@@ -212,16 +212,7 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
     full = np.zeros((m.nv, m.nv))
     mujoco.mj_fullM(m, full, d.qM) if _fullm_takes_qm() else mujoco.mj_fullM(m, d, full)
     diag = np.diag(full)
-    wb = 2 * math.pi * robot.base_servo_hz
-    for a, dof in zip(sim.drive_act, sim.base_dofadr, strict=True):
-        kp_b, kv_b = float(diag[dof]) * wb * wb, 2.0 * float(diag[dof]) * wb  # critically damped pose servo
-        if not math.isfinite(kp_b):
-            raise UserError(f"robot: base_mass {robot.base_mass:g} kg and base_servo_hz {robot.base_servo_hz:g} "
-                            f"give the base's pose servo an infinite gain (inertia x (2 pi base_servo_hz)^2); "
-                            "expected a lighter base")
-        m.actuator_gainprm[a, 0] = kp_b
-        m.actuator_biasprm[a, 1] = -kp_b
-        m.actuator_biasprm[a, 2] = -kv_b
+    _set_drive_gains(sim, diag)
     theta_dof = m.jnt_dofadr[theta_j]
     with np.errstate(over="ignore"):  # an absurd servo_armature: the command check below names it
         inertia = float(np.mean(diag[theta_dof]))
@@ -244,6 +235,21 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
         sim.whisk_command = centre + (np.float64(amp) / sim.servo_gain) * np.cos(w * t_mid + sim.servo_phase_lag)
     _check_servo_command(sim.whisk_command, robot, sim.servo_gain)
     return sim
+
+
+def _set_drive_gains(sim: SimModel, diag: np.ndarray) -> None:
+    """The base's pose servos critically damped at ``base_servo_hz`` from the diagonal ``diag``
+    of the joint-space inertia; a UserError naming the robot's keys when a gain overflows."""
+    wb = 2 * math.pi * sim.robot.base_servo_hz
+    for a, dof in zip(sim.drive_act, sim.base_dofadr, strict=True):
+        kp_b, kv_b = float(diag[dof]) * wb * wb, 2.0 * float(diag[dof]) * wb
+        if not math.isfinite(kp_b):
+            raise UserError(f"robot: base_mass {sim.robot.base_mass:g} kg and base_servo_hz "
+                            f"{sim.robot.base_servo_hz:g} give the base's pose servo an infinite gain "
+                            "(inertia x (2 pi base_servo_hz)^2); expected a lighter base")
+        sim.model.actuator_gainprm[a, 0] = kp_b
+        sim.model.actuator_biasprm[a, 1] = -kp_b
+        sim.model.actuator_biasprm[a, 2] = -kv_b
 
 
 def _check_servo_command(command: np.ndarray, robot: RobotSpec, gain: float) -> None:
