@@ -145,6 +145,8 @@ def test_training_stops_once_converged(autoencoder_class):
     ({"encoder": "transposed"}, "encoder"), ({"optimizer": "lbfgs"}, "optimizer"),
     ({"learning_rate": 0}, "learning_rate"),
     ({"max_steps": 10}, "max_steps"), ({"tactile_input": "sweep"}, "tactile_input"),
+    ({"activation": "tanh", "slope": 0.3}, "slope 0.3 is ignored by activation tanh"),
+    ({"cycle_points": 4}, "cycle_points 4 is ignored by tactile_input instant"),
 ])
 def test_params_errors_name_extractor_and_key(autoencoder_class, params, key):
     with pytest.raises(ExtractorParamsError) as info:
