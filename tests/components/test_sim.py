@@ -354,6 +354,16 @@ def test_missing_gl_gives_one_clear_error():
         assert "libegl1" in msg and "libosmesa6" in msg and "MUJOCO_GL=egl" in msg
 
 
+def test_the_gl_help_quotes_mujoco_gl(monkeypatch):
+    """A line break in the variable stays inside the one error line, escaped."""
+    from vitaplace.engine.sim.render import gl_help
+
+    monkeypatch.setenv("MUJOCO_GL", "egl\nx")
+    assert "(MUJOCO_GL='egl\\nx'; " in gl_help()
+    monkeypatch.delenv("MUJOCO_GL")
+    assert "(MUJOCO_GL=(unset); " in gl_help()
+
+
 # ---------------------------------------------------------------------- runs
 def test_same_scenario_and_seed_give_identical_runs(e1):
     spec = run_spec(kind="foraging", n_samples=6)

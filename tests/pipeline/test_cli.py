@@ -1278,3 +1278,16 @@ def test_a_folder_where_a_file_is_expected_is_named_as_a_folder(tmp_path, capsys
     assert main(["validate", str(write_scenario(tmp_path, data))]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and f"{key}: '{tmp_path}' is a folder; expected a file" in lines[0], lines
+
+
+def test_an_error_quoting_a_line_break_stays_one_line(tmp_path, capsys):
+    """A file name (or any value an error quotes) with a line break, a tab or an escape: the
+    error line writes them as Python writes them in a string."""
+    from vitaplace.engine.cli.main import one_line
+
+    assert one_line("a\nb\tc\x1b ü") == "a\\nb\\tc\\x1b ü"
+    path = write_scenario(tmp_path, valid_scenario(), name="two\nlines.yaml")
+    assert main(["validate", str(path), "--set", "seed=-1"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [f"vitaplace: error: {tmp_path}/two\\nlines.yaml: seed: Input should be greater than or equal "
+                     "to 0 (got -1)"]
