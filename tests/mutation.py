@@ -470,6 +470,10 @@ MUTANTS = [
     m("render: MUJOCO_GL shown unquoted", "sim.render",
       'backend = repr(os.environ["MUJOCO_GL"]) if', 'backend = str(os.environ["MUJOCO_GL"]) if',
       *t("sim", "test_the_gl_help_quotes_mujoco_gl")),
+    m("mupnet: a negative seed left to numpy's generator to refuse", "mupnet.extractor",
+      'seed: int = Field(0, ge=0, description="network', 'seed: int = Field(0, description="network',
+      *t("mupnet_plugin", "test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path[seed--1-Input should be "
+                          "greater than or equal to 0]")),
     m("overrides: a value that is not YAML escapes as a parser traceback", "config.overrides",
       "        except yaml.YAMLError as exc:", "        except ValueError as exc:",
       *t("cli", "test_an_override_value_that_is_not_yaml_is_one_line")),

@@ -95,7 +95,7 @@ class ArchitectureParams(InputParams):
         "that still counts as progress",
     )
     batch_size: pydantic.PositiveInt = Field(150, description="samples per minibatch")
-    seed: int = Field(0, description="network initialisation and minibatch order")
+    seed: int = Field(0, ge=0, description="network initialisation and minibatch order")
 
 
 #: the MuPNet paper's algorithm where the plugin's defaults depart from it (docs/MUPNET.md,

@@ -147,6 +147,7 @@ def test_training_stops_once_converged(autoencoder_class):
     ({"max_steps": 10}, "max_steps"), ({"tactile_input": "sweep"}, "tactile_input"),
     ({"activation": "tanh", "slope": 0.3}, "slope 0.3 is ignored by activation tanh"),
     ({"cycle_points": 4}, "cycle_points 4 is ignored by tactile_input instant"),
+    ({"seed": -1}, "seed"),
 ])
 def test_params_errors_name_extractor_and_key(autoencoder_class, params, key):
     with pytest.raises(ExtractorParamsError) as info:

@@ -375,6 +375,7 @@ def test_the_fitted_network_is_built_from_the_params(fitted):
     ("adam_eps", "0", "Input should be greater than 0"),
     ("adam_beta2", "1", "Input should be less than 1"),
     ("eta_w_joint", "-0.1", "Input should be greater than 0"),
+    ("seed", "-1", "Input should be greater than or equal to 0"),  # numpy's generator takes none below 0
     ("cycle_points", "100000", "100000 phase points: expected at most 1000, the most samples a simulated run's "
      "deflection series holds per whisk cycle (robot.deflection_samples)"),
 ])
