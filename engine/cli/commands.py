@@ -9,9 +9,13 @@ import argparse
 import json
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.outputs.outdir import claimed, writable_dir
+
+if TYPE_CHECKING:
+    from vitaplace.engine.sim.controllers import RunSpec
 
 EXIT_SEEDS_FAILED = 1
 
@@ -137,7 +141,7 @@ def _simulate_environment(args: argparse.Namespace) -> int:
     """`vitaplace simulate ENV.yaml`: one foraging run of an environment file."""
     from vitaplace.engine.data.dataset import write_run
     from vitaplace.engine.sim.environment import load_environment
-    from vitaplace.engine.sim.simulate import run_spec, simulate_run
+    from vitaplace.engine.sim.simulate import simulate_run
 
     if args.force or args.overrides:
         raise UserError(
@@ -145,12 +149,34 @@ def _simulate_environment(args: argparse.Namespace) -> int:
             "records its run anew (its settings: --samples, --seed)"
         )
     environment = load_environment(args.scenario)
-    spec = run_spec(kind="foraging", n_samples=args.samples or 200)
-    run = simulate_run(environment, spec, seed=args.seed, progress=not args.no_progress, name=Path(args.scenario).stem)
-    out = writable_dir(args.out or Path("runs") / "datasets")
-    path = write_run(out / f"{Path(args.scenario).stem}-foraging-seed{args.seed}.h5", run)
+    spec = _foraging_run(args)
+    name = Path(args.scenario).stem
+    target = writable_dir(args.out or Path("runs") / "datasets") / f"{name}-foraging-seed{args.seed}.h5"
+    if target.is_dir():
+        raise UserError(f"{target}: is a folder; expected the run file to write there (move it, or another --out)")
+    run = simulate_run(environment, spec, seed=args.seed, progress=not args.no_progress, name=name)
+    path = write_run(target, run)
     print(f"wrote {len(run)} samples to {path}")
     return 0
+
+
+def _foraging_run(args: argparse.Namespace) -> RunSpec:
+    """The foraging run of `vitaplace simulate ENV.yaml` (--samples, default 200) once it and
+    --seed are known to be usable: a UserError naming the option otherwise."""
+    from vitaplace.engine.config.memory import physical_memory, run_memory_problem
+    from vitaplace.engine.sim.controllers import run_spec
+    from vitaplace.engine.sim.robot import RobotSpec
+
+    samples = 200 if args.samples is None else args.samples
+    if samples < 1:
+        raise UserError(f"--samples {samples}: expected a number of samples, at least 1")
+    if args.seed < 0:
+        raise UserError(f"--seed {args.seed}: expected a whole number >= 0")
+    spec = run_spec(kind="foraging", n_samples=samples)
+    problem = run_memory_problem(spec, RobotSpec(), physical_memory())
+    if problem:
+        raise UserError(f"--samples {samples}: {problem}")
+    return spec
 
 
 def own_top_level_keys() -> tuple[set[str], set[str]]:

@@ -325,8 +325,15 @@ def _main(argv: list[str] | None) -> int:
         limit_blas_threads(usable_cpus())
         return handler(args)
     except UserError as exc:
-        print(f"vitaplace: error: {exc}", file=sys.stderr)
+        print(f"vitaplace: error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_USER_ERROR
+
+
+def one_line(message: str) -> str:
+    """``message`` with its unprintable characters (a line break, a tab, an escape) written as
+    Python writes them in a string (``\\n``), so that an error stays the one line it says it is
+    whatever a value it quotes holds (an environment variable, a file name)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in message)
 
 
 if __name__ == "__main__":

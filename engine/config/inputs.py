@@ -37,7 +37,7 @@ def check_runs(path: Path, scenario: Scenario) -> int:
         if entry.environment is None:
             continue
         if not entry.environment.is_file():
-            raise ScenarioError(f"{path}: {where}.environment: no such file {str(entry.environment)!r} "
+            raise ScenarioError(f"{path}: {where}.environment: {_not_a_file(entry.environment)} "
                                 f"({shipped_names_hint(entry.environment)})")
         env = load_environment(entry.environment)
         if entry.run is not None and where != "train":
@@ -129,11 +129,16 @@ def _check_station_jitter(path: Path, where: str, run: RunSpec, scenario: Scenar
                             f"than scoring.heading_tolerance_deg = {heading:g}; at most {heading / 2:g} deg")
 
 
+def _not_a_file(file: Path) -> str:
+    """Why ``file``, which is no file, cannot be read: a folder is there, or nothing."""
+    return f"{str(file)!r} is a folder; expected a file" if file.is_dir() else f"no such file {str(file)!r}"
+
+
 def _recorded(path: Path, where: str, file: Path, minimum: int) -> Run:
     """The recorded run ``file``, opened (its attributes, fields, storage and shapes checked)
     and with at least ``minimum`` samples."""
     if not file.is_file():
-        raise ScenarioError(f"{path}: {where}: no such file {str(file)!r} (make one with `vitaplace import`)")
+        raise ScenarioError(f"{path}: {where}: {_not_a_file(file)} (make one with `vitaplace import`)")
     try:
         run = open_run(file)
     except DatasetError as exc:

@@ -27,6 +27,16 @@ def run_bytes(run: RunSpec, robot: RobotSpec) -> int:
     return run.n_samples * (frame + series + robot.n_whiskers * 3 * 4 + 64)
 
 
+def run_memory_problem(run: RunSpec, robot: RobotSpec, limit: int | None) -> str | None:
+    """Why ``run`` cannot be simulated in ``limit`` bytes of memory (None: it fits, or the
+    limit is unknown)."""
+    need = run_bytes(run, robot)
+    if limit is None or need <= limit:
+        return None
+    return (f"{run.n_samples} samples of {robot.camera_height}x{robot.camera_width} frames need "
+            f"{need / 1e9:.3g} GB of memory; this machine has {limit / 1e9:.3g} GB")
+
+
 def check_memory(
     path: Path, scenario: Scenario, methods: list[tuple[Any, Any]], limit: int | None, train_samples: int
 ) -> None:
@@ -38,13 +48,9 @@ def check_memory(
     for where, run in runs:
         if run is None:  # a recorded run: it fits, it was recorded
             continue
-        need = run_bytes(run, scenario.robot)
-        if need > limit:
-            raise ScenarioError(
-                f"{path}: {where}.n_samples: {run.n_samples} samples of {scenario.robot.camera_height}x"
-                f"{scenario.robot.camera_width} frames need {need / 1e9:.3g} GB of memory; this machine has "
-                f"{limit / 1e9:.3g} GB"
-            )
+        problem = run_memory_problem(run, scenario.robot, limit)
+        if problem:
+            raise ScenarioError(f"{path}: {where}.n_samples: {problem}")
     for i, (extractor, params) in enumerate(methods):
         need, key, what = extractor.memory_bytes(params, train_samples)
         if need > limit:

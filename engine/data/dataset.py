@@ -60,6 +60,10 @@ FIELDS: dict[str, np.dtype] = {
 #: whiskers' signals (theta, xy, the deflection series) and contacts
 SENSORS = ("camera", "whiskers")
 
+#: the most samples a simulated run's per-cycle deflection series holds (the robot's
+#: ``deflection_samples``)
+MAX_DEFLECTION_SAMPLES = 1000
+
 #: a whisker deflection |xy| above this counts as touch at the sampling instant (the same
 #: threshold for both touch models and for imported recordings)
 TOUCH_THRESHOLD = 0.01

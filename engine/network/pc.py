@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec, TypeVar
 
 import numpy as np
 
@@ -40,6 +40,22 @@ from vitaplace.engine.network.precision import PRECISION_WEIGHTINGS, PrecisionEs
 from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.solver import BatchSolver, GradientDescent, Solver
 from vitaplace.engine.network.structure import Edge, JointConfig, ModalityConfig, NetworkConfig, TrainingConfig
+
+_P = ParamSpec("_P")
+_R = TypeVar("_R")
+
+
+def _divergence_checked(method: Callable[_P, _R]) -> Callable[_P, _R]:
+    """``method`` with numpy's overflow and invalid-value warnings off: while training and
+    inferring they are the divergence that `BatchState.check_finite` turns into one
+    NetworkError naming the layer (a fresh errstate per call: numpy 1.x's cannot nest)."""
+
+    @functools.wraps(method)
+    def checked(*args: _P.args, **kwargs: _P.kwargs) -> _R:
+        with np.errstate(over="ignore", invalid="ignore"):
+            return method(*args, **kwargs)
+
+    return checked
 
 __all__ = ["LATENT_INIT", "BatchState", "Edge", "HeldOut", "JointConfig", "ModalityConfig", "Network", "NetworkConfig",
            "NetworkError", "TrainingConfig"]
@@ -278,6 +294,7 @@ class Network:
         return state.energies()
 
     # ------------------------------------------------------------------ training
+    @_divergence_checked
     def train(
         self,
         inputs: Mapping[str, np.ndarray],
@@ -298,9 +315,8 @@ class Network:
         Inputs, latents and weights stay on the backend's device for the whole run; with the
         paper's steps a minibatch is one captured sequence (a CUDA graph on CUDA) and only its
         energies come back to the host. ``held_out``: after every epoch, the energy of those
-        samples at their settled latents (`TrainingHistory.held_out`). With
-        ``precision_weighting`` the error precisions are estimated from each epoch's final errors
-        and used from the next epoch on.
+        samples at their settled latents (`TrainingHistory.held_out`). With ``precision_weighting``
+        the error precisions are estimated from each epoch's final errors, used from the next on.
         ``on_progress(epoch, energy)`` is called after every minibatch with the epoch (from 1)
         and the minibatch's energy per sample, for progress bars (as `infer`'s).
         Raises NetworkError naming the epoch and minibatch when an error becomes NaN/Inf.
@@ -401,6 +417,7 @@ class Network:
         return PrecisionEstimator(self.backend, edges, self.sizes, cfg.precision_weighting, cfg.precision_floor)
 
     # ------------------------------------------------------------------ inference
+    @_divergence_checked
     def infer(
         self,
         inputs: Mapping[str, np.ndarray],

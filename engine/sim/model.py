@@ -14,6 +14,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.sim.build import model_spec
 from vitaplace.engine.sim.condition import LightCondition
 from vitaplace.engine.sim.environment import EnvironmentSpec
@@ -211,14 +212,10 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
     full = np.zeros((m.nv, m.nv))
     mujoco.mj_fullM(m, full, d.qM) if _fullm_takes_qm() else mujoco.mj_fullM(m, d, full)
     diag = np.diag(full)
-    wb = 2 * math.pi * robot.base_servo_hz
-    for a, dof in zip(sim.drive_act, sim.base_dofadr, strict=True):
-        kp_b, kv_b = diag[dof] * wb * wb, 2.0 * diag[dof] * wb  # critically damped pose servo
-        m.actuator_gainprm[a, 0] = kp_b
-        m.actuator_biasprm[a, 1] = -kp_b
-        m.actuator_biasprm[a, 2] = -kv_b
+    _set_drive_gains(sim, diag)
     theta_dof = m.jnt_dofadr[theta_j]
-    inertia = float(np.mean(diag[theta_dof]))
+    with np.errstate(over="ignore"):  # an absurd servo_armature: the command check below names it
+        inertia = float(np.mean(diag[theta_dof]))
     kp = robot.servo_kp
     kv = 2.0 * robot.servo_damping_ratio * math.sqrt(kp * inertia)
     for a in sim.servo_act:
@@ -234,8 +231,39 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
     n = robot.steps_per_cycle
     t_mid = (np.arange(n) + 0.5) * robot.timestep  # a step's control acts over [t_j, t_j + dt]
     # cycle time origin: a cycle ends (t = T) at maximum protraction
-    sim.whisk_command = centre + (amp / sim.servo_gain) * np.cos(w * t_mid + sim.servo_phase_lag)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # checked next
+        sim.whisk_command = centre + (np.float64(amp) / sim.servo_gain) * np.cos(w * t_mid + sim.servo_phase_lag)
+    _check_servo_command(sim.whisk_command, robot, sim.servo_gain)
     return sim
+
+
+def _set_drive_gains(sim: SimModel, diag: np.ndarray) -> None:
+    """The base's pose servos critically damped at ``base_servo_hz`` from the diagonal ``diag``
+    of the joint-space inertia; a UserError naming the robot's keys when a gain overflows."""
+    wb = 2 * math.pi * sim.robot.base_servo_hz
+    for a, dof in zip(sim.drive_act, sim.base_dofadr, strict=True):
+        kp_b, kv_b = float(diag[dof]) * wb * wb, 2.0 * float(diag[dof]) * wb
+        if not math.isfinite(kp_b):
+            raise UserError(f"robot: base_mass {sim.robot.base_mass:g} kg and base_servo_hz "
+                            f"{sim.robot.base_servo_hz:g} give the base's pose servo an infinite gain "
+                            "(inertia x (2 pi base_servo_hz)^2); expected a lighter base")
+        sim.model.actuator_gainprm[a, 0] = kp_b
+        sim.model.actuator_biasprm[a, 1] = -kp_b
+        sim.model.actuator_biasprm[a, 2] = -kv_b
+
+
+def _check_servo_command(command: np.ndarray, robot: RobotSpec, gain: float) -> None:
+    """A UserError naming the servo settings when the pre-compensated protraction command is
+    not a control MuJoCo accepts: finite and below its bound on any value (``mjMAXVAL``, 1e10),
+    beyond which it flags the control as unstable at the first step."""
+    if np.all(np.abs(command) < mujoco.mjMAXVAL):
+        return
+    raise UserError(
+        f"robot: servo_kp {robot.servo_kp:g}, servo_damping_ratio {robot.servo_damping_ratio:g} and servo_armature "
+        f"{robot.servo_armature:g} leave the protraction servo a gain of {gain:.3g} at whisk_hz {robot.whisk_hz:g}, "
+        f"so whisking needs commands beyond MuJoCo's bound of {mujoco.mjMAXVAL:g} rad; expected a stiffer servo "
+        "(servo_kp) or less damping or armature"
+    )
 
 
 def penetration_deflection(depth: np.ndarray, normal_yz: np.ndarray, along: np.ndarray) -> np.ndarray:

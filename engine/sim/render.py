@@ -37,7 +37,7 @@ _INHERITED: list[mujoco.Renderer] = []
 
 
 def gl_help(cause: BaseException | str | None = None) -> str:
-    backend = os.environ.get("MUJOCO_GL", "(unset)")
+    backend = repr(os.environ["MUJOCO_GL"]) if "MUJOCO_GL" in os.environ else "(unset)"
     msg = (
         f"vitaplace could not create an OpenGL context for the robot camera (MUJOCO_GL={backend}; "
         f"{STATE.get('reason') or 'no backend chosen'}). {INSTALL_HINT}"

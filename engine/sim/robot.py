@@ -48,6 +48,8 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from vitaplace.engine.data.dataset import MAX_DEFLECTION_SAMPLES
+
 __all__ = ["RobotSpec", "whisker_layout", "camera_fovy_deg", "N_WHISKERS", "N_BOARDS", "N_COLUMNS"]
 
 N_BOARDS = 6
@@ -149,7 +151,9 @@ class RobotSpec(BaseModel):
     timestep: float = Field(
         0.002, ge=1e-4, le=0.01, description="physics timestep [s], 0.1 ms to 10 ms (below, a run takes hours)"
     )
-    deflection_samples: int = Field(25, ge=1, le=1000, description="samples S of the per-cycle deflection series")
+    deflection_samples: int = Field(
+        25, ge=1, le=MAX_DEFLECTION_SAMPLES, description="samples S of the per-cycle deflection series"
+    )
 
     @model_validator(mode="after")
     def _check(self) -> RobotSpec:

@@ -168,9 +168,10 @@ class Simulator:
 
 
 log = logging.getLogger("vitaplace.sim")
-# MuJoCo's own warnings (e.g. "the simulation is unstable") go to the log, not raw to stderr;
-# the counters in mjData still record them and check_plausible turns them into an error.
-mujoco.set_mju_user_warning(lambda message: log.warning("MuJoCo: %s", message.strip()))
+# MuJoCo's own warnings (e.g. "the simulation is unstable", once per step of an unstable run)
+# go to the debug log (-v), not to stderr: the counters in mjData still record them and
+# check_plausible turns them into one error line naming them.
+mujoco.set_mju_user_warning(lambda message: log.debug("MuJoCo: %s", message.strip()))
 
 
 class SimulationError(UserError):

@@ -54,7 +54,8 @@ def require_display() -> None:
     GLFW is started (and stopped) in a child process, never in this one."""
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         raise UserError(f"vitaplace view needs a display, and DISPLAY and WAYLAND_DISPLAY are unset; {HEADLESS_HINT}")
-    where = os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or "the desktop"
+    shown = [f"{name}={os.environ[name]!r}" for name in ("DISPLAY", "WAYLAND_DISPLAY") if os.environ.get(name)]
+    where = shown[0] if shown else "the desktop"  # quoted: a line break in the variable stays in the one line
     try:
         probe = subprocess.run([sys.executable, "-c", _PROBE], capture_output=True, text=True, timeout=PROBE_TIMEOUT_S)
     except subprocess.TimeoutExpired:

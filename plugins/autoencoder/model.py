@@ -26,7 +26,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from vitaplace.engine.network.pc import converged, glorot_uniform
+from vitaplace.engine.network.pc import NetworkError, converged, glorot_uniform
 from vitaplace.kernels.reference import activation, activation_derivative
 
 Encoder = Literal["learned", "tied"]
@@ -177,6 +177,14 @@ class TrainingSettings:
     converge_tol: float
 
 
+def _check_finite(losses: Mapping[str, float], where: str, settings: TrainingSettings) -> None:
+    """A NetworkError naming the modality when a reconstruction error is no longer finite."""
+    for m, loss in losses.items():
+        if not np.isfinite(loss):
+            raise NetworkError(f"autoencoder: the reconstruction error of the {m} input became {loss} at {where}; "
+                               f"lower learning_rate ({settings.learning_rate:g}, optimizer {settings.optimizer})")
+
+
 def train(model: Autoencoder, inputs: Mapping[str, np.ndarray], settings: TrainingSettings,
           on_progress: Callable[[int, float], None] | None = None) -> tuple[dict[str, list[float]], bool]:
     """Minibatch training, a new order each epoch from ``(seed, 1)``. Returns the history
@@ -191,8 +199,10 @@ def train(model: Autoencoder, inputs: Mapping[str, np.ndarray], settings: Traini
         order = order_rng.permutation(n)
         for start in range(0, n, settings.batch_size):
             rows = order[start:start + settings.batch_size]
-            losses, grads = model.loss_and_gradients({m: x[rows] for m, x in inputs.items()})
-            optimiser.step(model.weights, grads)
+            with np.errstate(over="ignore", invalid="ignore"):  # divergence: named next, in one line
+                losses, grads = model.loss_and_gradients({m: x[rows] for m, x in inputs.items()})
+                optimiser.step(model.weights, grads)
+            _check_finite(losses, f"epoch {epoch + 1}, minibatch {start // settings.batch_size + 1}", settings)
             for m, loss in losses.items():
                 sums[m] += loss * len(rows)
             if on_progress is not None:

@@ -88,6 +88,8 @@ class ArchitectureParams(InputParams):
         "leaky_relu", description="leaky_relu, tanh, sigmoid or linear"
     )
     slope: pydantic.NonNegativeFloat = Field(0.2, description="negative slope of the leaky ReLU")
+
+    READ_ONLY_WITH = {**InputParams.READ_ONLY_WITH, "slope": ("activation", ("leaky_relu",))}
     epochs: pydantic.PositiveInt = Field(
         3000, description="passes over the training run (the maximum when converge_window > 0; the paper: 10)"
     )
@@ -100,7 +102,7 @@ class ArchitectureParams(InputParams):
         "that still counts as progress",
     )
     batch_size: pydantic.PositiveInt = Field(150, description="samples per minibatch")
-    seed: int = Field(0, description="network initialisation and minibatch order")
+    seed: int = Field(0, ge=0, description="network initialisation and minibatch order")
 
 
 #: the MuPNet paper's algorithm where the plugin's defaults depart from it (docs/MUPNET.md,
@@ -199,6 +201,14 @@ class MupnetParams(ArchitectureParams):
         "(float32 accumulation, weights and latents)",
     )
 
+    READ_ONLY_WITH = {
+        **ArchitectureParams.READ_ONLY_WITH,
+        "inference_momentum": ("inference_solver", ("nesterov", "preconditioned")),
+        "weight_momentum": ("weight_optimizer", ("momentum",)),
+        **dict.fromkeys(("adam_beta1", "adam_beta2", "adam_eps"), ("weight_optimizer", ("adam",))),
+        "precision_floor": ("precision_weighting", ("layer", "channel")),
+    }
+
     def network_config(self, tactile_size: int) -> NetworkConfig:
         """The engine's network configuration for inputs of ``image_size`` RGB frames and
         ``tactile_size`` tactile channels (the chosen modalities only)."""
@@ -245,6 +255,24 @@ class MupnetParams(ArchitectureParams):
         if self.training_inference == "solver" and self.inference_solver == "gd":
             raise ValueError("training_inference solver takes the steps of a settling inference_solver "
                              "(nesterov or preconditioned), not gd (that is training_inference plain)")
+        return self
+
+    @pydantic.model_validator(mode="after")
+    def _plain_steps_settle(self) -> MupnetParams:
+        """A plain latent step ``y <- y - eta_y (dF/dy + latent_prior y)`` multiplies the prior's
+        part of a latent by ``1 - eta_y latent_prior``: at ``eta_y latent_prior >= 2`` that is
+        -1 or less, and the steps swing ever wider instead of settling."""
+        plain = [name for name, used in (("training_inference plain", self.training_inference == "plain"),
+                                         ("inference_solver gd", self.inference_solver == "gd")) if used]
+        steps = {f"eta_y_{node}": getattr(self, f"eta_y_{node}") for node in (*self.modalities, "joint")}
+        key = max(steps, key=lambda name: steps[name])
+        if plain and steps[key] * self.latent_prior >= 2:
+            raise ValueError(
+                f"latent_prior {self.latent_prior:g} with {key} {steps[key]:g}: the plain latent steps of {plain[0]} "
+                f"multiply the prior's part of a latent by 1 - eta_y latent_prior = "
+                f"{1 - steps[key] * self.latent_prior:.3g} and diverge; expected latent_prior < 2 / {key} = "
+                f"{2 / steps[key]:.4g} (or a settling inference_solver and training_inference solver)"
+            )
         return self
 
     @pydantic.field_validator("precision")

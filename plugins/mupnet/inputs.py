@@ -31,7 +31,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 import pydantic
@@ -40,7 +40,7 @@ from scipy.ndimage import zoom
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.errors import UserError
-from vitaplace.engine.data.dataset import TOUCH_THRESHOLD
+from vitaplace.engine.data.dataset import MAX_DEFLECTION_SAMPLES, TOUCH_THRESHOLD
 from vitaplace.plugin import ExtractorParams, Run, warn_once
 
 Modality = Literal["visual", "tactile"]
@@ -70,8 +70,9 @@ class InputParams(ExtractorParams):
         "per whisker (2 cycle_points + 1 values per whisker; docs/MUPNET.md)",
     )
     cycle_points: pydantic.PositiveInt = Field(
-        8, description="phase points of the whisk cycle the deflection series is interpolated at "
-        "(tactile_input cycle; the last is maximum protraction)",
+        8, description="phase points of the whisk cycle the deflection series is interpolated at (tactile_input "
+        f"cycle; the last is maximum protraction); at most {MAX_DEFLECTION_SAMPLES}, the most samples a simulated "
+        "run's series holds (robot.deflection_samples)",
     )
     tactile_min_range: pydantic.NonNegativeFloat = Field(
         0.05,
@@ -85,6 +86,30 @@ class InputParams(ExtractorParams):
         "seen; robust: (x - median) / max(IQR, tactile_min_range), not clipped "
         "(the cycle input's contact flags keep their 0/1 scale; docs/MUPNET.md)",
     )
+
+    #: settings that only some choices of another setting read: key -> (that setting, the
+    #: choices that read it); with any other choice a value other than the key's default would
+    #: be ignored, so it is refused (`_no_ignored_setting`)
+    READ_ONLY_WITH: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {
+        "cycle_points": ("tactile_input", ("cycle",)),
+    }
+
+    @pydantic.model_validator(mode="after")
+    def _no_ignored_setting(self) -> InputParams:
+        for key, (setting, choices) in self.READ_ONLY_WITH.items():
+            value, choice = getattr(self, key), getattr(self, setting)
+            if choice not in choices and value != type(self).model_fields[key].default:
+                raise ValueError(f"{key} {value} is ignored by {setting} {choice} (only {' or '.join(choices)} "
+                                 f"reads it); leave {key} out or choose {setting} {' or '.join(choices)}")
+        return self
+
+    @pydantic.field_validator("cycle_points")
+    @classmethod
+    def _no_more_points_than_samples(cls, value: int) -> int:
+        if value > MAX_DEFLECTION_SAMPLES:
+            raise ValueError(f"{value} phase points: expected at most {MAX_DEFLECTION_SAMPLES}, the most samples a "
+                             "simulated run's deflection series holds per whisk cycle (robot.deflection_samples)")
+        return value
 
     @pydantic.field_validator("modalities")
     @classmethod

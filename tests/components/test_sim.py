@@ -354,6 +354,16 @@ def test_missing_gl_gives_one_clear_error():
         assert "libegl1" in msg and "libosmesa6" in msg and "MUJOCO_GL=egl" in msg
 
 
+def test_the_gl_help_quotes_mujoco_gl(monkeypatch):
+    """A line break in the variable stays inside the one error line, escaped."""
+    from vitaplace.engine.sim.render import gl_help
+
+    monkeypatch.setenv("MUJOCO_GL", "egl\nx")
+    assert "(MUJOCO_GL='egl\\nx'; " in gl_help()
+    monkeypatch.delenv("MUJOCO_GL")
+    assert "(MUJOCO_GL=(unset); " in gl_help()
+
+
 # ---------------------------------------------------------------------- runs
 def test_same_scenario_and_seed_give_identical_runs(e1):
     spec = run_spec(kind="foraging", n_samples=6)
@@ -594,6 +604,20 @@ def test_unstable_physics_fails_the_run_naming_it(e1):
     robot = RobotSpec.model_construct(**{**RobotSpec().model_dump(), "spring_stiffness": 1e30})
     with pytest.raises(SimulationError, match=r"run 'bad': the simulation was unstable .*BADQACC"):
         simulate_run(e1, run_spec(kind="route", n_samples=3), seed=0, robot=robot, progress=False, name="bad")
+
+
+def test_mujocos_warnings_of_an_unstable_run_stay_in_the_debug_log(e1, caplog):
+    """MuJoCo warns once per physics step of an unstable run (11504 lines on stderr before the
+    error, once); they go to the debug log (-v) and the run's one error names their counters."""
+    import logging
+
+    from vitaplace.engine.sim.simulate import SimulationError
+
+    robot = RobotSpec.model_construct(**{**RobotSpec().model_dump(), "spring_stiffness": 1e30})
+    with caplog.at_level(logging.DEBUG, logger="vitaplace"), pytest.raises(SimulationError):
+        simulate_run(e1, run_spec(kind="route", n_samples=3), seed=0, robot=robot, progress=False, name="bad")
+    said = [r for r in caplog.records if r.getMessage().startswith("MuJoCo: ")]
+    assert said and {r.levelno for r in said} == {logging.DEBUG}
 
 
 def test_check_plausible_refuses_still_robots_frozen_cameras_and_escapes(e1):

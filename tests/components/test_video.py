@@ -286,8 +286,18 @@ def test_view_on_a_display_with_no_x_server_is_one_line_without_glfws_warnings(m
     assert main(["view", "e1"]) == 2
     captured = capfd.readouterr()  # the file descriptors: a child process's output too
     err = captured.err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("vitaplace: error: vitaplace view cannot open a window on :4917")
+    assert len(err) == 1 and err[0].startswith("vitaplace: error: vitaplace view cannot open a window on "
+                                               "DISPLAY=':4917'")
     assert "(GLFW failed to start: " in err[0] and "vitaplace video" in err[0] and captured.out == ""
+
+
+def test_a_display_variable_holding_a_line_break_is_quoted_in_the_one_line(monkeypatch, capfd):
+    monkeypatch.setenv("DISPLAY", ":4917\nINJECTED")
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    assert main(["view", "e1"]) == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot open a window on DISPLAY=':4917\\nINJECTED' (GLFW" in err[0], err
 
 
 class _FakeViewer:

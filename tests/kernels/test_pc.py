@@ -6,6 +6,7 @@ a synthetic dataset (known causes), never from outputs of the code under test.
 """
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -332,11 +333,13 @@ def test_same_seed_gives_identical_training():
 
 
 def test_divergence_names_the_layer_and_suggests_lower_rates():
+    """The error is the one message: numpy's overflow warnings on the way are not shown."""
     inputs, _ = synthetic(n=50)
     config = {**SYNTH, "modalities": {**SYNTH["modalities"], "visual": {**SYNTH["modalities"]["visual"], "eta_y": 1e3}}}
     net = Network(config, seed=0, backend="numpy")
     with pytest.raises(NetworkError, match=r"layer '.*' became (nan|inf).*lower the learning rates"):
-        with np.errstate(all="ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
             net.train(inputs, {**TRAIN, "epochs": 2})
 
 
@@ -345,7 +348,8 @@ def test_diverging_inference_names_the_layer_and_the_samples():
     config = {**SYNTH, "joint": {**SYNTH["joint"], "eta_y": 1e4}}
     net = Network(config, seed=0, backend="numpy")
     with pytest.raises(NetworkError, match=r"layer '.*' became (nan|inf) at inference of samples 0-19"):
-        with np.errstate(all="ignore"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)
             net.infer(inputs, max_steps=50, thresholds=NO_STOP)
 
 

@@ -145,6 +145,9 @@ def test_training_stops_once_converged(autoencoder_class):
     ({"encoder": "transposed"}, "encoder"), ({"optimizer": "lbfgs"}, "optimizer"),
     ({"learning_rate": 0}, "learning_rate"),
     ({"max_steps": 10}, "max_steps"), ({"tactile_input": "sweep"}, "tactile_input"),
+    ({"activation": "tanh", "slope": 0.3}, "slope 0.3 is ignored by activation tanh"),
+    ({"cycle_points": 4}, "cycle_points 4 is ignored by tactile_input instant"),
+    ({"seed": -1}, "seed"),
 ])
 def test_params_errors_name_extractor_and_key(autoencoder_class, params, key):
     with pytest.raises(ExtractorParamsError) as info:
@@ -177,3 +180,20 @@ def test_the_test_runs_tactile_values_outside_the_training_range_are_reported(au
     assert "(2 values in 1 of 72 channels" in message
     extractor.transform(train_run)
     assert train_run.warnings == {}
+
+
+def test_a_diverging_training_is_one_error_naming_the_rate_without_numpys_warnings(autoencoder_class):
+    """Plain SGD at rate 1e6 overflows in the first minibatches: a NetworkError naming the
+    input and the rate at the minibatch it happens, no RuntimeWarning before it."""
+    import warnings
+
+    from vitaplace.engine.network.pc import NetworkError
+
+    extractor = autoencoder_class({**PARAMS, "optimizer": "sgd", "learning_rate": 1e6})
+    extractor.progress = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        with pytest.raises(NetworkError, match=r"autoencoder: the reconstruction error of the (visual|tactile) input "
+                                               r"became (inf|nan) at epoch 1, minibatch \d; lower learning_rate "
+                                               r"\(1e\+06, optimizer sgd\)"):
+            extractor.fit(places_run(1))

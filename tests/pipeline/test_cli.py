@@ -1216,3 +1216,78 @@ def test_ctrl_c_before_the_command_starts_is_one_line(capsys, monkeypatch):
     assert main(["validate", "quickstart"]) == 130
     assert capsys.readouterr().err.strip().splitlines() == [
         "vitaplace: interrupted; finished stages are cached, run again to resume"]
+
+
+@pytest.mark.parametrize("setting, expected", [
+    # kv = 2 zeta sqrt(kp I) overflows: the servo's gain kp / |kp - I w^2 + i kv w| is 0
+    pytest.param("servo_damping_ratio=1e308", r"robot: servo_kp 10, servo_damping_ratio 1e\+308 .* a gain of 0 at "
+                 r"whisk_hz 2", id="damping"),
+    pytest.param("servo_armature=1e308", r"robot: .*servo_armature 1e\+308 leave the protraction servo a gain of 0",
+                 id="armature"),
+    # gain ~ kp / (I w^2) ~ 1e-299: a command of ~1e299 rad, past MuJoCo's 1e10 on any control
+    pytest.param("servo_kp=1e-300", r"robot: servo_kp 1e-300, .* beyond MuJoCo's bound of 1e\+10 rad", id="kp"),
+    # the base's pose servo gain m (2 pi 10 Hz)^2 overflows
+    pytest.param("base_mass=1e308", r"robot: base_mass 1e\+308 kg and base_servo_hz 10 give the base's pose servo an "
+                 "infinite gain", id="base_mass"),
+])
+def test_a_robot_the_simulator_cannot_drive_is_one_line(tmp_path, setting, expected):
+    """Settings inside every key's own range whose servo gains overflow: one line naming the
+    robot's keys, not a ZeroDivisionError or a MuJoCo warning per physics step."""
+    import re
+
+    path = write_scenario(tmp_path, valid_scenario())
+    result = run_cli(["-q", "simulate", str(path), "--out", str(tmp_path / "out"), "--set", f"robot.{setting}"])
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-800:]
+    assert re.search(expected, lines[0]), lines[0]
+
+
+@pytest.mark.parametrize("argv, expected", [
+    pytest.param(["--samples", "0"], "--samples 0: expected a number of samples, at least 1", id="0"),  # was 200
+    pytest.param(["--samples", "-3"], "--samples -3: expected a number of samples, at least 1", id="-3"),
+    pytest.param(["--seed", "-1"], "--seed -1: expected a whole number >= 0", id="seed"),
+    pytest.param(["--samples", "10000000000"], "--samples 10000000000: 10000000000 samples of 120x160 frames need ",
+                 id="memory"),
+    pytest.param(["--out", "FILE"], "--out FILE: exists and is not a directory", id="file"),
+    pytest.param(["--out", "FOLDER"], "FOLDER/e1-foraging-seed0.h5: is a folder; expected the run file to write there",
+                 id="folder"),
+])
+def test_simulate_an_environment_refuses_bad_options_before_simulating(tmp_path, capsys, monkeypatch, argv,
+                                                                          expected):
+    from vitaplace.engine.sim import simulate
+
+    def never(*args, **kwargs):
+        raise AssertionError("simulated before the options were checked")
+
+    monkeypatch.setattr(simulate, "simulate_run", never)
+    (tmp_path / "FILE").write_text("x")
+    (tmp_path / "FOLDER" / "e1-foraging-seed0.h5").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)
+    assert main(["simulate", "e1", "--no-progress", *argv]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"vitaplace: error: {expected}"), lines
+
+
+@pytest.mark.parametrize("key", ["train.dataset", "train.environment"])
+def test_a_folder_where_a_file_is_expected_is_named_as_a_folder(tmp_path, capsys, key):
+    data = valid_scenario()
+    if key == "train.dataset":
+        data["train"] = {"dataset": str(tmp_path)}
+    else:
+        data["train"]["environment"] = str(tmp_path)
+    assert main(["validate", str(write_scenario(tmp_path, data))]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and f"{key}: '{tmp_path}' is a folder; expected a file" in lines[0], lines
+
+
+def test_an_error_quoting_a_line_break_stays_one_line(tmp_path, capsys):
+    """A file name (or any value an error quotes) with a line break, a tab or an escape: the
+    error line writes them as Python writes them in a string."""
+    from vitaplace.engine.cli.main import one_line
+
+    assert one_line("a\nb\tc\x1b ü") == "a\\nb\\tc\\x1b ü"
+    path = write_scenario(tmp_path, valid_scenario(), name="two\nlines.yaml")
+    assert main(["validate", str(path), "--set", "seed=-1"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert lines == [f"vitaplace: error: {tmp_path}/two\\nlines.yaml: seed: Input should be greater than or equal "
+                     "to 0 (got -1)"]

@@ -375,6 +375,9 @@ def test_the_fitted_network_is_built_from_the_params(fitted):
     ("adam_eps", "0", "Input should be greater than 0"),
     ("adam_beta2", "1", "Input should be less than 1"),
     ("eta_w_joint", "-0.1", "Input should be greater than 0"),
+    ("seed", "-1", "Input should be greater than or equal to 0"),  # numpy's generator takes none below 0
+    ("cycle_points", "100000", "100000 phase points: expected at most 1000, the most samples a simulated run's "
+     "deflection series holds per whisk cycle (robot.deflection_samples)"),
 ])
 def test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path(capsys, key, value, message):
     from vitaplace.engine.cli.main import main
@@ -397,3 +400,71 @@ def test_the_preconditioned_solver_without_a_prior_is_one_line(capsys):
     assert len(lines) == 1, lines
     assert "methods.0.params: extractor 'mupnet': inference_solver: " in lines[0], lines[0]
     assert "needs latent_prior > 0" in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("key, value, setting, choice, reading", [
+    ("inference_momentum", 0.5, "inference_solver", "gd", "nesterov or preconditioned"),
+    ("weight_momentum", 0.5, "weight_optimizer", "sgd", "momentum"),
+    ("adam_beta1", 0.5, "weight_optimizer", "momentum", "adam"),
+    ("adam_beta2", 0.5, "weight_optimizer", "sgd", "adam"),
+    ("adam_eps", 0.001, "weight_optimizer", "momentum", "adam"),
+    ("precision_floor", 0.1, "precision_weighting", "none", "layer or channel"),
+    ("cycle_points", 9, "tactile_input", "instant", "cycle"),
+    ("slope", 0.3, "activation", "tanh", "leaky_relu"),
+])
+def test_a_setting_its_choice_ignores_is_one_line(capsys, key, value, setting, choice, reading):
+    """gd takes no momentum, sgd no beta, a tanh no slope...: the value would be ignored."""
+    from vitaplace.engine.cli.main import main
+
+    given = [f"{key}={value}", f"{setting}={choice}"] + (["training_inference=plain"] if choice == "gd" else [])
+    assert main(["validate", "quickstart", *[a for g in given for a in ("--set", f"methods.0.params.{g}")]]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "methods.0.params: extractor 'mupnet': " in lines[0], lines
+    assert f"{key} {value} is ignored by {setting} {choice} (only {reading} reads it)" in lines[0], lines[0]
+
+
+def test_a_setting_at_its_default_or_with_a_choice_that_reads_it_is_valid():
+    """A saved model's params.json holds every setting at its value: the paper's algorithm
+    (gd, sgd) with the default momenta reads back."""
+    from vitaplace.plugins.mupnet.extractor import MupnetParams
+
+    paper = MupnetParams(**PAPER_ALGORITHM)
+    assert MupnetParams.model_validate(paper.model_dump()) == paper
+    MupnetParams(inference_solver="nesterov", inference_momentum=0.5, weight_optimizer="adam", adam_beta1=0.5,
+                 precision_weighting="layer", precision_floor=0.1, tactile_input="cycle", cycle_points=1000, slope=0.3)
+
+
+@pytest.mark.parametrize("modalities, key, bound", [
+    (["visual", "tactile"], "eta_y_tactile", 500), (["visual"], "eta_y_visual", 5000),
+])
+def test_plain_latent_steps_need_eta_y_times_the_prior_below_2(modalities, key, bound):
+    """The default eta_y: 4e-3 tactile, 4e-4 visual and joint; 2 / 4e-3 = 500, 2 / 4e-4 = 5000.
+    At the bound a plain step multiplies the prior's part of a latent by 1 - 2 = -1."""
+    import pydantic
+
+    from vitaplace.plugins.mupnet.extractor import MupnetParams
+
+    plain = {"modalities": modalities, "training_inference": "plain"}
+    MupnetParams(**plain, latent_prior=bound * 0.999)
+    for rule in (plain, {**plain, "training_inference": "plain", "inference_solver": "gd"}):
+        with pytest.raises(pydantic.ValidationError, match=rf"latent_prior {bound} with {key} .* = -1 and diverge; "
+                                                           rf"expected latent_prior < 2 / {key} = {bound} "):
+            MupnetParams(**rule, latent_prior=bound)
+    MupnetParams(modalities=modalities, latent_prior=1e30)  # the settling solver's steps shrink with the prior
+
+
+def test_diverging_training_is_its_one_error_line_without_numpys_warnings(capsys):
+    """Plain latent steps at eta_y 1000 blow up in the first minibatches: one line naming the
+    layer, not numpy's overflow warnings before it."""
+    from vitaplace.engine.cli.main import main
+
+    tiny = ["train.run.n_samples=12", "evaluations.0.run.n_samples=10", "methods=[{name: L, plugin: mupnet, params: "
+            "{image_size: [9, 16], visual_layers: [12], tactile_layers: [8], joint_size: 6, epochs: 2, batch_size: 6, "
+            "eta_y_visual: 1000, training_inference: plain, inference_solver: gd, latent_prior: 0}}]"]
+    argv = ["-q", "run", "quickstart", "--out", "OUT", "--no-progress", *[a for t in tiny for a in ("--set", t)]]
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as out:
+        assert main([out if a == "OUT" else a for a in argv]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "error of layer 'visual.1' became nan at epoch 1" in lines[0], lines
