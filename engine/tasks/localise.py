@@ -90,13 +90,13 @@ class LocaliseStep:
     ranks first, and the benchmark's verdict on it (``info`` holds these fields)."""
 
     true_pose: np.ndarray  #: (3,) x, y [m], yaw [rad] of the robot at the sample
-    best_match: int  #: index of the reference sample at the least plugin distance (the benchmark's ties)
+    best_match: int  #: index of the first reference sample at the least plugin distance
     match_pose: np.ndarray  #: (3,) that reference sample's pose
     match_distance: float  #: the plugin's distance (TME) to it
     match_error_m: float  #: its ground-truth distance [m]; inf when the headings differ by more than the tolerance
     has_revisit: bool  #: some reference sample lies within tau and the heading tolerance
-    correct: bool  #: the best match lies within tau and the heading tolerance
-    reward: float  #: 1.0 when correct, else 0.0
+    correct: bool  #: every reference at the least distance lies within tau and the heading tolerance
+    reward: float  #: the benchmark's rule: the share of the references at the least distance that do (1 or 0 untied)
 
     def info(self) -> dict[str, Any]:
         return asdict(self)
@@ -172,10 +172,10 @@ class LocaliseEnv(gymnasium.Env):
         gtm = ground_truth_matrix(pose, ref.run.poses, self.heading_tolerance_deg)
         verdict = decide(tme, gtm, self.tau, delta=math.inf)  # every best match is the agent's answer
         best = int(verdict.best_match[0])
-        correct = bool(verdict.correct[0])
+        share = float(verdict.correct_share[0])  # a tie counts in proportion (docs/DESIGN.md, "Ties")
         return LocaliseStep(true_pose=pose[0], best_match=best, match_pose=np.array(ref.run.poses[best], np.float64),
                             match_distance=float(verdict.best_tme[0]), match_error_m=float(verdict.best_gtm[0]),
-                            has_revisit=bool(verdict.has_revisit[0]), correct=correct, reward=float(correct))
+                            has_revisit=bool(verdict.has_revisit[0]), correct=share == 1.0, reward=share)
 
     def render(self) -> np.ndarray | None:
         return self._inner.render()
