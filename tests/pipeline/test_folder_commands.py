@@ -208,7 +208,7 @@ def write_scenarios(folder: Path) -> None:
         (folder / f"{name}.yaml").write_text(yaml.safe_dump(scenario(name)))
 
 
-def test_evaluate_into_a_finished_run_remakes_its_report_and_removes_what_describes_other_results(tmp_path):
+def test_evaluate_into_a_finished_run_remakes_its_report_and_prunes(tmp_path):
     """Issue 49 item 2: an evaluation with another τ and one method fewer into a finished run's
     folder left report.md saying τ 0.3 with the old rows, and the dropped method's files."""
     write_scenarios(tmp_path)
