@@ -84,7 +84,8 @@ def test_prune_removes_what_the_run_did_not_write_and_keeps_its_evaluations_whol
     beside = lay(tmp_path, f"{EVALUATION}/decisions.csv", f"{EVALUATION}.seal", f"{EVALUATION}.warnings.json",
                  "scenario.resolved.yaml", "log.txt", "cache/models/L-1.seal", "sensitivity.json")
     gone = lay(tmp_path, "report.md", "complementarity.json", f"{GONE}/summary.json", f"{GONE}.seal",
-               "evaluations/E2/H/query-to-reference/matrices.npz", "poses/E2.npz", "arenas/E1.json",
+               "evaluations/E2/H/query-to-reference/matrices.npz", f"{EVALUATION}-old.seal",
+               "poses/E2.npz", "arenas/E1.json",
                "training/L.json")
     figures = lay(tmp_path, "figures/pr-E1.png")
     removed = stale.prune(tmp_path, kept)
