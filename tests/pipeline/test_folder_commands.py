@@ -144,6 +144,7 @@ class FolderCommands(RuleBasedStateMachine):
     @initialize()
     def first_run(self) -> None:
         self.stages("run", TAUS[0], "both")
+        self.command_difficulty(TAUS[1])  # every life has a difficulty folder beside the run's files
 
     @rule(command=st.sampled_from(["run", "evaluate", "train"]), tau=st.sampled_from(TAUS),
           methods=st.sampled_from(sorted(METHODS)))
