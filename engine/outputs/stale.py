@@ -43,21 +43,31 @@ def prune(out: Path, keep: Iterable[Path]) -> list[Path]:
     was removed."""
     out = Path(out)
     kept = {Path(p) for p in keep}
-    evaluations = {p.parent for p in kept if p.parent.parent.parent.parent == out / "evaluations"}
-    removed = [p for p in (out / name for name in _TOP) if p.is_file() and p not in kept]
-    for area in (out / name for name in _AREAS if (out / name).is_dir()):
-        removed += [p for p in sorted(area.rglob("*"))
-                    if p.is_file() and p not in kept and not _belongs(p, evaluations)]
+    removed = _unkept(out, kept)
     for path in removed:
         path.unlink()
     if out / outdir.REPORT not in kept and (out / outdir.FIGURES).is_dir():
         shutil.rmtree(out / outdir.FIGURES)
         removed.append(out / outdir.FIGURES)
-    for area in (out / name for name in _AREAS if (out / name).is_dir()):  # the folders left empty, deepest first
+    for area in _areas(out):  # the folders left empty, deepest first
         for folder in [*sorted(area.rglob("*"), reverse=True), area]:
             if folder.is_dir() and not any(folder.iterdir()):
                 folder.rmdir()
     return removed
+
+
+def _areas(out: Path) -> list[Path]:
+    """The `_AREAS` folders ``out`` has."""
+    return [out / name for name in _AREAS if (out / name).is_dir()]
+
+
+def _unkept(out: Path, kept: set[Path]) -> list[Path]:
+    """The result files in ``out`` that `prune` removes (the figures aside)."""
+    evaluations = {p.parent for p in kept if p.parent.parent.parent.parent == out / "evaluations"}
+    found = [p for p in (out / name for name in _TOP) if p.is_file() and p not in kept]
+    for area in _areas(out):
+        found += [p for p in sorted(area.rglob("*")) if p.is_file() and p not in kept and not _belongs(p, evaluations)]
+    return found
 
 
 def _belongs(path: Path, evaluations: set[Path]) -> bool:
