@@ -195,12 +195,12 @@ def run(
     workers: int | None = None,
 ) -> list[dict[str, Any]]:
     """Run ``scenario`` (as `load_scenario` reads it) into ``out`` (default
-    ``runs/<scenario name>``) up to and including stage ``until`` (one of `STAGES`), reusing
-    every cached stage unless named in ``force``; returns the result rows (as in
-    results.json; empty before the evaluate stage). ``workers``: processes that simulate
-    runs in parallel (default: one per core; 1 in a script without a ``__main__`` guard).
-    Stage messages go to the ``vitaplace`` logger (``logging.basicConfig(level="INFO")``
-    shows them)."""
+    ``runs/<scenario name>``) up to and including stage ``until`` (one of `STAGES`), and on
+    to a later stage whose output ``out`` holds, reusing every cached stage unless named in
+    ``force``; returns the result rows (as in results.json; empty before the evaluate stage).
+    ``workers``: processes that simulate runs in parallel (default: one per core; 1 in a
+    script without a ``__main__`` guard). Stage messages go to the ``vitaplace`` logger
+    (``logging.basicConfig(level="INFO")`` shows them)."""
     from vitaplace.engine.config.loading import load_scenario as load
     from vitaplace.engine.outputs.outdir import claimed
     from vitaplace.engine.pipeline.keys import STAGES

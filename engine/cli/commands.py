@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vitaplace.engine.base.errors import UserError
-from vitaplace.engine.outputs.outdir import claimed, writable_dir
+from vitaplace.engine.outputs.completion import holder, refuse_other
+from vitaplace.engine.outputs.outdir import OutputDirError, claimed, writable_dir
 
 if TYPE_CHECKING:
     from vitaplace.engine.sim.controllers import RunSpec
@@ -57,8 +58,8 @@ def _run_stages(args: argparse.Namespace, until: str) -> int:
             "%-6s %-12s %-20s max F1 %.2f %%  AUC %.3f",
             row.environment, row.method, row.direction, 100 * row.max_f1, row.auc,
         )
-    if until in ("report", "evaluate"):
-        log.info("results in %s", out / ("report.md" if until == "report" else "results.csv"))
+    if rows:  # the report when the folder has one (`run_stages` carries on to it)
+        log.info("results in %s", out / ("report.md" if (out / "report.md").is_file() else "results.csv"))
     if getattr(args, "json", False):
         print(json.dumps([row.dump() for row in rows], indent=2))
     return 0
@@ -95,19 +96,25 @@ def report_command(args: argparse.Namespace) -> int:
 
 def difficulty_command(args: argparse.Namespace) -> int:
     """`vitaplace difficulty SCENARIO`: the stages up to the evaluation with the hand-crafted
-    family (`vitaplace.engine.cli.difficulty`), then each evaluation's measures against its
-    gates; exit 0 whether or not the gates are met."""
+    family (`vitaplace.engine.cli.difficulty`) into ``OUT/difficulty``, reusing the stages
+    cached in ``OUT`` (a run's or a sweep's folder), then each evaluation's measures against
+    its gates; exit 0 whether or not the gates are met."""
     from vitaplace.engine.cli.difficulty import difficulty_rows, family_overrides, table
     from vitaplace.engine.config.loading import load_scenario
-    from vitaplace.engine.outputs.outdir import COMPLEMENTARITY
+    from vitaplace.engine.outputs.outdir import COMPLEMENTARITY, cache_dir, difficulty_dir
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.store import Store
 
     args.force = _forced(args.force, "evaluate", args.command)
     scenario, resolved = load_scenario(args.scenario, [*args.overrides, *family_overrides()])
-    with claimed(args.out or Path("runs") / f"{scenario.name}-difficulty", _setup_logging) as out:
-        rows = run_stages(scenario, resolved, Store(out, force=args.force, progress=not args.no_progress), "evaluate")
-        measured = difficulty_rows(scenario, rows, json.loads((out / COMPLEMENTARITY).read_text()))
+    with claimed(args.out or Path("runs") / scenario.name) as host:  # held: its cache is written
+        if holder(host) == "difficulty":
+            raise OutputDirError(f"--out {host}: holds the output of `vitaplace difficulty`; give the folder whose "
+                                 f"stage cache it reuses ({host.parent}), it writes {difficulty_dir(host.parent)}")
+        with claimed(difficulty_dir(host), _setup_logging) as out:
+            store = Store(out, force=args.force, progress=not args.no_progress, cache=cache_dir(host))
+            rows = run_stages(scenario, resolved, store, "evaluate", command="difficulty")
+            measured = difficulty_rows(scenario, rows, json.loads((out / COMPLEMENTARITY).read_text()))
     print(json.dumps(measured, indent=2) if args.json else table(measured))
     return 0
 
@@ -315,6 +322,7 @@ def sweep_command(args: argparse.Namespace) -> int:
     if slurm is not None and slurm.cluster == "slurm":
         check_queue_clear(out / "slurm")  # before claiming OUT cleans files its tasks may be writing
     with claimed(out, _setup_logging) as out:
+        refuse_other(out, "summary")
         outcome = run_sweep(
             scenario, resolved, args.seeds, out, args.workers, args.ray, not args.no_progress,
             _forced(args.force, "report", "sweep"),
@@ -337,6 +345,8 @@ def aggregate_command(args: argparse.Namespace) -> int:
     """`vitaplace aggregate DIR...`: the summary of run folders made apart."""
     from vitaplace.engine.study.aggregate import aggregate_runs
 
+    if args.out is not None:
+        refuse_other(args.out, "summary")
     out, record = aggregate_runs(args.folders, args.out)
     print(f"summary of {len(record['seeds'])} seeds in {out / 'sweep.md'}")
     return 0
@@ -346,6 +356,9 @@ def sensitivity_command(args: argparse.Namespace) -> int:
     """`vitaplace sensitivity DIR`: saved evaluations rescored; exit 1 when a failed seed was left out."""
     from vitaplace.engine.study.sensitivity import write_sensitivity
 
+    if args.out is not None and Path(args.out).resolve() != Path(args.folder).resolve() and holder(args.out):
+        raise OutputDirError(f"--out {args.out}: holds another command's finished output; sensitivity writes into "
+                             "the folder it rescores (without --out) or into a folder of its own")
     grid = {"taus": args.tau, "heading_tolerance_deg": args.heading_tolerance, "sequence_length": args.sequence_length}
     out, record = write_sensitivity(args.folder, args.out, **{k: v for k, v in grid.items() if v is not None})
     print(f"sensitivity of {len(record['seeds'])} seed(s) in {out / 'sensitivity.md'}")

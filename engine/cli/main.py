@@ -61,7 +61,8 @@ def _verbosity() -> argparse.ArgumentParser:
     return parent
 
 
-def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True, out_name: str = "<scenario name>") -> None:
+def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True,
+                       out_help: str = "output directory (default: runs/<scenario name>)") -> None:
     parser.add_argument("scenario", help="scenario YAML file, or the name of a built-in one (e.g. quickstart)")
     parser.add_argument(
         "--set", dest="overrides", action="append", default=[], metavar="KEY.PATH=VALUE",
@@ -69,7 +70,7 @@ def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True, out_na
         "list, e.g. --set 'methods+={name: L2, plugin: mupnet}' (VALUE is YAML; repeatable)",
     )
     if out:
-        parser.add_argument("--out", type=Path, help=f"output directory (default: runs/{out_name})")
+        parser.add_argument("--out", type=Path, help=out_help)
         parser.add_argument(
             "--force", action="append", nargs="?", const="all", default=[], metavar="STAGE",
             help="redo a stage even if cached: simulate, fit, transform, evaluate, report (repeatable); "
@@ -125,7 +126,8 @@ def _add_stage_commands(sub: argparse._SubParsersAction, common: argparse.Argume
         "its gates, with the hand-crafted methods only (the scenario's methods are not run)",
     )
     p.set_defaults(handler=difficulty_command)
-    _add_scenario_args(p, out_name="<scenario name>-difficulty")
+    _add_scenario_args(p, out_help="the run (or sweep) folder whose cached stages it reuses; it writes OUT/difficulty/ "
+                                   "(default: runs/<scenario name>)")
     p.add_argument("--json", action="store_true",
                    help="print one JSON row per evaluation and direction on stdout "
                         "(difficulty, complementarity, gates)")

@@ -117,6 +117,7 @@ class OutputLock:
 #   OUT/cache/datasets/LABEL-KEY.h5, models/METHOD-KEY/, models/METHOD-KEY.training.json,
 #       features/METHOD-LABEL-KEY.npz           (a sweep shares one cache: OUT/cache)
 #   OUT/poses/ENV.npz, arenas/ENV.json, training/METHOD.json (what the report reads besides)
+#   OUT/difficulty/ (`vitaplace difficulty --out OUT`: a run folder of its own, OUT/cache its cache)
 #   sweep OUT/seed-S/ (one run folder per seed, with error.txt when it failed),
 #       seed-S/environments/ (the environment files the seed's scenario names)
 
@@ -165,6 +166,11 @@ def training_file(model: Path) -> Path:
 def features_file(cache: Path, method: str, label: str, key: str) -> Path:
     """The features ``method`` extracted from run ``label``, made for ``key``."""
     return Path(cache) / "features" / f"{method}-{label.replace('/', '-')}-{key}.npz"
+
+
+def difficulty_dir(out: Path) -> Path:
+    """The folder `vitaplace difficulty --out OUT` writes (its stage cache: ``OUT``'s, `cache_dir`)."""
+    return Path(out) / "difficulty"
 
 
 def seed_dir(out: Path, seed: int) -> Path:

@@ -5,6 +5,7 @@ the stages."""
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any
 
@@ -14,7 +15,7 @@ import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Scenario, training_world_evaluation
 from vitaplace.engine.extension.registry import announce_run_finished, plugin_distributions
-from vitaplace.engine.outputs import completion
+from vitaplace.engine.outputs import completion, stale
 from vitaplace.engine.outputs.rows import ResultRow
 from vitaplace.engine.pipeline.keys import STAGES
 from vitaplace.engine.pipeline.manifest import write_manifest
@@ -29,13 +30,25 @@ from vitaplace.engine.pipeline.stages.simulate import simulate
 from vitaplace.engine.pipeline.stages.transform import transform
 from vitaplace.engine.pipeline.store import Store
 
+log = logging.getLogger("vitaplace")
 
-def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until: str = "report") -> list[ResultRow]:
-    """Run ``scenario``'s stages into ``store``'s output folder up to and including ``until``
-    (``resolved``: the scenario as read, written beside the results); return the result rows
-    (if evaluated)."""
+
+def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until: str = "report",
+               command: str = "run") -> list[ResultRow]:
+    """Run ``scenario``'s stages into ``store``'s output folder up to and including ``until``,
+    and on to the latest stage whose output the folder holds (`stale.held_stage`), for a
+    command of kind ``command`` (`completion.KINDS`; a folder holding another kind's
+    finished output is refused); ``resolved``: the scenario as read, written beside the
+    results. What the folder held and this run did not make is removed at the end
+    (`stale`). Return the result rows (if evaluated)."""
     out = store.out
     out.mkdir(parents=True, exist_ok=True)
+    completion.refuse_other(out, command)
+    held = stale.held_stage(out)
+    if held is not None and STAGES.index(held) > STAGES.index(until):
+        log.info("%s holds the %s stage's output: carrying on to it, so that it describes these results", out, held)
+        until = held
+    before = completion.files_of(out)
     completion.clear(out)  # first: until the new record, the folder holds no finished run
     write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(resolved, sort_keys=False))
     started = time.perf_counter()
@@ -56,8 +69,11 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
     if stop >= STAGES.index("report"):
         record.report = report(store, scenario, closed(record, store, started))
     write_manifest(closed(record, store, started))
+    finished = record.finished_files()
+    for path in stale.prune(out, finished) + stale.drop_sensitivity(out, before, completion.digests(out, finished)):
+        log.info("removed %s: it described other results than this run's", path)
     announce_run_finished(store.registry, out, scenario, [row.dump() for row in record.rows], until)
-    completion.write(out, record.finished_files())
+    completion.write(out, finished, command)
     return record.rows
 
 

@@ -69,8 +69,9 @@ def test_difficulty_runs_the_handcrafted_family_alone_and_prints_gates(tmp_path,
     }
     path = tmp_path / "d.yaml"
     path.write_text(yaml.safe_dump(scenario))
-    out = tmp_path / "out"
-    assert main(["-q", "difficulty", str(path), "--out", str(out), "--json", "--no-progress"]) == 0
+    host = tmp_path / "out"
+    assert main(["-q", "difficulty", str(path), "--out", str(host), "--json", "--no-progress"]) == 0
+    out = host / "difficulty"  # its own folder in --out
     rows = json.loads(capsys.readouterr().out)  # stdout holds the JSON and nothing else
     manifest = json.loads((out / "manifest.json").read_text())
     assert list(manifest["methods"]) == ["H", "H-V", "H-T"]
@@ -104,7 +105,7 @@ def test_difficulty_runs_the_handcrafted_family_alone_and_prints_gates(tmp_path,
     assert gates["rescue_min"]["met"] is None  # not declared
     assert gates["hv_max_f1_max"]["met"] == (row["hv_max_f1"] <= 0.0)
     # without --json: the table, a missed gate as MISSED with its value, an undeclared one as "-" (cached: quick)
-    assert main(["-q", "difficulty", str(path), "--out", str(out), "--no-progress"]) == 0
+    assert main(["-q", "difficulty", str(path), "--out", str(host), "--no-progress"]) == 0
     table = capsys.readouterr().out.splitlines()
     assert table[0].startswith("| evaluation | direction | touch both sides |") and len(table) == 3
     cells = table[2].split(" | ")
