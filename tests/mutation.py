@@ -818,7 +818,7 @@ MUTANTS = [
       "gtm = ground_truth_matrix(pose, ref.run.poses, None)",
       *t("localise", "test_the_reward_is_the_benchmarks_rule_at_a_hand_placed_pose")),
     m("localise: rewarded whenever some reference is a true match", "tasks.localise",
-      "        correct = bool(verdict.correct[0])", "        correct = bool(verdict.has_revisit[0])",
+      "share = float(verdict.correct_share[0])", "share = float(verdict.has_revisit[0])",
       *t("localise", "test_the_reward_is_the_benchmarks_rule_at_a_hand_placed_pose")),
     m("localise: the true pose shown in the observation", "tasks.localise",
       '        return {k: v for k, v in obs.items() if k != "pose"}', "        return dict(obs)",
