@@ -110,7 +110,7 @@ print("SEEN", seen)
 @pytest.mark.parametrize("pool, expected", [
     ("2", "SEEN [[2], [2], [1], [1], [2]]"),  # a small batch on one thread, the pool's two restored after
     ("1", "SEEN [[1], [1], [1], [1], [1]]"),
-])
+], ids=["two", "one"])
 def test_small_batches_run_on_one_blas_thread(pool, expected):
     env = {k: v for k, v in os.environ.items() if k not in (*cpus.THREAD_ENVS, cpus.OVERRIDE_ENV)}
     result = subprocess.run([sys.executable, "-c", SMALL_BATCH_THREADS], env={**env, "OPENBLAS_NUM_THREADS": pool},
@@ -180,7 +180,7 @@ print("BLAS", sorted({p["num_threads"] for p in threadpoolctl.threadpool_info() 
     ({cpus.BLAS_ENV: "2"}, "BLAS [2] 2"),  # asked for two (this machine has 2 usable CPUs)
     ({cpus.BLAS_ENV: "2", cpus.SLURM_ENV: "1"}, "BLAS [1] 1"),  # SLURM's allocation caps the request
     ({cpus.BLAS_ENV: "2", "OPENBLAS_NUM_THREADS": "1"}, "BLAS [1] 1"),  # the user's lower setting stays
-])
+], ids=["default", "asked", "slurm", "user"])
 def test_the_cli_sets_one_blas_thread_or_the_request_within_the_allocation(variables, expected):
     if cpus.BLAS_ENV in variables and len(os.sched_getaffinity(0)) < 2:
         pytest.skip("needs 2 usable CPUs")
