@@ -73,9 +73,10 @@ def test_one_blas_thread_per_process_unless_asked_and_never_more_than_the_share(
             cpus.blas_threads()
 
 
-def test_the_api_and_the_gymnasium_environment_set_blas_threads_first(monkeypatch):
+def test_the_api_and_the_gymnasium_environment_set_blas_threads_first(monkeypatch, tmp_path):
     """`vitaplace.run`, `simulate`, `fit_extractor` and `WhiskEyeEnv` configure BLAS threads
-    before any work (the CLI's test is below)."""
+    before anything else, even before they check their arguments (each call here has a bad one,
+    so without the configuration it fails at once, some other way); the CLI's test is below."""
     import vitaplace
     from vitaplace.engine.sim import gym_env
 
@@ -87,8 +88,9 @@ def test_the_api_and_the_gymnasium_environment_set_blas_threads_first(monkeypatc
 
     monkeypatch.setattr(cpus, "configure_blas_threads", configure)
     monkeypatch.setattr(gym_env, "configure_blas_threads", configure)
-    for call in (lambda: vitaplace.run("quickstart", out="/nonexistent/out"), lambda: vitaplace.simulate("e1"),
-                 lambda: vitaplace.fit_extractor("handcrafted", None), lambda: gym_env.WhiskEyeEnv("e1")):
+    for call in (lambda: vitaplace.run("quickstart", out=tmp_path / "out", until="nowhere"),
+                 lambda: vitaplace.simulate("e1", kind="nowhere"), lambda: vitaplace.fit_extractor("handcrafted", None),
+                 lambda: gym_env.WhiskEyeEnv(tmp_path / "nowhere.yaml")):
         with pytest.raises(Configured):
             call()
 
