@@ -201,12 +201,14 @@ def run(
     ``workers``: processes that simulate runs in parallel (default: one per core; 1 in a
     script without a ``__main__`` guard). Stage messages go to the ``vitaplace`` logger
     (``logging.basicConfig(level="INFO")`` shows them)."""
+    from vitaplace.engine.base.cpus import configure_blas_threads
     from vitaplace.engine.config.loading import load_scenario as load
     from vitaplace.engine.outputs.outdir import claimed
     from vitaplace.engine.pipeline.keys import STAGES
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.store import Store
 
+    configure_blas_threads()
     until, force, progress = _choice(until, "until", STAGES), _stages(force), _flag(progress, "progress")
     if workers is not None:
         workers = _whole(workers, "workers", 1)
@@ -287,9 +289,12 @@ def simulate(
     import pydantic
 
     from vitaplace.engine.base.configfile import format_validation_error
+    from vitaplace.engine.base.cpus import configure_blas_threads
     from vitaplace.engine.sim.controllers import RUN_KINDS, RunSpec
     from vitaplace.engine.sim.environment import load_environment
     from vitaplace.engine.sim.simulate import simulate_run
+
+    configure_blas_threads()
 
     class Settings(pydantic.BaseModel):  # errors then name run.KEY and the kind's valid keys
         run: RunSpec
@@ -321,9 +326,11 @@ def fit_extractor(
     """A new extractor of ``plugin`` (e.g. ``"handcrafted"``, ``"mupnet"``) with ``params``
     (the scenario's ``methods.N.params``), fitted on the run ``train``. Its ``transform(run)``
     gives features and ``distance(query, reference)`` the distance matrix."""
+    from vitaplace.engine.base.cpus import configure_blas_threads
     from vitaplace.engine.data.dataset import Run
     from vitaplace.engine.extension.registry import discover
 
+    configure_blas_threads()
     if not isinstance(plugin, str):
         raise UserError(f"plugin={plugin!r:.80}: expected the name of an extractor, one of {', '.join(extractors())}")
     if not isinstance(train, Run):

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import TextIO
 
 from vitaplace.engine import __version__
-from vitaplace.engine.base.cpus import limit_blas_threads, usable_cpus
+from vitaplace.engine.base.cpus import configure_blas_threads
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.cli.commands import (
     aggregate_command,
@@ -324,7 +324,7 @@ def _main(argv: list[str] | None) -> int:
     logging.getLogger("vitaplace").debug("vitaplace %s, Python %s", __version__, sys.version.split()[0])
     handler: Handler = args.handler
     try:
-        limit_blas_threads(usable_cpus())
+        configure_blas_threads()
         return handler(args)
     except UserError as exc:
         print(f"vitaplace: error: {one_line(str(exc))}", file=sys.stderr)

@@ -43,7 +43,7 @@ from typing import Any
 import yaml
 
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.engine.base.cpus import limit_blas_threads, usable_cpus
+from vitaplace.engine.base.cpus import blas_threads, configure_blas_threads, usable_cpus
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.cli.installation import describe, installation, mismatch
 from vitaplace.engine.cli.ray_auth import init_ray
@@ -179,7 +179,7 @@ def run_seed(job: SeedJob) -> dict[str, Any]:
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.store import Store
 
-    limit_blas_threads(usable_cpus())  # a Ray task's or SLURM task's CPUs, a pool worker's share
+    configure_blas_threads()  # within a Ray task's or SLURM task's CPUs, a pool worker's share
     host, sees_out = socket.gethostname(), not job.marker or Path(job.marker).exists()
     if not sees_out:
         log.warning("%s on %s: %s is not visible here: --out is not on shared storage", job.label, host, job.out)
@@ -320,7 +320,7 @@ def _pool_round(
     from vitaplace.engine.pipeline.processes import interrupts_to_this_process, stop_pool, worker_pool
 
     # spawned, not forked (GL and Warp state are not fork-safe); BLAS threads: each worker its share
-    pool = worker_pool(workers, blas_threads=max(1, usable_cpus() // workers))
+    pool = worker_pool(workers, blas_threads=blas_threads(workers))
     broken: list[SeedJob] = []
     try:
         with interrupts_to_this_process():

@@ -5,7 +5,8 @@ the batch is looked at; when enough samples have stopped (`COMPACT_BELOW`), thei
 are taken out and the samples still active go on in a batch of their size, carrying their
 latents, steps and solver state (`BatchSolver.carry`), so each sample's steps are those it
 would have taken uninterrupted and a batch costs about the sum of its samples' steps rather
-than its slowest sample's times its size.
+than its slowest sample's times its size. A batch compacted to a few samples runs on one BLAS
+thread (`small_batch_threads`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from vitaplace.engine.base.cpus import small_batch_threads
 from vitaplace.engine.network.batch import BatchState
 from vitaplace.engine.network.solver import BatchSolver, Solver
 from vitaplace.engine.network.structure import NetworkView
@@ -97,10 +99,11 @@ class InferredSamples:
                 be.upload(rows.astype(np.int32), batch.state.index)
                 batch.start(resident_x, carried)
             todo = min(STEPS_PER_CHECK, max_steps - done)
-            if todo == STEPS_PER_CHECK:
-                chunk()
-            else:
-                batch.steps(todo)
+            with small_batch_threads(len(rows)):
+                if todo == STEPS_PER_CHECK:
+                    chunk()
+                else:
+                    batch.steps(todo)
             done += todo
         self._record(batch.state, rows)
         if on_progress is not None and left:

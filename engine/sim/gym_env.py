@@ -38,6 +38,7 @@ except ImportError:  # pragma: no cover - exercised where the extra is missing
     ) from None
 import numpy as np
 
+from vitaplace.engine.base.cpus import configure_blas_threads
 from vitaplace.engine.data.dataset import Run, write_run
 from vitaplace.engine.sim.clearance import footprint_clearance
 from vitaplace.engine.sim.controllers import RUN_KINDS
@@ -70,6 +71,7 @@ class WhiskEyeEnv(gymnasium.Env):
                  render_mode: str | None = None, record: bool = False) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode {render_mode!r}: only 'rgb_array' (or None) is supported")
+        configure_blas_threads()  # the agent's own numpy shares the CPUs with the simulator
         self.environment = environment if isinstance(environment, EnvironmentSpec) else load_environment(environment)
         self.robot = RobotSpec.model_validate(robot) if isinstance(robot, dict) else (robot or RobotSpec())
         self.render_mode, self.record = render_mode, bool(record)

@@ -18,7 +18,7 @@ def four_cpus(monkeypatch):
     """A process pinned to CPUs 0-3 of a larger machine, with no SLURM or override variables."""
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1, 2, 3}, raising=False)
     monkeypatch.setattr(os, "cpu_count", lambda: 64)
-    for name in (cpus.SLURM_ENV, cpus.OVERRIDE_ENV):
+    for name in (cpus.SLURM_ENV, cpus.OVERRIDE_ENV, cpus.BLAS_ENV, "LOKY_MAX_CPU_COUNT"):
         monkeypatch.delenv(name, raising=False)
 
 
@@ -35,6 +35,119 @@ def test_usable_cpus_is_the_smallest_of_affinity_slurm_and_override(four_cpus, m
         monkeypatch.setenv(cpus.OVERRIDE_ENV, bad)
         with pytest.raises(UserError, match=f"{cpus.OVERRIDE_ENV}='{bad}': expected a positive whole number"):
             cpus.usable_cpus()
+
+
+def test_a_container_s_cpu_quota_counts_as_the_affinity_does(four_cpus, monkeypatch):
+    """A cgroup quota of 1.5 CPUs (cpu.max "150000 100000") on the 4 pinned CPUs: 2, rounded up
+    as loky rounds it (a quota of 1.5 keeps two threads busy 75 % of the time each)."""
+    from joblib.externals.loky.backend import context
+
+    real_exists, real_open = os.path.exists, open
+    monkeypatch.setattr(os.path, "exists", lambda path: path == "/sys/fs/cgroup/cpu.max" or real_exists(path))
+
+    def quota(path, *args, **kwargs):
+        if path == "/sys/fs/cgroup/cpu.max":
+            import io
+            return io.StringIO("150000 100000\n")
+        return real_open(path, *args, **kwargs)
+
+    monkeypatch.setattr(context, "open", quota, raising=False)
+    assert cpus.usable_cpus() == 2
+    monkeypatch.setenv(cpus.OVERRIDE_ENV, "1")
+    assert cpus.usable_cpus() == 1
+
+
+def test_one_blas_thread_per_process_unless_asked_and_never_more_than_the_share(four_cpus, monkeypatch):
+    assert cpus.blas_threads() == 1 and cpus.blas_threads(processes=4) == 1
+    monkeypatch.setenv(cpus.BLAS_ENV, "3")
+    assert cpus.blas_threads() == 3  # asked for, and 3 <= 4 usable CPUs
+    assert cpus.blas_threads(processes=2) == 2  # 2 processes x 2 threads = the 4 CPUs
+    assert cpus.blas_threads(processes=3) == 1 and cpus.blas_threads(processes=8) == 1
+    monkeypatch.setenv(cpus.BLAS_ENV, "16")
+    assert cpus.blas_threads() == 4
+    monkeypatch.setenv(cpus.OVERRIDE_ENV, "2")
+    assert cpus.blas_threads() == 2
+    for bad in ("0", "all", "-2"):
+        monkeypatch.setenv(cpus.BLAS_ENV, bad)
+        with pytest.raises(UserError, match=f"{cpus.BLAS_ENV}='{bad}': expected a positive whole number"):
+            cpus.blas_threads()
+
+
+def test_the_api_and_the_gymnasium_environment_set_blas_threads_first(monkeypatch, tmp_path):
+    """`vitaplace.run`, `simulate`, `fit_extractor` and `WhiskEyeEnv` configure BLAS threads
+    before anything else, even before they check their arguments (each call here has a bad one,
+    so without the configuration it fails at once, some other way); the CLI's test is below."""
+    import vitaplace
+    from vitaplace.engine.sim import gym_env
+
+    class Configured(Exception):
+        pass
+
+    def configure(processes: int = 1) -> int:
+        raise Configured
+
+    monkeypatch.setattr(cpus, "configure_blas_threads", configure)
+    monkeypatch.setattr(gym_env, "configure_blas_threads", configure)
+    for call in (lambda: vitaplace.run("quickstart", out=tmp_path / "out", until="nowhere"),
+                 lambda: vitaplace.simulate("e1", kind="nowhere"), lambda: vitaplace.fit_extractor("handcrafted", None),
+                 lambda: gym_env.WhiskEyeEnv(tmp_path / "nowhere.yaml")):
+        with pytest.raises(Configured):
+            call()
+
+
+SMALL_BATCH_THREADS = """
+import numpy, threadpoolctl
+from vitaplace.engine.base import cpus
+def threads():
+    return sorted({p["num_threads"] for p in threadpoolctl.threadpool_info() if p["user_api"] == "blas"})
+seen = [threads()]
+for rows in (cpus.SMALL_BATCH + 1, cpus.SMALL_BATCH, 1):
+    with cpus.small_batch_threads(rows):
+        seen.append(threads())
+seen.append(threads())
+print("SEEN", seen)
+"""
+
+
+@pytest.mark.parametrize("pool, expected", [
+    ("2", "SEEN [[2], [2], [1], [1], [2]]"),  # a small batch on one thread, the pool's two restored after
+    ("1", "SEEN [[1], [1], [1], [1], [1]]"),
+], ids=["two", "one"])
+def test_small_batches_run_on_one_blas_thread(pool, expected):
+    env = {k: v for k, v in os.environ.items() if k not in (*cpus.THREAD_ENVS, cpus.OVERRIDE_ENV)}
+    result = subprocess.run([sys.executable, "-c", SMALL_BATCH_THREADS], env={**env, "OPENBLAS_NUM_THREADS": pool},
+                            capture_output=True, text=True, timeout=120)
+    assert expected in result.stdout, result.stdout + result.stderr
+
+
+def test_the_settling_solver_s_compacted_batches_ask_for_small_batch_threads(monkeypatch):
+    """Every chunk of steps runs inside `small_batch_threads` of its batch's size: the full
+    batch of 8 first, then the compacted ones as samples stop."""
+    import contextlib
+
+    import numpy as np
+
+    import vitaplace.engine.network.inference as inference
+    from vitaplace.engine.network.backends import NumpyBackend
+    from vitaplace.engine.network.pc import Network
+    from vitaplace.engine.network.solver import make_solver
+
+    sizes: list[int] = []
+
+    @contextlib.contextmanager
+    def recorded(rows: int):
+        sizes.append(rows)
+        yield
+
+    monkeypatch.setattr(inference, "small_batch_threads", recorded)
+    config = {"modalities": {"visual": {"input_size": 9, "layers": [6], "eta_y": 0.02, "eta_w": 0.0,
+                                        "threshold": 0.0}},
+              "joint": {"size": 3, "eta_y": 0.02, "eta_w": 0.0, "threshold": 0.0}, "activation": "tanh", "slope": 0.2}
+    net = Network(config, seed=5, backend=NumpyBackend(np.float64))
+    x = {"visual": np.random.default_rng(2).random((8, 9)) * np.linspace(0.05, 1.0, 8)[:, None]}
+    result = net.infer(x, max_steps=2000, solver=make_solver("gd", rtol=1e-3), latent_prior=0.1)
+    assert result.settled.all() and sizes[0] == 8 and min(sizes) < 8, sizes
+    assert sizes == sorted(sizes, reverse=True)  # a batch only shrinks
 
 
 def test_a_local_sweep_starts_one_worker_per_usable_cpu(four_cpus, tmp_path, monkeypatch):
@@ -65,11 +178,15 @@ print("BLAS", sorted({p["num_threads"] for p in threadpoolctl.threadpool_info() 
 
 
 @pytest.mark.parametrize("variables, expected", [
-    ({cpus.SLURM_ENV: "1"}, "BLAS [1] 1"),  # SLURM's allocation, applied by the CLI
-    ({cpus.SLURM_ENV: "2", "OPENBLAS_NUM_THREADS": "1"}, "BLAS [1] 1"),  # the user's lower setting stays
-])
-def test_the_cli_sizes_blas_threads_to_the_allocation(variables, expected):
-    env = {k: v for k, v in os.environ.items() if k not in (*cpus.THREAD_ENVS, cpus.OVERRIDE_ENV)}
+    ({}, "BLAS [1] 1"),  # one thread unless asked
+    ({cpus.BLAS_ENV: "2"}, "BLAS [2] 2"),  # asked for two (this machine has 2 usable CPUs)
+    ({cpus.BLAS_ENV: "2", cpus.SLURM_ENV: "1"}, "BLAS [1] 1"),  # SLURM's allocation caps the request
+    ({cpus.BLAS_ENV: "2", "OPENBLAS_NUM_THREADS": "1"}, "BLAS [1] 1"),  # the user's lower setting stays
+], ids=["default", "asked", "slurm", "user"])
+def test_the_cli_sets_one_blas_thread_or_the_request_within_the_allocation(variables, expected):
+    if cpus.BLAS_ENV in variables and len(os.sched_getaffinity(0)) < 2:
+        pytest.skip("needs 2 usable CPUs")
+    env = {k: v for k, v in os.environ.items() if k not in (*cpus.THREAD_ENVS, cpus.OVERRIDE_ENV, cpus.BLAS_ENV)}
     code = f"import os, sys\nfrom vitaplace.engine.cli.main import main\nmain(['plugins'])\n{BLAS_THREADS}"
     result = subprocess.run([sys.executable, "-c", code], env={**env, **variables}, capture_output=True, text=True,
                             timeout=120)
