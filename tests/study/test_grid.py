@@ -7,6 +7,7 @@ and the statistics are recomputed here from the seeds' own results.json."""
 
 import json
 import math
+import os
 import re
 import subprocess
 import sys
@@ -253,6 +254,35 @@ def test_loading_a_grid_shows_its_progress_once_it_takes_long(monkeypatch, capsy
     assert "grid points loaded: 100%" in capsys.readouterr().err
     grid.load_points(points, lambda assignments: (None, {}), progress=False)
     assert capsys.readouterr().err == ""
+
+
+def test_a_drive_without_revisits_is_named_on_the_console_in_the_tables_and_by_aggregate(tmp_path, capsys):
+    """At tau 0.018 m seed 0's query drive of the tiny scenario has no query that close to a
+    reference pose (its nearest is 0.021 m away) while seed 2's has five (0.013-0.016 m): the
+    point's F1 is seed 2's alone, with the count; at tau 0.3 both seeds count. Progress bars
+    drawn at once (no delay) show each step over the grid points."""
+    path, out = _scenario_file(tmp_path, test_plugin=False), tmp_path / "out"
+    args = ["sweep", str(path), "--grid", "scoring.tau=0.018,0.3", "--seeds", "0", "2", "--workers", "2", "--out",
+            str(out)]
+    result = vitaplace(args, dict(os.environ), "import vitaplace.engine.study.grid as g\ng.PROGRESS_DELAY_S = 0.0")
+    assert result.returncode == 0, result.stderr[-3000:]
+    revisits = {(name, seed): json.loads((out / name / f"seed-{seed}" / "results.json").read_text())[0]
+                for name in ("tau=0.018", "tau=0.3") for seed in (0, 2)}
+    assert [r["n_revisit"] for r in revisits.values()] == [0, 5, 5, 5]  # what the test stands on
+    f1 = revisits[("tau=0.018", 2)]["max_f1"]
+    expected = f"{f1:.3f} (1 of 2 seeds; 1 without revisits)"
+    assert re.search(rf"tau=0\.018 E1 +H +query-to-reference +max F1 {re.escape(expected)}", result.stderr)
+    assert len(re.findall(r"seed 0, E1 query-to-reference: no revisit", result.stderr)) == 1
+    assert f"| tau=0.018 | E1 | H | query-to-reference | max_f1 | 1 | {expected} |" in (out / "grid.md").read_text()
+    assert "| 0 | E1 | query-to-reference | H |" in (out / "tau=0.018" / "sweep.md").read_text()
+    assert "without revisits" not in (out / "tau=0.3" / "sweep.md").read_text().split("\n", 3)[3]  # past the legend
+    for step in ("grid points loaded", "grid points prepared", "grid point summaries"):
+        assert f"{step}: 100%" in result.stderr, step
+    folders = [str(out / "tau=0.018" / f"seed-{seed}") for seed in (0, 2)]
+    assert main(["aggregate", *folders, "--out", str(tmp_path / "agg")]) == 0
+    assert "seed 0, E1 query-to-reference: no revisit" in capsys.readouterr().err
+    (row,) = [r for r in read_csv(tmp_path / "agg" / "sweep.csv") if r["metric"] == "max_f1"]
+    assert (row["n"], row["n_no_revisit"], float(row["mean"])) == ("1", "1", f1)
 
 
 def test_points_that_would_share_a_folder_are_refused():
