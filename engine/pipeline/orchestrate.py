@@ -1,7 +1,7 @@
 """A run from start to end: the stages (`vitaplace.engine.pipeline.stages`) in order up to the
 one asked for, each handed the records of the stages before it; the result files, the
-report, the manifest, and last the completion record. This is the one place that sequences
-the stages."""
+report, the manifest, the completion record, and last the plugins' `vitaplace_run_finished`
+hooks (trackers). This is the one place that sequences the stages."""
 
 from __future__ import annotations
 
@@ -56,8 +56,8 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
     if stop >= STAGES.index("report"):
         record.report = report(store, scenario, closed(record, store, started))
     write_manifest(closed(record, store, started))
+    completion.write(out, record.finished_files())  # before the plugins: a tracker that stalls or fails loses nothing
     announce_run_finished(store.registry, out, scenario, [row.dump() for row in record.rows], until)
-    completion.write(out, record.finished_files())
     return record.rows
 
 
