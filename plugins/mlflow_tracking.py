@@ -22,16 +22,24 @@ A run whose output folder, last stage, results and resolved scenario were logged
 (a rerun that found every stage cached) is not logged again; a rerun of the same sweep
 (same folder, scenario and seeds) reuses its parent run. The module imports MLflow only
 when it logs, so it costs nothing when tracking is off.
+
+The tracker runs after the run's results and its completion record are written, and it
+never fails a run: its HTTP calls give up after MLflow's own settings
+``MLFLOW_HTTP_REQUEST_TIMEOUT`` and ``MLFLOW_HTTP_REQUEST_MAX_RETRIES``, which it sets to
+`HTTP_SETTINGS` (5 s, 1 retry) for its calls alone where the environment does not set them,
+and a failure is one warning (`_tracking`). A sweep whose parent run cannot be opened is not
+logged, nor are its seeds (one warning, not one per seed).
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import logging
 import os
 import time
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -55,6 +63,11 @@ KEY_TAG = "vitaplace.key"
 SUMMARY_TAG = "vitaplace.summary"
 #: MLflow's tag that nests a run under its parent
 PARENT_TAG = "mlflow.parentRunId"
+#: MLflow's settings of its HTTP calls as the tracker's calls have them unless the environment sets them: a
+#: tracking server that does not answer costs seconds, not MLflow's default 120 s x 7 retries with backoff
+HTTP_SETTINGS = {"MLFLOW_HTTP_REQUEST_TIMEOUT": "5", "MLFLOW_HTTP_REQUEST_MAX_RETRIES": "1"}
+#: the longest reason a warning quotes
+MAX_REASON = 300
 
 log = logging.getLogger("vitaplace")
 
@@ -118,6 +131,25 @@ def _client() -> tuple[Any, Any] | None:
     return mlflow, MlflowClient()
 
 
+@contextlib.contextmanager
+def _tracking(what: str) -> Iterator[None]:
+    """MLflow calls with `HTTP_SETTINGS` where the environment does not set them (as it was
+    after); an exception among them is one warning that ``what`` was not logged, and stops
+    there: the results it would have logged are written already."""
+    unset = [name for name in HTTP_SETTINGS if name not in os.environ]
+    os.environ.update({name: HTTP_SETTINGS[name] for name in unset})
+    try:
+        yield
+    except Exception as exc:  # noqa: BLE001 - a tracker that cannot log must not fail a finished run
+        reason = " ".join(f"{type(exc).__name__}: {exc}".split())
+        log.warning("MLflow: %s not logged (tracking URI %s): %s", what,
+                    os.environ.get("MLFLOW_TRACKING_URI", "MLflow's default"),
+                    reason if len(reason) <= MAX_REASON else reason[: MAX_REASON - 3] + "...")
+    finally:
+        for name in unset:
+            os.environ.pop(name, None)
+
+
 def _experiment_id(client: Any, name: str) -> str:
     """The id of experiment ``name``, created when missing (by whichever seed gets there first)."""
     found = client.get_experiment_by_name(name)
@@ -161,10 +193,16 @@ def vitaplace_run_finished(out: Path, scenario: Any, rows: Sequence[ResultRow | 
     experiment = os.environ.get(EXPERIMENT_ENV)
     if not experiment or (found := _client()) is None:
         return
-    mlflow, client = found
+    with _tracking(f"the run in {out}"):
+        _log_run(*found, experiment, Path(out), scenario, rows, stage)
+
+
+def _log_run(mlflow: Any, client: Any, experiment: str, out: Path, scenario: Any,
+             rows: Sequence[ResultRow | Mapping[str, Any]], stage: str) -> None:
+    """`vitaplace_run_finished`'s MLflow calls."""
     from mlflow.entities import Metric
 
-    out, experiment_id = Path(out), _experiment_id(client, experiment)
+    experiment_id = _experiment_id(client, experiment)
     key = run_key(out, stage)
     earlier = _logged(client, experiment_id, key)
     if earlier is not None:
@@ -202,6 +240,17 @@ def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[
     if not experiment or (found := _client()) is None:
         return None
     mlflow, client = found
+    env = {k: v for k, v in os.environ.items() if k.startswith("MLFLOW_")}  # the user's, not `_tracking`'s
+    asked = {EXPERIMENT_ENV: ""}  # a store that failed here: the seeds do not try it, each for its own warning
+    with _tracking(f"the sweep in {out} (nor its seeds)"):
+        parent = _parent_run(client, experiment, out, scenario, seeds)
+        asked = {**env, "MLFLOW_TRACKING_URI": mlflow.get_tracking_uri(), EXPERIMENT_ENV: experiment,
+                 PARENT_ENV: parent}
+    return asked
+
+
+def _parent_run(client: Any, experiment: str, out: Path, scenario: Any, seeds: list[int]) -> str:
+    """The id of the sweep's parent run, opened unless a rerun of the same sweep finds it."""
     experiment_id, key = _experiment_id(client, experiment), sweep_key(out, scenario, seeds)
     parent = _logged(client, experiment_id, key)
     if parent is None:
@@ -211,9 +260,7 @@ def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[
         parent = client.create_run(experiment_id, run_name=name, tags=tags)
         params = {k: v for k, v in run_params(scenario).items() if k != "seed"}
         _log_params(client, parent.info.run_id, {**params, "seeds": json.dumps(list(seeds))})
-    env = {k: v for k, v in os.environ.items() if k.startswith("MLFLOW_")}
-    return {**env, "MLFLOW_TRACKING_URI": mlflow.get_tracking_uri(), EXPERIMENT_ENV: experiment,
-            PARENT_ENV: parent.info.run_id}
+    return str(parent.info.run_id)
 
 
 @hookimpl
@@ -225,8 +272,12 @@ def vitaplace_sweep_finished(out: Path, scenario: Any, seeds: list[int], failed:
     parent = environment.get(PARENT_ENV)
     if not parent or (found := _client()) is None:
         return
-    _, client = found
-    out = Path(out)
+    with _tracking(f"the summary of the sweep in {out}"):
+        _log_sweep(found[1], parent, Path(out), seeds, failed)
+
+
+def _log_sweep(client: Any, parent: str, out: Path, seeds: list[int], failed: dict[int | str, str]) -> None:
+    """`vitaplace_sweep_finished`'s MLflow calls."""
     summaries = [(out / name).read_bytes() for name in ("sweep.json", "grid.json") if (out / name).is_file()]
     summary = _digest(summaries) if summaries else ""
     client.set_terminated(parent, "FAILED" if failed else "FINISHED")

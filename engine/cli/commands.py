@@ -304,7 +304,7 @@ def sweep_command(args: argparse.Namespace) -> int:
     """`vitaplace sweep SCENARIO`: every seed (and grid point) run, then the summary; exit 1 if a seed failed."""
     from vitaplace.engine.cli.slurm import check_queue_clear, settings_from_args
     from vitaplace.engine.cli.sweep import check_placement, load_sweep_scenario, run_sweep
-    from vitaplace.engine.study.grid import grid_points, load_points, parse_axes
+    from vitaplace.engine.study.grid import check_size, grid_points, load_points, parse_axes
     from vitaplace.engine.study.summary import cell
 
     if args.cpus_per_job <= 0 or args.gpus_per_job < 0:
@@ -314,9 +314,10 @@ def sweep_command(args: argparse.Namespace) -> int:
     slurm = settings_from_args(args)
     check_placement(args.workers, args.ray, slurm, args.gpus_per_job)
     axes = parse_axes(args.grid, args.overrides)
+    check_size(axes, len(args.seeds), args.yes)
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)
     grid = load_points(grid_points(axes), lambda point: load_sweep_scenario(
-        args.scenario, [*args.overrides, *point], args.gpus_per_job)) if axes else []
+        args.scenario, [*args.overrides, *point], args.gpus_per_job), not args.no_progress) if axes else []
     log = logging.getLogger("vitaplace")
     out = Path(args.out or Path("runs") / f"{scenario.name}-sweep")
     if slurm is not None and slurm.cluster == "slurm":

@@ -222,6 +222,8 @@ def _add_sweep_command(sub: argparse._SubParsersAction, common: argparse.Argumen
     p.add_argument("--replace", action="store_true",
                    help="replace a summary in --out that covers seeds or grid points this sweep lacks "
                         "(refused without it)")
+    p.add_argument("--yes", action="store_true",
+                   help="run a grid of more than 1000 points (refused without it)")
     p.add_argument(
         "--workers", type=int, default=None,
         help="local worker processes (default: the CPUs this process may use / --cpus-per-job)",

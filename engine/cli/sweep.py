@@ -51,7 +51,7 @@ from vitaplace.engine.cli.slurm import SlurmSettings, run_array
 from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
 from vitaplace.engine.outputs.outdir import SEED_ERROR, cache_dir, seed_dir
-from vitaplace.engine.study.grid import GridPoint, check_replace, summarise_point, write_grid_summary
+from vitaplace.engine.study.grid import GridPoint, check_replace, progress_bar, summarise_point, write_grid_summary
 
 log = logging.getLogger("vitaplace")
 
@@ -282,12 +282,12 @@ def seed_jobs(
 
 def sweep_jobs(
     points: Sequence[GridPoint], seeds: Sequence[int], out: Path, force: Sequence[str] = (), progress: bool = False,
-    marker: str = "",
+    marker: str = "", bar: bool = False,
 ) -> list[SeedJob]:
     """The jobs of a sweep, point by point (`seed_jobs` of each loaded grid point): what every
-    backend runs."""
+    backend runs. ``bar``: a progress bar over the points (`progress_bar`)."""
     jobs: list[SeedJob] = []
-    for point in points:
+    for point in progress_bar(points, "grid points prepared", bar):
         assert point.scenario is not None  # loaded: load_points
         jobs += seed_jobs(point.scenario, dict(point.resolved), seeds, out, force, progress, marker, point.name)
     return jobs
@@ -508,7 +508,8 @@ def run_sweep(
     check_replace(out, points, seeds, replace)
     marker = out / f".sweep-marker-{uuid.uuid4().hex}"
     local = not (ray_address or slurm)
-    jobs = sweep_jobs(points, seeds, out, force, progress and len(seeds) * len(points) == 1 and local, str(marker))
+    jobs = sweep_jobs(points, seeds, out, force, progress and len(seeds) * len(points) == 1 and local, str(marker),
+                      progress)
     registry = discover()
     worker_env = announce_sweep_started(registry, out, scenario, list(seeds))  # e.g. a tracker's parent run
     saved_env = {name: os.environ.get(name) for name in worker_env}
@@ -530,7 +531,8 @@ def run_sweep(
             else:
                 os.environ[name] = value
     found = {p.name: by_point.get(p.name, ([], {})) for p in points}
-    summaries = {p.name: summarise_point(out, p, scenario.name, *found[p.name]) for p in points}
+    summaries = {p.name: summarise_point(out, p, scenario.name, *found[p.name])
+                 for p in progress_bar(points, "grid point summaries", progress)}
     outcome.summary = (write_grid_summary(out, scenario.name, points, seeds, summaries,
                                           {name: failed for name, (_, failed) in found.items()})
                        if grid else summaries[""])

@@ -33,7 +33,8 @@ def vitaplace_run_finished(out: Path, scenario: Any, rows: list[dict[str, Any]],
     to ``stage`` is done and ``out`` holds
     its outputs (manifest.json, scenario.resolved.yaml; from the evaluate stage on
     results.json/.csv with ``rows``, their rows; after the report stage report.md and
-    figures/). For trackers and notifications (e.g. `vitaplace.plugins.mlflow_tracking`).
+    figures/) and its completion record (completed.json): the run is finished before any hook
+    is called. For trackers and notifications (e.g. `vitaplace.plugins.mlflow_tracking`).
 
     Called in the process that ran the pipeline (for a sweep: once per seed, in its worker).
     An exception is logged as a warning naming the plugin and does not fail the run.

@@ -1,7 +1,7 @@
 """A run from start to end: the stages (`vitaplace.engine.pipeline.stages`) in order up to the
 one asked for, each handed the records of the stages before it; the result files, the
-report, the manifest, and last the completion record. This is the one place that sequences
-the stages."""
+report, the manifest, the completion record, and last the plugins' `vitaplace_run_finished`
+hooks (trackers). This is the one place that sequences the stages."""
 
 from __future__ import annotations
 
@@ -72,8 +72,8 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
     finished = record.finished_files()
     for path in stale.prune(out, finished) + stale.drop_sensitivity(out, before, completion.digests(out, finished)):
         log.info("removed %s: it described other results than this run's", path)
+    completion.write(out, finished, command)  # before the plugins: a tracker that stalls or fails loses nothing
     announce_run_finished(store.registry, out, scenario, [row.dump() for row in record.rows], until)
-    completion.write(out, finished, command)
     return record.rows
 
 

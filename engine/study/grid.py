@@ -3,7 +3,14 @@
 A ``--grid`` names any ``--set`` path and a comma-separated list of values, each parsed as
 YAML as a ``--set`` value is (commas inside ``[...]``, ``{...}`` or quotes do not split).
 Several ``--grid`` options form the Cartesian product (`grid_points`, the first option
-varying slowest). Each grid point is one scenario (the sweep's ``--set`` overrides, then the
+varying slowest); their paths must not overlap (one equal to or inside another: the later
+assignment would overwrite the earlier's value while the folders name both), nor may a
+``--grid`` path hold a ``--set`` path (the point's value would replace what ``--set`` sets). A
+grid of more than `MAX_POINTS` points runs only when confirmed (``--yes``, `check_size`);
+loading the points, preparing their jobs and writing their summaries show a progress bar
+once they take more than `PROGRESS_DELAY_S` seconds.
+
+Each grid point is one scenario (the sweep's ``--set`` overrides, then the
 point's assignments) run over every seed into its own folder ``OUT/<point>``, named
 ``LABEL=VALUE`` joined by commas (`point_name`): LABEL is the path's last part (the whole path
 where two options share it), VALUE the value as given with any character other than letters,
@@ -21,7 +28,9 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import re
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -50,6 +59,10 @@ GRID_FILES = ("grid.csv", "grid.md", "grid.json")
 #: what a value's text keeps in a folder name; anything else becomes "_"
 UNSAFE = re.compile(r"[^A-Za-z0-9._+-]")
 OPENING, CLOSING = "[{", "]}"
+#: the most grid points a sweep runs without ``--yes``
+MAX_POINTS = 1000
+#: seconds a step over the grid points runs before its progress bar shows (a small grid shows none)
+PROGRESS_DELAY_S = 2.0
 
 
 @dataclass(frozen=True)
@@ -109,18 +122,25 @@ def _values(raw: str, where: str) -> tuple[list[str], list[Any]]:
     except yaml.YAMLError as exc:
         raise ScenarioError(f"{where}: a value is not YAML ({' '.join(str(exc).split())})") from None
     canonical = [yaml.safe_dump(v) for v in values]
-    twice = [t for t, c in zip(texts, canonical, strict=True) if canonical.count(c) > 1]
+    counts = Counter(canonical)
+    twice = [t for t, c in zip(texts, canonical, strict=True) if counts[c] > 1]
     if twice:
         raise ScenarioError(f"{where}: the value {twice[0]} is given more than once ({', '.join(twice)})")
     return texts, values
 
 
+def inside(path: str, outer: str) -> bool:
+    """Whether ``path`` is ``outer`` or lies inside it (``scoring.tau`` inside ``scoring``)."""
+    return path == outer or path.startswith(outer + ".")
+
+
 def parse_axes(options: Sequence[str], overrides: Sequence[str] = ()) -> list[Axis]:
     """The ``--grid`` options as axes; ScenarioError (one line naming the option) for a
-    missing ``=`` or an append (``+=``), an empty value, a value twice, a path twice, a path
-    ``--set`` (``overrides``) also sets, or the seed."""
+    missing ``=`` or an append (``+=``), an empty value, a value twice, a path twice or
+    overlapping another axis's (`inside` either way), a path ``--set`` (``overrides``) also
+    sets or one that holds a ``--set`` path, or the seed."""
     axes: list[Axis] = []
-    fixed = {_set_path(o) for o in overrides}
+    fixed = [_set_path(o) for o in overrides]
     for option in options:
         where = f"--grid '{option}'"
         key, sep, raw = option.partition("=")
@@ -132,11 +152,39 @@ def parse_axes(options: Sequence[str], overrides: Sequence[str] = ()) -> list[Ax
             raise ScenarioError(f"{where}: the seeds are --seeds, not a grid")
         if path in fixed:
             raise ScenarioError(f"{where}: --set also sets {path}; give it in one of --grid and --set")
+        held = next((f for f in fixed if inside(f, path)), None)
+        if held is not None:
+            raise ScenarioError(f"{where}: each value replaces all of {path}, and with it what --set {held} sets; "
+                                f"give {held} inside the --grid values, or grid a path inside {path}")
         if any(axis.path == path for axis in axes):
             raise ScenarioError(f"{where}: {path} is already a --grid axis; give all its values in one --grid")
+        other = next((a.path for a in axes if inside(path, a.path) or inside(a.path, path)), None)
+        if other is not None:
+            raise ScenarioError(f"{where}: {path} overlaps the --grid axis {other} (one path inside the other: "
+                                "the later would overwrite the earlier's values while the folders name both); "
+                                "give one of them")
         texts, values = _values(raw, where)
         axes.append(Axis(path, tuple(texts), tuple(values)))
     return axes
+
+
+def check_size(axes: Sequence[Axis], seeds: int, confirmed: bool) -> int:
+    """The number of grid points of ``axes``; UserError (one line, before anything is loaded)
+    when it is over `MAX_POINTS` and not ``confirmed`` (``--yes``)."""
+    size = math.prod(len(axis.values) for axis in axes)
+    if size > MAX_POINTS and not confirmed:
+        shape = " x ".join(str(len(axis.values)) for axis in axes)
+        raise UserError(f"--grid: {size} grid points ({shape}) x {seeds} seed(s) = {size * seeds} runs, over "
+                        f"{MAX_POINTS} points; give --yes to run them all")
+    return size
+
+
+def progress_bar(items: Sequence[Any], what: str, shown: bool) -> Any:
+    """``items`` wrapped in a progress bar of ``what`` (e.g. "grid points loaded"), drawn on
+    stderr once the loop has run `PROGRESS_DELAY_S` seconds (never unless ``shown``)."""
+    from tqdm import tqdm
+
+    return tqdm(items, desc=what, unit="point", delay=PROGRESS_DELAY_S, disable=not shown)
 
 
 def _labels(axes: Sequence[Axis]) -> list[str]:
@@ -163,20 +211,21 @@ def grid_points(axes: Sequence[Axis]) -> list[GridPoint]:
             {axis.path: axis.values[i] for axis, i in zip(axes, combination, strict=True)},
             tuple(f"{axis.path}={text}" for axis, text in zip(axes, texts, strict=True)),
         ))
-    names = [p.name for p in points]
-    clash = next((n for n in names if names.count(n) > 1), None)
+    names = Counter(p.name for p in points)
+    clash = next((n for n, k in names.items() if k > 1), None)
     if clash is not None:
         raise ScenarioError(f"--grid: two grid points would share the folder {clash}; give values that differ in "
                             "letters, digits or . _ + -")
     return points
 
 
-def load_points(points: Sequence[GridPoint],
-                load: Callable[[Sequence[str]], tuple[Scenario, dict[str, Any]]]) -> list[GridPoint]:
+def load_points(points: Sequence[GridPoint], load: Callable[[Sequence[str]], tuple[Scenario, dict[str, Any]]],
+                progress: bool = False) -> list[GridPoint]:
     """Each point with the scenario and resolved mapping ``load(assignments)`` gives; its
-    error (an unknown path, a value out of range) as one line naming the grid point."""
+    error (an unknown path, a value out of range) as one line naming the grid point.
+    ``progress``: a progress bar (`progress_bar`) over the points."""
     loaded = []
-    for point in points:
+    for point in progress_bar(points, "grid points loaded", progress):
         try:
             scenario, resolved = load(point.assignments)
         except UserError as exc:

@@ -15,6 +15,15 @@ from. Each numeric value of a row is one of two kinds (`kind`):
   (`DESCRIPTORS`). Descriptors are summarised per method (n, mean, std, min, max over
   seeds), never given intervals and never differenced between methods.
 
+A row whose ``n_revisit`` is 0 (no query of its drive has a true match within ``tau``) has
+no score to give: recall divides by the revisits, so F1, recall, AUC, recall@K and the rest
+are conventions (0; precision 1 where nothing is accepted), not measurements
+(`vitaplace.engine.evaluation.evaluate`). Its metrics are **left out** of every statistic
+over seeds and of the paired differences (`left_out`); ``n`` counts the seeds that are left
+and ``n_no_revisit`` those left out, which the tables show beside the mean
+(``0.667 (1 of 2 seeds; 1 without revisits)``) and list by seed under "Seeds without
+revisits". Its descriptors (sample counts, difficulty) are kept.
+
 Nested mappings are flattened with dots (``difficulty: {"a": {"b": x}}`` becomes
 ``difficulty.a.b``); text, lists, booleans, nulls and non-finite numbers are skipped, so
 ``n`` counts the seeds that have a finite value. The identity columns and the evaluation's
@@ -54,6 +63,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import logging
 import math
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
@@ -83,10 +93,10 @@ LEVEL = 0.95
 SEED_RESAMPLES = 9999
 BOOT_SEED = 0
 
-SEED_COLUMNS = ("seed", "environment", "method", "direction", "metric", "kind", "value", "block_low", "block_high",
-                "block_length")
+SEED_COLUMNS = ("seed", "environment", "method", "direction", "metric", "kind", "value", "no_revisit", "block_low",
+                "block_high", "block_length")
 INTERVAL_COLUMNS = ("t_low", "t_high", "boot_low", "boot_high", "block_low", "block_high")
-STAT_COLUMNS = ("n", "mean", "std", "min", "max", *INTERVAL_COLUMNS)
+STAT_COLUMNS = ("n", "n_no_revisit", "mean", "std", "min", "max", *INTERVAL_COLUMNS)
 SUMMARY_COLUMNS = ("environment", "method", "direction", "metric", "kind", *STAT_COLUMNS)
 #: the files `write_summary` writes
 SUMMARY_FILES = ("sweep-seeds.csv", "sweep.csv", "sweep-diff.csv", "sweep.md", "sweep.tex", "sweep.json")
@@ -106,7 +116,11 @@ DEFINITIONS = {
     "bounds": "metrics in [0, 1]: " + ", ".join(sorted(UNIT_METRICS)) + ", recall@K; their differences in [-1, 1]",
     "descriptors": "per method only, never differenced: " + ", ".join(sorted(DESCRIPTORS))
                    + ", " + ", ".join(f"{g}.*" for g in DESCRIPTOR_GROUPS),
+    "n_no_revisit": "seeds whose drive has no revisit (n_revisit 0): their metrics are undefined (0 by convention) "
+                    "and left out of n, the means, the intervals and the differences",
 }
+
+log = logging.getLogger("vitaplace")
 
 #: ``{(seed, environment, method, direction): {metric: block-bootstrap replicates}}``
 Replicates = dict[tuple, dict[str, np.ndarray]]
@@ -142,6 +156,16 @@ def row_values(row: Mapping[str, Any]) -> dict[str, float]:
     return found
 
 
+def no_revisit(row: Mapping[str, Any]) -> bool:
+    """Whether a result row's drive has no revisit (``n_revisit`` 0): its scores are undefined."""
+    return row.get("n_revisit") == 0
+
+
+def left_out(value: Mapping[str, Any]) -> bool:
+    """Whether a `seed_rows` value is left out of the statistics: a metric of a drive without revisits."""
+    return bool(value["no_revisit"]) and value["kind"] == "metric"
+
+
 def kind(name: str) -> str:
     """``descriptor`` for sample counts, thresholds and ``difficulty.*``; else ``metric``."""
     if name in DESCRIPTORS or name.split(".", 1)[0] in DESCRIPTOR_GROUPS:
@@ -172,9 +196,11 @@ def difference_bounds(metric: str) -> tuple[float, float]:
 
 
 def spread(values: Sequence[float]) -> dict[str, float]:
-    """n, mean, std (ddof=1; NaN for n < 2), min and max of ``values``."""
+    """n, mean, std (ddof=1; NaN for n < 2), min and max of ``values`` (NaN but n for none)."""
     x = np.asarray(values, dtype=float)
     n = len(x)
+    if n == 0:
+        return {"n": 0, "mean": math.nan, "std": math.nan, "min": math.nan, "max": math.nan}
     return {"n": n, "mean": float(x.mean()), "std": float(x.std(ddof=1)) if n >= 2 else math.nan,
             "min": float(x.min()), "max": float(x.max())}
 
@@ -213,6 +239,8 @@ def sign_flip_p(differences: Sequence[float]) -> float:
     """Exact two-sided sign-flip permutation p-value of the mean of paired differences: every
     one of the 2**n sign patterns is enumerated."""
     d = np.asarray(differences, dtype=float)
+    if len(d) == 0:
+        return math.nan
     if len(d) < 2:  # scipy needs two; with one, both signs are as extreme as the observed
         return 1.0
     test = stats.permutation_test((d,), np.mean, permutation_type="samples", n_resamples=np.inf,
@@ -239,29 +267,35 @@ def block_replicates(rows: Sequence[Mapping[str, Any]], folders: Mapping[int, Pa
 
 def seed_rows(rows: Sequence[Mapping[str, Any]], replicates: Replicates | None = None) -> list[dict[str, Any]]:
     """Long format: one row per seed x environment x method x direction x value, in seed
-    order, then in the order of the result rows, with the seed's block interval and the
-    block length it used (NaN where the evaluation's matrices are not there)."""
+    order, then in the order of the result rows, with whether its drive has no revisit
+    (`no_revisit`), the seed's block interval and the block length it used (NaN where the
+    evaluation's matrices are not there, and for a value `left_out`)."""
     replicates = replicates or {}
     long = []
     for row in sorted(rows, key=lambda r: r["seed"]):
         identity = {k: row[k] for k in IDENTITY}
         for name, value in row_values(row).items():
+            entry = {**identity, "metric": name, "kind": kind(name), "value": value, "no_revisit": no_revisit(row),
+                     "block_low": math.nan, "block_high": math.nan, "block_length": math.nan}
             block = replicates.get(tuple(identity.values()), {}).get(name)
-            low, high, length = math.nan, math.nan, math.nan
-            if block is not None:
-                low, high = percentile_interval(block, bounds(name))
-                length = resample.block_length(row["n_queries"])
-            long.append({**identity, "metric": name, "kind": kind(name), "value": value,
-                         "block_low": low, "block_high": high, "block_length": length})
+            if block is not None and not left_out(entry):
+                entry["block_low"], entry["block_high"] = percentile_interval(block, bounds(name))
+                entry["block_length"] = resample.block_length(row["n_queries"])
+            long.append(entry)
     return long
 
 
-def _grouped(long: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> dict[tuple, dict[int, float]]:
-    """``{key values: {seed: value}}`` in order of first appearance."""
-    groups: dict[tuple, dict[int, float]] = {}
+def _grouped(long: Sequence[Mapping[str, Any]], keys: Sequence[str]) -> dict[tuple, dict[int, float | None]]:
+    """``{key values: {seed: value}}`` in order of first appearance; None for a value `left_out`."""
+    groups: dict[tuple, dict[int, float | None]] = {}
     for row in long:
-        groups.setdefault(tuple(row[k] for k in keys), {})[row["seed"]] = row["value"]
+        groups.setdefault(tuple(row[k] for k in keys), {})[row["seed"]] = None if left_out(row) else row["value"]
     return groups
+
+
+def _defined(by_seed: Mapping[int, float | None]) -> dict[int, float]:
+    """``by_seed`` without the values left out."""
+    return {s: v for s, v in by_seed.items() if v is not None}
 
 
 def _mean_replicates(replicates: Replicates, cells: Sequence[tuple], metric: str) -> np.ndarray | None:
@@ -273,26 +307,30 @@ def _mean_replicates(replicates: Replicates, cells: Sequence[tuple], metric: str
 
 
 def summarise(long: Sequence[Mapping[str, Any]], replicates: Replicates | None = None) -> list[dict[str, Any]]:
-    """Statistics over seeds per environment x method x direction x value (`describe`);
-    descriptors get n, mean, std, min and max only."""
+    """Statistics over seeds per environment x method x direction x value (`describe`) of the
+    values not `left_out` (``n_no_revisit``: how many were); descriptors get n, mean, std,
+    min and max only."""
     replicates = replicates or {}
     keys = ("environment", "method", "direction", "metric")
     table = []
     for key, by_seed in _grouped(long, keys).items():
         env, method, direction, name = key
+        defined = _defined(by_seed)
         if kind(name) == "metric":
-            block = _mean_replicates(replicates, [(s, env, method, direction) for s in by_seed], name)
-            described = describe(list(by_seed.values()), bounds(name), block)
+            block = _mean_replicates(replicates, [(s, env, method, direction) for s in defined], name)
+            described = describe(list(defined.values()), bounds(name), block)
         else:
-            described = {**dict.fromkeys(STAT_COLUMNS, math.nan), **spread(list(by_seed.values()))}
-        table.append({**dict(zip(keys, key, strict=True)), "kind": kind(name), **described})
+            described = {**dict.fromkeys(STAT_COLUMNS, math.nan), **spread(list(defined.values()))}
+        table.append({**dict(zip(keys, key, strict=True)), "kind": kind(name), **described,
+                      "n_no_revisit": len(by_seed) - len(defined)})
     return table
 
 
 def paired_differences(long: Sequence[Mapping[str, Any]], replicates: Replicates | None = None) -> list[dict[str, Any]]:
     """Statistics of ``a - b`` per seed for every pair of methods (a before b in the rows'
-    order), per environment x direction x metric, over the seeds where both have the value,
-    with the exact sign-flip p-value. Descriptors are not compared."""
+    order), per environment x direction x metric, over the seeds where both have the value
+    and neither is `left_out` (``n_no_revisit``: the seeds where one was), with the exact
+    sign-flip p-value (NaN without a seed). Descriptors are not compared."""
     replicates = replicates or {}
     long = [row for row in long if row["kind"] == "metric"]
     groups = _grouped(long, ("environment", "direction", "metric", "method"))
@@ -303,16 +341,17 @@ def paired_differences(long: Sequence[Mapping[str, Any]], replicates: Replicates
         for i, a in enumerate(methods):
             for b in methods[i + 1 :]:
                 va, vb = groups.get((env, direction, metric, a), {}), groups.get((env, direction, metric, b), {})
-                seeds = [s for s in va if s in vb]
-                if not seeds:
+                both = {s: (va[s], vb[s]) for s in va if s in vb}
+                if not both:
                     continue
-                diffs = [va[s] - vb[s] for s in seeds]
+                defined = {s: x - y for s, (x, y) in both.items() if x is not None and y is not None}
+                seeds, diffs = list(defined), list(defined.values())
                 ra = _mean_replicates(replicates, [(s, env, a, direction) for s in seeds], metric)
                 rb = _mean_replicates(replicates, [(s, env, b, direction) for s in seeds], metric)
                 block = ra - rb if ra is not None and rb is not None else None
                 table.append({"environment": env, "direction": direction, "metric": metric, "method_a": a,
                               "method_b": b, **describe(diffs, difference_bounds(metric), block),
-                              "p_sign_flip": sign_flip_p(diffs)})
+                              "n_no_revisit": len(both) - len(seeds), "p_sign_flip": sign_flip_p(diffs)})
     return table
 
 
@@ -326,10 +365,14 @@ def csv_text(rows: Sequence[Mapping[str, Any]], columns: Sequence[str]) -> str:
 
 
 def cell(row: Mapping[str, Any]) -> str:
-    """``mean ± std``, or ``mean (n=1)`` where there is no spread."""
-    if row["n"] < 2:
-        return f"{row['mean']:.3f} (n={row['n']})"
-    return f"{row['mean']:.3f} ± {row['std']:.3f}"
+    """``mean ± std``, or ``mean (n=1)`` where there is no spread; where seeds without
+    revisits were left out (``n_no_revisit``), ``mean ± std (n of N seeds; k without revisits)``
+    (``–`` for the mean of none)."""
+    n, without = row["n"], row.get("n_no_revisit", 0)
+    if not without:
+        return f"{row['mean']:.3f} (n={n})" if n < 2 else f"{row['mean']:.3f} ± {row['std']:.3f}"
+    mean = "–" if n == 0 else f"{row['mean']:.3f}" + (f" ± {row['std']:.3f}" if n >= 2 else "")
+    return f"{mean} ({n} of {n + without} seeds; {without} without revisits)"
 
 
 def interval(row: Mapping[str, Any], name: str) -> str:
@@ -347,9 +390,23 @@ def stat_cells(row: Mapping[str, Any]) -> list[str]:
     return [str(row["n"]), cell(row), interval(row, "t"), interval(row, "boot"), interval(row, "block")]
 
 
-def _tables(summary: Sequence[Mapping], diffs: Sequence[Mapping]) -> list[tuple[str, list[str], list[list[str]]]]:
-    """(caption, header, body) of the metrics, the paired differences and the descriptors
-    tables, as text cells."""
+def without_revisits(long: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """The drives without revisits: one entry per seed x environment x direction whose result
+    rows have ``n_revisit`` 0 (`seed_rows`' ``no_revisit``), with those rows' methods, in
+    the order of ``long``."""
+    found: dict[tuple, list[str]] = {}
+    for row in long:
+        if row["no_revisit"]:
+            methods = found.setdefault((row["seed"], row["environment"], row["direction"]), [])
+            methods += [] if row["method"] in methods else [row["method"]]
+    return [{"seed": seed, "environment": env, "direction": direction, "methods": methods}
+            for (seed, env, direction), methods in found.items()]
+
+
+def _tables(summary: Sequence[Mapping], diffs: Sequence[Mapping],
+            missing: Sequence[Mapping] = ()) -> list[tuple[str, list[str], list[list[str]]]]:
+    """(caption, header, body) of the metrics, the paired differences, the descriptors and the
+    drives without revisits (``missing``, `without_revisits`) tables, as text cells."""
     metric_rows = [r for r in summary if r["kind"] == "metric"]
     descriptor_rows = [r for r in summary if r["kind"] == "descriptor"]
     return [
@@ -364,6 +421,10 @@ def _tables(summary: Sequence[Mapping], diffs: Sequence[Mapping]) -> list[tuple[
          ["environment", "method", "direction", "value", "n", "mean", "min", "max"],
          [[r["environment"], r["method"], r["direction"], r["metric"], str(r["n"]),
            *(f"{r[k]:.4g}" for k in ("mean", "min", "max"))] for r in descriptor_rows]),
+        ("Seeds without revisits: no query has a true match, so their scores are undefined (0 by convention) and "
+         "left out above",
+         ["seed", "environment", "direction", "methods"],
+         [[str(m["seed"]), m["environment"], m["direction"], ", ".join(m["methods"])] for m in missing]),
     ]
 
 
@@ -371,16 +432,19 @@ LEGEND = (
     "Mean ± sample standard deviation over seeds; 95 % intervals of the mean: Student's t (cut to the metric's "
     "range), percentile bootstrap over seeds, and block bootstrap over contiguous query segments within each seed "
     "(the query drive's share of the uncertainty; the only interval a single seed has). Proportions (F1, precision, "
-    "recall, AUC) stay in [0, 1], their differences in [-1, 1]. p: exact two-sided sign-flip permutation test of "
+    "recall, AUC) stay in [0, 1], their differences in [-1, 1]. A seed whose drive has no revisit has no score and is "
+    "left out: \"(1 of 2 seeds; 1 without revisits)\". p: exact two-sided sign-flip permutation test of "
     "the mean paired difference (all 2^n sign patterns of n seeds; its smallest value is 2/2^n). n=1: one seed; "
     "–: no such interval. Definitions: docs/SCALE.md, \"The summary\"."
 )
 
 
-def markdown(summary: Sequence[Mapping], diffs: Sequence[Mapping], title: str) -> str:
-    """sweep.md: the metrics, the paired differences between methods, the descriptors."""
+def markdown(summary: Sequence[Mapping], diffs: Sequence[Mapping], title: str,
+             missing: Sequence[Mapping] = ()) -> str:
+    """sweep.md: the metrics, the paired differences between methods, the descriptors, the
+    drives without revisits (``missing``, `without_revisits`)."""
     lines = [f"# {title}", "", LEGEND, ""]
-    for caption, head, body in _tables(summary, diffs):
+    for caption, head, body in _tables(summary, diffs, missing):
         if body:
             lines += [f"## {caption}", "", "| " + " | ".join(head) + " |", "|" + " --- |" * len(head)]
             lines += ["| " + " | ".join(row) + " |" for row in body] + [""]
@@ -399,10 +463,10 @@ def _tex_row(cells: Sequence[str]) -> str:
     return " & ".join(map(_tex, cells)) + r" \\"
 
 
-def latex(summary: Sequence[Mapping], diffs: Sequence[Mapping]) -> str:
+def latex(summary: Sequence[Mapping], diffs: Sequence[Mapping], missing: Sequence[Mapping] = ()) -> str:
     """sweep.tex: the same tables as LaTeX tabulars (no package needed), each under its caption."""
     out = [f"% {_tex(LEGEND)}", ""]
-    for caption, head, body in _tables(summary, diffs):
+    for caption, head, body in _tables(summary, diffs, missing):
         if body:
             out += [f"% {_tex(caption)}", rf"\begin{{tabular}}{{{'l' * len(head)}}}", r"\hline", _tex_row(head),
                     r"\hline", *map(_tex_row, body), r"\hline", r"\end{tabular}", ""]
@@ -424,18 +488,22 @@ def write_summary(out: Path, rows: Sequence[Mapping[str, Any]], title: str, info
                   folders: Mapping[int, Path] | None = None) -> dict[str, Any]:
     """Write the six summary files for ``rows`` (seed-tagged result rows) into ``out``;
     ``folders`` (seed -> run folder) give the saved matrices for the block bootstrap;
-    ``info`` goes into sweep.json beside them. Returns what sweep.json holds."""
+    ``info`` goes into sweep.json beside them. Each drive without revisits is also a warning
+    on the console. Returns what sweep.json holds."""
     rows = sorted(rows, key=lambda r: r["seed"])
     replicates = block_replicates(rows, folders or {})
     long = seed_rows(rows, replicates)
-    summary, diffs = summarise(long, replicates), paired_differences(long, replicates)
+    summary, diffs, missing = summarise(long, replicates), paired_differences(long, replicates), without_revisits(long)
+    for m in missing:
+        log.warning("%s: seed %s, %s %s: no revisit (no query has a true match within tau); its scores are "
+                    "undefined and left out of the summary", title, m["seed"], m["environment"], m["direction"])
     write_text_atomic(out / "sweep-seeds.csv", csv_text(long, SEED_COLUMNS))
     write_text_atomic(out / "sweep.csv", csv_text(summary, SUMMARY_COLUMNS))
     write_text_atomic(out / "sweep-diff.csv", csv_text(diffs, DIFF_COLUMNS))
-    write_text_atomic(out / "sweep.md", markdown(summary, diffs, title))
-    write_text_atomic(out / "sweep.tex", latex(summary, diffs))
+    write_text_atomic(out / "sweep.md", markdown(summary, diffs, title, missing))
+    write_text_atomic(out / "sweep.tex", latex(summary, diffs, missing))
     definitions = {**DEFINITIONS, "block_resamples": resample.RESAMPLES}
     record = {**info, "statistics": definitions, "runs": list(rows), "values": long, "summary": summary,
-              "differences": diffs}
+              "differences": diffs, "without_revisits": missing}
     write_text_atomic(out / "sweep.json", json.dumps(json_safe(record), indent=2))
     return record

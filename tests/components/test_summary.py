@@ -246,6 +246,83 @@ def test_summary_files_are_written_with_nan_as_null(tmp_path):
     assert read_csv(tmp_path / "sweep-diff.csv")[0]["mean"] == str(0.9 - 0.5)
 
 
+# ---------------------------------------------------------------------- drives without revisits
+
+
+def rows_with_a_drive_without_revisits() -> list[dict]:
+    """Seeds 0-3 of L and H; seed 1's drive has no revisit (its F1 0 is a convention), seed 3's
+    has revisits that neither method found (its F1 0 is a score)."""
+    rows = rows_for({"L": [0.9, 0.0, 0.6, 0.0], "H": [0.5, 0.0, 0.3, 0.1]}, [0, 1, 2, 3])
+    for row in rows:
+        row["n_revisit"] = 0 if row["seed"] == 1 else 10
+    return rows
+
+
+def test_a_drive_without_revisits_is_left_out_of_every_statistic_and_counted():
+    long = summary.seed_rows(rows_with_a_drive_without_revisits())
+    table = {(r["method"], r["metric"]): r for r in summary.summarise(long)}
+    # L over seeds 0, 2, 3: 0.9, 0.6, 0.0: mean 0.5, deviations 0.4, 0.1, -0.5: s^2 = 0.42 / 2
+    f1 = table[("L", "max_f1")]
+    assert (f1["n"], f1["n_no_revisit"]) == (3, 1) and (f1["min"], f1["max"]) == (0.0, 0.9)
+    assert f1["mean"] == pytest.approx(0.5) and f1["std"] == pytest.approx(math.sqrt(0.21))
+    assert summary.cell(f1) == f"0.500 ± {math.sqrt(0.21):.3f} (3 of 4 seeds; 1 without revisits)"
+    assert table[("H", "recall@1")]["mean"] == pytest.approx(0.15)  # (0.25 + 0.15 + 0.05) / 3
+    # descriptors are what the drive was: every seed counts
+    assert (table[("L", "n_revisit")]["n"], table[("L", "n_revisit")]["n_no_revisit"]) == (4, 0)
+    assert table[("L", "n_revisit")]["mean"] == pytest.approx(7.5)
+    # L - H on seeds 0, 2, 3: 0.4, 0.3, -0.1: mean 0.2, deviations 0.2, 0.1, -0.3: s^2 = 0.14 / 2;
+    # |sum| >= 0.6 for 4 of the 8 sign patterns
+    (diff,) = [d for d in summary.paired_differences(long) if d["metric"] == "max_f1"]
+    assert (diff["n"], diff["n_no_revisit"]) == (3, 1)
+    assert diff["mean"] == pytest.approx(0.2) and diff["std"] == pytest.approx(math.sqrt(0.07))
+    assert diff["p_sign_flip"] == pytest.approx(4 / 8)
+
+
+def test_a_zero_score_with_revisits_is_a_score_and_one_without_is_not():
+    rows = rows_for({"L": [0.0, 0.0]}, [0, 1], n_revisit=4) + rows_for({"H": [0.0, 0.0]}, [0, 1], n_revisit=0)
+    table = {(r["method"], r["metric"]): r for r in summary.summarise(summary.seed_rows(rows))}
+    assert (table[("L", "max_f1")]["n"], table[("L", "max_f1")]["n_no_revisit"], table[("L", "max_f1")]["mean"]) == (
+        2, 0, 0.0)
+    none = table[("H", "max_f1")]
+    assert (none["n"], none["n_no_revisit"]) == (0, 2) and math.isnan(none["mean"]) and math.isnan(none["t_low"])
+    assert summary.cell(none) == "– (0 of 2 seeds; 2 without revisits)"
+    assert summary.cell({**none, "n": 1, "mean": 0.25, "n_no_revisit": 1}) == "0.250 (1 of 2 seeds; 1 without revisits)"
+    (diff,) = [d for d in summary.paired_differences(summary.seed_rows(rows)) if d["metric"] == "max_f1"]
+    assert (diff["n"], diff["n_no_revisit"]) == (0, 2) and math.isnan(diff["p_sign_flip"])
+    # rows of runs that lack n_revisit have their scores counted
+    old = {(r["method"], r["metric"]): r for r in summary.summarise(summary.seed_rows(rows_for({"L": [0.0]}, [0])))}
+    assert (old[("L", "max_f1")]["n"], old[("L", "max_f1")]["n_no_revisit"]) == (1, 0)
+
+
+def test_the_block_interval_over_seeds_leaves_out_the_drives_without_revisits():
+    # every replicate of a seed is its value: the mean over seeds 0, 2, 3 is 0.5 (0.375 with seed 1)
+    rows = rows_with_a_drive_without_revisits()
+    replicates = {(r["seed"], "E1", r["method"], "q"): {"max_f1": np.full(9, r["max_f1"])} for r in rows}
+    long = summary.seed_rows(rows, replicates)
+    table = {(r["method"], r["metric"]): r for r in summary.summarise(long, replicates)}
+    assert (table[("L", "max_f1")]["block_low"], table[("L", "max_f1")]["block_high"]) == pytest.approx((0.5, 0.5))
+    left = [r for r in long if r["seed"] == 1 and r["metric"] == "max_f1"]
+    assert len(left) == 2 and all(r["no_revisit"] and math.isnan(r["block_low"]) for r in left)
+    kept = [r for r in long if r["seed"] == 0 and r["metric"] == "max_f1"]
+    assert all(not r["no_revisit"] and r["block_low"] == r["value"] for r in kept)
+
+
+def test_the_drives_without_revisits_are_named_in_every_summary_file(tmp_path, caplog):
+    with caplog.at_level("WARNING", logger="vitaplace"):
+        record = summary.write_summary(tmp_path, rows_with_a_drive_without_revisits(), "t", {"scenario": "t"})
+    assert record["without_revisits"] == [{"seed": 1, "environment": "E1", "direction": "q", "methods": ["L", "H"]}]
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and "seed 1, E1 q: no revisit" in warned[0] and "left out" in warned[0]
+    md = (tmp_path / "sweep.md").read_text()
+    assert "## Seeds without revisits" in md and "| 1 | E1 | q | L, H |" in md
+    assert "(3 of 4 seeds; 1 without revisits)" in md
+    assert "(3 of 4 seeds; 1 without revisits)" in (tmp_path / "sweep.tex").read_text()
+    table = {(r["method"], r["metric"]): r for r in read_csv(tmp_path / "sweep.csv")}
+    assert (table[("L", "max_f1")]["n"], table[("L", "max_f1")]["n_no_revisit"]) == ("3", "1")
+    assert {r["seed"] for r in read_csv(tmp_path / "sweep-seeds.csv") if r["no_revisit"] == "True"} == {"1"}
+    assert read_csv(tmp_path / "sweep-diff.csv")[0]["n_no_revisit"] == "1"
+
+
 # ---------------------------------------------------------------------- within a seed
 
 

@@ -7,6 +7,7 @@ and the statistics are recomputed here from the seeds' own results.json."""
 
 import json
 import math
+import os
 import re
 import subprocess
 import sys
@@ -192,6 +193,11 @@ def test_a_grid_is_the_product_of_its_axes_named_by_path_ends():
     (["scoring.tau=0.3,0.5"], ["scoring.tau=0.2"], "--set also sets scoring.tau"),
     (["scoring.tau=0.3,0.5"], ["evaluation.tau=0.2"], "--set also sets scoring.tau"),
     (["scoring.tau=0.3", "scoring.tau=0.5"], [], "scoring.tau is already a --grid axis"),
+    (["scoring.tau=0.2,0.4", "scoring={tau: 0.5}"], [], "scoring overlaps the --grid axis scoring.tau"),
+    (["scoring={tau: 0.5}", "scoring.tau=0.2,0.4"], [], "scoring.tau overlaps the --grid axis scoring"),
+    (["methods=[]", "scoring.tau=1", "methods.0.params.epochs=1"], [], "overlaps the --grid axis methods"),
+    (["scoring={tau: 0.5},{tau: 0.6}"], ["scoring.tau=0.3"], "what --set scoring.tau sets"),
+    (["methods=[]"], ["methods.0.params.epochs=3"], "what --set methods.0.params.epochs sets"),
     (["seed=1,2"], [], "the seeds are --seeds"),
 ])
 def test_a_bad_grid_is_one_line_naming_the_option(options, overrides, message):
@@ -199,6 +205,84 @@ def test_a_bad_grid_is_one_line_naming_the_option(options, overrides, message):
         grid.parse_axes(options, overrides)
     assert message in str(error.value) and str(error.value).startswith(f"--grid '{options[-1]}': ")
     assert "\n" not in str(error.value)
+
+
+def test_paths_that_share_only_the_start_of_a_name_do_not_overlap():
+    axes = grid.parse_axes(["methods.1.params.epochs=1,2", "methods.10.params.epochs=3", "scoring.ta=1"],
+                           ["scoring.tau=0.3", "methods+={name: X, plugin: handcrafted}"])
+    assert [a.path for a in axes] == ["methods.1.params.epochs", "methods.10.params.epochs", "scoring.ta"]
+    # a grid path inside a --set path: the point's value is set after the --set's, and named
+    assert [a.path for a in grid.parse_axes(["scoring.tau=0.2"], ["scoring={tau: 0.5, delta: 1}"])] == ["scoring.tau"]
+
+
+def test_overlapping_axes_are_refused_on_the_command_line_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "out"  # tau -1: a sweep that took the grid would stop at its first point
+    args = ["sweep", "quickstart", "--grid", "scoring.tau=0.2,0.4", "--grid", "scoring={tau: -1}", "--seeds", "0",
+            "--out", str(out), "--no-progress"]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["vitaplace: error: --grid 'scoring={tau: -1}': scoring overlaps the --grid axis scoring.tau (one "
+                   "path inside the other: the later would overwrite the earlier's values while the folders name "
+                   "both); give one of them"]
+    assert not out.exists()
+
+
+def test_a_grid_over_the_bound_needs_yes(tmp_path, capsys):
+    # the first point's tau is one the scenario refuses: what is loaded fails at once
+    out, taus = tmp_path / "out", ",".join(["-1", *(f"0.{i:03d}" for i in range(1, 40))])
+    big = ["--grid", f"scoring.tau={taus}", "--grid", f"methods.0.params.epochs={','.join(map(str, range(1, 27)))}"]
+    assert main(["sweep", "quickstart", *big, "--seeds", "0", "1", "--out", str(out), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["vitaplace: error: --grid: 1040 grid points (40 x 26) x 2 seed(s) = 2080 runs, over 1000 points; "
+                   "give --yes to run them all"] and not out.exists()
+    # with --yes the points are loaded
+    assert main(["sweep", "quickstart", *big, "--seeds", "0", "--out", str(out), "--no-progress", "--yes"]) == 2
+    assert capsys.readouterr().err.startswith("vitaplace: error: --grid point tau=-1,epochs=1: ")
+    at_bound = grid.parse_axes([f"a={taus}", f"b={','.join(map(str, range(25)))}"])
+    assert grid.check_size(at_bound, 3, False) == 1000
+    assert grid.check_size([*at_bound, grid.Axis("c", ("1", "2"), (1, 2))], 1, True) == 2000
+    assert grid.check_size([], 3, False) == 1  # no grid: the sweep's one point
+
+
+def test_loading_a_grid_shows_its_progress_once_it_takes_long(monkeypatch, capsys):
+    points = grid.grid_points(grid.parse_axes(["a=1,2,3"]))
+    loaded = grid.load_points(points, lambda assignments: (None, {"a": assignments}), progress=True)
+    assert [p.resolved for p in loaded] == [{"a": ("a=1",)}, {"a": ("a=2",)}, {"a": ("a=3",)}]
+    assert capsys.readouterr().err == ""  # quicker than the delay: no bar
+    monkeypatch.setattr(grid, "PROGRESS_DELAY_S", 0.0)
+    grid.load_points(points, lambda assignments: (None, {}), progress=True)
+    assert "grid points loaded: 100%" in capsys.readouterr().err
+    grid.load_points(points, lambda assignments: (None, {}), progress=False)
+    assert capsys.readouterr().err == ""
+
+
+def test_a_drive_without_revisits_is_named_on_the_console_in_the_tables_and_by_aggregate(tmp_path, capsys):
+    """At tau 0.018 m seed 0's query drive of the tiny scenario has no query that close to a
+    reference pose (its nearest is 0.021 m away) while seed 2's has five (0.013-0.016 m): the
+    point's F1 is seed 2's alone, with the count; at tau 0.3 both seeds count. Progress bars
+    drawn at once (no delay) show each step over the grid points."""
+    path, out = _scenario_file(tmp_path, test_plugin=False), tmp_path / "out"
+    args = ["sweep", str(path), "--grid", "scoring.tau=0.018,0.3", "--seeds", "0", "2", "--workers", "2", "--out",
+            str(out)]
+    result = vitaplace(args, dict(os.environ), "import vitaplace.engine.study.grid as g\ng.PROGRESS_DELAY_S = 0.0")
+    assert result.returncode == 0, result.stderr[-3000:]
+    revisits = {(name, seed): json.loads((out / name / f"seed-{seed}" / "results.json").read_text())[0]
+                for name in ("tau=0.018", "tau=0.3") for seed in (0, 2)}
+    assert [r["n_revisit"] for r in revisits.values()] == [0, 5, 5, 5]  # what the test stands on
+    f1 = revisits[("tau=0.018", 2)]["max_f1"]
+    expected = f"{f1:.3f} (1 of 2 seeds; 1 without revisits)"
+    assert re.search(rf"tau=0\.018 E1 +H +query-to-reference +max F1 {re.escape(expected)}", result.stderr)
+    assert len(re.findall(r"seed 0, E1 query-to-reference: no revisit", result.stderr)) == 1
+    assert f"| tau=0.018 | E1 | H | query-to-reference | max_f1 | 1 | {expected} |" in (out / "grid.md").read_text()
+    assert "| 0 | E1 | query-to-reference | H |" in (out / "tau=0.018" / "sweep.md").read_text()
+    assert "without revisits" not in (out / "tau=0.3" / "sweep.md").read_text().split("\n", 3)[3]  # past the legend
+    for step in ("grid points loaded", "grid points prepared", "grid point summaries"):
+        assert f"{step}: 100%" in result.stderr, step
+    folders = [str(out / "tau=0.018" / f"seed-{seed}") for seed in (0, 2)]
+    assert main(["aggregate", *folders, "--out", str(tmp_path / "agg")]) == 0
+    assert "seed 0, E1 query-to-reference: no revisit" in capsys.readouterr().err
+    (row,) = [r for r in read_csv(tmp_path / "agg" / "sweep.csv") if r["metric"] == "max_f1"]
+    assert (row["n"], row["n_no_revisit"], float(row["mean"])) == ("1", "1", f1)
 
 
 def test_points_that_would_share_a_folder_are_refused():

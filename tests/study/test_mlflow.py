@@ -11,9 +11,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -25,8 +27,10 @@ pytest.importorskip("alembic", reason="MLflow's SQLite store needs Alembic (pip 
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+from mlflow.environment_variables import MLFLOW_HTTP_REQUEST_MAX_RETRIES, MLFLOW_HTTP_REQUEST_TIMEOUT  # noqa: E402
 from mlflow.tracking import MlflowClient  # noqa: E402
 
+import vitaplace.plugins.mlflow_tracking as tracker  # noqa: E402
 from vitaplace.engine.cli.main import main  # noqa: E402
 
 ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
@@ -171,3 +175,58 @@ def test_on_slurm_the_seeds_log_into_the_sweeps_parent_run(tmp_path):
                       "--time", "10", "--no-progress"], tmp_path, _settings(_store(tmp_path)))
     assert result.returncode == 0, result.stderr[-3000:]
     _check_sweep(_store(tmp_path), out, [0, 1])
+
+
+def _closed_port() -> int:
+    """A local port nothing listens on (bound, then closed)."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_an_unreachable_tracking_server_costs_seconds_and_one_warning_after_the_run_is_complete(
+        tmp_path, monkeypatch, capsys):
+    """MLflow's defaults retry a refused connection 7 times with backoff (minutes); the
+    tracker's calls give up after one retry, once completed.json is written."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("VITAPLACE_MLFLOW", EXPERIMENT)
+    monkeypatch.setenv("MLFLOW_TRACKING_URI", f"http://127.0.0.1:{_closed_port()}")
+    for name in (*tracker.HTTP_SETTINGS, "VITAPLACE_MLFLOW_PARENT"):
+        monkeypatch.delenv(name, raising=False)
+    complete_when_logged, log_run = [], tracker._log_run
+    monkeypatch.setattr(tracker, "_log_run", lambda mlflow, client, experiment, out, *rest: (
+        complete_when_logged.append((out / "completed.json").is_file()),
+        log_run(mlflow, client, experiment, out, *rest))[1])
+    out = tmp_path / "out"
+    assert main(["run", str(_scenario(tmp_path)), "--out", str(out), "--no-progress"]) == 0
+    tracked = time.time() - (out / "completed.json").stat().st_mtime  # what the tracker cost after it
+    assert complete_when_logged == [True] and tracked < 5, tracked
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "MLflow" in line]
+    assert len(warnings) == 1 and warnings[0].startswith(f"MLflow: the run in {out} not logged (tracking URI http")
+    assert not set(tracker.HTTP_SETTINGS) & set(os.environ)  # set for the tracker's calls alone
+
+
+def test_the_tracker_s_http_settings_are_mlflow_s_own_and_the_environment_overrides_them(monkeypatch, caplog):
+    monkeypatch.delenv("MLFLOW_HTTP_REQUEST_TIMEOUT", raising=False)
+    monkeypatch.setenv("MLFLOW_HTTP_REQUEST_MAX_RETRIES", "4")
+    with tracker._tracking("nothing"):  # an assert in here would be its warning: the values are checked after
+        inside = (MLFLOW_HTTP_REQUEST_TIMEOUT.get(), MLFLOW_HTTP_REQUEST_MAX_RETRIES.get())
+    assert inside == (5, 4)
+    assert "MLFLOW_HTTP_REQUEST_TIMEOUT" not in os.environ and os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] == "4"
+    with tracker._tracking("this"):
+        raise RuntimeError("tracking server down\nsecond line")
+    assert "MLflow: this not logged (tracking URI" in caplog.text and "RuntimeError: tracking server down second line" \
+        in caplog.text
+
+
+def test_a_sweep_whose_tracking_server_is_unreachable_warns_once_and_writes_its_summary(tmp_path):
+    out, uri = tmp_path / "sweep", f"http://127.0.0.1:{_closed_port()}"
+    result = _driver(["sweep", str(_scenario(tmp_path)), "--seeds", "0", "1", "--workers", "2", "--out", str(out),
+                      "--no-progress"], tmp_path, _settings(uri))
+    assert result.returncode == 0, result.stderr[-3000:]
+    warnings = [line for line in result.stderr.splitlines() if "MLflow" in line]
+    assert len(warnings) == 1 and warnings[0].startswith(f"MLflow: the sweep in {out} (nor its seeds) not logged")
+    assert json.loads((out / "sweep.json").read_text())["seeds"] == [0, 1]
+    for seed in (0, 1):  # the seeds did not try: nothing about MLflow in their logs (their warnings go there)
+        assert (out / f"seed-{seed}" / "completed.json").is_file()
+        assert "MLflow" not in (out / f"seed-{seed}" / "log.txt").read_text()
