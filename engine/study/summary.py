@@ -84,7 +84,7 @@ UNIT_METRICS = frozenset({"max_f1", "precision_at_max_f1", "recall_at_max_f1", "
                           "precision", "recall", "f1", "f1_at_e1_threshold"})
 #: values that describe the evaluation, not the method's score: sample counts and thresholds
 DESCRIPTORS = frozenset({"n_queries", "n_references", "n_revisit", "n_accepted", "tp", "fp", "fn", "tn",
-                         "delta_at_max_f1", "e1_threshold"})
+                         "delta_at_max_f1", "e1_threshold", "tied_share"})
 #: nested objects whose every value is a descriptor (``difficulty.<measure>``, a fusion's chosen ``fusion.weight``)
 DESCRIPTOR_GROUPS = ("difficulty", "fusion")
 #: confidence level of the intervals

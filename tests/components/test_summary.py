@@ -175,10 +175,12 @@ def test_counts_thresholds_and_difficulty_are_per_method_and_never_compared():
     rows = rows_for({"L": [0.9, 0.8], "H": [0.5, 0.6]}, [0, 1], n_revisit=217, tp=3)
     for i, row in enumerate(rows):
         row["delta_at_max_f1"] = 0.1 * (i + 1)
+        row["tied_share"] = 0.25 * i  # how a method's distances tie: what its matrix was, not a score
         row["difficulty"] = {"overlap": 0.5 + i, "heading": {"median": 0.25, "name": "text"}, "list": [1, 2]}
     long = summary.seed_rows(rows)
     table = {(r["method"], r["metric"]): r for r in summary.summarise(long)}
-    for name in ("n_queries", "n_revisit", "tp", "delta_at_max_f1", "difficulty.overlap", "difficulty.heading.median"):
+    for name in ("n_queries", "n_revisit", "tp", "delta_at_max_f1", "tied_share", "difficulty.overlap",
+                 "difficulty.heading.median"):
         assert table[("L", name)]["kind"] == "descriptor", name
         assert all(math.isnan(table[("L", name)][f"{k}_low"]) for k in INTERVALS)
     # L's thresholds on seeds 0 and 1 are 0.1 and 0.2 (rows in method order): its own mean, min, max
