@@ -103,11 +103,13 @@ class GroundTruth:
         """Per query, whether it has a true match (``min_j gtm[i, j] <= tau``)."""
         return self.counts > 0
 
-    def mask(self, start: int, stop: int) -> np.ndarray:
-        """``gtm[start:stop] <= tau`` as a boolean block."""
-        out = np.zeros((stop - start, self.n_references), dtype=bool)
-        rows = np.repeat(np.arange(stop - start), np.diff(self.indptr[start : stop + 1]))
-        out[rows, self.indices[self.indptr[start] : self.indptr[stop]]] = True
+    def mask(self, queries: np.ndarray) -> np.ndarray:
+        """``gtm[queries] <= tau`` as a boolean block (``queries``: indices)."""
+        starts, counts = self.indptr[queries], self.counts[queries]
+        out = np.zeros((len(queries), self.n_references), dtype=bool)
+        rows = np.repeat(np.arange(len(queries)), counts)
+        within = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)  # position in its row
+        out[rows, self.indices[np.repeat(starts, counts) + within]] = True
         return out
 
 
@@ -191,7 +193,7 @@ def scan(scored: Rows, truth: GroundTruth, ks: Sequence[int] = (), rows: int | N
     for start, block in scored.chunks(rows):
         _check_block(block, start)
         stop = start + len(block)
-        true = truth.mask(start, stop)
+        true = truth.mask(np.arange(start, stop))
         best_tme[start:stop], n_best[start:stop], correct_share[start:stop] = ties(block, true)
         best_match[start:stop] = np.argmin(block, axis=1)
         revisit = has_revisit[start:stop]
