@@ -132,11 +132,12 @@ def test_sequence_scores_in_chunks_equal_the_whole_matrix(chunk, length, window)
 
 
 @pytest.mark.parametrize("tolerance", [None, 30.0])
-def test_difficulty_from_the_true_matches_equals_the_matrix_s(tolerance):
+def test_difficulty_from_the_true_matches_equals_the_matrix_s(tolerance, monkeypatch):
     q, r = poses(3, 200, False), poses(4, 150, False)
     rng = np.random.default_rng(5)
     touch = rng.random(200) < 0.4, rng.random(150) < 0.3
     want = difficulty(q, r, ev.ground_truth_matrix(q, r, tolerance), 0.3, *touch)
+    monkeypatch.setattr(ranking, "CHUNK_BYTES", 8 * 150 * 7)  # chunks of 7 queries
     assert difficulty_from(q, r, ev.true_matches(q, r, 0.3, tolerance), *touch) == want
     assert want["touch_both_share"] is not None
 
