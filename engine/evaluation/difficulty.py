@@ -14,8 +14,10 @@ from numpy.typing import ArrayLike
 from scipy.spatial.distance import cdist
 
 from vitaplace.engine.evaluation.evaluate import _check_poses, _check_tau, _heading_difference_deg
+from vitaplace.engine.evaluation.ranking import GroundTruth, chunk_rows
 
-__all__ = ["DIFFICULTY_KEYS", "STAY_RADIUS", "TOUCH_PAIR_KEYS", "difficulty", "longest_stay", "touch_at_true_matches"]
+__all__ = ["DIFFICULTY_KEYS", "STAY_RADIUS", "TOUCH_PAIR_KEYS", "difficulty", "difficulty_from", "longest_stay",
+           "nearest_references", "touch_at_true_matches"]
 
 
 #: the keys of `difficulty`'s result, in order
@@ -43,26 +45,43 @@ def longest_stay(xy: ArrayLike, radius: float = STAY_RADIUS) -> tuple[int, int]:
     return best[0], -best[1]
 
 
+def nearest_references(
+    query_xy: np.ndarray, reference_xy: np.ndarray, truth: GroundTruth,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(matched, nearest, distance, partner): the queries with a true match (ascending), each
+    one's nearest reference by position (ties -> lowest index) and that distance, and its
+    *pose-nearest true match* (the reference nearest by position among its true matches,
+    ties -> lowest index); a chunk of queries against every reference at a time."""
+    matched = np.flatnonzero(truth.has_revisit)
+    nearest, partner = np.empty(len(matched), dtype=np.intp), np.empty(len(matched), dtype=np.intp)
+    distance = np.empty(len(matched))
+    step = chunk_rows(len(reference_xy))
+    for lo in range(0, len(matched), step):
+        rows = matched[lo : lo + step]
+        here = slice(lo, lo + len(rows))
+        position = cdist(query_xy[rows], reference_xy, metric="euclidean")
+        nearest[here] = np.argmin(position, axis=1)
+        distance[here] = position[np.arange(len(rows)), nearest[here]]
+        partner[here] = np.argmin(np.where(truth.mask(rows), position, np.inf), axis=1)
+    return matched, nearest, distance, partner
+
+
 def touch_at_true_matches(
-    query_xy: np.ndarray, reference_xy: np.ndarray, true_match: np.ndarray, query_touch: np.ndarray | None,
-    reference_touch: np.ndarray | None,
+    matched: np.ndarray, partner: np.ndarray, query_touch: np.ndarray | None, reference_touch: np.ndarray | None,
 ) -> dict[str, float | None]:
     """Whether touch is shared by a query and its true match (`TOUCH_PAIR_KEYS`).
 
-    A *true-match pair* is each query that has a true match (a row of the boolean
-    ``true_match`` with a True) with its pose-nearest true match: the reference nearest by
-    position among those with ``true_match`` (ties -> lowest index). Over those pairs,
+    A *true-match pair* is each query that has a true match (the indices ``matched``) with
+    its pose-nearest true match (``partner``, `nearest_references`). Over those pairs,
     ``touch_both_share`` is the share touched on both sides and ``touch_one_side_share`` the
     share touched on exactly one side (both None when no query has a true match);
     ``touch_correspondence`` is, among the touched queries that have a true match, the share
     whose pose-nearest true match is touched (None when no touched query has one). The touch
     masks hold one bool per sample (`Run.touch_mask`); all three are None without them.
     """
-    matched = true_match.any(axis=1)
-    if query_touch is None or reference_touch is None or not matched.any():
+    if query_touch is None or reference_touch is None or not len(matched):
         return dict.fromkeys(TOUCH_PAIR_KEYS)
-    position = np.where(true_match[matched], cdist(query_xy[matched], reference_xy), np.inf)
-    q_touch, r_touch = query_touch[matched], reference_touch[np.argmin(position, axis=1)]
+    q_touch, r_touch = query_touch[matched], reference_touch[partner]
     return {
         "touch_both_share": float((q_touch & r_touch).mean()),
         "touch_one_side_share": float((q_touch ^ r_touch).mean()),
@@ -97,6 +116,17 @@ def difficulty(
     if gtm_a.shape != (len(q), len(r)) or np.isnan(gtm_a).any():
         raise ValueError(
             f"gtm must be a NaN-free queries x references ({len(q)}, {len(r)}) matrix, got shape {gtm_a.shape}")
+    return difficulty_from(q, r, GroundTruth.of_matrix(gtm_a, tau), query_touch, reference_touch)
+
+
+def difficulty_from(
+    query_poses: np.ndarray, reference_poses: np.ndarray, truth: GroundTruth,
+    query_touch: ArrayLike | None = None, reference_touch: ArrayLike | None = None,
+) -> dict[str, float | None]:
+    """`difficulty` from each query's true matches (`GroundTruth`, e.g.
+    `vitaplace.engine.evaluation.evaluate.true_matches`) instead of the matrix: memory linear
+    in the number of samples."""
+    q, r = np.asarray(query_poses, dtype=float), np.asarray(reference_poses, dtype=float)
     per_run: dict[str, float | None] = {}
     masks: dict[str, np.ndarray | None] = {}
     for role, mask, n in (("query", query_touch, len(q)), ("reference", reference_touch, len(r))):
@@ -109,20 +139,16 @@ def difficulty(
         per_run[f"{role}_touch_share"] = float(mask.mean())
     for role, poses in (("query", q), ("reference", r)):
         per_run[f"{role}_longest_stay_share"] = longest_stay(poses[:, :2])[0] / len(poses)
-    true_match = gtm_a <= tau
-    per_run.update(touch_at_true_matches(q[:, :2], r[:, :2], true_match, masks["query"], masks["reference"]))
-    matched = true_match.any(axis=1)
-    if not matched.any():
+    matched, nearest, distance, partner = nearest_references(q[:, :2], r[:, :2], truth)
+    per_run.update(touch_at_true_matches(matched, partner, masks["query"], masks["reference"]))
+    if not len(matched):
         return {**dict.fromkeys(DIFFICULTY_KEYS[:4]), **per_run}
-    position = cdist(q[matched, :2], r[:, :2], metric="euclidean")
-    nearest = np.argmin(position, axis=1)
-    distance = position[np.arange(len(nearest)), nearest]
     with_yaw = min(q.shape[1], r.shape[1]) >= 3
     heading = _heading_difference_deg(q[matched, 2], r[nearest, 2]) if with_yaw else None
     return {
         "nearest_ref_median_m": float(np.median(distance)),
         "nearest_ref_p90_m": float(np.percentile(distance, 90)),
         "nearest_ref_heading_median_deg": None if heading is None else float(np.median(heading)),
-        "chance_r1": float(true_match[matched].mean(axis=1).mean()),
+        "chance_r1": float((truth.counts[matched] / len(r)).mean()),
         **per_run,
     }

@@ -37,6 +37,12 @@ Conventions (single-best-match VPR, as VPR_Tutorial's ``createPR(..., matching='
   (our recall denominator counts all queries with a revisit).
 * A threshold that must transfer: `f1_at_threshold_of` scores a pair at the threshold that
   maximised F1 on another pair (the runner: the training world's evaluation), unchanged.
+* Linear memory: every measure is computed from each query's row alone (`QueryStats`,
+  `vitaplace.engine.evaluation.ranking`), so the matrices need not be held whole: `scan` reads
+  the scored matrix a chunk of queries at a time, `true_matches` gives the ground truth from a
+  k-d tree over the poses, and `decisions_from`, `curve_from`, `recall_from` and
+  `summary_from` score the result exactly as `decide`, `pr_curve`, `recall_at_k` and
+  `evaluate` score the whole matrices (which they do through the same path).
 * `vitaplace.engine.evaluation.difficulty` measures the pair itself (nearest reference pose,
   chance level, touch, longest stay), whatever the method; `vitaplace.engine.evaluation.pairfiles`
   writes a pair's files (`evaluate_pair`) and reads them back.
@@ -50,18 +56,26 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
+
+from vitaplace.engine.evaluation.ranking import GroundTruth, QueryStats, Rows, check_ks, scan
 
 __all__ = [
     "Decisions",
     "PRCurve",
     "count_value",
+    "curve_from",
     "decide",
+    "decisions_from",
     "evaluate",
     "f1_at_threshold_of",
     "ground_truth_matrix",
     "pr_curve",
     "recall_at_k",
+    "recall_from",
+    "summary_from",
+    "true_matches",
 ]
 
 
@@ -123,6 +137,15 @@ def _heading_difference_deg(yaw_a: np.ndarray, yaw_b: np.ndarray) -> np.ndarray:
     return np.degrees(np.abs(np.arctan2(np.sin(diff), np.cos(diff))))
 
 
+def _check_heading(heading_tolerance_deg: float | None) -> float | None:
+    if heading_tolerance_deg is None:
+        return None
+    tolerance = float(heading_tolerance_deg)
+    if np.isnan(tolerance) or tolerance < 0:
+        raise ValueError(f"heading_tolerance_deg must be >= 0 degrees or None, got {tolerance!r}")
+    return tolerance
+
+
 def ground_truth_matrix(query_poses: ArrayLike, reference_poses: ArrayLike,
                         heading_tolerance_deg: float | None = None) -> np.ndarray:
     """Ground-truth matrix ``GTM[i, j]`` between query and reference poses ``(N, 3)`` (x, y, yaw).
@@ -133,17 +156,44 @@ def ground_truth_matrix(query_poses: ArrayLike, reference_poses: ArrayLike,
     match at any distance, so ``GTM[i, j] <= tau`` is "position within tau and heading within
     the tolerance". ``None``: position only ((N, 2) poses accepted then).
     """
+    heading_tolerance_deg = _check_heading(heading_tolerance_deg)
     need_yaw = heading_tolerance_deg is not None
-    if heading_tolerance_deg is not None:
-        heading_tolerance_deg = float(heading_tolerance_deg)
-        if np.isnan(heading_tolerance_deg) or heading_tolerance_deg < 0:
-            raise ValueError(f"heading_tolerance_deg must be >= 0 degrees or None, got {heading_tolerance_deg!r}")
     q = _check_poses(query_poses, "query_poses", need_yaw)
     r = _check_poses(reference_poses, "reference_poses", need_yaw)
     gtm = cdist(q[:, :2], r[:, :2], metric="euclidean")
     if need_yaw:
         gtm[_heading_difference_deg(q[:, 2][:, None], r[:, 2][None, :]) > heading_tolerance_deg] = np.inf
     return gtm
+
+
+def _pair_ground_truth(q: np.ndarray, r: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                       heading_tolerance_deg: float | None) -> np.ndarray:
+    """`ground_truth_matrix`'s entries ``[rows, cols]`` (elementwise), by the same arithmetic
+    as its euclidean distance (``sqrt(dx * dx + dy * dy)``, SciPy's ``cdist``) and heading test."""
+    dx, dy = q[rows, 0] - r[cols, 0], q[rows, 1] - r[cols, 1]
+    gt = np.sqrt(dx * dx + dy * dy)
+    if heading_tolerance_deg is not None:
+        gt[_heading_difference_deg(q[rows, 2], r[cols, 2]) > heading_tolerance_deg] = np.inf
+    return gt
+
+
+def true_matches(query_poses: ArrayLike, reference_poses: ArrayLike, tau: float,
+                 heading_tolerance_deg: float | None = None) -> GroundTruth:
+    """`ground_truth_matrix` ``<= tau`` without the matrix: each query's true matches, found
+    by a k-d tree over the positions (every pair within a hair over ``tau``) and kept where
+    the pair's `ground_truth_matrix` entry, computed the same way, is ``<= tau``; memory in
+    proportion to the number of true pairs."""
+    heading_tolerance_deg = _check_heading(heading_tolerance_deg)
+    need_yaw = heading_tolerance_deg is not None
+    q = _check_poses(query_poses, "query_poses", need_yaw)
+    r = _check_poses(reference_poses, "reference_poses", need_yaw)
+    tau = _check_tau(tau)
+    reach = np.nextafter(tau * (1.0 + 1e-9), np.inf)  # the tree's rounding must not lose a pair at tau
+    near = cKDTree(q[:, :2]).sparse_distance_matrix(cKDTree(r[:, :2]), reach, output_type="ndarray")
+    rows, cols = near["i"].astype(np.intp), near["j"].astype(np.intp)
+    true = _pair_ground_truth(q, r, rows, cols, heading_tolerance_deg) <= tau
+    return GroundTruth.of_pairs(tau, (len(q), len(r)), rows[true], cols[true],
+                                lambda i, j: _pair_ground_truth(q, r, i, j, heading_tolerance_deg))
 
 
 # --------------------------------------------------------------------------- decisions
@@ -208,49 +258,45 @@ class Decisions:
         return out.astype(str)
 
 
-def _revisits(gtm: np.ndarray, tau: float) -> np.ndarray:
-    """Per query: whether it has a true match (``min_j gtm[i, j] <= tau``)."""
-    return gtm.min(axis=1) <= tau
+def _stats(tme: np.ndarray, gtm: np.ndarray, tau: float, ks: Sequence[int] = ()) -> QueryStats:
+    """`QueryStats` of whole (checked) matrices."""
+    return scan(Rows.of(tme), GroundTruth.of_matrix(gtm, tau), ks)
 
 
-def _ties(tme: np.ndarray, gtm: np.ndarray, tau: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per query: the best distance, how many references share it (0 where it is +inf: no
-    answer) and the share of those that are true matches (0 without an answer: a query whose
-    every distance is +inf, a method that cannot compare it, is never right)."""
-    best_tme = tme.min(axis=1)
-    at_best = tme == best_tme[:, None]
-    answered = np.isfinite(best_tme)
-    n_best = np.where(answered, at_best.sum(axis=1), 0)
-    true_at_best = (at_best & (gtm <= tau)).sum(axis=1)
-    correct_share = np.divide(true_at_best, n_best, out=np.zeros(len(tme)), where=n_best > 0)
-    return best_tme, n_best, correct_share
+def _check_delta(delta: float) -> float:
+    delta = float(delta)
+    if np.isnan(delta):
+        raise ValueError("delta must not be NaN")
+    return delta
 
 
 def decide(tme: ArrayLike, gtm: ArrayLike, tau: float, delta: float) -> Decisions:
     """Single-best-match decisions for acceptance threshold ``delta`` on the TME."""
     tme_a, gtm_a = _check_matrices(tme, gtm)
     tau = _check_tau(tau)
-    delta = float(delta)
-    if np.isnan(delta):
-        raise ValueError("delta must not be NaN")
-    best_tme, n_best, correct_share = _ties(tme_a, gtm_a, tau)
-    best_match = np.argmin(tme_a, axis=1)
-    has_revisit = _revisits(gtm_a, tau)
+    delta = _check_delta(delta)
+    return decisions_from(_stats(tme_a, gtm_a, tau), delta)
+
+
+def decisions_from(stats: QueryStats, delta: float) -> Decisions:
+    """`decide` from each query's `QueryStats`."""
+    delta = _check_delta(delta)
+    best_tme, correct_share, has_revisit = stats.best_tme, stats.correct_share, stats.has_revisit
     accepted = (best_tme <= delta) & np.isfinite(best_tme)
     tp = np.where(accepted, correct_share, 0.0)
     return Decisions(
-        best_match=best_match,
+        best_match=stats.best_match,
         best_tme=best_tme,
-        best_gtm=gtm_a[np.arange(len(gtm_a)), best_match],
+        best_gtm=stats.best_gtm,
         has_revisit=has_revisit,
         accepted=accepted,
         tp=tp,
         fp=np.where(accepted, 1.0 - correct_share, 0.0),
         fn=np.where(has_revisit, 1.0 - tp, 0.0),
         tn=(~has_revisit & ~accepted).astype(float),
-        tau=tau,
+        tau=stats.tau,
         delta=delta,
-        n_best=n_best,
+        n_best=stats.n_best,
         correct_share=correct_share,
     )
 
@@ -328,16 +374,27 @@ def pr_curve(tme: ArrayLike, gtm: ArrayLike, tau: float, deltas: Iterable[float]
     """
     tme_a, gtm_a = _check_matrices(tme, gtm)
     tau = _check_tau(tau)
-    best_tme, _, correct_share = _ties(tme_a, gtm_a, tau)
-    has_revisit = _revisits(gtm_a, tau)
+    d = _check_deltas(deltas)
+    return curve_from(_stats(tme_a, gtm_a, tau), d)
+
+
+def _check_deltas(deltas: Iterable[float] | None) -> np.ndarray | None:
     if deltas is None:
+        return None
+    d = np.asarray(deltas if isinstance(deltas, np.ndarray) else list(deltas), dtype=float).ravel()
+    if d.size == 0:
+        raise ValueError("deltas must contain at least one threshold")
+    if np.isnan(d).any():
+        raise ValueError("deltas must not contain NaN")
+    return d
+
+
+def curve_from(stats: QueryStats, deltas: Iterable[float] | None = None) -> PRCurve:
+    """`pr_curve` from each query's `QueryStats`."""
+    best_tme, correct_share, has_revisit = stats.best_tme, stats.correct_share, stats.has_revisit
+    d = _check_deltas(deltas)
+    if d is None:
         d = np.concatenate(([-np.inf], np.unique(best_tme[np.isfinite(best_tme)])))
-    else:
-        d = np.asarray(deltas if isinstance(deltas, np.ndarray) else list(deltas), dtype=float).ravel()
-        if d.size == 0:
-            raise ValueError("deltas must contain at least one threshold")
-        if np.isnan(d).any():
-            raise ValueError("deltas must not contain NaN")
     # TP(delta) = the correct shares of the best matches with best_tme <= delta, FP the rest
     # of them; a query without an answer (best_tme +inf) is never accepted.
     answered = np.isfinite(best_tme)
@@ -360,7 +417,7 @@ def pr_curve(tme: ArrayLike, gtm: ArrayLike, tau: float, deltas: Iterable[float]
         fp=fp,
         fn=fn,
         n_revisit=n_revisit,
-        n_queries=int(tme_a.shape[0]),
+        n_queries=len(best_tme),
     )
 
 
@@ -379,28 +436,16 @@ def recall_at_k(tme: ArrayLike, gtm: ArrayLike, tau: float, ks: Sequence[int] = 
     """
     tme_a, gtm_a = _check_matrices(tme, gtm)
     tau = _check_tau(tau)
-    ks_list = [int(k) for k in ks]
-    if any(k < 1 for k in ks_list):
-        raise ValueError(f"every K must be >= 1, got {ks_list}")
-    has_revisit = _revisits(gtm_a, tau)
-    if not has_revisit.any() or not ks_list:
+    ks_list = check_ks(ks)
+    return recall_from(_stats(tme_a, gtm_a, tau, ks_list), ks_list)
+
+
+def recall_from(stats: QueryStats, ks: Sequence[int]) -> dict[int, float]:
+    """`recall_at_k` from each query's `QueryStats` (scanned with these ``ks``)."""
+    ks_list = check_ks(ks)
+    if not stats.has_revisit.any():
         return {k: 0.0 for k in ks_list}
-    t = tme_a[has_revisit]
-    true = (gtm_a[has_revisit] <= tau) & np.isfinite(t)
-    ranked = np.sort(t, axis=1)
-    out = {}
-    for k in ks_list:
-        kk = min(k, t.shape[1])
-        v = ranked[:, kk - 1 : kk]
-        nearer, at_v = t < v, t == v
-        drawn = kk - nearer.sum(axis=1)  # K - L, at least 1
-        m, c = at_v.sum(axis=1), (at_v & true).sum(axis=1)
-        miss = np.ones(len(t))  # C(m - c, drawn) / C(m, drawn) as a product of drawn factors
-        for i in range(int(drawn.max())):
-            miss *= np.where(i < drawn, np.maximum(m - c - i, 0) / np.maximum(m - i, 1), 1.0)
-        hit = np.where((nearer & true).any(axis=1), 1.0, 1.0 - miss)
-        out[k] = float(hit.mean())
-    return out
+    return {k: float(stats.hits[k].mean()) for k in ks_list}
 
 
 # --------------------------------------------------------------------------- summary
@@ -427,12 +472,20 @@ def evaluate(
     """
     tme_a, gtm_a = _check_matrices(tme, gtm)
     tau = _check_tau(tau)
+    ks_list = check_ks(ks)
+    return summary_from(_stats(tme_a, gtm_a, tau, ks_list), delta, ks_list, curve)
+
+
+def summary_from(stats: QueryStats, delta: float | None = None, ks: Sequence[int] = (1, 5, 10),
+                 curve: PRCurve | None = None) -> dict:
+    """`evaluate` from each query's `QueryStats` (scanned with these ``ks``)."""
+    tau = stats.tau
     if curve is None:
-        curve = pr_curve(tme_a, gtm_a, tau)
-    rk = recall_at_k(tme_a, gtm_a, tau, ks)
+        curve = curve_from(stats)
+    rk = recall_from(stats, ks)
     out: dict = {
-        "n_queries": int(tme_a.shape[0]),
-        "n_references": int(tme_a.shape[1]),
+        "n_queries": len(stats.best_tme),
+        "n_references": stats.n_references,
         "n_revisit": int(curve.n_revisit),
         "tau": float(tau),
         "max_f1": float(curve.max_f1),
@@ -443,10 +496,10 @@ def evaluate(
         "auc_method": "average_precision_stepwise",
         "recall_at_100_precision": curve.recall_at_full_precision,
         "recall_at_k": {str(k): float(v) for k, v in rk.items()},
-        "tied_share": float(np.mean(_ties(tme_a, gtm_a, tau)[1] > 1)),
+        "tied_share": float(np.mean(stats.n_best > 1)),
     }
     if delta is not None:
-        dec = decide(tme_a, gtm_a, tau, delta)
+        dec = decisions_from(stats, delta)
         c = dec.counts
         p = 1.0 if c["tp"] + c["fp"] == 0 else c["tp"] / (c["tp"] + c["fp"])
         r = 0.0 if c["n_revisit"] == 0 else c["tp"] / c["n_revisit"]

@@ -1,12 +1,18 @@
 """The files of one evaluation pair: `evaluate_pair` scores a query run against a reference
 run and writes ``matrices.npz``, ``decisions.csv``, ``decisions.npz`` and ``pr_curve.npz``
 (every write atomic); `load_curve` and `load_decisions` read the last two back.
+
+The scores come from each query's row alone (`vitaplace.engine.evaluation.ranking`): a pair
+of at most `FULL_MATRIX_LIMIT` entries is held whole, as ``matrices.npz`` (and the figures
+drawn from it) need; a larger one is read a chunk of queries at a time, in memory linear in
+the number of samples, and its ``matrices.npz`` is not written.
 """
 
 from __future__ import annotations
 
 import csv
 import dataclasses
+import logging
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -16,9 +22,18 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from vitaplace.engine.base.atomic import atomic_path
-from vitaplace.engine.evaluation.difficulty import difficulty
-from vitaplace.engine.evaluation.evaluate import Decisions, PRCurve, decide, evaluate, ground_truth_matrix, pr_curve
-from vitaplace.engine.evaluation.sequence import sequence_scores
+from vitaplace.engine.evaluation.difficulty import difficulty_from
+from vitaplace.engine.evaluation.evaluate import (
+    Decisions,
+    PRCurve,
+    curve_from,
+    decisions_from,
+    ground_truth_matrix,
+    summary_from,
+    true_matches,
+)
+from vitaplace.engine.evaluation.ranking import Rows, scan
+from vitaplace.engine.evaluation.sequence import sequence_rows
 from vitaplace.engine.outputs.outdir import DECISIONS, DECISIONS_CSV, MATRICES, PR_CURVE
 
 __all__ = [
@@ -28,7 +43,14 @@ __all__ = [
     "evaluate_pair",
     "load_curve",
     "load_decisions",
+    "FULL_MATRIX_LIMIT",
 ]
+
+log = logging.getLogger("vitaplace")
+
+#: the largest pair (queries x references entries) whose matrices are held whole and written
+#: to ``matrices.npz``: 25 million entries, 200 MB per float64 matrix (a 5,000 x 5,000 pair)
+FULL_MATRIX_LIMIT = 25_000_000
 
 
 def export_decisions_csv(
@@ -130,7 +152,7 @@ def window_span(reference_poses: np.ndarray, window: int) -> float:
 
 def evaluate_pair(
     folder: str | os.PathLike,
-    tme: np.ndarray,
+    tme: np.ndarray | Rows,
     query_poses: np.ndarray,
     reference_poses: np.ndarray,
     tau: float,
@@ -151,22 +173,36 @@ def evaluate_pair(
     added. With ``sequence`` (`sequence_scores`' settings) the sequence scores are what is
     scored and saved as ``tme``, the method's own distances as ``distance``, and the summary
     names the settings (``sequence``: length, velocity_min, velocity_max, velocity_steps,
-    window) and the reference drive the window covers (``window_span_m``, `window_span`)."""
+    window) and the reference drive the window covers (``window_span_m``, `window_span`).
+    ``tme`` may be a `Rows` (the method's distances computed a block of queries at a time):
+    above `FULL_MATRIX_LIMIT` entries nothing is held whole and ``matrices.npz`` is skipped
+    (one line in the log)."""
     folder = Path(folder)
-    distance, extra = tme, {}
-    if sequence is not None:
-        tme, extra = sequence_scores(distance, **sequence), {"distance": distance}
-    gtm = ground_truth_matrix(query_poses, reference_poses, heading_tolerance_deg)
-    curve = pr_curve(tme, gtm, tau)
-    summary = evaluate(tme, gtm, tau, delta, tuple(ks), curve=curve)
+    distance = tme if isinstance(tme, Rows) else Rows.of(tme)
+    whole = distance.shape[0] * distance.shape[1] <= FULL_MATRIX_LIMIT
+    if whole:
+        distance = Rows.of(distance.whole())
+    scored = distance if sequence is None else sequence_rows(distance, **sequence)
+    if whole:
+        scored = Rows.of(scored.whole())
+    truth = true_matches(query_poses, reference_poses, tau, heading_tolerance_deg)
+    stats = scan(scored, truth, tuple(ks))
+    curve = curve_from(stats)
+    summary = summary_from(stats, delta, tuple(ks), curve=curve)
     summary["heading_tolerance_deg"] = heading_tolerance_deg
     if sequence is not None:  # numbers only, as every field of a results row
         (slowest, fastest), rest = sequence["velocities"], {k: v for k, v in sequence.items() if k != "velocities"}
         summary["sequence"] = {**rest, "velocity_min": slowest, "velocity_max": fastest,
                                "window_span_m": window_span(reference_poses, int(sequence["window"]))}
-    summary["difficulty"] = difficulty(query_poses, reference_poses, gtm, tau, query_touch, reference_touch)
-    decisions = decide(tme, gtm, tau, curve.delta_at_max_f1)
-    export_matrices_npz(folder / MATRICES, tme, gtm, query_poses=query_poses, reference_poses=reference_poses, **extra)
+    summary["difficulty"] = difficulty_from(query_poses, reference_poses, truth, query_touch, reference_touch)
+    decisions = decisions_from(stats, curve.delta_at_max_f1)
+    if whole:
+        extra = {} if sequence is None else {"distance": distance.whole()}
+        export_matrices_npz(folder / MATRICES, scored.whole(), ground_truth_matrix(query_poses, reference_poses,
+                            heading_tolerance_deg), query_poses=query_poses, reference_poses=reference_poses, **extra)
+    else:
+        log.warning("%s: %d x %d samples is over %d entries: matrices.npz not written", folder,
+                    *distance.shape, FULL_MATRIX_LIMIT)
     export_decisions_csv(folder / DECISIONS_CSV, decisions)
     save_curve_and_decisions(folder, curve, decisions)
     return summary
