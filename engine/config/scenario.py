@@ -392,7 +392,7 @@ class ScoringSettings(Strict):
 
 
 class ReportSettings(Strict):
-    """What the report draws besides report.md (`vitaplace.engine.report.report.write_report`)."""
+    """Read from the run's scenario.resolved.yaml, so `vitaplace report OUT` draws the same."""
 
     figures: typing.Literal["all", "summary", "none"] = pydantic.Field(
         "all",
