@@ -252,12 +252,18 @@ def load_sweep_scenario(
     return scenario, resolved
 
 
+#: the figures each seed's report draws unless the scenario's ``report.figures`` says: the PR
+#: curves and training energy a reader of the sweep looks at, not every method's matrices
+SEED_FIGURES = "summary"
+
+
 def seed_jobs(
     scenario: Scenario, resolved: dict[str, Any], seeds: Sequence[int], out: Path, force: Sequence[str] = (),
     progress: bool = False, marker: str = "", point: str = "",
 ) -> list[SeedJob]:
     """One job per seed (of the grid point ``point``); each seed is validated here, so a bad
-    one is a user error up front."""
+    one is a user error up front. Each seed's report draws `SEED_FIGURES` unless the scenario
+    sets ``report.figures``."""
     from vitaplace.engine.pipeline.keys import STAGES
     from vitaplace.engine.sim.environment import load_environment
 
@@ -269,6 +275,7 @@ def seed_jobs(
     named = [entry["environment"] for entry in _runs(resolved) if isinstance(entry.get("environment"), str)]
     environments = {n: load_environment(n).model_dump(mode="json") for n in named}
     resolved = _absolute_files(resolved)
+    resolved["report"] = {"figures": SEED_FIGURES, **(resolved.get("report") or {})}
     jobs = []
     for seed in seeds:
         data = {**copy.deepcopy(resolved), "seed": seed}

@@ -391,6 +391,17 @@ class ScoringSettings(Strict):
     )
 
 
+class ReportSettings(Strict):
+    """Read from the run's scenario.resolved.yaml, so `vitaplace report OUT` draws the same."""
+
+    figures: typing.Literal["all", "summary", "none"] = pydantic.Field(
+        "all",
+        description="all: every figure; summary: each evaluation's PR curves and each method's training energy, "
+        "no per-method matrices or trajectories; none: report.md alone. A sweep's seeds default to summary",
+    )
+    pdf: bool = pydantic.Field(False, description="each figure as a PDF besides its PNG")
+
+
 class Scenario(Strict):
     name: SafeName = pydantic.Field(description="the scenario's name (reports, output folders): letters, digits, _ . -")
     description: str = pydantic.Field("", description="free text shown in the report")
@@ -415,6 +426,7 @@ class Scenario(Strict):
     fusions: list[Fusion] = pydantic.Field(
         [], description="late fusions of two of the methods, scored like a method (docs/DESIGN.md, Late fusion)"
     )
+    report: ReportSettings = pydantic.Field(ReportSettings(), description="which figures the report draws")
 
     @pydantic.model_validator(mode="after")
     def _unique_names(self) -> Scenario:

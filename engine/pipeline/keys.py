@@ -17,7 +17,7 @@ from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 3, "transform": 4, "evaluate": 8, "report": 13}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 3, "transform": 4, "evaluate": 8, "report": 14}
 #: the version of a late fusion's evaluation (part of its key)
 FUSION_VERSION = 1
 
@@ -66,3 +66,9 @@ def fusion_key(fusion: Fusion, chosen_on: str, scenario: Scenario, members: list
     (``members``: this evaluation's two and the selection evaluation's two)."""
     return content_hash("evaluate-fusion", FUSION_VERSION, fusion.model_dump(), chosen_on,
                         scenario.scoring.model_dump(exclude={"complementarity"}), members)
+
+
+def report_key(scenario: Scenario, inputs: dict[str, Any]) -> str:
+    """The key of the report: the figures its settings ask for (``report``) and what it reads
+    (`vitaplace.engine.report.report.report_key_inputs`)."""
+    return content_hash("report", STAGE_VERSION["report"], scenario.report.model_dump(), inputs)

@@ -2,9 +2,9 @@
 (paper Fig. 5), trajectories over the arena map, training energy.
 
 Every function draws on its own ``matplotlib.figure.Figure`` with an Agg canvas (no pyplot,
-no global backend switch), saves ``<out_stem>.png`` and ``<out_stem>.pdf`` atomically and
-returns the two paths. Legends sit outside the axes (they never hide data) and colour bars
-name the quantity they show.
+no global backend switch), saves ``<out_stem>.<format>`` atomically for each of its
+``formats`` (PNG and PDF unless told) and returns the paths. Legends sit outside the axes
+(they never hide data) and colour bars name the quantity they show.
 """
 
 from __future__ import annotations
@@ -36,6 +36,11 @@ TME_PERCENTILES = (1.0, 90.0)
 #: curve that another one covers still shows around it)
 PR_STYLES = ("-", "--", ":", "-.")
 #: what the lines and bands of `plot_pr_bands` show (written into the figure)
+#: the formats a figure is saved in unless told (a run's report: `ReportSettings.pdf`)
+FORMATS = ("png", "pdf")
+#: the metadata each format is saved with (none that changes between runs)
+_METADATA: dict[str, dict[str, None]] = {"png": {"Software": None},
+                                         "pdf": {"CreationDate": None, "Creator": None, "Producer": None}}
 BAND_NOTE = ("line: mean interpolated precision over seeds; band: lowest to highest seed\n"
              "(interpolated precision: the best precision at that recall or above)")
 
@@ -46,13 +51,13 @@ def _new_figure(figsize: tuple[float, float]) -> Figure:
     return fig
 
 
-def _save(fig: Figure, out_stem: str | os.PathLike) -> list[Path]:
+def _save(fig: Figure, out_stem: str | os.PathLike, formats: Sequence[str] = FORMATS) -> list[Path]:
     stem = Path(out_stem)
     paths = []
-    for fmt, meta in (("png", {"Software": None}), ("pdf", {"CreationDate": None, "Creator": None, "Producer": None})):
+    for fmt in formats:
         path = stem.with_name(stem.name + "." + fmt)
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, format=fmt, dpi=150, metadata=meta)
+            fig.savefig(tmp, format=fmt, dpi=150, metadata=_METADATA[fmt])
         paths.append(path)
     return paths
 
@@ -65,7 +70,7 @@ def _primary_outcome(decisions: Decisions) -> np.ndarray:
 
 
 def plot_matrices(out_stem: str | os.PathLike, tme: ArrayLike, gtm: ArrayLike, decisions: Decisions,
-                  title: str = "") -> list[Path]:
+                  title: str = "", formats: Sequence[str] = FORMATS) -> list[Path]:
     """GTM and TME heat maps side by side (rows = queries, columns = references) with the
     decision of each query drawn as a dot at (query, best match): green TP, red FP
     (accepted and wrong), olive TP|FP (accepted, tied between true and wrong matches; drawn at
@@ -109,10 +114,11 @@ def plot_matrices(out_stem: str | os.PathLike, tme: ArrayLike, gtm: ArrayLike, d
                title="decision of each query at its best match")
     sup = f"tau={decisions.tau:g}, delta={decisions.delta:g}"
     fig.suptitle(f"{title} ({sup})" if title else sup)
-    return _save(fig, out_stem)
+    return _save(fig, out_stem, formats)
 
 
-def plot_pr_curves(out_stem: str | os.PathLike, curves: Mapping[str, PRCurve], title: str = "") -> list[Path]:
+def plot_pr_curves(out_stem: str | os.PathLike, curves: Mapping[str, PRCurve], title: str = "",
+                   formats: Sequence[str] = FORMATS) -> list[Path]:
     """Precision-recall curve per method with the max-F1 point marked; the legend gives max F1
     and AUC.  Drawn step-wise in threshold order so that the area under the drawn curve is the
     AUC (step-wise average precision)."""
@@ -128,7 +134,7 @@ def plot_pr_curves(out_stem: str | os.PathLike, curves: Mapping[str, PRCurve], t
                 markeredgecolor="black", linestyle="", zorder=10 + i)
     _finish_pr_axes(fig, ax, "precision", len(curves), title or "Precision-recall (★ = max F1)",
                     "AUC: step-wise average precision")
-    return _save(fig, out_stem)
+    return _save(fig, out_stem, formats)
 
 
 def _pr_style(i: int, n_curves: int) -> dict:
@@ -225,7 +231,8 @@ def _landmark_patch(lm: Mapping) -> Patch:
 
 
 def plot_trajectories(out_stem: str | os.PathLike, query_poses: ArrayLike, reference_poses: ArrayLike,
-                      decisions: Decisions, arena: Mapping | None = None, title: str = "") -> list[Path]:
+                      decisions: Decisions, arena: Mapping | None = None, title: str = "",
+                      formats: Sequence[str] = FORMATS) -> list[Path]:
     """Top view of the query and reference runs over the arena, with accepted matches drawn
     as segments from query pose to matched reference pose (green TP, red FP, olive TP|FP: a
     tie between true and wrong matches, drawn to its lowest index)."""
@@ -255,10 +262,11 @@ def plot_trajectories(out_stem: str | os.PathLike, query_poses: ArrayLike, refer
     ax.set_ylabel("y [m]")
     fig.legend(loc="outside lower center", ncols=2, fontsize="small")
     ax.set_title(title or "Trajectories and accepted matches")
-    return _save(fig, out_stem)
+    return _save(fig, out_stem, formats)
 
 
-def plot_energy(out_stem: str | os.PathLike, energy: Mapping[str, Sequence[float]], title: str = "") -> list[Path]:
+def plot_energy(out_stem: str | os.PathLike, energy: Mapping[str, Sequence[float]], title: str = "",
+                formats: Sequence[str] = FORMATS) -> list[Path]:
     """Training energy per layer (one line per key) against epoch, log y axis
     (non-positive values are masked)."""
     fig = _new_figure((6.5, 4.5))
@@ -280,4 +288,4 @@ def plot_energy(out_stem: str | os.PathLike, energy: Mapping[str, Sequence[float
     ax.set_ylabel("energy")
     ax.grid(True, which="both", alpha=0.3)
     ax.set_title(title or "Training energy per layer")
-    return _save(fig, out_stem)
+    return _save(fig, out_stem, formats)

@@ -16,10 +16,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pydantic
 import yaml
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.config.scenario import ReportSettings
 from vitaplace.engine.evaluation.complementarity import count_text
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
@@ -436,35 +438,67 @@ def _drive_section(manifest: dict[str, Any]) -> list[str]:
     )
 
 
-def _evaluation_sections(out: Path, rows: Sequence[ResultRow]) -> list[str]:
-    """Per evaluation: its PR curves, and per method and direction its matrices with the
-    decisions and its matches drawn over the trajectories (figures into OUT/figures)."""
-    fig_dir = out / FIGURES
+def _evaluation_sections(out: Path, rows: Sequence[ResultRow], settings: ReportSettings) -> list[str]:
+    """Per evaluation: its PR curves, and (``figures: all``) per method and direction its
+    matrices with the decisions and its matches drawn over the trajectories (figures into
+    OUT/figures, from the evaluation's saved curve, matrices and decisions); with ``figures:
+    none`` a line saying that none were drawn."""
+    if settings.figures == "none":
+        return ["## Figures", "", "None drawn (the scenario's `report.figures` is `none`).", ""]
+    fig_dir, formats = out / FIGURES, figure_formats(settings)
     one_direction = len({row.direction for row in rows}) == 1
     sections = []
     for environment in dict.fromkeys(row.environment for row in rows):
-        arena_file = arena_path(out, environment)
-        arena = json.loads(arena_file.read_text()) if arena_file.is_file() else None
-        with np.load(poses_path(out, environment)) as saved:
-            poses = {side: saved[side] for side in ("query", "reference")}
         curves = {}
         sections += [f"## {environment}", "", f"![PR curves](figures/pr-{environment}.png)", ""]
         for row in (r for r in rows if r.environment == environment):
-            method, direction = row.method, row.direction
-            folder = evaluation_dir(out, environment, method, direction)
-            with np.load(folder / MATRICES) as m:
-                tme, gtm = m["tme"], m["gtm"]
-            curves[method if one_direction else f"{method} {direction}"] = load_curve(folder / PR_CURVE)
-            decisions = load_decisions(folder / DECISIONS)
-            stem = f"{environment}-{method}-{direction}"
-            figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{environment} {method}")
-            query, reference = direction.split("-to-")
-            figures.plot_trajectories(fig_dir / f"trajectories-{stem}", poses[query], poses[reference], decisions,
-                                      arena=arena, title=f"{environment} {method}: matches at max F1")
-            sections += [f"### {method} ({direction})", "", f"![GTM and TME](figures/matrices-{stem}.png)", "",
-                         f"![trajectories](figures/trajectories-{stem}.png)", ""]
-        figures.plot_pr_curves(fig_dir / f"pr-{environment}", curves, title=f"{environment}: precision-recall")
+            folder = evaluation_dir(out, environment, row.method, row.direction)
+            curves[row.method if one_direction else f"{row.method} {row.direction}"] = load_curve(folder / PR_CURVE)
+            if settings.figures == "all":
+                sections += _pair_figures(out, row, formats)
+        figures.plot_pr_curves(fig_dir / f"pr-{environment}", curves, title=f"{environment}: precision-recall",
+                               formats=formats)
     return sections
+
+
+def _pair_figures(out: Path, row: ResultRow, formats: Sequence[str]) -> list[str]:
+    """The matrices with the decisions and the matches over the trajectories of one method and
+    direction of one evaluation (drawn into OUT/figures), and the report lines showing them."""
+    environment, method, direction = row.environment, row.method, row.direction
+    folder = evaluation_dir(out, environment, method, direction)
+    with np.load(folder / MATRICES) as m:
+        tme, gtm = m["tme"], m["gtm"]
+    decisions = load_decisions(folder / DECISIONS)
+    arena_file = arena_path(out, environment)
+    arena = json.loads(arena_file.read_text()) if arena_file.is_file() else None
+    query, reference = direction.split("-to-")
+    with np.load(poses_path(out, environment)) as poses:
+        query_poses, reference_poses = poses[query], poses[reference]
+    stem, fig_dir = f"{environment}-{method}-{direction}", out / FIGURES
+    figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{environment} {method}",
+                          formats=formats)
+    figures.plot_trajectories(fig_dir / f"trajectories-{stem}", query_poses, reference_poses, decisions,
+                              arena=arena, title=f"{environment} {method}: matches at max F1", formats=formats)
+    return [f"### {method} ({direction})", "", f"![GTM and TME](figures/matrices-{stem}.png)", "",
+            f"![trajectories](figures/trajectories-{stem}.png)", ""]
+
+
+def figure_formats(settings: ReportSettings) -> tuple[str, ...]:
+    """The formats each figure is saved in: PNG, and PDF when asked; none without figures."""
+    if settings.figures == "none":
+        return ()
+    return ("png", "pdf") if settings.pdf else ("png",)
+
+
+def report_settings(out: Path, resolved: Mapping[str, Any]) -> ReportSettings:
+    """The ``report`` settings of the resolved scenario of ``out`` (the defaults where it sets
+    none); ReportError naming the file when they are not valid."""
+    try:
+        return ReportSettings.model_validate(resolved.get("report") or {})
+    except pydantic.ValidationError as exc:
+        problem = exc.errors()[0]
+        where = ".".join(str(p) for p in ("report", *problem["loc"]))
+        raise ReportError(f"{out / completion.SCENARIO}: {where}: {problem['msg']}") from None
 
 
 def _provenance_section(manifest: dict[str, Any]) -> list[str]:
@@ -552,10 +586,12 @@ def _fusions_section(rows: Sequence[ResultRow], fusions: list[dict[str, Any]]) -
 
 
 def write_report(out: Path) -> None:
-    """figures/ (PNG + PDF) and report.md for the run in ``out``, from its files alone."""
+    """report.md for the run in ``out`` and the figures its scenario's ``report`` settings ask
+    for (`ReportSettings`) in figures/, from its files alone."""
     out = Path(out)
     manifest, rows = read_inputs(out)
     resolved = yaml.safe_load((out / completion.SCENARIO).read_text()) or {}
+    settings = report_settings(out, resolved)
     description = resolved.get("description", "")
     sections = [
         *_header(manifest, description, rows),
@@ -568,8 +604,8 @@ def write_report(out: Path) -> None:
         *_inference_section(manifest),
         *_tactile_range_section(manifest),
         *_drive_section(manifest),
-        *_evaluation_sections(out, rows),
-        *training_section(out, list(manifest["methods"]), manifest["training"]),
+        *_evaluation_sections(out, rows, settings),
+        *training_section(out, list(manifest["methods"]), manifest["training"], figure_formats(settings)),
         *_inputs_section(manifest),
         *_provenance_section(manifest),
     ]

@@ -5,6 +5,7 @@ held-out energy, for the methods that record them (`FeatureExtractor.training_su
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -14,16 +15,17 @@ from vitaplace.engine.outputs.outdir import FIGURES, training_path
 from vitaplace.engine.report import figures
 
 
-def training_section(out: Path, methods: list[str], summaries: dict[str, dict[str, Any]]) -> list[str]:
-    """The training energy per layer of each method that recorded it, whether it met its
-    convergence criterion, how far from settled its persistent latents were at the end and its
-    held-out energy (the methods that measure them)."""
+def training_section(out: Path, methods: list[str], summaries: dict[str, dict[str, Any]],
+                     formats: Sequence[str]) -> list[str]:
+    """The training energy per layer of each method that recorded it (a figure in each of
+    ``formats``; none without), whether it met its convergence criterion, how far from settled
+    its persistent latents were at the end and its held-out energy (the methods that measure them)."""
     sections = []
     for name in methods:
         path = training_path(out, name)
-        if path.is_file():
+        if path.is_file() and formats:
             figures.plot_energy(out / FIGURES / f"training-{name}", json.loads(path.read_text()),
-                                title=f"{name}: training energy per layer")
+                                title=f"{name}: training energy per layer", formats=formats)
             sections += [f"![training {name}](figures/training-{name}.png)", ""]
         summary = summaries.get(name, {})
         if "converged" in summary and "epochs" in summary:

@@ -4,6 +4,8 @@ the test-time inference cap, recorded inputs and features that carried nothing, 
 from __future__ import annotations
 
 import json
+import re
+import shutil
 import subprocess
 import sys
 from importlib.metadata import version
@@ -23,7 +25,7 @@ from vitaplace.engine.report import figures
 def drawn(monkeypatch) -> list:
     """The figures the plot functions draw, instead of saving them."""
     figs: list = []
-    monkeypatch.setattr(figures, "_save", lambda fig, stem: figs.append(fig) or [])
+    monkeypatch.setattr(figures, "_save", lambda fig, stem, formats=(): figs.append(fig) or [])
     return figs
 
 
@@ -191,6 +193,82 @@ def test_recorded_run_report_and_manifest_end_to_end(tmp_path):
     assert manifest["plugins"]["handcrafted"] == {
         "plugin": "handcrafted (vitaplace)", "distribution": "vitaplace", "version": version("vitaplace")}
     assert manifest["git_dirty"] in (True, False)
+
+
+# --------------------------------------------------------------------------- which figures
+
+
+@pytest.fixture(scope="module")
+def recorded_out(tmp_path_factory) -> Path:
+    """The output folder of `_recorded_scenario` (H on E1), with a training curve for H as a
+    method that trains records one."""
+    from vitaplace.engine.cli.main import main
+    from vitaplace.engine.outputs.outdir import training_path
+
+    folder = tmp_path_factory.mktemp("recorded")
+    path, _ = _recorded_scenario(folder)
+    assert main(["-q", "run", str(path), "--out", str(folder / "out"), "--no-progress"]) == 0
+    training_path(folder / "out", "H").parent.mkdir(exist_ok=True)
+    training_path(folder / "out", "H").write_text(json.dumps({"layer 1": [3.0, 2.0, 1.5]}))
+    return folder / "out"
+
+
+def _with_report_settings(out: Path, to: Path, settings: dict | None) -> Path:
+    """``out`` copied to ``to`` without its report and figures, its resolved scenario's ``report`` ``settings``."""
+    copy = Path(shutil.copytree(out, to, ignore=shutil.ignore_patterns("cache", "figures", "report.md*")))
+    resolved = yaml.safe_load((copy / "scenario.resolved.yaml").read_text())
+    (copy / "scenario.resolved.yaml").write_text(yaml.safe_dump({**resolved, "report": settings}))
+    return copy
+
+
+#: the figures of `recorded_out` that ``report.figures: summary`` draws
+SUMMARY_FIGURES = ["pr-E1", "training-H"]
+#: and those ``all`` draws besides
+PAIR_FIGURES = ["matrices-E1-H-query-to-reference", "trajectories-E1-H-query-to-reference"]
+
+
+@pytest.mark.parametrize("pdf", [False, True])
+@pytest.mark.parametrize("figures, stems", [("all", SUMMARY_FIGURES + PAIR_FIGURES), ("summary", SUMMARY_FIGURES),
+                                            ("none", [])])
+def test_each_report_setting_draws_its_figures_and_links_only_those(recorded_out, tmp_path, figures, stems, pdf):
+    """``report: {figures, pdf}`` in the folder's resolved scenario: exactly the figures asked
+    for, as PNG (and PDF when asked), and report.md shows exactly those PNGs."""
+    from vitaplace.engine.report.report import write_report
+
+    copy = _with_report_settings(recorded_out, tmp_path / "copy", {"figures": figures, "pdf": pdf})
+    write_report(copy)
+    drawn = sorted(p.name for p in (copy / "figures").iterdir()) if (copy / "figures").is_dir() else []
+    assert drawn == sorted(f"{stem}.{ext}" for stem in stems for ext in (("png", "pdf") if pdf else ("png",)))
+    report = (copy / "report.md").read_text()
+    assert sorted(re.findall(r"\]\(figures/([^)]+)\)", report)) == sorted(f"{stem}.png" for stem in stems)
+    assert ("None drawn (the scenario's `report.figures` is `none`)" in report) == (figures == "none")
+
+
+def test_a_run_draws_every_figure_as_png_alone_unless_told(recorded_out):
+    drawn = sorted(p.name for p in (recorded_out / "figures").iterdir())
+    assert drawn == sorted(f"{stem}.png" for stem in ["pr-E1", *PAIR_FIGURES])  # H records no training curve
+
+
+def test_a_report_setting_the_folder_cannot_hold_is_a_user_error(recorded_out, tmp_path):
+    from vitaplace.engine.report.report import ReportError, write_report
+
+    copy = _with_report_settings(recorded_out, tmp_path / "copy", {"figures": "some"})
+    with pytest.raises(ReportError, match=r"scenario.resolved.yaml: report.figures: Input should be 'all', "):
+        write_report(copy)
+
+
+def test_the_report_key_follows_its_settings(recorded_out):
+    """Each of the six report settings has its own key; the defaults written out, the key of none."""
+    from vitaplace.engine.config.scenario import Scenario
+    from vitaplace.engine.pipeline.keys import report_key
+    from vitaplace.engine.report.report import report_key_inputs
+
+    inputs = report_key_inputs(recorded_out)
+    base = yaml.safe_load((recorded_out / "scenario.resolved.yaml").read_text())
+    keys = {(f, pdf): report_key(Scenario.model_validate({**base, "report": {"figures": f, "pdf": pdf}}), inputs)
+            for f in ("all", "summary", "none") for pdf in (False, True)}
+    assert len(set(keys.values())) == 6
+    assert report_key(Scenario.model_validate(base), inputs) == keys[("all", False)]
 
 
 # --------------------------------------------------------------------------- experiment tracking

@@ -446,6 +446,21 @@ def test_bad_seeds_and_stages_are_user_errors_before_any_job(tmp_path):
             sweep.seed_jobs(scenario, resolved, seeds, tmp_path / "out", force)
 
 
+@pytest.mark.parametrize("given, expected", [
+    (None, {"figures": "summary"}), ({"pdf": True}, {"figures": "summary", "pdf": True}),
+    ({"figures": "all"}, {"figures": "all"}), ({"figures": "none", "pdf": False}, {"figures": "none", "pdf": False}),
+])
+def test_a_seed_s_report_draws_the_summary_unless_the_scenario_says(tmp_path, given, expected):
+    from vitaplace.engine.config.loading import load_scenario
+
+    data = {**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(data if given is None else {**data, "report": given}))
+    scenario, resolved = load_scenario(tmp_path / "s.yaml")
+    jobs = sweep.seed_jobs(scenario, resolved, [1, 2], tmp_path / "out")
+    assert [job.scenario["report"] for job in jobs] == [expected, expected]
+    assert "report" not in resolved or resolved["report"] == given  # the driver's mapping is left as it was
+
+
 def test_recorded_run_files_reach_jobs_as_absolute_paths(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     resolved = {"train": {"dataset": "train.h5"},

@@ -14,8 +14,7 @@ from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Scenario
 from vitaplace.engine.extension.features import save_features
 from vitaplace.engine.outputs import outdir
-from vitaplace.engine.outputs.keys import content_hash
-from vitaplace.engine.pipeline.keys import STAGE_VERSION
+from vitaplace.engine.pipeline.keys import report_key
 from vitaplace.engine.pipeline.manifest import write_manifest
 from vitaplace.engine.pipeline.records import ReportRecord, RunRecord
 from vitaplace.engine.pipeline.store import Store
@@ -41,6 +40,6 @@ def report(store: Store, scenario: Scenario, record: RunRecord) -> ReportRecord:
     for method, history in (record.fit.histories if record.fit is not None else {}).items():
         write_text_atomic(outdir.training_path(store.out, method), json.dumps(history))
     write_manifest(record)
-    key = content_hash("report", STAGE_VERSION["report"], report_key_inputs(store.out))
+    key = report_key(scenario, report_key_inputs(store.out))
     store.stage("report", "report", key, store.out / outdir.REPORT, partial(_drawn_anew, store.out))
     return ReportRecord([store.out / outdir.REPORT, *report_files(store.out, record.rows, list(record.methods))])
