@@ -271,13 +271,22 @@ def validate_command(args: argparse.Namespace) -> int:
 
 
 def config_command(args: argparse.Namespace) -> int:
-    """`vitaplace config SCENARIO [--set ...]`: the resolved scenario, as a run writes it into
-    ``scenario.resolved.yaml``."""
+    """`vitaplace config SCENARIO [--set ...] [--resolved]`: the resolved scenario, as a run writes it
+    into ``scenario.resolved.yaml``; with ``--resolved``, every default filled in, each method's
+    parameters as its plugin receives them (`plan.method_settings`)."""
     import yaml
 
     from vitaplace.engine.config.loading import load_scenario
 
-    _, resolved = load_scenario(args.scenario, args.overrides)
+    scenario, resolved = load_scenario(args.scenario, args.overrides)
+    if args.resolved:
+        from vitaplace.engine.extension.registry import discover
+        from vitaplace.engine.pipeline.plan import method_settings
+
+        settings = method_settings(scenario, discover())
+        resolved = scenario.model_dump(mode="json")
+        for method in resolved["methods"]:
+            method["params"] = {**settings[method["name"]]["params"], **settings[method["name"]]["defaults"]}
     print(yaml.safe_dump(resolved, sort_keys=False), end="")
     return 0
 

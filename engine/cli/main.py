@@ -145,6 +145,9 @@ def _add_inspection_commands(sub: argparse._SubParsersAction, common: argparse.A
                        help="print the resolved scenario as YAML: what run would use (extends merged, --set applied)")
     p.set_defaults(handler=config_command)
     _add_scenario_args(p, out=False)
+    p.add_argument("--resolved", action="store_true",
+                   help="every setting, the defaults the scenario leaves out filled in (each method's parameters "
+                   "too, as its plugin resolves them)")
     p = sub.add_parser("plugins", parents=[common],
                        help="list the feature-extractor plugins and any that failed to load")
     p.set_defaults(handler=plugins_command)

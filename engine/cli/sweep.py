@@ -29,6 +29,7 @@ import logging
 import os
 import re
 import socket
+import sys
 import time
 import traceback
 import typing
@@ -46,7 +47,7 @@ from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.cpus import blas_threads, configure_blas_threads, usable_cpus
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.cli.installation import describe, installation, mismatch
-from vitaplace.engine.cli.ray_auth import init_ray
+from vitaplace.engine.cli.ray_auth import held_stderr, init_ray
 from vitaplace.engine.cli.slurm import SlurmSettings, run_array
 from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
@@ -402,14 +403,18 @@ def connect_ray(address: str) -> tuple[Any, str]:
 
 
 def _probe() -> dict[str, Any]:
-    """Probe task: this worker's host and `installation`."""
-    return {"host": socket.gethostname(), **installation()}
+    """Probe task: this worker's host and `installation`, and what the worker wrote to stderr
+    meanwhile (``stderr``: shown only when the check fails)."""
+    with held_stderr() as held:
+        found = installation()
+    return {"host": socket.gethostname(), **found, "stderr": held.text}
 
 
 def check_ray_cluster(ray: Any, where: str, cpus: float, gpus: float) -> None:
     """Refuse, before any seed is submitted, a cluster that cannot run the sweep right: a node
     whose `installation` differs from the driver's, or no node with ``cpus`` CPUs and ``gpus``
-    GPUs (the seeds would wait forever)."""
+    GPUs (the seeds would wait forever). What the check writes to stderr, on the driver and in
+    the probe tasks (Ray's native stack traces among it), is shown only when it fails."""
     from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
     nodes = [node for node in ray.nodes() if node.get("Alive")]
@@ -424,15 +429,17 @@ def check_ray_cluster(ray: Any, where: str, cpus: float, gpus: float) -> None:
                       scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False)).remote()
         for node in nodes
     ]
-    mine = installation()
-    try:
-        found = ray.get(refs, timeout=PROBE_TIMEOUT_S)
-    except Exception as exc:  # noqa: BLE001 - e.g. vitaplace cannot be imported on a node
-        raise UserError(f"--ray {where}: the probe task failed on the cluster: {describe_failure(exc)}") from None
-    for theirs in found:
-        differs = mismatch(mine, theirs, f"node {theirs['host']}")
-        if differs:
-            raise UserError(f"--ray {where}: {differs}")
+    found: list[dict[str, Any]] = []
+    with held_stderr() as held:
+        mine = installation()
+        try:
+            found = ray.get(refs, timeout=PROBE_TIMEOUT_S)
+            failure = next(filter(None, (mismatch(mine, theirs, f"node {theirs['host']}") for theirs in found)), None)
+        except Exception as exc:  # noqa: BLE001 - e.g. vitaplace cannot be imported on a node
+            failure = f"the probe task failed on the cluster: {describe_failure(exc)}"
+    if failure is not None:
+        sys.stderr.write(held.text + "".join(theirs.get("stderr", "") for theirs in found))
+        raise UserError(f"--ray {where}: {failure}")
     log.info("Ray: %d node(s) run %s", len(found), describe(mine))
 
 

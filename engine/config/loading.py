@@ -4,8 +4,9 @@ then check its runs, methods and memory needs, so that every error surfaces here
 
 from __future__ import annotations
 
+import copy
 import logging
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -65,16 +66,14 @@ def _prepared(data: dict[str, Any], path: Path) -> dict[str, Any]:
     return _absolute_paths(rename_legacy_keys(data, str(path)), path.parent)
 
 
-def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
-    """Environment and run-file paths are relative to the file that names them."""
+def _map_paths(data: dict[str, Any], change: Callable[[str, str], str]) -> dict[str, Any]:
+    """``data`` with each environment and run-file path of its runs replaced by
+    ``change(key, path)`` (key: ``environment``, ``dataset``, ``query`` or ``reference``)."""
 
     def fix(entry: Any, keys: tuple[str, ...] = ("environment", "dataset")) -> None:
         for key in keys if isinstance(entry, dict) else ():
             if isinstance(entry.get(key), str):
-                where = folder / entry[key]
-                if key == "environment":  # a shipped name (e1) when no such file is next to the scenario
-                    where = local_or_shipped(folder, entry[key], key)
-                entry[key] = str(_resolved(where))
+                entry[key] = change(key, entry[key])
         if isinstance(entry, dict) and "datasets" in keys:
             fix(entry.get("datasets"), ("query", "reference"))
 
@@ -83,6 +82,30 @@ def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
     for entry in evaluations if isinstance(evaluations, list) else []:  # anything else: the schema says why
         fix(entry, ("environment", "datasets"))
     return data
+
+
+def _absolute_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """Environment and run-file paths are relative to the file that names them."""
+
+    def absolute(key: str, path: str) -> str:
+        # an environment: a shipped name (e1) when no such file is next to the scenario
+        return str(_resolved(local_or_shipped(folder, path, key) if key == "environment" else folder / path))
+
+    return _map_paths(data, absolute)
+
+
+def relative_paths(data: dict[str, Any], folder: Path) -> dict[str, Any]:
+    """A copy of the resolved scenario mapping ``data`` with each environment and run-file path
+    inside ``folder`` relative to it; the others as they are. A scenario file in ``folder``
+    reads its paths from there (`load_scenario`), so it names the same files, wherever the
+    folder is moved."""
+    base = _resolved(Path(folder))
+
+    def relative(key: str, path: str) -> str:
+        where = _resolved(Path(path))
+        return where.relative_to(base).as_posix() if where.is_relative_to(base) else path
+
+    return _map_paths(copy.deepcopy(data), relative)
 
 
 def _resolved(path: Path) -> Path:

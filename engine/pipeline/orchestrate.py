@@ -13,6 +13,7 @@ import yaml
 
 import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
+from vitaplace.engine.config.loading import relative_paths
 from vitaplace.engine.config.scenario import Scenario, training_world_evaluation
 from vitaplace.engine.extension.registry import announce_run_finished, plugin_distributions
 from vitaplace.engine.outputs import completion, stale
@@ -50,7 +51,7 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
         until = held
     before = completion.files_of(out)
     completion.clear(out)  # first: until the new record, the folder holds no finished run
-    write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(resolved, sort_keys=False))
+    write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(relative_paths(resolved, out), sort_keys=False))
     started = time.perf_counter()
     stop = STAGES.index(until)
     simulated = simulate(store, scenario)  # first: a scenario's runs are recorded before anything reads its methods

@@ -26,7 +26,7 @@ class StageRecord:
     status: str  # "ran", "cached" or "recorded"
     seconds: float
     inputs: list[str] = field(default_factory=list)  # keys of the upstream outputs it was made from
-    output: str = ""  # its output, relative to the output directory when inside it
+    output: str = ""  # its output, relative to the output directory when inside the folder holding it
 
 
 @dataclass(frozen=True)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
@@ -128,7 +129,10 @@ class Store:
             self._keep_warnings(output, raised)
             checksum.seal(output, key)
         seconds = time.perf_counter() - start
-        where = output.relative_to(self.out) if output.is_relative_to(self.out) else output
+        # relative to the output folder when inside the folder that holds it (a sweep's seed
+        # folder and the sweep's shared cache: ../cache/...), so the records move with it
+        beside = output.resolve().is_relative_to(self.out.resolve().parent)
+        where = os.path.relpath(output, self.out) if beside else output
         log.debug("%-9s %-28s %s in %.2f s: %s", stage, item, status, seconds, where)
         self.records.append(StageRecord(stage, item, key, status, round(seconds, 3), list(inputs), str(where)))
         return Made(checksum.sealed_digest(output), result)

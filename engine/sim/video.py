@@ -3,8 +3,8 @@ robot's camera frame, the top view with the trajectory so far and the whisker co
 that whisk cycle, and each whisker's deflection at the sampling instant.
 
 Written with matplotlib's animation writers: GIF through Pillow (always there), MP4 through
-ffmpeg when it is on the PATH. Works for imported runs too (no arena, no contacts: the top
-view then shows the trajectory alone).
+ffmpeg: the one on the PATH, else the one the ``video`` extra installs (imageio-ffmpeg). Works
+for imported runs too (no arena, no contacts: the top view then shows the trajectory alone).
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import os
 import tempfile
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 from matplotlib import animation
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -46,10 +47,20 @@ def _writer(suffix: str, fps: float) -> animation.AbstractMovieWriter:
         return animation.PillowWriter(fps=fps)  # type: ignore[arg-type]  # matplotlib's stubs say int; a float works
     if suffix == ".mp4":
         if not animation.writers.is_available("ffmpeg"):
-            raise UserError("an MP4 video needs ffmpeg on the PATH (e.g. `apt-get install ffmpeg`); "
-                            "write a .gif instead")
+            _use_pip_ffmpeg()
         return animation.FFMpegWriter(fps=fps)  # type: ignore[arg-type]  # matplotlib's stubs say int; a float works
     raise UserError(f"video: unknown format {suffix!r}; expected {' or '.join(FORMATS)}")
+
+
+def _use_pip_ffmpeg() -> None:
+    """Point matplotlib at imageio-ffmpeg's ffmpeg (``rcParams["animation.ffmpeg_path"]``) when
+    there is none on the PATH; UserError, one line, when imageio-ffmpeg is not installed either."""
+    try:
+        import imageio_ffmpeg
+    except ImportError:
+        raise UserError('an MP4 video needs ffmpeg: install the video extra (pip install "vitaplace[video]") '
+                        "or put ffmpeg on the PATH (e.g. `apt-get install ffmpeg`); or write a .gif") from None
+    matplotlib.rcParams["animation.ffmpeg_path"] = imageio_ffmpeg.get_ffmpeg_exe()
 
 
 def check_video(run: Run, path: Path, fps: float) -> None:

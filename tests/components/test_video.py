@@ -9,6 +9,7 @@ import contextlib
 import math
 import os
 import shutil
+import sys
 import threading
 import time
 
@@ -64,17 +65,32 @@ def test_video_has_a_frame_per_sample_and_shows_touch_and_contacts(tmp_path, cap
     assert _red_pixels(frames[3], 1) == pytest.approx(_red_pixels(frames[0], 1), abs=10)  # contacts of one cycle only
 
 
-def test_video_step_and_an_mp4_without_ffmpeg(tmp_path, capsys, monkeypatch):
+def test_video_step_and_an_mp4_without_any_ffmpeg(tmp_path, capsys, monkeypatch):
     path = _run(tmp_path)
     assert main(["-q", "video", str(path), "--step", "2", "--out", str(tmp_path / "v" / "every-2nd.gif")]) == 0
     assert Image.open(tmp_path / "v" / "every-2nd.gif").n_frames == 3  # samples 0, 2, 4
     from matplotlib import animation
 
     monkeypatch.setattr(animation.writers, "is_available", lambda name: False)
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # not installed: importing it fails
     capsys.readouterr()
     assert main(["video", str(path), "--out", str(tmp_path / "v.mp4")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "ffmpeg" in err[0] and not (tmp_path / "v.mp4").exists()
+    assert len(err) == 1 and "ffmpeg" in err[0] and "vitaplace[video]" in err[0], err
+    assert not (tmp_path / "v.mp4").exists()
+
+
+def test_an_mp4_without_ffmpeg_on_the_path_is_written_with_the_video_extras_ffmpeg(tmp_path, capsys, monkeypatch):
+    imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
+    import matplotlib
+
+    path = _run(tmp_path)
+    monkeypatch.setitem(matplotlib.rcParams, "animation.ffmpeg_path", "ffmpeg")  # matplotlib's default, restored
+    monkeypatch.setenv("PATH", "")
+    assert main(["-q", "video", str(path), "--step", "2", "--out", str(tmp_path / "v.mp4")]) == 0
+    assert (tmp_path / "v.mp4").read_bytes()[4:8] == b"ftyp"  # an MP4 (ISO base media) file
+    frames, _ = imageio_ffmpeg.count_frames_and_secs(str(tmp_path / "v.mp4"))
+    assert frames == 3  # samples 0, 2, 4
 
 
 def _empty_run(tmp_path):

@@ -76,6 +76,46 @@ def test_a_ray_cluster_that_requires_a_token_is_named_in_one_line(listening, mon
     assert not (folder / "out" / "seed-0").exists()
 
 
+class OneNodeRay:
+    """Stands in for a connected ``ray`` with one node; a task runs in this process when it is
+    submitted; ``other_version`` makes the node answer with another vitaplace version."""
+
+    def __init__(self, other_version: bool):
+        self.other_version = other_version
+
+    def nodes(self):
+        return [{"Alive": True, "NodeID": "ab" * 28, "Resources": {"CPU": 2.0}}]
+
+    def remote(self, function):
+        task = SimpleNamespace(remote=function)
+        return SimpleNamespace(options=lambda **_: task)
+
+    def get(self, refs, timeout):
+        return [{**found, "version": "0.0.0"} if self.other_version else found for found in refs]
+
+
+def test_the_ray_installation_check_shows_native_stderr_only_when_it_fails(monkeypatch, capfd):
+    """What the check writes to file descriptor 2 (as Ray's native stack traces are), on the
+    driver and in the probe task, is held back when every node matches and shown when one
+    does not, above the one-line reason."""
+    pytest.importorskip("ray")
+    import vitaplace.engine.cli.sweep as sweep
+    from vitaplace.engine.base.errors import UserError
+
+    same = {"version": "1.0", "commit": "abc", "dirty": False, "plugins": ["p=dist==1"]}
+
+    def noisy_installation():
+        os.write(2, b"*** SIGABRT received at time=1 on cpu 0 ***\n")
+        return dict(same)
+
+    monkeypatch.setattr(sweep, "installation", noisy_installation)
+    assert sweep.check_ray_cluster(OneNodeRay(other_version=False), "n:1", 1, 0) is None
+    assert "SIGABRT" not in capfd.readouterr().err
+    with pytest.raises(UserError, match="node .* runs vitaplace 0.0.0"):
+        sweep.check_ray_cluster(OneNodeRay(other_version=True), "n:1", 1, 0)
+    assert capfd.readouterr().err.count("*** SIGABRT received at time=1 on cpu 0 ***\n") == 2  # driver and node
+
+
 def test_installations_differ_by_version_commit_uncommitted_changes_or_plugins():
     from vitaplace.engine.cli.installation import installation, mismatch
 

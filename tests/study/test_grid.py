@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 from scipy import stats
@@ -314,6 +315,29 @@ def test_config_prints_the_scenario_the_api_resolves(tmp_path, capsys):
     assert resolved["scoring"]["tau"] == 0.4 and resolved["methods"][1]["name"] == "H2"
     assert main(["config", "quickstart"]) == 0
     assert yaml.safe_load(capsys.readouterr().out)["name"] == api.load_scenario("quickstart").name
+
+
+def test_config_resolved_fills_every_default_and_keeps_what_the_scenario_sets(tmp_path, capsys):
+    from vitaplace.engine.config.scenario import ScoringSettings
+    from vitaplace.engine.sim.robot import RobotSpec
+    from vitaplace.plugins.handcrafted.extractor import HandcraftedParams
+    from vitaplace.plugins.mupnet.extractor import MupnetParams
+
+    path = _scenario_file(tmp_path, test_plugin=False)  # sets scoring.tau 0.3; method H with no params
+    sets = ["methods.0.params.crop_fraction=0.5", "seed=7", "methods+={name: L, plugin: mupnet}"]
+    assert main(["config", str(path), "--resolved", *(a for s in sets for a in ("--set", s))]) == 0
+    resolved = yaml.safe_load(capsys.readouterr().out)
+    assert resolved["scoring"]["tau"] == 0.3 and resolved["seed"] == 7
+    assert resolved["scoring"]["direction"] == ScoringSettings.model_fields["direction"].default
+    assert resolved["robot"]["whisk_hz"] == RobotSpec.model_fields["whisk_hz"].default
+    h, mupnet = resolved["methods"]
+    assert h["params"]["crop_fraction"] == 0.5
+    assert h["params"]["max_shift"] == HandcraftedParams.model_fields["max_shift"].default
+    assert set(h["params"]) == set(HandcraftedParams.model_fields)
+    assert mupnet["params"]["epochs"] == MupnetParams.model_fields["epochs"].default
+    # the seed the run hands the second method: SeedSequence([scenario seed, 1000 + its place])
+    assert mupnet["params"]["seed"] == int(np.random.SeedSequence([7, 1001]).generate_state(1)[0])
+    assert Scenario.model_validate(resolved).model_dump(mode="json") == resolved
 
 
 @pytest.mark.parametrize("args, message", [

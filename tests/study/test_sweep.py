@@ -427,7 +427,7 @@ def test_a_job_reads_nothing_from_the_driver_s_files(tmp_path, monkeypatch):
     assert result["sees_out"] is False and result["rows"][0]["seed"] == 4
     written = yaml.safe_load((tmp_path / "out" / "seed-4" / "scenario.resolved.yaml").read_text())
     assert written["seed"] == 4
-    assert written["train"]["environment"] == str(tmp_path / "out" / "seed-4" / "environments" / "arena.yaml")
+    assert written["train"]["environment"] == "environments/arena.yaml"  # the seed folder's copy, from there
     assert sweep.run_seed(forced)["sees_out"] is True
     stages = json.loads((tmp_path / "out" / "seed-4" / "manifest.json").read_text())["stages"]
     assert {r["stage"] for r in stages if r["status"] == "ran"} == {"evaluate"}
@@ -696,3 +696,27 @@ def test_aggregate_out_that_cannot_be_written_is_one_line(local_sweep, tmp_path,
         lines = err.strip().splitlines()
         assert len(lines) == 1 and "Traceback" not in err and f"--out {target}" in lines[0], lines
     assert blocker.read_text() == ""
+
+
+def test_a_sweeps_files_name_its_folder_relatively_and_still_read_after_a_move(tmp_path, monkeypatch):
+    """No file of a sweep holds the absolute path of its output folder: the seed's resolved
+    scenario names its environment copies from the seed folder, the manifest its cache files
+    from there (../cache/...); after the folder moves, both still name existing files."""
+    from vitaplace.engine.config.loading import load_scenario
+
+    monkeypatch.chdir(tmp_path)
+    scenario = {**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}
+    Path("tiny.yaml").write_text(yaml.safe_dump(scenario))
+    assert main(["-q", "sweep", "tiny.yaml", "--seeds", "0", "--workers", "1", "--out", "out", "--no-progress"]) == 0
+    absolute = str(tmp_path / "out").encode()
+    holding = [str(p) for p in (tmp_path / "out").rglob("*") if p.is_file() and absolute in p.read_bytes()]
+    assert holding == []
+    (tmp_path / "out").rename(tmp_path / "moved")
+    seed = tmp_path / "moved" / "seed-0"
+    resolved = yaml.safe_load((seed / "scenario.resolved.yaml").read_text())
+    assert resolved["train"]["environment"] == "environments/e1.yaml"
+    scenario, _ = load_scenario(seed / "scenario.resolved.yaml")
+    assert scenario.train.environment == seed / "environments" / "e1.yaml"
+    outputs = [stage["output"] for stage in json.loads((seed / "manifest.json").read_text())["stages"]]
+    assert "../cache/datasets" in "\n".join(outputs)
+    assert outputs and all((seed / output).exists() for output in outputs), outputs
