@@ -367,9 +367,11 @@ class SequenceSettings(Strict):
 
     @pydantic.model_validator(mode="after")
     def _ordered(self) -> SequenceSettings:
-        if self.metres is not None and self.model_fields_set & {"velocities", "velocity_steps"}:
+        fields = type(self).model_fields
+        if self.metres is not None and (self.velocities, self.velocity_steps) != (
+                fields["velocities"].default, fields["velocity_steps"].default):
             raise ValueError("velocities: searched only by a sequence of length samples; with metres the sequence "
-                             "follows the odometry (leave velocities and velocity_steps out)")
+                             "follows the odometry (leave velocities and velocity_steps at their defaults)")
         low, high = self.velocities
         if not (math.isfinite(low) and math.isfinite(high)) or low > high:
             raise ValueError(f"velocities: expected [slowest, fastest] with 0 < slowest <= fastest, both finite, "

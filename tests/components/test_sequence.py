@@ -215,6 +215,9 @@ def test_metres_zero_is_the_distance_matrix_itself():
 def test_metres_searches_no_velocities_and_keys_nothing_when_left_out():
     with pytest.raises(pydantic.ValidationError, match="velocities: searched only by a sequence of length samples"):
         SequenceSettings(metres=1.0, velocity_steps=3)
+    # a dumped setting reads back (its velocities are the defaults, named)
+    settings = SequenceSettings(metres=2.0, length=5)
+    assert SequenceSettings.model_validate(settings.model_dump()) == settings
     assert "metres" not in SequenceSettings(length=5).model_dump()
     assert SequenceSettings(metres=2.0, length=5).model_dump()["metres"] == 2.0
 
