@@ -102,10 +102,7 @@ def sequence_scores(
 ) -> np.ndarray:
     """The sequence score ``S`` of every (query, reference) pair (module docstring); ``length``
     1 or ``metres`` 0 returns ``distances`` unchanged."""
-    d = np.asarray(distances, dtype=float)
-    if length == 1 or metres == 0:
-        return d
-    return sequence_rows(Rows.of(d), length, velocities, velocity_steps, window, metres, poses).whole()
+    return sequence_rows(Rows.of(distances), length, velocities, velocity_steps, window, metres, poses).whole()
 
 
 def sequence_rows(

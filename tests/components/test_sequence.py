@@ -181,6 +181,19 @@ def test_sequences_over_travelled_distance_equal_a_plain_loop(seed, length, metr
     np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
 
 
+def test_sequences_over_travelled_distance_in_chunks_equal_the_whole_matrix(seed):
+    from vitaplace.engine.evaluation.ranking import Rows
+    from vitaplace.engine.evaluation.sequence import sequence_rows
+
+    rng = np.random.default_rng(seed)
+    d = rng.random((29, 11))
+    poses = (stop_and_go(rng, 29), stop_and_go(rng, 11))
+    whole = sequence_scores(d, 4, window=3, metres=0.6, poses=poses)
+    rows = sequence_rows(Rows.of(d), 4, window=3, metres=0.6, poses=poses)
+    for size in (1, 4, 7):
+        np.testing.assert_array_equal(np.vstack([block for _, block in rows.chunks(size)]), whole)
+
+
 def test_a_stop_changes_no_sequence_over_travelled_distance():
     # one drive 0.25 m a sample along x, straight through (5 samples) and standing at 0.5 m for
     # two more samples (7): the samples of the stop see what sample 2 saw
