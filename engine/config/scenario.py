@@ -337,7 +337,14 @@ class SequenceSettings(Strict):
     """SeqSLAM-style sequence matching of the distances (`vitaplace.engine.evaluation.sequence`)."""
 
     length: pydantic.PositiveInt = pydantic.Field(
-        1, description="queries per sequence (the query and the length - 1 before it); 1: single-sample matching"
+        1, description="queries per sequence (the query and the length - 1 before it), or with metres the points "
+        "over those metres; 1: single-sample matching"
+    )
+    metres: float | None = pydantic.Field(
+        None, ge=0, allow_inf_nan=False,
+        description="match over this much travelled distance [m] of each run's poses (SeqSLAM with odometry: length "
+        "points evenly spaced back from the sample, each the nearest sample) instead of length samples; velocities "
+        "do not apply; 0: single-sample matching; null: length samples",
     )
     velocities: tuple[pydantic.PositiveFloat, pydantic.PositiveFloat] = pydantic.Field(
         (0.8, 1.25), description="[slowest, fastest] relative velocity searched (references per query)"
@@ -349,8 +356,22 @@ class SequenceSettings(Strict):
         10, description="local contrast: references on either side whose mean and spread normalise an entry"
     )
 
+    @pydantic.model_serializer(mode="wrap")
+    def _metres_when_set(self, handler: pydantic.SerializerFunctionWrapHandler) -> dict[str, Any]:
+        """The settings without ``metres`` when it is null: a scenario without it dumps, and so
+        keys its evaluations, as before the option existed."""
+        data: dict[str, Any] = handler(self)
+        if self.metres is None:
+            data.pop("metres", None)
+        return data
+
     @pydantic.model_validator(mode="after")
     def _ordered(self) -> SequenceSettings:
+        fields = type(self).model_fields
+        if self.metres is not None and (self.velocities, self.velocity_steps) != (
+                fields["velocities"].default, fields["velocity_steps"].default):
+            raise ValueError("velocities: searched only by a sequence of length samples; with metres the sequence "
+                             "follows the odometry (leave velocities and velocity_steps at their defaults)")
         low, high = self.velocities
         if not (math.isfinite(low) and math.isfinite(high)) or low > high:
             raise ValueError(f"velocities: expected [slowest, fastest] with 0 < slowest <= fastest, both finite, "
@@ -382,7 +403,8 @@ class ScoringSettings(Strict):
     sequence: SequenceSettings = pydantic.Field(
         SequenceSettings(),
         description="sequence matching (SeqSLAM): each query scored by the best straight line of length queries "
-        "through the locally normalised distances; length 1 (the default) matches single samples",
+        "through the locally normalised distances, or with metres by length points over that travelled distance; "
+        "length 1 (the default) matches single samples",
     )
     complementarity: list[ComplementarityPair] = pydantic.Field(
         [],
@@ -473,6 +495,8 @@ class Scenario(Strict):
         """A sequence no longer than any simulated run it is matched on (a recorded run is
         checked when it is scored)."""
         length = self.scoring.sequence.length
+        if self.scoring.sequence.metres is not None:  # points of the odometry, not samples
+            return self
         for i, e in enumerate(self.evaluations):
             if e.run is not None and length > e.run.n_samples:
                 raise ValueError(f"scoring.sequence.length: {length} is longer than evaluation {e.name}'s runs "

@@ -33,7 +33,7 @@ from vitaplace.engine.evaluation.evaluate import (
     true_matches,
 )
 from vitaplace.engine.evaluation.ranking import Rows, scan
-from vitaplace.engine.evaluation.sequence import sequence_rows
+from vitaplace.engine.evaluation.sequence import sequence_rows, travelled
 from vitaplace.engine.outputs.outdir import DECISIONS, DECISIONS_CSV, MATRICES, PR_CURVE
 
 __all__ = [
@@ -144,10 +144,9 @@ def load_decisions(path: str | os.PathLike) -> Decisions:
 def window_span(reference_poses: np.ndarray, window: int) -> float:
     """The median length of reference drive (metres, along its path) that the local contrast's
     window of ``window`` references on either side of a reference covers (cut at the run's ends)."""
-    xy = np.asarray(reference_poses, dtype=float)[:, :2]
-    travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    j = np.arange(len(xy))
-    return float(np.median(travelled[np.minimum(j + window, len(xy) - 1)] - travelled[np.maximum(j - window, 0)]))
+    path = travelled(reference_poses)
+    j = np.arange(len(path))
+    return float(np.median(path[np.minimum(j + window, len(path) - 1)] - path[np.maximum(j - window, 0)]))
 
 
 def evaluate_pair(
@@ -173,7 +172,9 @@ def evaluate_pair(
     added. With ``sequence`` (`sequence_scores`' settings) the sequence scores are what is
     scored and saved as ``tme``, the method's own distances as ``distance``, and the summary
     names the settings (``sequence``: length, velocity_min, velocity_max, velocity_steps,
-    window) and the reference drive the window covers (``window_span_m``, `window_span`).
+    window, and ``metres`` when sequences run over travelled distance: the sequences then
+    follow the two runs' poses) and the reference drive the window covers (``window_span_m``,
+    `window_span`).
     ``tme`` may be a `Rows` (the method's distances computed a block of queries at a time):
     above `FULL_MATRIX_LIMIT` entries nothing is held whole and ``matrices.npz`` is skipped
     (one line in the log)."""
@@ -182,7 +183,8 @@ def evaluate_pair(
     whole = distance.shape[0] * distance.shape[1] <= FULL_MATRIX_LIMIT
     if whole:
         distance = Rows.of(distance.whole())
-    scored = distance if sequence is None else sequence_rows(distance, **sequence)
+    scored = (distance if sequence is None
+              else sequence_rows(distance, **sequence, poses=(query_poses, reference_poses)))
     if whole:
         scored = Rows.of(scored.whole())
     truth = true_matches(query_poses, reference_poses, tau, heading_tolerance_deg)

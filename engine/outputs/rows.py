@@ -130,8 +130,9 @@ class Difficulty(_Part):
 
 
 class SequenceMatching(_Part):
-    """The sequence matching settings the row was scored with, and the reference drive its
-    local contrast window covers (median metres, ``window_span_m``)."""
+    """The sequence matching settings the row was scored with (``metres``: over that much
+    travelled distance), and the reference drive its local contrast window covers (median
+    metres, ``window_span_m``)."""
 
     length: Positive
     velocity_steps: Positive
@@ -139,6 +140,7 @@ class SequenceMatching(_Part):
     velocity_min: Real
     velocity_max: Real
     window_span_m: DistanceOrNull = None
+    metres: DistanceOrNull = None
 
 
 class FusionChoice(_Part):

@@ -22,9 +22,9 @@ def sequence_for(scenario: Scenario, query: str, n_queries: int) -> dict[str, An
     """The scenario's sequence matching settings (None for single samples), checked against
     the length of the query run ``query`` (a recorded run's is known only here)."""
     sequence = scenario.scoring.sequence
-    if sequence.length == 1:
+    if sequence.length == 1 or sequence.metres == 0:
         return None
-    if sequence.length > n_queries:
+    if sequence.metres is None and sequence.length > n_queries:
         raise ScenarioError(f"scoring.sequence.length: {sequence.length} is longer than run {query} "
                             f"({n_queries} samples); expected at most that")
     return sequence.model_dump()

@@ -296,6 +296,10 @@ def _matching(sequence: SequenceMatching | None, tau: float) -> str:
     """How the distances were matched: single samples (nothing to say) or sequences."""
     if sequence is None:
         return ""
+    if sequence.metres is not None:
+        return (f", scored by sequences of {sequence.length} points over {sequence.metres:g} m of travelled distance "
+                f"(SeqSLAM with the runs' recorded poses as odometry: local contrast over ±{sequence.window} "
+                f"references{_window_caveat(sequence, tau)})")
     return (f", scored by sequences of {sequence.length} queries (SeqSLAM: local contrast over "
             f"±{sequence.window} references{_window_caveat(sequence, tau)}, the best straight line at "
             f"{sequence.velocity_steps} relative velocities in [{sequence.velocity_min:g}, "

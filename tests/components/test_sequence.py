@@ -11,6 +11,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pydantic
 import pytest
 import yaml
 
@@ -19,7 +20,12 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.config.scenario import ScoringSettings, SequenceSettings  # noqa: E402
 from vitaplace.engine.evaluation.evaluate import evaluate, ground_truth_matrix  # noqa: E402
-from vitaplace.engine.evaluation.sequence import local_contrast, sequence_scores  # noqa: E402
+from vitaplace.engine.evaluation.sequence import (  # noqa: E402
+    local_contrast,
+    points_back,
+    sequence_scores,
+    travelled,
+)
 
 ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
 
@@ -49,6 +55,50 @@ def reference_scores(d: np.ndarray, length: int, velocities: tuple[float, float]
                 if terms:
                     out[i, j] = min(out[i, j], float(np.mean(terms)))
     return out
+
+
+def reference_odometry_scores(d: np.ndarray, length: int, window: int, metres: float, query_xy: np.ndarray,
+                              reference_xy: np.ndarray) -> np.ndarray:
+    """Sequences over travelled distance written as plainly as they are defined (sequence.py's
+    docstring): every point's sample found by a search over the whole run."""
+    contrast = _contrast(d, window)
+
+    def path(xy: np.ndarray) -> list[float]:
+        return [sum(float(np.hypot(*(xy[k + 1] - xy[k]))) for k in range(i)) for i in range(len(xy))]
+
+    def point(t: list[float], i: int, back: float) -> int | None:
+        at = t[i] - back
+        if at < 0:
+            return None
+        gaps = [abs(t[k] - at) for k in range(i + 1)]
+        return max(k for k in range(i + 1) if gaps[k] == min(gaps))  # the nearest, the later on a tie
+
+    tq, tr = path(query_xy), path(reference_xy)
+    out = np.full(d.shape, np.inf)
+    for i in range(d.shape[0]):
+        for j in range(d.shape[1]):
+            terms = []
+            for k in range(length):
+                qi, rj = point(tq, i, metres * k / (length - 1)), point(tr, j, metres * k / (length - 1))
+                if qi is not None and rj is not None and np.isfinite(contrast[qi, rj]):
+                    terms.append(contrast[qi, rj])
+            if terms:
+                out[i, j] = float(np.mean(terms))
+    return out
+
+
+def _contrast(d: np.ndarray, window: int) -> np.ndarray:
+    """Local contrast written plainly: each finite entry against its row's finite entries within
+    ``window`` references."""
+    contrast = np.full(d.shape, np.inf)
+    for i in range(d.shape[0]):
+        for j in range(d.shape[1]):
+            if np.isfinite(d[i, j]):
+                near = d[i, max(0, j - window): j + window + 1]
+                near = near[np.isfinite(near)]
+                std = near.std()
+                contrast[i, j] = (d[i, j] - near.mean()) / (std if std > 1e-12 * abs(near.mean()) else 1.0)
+    return contrast
 
 
 def test_length_one_is_the_distance_matrix_itself():
@@ -107,6 +157,84 @@ def test_a_query_the_method_cannot_compare_is_scored_by_the_sequence_that_ends_a
     assert np.isinf(sequence_scores(np.full((4, 4), np.inf), 2, (1.0, 1.0), 1, 3)).all()  # nothing to compare
 
 
+def poses_of(xy: np.ndarray) -> np.ndarray:
+    """Poses (x, y, yaw) at the points ``xy``, all facing +x."""
+    return np.c_[xy, np.zeros(len(xy))]
+
+
+def stop_and_go(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A drive of ``n`` samples that stops (a third of its steps are 0 m) and turns."""
+    steps = rng.random(n - 1) * 0.2 * (rng.random(n - 1) > 0.3)
+    heading = np.cumsum(rng.normal(0.0, 0.5, n - 1))
+    return poses_of(np.vstack([[0.0, 0.0], np.cumsum(np.c_[steps * np.cos(heading), steps * np.sin(heading)], 0)]))
+
+
+@pytest.mark.parametrize("length, metres, window", [(2, 0.3, 3), (5, 1.0, 10), (4, 0.45, 2), (3, 5.0, 1)])
+def test_sequences_over_travelled_distance_equal_a_plain_loop(seed, length, metres, window):
+    rng = np.random.default_rng(seed)
+    d = rng.random((17, 23)) * 3
+    d[rng.random(d.shape) < 0.1] = np.inf  # pairs the method cannot compare
+    d[4] = np.inf  # a query without the method's sensor
+    query, reference = stop_and_go(rng, 17), stop_and_go(rng, 23)
+    got = sequence_scores(d, length, window=window, metres=metres, poses=(query, reference))
+    want = reference_odometry_scores(d, length, window, metres, query[:, :2], reference[:, :2])
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
+
+
+def test_sequences_over_travelled_distance_in_chunks_equal_the_whole_matrix(seed):
+    from vitaplace.engine.evaluation.ranking import Rows
+    from vitaplace.engine.evaluation.sequence import sequence_rows
+
+    rng = np.random.default_rng(seed)
+    d = rng.random((29, 11))
+    poses = (stop_and_go(rng, 29), stop_and_go(rng, 11))
+    whole = sequence_scores(d, 4, window=3, metres=0.6, poses=poses)
+    rows = sequence_rows(Rows.of(d), 4, window=3, metres=0.6, poses=poses)
+    for size in (1, 4, 7):
+        np.testing.assert_array_equal(np.vstack([block for _, block in rows.chunks(size)]), whole)
+
+
+def test_a_stop_changes_no_sequence_over_travelled_distance():
+    # one drive 0.25 m a sample along x, straight through (5 samples) and standing at 0.5 m for
+    # two more samples (7): the samples of the stop see what sample 2 saw
+    through = np.random.default_rng(3).random((5, 8))
+    stopped = through[[0, 1, 2, 2, 2, 3, 4]]
+    at_stop = np.array([0.0, 0.25, 0.5, 0.5, 0.5, 0.75, 1.0])
+    reference = poses_of(np.c_[np.arange(8) * 0.25, np.zeros(8)])
+    s_through = sequence_scores(through, 3, metres=0.5, poses=(poses_of(np.c_[at_stop[[0, 1, 2, 5, 6]], np.zeros(5)]),
+                                                              reference))
+    s_stopped = sequence_scores(stopped, 3, metres=0.5, poses=(poses_of(np.c_[at_stop, np.zeros(7)]), reference))
+    np.testing.assert_array_equal(s_stopped, s_through[[0, 1, 2, 2, 2, 3, 4]])
+    # by hand: the last sample's points are 1.0, 0.75 and 0.5 m: samples 6, 5 and 4 (the later of
+    # the three at 0.5 m); a stopped sample's own point is itself, not a later one
+    assert points_back(at_stop, np.array([6, 3]), np.array([0.0, 0.25, 0.5])).tolist() == [[6, 5, 4], [3, 1, 0]]
+    # reference 7 (1.75 m) has 1.75, 1.5, 1.25 m: the mean of contrast entries (6, 7), (5, 6), (4, 5)
+    c = local_contrast(stopped, 10)
+    assert s_stopped[6, 7] == pytest.approx((c[6, 7] + c[5, 6] + c[4, 5]) / 3, rel=1e-12)
+    # the first sample has no drive behind it: its one point is itself
+    assert s_stopped[0, 7] == pytest.approx(c[0, 7], rel=1e-12)
+    # three samples back instead: the stop puts one place three times into the line, and it differs
+    assert not np.allclose(sequence_scores(stopped, 3, (1.0, 1.0), 1)[5], sequence_scores(through, 3, (1.0, 1.0), 1)[3])
+
+
+def test_metres_zero_is_the_distance_matrix_itself():
+    d = np.random.default_rng(1).random((7, 9))
+    rng = np.random.default_rng(2)
+    assert np.array_equal(sequence_scores(d, 5, metres=0.0, poses=(stop_and_go(rng, 7), stop_and_go(rng, 9))), d)
+    with pytest.raises(ValueError, match="metres needs the query and reference poses"):
+        sequence_scores(d, 5, metres=1.0)
+
+
+def test_metres_searches_no_velocities_and_keys_nothing_when_left_out():
+    with pytest.raises(pydantic.ValidationError, match="velocities: searched only by a sequence of length samples"):
+        SequenceSettings(metres=1.0, velocity_steps=3)
+    # a dumped setting reads back (its velocities are the defaults, named)
+    settings = SequenceSettings(metres=2.0, length=5)
+    assert SequenceSettings.model_validate(settings.model_dump()) == settings
+    assert "metres" not in SequenceSettings(length=5).model_dump()
+    assert SequenceSettings(metres=2.0, length=5).model_dump()["metres"] == 2.0
+
+
 @pytest.mark.parametrize("setting, message", [
     ("scoring.sequence.length=0", "scoring.sequence.length"),
     ("scoring.sequence.velocities=[1.5, 0.8]", "scoring.sequence: velocities: expected [slowest, fastest]"),
@@ -114,6 +242,7 @@ def test_a_query_the_method_cannot_compare_is_scored_by_the_sequence_that_ends_a
     ("scoring.sequence.velocities=[0, 1]", "scoring.sequence.velocities"),
     ("scoring.sequence.window=0", "scoring.sequence.window"),
     ("scoring.sequence.length=100000", "scoring.sequence.length"),
+    ("scoring.sequence.metres=-1", "scoring.sequence.metres"),
 ])
 def test_bad_sequence_settings_are_one_line_at_validate(capsys, setting, message):
     assert main(["validate", "quickstart", "--set", setting]) == 2
@@ -128,11 +257,13 @@ def test_velocities_may_be_one_value_when_one_step_is_tried():
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict[str, Path]:
     """The same tiny scenario (hand-crafted features, 12-sample route drives) run with single
-    samples, with length 1 and every other sequence setting away from its default, and with
-    sequences of 3."""
+    samples, with length 1 and every other sequence setting away from its default, with
+    sequences of 3, and with sequences over 0 and 0.3 m of travelled distance."""
     tmp = tmp_path_factory.mktemp("sequence")
     out = {}
     for name, sequence in (("single", {}), ("seq3", {"sequence": {"length": 3}}),
+                           ("metres0", {"sequence": {"length": 5, "metres": 0}}),
+                           ("metres", {"sequence": {"length": 3, "metres": 0.3}}),
                            ("one",
                             {"sequence": {"length": 1, "velocities": [0.5, 2.0], "velocity_steps": 3, "window": 2}})):
         scenario = {
@@ -188,6 +319,32 @@ def test_length_one_scores_a_real_evaluation_exactly_as_single_samples(runs):
             assert sorted(a.files) == sorted(b.files)
             for name in a.files:
                 assert a[name].tobytes() == b[name].tobytes(), name
+
+
+def test_metres_zero_scores_a_real_evaluation_exactly_as_single_samples(runs):
+    assert (json.loads((runs["metres0"] / "results.json").read_text())
+            == json.loads((runs["single"] / "results.json").read_text()))
+    for direction in ("query-to-reference", "reference-to-query"):
+        with np.load(runs["metres0"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as a, \
+                np.load(runs["single"] / "evaluations" / "E1" / "H" / direction / "matrices.npz") as b:
+            assert sorted(a.files) == sorted(b.files)
+            for name in a.files:
+                assert a[name].tobytes() == b[name].tobytes(), name
+
+
+def test_a_run_over_travelled_distance_scores_the_sequences_of_its_poses(runs):
+    for row in json.loads((runs["metres"] / "results.json").read_text()):
+        assert row["sequence"]["metres"] == 0.3 and row["sequence"]["length"] == 3
+        with np.load(runs["metres"] / "evaluations" / "E1" / "H" / row["direction"] / "matrices.npz") as m:
+            query, reference = m["query_poses"], m["reference_poses"]
+            # the route samples closer than 0.15 m: the sequences reach samples before the query's
+            assert np.diff(travelled(query)).max() < 0.15 and np.diff(travelled(reference)).max() < 0.15
+            want = reference_odometry_scores(m["distance"], 3, 10, 0.3, query[:, :2], reference[:, :2])
+            np.testing.assert_allclose(m["tme"], want, rtol=1e-9, atol=1e-9)
+            gtm = ground_truth_matrix(query, reference, 30.0)
+        assert row["max_f1"] == pytest.approx(evaluate(want, gtm, 0.3)["max_f1"])
+    assert "scored by sequences of 3 points over 0.3 m of travelled distance" in (
+        runs["metres"] / "report.md").read_text()
 
 
 def test_a_changed_sequence_length_rescores_the_evaluations_and_nothing_before_them(runs, tmp_path):

@@ -54,7 +54,8 @@ def chosen_weight(store: Store, scenario: Scenario, simulated: SimulateRecord, f
     sequence = sequence_for(scenario, f"{env}/{query}", len(q))
 
     def max_f1(fused: np.ndarray) -> float:
-        return pr_curve(fused if sequence is None else sequence_scores(fused, **sequence), gtm, settings.tau).max_f1
+        scored = fused if sequence is None else sequence_scores(fused, **sequence, poses=(q.poses, r.poses))
+        return pr_curve(scored, gtm, settings.tau).max_f1
 
     vision, touch = (method_distances(store.out, env, m, direction) for m in (fusion.vision, fusion.touch))
     weight, sigma_v, sigma_t, scores = choose_weight(vision, touch, fusion.weights, max_f1)
