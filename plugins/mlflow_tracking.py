@@ -8,12 +8,15 @@ A sweep is one parent run with the seeds' runs nested under it. Install the clie
 ``pip install "vitaplace[mlflow]"`` (mlflow-skinny with SQLAlchemy and Alembic, which its
 SQLite store needs). Logged (docs/plugins.md, "Experiment tracking"):
 
-* params: the scenario's name and seed, its evaluation settings (``scoring.tau``, ...)
-  and every method's plugin and the parameters the scenario sets
-  (``methods.L.plugin``, ``methods.L.epochs``, ...); a sweep's: the same but ``seeds``;
-* metrics: per results row ``ENVIRONMENT/METHOD/DIRECTION/METRIC`` for `METRICS`;
-* tags: vitaplace's version, git commit and dirty flag (from manifest.json), the last stage,
-  the output folder, and `KEY_TAG`, a digest of what was logged;
+* params: the resolved scenario flattened (`run_params`: ``scenario``, ``seed``,
+  ``train.run.n_samples``, ``evaluations.E1.run.kind``, ``scoring.tau``,
+  ``methods.L.plugin``, ``methods.L.params.epochs``, ...; a value longer than MLflow takes is
+  left out and named in the tag `SKIPPED_TAG`); a sweep's: the same but ``seeds``;
+* metrics: per results row ``ENVIRONMENT/METHOD/DIRECTION/METRIC`` for `METRICS` and
+  ``recall_at_K`` for each K of ``scoring.recall_k`` (recall@1/5/10);
+* tags: MLflow's source tags (`source_tags`: ``mlflow.source.name``, ``.type``,
+  ``.git.commit``), vitaplace's version, git commit and dirty flag (from manifest.json), the
+  last stage, the output folder, and `KEY_TAG`, a digest of what was logged;
 * artifacts: report.md, results.json, results.csv, manifest.json, scenario.resolved.yaml
   and the figures/ folder, those of them the run wrote; a sweep's parent: `SWEEP_FILES` and
   the pr-bands-* figures.
@@ -45,6 +48,7 @@ from typing import Any
 
 from vitaplace.engine import __version__
 from vitaplace.engine.outputs.rows import ResultRow, parse_row
+from vitaplace.engine.pipeline.provenance import git_commit
 from vitaplace.plugin import hookimpl
 
 #: the environment variable that turns tracking on: the MLflow experiment's name
@@ -61,6 +65,8 @@ SWEEP_FILES = ("sweep.json", "sweep.csv", "sweep-seeds.csv", "sweep-diff.csv", "
 KEY_TAG = "vitaplace.key"
 #: the parent run's tag: the digest of the sweep.json it logged last
 SUMMARY_TAG = "vitaplace.summary"
+#: the tag naming the params left out for being longer than MLflow takes (`_log_params`)
+SKIPPED_TAG = "vitaplace.params_skipped"
 #: MLflow's tag that nests a run under its parent
 PARENT_TAG = "mlflow.parentRunId"
 #: MLflow's settings of its HTTP calls as the tracker's calls have them unless the environment sets them: a
@@ -72,29 +78,43 @@ MAX_REASON = 300
 log = logging.getLogger("vitaplace")
 
 
-def _flat(prefix: str, values: Mapping[str, Any]) -> dict[str, str]:
-    """``{prefix.key: value}`` with values as JSON text (MLflow params are strings)."""
-    return {f"{prefix}.{key}": value if isinstance(value, str) else json.dumps(value) for key, value in values.items()}
+def _flat(prefix: str, value: Any) -> dict[str, str]:
+    """``value`` flattened into ``{dotted.key: text}``: a mapping by its keys, a list of
+    mappings that all have a "name" by those names, anything else as JSON text (a string as
+    itself; MLflow params are strings)."""
+    if isinstance(value, Mapping):
+        items = list(value.items())
+    elif (isinstance(value, list) and value and all(isinstance(v, Mapping) and isinstance(v.get("name"), str)
+                                                    for v in value)):
+        items = [(v["name"], {k: x for k, x in v.items() if k != "name"}) for v in value]
+    else:
+        return {prefix: value if isinstance(value, str) else json.dumps(value)}
+    flat: dict[str, str] = {}
+    for key, inner in items:
+        flat.update(_flat(f"{prefix}.{key}" if prefix else str(key), inner))
+    return flat
 
 
 def run_params(scenario: Any) -> dict[str, str]:
-    """The MLflow params of a scenario: name, seed, evaluation settings, methods."""
-    params = {"scenario": scenario.name, "seed": str(scenario.seed)}
-    params.update(_flat("scoring", scenario.scoring.model_dump(mode="json")))
-    for method in scenario.methods:
-        params[f"methods.{method.name}.plugin"] = method.plugin
-        params.update(_flat(f"methods.{method.name}", method.params))
-    return params
+    """The MLflow params of a scenario: the resolved scenario flattened (`_flat`: ``seed``,
+    ``train.run.n_samples``, ``evaluations.E1.run.kind``, ``scoring.tau``,
+    ``methods.L.plugin``, ``methods.L.params.epochs``, ...), its name as ``scenario``."""
+    params = _flat("", scenario.model_dump(mode="json"))
+    return {"scenario": params.pop("name"), **params}
 
 
 def run_metrics(rows: Sequence[ResultRow | Mapping[str, Any]]) -> dict[str, float]:
     """``ENVIRONMENT/METHOD/DIRECTION/METRIC`` -> value for every number of `METRICS` in
-    ``rows`` (results rows, or mappings `parse_row` reads)."""
-    parsed = [parse_row(row, f"results row {i}") for i, row in enumerate(rows)]
-    return {
-        f"{row.environment}/{row.method}/{row.direction}/{name}": float(value)
-        for row in parsed for name in METRICS if (value := getattr(row, name)) is not None
-    }
+    ``rows`` (results rows, or mappings `parse_row` reads), and ``.../recall_at_K`` for each
+    K of the row's recall@K (``scoring.recall_k``)."""
+    metrics = {}
+    for i, row in enumerate(rows):
+        parsed = parse_row(row, f"results row {i}")
+        where = f"{parsed.environment}/{parsed.method}/{parsed.direction}"
+        values = {name: getattr(parsed, name) for name in METRICS}
+        values.update({f"recall_at_{k}": v for k, v in (parsed.recall_at_k or {}).items()})
+        metrics.update({f"{where}/{name}": float(v) for name, v in values.items() if v is not None})
+    return metrics
 
 
 def _digest(parts: Iterable[str | bytes]) -> str:
@@ -171,11 +191,25 @@ def _logged(client: Any, experiment_id: str, key: str) -> Any | None:
 
 
 def _log_params(client: Any, run_id: str, params: Mapping[str, str]) -> None:
+    """Log ``params``; one whose text is longer than MLflow takes (its ``MAX_PARAM_VAL_LENGTH``)
+    is left out and named in the tag `SKIPPED_TAG` (scenario.resolved.yaml, an artifact, has it)."""
     from mlflow.entities import Param
+    from mlflow.utils.validation import MAX_PARAM_VAL_LENGTH
 
-    items = [Param(k, v) for k, v in params.items()]
+    items = [Param(k, v) for k, v in params.items() if len(v) <= MAX_PARAM_VAL_LENGTH]
+    skipped = [k for k, v in params.items() if len(v) > MAX_PARAM_VAL_LENGTH]
+    if skipped:
+        client.set_tag(run_id, SKIPPED_TAG, " ".join(skipped))
     for start in range(0, len(items), 100):  # MLflow takes at most 100 params per batch
         client.log_batch(run_id, params=items[start:start + 100])
+
+
+def source_tags() -> dict[str, str]:
+    """MLflow's source tags (its UI's "Source" column and commit link): vitaplace, run locally,
+    at the commit of the checkout vitaplace runs from (`provenance.git_commit`), when it is one."""
+    commit = git_commit()
+    return {"mlflow.source.name": "vitaplace", "mlflow.source.type": "LOCAL",
+            **({"mlflow.source.git.commit": commit} if commit else {})}
 
 
 def _manifest_tags(out: Path, stage: str) -> dict[str, str]:
@@ -209,7 +243,7 @@ def _log_run(mlflow: Any, client: Any, experiment: str, out: Path, scenario: Any
         log.info("MLflow: %s is logged already (experiment %s, run %s): not logged again", out, experiment,
                  earlier.info.run_id)
         return
-    tags = {**_manifest_tags(out, stage), KEY_TAG: key}
+    tags = {**source_tags(), **_manifest_tags(out, stage), KEY_TAG: key}
     if os.environ.get(PARENT_ENV):
         tags[PARENT_TAG] = os.environ[PARENT_ENV]
     run_id = client.create_run(experiment_id, run_name=f"{scenario.name} seed {scenario.seed}", tags=tags).info.run_id
@@ -254,8 +288,8 @@ def _parent_run(client: Any, experiment: str, out: Path, scenario: Any, seeds: l
     experiment_id, key = _experiment_id(client, experiment), sweep_key(out, scenario, seeds)
     parent = _logged(client, experiment_id, key)
     if parent is None:
-        tags = {"vitaplace.version": __version__, "vitaplace.stage": "sweep", "vitaplace.out": str(Path(out).resolve()),
-                KEY_TAG: key}
+        tags = {**source_tags(), "vitaplace.version": __version__, "vitaplace.stage": "sweep",
+                "vitaplace.out": str(Path(out).resolve()), KEY_TAG: key}
         name = f"{scenario.name} sweep, seeds {' '.join(map(str, seeds))}"
         parent = client.create_run(experiment_id, run_name=name, tags=tags)
         params = {k: v for k, v in run_params(scenario).items() if k != "seed"}

@@ -87,14 +87,22 @@ def test_a_run_is_logged_once_and_a_rerun_that_recomputed_nothing_adds_no_run(tm
     assert run.info.run_name == "tiny seed 0" and run.info.status == "FINISHED"
     params = run.data.params
     assert (params["scenario"], params["seed"], params["scoring.tau"]) == ("tiny", "0", "0.3")
-    assert params["methods.H.plugin"] == "handcrafted" and params["methods.H.grid"] == "[4, 8]"
+    assert params["methods.H.plugin"] == "handcrafted" and params["methods.H.params.grid"] == "[4, 8]"
+    # the resolved scenario, defaults included: runs that differ in a run setting differ in a param
+    assert (params["train.run.n_samples"], params["train.run.speed"], params["evaluations.E1.run.kind"]) == (
+        "5", "0.15", "route")
+    assert params["scoring.recall_k"] == "[1, 5, 10]" and params["fusions"] == "[]"
     rows = json.loads((out / "results.json").read_text())
     expected = {f"E1/H/{row['direction']}/{name}": row[name] for row in rows
                 for name in ("max_f1", "auc", "precision_at_max_f1", "recall_at_max_f1", "recall_at_100_precision")}
+    expected.update({f"E1/H/{row['direction']}/recall_at_{k}": row["recall_at_k"][str(k)] for row in rows
+                     for k in (1, 5, 10)})
     assert run.data.metrics == pytest.approx(expected)
     manifest = json.loads((out / "manifest.json").read_text())
     tags = run.data.tags
     assert tags["git.commit"] == str(manifest["git_commit"]) and tags["vitaplace.stage"] == "report"
+    assert (tags["mlflow.source.name"], tags["mlflow.source.type"]) == ("vitaplace", "LOCAL")
+    assert tags.get("mlflow.source.git.commit") == manifest["git_commit"]  # absent outside a git checkout
     assert tags["vitaplace.out"] == str(out.resolve()) and "mlflow.parentRunId" not in tags
     assert _artifacts(tracking, run) == RUN_ARTIFACTS
     # every stage cached: nothing new to log
@@ -104,6 +112,18 @@ def test_a_run_is_logged_once_and_a_rerun_that_recomputed_nothing_adds_no_run(tm
     assert main(["-q", "run", str(path), "--out", str(out), "--no-progress", "--set", "scoring.tau=0.4"]) == 0
     later = _runs(tracking)
     assert len(later) == 2 and later[1].data.params["scoring.tau"] == "0.4"
+
+
+def test_a_param_longer_than_mlflow_takes_is_left_out_and_named_in_a_tag(tracking):
+    from mlflow.utils.validation import MAX_PARAM_VAL_LENGTH
+
+    client = MlflowClient(tracking)
+    run_id = client.create_run(client.create_experiment(EXPERIMENT)).info.run_id
+    tracker._log_params(client, run_id, {"short": "x" * MAX_PARAM_VAL_LENGTH, "long": "y" * (MAX_PARAM_VAL_LENGTH + 1),
+                                         **{f"p{i}": str(i) for i in range(150)}})  # two batches of at most 100
+    run = client.get_run(run_id)
+    assert set(run.data.params) == {"short", *(f"p{i}" for i in range(150))}
+    assert run.data.tags["vitaplace.params_skipped"] == "long"
 
 
 def _check_sweep(uri: str, out: Path, seeds: list[int]) -> str:
