@@ -55,6 +55,8 @@ from vitaplace.plugin import hookimpl
 EXPERIMENT_ENV = "VITAPLACE_MLFLOW"
 #: set by a sweep's driver for its seeds: the MLflow run id of the sweep's parent run
 PARENT_ENV = "VITAPLACE_MLFLOW_PARENT"
+#: set by a sweep's driver for its seeds: the sweep's output folder (a grid seed's run is named by its point)
+SWEEP_ENV = "VITAPLACE_MLFLOW_SWEEP"
 #: the per-row numbers logged as metrics
 METRICS = ("max_f1", "auc", "precision_at_max_f1", "recall_at_max_f1", "recall_at_100_precision")
 ARTIFACTS = ("report.md", "results.json", "results.csv", "manifest.json", "scenario.resolved.yaml")
@@ -134,9 +136,43 @@ def run_key(out: Path, stage: str) -> str:
     return _digest([str(out.resolve()), stage, *files])
 
 
-def sweep_key(out: Path, scenario: Any, seeds: list[int]) -> str:
-    """What identifies a sweep's parent run: its folder, its resolved scenario and its seeds."""
-    return _digest([str(Path(out).resolve()), scenario.model_dump_json(), json.dumps(sorted(seeds))])
+def sweep_key(out: Path, scenario: Any, seeds: list[int], grid: Sequence[Any] = ()) -> str:
+    """What identifies a sweep's parent run: its folder, its resolved scenario, its seeds and
+    (on a grid) its points' names."""
+    points = [json.dumps(sorted(point.name for point in grid))] if grid else []
+    return _digest([str(Path(out).resolve()), scenario.model_dump_json(), json.dumps(sorted(seeds)), *points])
+
+
+def grid_axes(grid: Sequence[Any]) -> dict[str, list[Any]]:
+    """``--grid`` path -> its values in the order of the points (`GridPoint.values`)."""
+    axes: dict[str, list[Any]] = {}
+    for point in grid:
+        for path, value in point.values.items():
+            if value not in axes.setdefault(path, []):
+                axes[path].append(value)
+    return axes
+
+
+def sweep_params(scenario: Any, seeds: list[int], grid: Sequence[Any] = ()) -> dict[str, str]:
+    """A sweep's parent run's params: the scenario's (`run_params`) but ``seed``, and
+    ``seeds``; on a grid only those every point shares (the varied keys' base values are no
+    point's) and per ``--grid`` path ``grid.PATH``: its values (`grid_axes`), as JSON."""
+    params = run_params(scenario)
+    for point in grid:
+        theirs = run_params(point.scenario)
+        params = {k: v for k, v in params.items() if theirs.get(k) == v}
+    params.pop("seed", None)
+    params.update({f"grid.{path}": json.dumps(values) for path, values in grid_axes(grid).items()})
+    return {**params, "seeds": json.dumps(list(seeds))}
+
+
+def run_name(out: Path, scenario: Any) -> str:
+    """A run's name: ``<scenario> seed <s>``; a grid seed's ``<point>-seed<s>`` (its folder,
+    ``SWEEP/<point>/seed-<s>``, under the sweep's in `SWEEP_ENV`)."""
+    sweep = os.environ.get(SWEEP_ENV)
+    if sweep and Path(out).resolve().parent.parent == Path(sweep).resolve():
+        return f"{Path(out).resolve().parent.name}-seed{scenario.seed}"
+    return f"{scenario.name} seed {scenario.seed}"
 
 
 def _client() -> tuple[Any, Any] | None:
@@ -246,7 +282,7 @@ def _log_run(mlflow: Any, client: Any, experiment: str, out: Path, scenario: Any
     tags = {**source_tags(), **_manifest_tags(out, stage), KEY_TAG: key}
     if os.environ.get(PARENT_ENV):
         tags[PARENT_TAG] = os.environ[PARENT_ENV]
-    run_id = client.create_run(experiment_id, run_name=f"{scenario.name} seed {scenario.seed}", tags=tags).info.run_id
+    run_id = client.create_run(experiment_id, run_name=run_name(out, scenario), tags=tags).info.run_id
     try:
         _log_params(client, run_id, run_params(scenario))
         metrics = run_metrics(rows)
@@ -266,7 +302,7 @@ def _log_run(mlflow: Any, client: Any, experiment: str, out: Path, scenario: Any
 
 
 @hookimpl
-def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[str, str] | None:
+def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int], grid: list[Any]) -> dict[str, str] | None:
     """Open (or, for a rerun of the same sweep, find) the sweep's parent run; the variables
     every seed needs to log into it: the experiment, MLflow's settings (the tracking URI
     resolved here, so a Ray worker in another folder logs into the same store) and the parent."""
@@ -277,23 +313,22 @@ def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[
     env = {k: v for k, v in os.environ.items() if k.startswith("MLFLOW_")}  # the user's, not `_tracking`'s
     asked = {EXPERIMENT_ENV: ""}  # a store that failed here: the seeds do not try it, each for its own warning
     with _tracking(f"the sweep in {out} (nor its seeds)"):
-        parent = _parent_run(client, experiment, out, scenario, seeds)
+        parent = _parent_run(client, experiment, out, scenario, seeds, grid)
         asked = {**env, "MLFLOW_TRACKING_URI": mlflow.get_tracking_uri(), EXPERIMENT_ENV: experiment,
-                 PARENT_ENV: parent}
+                 PARENT_ENV: parent, SWEEP_ENV: str(Path(out).resolve())}
     return asked
 
 
-def _parent_run(client: Any, experiment: str, out: Path, scenario: Any, seeds: list[int]) -> str:
+def _parent_run(client: Any, experiment: str, out: Path, scenario: Any, seeds: list[int], grid: list[Any]) -> str:
     """The id of the sweep's parent run, opened unless a rerun of the same sweep finds it."""
-    experiment_id, key = _experiment_id(client, experiment), sweep_key(out, scenario, seeds)
+    experiment_id, key = _experiment_id(client, experiment), sweep_key(out, scenario, seeds, grid)
     parent = _logged(client, experiment_id, key)
     if parent is None:
         tags = {**source_tags(), "vitaplace.version": __version__, "vitaplace.stage": "sweep",
                 "vitaplace.out": str(Path(out).resolve()), KEY_TAG: key}
-        name = f"{scenario.name} sweep, seeds {' '.join(map(str, seeds))}"
+        name = f"{scenario.name} {'grid' if grid else 'sweep'}, seeds {' '.join(map(str, seeds))}"
         parent = client.create_run(experiment_id, run_name=name, tags=tags)
-        params = {k: v for k, v in run_params(scenario).items() if k != "seed"}
-        _log_params(client, parent.info.run_id, {**params, "seeds": json.dumps(list(seeds))})
+        _log_params(client, parent.info.run_id, sweep_params(scenario, seeds, grid))
     return str(parent.info.run_id)
 
 

@@ -42,13 +42,15 @@ def vitaplace_run_finished(out: Path, scenario: Any, rows: list[dict[str, Any]],
 
 
 @hookspec
-def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[str, str] | None:
-    """A sweep (`vitaplace sweep`) is about to run ``seeds`` of ``scenario`` into ``out``;
-    called in the driver before any seed starts. Return the environment variables every
-    seed's process needs (e.g. a tracker's parent run), or None. The driver sets them in its
-    own environment while the seeds run, which its local workers and SLURM's tasks inherit,
-    and gives them to each Ray task (its ``runtime_env``). An exception is logged as a warning
-    naming the plugin and does not stop the sweep.
+def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int], grid: list[Any]) -> dict[str, str] | None:
+    """A sweep (`vitaplace sweep`) is about to run ``seeds`` of ``scenario`` into ``out``
+    (``grid``: on a grid, ``--grid``, its points, each a
+    `vitaplace.engine.study.grid.GridPoint` with its folder name, its value per ``--grid``
+    path and its scenario; else empty); called in the driver before any seed starts. Return
+    the environment variables every seed's process needs (e.g. a tracker's parent run), or
+    None. The driver sets them in its own environment while the seeds run, which its local
+    workers and SLURM's tasks inherit, and gives them to each Ray task (its ``runtime_env``).
+    An exception is logged as a warning naming the plugin and does not stop the sweep.
     """
 
 

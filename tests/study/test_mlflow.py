@@ -159,6 +159,26 @@ def test_a_sweep_is_one_parent_run_with_its_seeds_nested_and_a_rerun_logs_nothin
     assert _check_sweep(tracking, out, [0, 1]) == parent
 
 
+def test_a_grid_s_parent_carries_its_axes_and_its_children_are_named_by_point_and_seed(tmp_path, tracking):
+    out = tmp_path / "grid"
+    assert main(["-q", "sweep", str(_scenario(tmp_path)), "--seeds", "0", "--grid", "scoring.tau=0.3,0.4",
+                 "--grid", "scoring.heading_tolerance_deg=30", "--out", str(out), "--no-progress"]) == 0
+    runs = _runs(tracking)
+    [parent] = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert parent.info.run_name == "tiny grid, seeds 0" and parent.info.status == "FINISHED"
+    params = parent.data.params
+    # the varied key's base value (0.3) is no point's: the parent has the axis instead
+    assert "scoring.tau" not in params and params["grid.scoring.tau"] == "[0.3, 0.4]"
+    assert params["grid.scoring.heading_tolerance_deg"] == "[30]" and params["scoring.heading_tolerance_deg"] == "30.0"
+    assert params["seeds"] == "[0]" and "seed" not in params and params["train.run.n_samples"] == "5"
+    children = {r.info.run_name: r for r in runs if r is not parent}
+    names = {"tau=0.3,heading_tolerance_deg=30-seed0": "0.3", "tau=0.4,heading_tolerance_deg=30-seed0": "0.4"}
+    assert set(children) == set(names)
+    for name, tau in names.items():
+        assert children[name].data.params["scoring.tau"] == tau
+        assert children[name].data.tags["mlflow.parentRunId"] == parent.info.run_id
+
+
 def _driver(args: list[str], folder: Path, prelude: str = "") -> subprocess.CompletedProcess:
     """The CLI in a fresh process in ``folder``, whose environment has no MLflow settings:
     ``prelude`` sets them (after starting Ray, for a Ray of its own)."""
