@@ -1,7 +1,7 @@
 """Optional experiment tracking: log each finished scenario run, and each sweep, to MLflow.
 
 Inert unless the environment variable ``VITAPLACE_MLFLOW`` names an MLflow experiment; then
-every finished pipeline (`vitaplace run`, each seed of a sweep, `vitaplace.run`) becomes one
+every pipeline (`vitaplace run`, each seed of a sweep, `vitaplace.run`) becomes one
 MLflow run in that experiment, at MLflow's own tracking URI (``MLFLOW_TRACKING_URI``; by
 default MLflow's local store in the working folder: ``mlflow.db``, SQLite, for MLflow 3).
 A sweep is one parent run with the seeds' runs nested under it. Install the client with
@@ -26,8 +26,12 @@ A run whose output folder, last stage, results and resolved scenario were logged
 (same folder, scenario and seeds) reuses its parent run. The module imports MLflow only
 when it logs, so it costs nothing when tracking is off.
 
-The tracker runs after the run's results and its completion record are written, and it
-never fails a run: its HTTP calls give up after MLflow's own settings
+A run's MLflow run is opened when the pipeline starts (`vitaplace_run_started`: RUNNING,
+with its params) and ended FAILED with the error as a tag (`ERROR_TAG`) when it raises, or
+FINISHED with its metrics, tags and artifacts once its results and completion record are
+written. A run opened for a rerun that turns out to have been logged already is deleted. A
+grid's parent carries the grid's axes (`sweep_params`); its seeds are named by point
+(`run_name`). The tracker never fails a run: its HTTP calls give up after MLflow's own settings
 ``MLFLOW_HTTP_REQUEST_TIMEOUT`` and ``MLFLOW_HTTP_REQUEST_MAX_RETRIES``, which it sets to
 `HTTP_SETTINGS` (5 s, 1 retry) for its calls alone where the environment does not set them,
 and a failure is one warning (`_tracking`). A sweep whose parent run cannot be opened is not
@@ -69,6 +73,8 @@ KEY_TAG = "vitaplace.key"
 SUMMARY_TAG = "vitaplace.summary"
 #: the tag naming the params left out for being longer than MLflow takes (`_log_params`)
 SKIPPED_TAG = "vitaplace.params_skipped"
+#: the tag of a failed run's MLflow run: the failure, ``Type: message``
+ERROR_TAG = "vitaplace.error"
 #: MLflow's tag that nests a run under its parent
 PARENT_TAG = "mlflow.parentRunId"
 #: MLflow's settings of its HTTP calls as the tracker's calls have them unless the environment sets them: a
@@ -256,35 +262,73 @@ def _manifest_tags(out: Path, stage: str) -> dict[str, str]:
             "vitaplace.out": str(out.resolve())}
 
 
+#: this process's runs in progress: output folder (resolved) -> the id of the MLflow run
+#: `vitaplace_run_started` opened for it ("" when opening it failed: warned once, not tried again)
+_open: dict[str, str] = {}
+
+
 @hookimpl
-def vitaplace_run_finished(out: Path, scenario: Any, rows: Sequence[ResultRow | Mapping[str, Any]], stage: str) -> None:
-    """Log the finished run to the MLflow experiment named by ``VITAPLACE_MLFLOW`` (if set),
-    nested under the sweep's parent run when `PARENT_ENV` is set; not again if logged already."""
+def vitaplace_run_started(out: Path, scenario: Any) -> None:
+    """Open the run's MLflow run (RUNNING, with its params) in the experiment named by
+    ``VITAPLACE_MLFLOW`` (if set), nested under the sweep's parent run when `PARENT_ENV` is set."""
     experiment = os.environ.get(EXPERIMENT_ENV)
     if not experiment or (found := _client()) is None:
         return
+    where = str(Path(out).resolve())
+    _open[where] = ""
     with _tracking(f"the run in {out}"):
-        _log_run(*found, experiment, Path(out), scenario, rows, stage)
+        _open[where] = _start_run(found[1], experiment, Path(out), scenario)
 
 
-def _log_run(mlflow: Any, client: Any, experiment: str, out: Path, scenario: Any,
-             rows: Sequence[ResultRow | Mapping[str, Any]], stage: str) -> None:
-    """`vitaplace_run_finished`'s MLflow calls."""
-    from mlflow.entities import Metric
-
-    experiment_id = _experiment_id(client, experiment)
-    key = run_key(out, stage)
-    earlier = _logged(client, experiment_id, key)
-    if earlier is not None:
-        log.info("MLflow: %s is logged already (experiment %s, run %s): not logged again", out, experiment,
-                 earlier.info.run_id)
-        return
-    tags = {**source_tags(), **_manifest_tags(out, stage), KEY_TAG: key}
+def _start_run(client: Any, experiment: str, out: Path, scenario: Any) -> str:
+    """`vitaplace_run_started`'s MLflow calls; the run's id."""
+    tags = {**source_tags(), "vitaplace.version": __version__, "vitaplace.out": str(out.resolve())}
     if os.environ.get(PARENT_ENV):
         tags[PARENT_TAG] = os.environ[PARENT_ENV]
-    run_id = client.create_run(experiment_id, run_name=run_name(out, scenario), tags=tags).info.run_id
+    run_id = client.create_run(_experiment_id(client, experiment), run_name=run_name(out, scenario),
+                               tags=tags).info.run_id
+    _log_params(client, run_id, run_params(scenario))
+    return str(run_id)
+
+
+@hookimpl
+def vitaplace_run_failed(out: Path, scenario: Any, error: str) -> None:
+    """End the run's MLflow run FAILED, ``error`` in its tag `ERROR_TAG`."""
+    run_id = _open.pop(str(Path(out).resolve()), "")
+    if not run_id or (found := _client()) is None:
+        return
+    with _tracking(f"the failure of the run in {out}"):
+        from mlflow.utils.validation import MAX_TAG_VAL_LENGTH
+
+        found[1].set_tag(run_id, ERROR_TAG, error[:MAX_TAG_VAL_LENGTH])
+        found[1].set_terminated(run_id, "FAILED")
+
+
+@hookimpl
+def vitaplace_run_finished(out: Path, scenario: Any, rows: Sequence[ResultRow | Mapping[str, Any]], stage: str) -> None:
+    """Log the finished run into the MLflow run `vitaplace_run_started` opened and end it
+    FINISHED; a run whose results are logged already (`run_key`) is deleted instead."""
+    run_id = _open.pop(str(Path(out).resolve()), "")
+    if not run_id or (found := _client()) is None:
+        return
+    with _tracking(f"the run in {out}"):
+        _log_run(*found, run_id, Path(out), rows, stage)
+
+
+def _log_run(mlflow: Any, client: Any, run_id: str, out: Path, rows: Sequence[ResultRow | Mapping[str, Any]],
+             stage: str) -> None:
+    """`vitaplace_run_finished`'s MLflow calls."""
+    from mlflow.entities import Metric, RunTag
+
+    key = run_key(out, stage)
+    earlier = _logged(client, client.get_run(run_id).info.experiment_id, key)
+    if earlier is not None:
+        client.delete_run(run_id)
+        log.info("MLflow: %s is logged already (run %s): not logged again", out, earlier.info.run_id)
+        return
     try:
-        _log_params(client, run_id, run_params(scenario))
+        tags = {**_manifest_tags(out, stage), KEY_TAG: key}
+        client.log_batch(run_id, tags=[RunTag(k, v) for k, v in tags.items()])
         metrics = run_metrics(rows)
         if metrics:
             now = int(time.time() * 1000)
@@ -298,7 +342,7 @@ def _log_run(mlflow: Any, client: Any, experiment: str, out: Path, scenario: Any
         client.set_terminated(run_id, "FAILED")
         raise
     client.set_terminated(run_id, "FINISHED")
-    log.info("logged to MLflow: experiment %s, run %s (%s)", experiment, run_id, mlflow.get_tracking_uri())
+    log.info("logged to MLflow: run %s (%s)", run_id, mlflow.get_tracking_uri())
 
 
 @hookimpl

@@ -229,6 +229,16 @@ def _call_each(registry: Registry, hook: str, what: str, **kwargs: Any) -> list[
     return results
 
 
+def announce_run_started(registry: Registry, out: Path, scenario: Any) -> None:
+    """Call every plugin's `vitaplace_run_started` hook (one that raises: a warning)."""
+    _call_each(registry, "vitaplace_run_started", "run-started hook", out=out, scenario=scenario)
+
+
+def announce_run_failed(registry: Registry, out: Path, scenario: Any, error: str) -> None:
+    """Call every plugin's `vitaplace_run_failed` hook (one that raises: a warning)."""
+    _call_each(registry, "vitaplace_run_failed", "run-failed hook", out=out, scenario=scenario, error=error)
+
+
 def announce_run_finished(registry: Registry, out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
     """Call every plugin's `vitaplace_run_finished` hook; one that raises is reported as a
     warning naming it (the run's outputs are written already) and the others still run."""
