@@ -14,8 +14,8 @@ SQLite store needs). Logged (docs/plugins.md, "Experiment tracking"):
   left out and named in the tag `SKIPPED_TAG`); a sweep's: the same but ``seeds``;
 * metrics: per results row ``ENVIRONMENT/METHOD/DIRECTION/METRIC`` for `METRICS` and
   ``recall_at_K`` for each K of ``scoring.recall_k`` (recall@1/5/10);
-* tags: MLflow's source tags (`source_tags`: ``mlflow.source.name``, ``.type``,
-  ``.git.commit``), vitaplace's version, git commit and dirty flag (from manifest.json), the
+* tags: MLflow's source tags (`source_tags`: ``mlflow.source.name``, ``.type``; a finished
+  run's ``.git.commit``), vitaplace's version, git commit and dirty flag (from manifest.json), the
   last stage, the output folder, and `KEY_TAG`, a digest of what was logged;
 * artifacts: report.md, results.json, results.csv, manifest.json, scenario.resolved.yaml
   and the figures/ folder, those of them the run wrote; a sweep's parent: `SWEEP_FILES` and
@@ -52,7 +52,6 @@ from typing import Any
 
 from vitaplace.engine import __version__
 from vitaplace.engine.outputs.rows import ResultRow, parse_row
-from vitaplace.engine.pipeline.provenance import git_commit
 from vitaplace.plugin import hookimpl
 
 #: the environment variable that turns tracking on: the MLflow experiment's name
@@ -247,11 +246,9 @@ def _log_params(client: Any, run_id: str, params: Mapping[str, str]) -> None:
 
 
 def source_tags() -> dict[str, str]:
-    """MLflow's source tags (its UI's "Source" column and commit link): vitaplace, run locally,
-    at the commit of the checkout vitaplace runs from (`provenance.git_commit`), when it is one."""
-    commit = git_commit()
-    return {"mlflow.source.name": "vitaplace", "mlflow.source.type": "LOCAL",
-            **({"mlflow.source.git.commit": commit} if commit else {})}
+    """MLflow's source tags (its UI's "Source" column): vitaplace, run locally (a finished
+    run adds ``mlflow.source.git.commit``, `_manifest_tags`)."""
+    return {"mlflow.source.name": "vitaplace", "mlflow.source.type": "LOCAL"}
 
 
 def _manifest_tags(out: Path, stage: str) -> dict[str, str]:
@@ -259,7 +256,8 @@ def _manifest_tags(out: Path, stage: str) -> dict[str, str]:
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
     return {"vitaplace.version": str(manifest.get("vitaplace_version")), "vitaplace.stage": stage,
             "git.commit": str(manifest.get("git_commit")), "git.dirty": str(manifest.get("git_dirty")),
-            "vitaplace.out": str(out.resolve())}
+            "vitaplace.out": str(out.resolve()),
+            **({"mlflow.source.git.commit": manifest["git_commit"]} if manifest.get("git_commit") else {})}
 
 
 #: this process's runs in progress: output folder (resolved) -> the id of the MLflow run
@@ -320,13 +318,13 @@ def _log_run(mlflow: Any, client: Any, run_id: str, out: Path, rows: Sequence[Re
     """`vitaplace_run_finished`'s MLflow calls."""
     from mlflow.entities import Metric, RunTag
 
-    key = run_key(out, stage)
-    earlier = _logged(client, client.get_run(run_id).info.experiment_id, key)
-    if earlier is not None:
-        client.delete_run(run_id)
-        log.info("MLflow: %s is logged already (run %s): not logged again", out, earlier.info.run_id)
-        return
     try:
+        key = run_key(out, stage)
+        earlier = _logged(client, client.get_run(run_id).info.experiment_id, key)
+        if earlier is not None:
+            client.delete_run(run_id)
+            log.info("MLflow: %s is logged already (run %s): not logged again", out, earlier.info.run_id)
+            return
         tags = {**_manifest_tags(out, stage), KEY_TAG: key}
         client.log_batch(run_id, tags=[RunTag(k, v) for k, v in tags.items()])
         metrics = run_metrics(rows)

@@ -1132,7 +1132,7 @@ MUTANTS = [
     m("mlflow: metrics not logged", "mlflow_tracking", "        if metrics:\n", "        if not metrics:\n",
       *t("mlflow", "test_a_run_is_logged_once_and_a_rerun_that_recomputed_nothing_adds_no_run")),
     m("mlflow: a rerun that recomputed nothing logged again", "mlflow_tracking",
-      "    if earlier is not None:", "    if False:",
+      "        if earlier is not None:", "        if False:",
       *t("mlflow", "test_a_run_is_logged_once_and_a_rerun_that_recomputed_nothing_adds_no_run")),
     m("mlflow: a rerun of a sweep opens a second parent run", "mlflow_tracking",
       "    parent = _logged(client, experiment_id, key)", "    parent = None",
