@@ -1,19 +1,22 @@
 """Optional experiment tracking: log each finished scenario run, and each sweep, to MLflow.
 
 Inert unless the environment variable ``VITAPLACE_MLFLOW`` names an MLflow experiment; then
-every finished pipeline (`vitaplace run`, each seed of a sweep, `vitaplace.run`) becomes one
+every pipeline (`vitaplace run`, each seed of a sweep, `vitaplace.run`) becomes one
 MLflow run in that experiment, at MLflow's own tracking URI (``MLFLOW_TRACKING_URI``; by
 default MLflow's local store in the working folder: ``mlflow.db``, SQLite, for MLflow 3).
 A sweep is one parent run with the seeds' runs nested under it. Install the client with
 ``pip install "vitaplace[mlflow]"`` (mlflow-skinny with SQLAlchemy and Alembic, which its
 SQLite store needs). Logged (docs/plugins.md, "Experiment tracking"):
 
-* params: the scenario's name and seed, its evaluation settings (``scoring.tau``, ...)
-  and every method's plugin and the parameters the scenario sets
-  (``methods.L.plugin``, ``methods.L.epochs``, ...); a sweep's: the same but ``seeds``;
-* metrics: per results row ``ENVIRONMENT/METHOD/DIRECTION/METRIC`` for `METRICS`;
-* tags: vitaplace's version, git commit and dirty flag (from manifest.json), the last stage,
-  the output folder, and `KEY_TAG`, a digest of what was logged;
+* params: the resolved scenario flattened (`run_params`: ``scenario``, ``seed``,
+  ``train.run.n_samples``, ``evaluations.E1.run.kind``, ``scoring.tau``,
+  ``methods.L.plugin``, ``methods.L.params.epochs``, ...; a value longer than MLflow takes is
+  left out and named in the tag `SKIPPED_TAG`); a sweep's: the same but ``seeds``;
+* metrics: per results row ``ENVIRONMENT/METHOD/DIRECTION/METRIC`` for `METRICS` and
+  ``recall_at_K`` for each K of ``scoring.recall_k`` (recall@1/5/10);
+* tags: MLflow's source tags (`source_tags`: ``mlflow.source.name``, ``.type``; a finished
+  run's ``.git.commit``), vitaplace's version, git commit and dirty flag (from manifest.json), the
+  last stage, the output folder, and `KEY_TAG`, a digest of what was logged;
 * artifacts: report.md, results.json, results.csv, manifest.json, scenario.resolved.yaml
   and the figures/ folder, those of them the run wrote; a sweep's parent: `SWEEP_FILES` and
   the pr-bands-* figures.
@@ -23,8 +26,12 @@ A run whose output folder, last stage, results and resolved scenario were logged
 (same folder, scenario and seeds) reuses its parent run. The module imports MLflow only
 when it logs, so it costs nothing when tracking is off.
 
-The tracker runs after the run's results and its completion record are written, and it
-never fails a run: its HTTP calls give up after MLflow's own settings
+A run's MLflow run is opened when the pipeline starts (`vitaplace_run_started`: RUNNING,
+with its params) and ended FAILED with the error as a tag (`ERROR_TAG`) when it raises, or
+FINISHED with its metrics, tags and artifacts once its results and completion record are
+written. A run opened for a rerun that turns out to have been logged already is deleted. A
+grid's parent carries the grid's axes (`sweep_params`); its seeds are named by point
+(`run_name`). The tracker never fails a run: its HTTP calls give up after MLflow's own settings
 ``MLFLOW_HTTP_REQUEST_TIMEOUT`` and ``MLFLOW_HTTP_REQUEST_MAX_RETRIES``, which it sets to
 `HTTP_SETTINGS` (5 s, 1 retry) for its calls alone where the environment does not set them,
 and a failure is one warning (`_tracking`). A sweep whose parent run cannot be opened is not
@@ -51,6 +58,8 @@ from vitaplace.plugin import hookimpl
 EXPERIMENT_ENV = "VITAPLACE_MLFLOW"
 #: set by a sweep's driver for its seeds: the MLflow run id of the sweep's parent run
 PARENT_ENV = "VITAPLACE_MLFLOW_PARENT"
+#: set by a sweep's driver for its seeds: the sweep's output folder (a grid seed's run is named by its point)
+SWEEP_ENV = "VITAPLACE_MLFLOW_SWEEP"
 #: the per-row numbers logged as metrics
 METRICS = ("max_f1", "auc", "precision_at_max_f1", "recall_at_max_f1", "recall_at_100_precision")
 ARTIFACTS = ("report.md", "results.json", "results.csv", "manifest.json", "scenario.resolved.yaml")
@@ -61,6 +70,10 @@ SWEEP_FILES = ("sweep.json", "sweep.csv", "sweep-seeds.csv", "sweep-diff.csv", "
 KEY_TAG = "vitaplace.key"
 #: the parent run's tag: the digest of the sweep.json it logged last
 SUMMARY_TAG = "vitaplace.summary"
+#: the tag naming the params left out for being longer than MLflow takes (`_log_params`)
+SKIPPED_TAG = "vitaplace.params_skipped"
+#: the tag of a failed run's MLflow run: the failure, ``Type: message``
+ERROR_TAG = "vitaplace.error"
 #: MLflow's tag that nests a run under its parent
 PARENT_TAG = "mlflow.parentRunId"
 #: MLflow's settings of its HTTP calls as the tracker's calls have them unless the environment sets them: a
@@ -72,29 +85,43 @@ MAX_REASON = 300
 log = logging.getLogger("vitaplace")
 
 
-def _flat(prefix: str, values: Mapping[str, Any]) -> dict[str, str]:
-    """``{prefix.key: value}`` with values as JSON text (MLflow params are strings)."""
-    return {f"{prefix}.{key}": value if isinstance(value, str) else json.dumps(value) for key, value in values.items()}
+def _flat(prefix: str, value: Any) -> dict[str, str]:
+    """``value`` flattened into ``{dotted.key: text}``: a mapping by its keys, a list of
+    mappings that all have a "name" by those names, anything else as JSON text (a string as
+    itself; MLflow params are strings)."""
+    if isinstance(value, Mapping):
+        items = list(value.items())
+    elif (isinstance(value, list) and value and all(isinstance(v, Mapping) and isinstance(v.get("name"), str)
+                                                    for v in value)):
+        items = [(v["name"], {k: x for k, x in v.items() if k != "name"}) for v in value]
+    else:
+        return {prefix: value if isinstance(value, str) else json.dumps(value)}
+    flat: dict[str, str] = {}
+    for key, inner in items:
+        flat.update(_flat(f"{prefix}.{key}" if prefix else str(key), inner))
+    return flat
 
 
 def run_params(scenario: Any) -> dict[str, str]:
-    """The MLflow params of a scenario: name, seed, evaluation settings, methods."""
-    params = {"scenario": scenario.name, "seed": str(scenario.seed)}
-    params.update(_flat("scoring", scenario.scoring.model_dump(mode="json")))
-    for method in scenario.methods:
-        params[f"methods.{method.name}.plugin"] = method.plugin
-        params.update(_flat(f"methods.{method.name}", method.params))
-    return params
+    """The MLflow params of a scenario: the resolved scenario flattened (`_flat`: ``seed``,
+    ``train.run.n_samples``, ``evaluations.E1.run.kind``, ``scoring.tau``,
+    ``methods.L.plugin``, ``methods.L.params.epochs``, ...), its name as ``scenario``."""
+    params = _flat("", scenario.model_dump(mode="json"))
+    return {"scenario": params.pop("name"), **params}
 
 
 def run_metrics(rows: Sequence[ResultRow | Mapping[str, Any]]) -> dict[str, float]:
     """``ENVIRONMENT/METHOD/DIRECTION/METRIC`` -> value for every number of `METRICS` in
-    ``rows`` (results rows, or mappings `parse_row` reads)."""
-    parsed = [parse_row(row, f"results row {i}") for i, row in enumerate(rows)]
-    return {
-        f"{row.environment}/{row.method}/{row.direction}/{name}": float(value)
-        for row in parsed for name in METRICS if (value := getattr(row, name)) is not None
-    }
+    ``rows`` (results rows, or mappings `parse_row` reads), and ``.../recall_at_K`` for each
+    K of the row's recall@K (``scoring.recall_k``)."""
+    metrics = {}
+    for i, row in enumerate(rows):
+        parsed = parse_row(row, f"results row {i}")
+        where = f"{parsed.environment}/{parsed.method}/{parsed.direction}"
+        values = {name: getattr(parsed, name) for name in METRICS}
+        values.update({f"recall_at_{k}": v for k, v in (parsed.recall_at_k or {}).items()})
+        metrics.update({f"{where}/{name}": float(v) for name, v in values.items() if v is not None})
+    return metrics
 
 
 def _digest(parts: Iterable[str | bytes]) -> str:
@@ -114,9 +141,43 @@ def run_key(out: Path, stage: str) -> str:
     return _digest([str(out.resolve()), stage, *files])
 
 
-def sweep_key(out: Path, scenario: Any, seeds: list[int]) -> str:
-    """What identifies a sweep's parent run: its folder, its resolved scenario and its seeds."""
-    return _digest([str(Path(out).resolve()), scenario.model_dump_json(), json.dumps(sorted(seeds))])
+def sweep_key(out: Path, scenario: Any, seeds: list[int], grid: Sequence[Any] = ()) -> str:
+    """What identifies a sweep's parent run: its folder, its resolved scenario, its seeds and
+    (on a grid) its points' names."""
+    points = [json.dumps(sorted(point.name for point in grid))] if grid else []
+    return _digest([str(Path(out).resolve()), scenario.model_dump_json(), json.dumps(sorted(seeds)), *points])
+
+
+def grid_axes(grid: Sequence[Any]) -> dict[str, list[Any]]:
+    """``--grid`` path -> its values in the order of the points (`GridPoint.values`)."""
+    axes: dict[str, list[Any]] = {}
+    for point in grid:
+        for path, value in point.values.items():
+            if value not in axes.setdefault(path, []):
+                axes[path].append(value)
+    return axes
+
+
+def sweep_params(scenario: Any, seeds: list[int], grid: Sequence[Any] = ()) -> dict[str, str]:
+    """A sweep's parent run's params: the scenario's (`run_params`) but ``seed``, and
+    ``seeds``; on a grid only those every point shares (the varied keys' base values are no
+    point's) and per ``--grid`` path ``grid.PATH``: its values (`grid_axes`), as JSON."""
+    params = run_params(scenario)
+    for point in grid:
+        theirs = run_params(point.scenario)
+        params = {k: v for k, v in params.items() if theirs.get(k) == v}
+    params.pop("seed", None)
+    params.update({f"grid.{path}": json.dumps(values) for path, values in grid_axes(grid).items()})
+    return {**params, "seeds": json.dumps(list(seeds))}
+
+
+def run_name(out: Path, scenario: Any) -> str:
+    """A run's name: ``<scenario> seed <s>``; a grid seed's ``<point>-seed<s>`` (its folder,
+    ``SWEEP/<point>/seed-<s>``, under the sweep's in `SWEEP_ENV`)."""
+    sweep = os.environ.get(SWEEP_ENV)
+    if sweep and Path(out).resolve().parent.parent == Path(sweep).resolve():
+        return f"{Path(out).resolve().parent.name}-seed{scenario.seed}"
+    return f"{scenario.name} seed {scenario.seed}"
 
 
 def _client() -> tuple[Any, Any] | None:
@@ -171,11 +232,23 @@ def _logged(client: Any, experiment_id: str, key: str) -> Any | None:
 
 
 def _log_params(client: Any, run_id: str, params: Mapping[str, str]) -> None:
+    """Log ``params``; one whose text is longer than MLflow takes (its ``MAX_PARAM_VAL_LENGTH``)
+    is left out and named in the tag `SKIPPED_TAG` (scenario.resolved.yaml, an artifact, has it)."""
     from mlflow.entities import Param
+    from mlflow.utils.validation import MAX_PARAM_VAL_LENGTH
 
-    items = [Param(k, v) for k, v in params.items()]
+    items = [Param(k, v) for k, v in params.items() if len(v) <= MAX_PARAM_VAL_LENGTH]
+    skipped = [k for k, v in params.items() if len(v) > MAX_PARAM_VAL_LENGTH]
+    if skipped:
+        client.set_tag(run_id, SKIPPED_TAG, " ".join(skipped))
     for start in range(0, len(items), 100):  # MLflow takes at most 100 params per batch
         client.log_batch(run_id, params=items[start:start + 100])
+
+
+def source_tags() -> dict[str, str]:
+    """MLflow's source tags (its UI's "Source" column): vitaplace, run locally (a finished
+    run adds ``mlflow.source.git.commit``, `_manifest_tags`)."""
+    return {"mlflow.source.name": "vitaplace", "mlflow.source.type": "LOCAL"}
 
 
 def _manifest_tags(out: Path, stage: str) -> dict[str, str]:
@@ -183,38 +256,77 @@ def _manifest_tags(out: Path, stage: str) -> dict[str, str]:
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
     return {"vitaplace.version": str(manifest.get("vitaplace_version")), "vitaplace.stage": stage,
             "git.commit": str(manifest.get("git_commit")), "git.dirty": str(manifest.get("git_dirty")),
-            "vitaplace.out": str(out.resolve())}
+            "vitaplace.out": str(out.resolve()),
+            **({"mlflow.source.git.commit": manifest["git_commit"]} if manifest.get("git_commit") else {})}
+
+
+#: this process's runs in progress: output folder (resolved) -> the id of the MLflow run
+#: `vitaplace_run_started` opened for it ("" when opening it failed: warned once, not tried again)
+_open: dict[str, str] = {}
+
+
+@hookimpl
+def vitaplace_run_started(out: Path, scenario: Any) -> None:
+    """Open the run's MLflow run (RUNNING, with its params) in the experiment named by
+    ``VITAPLACE_MLFLOW`` (if set), nested under the sweep's parent run when `PARENT_ENV` is set."""
+    experiment = os.environ.get(EXPERIMENT_ENV)
+    if not experiment or (found := _client()) is None:
+        return
+    where = str(Path(out).resolve())
+    _open[where] = ""
+    with _tracking(f"the run in {out}"):
+        _open[where] = _start_run(found[1], experiment, Path(out), scenario)
+
+
+def _start_run(client: Any, experiment: str, out: Path, scenario: Any) -> str:
+    """`vitaplace_run_started`'s MLflow calls; the run's id."""
+    tags = {**source_tags(), "vitaplace.version": __version__, "vitaplace.out": str(out.resolve())}
+    if os.environ.get(PARENT_ENV):
+        tags[PARENT_TAG] = os.environ[PARENT_ENV]
+    run_id = client.create_run(_experiment_id(client, experiment), run_name=run_name(out, scenario),
+                               tags=tags).info.run_id
+    _log_params(client, run_id, run_params(scenario))
+    return str(run_id)
+
+
+@hookimpl
+def vitaplace_run_failed(out: Path, scenario: Any, error: str) -> None:
+    """End the run's MLflow run FAILED, ``error`` in its tag `ERROR_TAG`."""
+    run_id = _open.pop(str(Path(out).resolve()), "")
+    if not run_id or (found := _client()) is None:
+        return
+    with _tracking(f"the failure of the run in {out}"):
+        from mlflow.utils.validation import MAX_TAG_VAL_LENGTH
+
+        found[1].set_tag(run_id, ERROR_TAG, error[:MAX_TAG_VAL_LENGTH])
+        found[1].set_terminated(run_id, "FAILED")
 
 
 @hookimpl
 def vitaplace_run_finished(out: Path, scenario: Any, rows: Sequence[ResultRow | Mapping[str, Any]], stage: str) -> None:
-    """Log the finished run to the MLflow experiment named by ``VITAPLACE_MLFLOW`` (if set),
-    nested under the sweep's parent run when `PARENT_ENV` is set; not again if logged already."""
-    experiment = os.environ.get(EXPERIMENT_ENV)
-    if not experiment or (found := _client()) is None:
+    """Log the finished run into the MLflow run `vitaplace_run_started` opened and end it
+    FINISHED; a run whose results are logged already (`run_key`) is deleted instead."""
+    run_id = _open.pop(str(Path(out).resolve()), "")
+    if not run_id or (found := _client()) is None:
         return
     with _tracking(f"the run in {out}"):
-        _log_run(*found, experiment, Path(out), scenario, rows, stage)
+        _log_run(*found, run_id, Path(out), rows, stage)
 
 
-def _log_run(mlflow: Any, client: Any, experiment: str, out: Path, scenario: Any,
-             rows: Sequence[ResultRow | Mapping[str, Any]], stage: str) -> None:
+def _log_run(mlflow: Any, client: Any, run_id: str, out: Path, rows: Sequence[ResultRow | Mapping[str, Any]],
+             stage: str) -> None:
     """`vitaplace_run_finished`'s MLflow calls."""
-    from mlflow.entities import Metric
+    from mlflow.entities import Metric, RunTag
 
-    experiment_id = _experiment_id(client, experiment)
-    key = run_key(out, stage)
-    earlier = _logged(client, experiment_id, key)
-    if earlier is not None:
-        log.info("MLflow: %s is logged already (experiment %s, run %s): not logged again", out, experiment,
-                 earlier.info.run_id)
-        return
-    tags = {**_manifest_tags(out, stage), KEY_TAG: key}
-    if os.environ.get(PARENT_ENV):
-        tags[PARENT_TAG] = os.environ[PARENT_ENV]
-    run_id = client.create_run(experiment_id, run_name=f"{scenario.name} seed {scenario.seed}", tags=tags).info.run_id
     try:
-        _log_params(client, run_id, run_params(scenario))
+        key = run_key(out, stage)
+        earlier = _logged(client, client.get_run(run_id).info.experiment_id, key)
+        if earlier is not None:
+            client.delete_run(run_id)
+            log.info("MLflow: %s is logged already (run %s): not logged again", out, earlier.info.run_id)
+            return
+        tags = {**_manifest_tags(out, stage), KEY_TAG: key}
+        client.log_batch(run_id, tags=[RunTag(k, v) for k, v in tags.items()])
         metrics = run_metrics(rows)
         if metrics:
             now = int(time.time() * 1000)
@@ -228,11 +340,11 @@ def _log_run(mlflow: Any, client: Any, experiment: str, out: Path, scenario: Any
         client.set_terminated(run_id, "FAILED")
         raise
     client.set_terminated(run_id, "FINISHED")
-    log.info("logged to MLflow: experiment %s, run %s (%s)", experiment, run_id, mlflow.get_tracking_uri())
+    log.info("logged to MLflow: run %s (%s)", run_id, mlflow.get_tracking_uri())
 
 
 @hookimpl
-def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[str, str] | None:
+def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int], grid: list[Any]) -> dict[str, str] | None:
     """Open (or, for a rerun of the same sweep, find) the sweep's parent run; the variables
     every seed needs to log into it: the experiment, MLflow's settings (the tracking URI
     resolved here, so a Ray worker in another folder logs into the same store) and the parent."""
@@ -243,23 +355,22 @@ def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[
     env = {k: v for k, v in os.environ.items() if k.startswith("MLFLOW_")}  # the user's, not `_tracking`'s
     asked = {EXPERIMENT_ENV: ""}  # a store that failed here: the seeds do not try it, each for its own warning
     with _tracking(f"the sweep in {out} (nor its seeds)"):
-        parent = _parent_run(client, experiment, out, scenario, seeds)
+        parent = _parent_run(client, experiment, out, scenario, seeds, grid)
         asked = {**env, "MLFLOW_TRACKING_URI": mlflow.get_tracking_uri(), EXPERIMENT_ENV: experiment,
-                 PARENT_ENV: parent}
+                 PARENT_ENV: parent, SWEEP_ENV: str(Path(out).resolve())}
     return asked
 
 
-def _parent_run(client: Any, experiment: str, out: Path, scenario: Any, seeds: list[int]) -> str:
+def _parent_run(client: Any, experiment: str, out: Path, scenario: Any, seeds: list[int], grid: list[Any]) -> str:
     """The id of the sweep's parent run, opened unless a rerun of the same sweep finds it."""
-    experiment_id, key = _experiment_id(client, experiment), sweep_key(out, scenario, seeds)
+    experiment_id, key = _experiment_id(client, experiment), sweep_key(out, scenario, seeds, grid)
     parent = _logged(client, experiment_id, key)
     if parent is None:
-        tags = {"vitaplace.version": __version__, "vitaplace.stage": "sweep", "vitaplace.out": str(Path(out).resolve()),
-                KEY_TAG: key}
-        name = f"{scenario.name} sweep, seeds {' '.join(map(str, seeds))}"
+        tags = {**source_tags(), "vitaplace.version": __version__, "vitaplace.stage": "sweep",
+                "vitaplace.out": str(Path(out).resolve()), KEY_TAG: key}
+        name = f"{scenario.name} {'grid' if grid else 'sweep'}, seeds {' '.join(map(str, seeds))}"
         parent = client.create_run(experiment_id, run_name=name, tags=tags)
-        params = {k: v for k, v in run_params(scenario).items() if k != "seed"}
-        _log_params(client, parent.info.run_id, {**params, "seeds": json.dumps(list(seeds))})
+        _log_params(client, parent.info.run_id, sweep_params(scenario, seeds, grid))
     return str(parent.info.run_id)
 
 

@@ -525,7 +525,7 @@ def run_sweep(
     jobs = sweep_jobs(points, seeds, out, force, progress and len(seeds) * len(points) == 1 and local, str(marker),
                       progress)
     registry = discover()
-    worker_env = announce_sweep_started(registry, out, scenario, list(seeds))  # e.g. a tracker's parent run
+    worker_env = announce_sweep_started(registry, out, scenario, list(seeds), list(grid))  # e.g. a tracker's parent run
     saved_env = {name: os.environ.get(name) for name in worker_env}
     os.environ.update(worker_env)  # inherited by the local workers and SLURM's tasks; Ray's get them below
     marker.write_text("")

@@ -27,6 +27,24 @@ def vitaplace_register_features(register: Callable[[type[FeatureExtractor]], Non
 
 
 @hookspec
+def vitaplace_run_started(out: Path, scenario: Any) -> None:
+    """A scenario's pipeline is starting in ``out`` (its scenario.resolved.yaml written,
+    nothing computed yet); ``scenario``: its validated Scenario. Then exactly one of
+    `vitaplace_run_finished` and `vitaplace_run_failed` follows, in the same process. For
+    trackers that show a run while it runs. An exception is logged as a warning naming the
+    plugin and does not stop the run.
+    """
+
+
+@hookspec
+def vitaplace_run_failed(out: Path, scenario: Any, error: str) -> None:
+    """A scenario's pipeline in ``out`` raised ``error`` (``Type: message``, one line); the
+    exception goes on to the caller after the hooks (for a sweep's seed: the seed fails). An
+    exception in a hook is logged as a warning naming the plugin.
+    """
+
+
+@hookspec
 def vitaplace_run_finished(out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
     """A scenario's pipeline finished (``scenario``: its validated
     `vitaplace.engine.config.scenario.Scenario`, a floor above this module): every stage up
@@ -42,13 +60,15 @@ def vitaplace_run_finished(out: Path, scenario: Any, rows: list[dict[str, Any]],
 
 
 @hookspec
-def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int]) -> dict[str, str] | None:
-    """A sweep (`vitaplace sweep`) is about to run ``seeds`` of ``scenario`` into ``out``;
-    called in the driver before any seed starts. Return the environment variables every
-    seed's process needs (e.g. a tracker's parent run), or None. The driver sets them in its
-    own environment while the seeds run, which its local workers and SLURM's tasks inherit,
-    and gives them to each Ray task (its ``runtime_env``). An exception is logged as a warning
-    naming the plugin and does not stop the sweep.
+def vitaplace_sweep_started(out: Path, scenario: Any, seeds: list[int], grid: list[Any]) -> dict[str, str] | None:
+    """A sweep (`vitaplace sweep`) is about to run ``seeds`` of ``scenario`` into ``out``
+    (``grid``: on a grid, ``--grid``, its points, each a
+    `vitaplace.engine.study.grid.GridPoint` with its folder name, its value per ``--grid``
+    path and its scenario; else empty); called in the driver before any seed starts. Return
+    the environment variables every seed's process needs (e.g. a tracker's parent run), or
+    None. The driver sets them in its own environment while the seeds run, which its local
+    workers and SLURM's tasks inherit, and gives them to each Ray task (its ``runtime_env``).
+    An exception is logged as a warning naming the plugin and does not stop the sweep.
     """
 
 

@@ -215,16 +215,28 @@ def plugin_distributions(registry: Registry) -> dict[str, dict[str, str]]:
 
 def _call_each(registry: Registry, hook: str, what: str, **kwargs: Any) -> list[Any]:
     """Call every plugin's ``hook``; one that raises is reported as a warning naming it and
-    ``what`` it is ("run-finished hook"), and the others still run. Returns their results."""
+    ``what`` it is ("run-finished hook"), and the others still run. Each gets the arguments
+    it names (pluggy's rule: a hook written before an argument was added still works).
+    Returns their results."""
     log = logging.getLogger("vitaplace")
     results = []
     for impl in getattr(registry.manager.hook, hook).get_hookimpls():
         try:
-            results.append(impl.function(**kwargs))
+            results.append(impl.function(**{name: kwargs[name] for name in impl.argnames}))
         except Exception as exc:  # noqa: BLE001 - a tracker's failure must not fail a finished run
             log.warning("plugin '%s': its %s raised %s: %s", impl.plugin_name, what, type(exc).__name__,
                         str(exc).splitlines()[0] if str(exc) else "")
     return results
+
+
+def announce_run_started(registry: Registry, out: Path, scenario: Any) -> None:
+    """Call every plugin's `vitaplace_run_started` hook (one that raises: a warning)."""
+    _call_each(registry, "vitaplace_run_started", "run-started hook", out=out, scenario=scenario)
+
+
+def announce_run_failed(registry: Registry, out: Path, scenario: Any, error: str) -> None:
+    """Call every plugin's `vitaplace_run_failed` hook (one that raises: a warning)."""
+    _call_each(registry, "vitaplace_run_failed", "run-failed hook", out=out, scenario=scenario, error=error)
 
 
 def announce_run_finished(registry: Registry, out: Path, scenario: Any, rows: list[dict[str, Any]], stage: str) -> None:
@@ -234,12 +246,13 @@ def announce_run_finished(registry: Registry, out: Path, scenario: Any, rows: li
                stage=stage)
 
 
-def announce_sweep_started(registry: Registry, out: Path, scenario: Any, seeds: list[int]) -> dict[str, str]:
-    """Call every plugin's `vitaplace_sweep_started` hook; the environment variables they ask
-    the seeds' processes to have, merged (text only)."""
+def announce_sweep_started(registry: Registry, out: Path, scenario: Any, seeds: list[int],
+                           grid: list[Any] | None = None) -> dict[str, str]:
+    """Call every plugin's `vitaplace_sweep_started` hook (``grid``: the grid's points, if
+    any); the environment variables they ask the seeds' processes to have, merged (text only)."""
     environment: dict[str, str] = {}
     for asked in _call_each(registry, "vitaplace_sweep_started", "sweep-started hook", out=out, scenario=scenario,
-                            seeds=seeds):
+                            seeds=seeds, grid=list(grid or [])):
         environment.update({str(k): str(v) for k, v in (asked or {}).items()})
     return environment
 

@@ -1,7 +1,8 @@
 """A run from start to end: the stages (`vitaplace.engine.pipeline.stages`) in order up to the
 one asked for, each handed the records of the stages before it; the result files, the
 report, the manifest, the completion record, and last the plugins' `vitaplace_run_finished`
-hooks (trackers). This is the one place that sequences the stages."""
+hooks (trackers; `vitaplace_run_started` before the first stage, `vitaplace_run_failed` when a
+stage raises). This is the one place that sequences the stages."""
 
 from __future__ import annotations
 
@@ -15,7 +16,12 @@ import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.loading import relative_paths
 from vitaplace.engine.config.scenario import Scenario, training_world_evaluation
-from vitaplace.engine.extension.registry import announce_run_finished, plugin_distributions
+from vitaplace.engine.extension.registry import (
+    announce_run_failed,
+    announce_run_finished,
+    announce_run_started,
+    plugin_distributions,
+)
 from vitaplace.engine.outputs import completion, stale
 from vitaplace.engine.outputs.rows import ResultRow
 from vitaplace.engine.pipeline.keys import STAGES
@@ -54,26 +60,33 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
     write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(relative_paths(resolved, out), sort_keys=False))
     started = time.perf_counter()
     stop = STAGES.index(until)
-    simulated = simulate(store, scenario)  # first: a scenario's runs are recorded before anything reads its methods
-    record = RunRecord(out=out, scenario=scenario.name, seed=scenario.seed, until=until,
-                       methods=plan.method_settings(scenario, store.registry),
-                       training_world=training_world_evaluation(scenario)[1],
-                       plugins=plugin_distributions(store.registry), simulate=simulated)
-    if stop >= STAGES.index("fit"):
-        record.fit = fit(store, scenario, record.simulate)
-    if record.fit is not None and stop >= STAGES.index("transform"):
-        record.transform = transform(store, scenario, record.simulate, record.fit)
-    if record.fit is not None and record.transform is not None and stop >= STAGES.index("evaluate"):
-        evaluated = evaluate(store, scenario, record.simulate, record.fit, record.transform)
-        record.evaluate = compare(store, scenario, record.simulate, fuse(store, scenario, record.simulate, evaluated))
-        write_results(out, record.evaluate.rows, record.evaluate.complementarity)
-    if stop >= STAGES.index("report"):
-        record.report = report(store, scenario, closed(record, store, started))
-    write_manifest(closed(record, store, started))
-    finished = record.finished_files()
-    for path in stale.prune(out, finished) + stale.drop_sensitivity(out, before, completion.digests(out, finished)):
-        log.info("removed %s: it described other results than this run's", path)
-    completion.write(out, finished, command)  # before the plugins: a tracker that stalls or fails loses nothing
+    announce_run_started(store.registry, out, scenario)  # e.g. a tracker's run, RUNNING from here
+    try:
+        simulated = simulate(store, scenario)  # first: its runs are recorded before anything reads its methods
+        record = RunRecord(out=out, scenario=scenario.name, seed=scenario.seed, until=until,
+                           methods=plan.method_settings(scenario, store.registry),
+                           training_world=training_world_evaluation(scenario)[1],
+                           plugins=plugin_distributions(store.registry), simulate=simulated)
+        if stop >= STAGES.index("fit"):
+            record.fit = fit(store, scenario, record.simulate)
+        if record.fit is not None and stop >= STAGES.index("transform"):
+            record.transform = transform(store, scenario, record.simulate, record.fit)
+        if record.fit is not None and record.transform is not None and stop >= STAGES.index("evaluate"):
+            evaluated = evaluate(store, scenario, record.simulate, record.fit, record.transform)
+            fused = fuse(store, scenario, record.simulate, evaluated)
+            record.evaluate = compare(store, scenario, record.simulate, fused)
+            write_results(out, record.evaluate.rows, record.evaluate.complementarity)
+        if stop >= STAGES.index("report"):
+            record.report = report(store, scenario, closed(record, store, started))
+        write_manifest(closed(record, store, started))
+        finished = record.finished_files()
+        pruned = stale.prune(out, finished)
+        for path in pruned + stale.drop_sensitivity(out, before, completion.digests(out, finished)):
+            log.info("removed %s: it described other results than this run's", path)
+        completion.write(out, finished, command)  # before the plugins: a tracker that stalls loses nothing
+    except Exception as exc:
+        announce_run_failed(store.registry, out, scenario, " ".join(f"{type(exc).__name__}: {exc}".split()))
+        raise
     announce_run_finished(store.registry, out, scenario, [row.dump() for row in record.rows], until)
     return record.rows
 

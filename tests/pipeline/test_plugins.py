@@ -503,3 +503,20 @@ def test_the_scenario_seed_reaches_the_methods_seed():
     assert keys[0] != keys[1]
     scenario, _ = load_scenario("quickstart", ["methods.0.params.seed=7"])
     assert params_for(scenario, registry, scenario.methods[0])["seed"] == 7
+
+
+def test_a_hook_written_before_an_argument_was_added_gets_the_arguments_it_names(tmp_path):
+    """`vitaplace_sweep_started` gained ``grid``: a plugin whose hook takes the three older
+    arguments is still called, with those, and what it asks for reaches the seeds."""
+    from vitaplace.engine.extension.registry import Registry, announce_sweep_started
+
+    class Older:
+        @hookspecs.hookimpl
+        def vitaplace_sweep_started(self, out, scenario, seeds):
+            return {"ASKED": f"{out.name} {scenario} {seeds}"}
+
+    manager = pluggy.PluginManager(hookspecs.PROJECT)
+    manager.add_hookspecs(hookspecs)
+    registry = Registry(manager)
+    registry.add_plugin(Older(), "older")
+    assert announce_sweep_started(registry, tmp_path / "sweep", "tiny", [0, 1], []) == {"ASKED": "sweep tiny [0, 1]"}

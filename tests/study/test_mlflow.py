@@ -80,30 +80,71 @@ def tracking(tmp_path, monkeypatch) -> str:
     return uri
 
 
-def test_a_run_is_logged_once_and_a_rerun_that_recomputed_nothing_adds_no_run(tmp_path, tracking):
+def test_a_run_is_logged_once_and_a_rerun_that_recomputed_nothing_adds_no_run(tmp_path, tracking, monkeypatch):
     path, out = _scenario(tmp_path), tmp_path / "out"
+    when_logged, log_run = [], tracker._log_run
+    monkeypatch.setattr(tracker, "_log_run", lambda mlflow, client, run_id, *rest: (
+        when_logged.append((client.get_run(run_id).info.status, (out / "completed.json").is_file())),
+        log_run(mlflow, client, run_id, *rest))[1])
     assert main(["-q", "run", str(path), "--out", str(out), "--no-progress"]) == 0
+    assert when_logged == [("RUNNING", True)]  # opened when the run started; its results logged once it is complete
     [run] = _runs(tracking)
     assert run.info.run_name == "tiny seed 0" and run.info.status == "FINISHED"
     params = run.data.params
     assert (params["scenario"], params["seed"], params["scoring.tau"]) == ("tiny", "0", "0.3")
-    assert params["methods.H.plugin"] == "handcrafted" and params["methods.H.grid"] == "[4, 8]"
+    assert params["methods.H.plugin"] == "handcrafted" and params["methods.H.params.grid"] == "[4, 8]"
+    # the resolved scenario, defaults included: runs that differ in a run setting differ in a param
+    assert (params["train.run.n_samples"], params["train.run.speed"], params["evaluations.E1.run.kind"]) == (
+        "5", "0.15", "route")
+    assert params["scoring.recall_k"] == "[1, 5, 10]" and params["fusions"] == "[]"
     rows = json.loads((out / "results.json").read_text())
     expected = {f"E1/H/{row['direction']}/{name}": row[name] for row in rows
                 for name in ("max_f1", "auc", "precision_at_max_f1", "recall_at_max_f1", "recall_at_100_precision")}
+    expected.update({f"E1/H/{row['direction']}/recall_at_{k}": row["recall_at_k"][str(k)] for row in rows
+                     for k in (1, 5, 10)})
     assert run.data.metrics == pytest.approx(expected)
     manifest = json.loads((out / "manifest.json").read_text())
     tags = run.data.tags
     assert tags["git.commit"] == str(manifest["git_commit"]) and tags["vitaplace.stage"] == "report"
+    assert (tags["mlflow.source.name"], tags["mlflow.source.type"]) == ("vitaplace", "LOCAL")
+    assert tags.get("mlflow.source.git.commit") == manifest["git_commit"]  # absent outside a git checkout
     assert tags["vitaplace.out"] == str(out.resolve()) and "mlflow.parentRunId" not in tags
     assert _artifacts(tracking, run) == RUN_ARTIFACTS
-    # every stage cached: nothing new to log
+    # every stage cached: nothing new to log (the run opened at its start is deleted)
     assert main(["-q", "run", str(path), "--out", str(out), "--no-progress"]) == 0
     assert [r.info.run_id for r in _runs(tracking)] == [run.info.run_id]
     # another tau: other results, another run
     assert main(["-q", "run", str(path), "--out", str(out), "--no-progress", "--set", "scoring.tau=0.4"]) == 0
     later = _runs(tracking)
     assert len(later) == 2 and later[1].data.params["scoring.tau"] == "0.4"
+
+
+def test_a_failed_run_keeps_its_mlflow_run_failed_with_its_error_and_params(tmp_path, tracking, monkeypatch):
+    import vitaplace.engine.pipeline.orchestrate as orchestrate
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("the fit broke\non two lines")
+
+    monkeypatch.setattr(orchestrate, "fit", broken)
+    with pytest.raises(RuntimeError, match="the fit broke"):  # an unexpected error: the CLI shows its traceback
+        main(["-q", "run", str(_scenario(tmp_path)), "--out", str(tmp_path / "out"), "--no-progress"])
+    [run] = _runs(tracking)
+    assert run.info.status == "FAILED"
+    assert run.data.tags["vitaplace.error"] == "RuntimeError: the fit broke on two lines"
+    assert run.data.params["train.run.n_samples"] == "5" and run.info.run_name == "tiny seed 0"
+    assert not run.data.metrics and tracker._open == {}
+
+
+def test_a_param_longer_than_mlflow_takes_is_left_out_and_named_in_a_tag(tracking):
+    from mlflow.utils.validation import MAX_PARAM_VAL_LENGTH
+
+    client = MlflowClient(tracking)
+    run_id = client.create_run(client.create_experiment(EXPERIMENT)).info.run_id
+    tracker._log_params(client, run_id, {"short": "x" * MAX_PARAM_VAL_LENGTH, "long": "y" * (MAX_PARAM_VAL_LENGTH + 1),
+                                         **{f"p{i}": str(i) for i in range(150)}})  # two batches of at most 100
+    run = client.get_run(run_id)
+    assert set(run.data.params) == {"short", *(f"p{i}" for i in range(150))}
+    assert run.data.tags["vitaplace.params_skipped"] == "long"
 
 
 def _check_sweep(uri: str, out: Path, seeds: list[int]) -> str:
@@ -137,6 +178,26 @@ def test_a_sweep_is_one_parent_run_with_its_seeds_nested_and_a_rerun_logs_nothin
     assert "VITAPLACE_MLFLOW_PARENT" not in os.environ  # the driver's environment as it was
     assert main(args) == 0  # every stage cached: the same three runs
     assert _check_sweep(tracking, out, [0, 1]) == parent
+
+
+def test_a_grid_s_parent_carries_its_axes_and_its_children_are_named_by_point_and_seed(tmp_path, tracking):
+    out = tmp_path / "grid"
+    assert main(["-q", "sweep", str(_scenario(tmp_path)), "--seeds", "0", "--grid", "scoring.tau=0.3,0.4",
+                 "--grid", "scoring.heading_tolerance_deg=30", "--out", str(out), "--no-progress"]) == 0
+    runs = _runs(tracking)
+    [parent] = [r for r in runs if "mlflow.parentRunId" not in r.data.tags]
+    assert parent.info.run_name == "tiny grid, seeds 0" and parent.info.status == "FINISHED"
+    params = parent.data.params
+    # the varied key's base value (0.3) is no point's: the parent has the axis instead
+    assert "scoring.tau" not in params and params["grid.scoring.tau"] == "[0.3, 0.4]"
+    assert params["grid.scoring.heading_tolerance_deg"] == "[30]" and params["scoring.heading_tolerance_deg"] == "30.0"
+    assert params["seeds"] == "[0]" and "seed" not in params and params["train.run.n_samples"] == "5"
+    children = {r.info.run_name: r for r in runs if r is not parent}
+    names = {"tau=0.3,heading_tolerance_deg=30-seed0": "0.3", "tau=0.4,heading_tolerance_deg=30-seed0": "0.4"}
+    assert set(children) == set(names)
+    for name, tau in names.items():
+        assert children[name].data.params["scoring.tau"] == tau
+        assert children[name].data.tags["mlflow.parentRunId"] == parent.info.run_id
 
 
 def _driver(args: list[str], folder: Path, prelude: str = "") -> subprocess.CompletedProcess:
@@ -187,20 +248,18 @@ def _closed_port() -> int:
 def test_an_unreachable_tracking_server_costs_seconds_and_one_warning_after_the_run_is_complete(
         tmp_path, monkeypatch, capsys):
     """MLflow's defaults retry a refused connection 7 times with backoff (minutes); the
-    tracker's calls give up after one retry, once completed.json is written."""
+    tracker's calls give up after one retry, and the run that could not be opened at the
+    start is not tried again at the end."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("VITAPLACE_MLFLOW", EXPERIMENT)
     monkeypatch.setenv("MLFLOW_TRACKING_URI", f"http://127.0.0.1:{_closed_port()}")
     for name in (*tracker.HTTP_SETTINGS, "VITAPLACE_MLFLOW_PARENT"):
         monkeypatch.delenv(name, raising=False)
-    complete_when_logged, log_run = [], tracker._log_run
-    monkeypatch.setattr(tracker, "_log_run", lambda mlflow, client, experiment, out, *rest: (
-        complete_when_logged.append((out / "completed.json").is_file()),
-        log_run(mlflow, client, experiment, out, *rest))[1])
     out = tmp_path / "out"
+    started = time.time()
     assert main(["run", str(_scenario(tmp_path)), "--out", str(out), "--no-progress"]) == 0
     tracked = time.time() - (out / "completed.json").stat().st_mtime  # what the tracker cost after it
-    assert complete_when_logged == [True] and tracked < 5, tracked
+    assert tracked < 5 and time.time() - started < 60, tracked  # the run opened at the start is not tried again
     warnings = [line for line in capsys.readouterr().err.splitlines() if "MLflow" in line]
     assert len(warnings) == 1 and warnings[0].startswith(f"MLflow: the run in {out} not logged (tracking URI http")
     assert not set(tracker.HTTP_SETTINGS) & set(os.environ)  # set for the tracker's calls alone
