@@ -1,6 +1,5 @@
-"""Command-line interface: ``vitaplace COMMAND``, COMMAND one of
-``run|validate|config|simulate|train|evaluate|report|difficulty|export|plugins|sweep|aggregate|sensitivity|import|
-view|video``.
+"""Command-line interface: ``vitaplace COMMAND``, COMMAND one of ``run|validate|config|
+simulate|train|evaluate|report|difficulty|export|plugins|sweep|aggregate|sensitivity|import|view|video``.
 
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.

@@ -21,7 +21,7 @@ ENV_E1 = str(SCENARIOS / "environments" / "e1.yaml")
 
 #: The quickstart scenario, sized down so the whole pipeline runs in seconds.
 TINY = [
-    "train.run.n_samples=12",
+    "train.run.n_samples=40",  # the first sample whose whiskers touch is the 34th
     "evaluations.0.run.n_samples=10",
     "methods.0.params.image_size=[9,16]",
     "methods.0.params.visual_layers=[12]",
@@ -758,7 +758,7 @@ def test_until_runs_the_stages_up_to_and_including_the_one_named(tmp_path):
 #: A scenario that names the shipped environment, with the tiny MuPNet of TINY and ViTa-SLAM.
 BY_NAME = """\
 name: t
-train: {environment: e1, run: {kind: foraging, n_samples: 12}}
+train: {environment: e1, run: {kind: foraging, n_samples: 40}}
 evaluations: [{name: E1, environment: e1, run: {kind: route, n_samples: 10}}]
 methods:
   - name: L
@@ -828,7 +828,7 @@ def test_every_command_names_its_own_handler():
     import vitaplace.engine.cli.main as cli
     from vitaplace.engine.cli import commands
 
-    documented = cli.__doc__.split("COMMAND one of\n``")[1].split("``")[0].split("|")  # the docstring's 2nd line
+    documented = cli.__doc__.split("COMMAND one of ``")[1].split("``")[0].replace("\n", "").split("|")
     (sub,) = [a for a in cli.build_parser()._actions if isinstance(a, argparse._SubParsersAction)]
     assert sorted(sub.choices) == sorted(documented)
     for name, parser in sub.choices.items():
@@ -931,7 +931,7 @@ def test_every_simulated_run_logs_its_samples_and_seconds(quiet_json_run):
 
     log_text = (quiet_json_run[0] / "log.txt").read_text()
     stages = json.loads((quiet_json_run[0] / "manifest.json").read_text())["stages"]
-    for label, samples in (("train", 12), ("E1/query", 10), ("E1/reference", 10)):
+    for label, samples in (("train", 40), ("E1/query", 10), ("E1/reference", 10)):
         found = re.search(rf"simulate\s+{label}\s+simulated {samples} samples in (\d+\.\d) s", log_text)
         assert found, label
         recorded = next(r["seconds"] for r in stages if r["stage"] == "simulate" and r["item"] == label)
@@ -942,7 +942,7 @@ def test_report_states_sample_counts_and_method_parameters(quiet_json_run):
     out, _ = quiet_json_run
     report = (out / "report.md").read_text()
     (row, _) = json.loads((out / "results.json").read_text())
-    assert "Training run: 12 samples" in report
+    assert "Training run: 40 samples" in report
     assert f"| E1 | query-to-reference | 10 | 10 | {row['n_revisit']} |" in report
     assert "**L** (`mupnet`): image_size=[9, 16]" in report and "max_steps=20" in report
     assert "**H** (`handcrafted`): none; defaults: grid=" in report
@@ -953,7 +953,7 @@ def test_report_states_sample_counts_and_method_parameters(quiet_json_run):
     training = json.loads((out / "manifest.json").read_text())["training"]["L"]
     assert training["epochs"] == 2 and training["converged"] is False  # 2 epochs, a window of 20
     assert "L: training stopped at its epoch cap without meeting its convergence criterion after 2 epochs." in report
-    held = training["held_out"]  # the default held-out tenth of 12 samples: 1, measured after each epoch
+    held = training["held_out"]  # the default held-out tenth of 40 samples: 4, measured after each epoch
     assert len(held) == 2 and all(h > 0 for h in held)
     best = 0 if held[0] <= held[1] else 1
     assert (f"L: held-out energy per sample (samples kept out of training, at the latents test-time inference "
@@ -978,7 +978,7 @@ def test_report_is_rebuilt_from_a_copy_of_the_output_folder_alone(quiet_json_run
     assert main(["-q", "report", str(copy)]) == 0
     assert capsys.readouterr().out == f"wrote {copy / 'report.md'} and its figures\n"
     report = (out / "report.md").read_text()
-    for part in ("## Test-time inference", "## Training", "![trajectories]", "Training run: 12 samples",
+    for part in ("## Test-time inference", "## Training", "![trajectories]", "Training run: 40 samples",
                  "**L** (`mupnet`): image_size=[9, 16]"):
         assert part in report, part  # what the folder's manifest, training curves and poses hold is in it
     assert (copy / "report.md").read_bytes() == (out / "report.md").read_bytes()
@@ -1052,7 +1052,7 @@ def test_figures_label_colour_bars_and_keep_legends_off_the_data(tmp_path, monke
     from vitaplace.engine.evaluation import evaluate as ev
     from vitaplace.engine.report import figures
     drawn = []
-    monkeypatch.setattr(figures, "_save", lambda fig, stem: drawn.append(fig) or [])
+    monkeypatch.setattr(figures, "_save", lambda fig, stem, *formats: drawn.append(fig) or [])
     t = np.linspace(0, 2 * np.pi, 30)
     poses = np.c_[np.cos(t), np.sin(t), t]
     gtm = ev.ground_truth_matrix(poses, poses[::-1])

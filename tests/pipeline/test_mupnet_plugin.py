@@ -285,7 +285,7 @@ def test_diverging_latents_are_flagged_per_sample(mupnet_class, runs, caplog):
 
 #: TrainingConfig's fields added after the others, with the plugin's defaults (old code builds the same)
 LATER_TRAINING_FIELDS = ("latent_prior", "weight_optimizer", "weight_momentum", "adam_beta1", "adam_beta2",
-                         "adam_eps", "precision_weighting", "precision_floor")
+                         "adam_eps", "precision_weighting", "precision_floor", "weight_norm")
 
 
 def test_the_engine_configs_hold_no_defaults_of_their_own():
@@ -458,7 +458,7 @@ def test_diverging_training_is_its_one_error_line_without_numpys_warnings(capsys
     layer, not numpy's overflow warnings before it."""
     from vitaplace.engine.cli.main import main
 
-    tiny = ["train.run.n_samples=12", "evaluations.0.run.n_samples=10", "methods=[{name: L, plugin: mupnet, params: "
+    tiny = ["train.run.n_samples=40", "evaluations.0.run.n_samples=10", "methods=[{name: L, plugin: mupnet, params: "
             "{image_size: [9, 16], visual_layers: [12], tactile_layers: [8], joint_size: 6, epochs: 2, batch_size: 6, "
             "eta_y_visual: 1000, training_inference: plain, inference_solver: gd, latent_prior: 0}}]"]
     argv = ["-q", "run", "quickstart", "--out", "OUT", "--no-progress", *[a for t in tiny for a in ("--set", t)]]

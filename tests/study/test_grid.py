@@ -72,8 +72,9 @@ def test_every_point_and_seed_runs_what_config_resolves_for_its_assignments(grid
     path, out, result = grid_sweep
     assert result.returncode == 0, result.stderr[-3000:]
     assert sorted(p.name for p in out.iterdir() if "=" in p.name) == sorted(NAMES)  # 2 x 2 points, no more
+    # a sweep's seeds draw the summary figures unless the scenario chooses (docs/SCALE.md)
     runs = [(name, seed, [str(path), "--set", f"seed={seed}", "--set", f"scoring.tau={tau}",
-                          "--set", f"methods.1.params.crop_fraction={crop}"])
+                          "--set", f"methods.1.params.crop_fraction={crop}", "--set", "report.figures=summary"])
             for name, tau, crop in POINTS for seed in (0, 1)]
     configs = subprocess.run([sys.executable, "-c", CONFIGS, json.dumps([args for _, _, args in runs])],
                              capture_output=True, text=True, timeout=300, env=plugin_env, check=True).stdout
