@@ -25,7 +25,6 @@ from vitaplace.engine.config.scenario import ReportSettings
 from vitaplace.engine.evaluation.complementarity import count_text
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
-from vitaplace.engine.extension.features import IN_RANGE_SHARE
 from vitaplace.engine.outputs import completion
 from vitaplace.engine.outputs.checksum import digest
 from vitaplace.engine.outputs.outdir import (
@@ -44,6 +43,7 @@ from vitaplace.engine.outputs.outdir import (
 )
 from vitaplace.engine.outputs.rows import Difficulty, ResultRow, SequenceMatching, parse_row
 from vitaplace.engine.report import figures
+from vitaplace.engine.report.learned import drive_section, inference_section, tactile_range_section
 from vitaplace.engine.report.training import training_section
 
 #: the manifest entries the report reads (a change to one of them changes the report's key)
@@ -185,58 +185,6 @@ def _methods_section(methods: dict[str, dict[str, Any]]) -> list[str]:
     return lines + [""]
 
 
-def _facts(features: dict[str, dict[str, dict[str, Any]]], kind: str) -> list[tuple[str, str, dict[str, Any]]]:
-    """(method, run, facts) for every method and run whose features have facts of ``kind``
-    (`feature_facts`: ``inference``, ``tactile_range``)."""
-    return [(method, label, facts[kind]) for method, by_run in features.items()
-            for label, facts in by_run.items() if facts.get(kind)]
-
-
-def inference_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
-    """Markdown table of the test-time inference steps per method and evaluation run, for
-    methods whose features record them (`feature_facts`): median, 90th percentile and
-    largest step count, the share of samples a stopping rule ended before the step cap
-    (settled) and the share under every threshold (older facts without ``stopped``: -)."""
-    lines = [
-        f"| {method} | {label} | {i['median']:.0f} | {i['p90']:.0f} | {i['max']} | "
-        f"{100 * (1 - i['capped'] / i['samples']):.1f} | {_percent(i.get('stopped'), i['samples'])} |"
-        for method, label, i in _facts(features, "inference")
-    ]
-    if not lines:
-        return ""
-    table = ["| method | run | median steps | 90th percentile | most | % settled | % under the thresholds |",
-             "|---|---|---|---|---|---|---|", *lines]
-    return "\n".join(table + _cap_warnings(features))
-
-
-def _percent(count: int | None, total: int) -> str:
-    return "-" if count is None else f"{100 * count / total:.1f}"
-
-
-#: a share of test-time inferences at the step cap from which the report warns
-CAP_WARNING_SHARE = 0.5
-
-
-def _cap_warnings(features: dict[str, dict[str, dict[str, Any]]]) -> list[str]:
-    """A warning line per method whose test-time inference hit the step cap in every, or in
-    most (`CAP_WARNING_SHARE`), samples of the evaluation runs: its latents did not settle."""
-    lines = []
-    for method, by_run in features.items():
-        inferences: list[Any] = [facts.get("inference") for facts in by_run.values()]
-        if not inferences or any(i is None for i in inferences):
-            continue
-        capped, samples = sum(i["capped"] for i in inferences), sum(i["samples"] for i in inferences)
-        if capped / samples >= CAP_WARNING_SHARE:
-            every = capped == samples
-            share = "every" if every else f"{100 * capped / samples:.0f} % of the"
-            lines.append(
-                f"**Warning: {share} test-time inference{'' if every else 's'} of {method} hit the step "
-                f"cap** ({capped} of {samples} samples): the latents had not settled when they were read; "
-                "raise the method's `max_steps` (or its inference rate) before reading much into its numbers."
-            )
-    return ["", *lines] if lines else []
-
-
 def _inputs_section(manifest: dict[str, Any]) -> list[str]:
     """Which runs were read from recorded files (with the file and what data it holds), and
     every method x evaluation run whose feature arrays were all zero, i.e. which features
@@ -368,78 +316,6 @@ def _dropout_section(rows: Sequence[ResultRow]) -> list[str]:
         *table,
         "",
     ]
-
-
-def _section(heading: str, text: str, table: str) -> list[str]:
-    """A report section: its heading, what it shows and its table; none without a table."""
-    return [f"## {heading}", "", text, "", table, ""] if table else []
-
-
-def _inference_section(manifest: dict[str, Any]) -> list[str]:
-    return _section(
-        "Test-time inference",
-        "Each sample's latents are inferred until its prediction errors fall under their "
-        "thresholds or, where the method has a relative rule (`inference_rtol`), its step has "
-        "shrunk below that fraction of its first; otherwise up to the method's step cap "
-        "(`max_steps`). A sample is settled when a rule ended it before the cap.",
-        inference_table(manifest["features"]),
-    )
-
-
-def tactile_range_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
-    """Markdown table, per method and evaluation run whose features measure the tactile input
-    against its training range (`feature_facts`' ``tactile_range``): the share of its values
-    (samples x channels) inside the range, the lowest channel's share, the channels under
-    `IN_RANGE_SHARE` and the largest excess beyond [0, 1] in scaled units."""
-    lines = [
-        f"| {method} | {label} | {_percent(r['inside'], r['values']) if r['values'] else '-'} | "
-        f"{100 * r['channel_min']:.1f} | {r['channels_under']} of {r['channels']} | {r['beyond']:.3g} |"
-        for method, label, r in _facts(features, "tactile_range")
-    ]
-    if not lines:
-        return ""
-    under = f"{100 * IN_RANGE_SHARE:g} %"
-    return "\n".join([f"| method | run | % of values in range | lowest channel % | channels under {under} | "
-                      "largest excess (scaled units) |", "|---|---|---|---|---|---|", *lines])
-
-
-def _tactile_range_section(manifest: dict[str, Any]) -> list[str]:
-    return _section(
-        "Tactile inputs inside the training range",
-        "Each tactile channel is scaled on the training run (`tactile_scaling`). Per method and evaluation run: "
-        "the share of the run's tactile values (samples x channels, samples without whiskers left out) inside "
-        "their channel's range on the training run, the lowest channel's share, the channels with less than "
-        f"{100 * IN_RANGE_SHARE:g} % inside, and how far the farthest value lies beyond [0, 1] in min-max scaled "
-        "units (the channel's training range, floored by `tactile_min_range`, is 1). Under `tactile_scaling: clip` "
-        "such values are fed saturated at the ends of the training range; otherwise as they are.",
-        tactile_range_table(manifest["features"]),
-    )
-
-
-def drive_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
-    """Markdown table, per method and evaluation run with vision's share of the joint drive
-    (`feature_facts`' ``drive``): samples with both modalities, the share's median, 10-90 %."""
-    lines = [
-        f"| {method} | {label} | {d['samples']} | "
-        + (f"{d['median']:.3f} | {d['p10']:.3f} - {d['p90']:.3f} |" if d["samples"] else "- | - |")
-        for method, label, d in _facts(features, "drive")
-    ]
-    if not lines:
-        return ""
-    return "\n".join(["| method | run | samples with both modalities | vision's share, median | 10-90 % |",
-                      "|---|---|---|---|---|", *lines])
-
-
-def _drive_section(manifest: dict[str, Any]) -> list[str]:
-    return _section(
-        "Which modality drives the joint latent",
-        "Per learned method fed both modalities and evaluation run: at each sample's settled latents, vision's "
-        "share of the drive on the joint latent, ||T_v|| / (||T_v|| + ||T_t||), T_m being the gradient of the "
-        "joint edge of modality m's energy in the joint latent (docs/MUPNET.md, \"Which modality drives the joint "
-        "latent\"); 0.5 is an equal pull, touch's share is 1 minus vision's. Samples missing a modality (a query "
-        "drop-out) are left out.",
-        drive_table(manifest["features"]),
-    )
 
 
 def _evaluation_sections(out: Path, rows: Sequence[ResultRow], settings: ReportSettings) -> list[str]:
@@ -605,9 +481,9 @@ def write_report(out: Path) -> None:
         *_fusions_section(rows, resolved.get("fusions") or []),
         *_dropout_section(rows),
         *_methods_section(manifest["methods"]),
-        *_inference_section(manifest),
-        *_tactile_range_section(manifest),
-        *_drive_section(manifest),
+        *inference_section(manifest),
+        *tactile_range_section(manifest),
+        *drive_section(manifest),
         *_evaluation_sections(out, rows, settings),
         *training_section(out, list(manifest["methods"]), manifest["training"], figure_formats(settings)),
         *_inputs_section(manifest),

@@ -20,7 +20,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.data.dataset import Run, open_run, write_run  # noqa: E402
 from vitaplace.engine.extension.features import feature_facts  # noqa: E402
-from vitaplace.engine.report.report import drive_table  # noqa: E402
+from vitaplace.engine.report.learned import drive_table  # noqa: E402
 from vitaplace.plugins.mupnet.extractor import MupnetExtractor  # noqa: E402
 
 #: both stacks one unit, joint one unit, linear: the energy is a quadratic in three latents

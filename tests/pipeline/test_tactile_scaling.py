@@ -20,7 +20,7 @@ from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.data.dataset import TOUCH_THRESHOLD, Run  # noqa: E402
 from vitaplace.engine.extension.features import feature_facts  # noqa: E402
 from vitaplace.engine.extension.registry import discover  # noqa: E402
-from vitaplace.engine.report.report import tactile_range_table  # noqa: E402
+from vitaplace.engine.report.learned import tactile_range_table  # noqa: E402
 from vitaplace.plugins.mupnet.extractor import MupnetParams  # noqa: E402
 from vitaplace.plugins.mupnet.inputs import RANGE_FILE, TactileRange, range_measure, report_out_of_range  # noqa: E402
 
