@@ -116,14 +116,18 @@ def test_the_package_reads_back_the_runs_and_ground_truth(exported):
 
 
 @pytest.mark.slow
-def test_the_ground_truth_is_the_evaluations(exported):
-    """The package's ground truth is what the evaluate stage scores with, run on the same cached runs."""
+def test_the_ground_truth_is_the_evaluations(exported, tmp_path):
+    """The package's ground truth is what the evaluate stage scores with, run on the same cached
+    runs (a copy of the export's cache: evaluating in the export's own runs folder would make
+    the next export carry on to the evaluate stage there)."""
     out, runs = exported
+    evaluated = tmp_path / "evaluated"
+    shutil.copytree(runs / "cache", evaluated / "cache")
     method = ["--set", "methods=[{name: H, plugin: handcrafted}]", "--set", "fusions=[]"]
-    assert main(["-q", "evaluate", "touch-benchmark", *SETS, *method, "--out", str(runs), "--no-progress"]) == 0
+    assert main(["-q", "evaluate", "touch-benchmark", *SETS, *method, "--out", str(evaluated), "--no-progress"]) == 0
     package = read_package(out / "package")
     for e in EVALUATIONS:
-        with np.load(runs / "evaluations" / e / "H" / "query-to-reference" / "matrices.npz") as matrices:
+        with np.load(evaluated / "evaluations" / e / "H" / "query-to-reference" / "matrices.npz") as matrices:
             assert np.array_equal(package.ground_truth[e]["gtm"], matrices["gtm"]), e
 
 
