@@ -33,7 +33,7 @@ from vitaplace.engine.extension.features import TACTILE, VISUAL, FeatureExtracto
 
 __all__ = [
     "ATOL", "CHECKS", "RTOL", "ContractError", "check_declared_senses", "check_distance_before_fit",
-    "check_distance_output", "check_extractor", "check_features_output", "check_fit_leaves_params",
+    "check_distance_output", "check_distance_rows", "check_extractor", "check_features_output", "check_fit_leaves_params",
     "check_missing_modalities", "check_same_seed_same_features", "check_save_load_round_trip",
     "check_transform_before_fit", "check_transform_subset", "parametrize_with_checks", "synthetic_run",
 ]
@@ -137,6 +137,22 @@ def check_distance_output(cls: type[FeatureExtractor], params: RawParams, run: R
     if not np.isfinite(distances).all():
         raise _fail(check_distance_output, cls, f"distance has {int((~np.isfinite(distances)).sum())} NaN or "
                     "infinite entries")
+
+
+def check_distance_rows(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
+    """A query's row of ``distance`` depends on that query alone: the distances of a block of
+    queries are those rows of the distances of them all (the pipeline asks for them a block of
+    queries at a time, so that a large pair is scored in memory linear in its samples)."""
+    extractor = _fitted(cls, params, run)
+    features = extractor.transform(run)
+    whole = np.asarray(extractor.distance(features, features))
+    start, stop = len(run) // 4, max(len(run) // 4 + 1, len(run) // 2)
+    block = np.asarray(extractor.distance({key: value[start:stop] for key, value in features.items()}, features))
+    if not _same_distances(whole[start:stop], block):
+        how = (f"has shape {block.shape}" if block.shape != whole[start:stop].shape
+               else f"differs by up to {np.max(np.abs(block - whole[start:stop])):.3g}")
+        raise _fail(check_distance_rows, cls, f"distance of query samples {start}..{stop - 1} is not those rows of "
+                    f"distance of all {len(run)}: it {how}; a row must depend on its query alone")
 
 
 def check_transform_subset(cls: type[FeatureExtractor], params: RawParams, run: Run) -> None:
@@ -298,6 +314,7 @@ def check_missing_modalities(cls: type[FeatureExtractor], params: RawParams, run
 CHECKS: tuple[Callable[[type[FeatureExtractor], RawParams, Run], None], ...] = (
     check_features_output,
     check_distance_output,
+    check_distance_rows,
     check_transform_subset,
     check_save_load_round_trip,
     check_transform_before_fit,

@@ -36,7 +36,8 @@ Conventions (single-best-match VPR, as VPR_Tutorial's ``createPR(..., matching='
   labels "best match correct", times ``#correct best matches / #queries with a revisit``
   (our recall denominator counts all queries with a revisit).
 * A threshold that must transfer: `f1_at_threshold_of` scores a pair at the threshold that
-  maximised F1 on another pair (the runner: the training world's evaluation), unchanged.
+  maximised F1 on another pair (the runner: the training world's evaluation), unchanged;
+  `f1_at_threshold_from` does so from the pair's saved `Decisions`, at any size.
 * Linear memory: every measure is computed from each query's row alone (`QueryStats`,
   `vitaplace.engine.evaluation.ranking`), so the matrices need not be held whole: `scan` reads
   the scored matrix a chunk of queries at a time, `true_matches` gives the ground truth from a
@@ -69,6 +70,7 @@ __all__ = [
     "decide",
     "decisions_from",
     "evaluate",
+    "f1_at_threshold_from",
     "f1_at_threshold_of",
     "ground_truth_matrix",
     "pr_curve",
@@ -389,8 +391,9 @@ def _check_deltas(deltas: Iterable[float] | None) -> np.ndarray | None:
     return d
 
 
-def curve_from(stats: QueryStats, deltas: Iterable[float] | None = None) -> PRCurve:
-    """`pr_curve` from each query's `QueryStats`."""
+def curve_from(stats: QueryStats | Decisions, deltas: Iterable[float] | None = None) -> PRCurve:
+    """`pr_curve` from each query's `QueryStats`, or from `Decisions` at any threshold (they
+    keep every query's best distance, the share of its tie that is true and its revisit)."""
     best_tme, correct_share, has_revisit = stats.best_tme, stats.correct_share, stats.has_revisit
     d = _check_deltas(deltas)
     if d is None:
@@ -526,3 +529,9 @@ def f1_at_threshold_of(source: PRCurve, tme: ArrayLike, gtm: ArrayLike, tau: flo
     ``source.delta_at_max_f1`` (the smallest among tied maxima); ``-inf`` (the source's best
     was to accept nothing) accepts nothing here either, F1 0."""
     return float(pr_curve(tme, gtm, tau, [source.delta_at_max_f1]).f1[0])
+
+
+def f1_at_threshold_from(source: PRCurve, decisions: Decisions) -> float:
+    """`f1_at_threshold_of` from the pair's `Decisions` (taken at any threshold) instead of
+    its matrices."""
+    return float(curve_from(decisions, [source.delta_at_max_f1]).f1[0])

@@ -13,6 +13,7 @@ import numpy as np
 from vitaplace.engine.config.scenario import EvaluationPair, Scenario, ScenarioError
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.evaluation.pairfiles import evaluate_pair
+from vitaplace.engine.evaluation.ranking import Rows
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.outputs.rows import QueryDropoutShares, ResultRow, parse_row
 from vitaplace.engine.pipeline.records import RunFile
@@ -30,8 +31,9 @@ def sequence_for(scenario: Scenario, query: str, n_queries: int) -> dict[str, An
     return sequence.model_dump()
 
 
-def score(scenario: Scenario, folder: Path, tme: np.ndarray, query: Run, reference: Run) -> dict[str, Any]:
-    """The distances ``tme`` from the ``query`` run's samples to the ``reference`` run's scored
+def score(scenario: Scenario, folder: Path, tme: np.ndarray | Rows, query: Run, reference: Run) -> dict[str, Any]:
+    """The distances ``tme`` (whole, or `Rows` read a block of queries at a time) from the
+    ``query`` run's samples to the ``reference`` run's scored
     with the scenario's settings into ``folder`` (`evaluate_pair`); returns the summary."""
     settings = scenario.scoring
     return evaluate_pair(

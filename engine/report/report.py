@@ -22,6 +22,7 @@ import yaml
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.config.scenario import ReportSettings
+from vitaplace.engine.evaluation import pairfiles
 from vitaplace.engine.evaluation.complementarity import count_text
 from vitaplace.engine.evaluation.difficulty import STAY_RADIUS
 from vitaplace.engine.evaluation.pairfiles import load_curve, load_decisions
@@ -346,8 +347,6 @@ def _pair_figures(out: Path, row: ResultRow, formats: Sequence[str]) -> list[str
     direction of one evaluation (drawn into OUT/figures), and the report lines showing them."""
     environment, method, direction = row.environment, row.method, row.direction
     folder = evaluation_dir(out, environment, method, direction)
-    with np.load(folder / MATRICES) as m:
-        tme, gtm = m["tme"], m["gtm"]
     decisions = load_decisions(folder / DECISIONS)
     arena_file = arena_path(out, environment)
     arena = json.loads(arena_file.read_text()) if arena_file.is_file() else None
@@ -355,12 +354,18 @@ def _pair_figures(out: Path, row: ResultRow, formats: Sequence[str]) -> list[str
     with np.load(poses_path(out, environment)) as poses:
         query_poses, reference_poses = poses[query], poses[reference]
     stem, fig_dir = f"{environment}-{method}-{direction}", out / FIGURES
-    figures.plot_matrices(fig_dir / f"matrices-{stem}", tme, gtm, decisions, title=f"{environment} {method}",
-                          formats=formats)
+    lines = [f"### {method} ({direction})", ""]
+    if (folder / MATRICES).is_file():
+        with np.load(folder / MATRICES) as m:
+            figures.plot_matrices(fig_dir / f"matrices-{stem}", m["tme"], m["gtm"], decisions,
+                                  title=f"{environment} {method}", formats=formats)
+        lines += [f"![GTM and TME](figures/matrices-{stem}.png)", ""]
+    else:
+        lines += [f"Matrices not drawn: {decisions.n_queries} queries x {len(reference_poses)} references is over "
+                  f"the {pairfiles.FULL_MATRIX_LIMIT:,} entries held whole (FULL_MATRIX_LIMIT).", ""]
     figures.plot_trajectories(fig_dir / f"trajectories-{stem}", query_poses, reference_poses, decisions,
                               arena=arena, title=f"{environment} {method}: matches at max F1", formats=formats)
-    return [f"### {method} ({direction})", "", f"![GTM and TME](figures/matrices-{stem}.png)", "",
-            f"![trajectories](figures/trajectories-{stem}.png)", ""]
+    return lines + [f"![trajectories](figures/trajectories-{stem}.png)", ""]
 
 
 def figure_formats(settings: ReportSettings) -> tuple[str, ...]:
@@ -403,8 +408,9 @@ def report_files(out: Path, rows: Sequence[ResultRow | Mapping[str, Any]], metho
     out = Path(out)
     parsed = [parse_row(row, f"{out / RESULTS_JSON}: row {i}", ReportError) for i, row in enumerate(rows)]
     files = [out / RESULTS_JSON, out / completion.SCENARIO] + [p for p in [out / COMPLEMENTARITY] if p.is_file()]
-    files += [evaluation_dir(out, row.environment, row.method, row.direction) / name
-              for row in parsed for name in EVALUATION_FILES]
+    files += [path for row in parsed for name in EVALUATION_FILES
+              if (path := evaluation_dir(out, row.environment, row.method, row.direction) / name).is_file()
+              or name != MATRICES]  # a pair over FULL_MATRIX_LIMIT has no matrices
     for environment in dict.fromkeys(row.environment for row in parsed):
         files += [poses_path(out, environment)] + [p for p in [arena_path(out, environment)] if p.is_file()]
     return files + [p for name in methods if (p := training_path(out, name)).is_file()]

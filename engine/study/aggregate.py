@@ -143,6 +143,15 @@ def check_recorded(run: RunFolder, names: Sequence[str]) -> None:
         raise AggregateError(f"{run.folder}: not a finished run: {wrong}")
 
 
+def written_matrices(run: RunFolder) -> list[str]:
+    """The ``matrices.npz`` of ``run``'s evaluations that its run wrote or its record names: a
+    pair over `FULL_MATRIX_LIMIT` has none (its bootstrap intervals are NaN), one deleted since
+    the run is named by the record and found missing."""
+    recorded = completion.files_of(run.folder)
+    names = [str(Path(curve_path(row)).parent / MATRICES) for row in run.rows]
+    return [name for name in names if name in recorded or (run.folder / name).exists()]
+
+
 def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Path, dict[str, Any]]:
     """Check that ``folders`` are finished runs of one scenario with distinct seeds
     (`validate_run_folder`, every folder before anything is written) and write their summary
@@ -151,7 +160,7 @@ def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Pa
     first = runs[0]
     seen = one_scenario(runs)
     for run in runs:  # the block bootstrap reads each evaluation's matrices: as the run left them
-        check_recorded(run, [str(Path(curve_path(row)).parent / MATRICES) for row in run.rows])
+        check_recorded(run, written_matrices(run))
     if out is None:
         parents = {run.folder.resolve().parent for run in runs}
         if len(parents) != 1:

@@ -433,6 +433,10 @@ def test_f1_at_the_training_threshold_hand_case():
     assert ev.pr_curve(OTHER_TME, OTHER_GTM, 1.0).max_f1 == pytest.approx(4 / 5)
     # in the training world itself it is the max F1
     assert ev.f1_at_threshold_of(train, TRAIN_TME, TRAIN_GTM, 1.0) == pytest.approx(2 / 3)
+    # from the pair's decisions, whatever threshold they were taken at, as from its matrices
+    for delta in (-np.inf, 0.0, 0.3, 0.9):
+        decisions = ev.decide(OTHER_TME, OTHER_GTM, 1.0, delta)
+        assert ev.f1_at_threshold_from(train, decisions) == pytest.approx(1 / 2)
 
 
 def test_f1_at_the_training_threshold_when_the_training_world_accepts_nothing():

@@ -44,9 +44,9 @@ def f1_at_training_threshold(store: Store, scenario: Scenario, rows: list[Result
         f1, threshold = None, None
         if source is not None:
             curve = load_curve(outdir.evaluation_dir(store.out, source, row.method, row.direction) / outdir.PR_CURVE)
-            with np.load(outdir.evaluation_dir(store.out, row.environment, row.method, row.direction)
-                         / outdir.MATRICES) as m:
-                f1 = ev.f1_at_threshold_of(curve, m["tme"], m["gtm"], row.tau)
+            decisions = load_decisions(outdir.evaluation_dir(store.out, row.environment, row.method, row.direction)
+                                       / outdir.DECISIONS)
+            f1 = ev.f1_at_threshold_from(curve, decisions)
             threshold = curve.delta_at_max_f1 if np.isfinite(curve.delta_at_max_f1) else None
         completed.append(row.model_copy(update=dict(f1_at_e1_threshold=f1, e1_threshold=threshold)))
     return completed

@@ -1,6 +1,10 @@
 """The evaluate stage: per evaluation, method and direction, the method's distances from the
 query side's samples to the reference side's, scored into the evaluation's folder
-(`vitaplace.engine.pipeline.scoring`), and its results row."""
+(`vitaplace.engine.pipeline.scoring`), and its results row.
+
+The distances are asked of the method a chunk of queries at a time (`distance_rows`), so a
+pair above `FULL_MATRIX_LIMIT` entries is scored in memory linear in its samples; a pair at
+or below it is asked for in one call, as it is held whole for ``matrices.npz``."""
 
 from __future__ import annotations
 
@@ -8,10 +12,13 @@ import json
 from functools import partial
 from pathlib import Path
 
+import numpy as np
+
 import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Scenario
-from vitaplace.engine.extension.features import load_features
+from vitaplace.engine.evaluation.ranking import Rows
+from vitaplace.engine.extension.features import FeatureExtractor, Features, load_features
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.pipeline.keys import evaluate_key
 from vitaplace.engine.pipeline.output_checks import check_distance
@@ -49,12 +56,26 @@ def evaluate(store: Store, scenario: Scenario, simulated: SimulateRecord, fitted
     return EvaluateRecord(rows, folders, files)
 
 
+def distance_rows(extractor: FeatureExtractor, query: Features, reference: Features, shape: tuple[int, int],
+                  what: str) -> Rows:
+    """``extractor``'s distances from the ``query`` features to the ``reference`` ones, a block
+    of queries at a time (a query's row depends on that query alone: the plugin contract's
+    `check_distance_rows`), each block checked (`check_distance`)."""
+    n_references = shape[1]
+
+    def read(start: int, stop: int) -> np.ndarray:
+        block = {name: values[start:stop] for name, values in query.items()}
+        return check_distance(extractor.distance(block, reference), (stop - start, n_references), what)
+
+    return Rows(shape, read)
+
+
 def _evaluate(store: Store, scenario: Scenario, model: ModelFile, query: tuple[FeaturesFile, RunFile],
               reference: tuple[FeaturesFile, RunFile], folder: Path) -> None:
     """Score ``model``'s distances from the ``query`` run's samples to the ``reference`` run's
     into ``folder`` (summary, curves, matrices)."""
     folder.mkdir(parents=True, exist_ok=True)
     q, r = store.run(query[1]), store.run(reference[1])
-    distances = store.model(model).distance(load_features(query[0].path), load_features(reference[0].path))
-    tme = check_distance(distances, (len(q), len(r)), f"evaluate {query[1].label.split('/')[0]} {model.method}")
+    tme = distance_rows(store.model(model), load_features(query[0].path), load_features(reference[0].path),
+                        (len(q), len(r)), f"evaluate {query[1].label.split('/')[0]} {model.method}")
     write_text_atomic(folder / outdir.SUMMARY, json.dumps(score(scenario, folder, tme, q, r), indent=2))

@@ -19,19 +19,26 @@ import numpy as np
 import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Fusion, Scenario, training_world_evaluation
+from vitaplace.engine.evaluation import pairfiles
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve
 from vitaplace.engine.evaluation.fusion import choose_weight, fused_distance
 from vitaplace.engine.evaluation.sequence import sequence_scores
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.pipeline.keys import fusion_key
+from vitaplace.engine.pipeline.output_checks import StageError
 from vitaplace.engine.pipeline.records import EvaluateRecord, SimulateRecord
 from vitaplace.engine.pipeline.scoring import result_row, score, sequence_for
 from vitaplace.engine.pipeline.store import Store
 
 
 def method_distances(out: Path, environment: str, method: str, direction: str) -> np.ndarray:
-    """A method's own distances in one evaluation (before any sequence scoring)."""
-    with np.load(outdir.evaluation_dir(out, environment, method, direction) / outdir.MATRICES) as saved:
+    """A method's own distances in one evaluation (before any sequence scoring), as its
+    ``matrices.npz`` saved them (only pairs of at most `FULL_MATRIX_LIMIT` entries have one)."""
+    path = outdir.evaluation_dir(out, environment, method, direction) / outdir.MATRICES
+    if not path.is_file():
+        raise StageError(f"{path}: missing; a late fusion reads each method's whole distances, saved only for "
+                         f"pairs of at most {pairfiles.FULL_MATRIX_LIMIT:,} queries x references (FULL_MATRIX_LIMIT)")
+    with np.load(path) as saved:
         return np.asarray(saved["distance" if "distance" in saved.files else "tme"], dtype=float)
 
 
