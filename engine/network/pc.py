@@ -139,13 +139,23 @@ def _resumed_steps(steps: BatchSolver, count: int) -> None:
     steps.steps(count)
 
 
+#: a training energy this many times its lowest so far has diverged (`diverged`)
+DIVERGED_FACTOR = 1e4
+
+
 def converged(energies: Sequence[float], window: int, tol: float) -> bool:
-    """True when ``window`` > 0 and the last energy is less than ``tol`` (relative) below the
-    energy ``window`` epochs earlier."""
+    """True when ``window`` > 0 and the last energy is within ``tol`` (relative) of the energy
+    ``window`` epochs earlier: no longer falling, and not rising either (a rising energy has
+    not converged)."""
     if window <= 0 or len(energies) <= window:
         return False
     before, now = energies[-1 - window], energies[-1]
-    return before - now < tol * abs(before)
+    return abs(before - now) < tol * abs(before)
+
+
+def diverged(energies: Sequence[float]) -> bool:
+    """True when the last energy is more than `DIVERGED_FACTOR` times the lowest so far."""
+    return len(energies) > 1 and energies[-1] > DIVERGED_FACTOR * min(energies)
 
 
 class Network:
@@ -366,7 +376,13 @@ class Network:
                 start = time.process_time()
                 history.held_out.append(self._held_out_energy(held_out))
                 history.held_out_cpu_s += time.process_time() - start
-            if converged(history.total(), cfg.converge_window, cfg.converge_tol):
+            total = history.total()
+            if diverged(total):
+                lowest = int(np.argmin(total))
+                raise NetworkError(f"training diverged at epoch {epoch + 1}: energy per sample {total[-1]:.3g}, more "
+                                   f"than {DIVERGED_FACTOR:g} times its lowest ({total[lowest]:.3g}, epoch "
+                                   f"{lowest + 1}); lower the step sizes (eta_y, eta_w) or raise latent_prior")
+            if converged(total, cfg.converge_window, cfg.converge_tol):
                 history.converged = True
                 break
         for node in nodes:

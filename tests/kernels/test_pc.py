@@ -422,6 +422,29 @@ def test_convergence_rule_by_hand():
     assert not converged([12.0, 10.0, 9.0, 8.5], 2, 0.1)  # 15 %: still improving
     assert not converged([10.0, 9.9], 2, 0.1)  # not enough epochs for the window
     assert not converged([10.0, 10.0, 10.0, 10.0], 0, 0.1)  # off
+    assert not converged([12.0, 10.0, 10.5, 11.5], 2, 0.1)  # rising 15 %: not converged either
+    assert converged([12.0, 10.0, 10.5, 10.9], 2, 0.1)  # within 9 % either way
+
+
+def test_divergence_rule_by_hand():
+    from vitaplace.engine.network.pc import diverged
+
+    assert not diverged([5.0]) and not diverged([5.0, 2.0, 2e4])  # 1e4 times the lowest: not yet
+    assert diverged([5.0, 2.0, 2.1e4]) and diverged([1.0, 1e5])
+
+
+def test_a_training_that_diverges_stops_with_the_epoch_and_a_remedy(backend, monkeypatch):
+    """The rule as the training loop applies it, made to fire at once: at a factor of 0.5 any
+    second epoch (whose energy is above half the lowest) counts as diverged."""
+    import vitaplace.engine.network.pc as pc
+
+    monkeypatch.setattr(pc, "DIVERGED_FACTOR", 0.5)
+    inputs, _ = synthetic(n=60)
+    net = Network(SYNTH, seed=1, backend=backend())
+    with pytest.raises(NetworkError, match=r"^training diverged at epoch 2: energy per sample [0-9.e+]+, more than "
+                       r"0.5 times its lowest \([0-9.e+-]+, epoch [12]\); lower the step sizes \(eta_y, eta_w\) "
+                       r"or raise latent_prior$"):
+        net.train(inputs, {**TRAIN, "epochs": 5, "batch_size": 25})
 
 
 def test_training_stops_when_the_energy_has_converged(backend):
@@ -432,4 +455,4 @@ def test_training_stops_when_the_energy_has_converged(backend):
     assert history.converged and 5 < history.epochs < 200
     total = history.total()
     assert total[-6] - total[-1] < 0.02 * total[-6]  # the rule held at the stop
-    assert total[-7] - total[-2] >= 0.02 * total[-7]  # and not one epoch earlier
+    assert abs(total[-7] - total[-2]) >= 0.02 * total[-7]  # and not one epoch earlier
