@@ -33,9 +33,10 @@ from vitaplace.engine.extension.features import TACTILE, VISUAL, FeatureExtracto
 
 __all__ = [
     "ATOL", "CHECKS", "RTOL", "ContractError", "check_declared_senses", "check_distance_before_fit",
-    "check_distance_output", "check_distance_rows", "check_extractor", "check_features_output", "check_fit_leaves_params",
-    "check_missing_modalities", "check_same_seed_same_features", "check_save_load_round_trip",
-    "check_transform_before_fit", "check_transform_subset", "parametrize_with_checks", "synthetic_run",
+    "check_distance_output", "check_distance_rows", "check_extractor", "check_features_output",
+    "check_fit_leaves_params", "check_missing_modalities", "check_same_seed_same_features",
+    "check_save_load_round_trip", "check_transform_before_fit", "check_transform_subset", "parametrize_with_checks",
+    "synthetic_run",
 ]
 
 RTOL = 1e-5

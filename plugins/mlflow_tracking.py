@@ -13,7 +13,10 @@ SQLite store needs). Logged (docs/plugins.md, "Experiment tracking"):
   ``methods.L.plugin``, ``methods.L.params.epochs``, ...; a value longer than MLflow takes is
   left out and named in the tag `SKIPPED_TAG`); a sweep's: the same but ``seeds``;
 * metrics: per results row ``ENVIRONMENT/METHOD/DIRECTION/METRIC`` for `METRICS` and
-  ``recall_at_K`` for each K of ``scoring.recall_k`` (recall@1/5/10);
+  ``recall_at_K`` for each K of ``scoring.recall_k`` (recall@1/5/10); and while a method
+  trains, after every epoch, ``training/METHOD/NAME`` at MLflow's step = the epoch for each
+  number its plugin reports (`vitaplace_training_epoch`: MuPNet's ``energy``,
+  ``held_out_energy``, ``latent_change``, ``energy.EDGE``; the autoencoder's ``loss``);
 * tags: MLflow's source tags (`source_tags`: ``mlflow.source.name``, ``.type``; a finished
   run's ``.git.commit``), vitaplace's version, git commit and dirty flag (from manifest.json), the
   last stage, the output folder, and `KEY_TAG`, a digest of what was logged;
@@ -287,6 +290,28 @@ def _start_run(client: Any, experiment: str, out: Path, scenario: Any) -> str:
                                tags=tags).info.run_id
     _log_params(client, run_id, run_params(scenario))
     return str(run_id)
+
+
+#: the runs whose per-epoch logging failed once (warned): not tried again for their other epochs
+_epochs_off: set[str] = set()
+
+
+@hookimpl
+def vitaplace_training_epoch(out: Path, method: str, epoch: int, numbers: dict[str, float]) -> None:
+    """Log one training epoch's ``numbers`` into the run's open MLflow run as it ends:
+    ``training/METHOD/NAME`` at step ``epoch``."""
+    where = str(Path(out).resolve())
+    run_id = _open.get(where, "")
+    if not run_id or where in _epochs_off or (found := _client()) is None:
+        return
+    _epochs_off.add(where)  # until this epoch is logged: a failure warns once, not once per epoch
+    with _tracking(f"training epochs of {method} in {out}"):
+        from mlflow.entities import Metric
+
+        now = int(time.time() * 1000)
+        found[1].log_batch(run_id, metrics=[Metric(f"training/{method}/{name}", float(value), now, epoch)
+                                            for name, value in numbers.items()])
+        _epochs_off.discard(where)
 
 
 @hookimpl

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -49,6 +49,10 @@ class FeatureExtractor(ABC):
     Params: ClassVar[type[ExtractorParams]] = ExtractorParams
     #: Whether long fit/transform calls may show progress bars (the runner sets it).
     progress: bool = True
+    #: Called by a ``fit`` that trains in epochs after each one, ``on_epoch(epoch, numbers)``
+    #: (epoch from 1, numbers by name, e.g. ``energy``); the runner sets it to pass them on to
+    #: the ``vitaplace_training_epoch`` hook (MLflow's per-epoch metrics). None: nobody listens.
+    on_epoch: Callable[[int, dict[str, float]], None] | None = None
     #: Whether ``transform`` and ``distance`` honour missing modalities: samples of a run that lack
     #: the camera or the whiskers (`Run.lacks`, a query drop-out) are described by the sensors they
     #: have, never by the missing one's data. An extractor that leaves it False is refused, in one

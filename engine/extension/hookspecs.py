@@ -37,6 +37,17 @@ def vitaplace_run_started(out: Path, scenario: Any) -> None:
 
 
 @hookspec
+def vitaplace_training_epoch(out: Path, method: str, epoch: int, numbers: dict[str, float]) -> None:
+    """Method ``method`` of the pipeline in ``out`` finished training epoch ``epoch`` (from 1)
+    with ``numbers`` (by name, as its plugin reports them: MuPNet's ``energy``,
+    ``held_out_energy``, ``latent_change``, ...), called as each epoch ends, in the process
+    that fits, between `vitaplace_run_started` and the run's end; never for a model found in
+    the cache. For trackers that plot training live. An exception is logged as a warning
+    naming the plugin and does not stop training.
+    """
+
+
+@hookspec
 def vitaplace_run_failed(out: Path, scenario: Any, error: str) -> None:
     """A scenario's pipeline in ``out`` raised ``error`` (``Type: message``, one line); the
     exception goes on to the caller after the hooks (for a sweep's seed: the seed fails). An

@@ -234,6 +234,12 @@ def announce_run_started(registry: Registry, out: Path, scenario: Any) -> None:
     _call_each(registry, "vitaplace_run_started", "run-started hook", out=out, scenario=scenario)
 
 
+def announce_training_epoch(registry: Registry, out: Path, method: str, epoch: int, numbers: dict[str, float]) -> None:
+    """Call every plugin's `vitaplace_training_epoch` hook (one that raises: a warning)."""
+    _call_each(registry, "vitaplace_training_epoch", "training-epoch hook", out=out, method=method, epoch=epoch,
+               numbers=numbers)
+
+
 def announce_run_failed(registry: Registry, out: Path, scenario: Any, error: str) -> None:
     """Call every plugin's `vitaplace_run_failed` hook (one that raises: a warning)."""
     _call_each(registry, "vitaplace_run_failed", "run-failed hook", out=out, scenario=scenario, error=error)

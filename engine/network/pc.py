@@ -88,6 +88,13 @@ class TrainingHistory:
         """Energy per sample of each epoch, summed over the edges."""
         return [float(sum(values)) for values in zip(*self.energy.values(), strict=True)]
 
+    def last_epoch(self) -> dict[str, float]:
+        """The last epoch's numbers by name: ``energy`` (per sample, every edge), ``energy.EDGE``,
+        ``latent_change`` and, with held-out samples, ``held_out_energy``."""
+        numbers = {"energy": self.total()[-1], **{f"energy.{name}": float(v[-1]) for name, v in self.energy.items()},
+                   "latent_change": self.latent_change[-1]}
+        return numbers | ({"held_out_energy": self.held_out[-1]} if self.held_out else {})
+
 
 @dataclass
 class HeldOut:
@@ -313,6 +320,7 @@ class Network:
         on_progress: Callable[[int, float], None] | None = None,
         solver: Solver | None = None,
         held_out: HeldOut | None = None,
+        on_epoch: Callable[[int, dict[str, float]], None] | None = None,
     ) -> TrainingHistory:
         """Learn the weights from (already scaled) inputs of N samples.
 
@@ -328,7 +336,8 @@ class Network:
         samples at their settled latents (`TrainingHistory.held_out`). With ``precision_weighting``
         the error precisions are estimated from each epoch's final errors, used from the next on.
         ``on_progress(epoch, energy)`` is called after every minibatch with the epoch (from 1)
-        and the minibatch's energy per sample, for progress bars (as `infer`'s).
+        and the minibatch's energy per sample, for progress bars (as `infer`'s);
+        ``on_epoch(epoch, numbers)`` after every epoch with `TrainingHistory.last_epoch`.
         Raises NetworkError naming the epoch and minibatch when an error becomes NaN/Inf.
         """
         cfg = training if isinstance(training, TrainingConfig) else TrainingConfig(**training)
@@ -376,13 +385,15 @@ class Network:
                 start = time.process_time()
                 history.held_out.append(self._held_out_energy(held_out))
                 history.held_out_cpu_s += time.process_time() - start
-            total = history.total()
-            if diverged(total):
-                lowest = int(np.argmin(total))
-                raise NetworkError(f"training diverged at epoch {epoch + 1}: energy per sample {total[-1]:.3g}, more "
-                                   f"than {DIVERGED_FACTOR:g} times its lowest ({total[lowest]:.3g}, epoch "
+            curve = history.total()
+            if on_epoch is not None:
+                on_epoch(epoch + 1, history.last_epoch())
+            if diverged(curve):
+                lowest = int(np.argmin(curve))
+                raise NetworkError(f"training diverged at epoch {epoch + 1}: energy per sample {curve[-1]:.3g}, more "
+                                   f"than {DIVERGED_FACTOR:g} times its lowest ({curve[lowest]:.3g}, epoch "
                                    f"{lowest + 1}); lower the step sizes (eta_y, eta_w) or raise latent_prior")
-            if converged(total, cfg.converge_window, cfg.converge_tol):
+            if converged(curve, cfg.converge_window, cfg.converge_tol):
                 history.converged = True
                 break
         for node in nodes:

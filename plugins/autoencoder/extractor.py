@@ -95,7 +95,7 @@ class AutoencoderExtractor(FeatureExtractor):
                 bar.update()
                 bar.set_postfix(epoch=epoch, L=f"{loss:.4g}")
 
-            self.history, self.converged = train(self.model, inputs, p.training_settings(), on_progress)
+            self.history, self.converged = train(self.model, inputs, p.training_settings(), on_progress, self.on_epoch)
 
     def training_history(self) -> dict[str, list[float]]:
         return self.history

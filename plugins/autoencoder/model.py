@@ -186,10 +186,13 @@ def _check_finite(losses: Mapping[str, float], where: str, settings: TrainingSet
 
 
 def train(model: Autoencoder, inputs: Mapping[str, np.ndarray], settings: TrainingSettings,
-          on_progress: Callable[[int, float], None] | None = None) -> tuple[dict[str, list[float]], bool]:
+          on_progress: Callable[[int, float], None] | None = None,
+          on_epoch: Callable[[int, dict[str, float]], None] | None = None) -> tuple[dict[str, list[float]], bool]:
     """Minibatch training, a new order each epoch from ``(seed, 1)``. Returns the history
     (per modality, each epoch's mean per-sample reconstruction error, measured before each
-    step as MuPNet's energy is) and whether it stopped by ``converge_window``."""
+    step as MuPNet's energy is) and whether it stopped by ``converge_window``.
+    ``on_epoch(epoch, numbers)`` after every epoch (from 1): ``loss`` (every modality) and
+    ``loss.MODALITY``."""
     n = len(next(iter(inputs.values())))
     order_rng = np.random.default_rng((settings.seed, 1))
     optimiser = Optimizer(model.weights, settings.learning_rate, settings.optimizer)
@@ -210,6 +213,8 @@ def train(model: Autoencoder, inputs: Mapping[str, np.ndarray], settings: Traini
         for m in model.sizes:
             history[m].append(sums[m] / n)
         totals = [sum(values) for values in zip(*history.values(), strict=True)]
+        if on_epoch is not None:
+            on_epoch(epoch + 1, {"loss": totals[-1], **{f"loss.{m}": values[-1] for m, values in history.items()}})
         if converged(totals, settings.converge_window, settings.converge_tol):
             return history, True
     return history, False

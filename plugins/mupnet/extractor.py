@@ -398,7 +398,7 @@ class MupnetExtractor(FeatureExtractor):
 
             history = self.network.train({m: x[fitted] for m, x in inputs.items()}, training, on_progress=on_progress,
                                          solver=p.solver() if p.training_inference == "solver" else None,
-                                         held_out=held_out)
+                                         held_out=held_out, on_epoch=self.on_epoch)
         self.energy = history.energy
         self.converged = history.converged
         self.latent_change = history.latent_change

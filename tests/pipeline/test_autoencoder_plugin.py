@@ -141,6 +141,18 @@ def test_training_stops_once_converged(autoencoder_class):
     assert summary["converged"] and summary["epochs"] < 200
 
 
+def test_each_epoch_s_losses_reach_on_epoch_as_it_ends(autoencoder_class):
+    extractor = autoencoder_class({**PARAMS, "epochs": 4})
+    extractor.progress, seen = False, []
+    extractor.on_epoch = lambda epoch, numbers: seen.append((epoch, numbers))
+    extractor.fit(places_run(1))
+    history = extractor.training_history()
+    assert [epoch for epoch, _ in seen] == [1, 2, 3, 4]
+    for i, (_, numbers) in enumerate(seen):
+        assert numbers == {"loss": history["visual"][i] + history["tactile"][i],
+                           "loss.visual": history["visual"][i], "loss.tactile": history["tactile"][i]}
+
+
 @pytest.mark.parametrize("params, key", [
     ({"encoder": "transposed"}, "encoder"), ({"optimizer": "lbfgs"}, "optimizer"),
     ({"learning_rate": 0}, "learning_rate"),

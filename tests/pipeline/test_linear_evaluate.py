@@ -9,6 +9,7 @@ import json
 import os
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -16,6 +17,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.evaluation import pairfiles, ranking  # noqa: E402
+from vitaplace.engine.evaluation.evaluate import f1_at_threshold_of  # noqa: E402
+from vitaplace.engine.evaluation.pairfiles import load_curve  # noqa: E402
 from vitaplace.plugins.handcrafted.extractor import HandcraftedExtractor  # noqa: E402
 
 ENVS = Path(__file__).resolve().parents[2] / "scenarios" / "environments"
@@ -65,6 +68,17 @@ def test_a_run_in_chunks_gives_the_same_results_row_for_row(runs):
     whole, chunked, _ = runs
     rows = [json.loads((run / "results.json").read_text()) for run in (whole, chunked)]
     assert len(rows[0]) == 2 * 2 * 2 and rows[1] == rows[0]  # f1 at the training world's threshold too
+
+
+def test_the_f1_at_the_training_threshold_is_that_of_the_pair_s_own_matrices(runs):
+    """From the decisions in both runs; here from the whole run's saved matrices, at the
+    threshold of E1 (the training world's evaluation) in the same direction."""
+    whole, _, _ = runs
+    for row in json.loads((whole / "results.json").read_text()):
+        folder = whole / "evaluations" / row["environment"] / row["method"] / row["direction"]
+        source = load_curve(whole / "evaluations" / "E1" / row["method"] / row["direction"] / "pr_curve.npz")
+        with np.load(folder / "matrices.npz") as m:
+            assert row["f1_at_e1_threshold"] == f1_at_threshold_of(source, m["tme"], m["gtm"], row["tau"])
 
 
 def test_distances_are_asked_a_block_of_queries_at_a_time_and_no_matrices_are_written(runs):

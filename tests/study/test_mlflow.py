@@ -119,6 +119,39 @@ def test_a_run_is_logged_once_and_a_rerun_that_recomputed_nothing_adds_no_run(tm
     assert len(later) == 2 and later[1].data.params["scoring.tau"] == "0.4"
 
 
+def test_training_epochs_are_logged_as_they_end_with_the_epoch_as_step(tmp_path, tracking, monkeypatch):
+    """A MuPNet fitted for 3 epochs on vision (no touch needed): each epoch's numbers are in the
+    run while it is RUNNING, at steps 1-3, equal to the training record the fit stage saved."""
+    path, out = tmp_path / "learned.yaml", tmp_path / "out"
+    path.write_text(yaml.safe_dump({
+        "name": "tiny-learned",
+        "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 8}},
+        "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 5}}],
+        "methods": [{"name": "L", "plugin": "mupnet", "params": {
+            "modalities": ["visual"], "image_size": [6, 8], "visual_layers": [8], "joint_size": 4, "epochs": 3,
+            "converge_window": 0, "batch_size": 4, "held_out": 0.25}}],
+        "scoring": {"tau": 0.3},
+    }))
+    statuses, log_batch = [], MlflowClient.log_batch
+
+    def spy(self, run_id, metrics=(), *args, **kwargs):
+        if any(m.key.startswith("training/") for m in metrics):
+            statuses.append(self.get_run(run_id).info.status)
+        return log_batch(self, run_id, metrics, *args, **kwargs)
+
+    monkeypatch.setattr(MlflowClient, "log_batch", spy)
+    assert main(["-q", "run", str(path), "--out", str(out), "--no-progress"]) == 0
+    assert statuses == ["RUNNING"] * 3
+    [run] = _runs(tracking)
+    record = json.loads((out / "manifest.json").read_text())["training"]["L"]
+    client = MlflowClient(tracking)
+    for name, expected in (("held_out_energy", record["held_out"]), ("latent_change", record["latent_change"])):
+        history = sorted(client.get_metric_history(run.info.run_id, f"training/L/{name}"), key=lambda m: m.step)
+        assert [m.step for m in history] == [1, 2, 3]
+        assert [m.value for m in history] == pytest.approx(expected, rel=1e-12)
+    assert {"training/L/energy", "training/L/energy.joint.visual"} <= set(run.data.metrics)
+
+
 def test_a_failed_run_keeps_its_mlflow_run_failed_with_its_error_and_params(tmp_path, tracking, monkeypatch):
     import vitaplace.engine.pipeline.orchestrate as orchestrate
 

@@ -14,6 +14,7 @@ from typing import Any
 import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.config.scenario import Method, Scenario
+from vitaplace.engine.extension.registry import announce_training_epoch
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.pipeline.keys import fit_key
 from vitaplace.engine.pipeline.records import FitRecord, ModelFile, RunFile, SimulateRecord
@@ -47,6 +48,7 @@ def _fit(store: Store, method: Method, params: dict[str, Any], train: RunFile, f
     its training went beside it (`outdir.training_file`)."""
     extractor = store.registry.create(method.plugin, params)
     extractor.progress = store.progress
+    extractor.on_epoch = partial(announce_training_epoch, store.registry, store.out, method.name)
     extractor.fit(store.run(train))
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
     try:
