@@ -343,11 +343,12 @@ def sweep_command(args: argparse.Namespace) -> int:
             log.info("%s%-6s %-12s %-20s max F1 %s", f"{summary['point']} " if grid else "", summary["environment"],
                      summary["method"], summary["direction"], cell(summary))
     table, runs = out / ("grid.md" if grid else "sweep.md"), len(args.seeds) * max(1, len(grid))
+    what = f"{runs} runs ({len(grid)} points x {len(args.seeds)} seeds)" if grid else f"{runs} seeds"
     if outcome.failed:
-        log.error("%d of %d seeds failed, missing from the summary: %s; summary of the others in %s",
-                  len(outcome.failed), runs, " ".join(map(str, sorted(outcome.failed))), table)
+        log.error("%d of %s failed, missing from the summary: %s; summary of the others in %s",
+                  len(outcome.failed), what, " ".join(map(str, sorted(outcome.failed))), table)
         return EXIT_SEEDS_FAILED
-    log.info("summary of %d seeds in %s", runs, table)
+    log.info("summary of %s in %s", what, table)
     return 0
 
 

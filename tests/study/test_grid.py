@@ -86,7 +86,7 @@ def test_every_point_and_seed_runs_what_config_resolves_for_its_assignments(grid
     record = json.loads((out / "grid.json").read_text())
     assert [p["name"] for p in record["points"]] == NAMES
     assert record["grid"] == {"scoring.tau": [0.3, 0.5], "methods.1.params.crop_fraction": [0.5, 1.0]}
-    assert "summary of 8 seeds in" in result.stderr and str(out / "grid.md") in result.stderr
+    assert "summary of 8 runs (4 points x 2 seeds) in" in result.stderr and str(out / "grid.md") in result.stderr
 
 
 def test_a_point_s_rows_in_the_grid_table_are_what_aggregate_writes_for_its_seeds(grid_sweep, tmp_path):
@@ -367,7 +367,7 @@ def test_a_grid_on_ray_runs_every_point_and_reports_a_failed_seed_by_its_point(t
         assert len(re.findall(rf"{name} seed 1 failed: ValueError: injected failure", result.stderr)) == 1
         assert "Traceback" in (out / name / "seed-1" / "error.txt").read_text()
         assert json.loads((out / name / "sweep.json").read_text())["seeds"] == [0]
-    assert "2 of 4 seeds failed, missing from the summary: tau=0.3/seed-1 tau=0.5/seed-1" in result.stderr
+    assert "2 of 4 runs (2 points x 2 seeds) failed, missing from the summary: tau=0.3/seed-1 tau=0.5/seed-1" in result.stderr
     record = json.loads((out / "grid.json").read_text())
     assert [p["failed"] for p in record["points"]] == [
         {"1": "ValueError: injected failure second line of the message"}] * 2
