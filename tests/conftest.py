@@ -99,7 +99,7 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
 #: the paper's training and touch scaling, pinned in the committed study scenarios' MuPNet methods
 #: (tests/layout/test_study_pins.py), and the touch scaling in their autoencoder controls
 _CPU_PINS = {"training_inference": "plain", "inference_steps": 20, "weight_optimizer": "sgd", "held_out": 0.0,
-             "tactile_scaling": "range"}
+             "tactile_scaling": "range", "weight_norm": "none"}
 _STUDIES = ("paper-cpu", "coloured-cpu", "paper-cpu-physical", "paper-cpu-controls", "study2", "study2-budget",
             "study2-dropout", "study2-faithful")
 #: per scenario and plugin, the parameters added since ad309c2 (with their values)
@@ -108,10 +108,14 @@ SINCE_AD309C2: dict[tuple[str, str], dict[str, object]] = {
     **{(name, "autoencoder"): {"tactile_scaling": "range"} for name in _STUDIES},
     ("paper", "mupnet"): {"training_inference": "plain", "weight_optimizer": "sgd", "held_out": 0.0,
                           "converge_window": 0, "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None,
-                          "tactile_scaling": "range"},
+                          "tactile_scaling": "range", "weight_norm": "none"},
 }
 #: per scenario and plugin, parameters its file gave at ad309c2 and no longer gives (their values then)
-REMOVED_SINCE_AD309C2: dict[tuple[str, str], dict[str, object]] = {("touch-benchmark", "mupnet"): {"epochs": 90}}
+_SETTLING = {"latent_prior": 1.0, "inference_solver": "preconditioned", "inference_rtol": 3.0e-6, "max_steps": 1000}
+REMOVED_SINCE_AD309C2: dict[tuple[str, str], dict[str, object]] = {
+    ("touch-benchmark", "mupnet"): {"epochs": 90, "latent_prior": 1.0},
+    **{(name, "mupnet"): _SETTLING for name in ("quickstart", "near-duplicate")},  # they follow the defaults
+}
 
 
 def ad309c2_params(name: str, plugin: str, params: dict) -> dict:

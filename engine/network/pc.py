@@ -165,6 +165,19 @@ def diverged(energies: Sequence[float]) -> bool:
     return len(energies) > 1 and energies[-1] > DIVERGED_FACTOR * min(energies)
 
 
+def _stopped(history: TrainingHistory, cfg: TrainingConfig) -> bool:
+    """Whether training stops after the epoch ``history`` ends with: True (and ``converged``
+    set) once it has converged; NetworkError once it has diverged."""
+    curve = history.total()
+    if diverged(curve):
+        lowest, epoch = int(np.argmin(curve)), len(curve)
+        raise NetworkError(f"training diverged at epoch {epoch}: energy per sample {curve[-1]:.3g}, more than "
+                           f"{DIVERGED_FACTOR:g} times its lowest ({curve[lowest]:.3g}, epoch {lowest + 1}); "
+                           "lower the step sizes (eta_y, eta_w) or raise latent_prior")
+    history.converged = converged(curve, cfg.converge_window, cfg.converge_tol)
+    return history.converged
+
+
 class Network:
     """MuPNet: named modalities under one joint layer, trained by local predictive-coding updates."""
 
@@ -376,31 +389,32 @@ class Network:
                     totals[name] += value
                 if on_progress is not None:
                     on_progress(epoch + 1, sum(energy.values()) / len(index))
-            for name, total in totals.items():
-                history.energy[name].append(total / n)
-            history.latent_change.append(float(np.median(change)))
-            if estimator is not None:
-                self.set_precisions(estimator.end_epoch(n))
-            if held_out is not None:
-                start = time.process_time()
-                history.held_out.append(self._held_out_energy(held_out))
-                history.held_out_cpu_s += time.process_time() - start
-            curve = history.total()
+            self._record_epoch(history, {name: total / n for name, total in totals.items()}, change, estimator,
+                               held_out)
             if on_epoch is not None:
                 on_epoch(epoch + 1, history.last_epoch())
-            if diverged(curve):
-                lowest = int(np.argmin(curve))
-                raise NetworkError(f"training diverged at epoch {epoch + 1}: energy per sample {curve[-1]:.3g}, more "
-                                   f"than {DIVERGED_FACTOR:g} times its lowest ({curve[lowest]:.3g}, epoch "
-                                   f"{lowest + 1}); lower the step sizes (eta_y, eta_w) or raise latent_prior")
-            if converged(curve, cfg.converge_window, cfg.converge_tol):
-                history.converged = True
+            if _stopped(history, cfg):
                 break
         for node in nodes:
             store[node][...] = be.download(resident_y[node])
         self._sync_weights_to_host()
         self.train_latents = store
         return history
+
+    def _record_epoch(self, history: TrainingHistory, energy: Mapping[str, float], change: np.ndarray,
+                      estimator: PrecisionEstimator | None, held_out: HeldOut | None) -> None:
+        """Append an epoch's ``energy`` per edge (per sample) and the median of the samples'
+        latent ``change`` to ``history``; set the precisions the epoch estimated; measure the
+        held-out energy (its CPU time apart)."""
+        for name, value in energy.items():
+            history.energy[name].append(value)
+        history.latent_change.append(float(np.median(change)))
+        if estimator is not None:
+            self.set_precisions(estimator.end_epoch(len(change)))
+        if held_out is not None:
+            start = time.process_time()
+            history.held_out.append(self._held_out_energy(held_out))
+            history.held_out_cpu_s += time.process_time() - start
 
     def _minibatch(self, state: BatchState, runs: dict[int, Callable[[], None]], inputs: Mapping[str, object],
                    latents: Mapping[str, object], cfg: TrainingConfig, solver: Solver | None,

@@ -107,12 +107,12 @@ class ArchitectureParams(InputParams):
 
 #: the MuPNet paper's algorithm where the plugin's defaults depart from it (docs/MUPNET.md,
 #: "Defaults"): min-max touch unclipped, all epochs, T = 20 plain latent steps and plain SGD per
-#: minibatch, no held-out samples, plain test-time steps on the energy without a prior, stopped
-#: by the thresholds or at 3000 steps (scenarios/paper.yaml pins these)
+#: minibatch on unconstrained weights, no held-out samples, plain test-time steps on the energy
+#: without a prior, stopped by the thresholds or at 3000 steps (scenarios/paper.yaml pins these)
 PAPER_ALGORITHM: dict[str, Any] = {
     "tactile_scaling": "range", "epochs": 10, "converge_window": 0, "inference_steps": 20,
     "training_inference": "plain", "weight_optimizer": "sgd", "held_out": 0.0, "max_steps": 3000,
-    "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None,
+    "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None, "weight_norm": "none",
 }
 
 
@@ -160,7 +160,7 @@ class MupnetParams(ArchitectureParams):
     )
     weight_momentum: float = Field(0.9, gt=0, lt=1, description="beta of the momentum weight optimiser")
     weight_norm: WeightNorm = Field(
-        "none", description="norm constraint on the weights in training: none (the paper's) or rows (every row of "
+        "rows", description="norm constraint on the weights in training: none (the paper's) or rows (every row of "
         "every W, one unit's projective field, held at its norm at the start of training, as sparse coding holds "
         "its basis functions; gives the energy under latent_prior a minimum, docs/MUPNET.md)",
     )
@@ -178,7 +178,7 @@ class MupnetParams(ArchitectureParams):
     )
     max_steps: pydantic.PositiveInt = Field(1000, description="test-time inference step cap (the paper: 3000)")
     latent_prior: pydantic.NonNegativeFloat = Field(
-        1.0, description="lambda of a Gaussian prior on the latents, energy + lambda/2 ||y||^2, in training and at "
+        0.1, description="lambda of a Gaussian prior on the latents, energy + lambda/2 ||y||^2, in training and at "
         "test time (0: the paper's energy, which has no fixed point to settle at; docs/MUPNET.md)",
     )
     inference_solver: SolverName = Field(

@@ -49,15 +49,16 @@ def test_paper_yaml_pins_the_paper_s_algorithm():
 
 def test_the_paper_s_algorithm_is_what_the_paper_prints():
     """The constant itself, by hand from the paper/code: 10 epochs of T = 20 plain steps and
-    plain SGD, min-max touch, no prior, plain test-time steps to 3000."""
+    plain SGD on unconstrained weights, min-max touch, no prior, plain test-time steps to 3000."""
     from vitaplace.plugins.mupnet.extractor import PAPER_ALGORITHM, MupnetParams
 
     assert PAPER_ALGORITHM == {
         "tactile_scaling": "range", "epochs": 10, "converge_window": 0, "inference_steps": 20,
         "training_inference": "plain", "weight_optimizer": "sgd", "held_out": 0.0, "max_steps": 3000,
-        "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None}
+        "latent_prior": 0.0, "inference_solver": "gd", "inference_rtol": None, "weight_norm": "none"}
     params = MupnetParams(**PAPER_ALGORITHM)
     assert params.training_config().weight_optimizer == "sgd" and params.solver().rtol is None
+    assert params.training_config().weight_norm == "none"
 
 
 def test_the_touch_benchmark_trains_to_the_criterion_with_the_defaults():

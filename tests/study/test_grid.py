@@ -367,7 +367,8 @@ def test_a_grid_on_ray_runs_every_point_and_reports_a_failed_seed_by_its_point(t
         assert len(re.findall(rf"{name} seed 1 failed: ValueError: injected failure", result.stderr)) == 1
         assert "Traceback" in (out / name / "seed-1" / "error.txt").read_text()
         assert json.loads((out / name / "sweep.json").read_text())["seeds"] == [0]
-    assert "2 of 4 runs (2 points x 2 seeds) failed, missing from the summary: tau=0.3/seed-1 tau=0.5/seed-1" in result.stderr
+    assert ("2 of 4 runs (2 points x 2 seeds) failed, missing from the summary: tau=0.3/seed-1 tau=0.5/seed-1"
+            in result.stderr)
     record = json.loads((out / "grid.json").read_text())
     assert [p["failed"] for p in record["points"]] == [
         {"1": "ValueError: injected failure second line of the message"}] * 2
