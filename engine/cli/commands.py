@@ -139,8 +139,9 @@ def _report_folder(args: argparse.Namespace) -> int:
         raise UserError(f"{' '.join(given)}: apply to a scenario; `vitaplace report {args.scenario}` rebuilds "
                         "the report of that output folder from its files as they are")
     with claimed(Path(args.scenario)) as out:
-        path = rebuild_report(out)
-    print(f"wrote {path} and its figures")
+        path, settings = rebuild_report(out)
+    drawn = {"all": " and its figures", "summary": " and its summary figures", "none": ""}[settings.figures]
+    print(f"wrote {path}{drawn}")
     return 0
 
 

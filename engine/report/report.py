@@ -498,10 +498,10 @@ def write_report(out: Path) -> None:
     write_text_atomic(out / REPORT, "\n".join(sections))
 
 
-def rebuild_report(out: Path) -> Path:
+def rebuild_report(out: Path) -> tuple[Path, ReportSettings]:
     """``vitaplace report OUT``: check that ``out`` holds a finished run whose files the
     report reads are all there and unchanged since (its completion record), then
-    `write_report`; returns the report's path."""
+    `write_report`; returns the report's path and the settings it drew its figures with."""
     out = Path(out)
     manifest, rows = read_inputs(out)
     files = report_files(out, rows, list(manifest["methods"]))
@@ -513,4 +513,5 @@ def rebuild_report(out: Path) -> Path:
     if wrong:
         raise ReportError(f"{out}: not a finished run: {wrong}")
     write_report(out)
-    return out / REPORT
+    resolved = yaml.safe_load((out / completion.SCENARIO).read_text()) or {}
+    return out / REPORT, report_settings(out, resolved)

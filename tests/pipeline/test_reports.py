@@ -365,3 +365,16 @@ def test_the_results_table_shows_the_tied_share_and_warns_from_a_tenth():
     assert lines[5:] == ["", "- WARNING H-T in E1 (query-to-reference): the best match of 76.00 % of the queries is "
                          "tied, so its scores count those queries by the tie rule (correct in proportion), not by a "
                          "match it found"]
+
+
+@pytest.mark.parametrize("figures, said", [("all", " and its figures"), ("summary", " and its summary figures"),
+                                           ("none", "")])
+def test_vitaplace_report_says_which_figures_it_drew(tmp_path, figures, said, capsys):
+    from vitaplace.engine.cli.main import main
+
+    path, _ = _recorded_scenario(tmp_path)
+    out = tmp_path / "out"
+    assert main(["-q", "run", str(path), "--out", str(out), "--no-progress", "--set", f"report.figures={figures}"]) == 0
+    capsys.readouterr()
+    assert main(["-q", "report", str(out)]) == 0
+    assert capsys.readouterr().out == f"wrote {out / 'report.md'}{said}\n"
