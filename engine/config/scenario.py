@@ -431,6 +431,14 @@ class Scenario(Strict):
         0, ge=0, lt=2**32,
         description="master seed: every run's and method's seed derives from it",
     )
+
+    @pydantic.field_validator("seed", mode="before")
+    @classmethod
+    def _not_a_boolean(cls, value: Any) -> Any:
+        """YAML's ``seed: true`` would be read as 1."""
+        if isinstance(value, bool):
+            raise ValueError("expected a whole number, not a boolean")
+        return value
     robot: RobotSpec = pydantic.Field(
         RobotSpec(),
         description="robot, sensors and physics for every run of the scenario",

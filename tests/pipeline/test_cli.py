@@ -82,6 +82,8 @@ BAD = {
         lambda d: d["evaluations"][0]["run"].update(n_samples=1), r"evaluations\.0\.run: .*at least 5 samples"
     ),
     "negative seed": (lambda d: d.update(seed=-1), r"seed: .*greater than or equal to 0"),
+    "boolean seed": (lambda d: d.update(seed=True), r"seed: expected a whole number, not a boolean"),
+    "fractional seed": (lambda d: d.update(seed=1.5), r"seed: .*valid integer"),
     "method named ..": (lambda d: d["methods"][0].update(name=".."), r"methods\.0\.name: .*parent folder"),
     "method name with a slash": (lambda d: d["methods"][0].update(name="../../x"), r"methods\.0\.name: .*pattern"),
     "huge name": (lambda d: d.update(name="x" * 1_000_000), r"name: .*pattern"),
