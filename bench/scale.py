@@ -3,14 +3,15 @@ its own process, with CPU seconds, wall seconds and peak memory (the process's m
 resident set), and the exponents fitted over the sizes (time ~ n^a, memory above the
 smallest size's ~ n^b).
 
-    python bench/scale.py [--sizes 450 4500 20000] [--methods H H-T L A] [--queries Q]
+    python bench/scale.py [--sizes 450 4500 20000] [--methods H H-T L A HOG VLAD] [--queries Q]
 
 The pair is synthetic: both runs drive two laps of a loop with 3 cm between samples (the
 quickstart's spacing; the loop grows with n, so each query has a bounded number of true
 matches, about 40 at tau 0.3 m), headings along the loop; the features are random, of the
 shipped methods' shapes and defaults: H the hand-crafted extractor (40 x 64 profile with 11
 shifts, PFH, SDA), H-T its touch-only configuration (PFH and SDA), L MuPNet's and A the
-autoencoder's 100-dimensional latents (L2). Each method's distances are computed a chunk of
+autoencoder's 100-dimensional latents (L2), HOG and VLAD their unit-length descriptors
+(3,780 and 8,192 values by default; L2). Each method's distances are computed a chunk of
 queries at a time (`Rows`) and scored by `evaluate_pair` with the quickstart's scoring
 (tau 0.3 m, heading tolerance 30 degrees, recall@1/5/10) into a temporary folder, a chunk of
 queries at a time at every size (no matrix held whole, none written; ``--whole`` keeps the
@@ -35,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 SPACING = 0.03  # metres between samples, as the quickstart's drives
-METHODS = ("H", "H-T", "L", "A")
+METHODS = ("H", "H-T", "L", "A", "HOG", "VLAD")
 
 
 def loop_drive(n: int, seed: int) -> np.ndarray:
@@ -57,6 +58,12 @@ def method(name: str, n: int, rng: np.random.Generator):  # type: ignore[no-unty
             feats["profile"] = rng.random((n, 40, 64), dtype=np.float32)
         ext.sigmas = {key: 1.0 for key in ext.feature_names}
         return ext, feats
+    if name in ("HOG", "VLAD"):  # unit-length image descriptors of their default shape, compared by L2
+        from vitaplace.plugins.hog import HogExtractor
+        from vitaplace.plugins.vlad import VladExtractor
+        ext = (HogExtractor if name == "HOG" else VladExtractor)()
+        vectors = rng.random((n, ext.dimension), dtype=np.float32)
+        return ext, {ext.feature: vectors / np.linalg.norm(vectors, axis=1, keepdims=True)}
     if name == "L":
         from vitaplace.plugins.mupnet import MupnetExtractor
         return MupnetExtractor(), {"latent": rng.normal(size=(n, 100))}

@@ -29,6 +29,9 @@ from vitaplace.plugin import VISUAL, ExtractorParams, ExtractorParamsError, Feat
 #: ITU-R BT.601 luma weights of R, G and B (OpenCV's RGB -> grey)
 LUMA = np.array([0.299, 0.587, 0.114])
 EXTRA = "pip install 'vitaplace[vision]'"
+#: references compared per cdist call: their float64 copy, not all of them, is what a call holds
+#: (20,000 VLAD descriptors of 8,192 values are 1.3 GB in float64)
+REFERENCE_BLOCK = 2048
 
 
 def grey(images: np.ndarray) -> np.ndarray:
@@ -107,8 +110,10 @@ class ImageDescriptorExtractor(FeatureExtractor):
             if self.feature not in feats:
                 raise ValueError(f"extractor '{self.name}': {side} features lack '{self.feature}' "
                                  f"(have {sorted(feats)})")
-        q, r = (np.asarray(f[self.feature], dtype=np.float64) for f in (query, reference))
-        d = cdist(q, r) if len(q) and len(r) else np.zeros((len(q), len(r)))
+        q, r = np.asarray(query[self.feature], dtype=np.float64), reference[self.feature]
+        d = np.zeros((len(q), len(r)))
+        for start in range(0, len(r) if len(q) else 0, REFERENCE_BLOCK):  # float64 a block of references at a time
+            d[:, start:start + REFERENCE_BLOCK] = cdist(q, np.asarray(r[start:start + REFERENCE_BLOCK], np.float64))
         has_q, has_r = (~np.asarray(f.get("missing_camera", np.zeros(len(x), bool)), bool)
                         for f, x in ((query, q), (reference, r)))
         return np.where(np.outer(has_q, has_r), d, np.inf)

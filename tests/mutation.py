@@ -244,6 +244,10 @@ PREC_ESTIMATE = t("precision", "test_estimate_closed_form_channel_layer_and_norm
 PREC_BOUNDS = t("precision", "test_curvature_bounds_take_the_precisions_into_account")
 
 MUTANTS = [
+    m("image descriptor: a block's distances written at the first references", "image_descriptor",
+      "            d[:, start:start + REFERENCE_BLOCK] = cdist(",
+      "            d[:, :min(REFERENCE_BLOCK, len(r))] = cdist(",
+      *t("vision_baselines", "test_the_distance_a_block_of_references_at_a_time_is_scipy_s_cdist_bit_for_bit")),
     m("pc: a rising energy counts as converged", "pc",
       "    return abs(before - now) < tol * abs(before)", "    return before - now < tol * abs(before)",
       *t("pc", "test_convergence_rule_by_hand")),

@@ -197,6 +197,23 @@ def test_a_sample_without_its_camera_matches_nothing(cls, params):
     assert extractor.modalities(extractor.params) == {"visual"}
 
 
+def test_the_distance_a_block_of_references_at_a_time_is_scipy_s_cdist_bit_for_bit(monkeypatch):
+    """Unit rows compared 3 references per cdist call (the memory bound's blocks) give exactly
+    cdist of them all, the last block short; a query or reference side of none gives (q, 0) / (0, r)."""
+    from scipy.spatial.distance import cdist
+
+    import vitaplace.plugins.image_descriptor as descriptor
+
+    monkeypatch.setattr(descriptor, "REFERENCE_BLOCK", 3)
+    rng = np.random.default_rng(0)
+    q, r = rng.random((4, 6), dtype=np.float32), rng.random((8, 6), dtype=np.float32)
+    extractor = HOG({})
+    got = extractor.distance({"hog": q}, {"hog": r})
+    assert np.array_equal(got, cdist(q.astype(np.float64), r.astype(np.float64)))
+    assert extractor.distance({"hog": q[:0]}, {"hog": r}).shape == (0, 8)
+    assert extractor.distance({"hog": q}, {"hog": r[:0]}).shape == (4, 0)
+
+
 @pytest.mark.parametrize("cls, module, distribution", [(HOG, "skimage", "scikit-image"),
                                                        (VLAD, "cv2", "opencv-python-headless")], ids=["hog", "vlad"])
 def test_without_its_library_a_baseline_is_one_line_naming_the_extra(monkeypatch, cls, module, distribution):
