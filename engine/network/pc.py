@@ -91,7 +91,8 @@ class TrainingHistory:
     def last_epoch(self) -> dict[str, float]:
         """The last epoch's numbers by name: ``energy`` (per sample, every edge), ``energy.EDGE``,
         ``latent_change`` and, with held-out samples, ``held_out_energy``."""
-        numbers = {"energy": self.total()[-1], **{f"energy.{name}": float(v[-1]) for name, v in self.energy.items()},
+        numbers = {"energy": float(sum(v[-1] for v in self.energy.values())),
+                   **{f"energy.{name}": float(v[-1]) for name, v in self.energy.items()},
                    "latent_change": self.latent_change[-1]}
         return numbers | ({"held_out_energy": self.held_out[-1]} if self.held_out else {})
 

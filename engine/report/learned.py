@@ -27,11 +27,16 @@ def inference_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
         f"{100 * (1 - i['capped'] / i['samples']):.1f} | {_percent(i.get('stopped'), i['samples'])} |"
         for method, label, i in _facts(features, "inference")
     ]
-    if not lines:
+    table = _table(["method", "run", "median steps", "90th percentile", "most", "% settled",
+                    "% under the thresholds"], lines)
+    return "\n".join([table, *_cap_warnings(features)]) if table else ""
+
+
+def _table(columns: list[str], rows: list[str]) -> str:
+    """A markdown table of ``rows`` (each a ``| ... |`` line) under ``columns``; "" without rows."""
+    if not rows:
         return ""
-    table = ["| method | run | median steps | 90th percentile | most | % settled | % under the thresholds |",
-             "|---|---|---|---|---|---|---|", *lines]
-    return "\n".join(table + _cap_warnings(features))
+    return "\n".join([f"| {' | '.join(columns)} |", "|" + "---|" * len(columns), *rows])
 
 
 def _percent(count: int | None, total: int) -> str:
@@ -88,11 +93,8 @@ def tactile_range_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
         f"{100 * r['channel_min']:.1f} | {r['channels_under']} of {r['channels']} | {r['beyond']:.3g} |"
         for method, label, r in _facts(features, "tactile_range")
     ]
-    if not lines:
-        return ""
-    under = f"{100 * IN_RANGE_SHARE:g} %"
-    return "\n".join([f"| method | run | % of values in range | lowest channel % | channels under {under} | "
-                      "largest excess (scaled units) |", "|---|---|---|---|---|---|", *lines])
+    return _table(["method", "run", "% of values in range", "lowest channel %",
+                   f"channels under {100 * IN_RANGE_SHARE:g} %", "largest excess (scaled units)"], lines)
 
 
 def tactile_range_section(manifest: dict[str, Any]) -> list[str]:
@@ -116,10 +118,7 @@ def drive_table(features: dict[str, dict[str, dict[str, Any]]]) -> str:
         + (f"{d['median']:.3f} | {d['p10']:.3f} - {d['p90']:.3f} |" if d["samples"] else "- | - |")
         for method, label, d in _facts(features, "drive")
     ]
-    if not lines:
-        return ""
-    return "\n".join(["| method | run | samples with both modalities | vision's share, median | 10-90 % |",
-                      "|---|---|---|---|---|", *lines])
+    return _table(["method", "run", "samples with both modalities", "vision's share, median", "10-90 %"], lines)
 
 
 def drive_section(manifest: dict[str, Any]) -> list[str]:

@@ -471,9 +471,9 @@ def _fusions_section(rows: Sequence[ResultRow], fusions: list[dict[str, Any]]) -
     return lines + [""]
 
 
-def write_report(out: Path) -> None:
+def write_report(out: Path) -> ReportSettings:
     """report.md for the run in ``out`` and the figures its scenario's ``report`` settings ask
-    for (`ReportSettings`) in figures/, from its files alone."""
+    for (`ReportSettings`) in figures/, from its files alone; returns those settings."""
     out = Path(out)
     manifest, rows = read_inputs(out)
     resolved = yaml.safe_load((out / completion.SCENARIO).read_text()) or {}
@@ -496,6 +496,7 @@ def write_report(out: Path) -> None:
         *_provenance_section(manifest),
     ]
     write_text_atomic(out / REPORT, "\n".join(sections))
+    return settings
 
 
 def rebuild_report(out: Path) -> tuple[Path, ReportSettings]:
@@ -512,6 +513,4 @@ def rebuild_report(out: Path) -> tuple[Path, ReportSettings]:
     wrong = completion.problem(out, [MANIFEST, *recorded])
     if wrong:
         raise ReportError(f"{out}: not a finished run: {wrong}")
-    write_report(out)
-    resolved = yaml.safe_load((out / completion.SCENARIO).read_text()) or {}
-    return out / REPORT, report_settings(out, resolved)
+    return out / REPORT, write_report(out)
