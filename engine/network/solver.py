@@ -44,6 +44,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar, Literal, get_args
 
 import numpy as np
+from scipy.linalg import lapack
 
 from vitaplace.engine.network.batch import BatchState
 from vitaplace.engine.network.structure import NetworkView
@@ -107,8 +108,9 @@ def curvature_preconditioners(
     B bounds the node's diagonal block of the Gauss-Newton Hessian ``2 J^T diag(pi) J`` for
     every sample (``J^T diag(pi) J = W diag(pi phi'^2) W^T <= g^2 W diag(pi) W^T``, the edge
     above's term ``2 diag(pi_above)`` exactly; ``pi`` 1 where ``precisions`` gives none);
-    `curvature_steps`' L bounds its largest eigenvalue. With a prior B >= prior I is
-    invertible; it is inverted in float64 through its eigenvalues (symmetric, so P is too).
+    `curvature_steps`' L bounds its largest eigenvalue. With a prior B >= prior I is positive
+    definite; it is inverted in float64 through its Cholesky factor (LAPACK potrf and potri,
+    a fifth of an eigendecomposition's time) and P made exactly symmetric.
     """
     gain = _largest_gain(activation, slope)
     bound: dict[str, np.ndarray] = {}
@@ -118,16 +120,17 @@ def curvature_preconditioners(
     above = {e.lower: e.name for e in edges}
     out = {}
     for node in nodes:
-        block, identity = bound[node], 2.0 if node in above else 0.0
         if node in above and precisions is not None and above[node] in precisions:
-            # 2 diag(pi_above) is no multiple of I: into the matrix, before the eigendecomposition
-            block, identity = block + 2.0 * np.diag(np.asarray(precisions[above[node]], np.float64)), 0.0
-        values, vectors = np.linalg.eigh(block)
-        values = np.maximum(values, 0.0) + prior + identity
-        if values[0] <= 0.0:
+            diagonal = 2.0 * np.asarray(precisions[above[node]], np.float64) + prior
+        else:
+            diagonal = np.full(len(bound[node]), (2.0 if node in above else 0.0) + prior)
+        factor, info = lapack.dpotrf(bound[node] + np.diag(diagonal))
+        if info != 0:
             raise ValueError(f"the curvature bound of latent node '{node}' is singular; the preconditioned "
                              "solver needs a latent prior > 0")
-        out[node] = (vectors / values) @ vectors.T
+        inverse, info = lapack.dpotri(factor)
+        upper = np.triu(inverse)
+        out[node] = upper + np.triu(upper, 1).T
     return out
 
 

@@ -339,11 +339,26 @@ def test_the_preconditioners_invert_the_gauss_newton_bound_matrix():
     assert set(P) == set(expected)
     for node, bound in expected.items():
         np.testing.assert_allclose(P[node] @ bound, eye[node], atol=1e-10, err_msg=node)
+        np.testing.assert_array_equal(P[node], P[node].T)  # symmetric to the bit: D = G P = G P^T
         largest = np.linalg.eigvalsh(bound)[-1]
         if node == "joint":
             assert largest < 1 / steps[node]
         else:
             assert 1 / largest == pytest.approx(steps[node], rel=1e-5), node
+
+
+def test_a_singular_curvature_bound_is_refused_naming_its_node():
+    """Without a prior the joint layer's bound is the sum of its edges' W W^T alone: with those
+    weights 0 it is singular, refused naming the node; every layer with an edge above has 2 I
+    in its bound and is still inverted (P = (2 I + 2 W W^T)^-1 with W = 0 there too: I / 2)."""
+    net = network(NumpyBackend(np.float64))
+    nodes, edges = net.latent_nodes(net.modalities), net.active_edges(net.modalities)
+    zero = {name: np.zeros_like(w) for name, w in net.weights.items()}
+    with pytest.raises(ValueError, match="latent node 'joint' is singular"):
+        curvature_preconditioners(zero, edges, nodes, "tanh", 0.2, 0.0)
+    P = curvature_preconditioners(zero, edges, [n for n in nodes if n != "joint"], "tanh", 0.2, 0.0)
+    for node, p in P.items():
+        np.testing.assert_allclose(p, np.eye(net.sizes[node]) / 2, rtol=1e-15, err_msg=node)
 
 
 # ---------------------------------------------------------------------------- kernels
