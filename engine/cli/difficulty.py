@@ -6,7 +6,8 @@ its methods replaced by `FAMILY`: the ``handcrafted`` plugin with its default pa
 vision only (H-V) and touch only (H-T). No learned method is fitted. Per evaluation and
 direction it prints the touch measures of the difficulty (``touch_both_share``,
 ``touch_one_side_share``, ``touch_correspondence``), the complementarity of H-V and H-T and
-H-V's max F1, each gate beside its value: ``MISSED`` when the value does not meet it (also
+H-V's max F1 and the headroom (the oracle's recall@1 minus the better single modality's),
+each gate beside its value: ``MISSED`` when the value does not meet it (also
 when there is no value), ``-`` when the evaluation declares none. A missed gate does not
 change the exit status: the command reports, the reader decides.
 """
@@ -20,7 +21,8 @@ from vitaplace.engine.config.scenario import Gates, Scenario
 from vitaplace.engine.evaluation.complementarity import count_text
 from vitaplace.engine.outputs.rows import ResultRow
 
-__all__ = ["FAMILY", "GATES", "VISION", "TOUCH", "difficulty_rows", "family_overrides", "gate_results", "table"]
+__all__ = ["FAMILY", "GATES", "VISION", "TOUCH", "difficulty_rows", "family_overrides", "gate_results", "headroom",
+           "table"]
 
 VISION, TOUCH = "H-V", "H-T"
 #: the methods `vitaplace difficulty` runs instead of the scenario's
@@ -34,6 +36,7 @@ GATES = {
     "touch_correspondence_min": ("touch_correspondence", True),
     "rescue_min": ("rescue", True),
     "hv_max_f1_max": ("hv_max_f1", False),
+    "headroom_min": ("headroom", True),
 }
 
 
@@ -58,6 +61,14 @@ def gate_results(gates: Gates, values: dict[str, float | None]) -> dict[str, dic
     return results
 
 
+def headroom(pair: dict[str, Any]) -> float | None:
+    """What a fusion of the pair could add to recall@1 at most: the oracle's (each query right
+    when either method is) minus the better method's; None without queries to recall."""
+    if pair["oracle_r1"] is None:
+        return None
+    return pair["oracle_r1"] - max(pair["vision_r1"], pair["touch_r1"])
+
+
 def difficulty_rows(scenario: Scenario, rows: list[ResultRow],
                     complementarity: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """One row per evaluation and direction: its ``difficulty``, the complementarity of H-V
@@ -71,7 +82,7 @@ def difficulty_rows(scenario: Scenario, rows: list[ResultRow],
         pair = {k: v for k, v in pair.items() if k not in ("environment", "direction")}
         difficulty = row.difficulty.dump() if row.difficulty is not None else {}
         values = {"touch_correspondence": difficulty.get("touch_correspondence"), "rescue": pair["rescue"],
-                  "hv_max_f1": row.max_f1}
+                  "hv_max_f1": row.max_f1, "headroom": headroom(pair)}
         out.append({"environment": row.environment, "direction": row.direction, "difficulty": difficulty,
                     "complementarity": pair, "hv_max_f1": row.max_f1,
                     "gates": gate_results(gates[row.environment], values)})
@@ -94,7 +105,7 @@ def _gated(result: dict[str, Any], is_min: bool) -> str:
 def table(rows: list[dict[str, Any]]) -> str:
     """The rows of `difficulty_rows` as a Markdown table, each gated measure beside its gate."""
     header = ["evaluation", "direction", "touch both sides", "touch one side", "touch correspondence",
-              f"{TOUCH} rescues of {VISION}'s R@1 failures", f"{VISION} max F1"]
+              f"{TOUCH} rescues of {VISION}'s R@1 failures", f"{VISION} max F1", "headroom (oracle - best R@1)"]
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for measured in rows:
         d, c, g = measured["difficulty"], measured["complementarity"], measured["gates"]
@@ -102,6 +113,6 @@ def table(rows: list[dict[str, Any]]) -> str:
         cells = [measured["environment"], measured["direction"], _pct(d["touch_both_share"]),
                  _pct(d["touch_one_side_share"]), gated["touch_correspondence_min"],
                  f"{count_text(c['rescued'])} of {count_text(c['vision_wrong'])}: {gated['rescue_min']}",
-                 gated["hv_max_f1_max"]]
+                 gated["hv_max_f1_max"], gated["headroom_min"]]
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines)

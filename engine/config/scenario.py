@@ -143,6 +143,11 @@ class Gates(Strict):
     hv_max_f1_max: float | None = pydantic.Field(
         None, ge=0, le=1, allow_inf_nan=False, description="most max F1 of H-V (vision alone must not solve it)",
     )
+    headroom_min: float | None = pydantic.Field(
+        None, ge=0, le=1, allow_inf_nan=False,
+        description="least headroom: the recall@1 of an oracle taking H-V's or H-T's best match, whichever is "
+        "right, minus the better of H-V's and H-T's (complementarity oracle_r1; what any fusion could add at most)",
+    )
 class QueryDropout(Strict):
     """Sensors lost at query time: shares of the query run's samples without the camera or
     without the whiskers (disjoint: a sample loses at most one)."""

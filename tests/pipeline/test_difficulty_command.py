@@ -11,7 +11,7 @@ import yaml
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vitaplace.engine.cli.difficulty import GATES, gate_results, table  # noqa: E402
+from vitaplace.engine.cli.difficulty import GATES, gate_results, headroom, table  # noqa: E402
 from vitaplace.engine.cli.main import main  # noqa: E402
 from vitaplace.engine.config.scenario import Gates  # noqa: E402
 from vitaplace.engine.evaluation import evaluate as ev  # noqa: E402
@@ -22,16 +22,17 @@ ENV_E1 = str(Path(__file__).resolve().parents[2] / "scenarios" / "environments" 
 
 @pytest.mark.parametrize("gates, values, expected", [
     # nothing declared: every gate "-" (met None), the values still reported
-    ({}, {"touch_correspondence": 0.5, "rescue": 0.2, "hv_max_f1": 0.9}, (None, None, None)),
-    # the bound itself meets a gate: 0.7 >= 0.7, 0.25 >= 0.25, 0.85 <= 0.85
-    ({"touch_correspondence_min": 0.7, "rescue_min": 0.25, "hv_max_f1_max": 0.85},
-     {"touch_correspondence": 0.7, "rescue": 0.25, "hv_max_f1": 0.85}, (True, True, True)),
+    ({}, {"touch_correspondence": 0.5, "rescue": 0.2, "hv_max_f1": 0.9, "headroom": 0.05}, (None, None, None, None)),
+    # the bound itself meets a gate: 0.7 >= 0.7, 0.25 >= 0.25, 0.85 <= 0.85, 0.1 >= 0.1
+    ({"touch_correspondence_min": 0.7, "rescue_min": 0.25, "hv_max_f1_max": 0.85, "headroom_min": 0.1},
+     {"touch_correspondence": 0.7, "rescue": 0.25, "hv_max_f1": 0.85, "headroom": 0.1}, (True, True, True, True)),
     # just past each bound: missed
-    ({"touch_correspondence_min": 0.7, "rescue_min": 0.25, "hv_max_f1_max": 0.85},
-     {"touch_correspondence": 0.69, "rescue": 0.24, "hv_max_f1": 0.86}, (False, False, False)),
-    # no value (no touched query with a true match; vision never wrong): a declared gate is missed
-    ({"touch_correspondence_min": 0.0, "rescue_min": 0.0}, {"touch_correspondence": None, "rescue": None,
-                                                           "hv_max_f1": 0.1}, (False, False, None)),
+    ({"touch_correspondence_min": 0.7, "rescue_min": 0.25, "hv_max_f1_max": 0.85, "headroom_min": 0.1},
+     {"touch_correspondence": 0.69, "rescue": 0.24, "hv_max_f1": 0.86, "headroom": 0.09}, (False, False, False, False)),
+    # no value (no touched query with a true match; vision never wrong; no query to recall): a
+    # declared gate is missed
+    ({"touch_correspondence_min": 0.0, "rescue_min": 0.0, "headroom_min": 0.0},
+     {"touch_correspondence": None, "rescue": None, "hv_max_f1": 0.1, "headroom": None}, (False, False, None, False)),
 ])
 def test_gates_by_hand(gates, values, expected):
     results = gate_results(Gates(**gates), values)
@@ -50,11 +51,25 @@ def test_the_rescue_gate_reads_tied_best_matches_in_proportion():
     touch = ev.decide(np.array([[0.1, 0.5], [0.2, 0.2]]), gtm, 0.3, np.inf)
     c = complementarity(vision, touch)
     assert (c["rescued"], c["vision_wrong"], c["rescue"]) == (1.5, 2, 0.75)
-    gates = gate_results(Gates(rescue_min=0.7), {"touch_correspondence": 1.0, "rescue": c["rescue"], "hv_max_f1": 0.0})
+    gates = gate_results(Gates(rescue_min=0.7), {"touch_correspondence": 1.0, "rescue": c["rescue"], "hv_max_f1": 0.0,
+                                                 "headroom": 0.0})
     assert gates["rescue_min"] == {"gate": 0.7, "value": 0.75, "met": True}
     measured = {"environment": "E", "direction": "query-to-reference", "complementarity": c, "gates": gates,
                 "difficulty": {"touch_both_share": 1.0, "touch_one_side_share": 0.0}}
     assert table([measured]).splitlines()[2].split(" | ")[5] == "1.50 of 2: 75.0 % (>= 70.0 %)"
+
+
+def test_the_headroom_is_the_oracle_recall_over_the_better_single_modality():
+    # vision right on q0 and q1 of four, touch on q1 and q2: the oracle on three, 75 %, the
+    # better single method 50 %: 25 points a fusion could add at most
+    gtm = np.array([[0.1, 1.0, 1.0, 1.0], [1.0, 0.1, 1.0, 1.0], [1.0, 1.0, 0.1, 1.0], [1.0, 1.0, 1.0, 0.1]])
+    right = {"vision": [0, 1, 3, 2], "touch": [1, 1, 2, 0]}  # each query's best reference
+    decided = {m: ev.decide(np.where(np.arange(4) == np.array(best)[:, None], 0.1, 0.9), gtm, 0.3, np.inf)
+               for m, best in right.items()}
+    c = complementarity(decided["vision"], decided["touch"])
+    assert (c["vision_r1"], c["touch_r1"], c["oracle_r1"]) == (0.5, 0.5, 0.75)
+    assert headroom(c) == 0.25
+    assert headroom({**c, "oracle_r1": None}) is None
 
 
 def test_difficulty_runs_the_handcrafted_family_alone_and_prints_gates(tmp_path, capsys):
@@ -110,5 +125,6 @@ def test_difficulty_runs_the_handcrafted_family_alone_and_prints_gates(tmp_path,
     assert table[0].startswith("| evaluation | direction | touch both sides |") and len(table) == 3
     cells = table[2].split(" | ")
     assert cells[5].endswith("(-)")
-    f1 = f"{100 * row['hv_max_f1']:.1f} % (<= 0.0 %) |"
+    f1 = f"{100 * row['hv_max_f1']:.1f} % (<= 0.0 %)"
     assert cells[6] == (f1 if row["hv_max_f1"] <= 0.0 else f"MISSED {f1}")
+    assert gates["headroom_min"]["met"] is None and cells[7] == f"{100 * headroom(c):.1f} % (-) |"
