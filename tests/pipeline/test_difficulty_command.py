@@ -60,14 +60,14 @@ def test_the_rescue_gate_reads_tied_best_matches_in_proportion():
 
 
 def test_the_headroom_is_the_oracle_recall_over_the_better_single_modality():
-    # vision right on q0 and q1 of four, touch on q1 and q2: the oracle on three, 75 %, the
-    # better single method 50 %: 25 points a fusion could add at most
+    # vision right on q0 and q1 of four, touch on q1, q2 and q3: the oracle on all four, the
+    # better single method (touch) on 75 %: 25 points a fusion could add at most
     gtm = np.array([[0.1, 1.0, 1.0, 1.0], [1.0, 0.1, 1.0, 1.0], [1.0, 1.0, 0.1, 1.0], [1.0, 1.0, 1.0, 0.1]])
-    right = {"vision": [0, 1, 3, 2], "touch": [1, 1, 2, 0]}  # each query's best reference
+    right = {"vision": [0, 1, 3, 2], "touch": [1, 1, 2, 3]}  # each query's best reference
     decided = {m: ev.decide(np.where(np.arange(4) == np.array(best)[:, None], 0.1, 0.9), gtm, 0.3, np.inf)
                for m, best in right.items()}
     c = complementarity(decided["vision"], decided["touch"])
-    assert (c["vision_r1"], c["touch_r1"], c["oracle_r1"]) == (0.5, 0.5, 0.75)
+    assert (c["vision_r1"], c["touch_r1"], c["oracle_r1"]) == (0.5, 0.75, 1.0)
     assert headroom(c) == 0.25
     assert headroom({**c, "oracle_r1": None}) is None
 
