@@ -33,7 +33,7 @@ from vitaplace.engine.config.scenario import (
     SequenceSettings,
     TrainingData,
 )
-from vitaplace.engine.sim.condition import CameraCondition, Condition, LightCondition, Occlusion
+from vitaplace.engine.sim.condition import CameraCondition, Condition, Fog, LightCondition, Occlusion
 from vitaplace.engine.sim.controllers import (
     ForagingGains,
     ForagingRun,
@@ -86,6 +86,7 @@ SECTIONS: list[tuple[str, type[pydantic.BaseModel], str]] = [
     ("condition.camera: CameraCondition", CameraCondition,
      "how each frame is degraded: blur, exposure, noise, occlusion"),
     ("condition.camera.occlusion: Occlusion", Occlusion, "the part of the image blanked"),
+    ("condition.fog: Fog", Fog, "fog in the air between the camera and the world (linear, as MuJoCo renders it)"),
     ("robot: RobotSpec", RobotSpec, "the robot, its sensors and the physics"),
     ("methods[]: Method", Method, "a feature extractor to compare"),
     ("methods[].params for plugin mupnet", MupnetParams, "the learned MuPNet features"),

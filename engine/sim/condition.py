@@ -1,8 +1,8 @@
 """The condition a run is recorded under: its lighting and the state of its camera.
 
 Visual place-recognition datasets revisit places under other conditions (another season,
-night instead of day, a dirty lens); a run's ``condition:`` (`Condition`) does that to a
-simulated drive. It has two parts:
+night instead of day, fog, a dirty lens); a run's ``condition:`` (`Condition`) does that to a
+simulated drive. It has three parts:
 
 * ``light`` (`LightCondition`) changes the environment's lights in the MuJoCo model
   (`engine/sim/build.py`): every light level (suns, ambient, headlight) is multiplied by
@@ -12,7 +12,12 @@ simulated drive. It has two parts:
   camera does it: optical blur (a Gaussian of ``blur_sigma_px``), the sensor's gain
   (``exposure``: intensities times it), additive Gaussian sensor noise (``noise_std`` grey
   levels), rounding and clipping to 0-255, then the occluded part of the image set to 0
-  (``occlusion``: ``share`` of the rows or columns from ``side``).
+  (``occlusion``: ``share`` of the rows or columns from ``side``);
+* ``fog`` (`Fog`) fills the air between the camera and the world, as MuJoCo's renderer draws
+  it (OpenGL's linear fog, set in the compiled model by `engine/sim/simulate.py`): a surface
+  at depth z along the camera's axis is seen as ``f`` times its own colour plus ``1 - f``
+  times the fog's, ``f = (end_m - z) / (end_m - start_m)`` clipped to [0, 1] (before the
+  camera's degradation, which acts on the frame).
 
 The noise is drawn from its own random stream of the run's seed (`noise_rng`), apart from
 the controller's, so a run is reproducible and a noisy drive follows the same path as a
@@ -26,10 +31,10 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-__all__ = ["Condition", "LightCondition", "CameraCondition", "Occlusion", "kelvin_rgb", "light_rgb", "degrade",
-           "noise_rng", "is_default", "NOISE_STREAM"]
+__all__ = ["Condition", "LightCondition", "CameraCondition", "Fog", "Occlusion", "kelvin_rgb", "light_rgb",
+           "degrade", "noise_rng", "is_default", "NOISE_STREAM"]
 
 #: the entropy word that separates the camera noise's stream from the controller's (`noise_rng`)
 NOISE_STREAM = 0xC0FFEE
@@ -83,13 +88,38 @@ class CameraCondition(_Settings):
     occlusion: Occlusion = Field(Occlusion(), description="the part of the image blanked")
 
 
+class Fog(_Settings):
+    """Nearer than ``start_m`` a surface is seen as it is, from ``end_m`` on only the fog's
+    colour, mixed linearly in its depth in between."""
+
+    start_m: float = Field(0.0, ge=0, le=100, description="depth along the camera's axis where the fog starts [m]")
+    end_m: float = Field(gt=0, le=100, description="depth from which only the fog is seen [m] (> start_m)")
+    colour: tuple[float, float, float] = Field(
+        (0.75, 0.75, 0.75), description="the fog's RGB, each in [0, 1] (default a light grey)"
+    )
+
+    @field_validator("colour")
+    @classmethod
+    def _unit(cls, v: tuple[float, float, float]) -> tuple[float, float, float]:
+        if not all(0.0 <= c <= 1.0 for c in v):
+            raise ValueError("colour must be three values in [0, 1]")
+        return v
+
+    @model_validator(mode="after")
+    def _ordered(self) -> Fog:
+        if self.end_m <= self.start_m:
+            raise ValueError(f"end_m ({self.end_m}) must be greater than start_m ({self.start_m})")
+        return self
+
+
 class Condition(_Settings):
-    """The condition of a run: its lighting and its camera's state (defaults: unchanged)."""
+    """The condition of a run: its lighting, its camera's state and the fog (defaults: unchanged)."""
 
     light: LightCondition = Field(LightCondition(), description="lighting: intensity, direction, colour temperature")
     camera: CameraCondition = Field(
         CameraCondition(), description="camera degradation: blur, exposure, noise, occlusion"
     )
+    fog: Fog | None = Field(None, description="fog between the camera and the world (null: clear air)")
 
 
 def is_default(condition: Condition | None) -> bool:

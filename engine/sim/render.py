@@ -62,7 +62,8 @@ def check_fork_safe() -> None:
 class Camera:
     """Renders the named model camera to uint8 RGB arrays (H, W, 3).
 
-    ``render_time`` accumulates the wall time spent rendering (scene update + GL + readback).
+    ``render_time`` accumulates the wall time spent rendering (scene update + GL + readback);
+    ``fog`` draws the model's fog (set in the model before the camera is made).
     """
 
     def __init__(
@@ -72,6 +73,7 @@ class Camera:
         height: int,
         camera: str | int = "eye",
         show_robot: bool = False,
+        fog: bool = False,
     ) -> None:
         check_fork_safe()
         try:
@@ -86,6 +88,7 @@ class Camera:
         scene = self._renderer.scene
         scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
         scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+        scene.flags[mujoco.mjtRndFlag.mjRND_FOG] = int(fog)  # the model's fog (`simulate.apply_fog`)
         self._option = mujoco.MjvOption()
         self._option.geomgroup[ROBOT_GROUP] = 1 if show_robot else 0
         if isinstance(camera, str):

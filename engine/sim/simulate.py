@@ -32,7 +32,7 @@ from tqdm.auto import tqdm
 
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.data.dataset import Run
-from vitaplace.engine.sim.condition import Condition, degrade, noise_rng
+from vitaplace.engine.sim.condition import Condition, Fog, degrade, noise_rng
 from vitaplace.engine.sim.controllers import Observation, RunSpec, key_form, make_controller, run_spec
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.glsetup import STATE as GL_STATE
@@ -40,7 +40,7 @@ from vitaplace.engine.sim.model import SimModel, build_model
 from vitaplace.engine.sim.render import Camera
 from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec
 
-__all__ = ["RobotSpec", "RunSpec", "run_spec", "simulate_run", "Simulator", "run_hash"]
+__all__ = ["RobotSpec", "RunSpec", "run_spec", "simulate_run", "Simulator", "apply_fog", "run_hash"]
 
 
 def run_hash(environment: EnvironmentSpec, run: RunSpec | Mapping[str, Any], robot: RobotSpec, seed: int) -> str:
@@ -59,6 +59,16 @@ def run_hash(environment: EnvironmentSpec, run: RunSpec | Mapping[str, Any], rob
     return hashlib.sha256(payload.encode()).hexdigest()[:16]
 
 
+def apply_fog(model: mujoco.MjModel, fog: Fog | None) -> None:
+    """Set ``fog`` in the compiled ``model`` (MuJoCo keeps its distances in units of the
+    model's extent); a `Camera` made after this with ``fog`` draws it where its scene enables fog."""
+    if fog is None:
+        return
+    model.vis.map.fogstart = fog.start_m / model.stat.extent
+    model.vis.map.fogend = fog.end_m / model.stat.extent
+    model.vis.rgba.fog[:] = (*fog.colour, 1.0)
+
+
 class Simulator:
     """Steps one robot in one environment, whisk cycle by whisk cycle.
 
@@ -66,8 +76,8 @@ class Simulator:
     benchmarks use it to place the robot and read its sensors directly. Its camera is made at
     the first `render`, in the process that renders (again in a process forked after that), so
     a Simulator made in one process may step in another. ``condition`` (a run's
-    lighting and camera state, `engine/sim/condition.py`) changes the model's lights and
-    degrades every rendered frame, its noise drawn from ``seed``'s camera stream (`noise_rng`).
+    lighting, camera state and fog, `engine/sim/condition.py`) changes the model's lights, fills
+    its air with the fog and degrades every rendered frame, its noise drawn from ``seed``'s camera stream (`noise_rng`).
     """
 
     def __init__(self, environment: EnvironmentSpec, robot: RobotSpec | None = None, camera: bool = True,
@@ -78,6 +88,7 @@ class Simulator:
         self._noise = noise_rng(seed)
         self.sim: SimModel = build_model(environment, self.robot, light=self.condition.light)
         self.model = self.sim.model
+        apply_fog(self.model, self.condition.fog)
         self.data = self.sim.new_data((0.0, 0.0, 0.0))
         self._camera_on = camera
         self.camera: Camera | None = None  #: made by the first `render` (in the process rendering)
@@ -157,7 +168,8 @@ class Simulator:
         if self.camera is None or self.camera.pid != os.getpid():
             if self.camera is not None:
                 self.camera.close()  # inherited over fork: let go of, not freed
-            self.camera = Camera(self.model, self.robot.camera_width, self.robot.camera_height)
+            self.camera = Camera(self.model, self.robot.camera_width, self.robot.camera_height,
+                                 fog=self.condition.fog is not None)
         image = self.camera.render(self.data, out=out)
         image[...] = degrade(image, self.condition.camera, self._noise)
         return image

@@ -19,6 +19,7 @@ from vitaplace.engine.config.loading import load_scenario  # noqa: E402
 from vitaplace.engine.sim.condition import (  # noqa: E402
     CameraCondition,
     Condition,
+    Fog,
     LightCondition,
     Occlusion,
     degrade,
@@ -156,6 +157,40 @@ def test_a_sun_along_another_direction_lights_the_scene_otherwise():
     assert not np.array_equal(frame(Condition(light=LightCondition(direction=(1.0, 0.0, -0.1)))), frame(None))
 
 
+def test_fog_mixes_each_surface_with_its_colour_by_depth():
+    """OpenGL's linear fog, by hand: a surface at depth z along the camera's axis is seen as
+    f x its clear colour + (1 - f) x the fog's, f = (end - z) / (end - start) clipped to [0, 1];
+    the depths from MuJoCo's depth buffer at the same pose, the robot hidden as its camera hides it."""
+    fog = Fog(start_m=0.5, end_m=3.0, colour=(0.8, 0.6, 0.4))
+    clear, foggy = frame(None), frame(Condition(fog=fog))
+    sim = Simulator(load_environment("e1"), ROBOT)
+    try:
+        sim.reset(POSE)
+        mujoco.mj_forward(sim.model, sim.data)
+        renderer = mujoco.Renderer(sim.model, ROBOT.camera_height, ROBOT.camera_width)
+        renderer.enable_depth_rendering()
+        hidden = mujoco.MjvOption()
+        hidden.geomgroup[3] = 0  # the robot's own geoms (ROBOT_GROUP)
+        renderer.update_scene(sim.data, camera="eye", scene_option=hidden)
+        depth = renderer.render().astype(np.float64)
+        renderer.close()
+    finally:
+        sim.close()
+    assert depth.min() < 3.0 < depth.max()  # the frame holds fogged, half-fogged and clear surfaces
+    f = np.clip((3.0 - depth) / (3.0 - 0.5), 0.0, 1.0)[..., None]
+    expected = f * clear + (1 - f) * 255 * np.array([0.8, 0.6, 0.4])
+    assert np.abs(foggy - expected).max() <= 1.5  # rounding to 0-255 on both frames
+
+
+def test_fog_is_clear_air_by_default_and_changes_the_key():
+    assert Condition(fog=None) == Condition()
+    env = load_environment("e1")
+    plain = run_spec(kind="teleop", n_samples=10)
+    foggy = run_spec(kind="teleop", n_samples=10, condition={"fog": {"end_m": 4.0}})
+    assert key_form(foggy)["condition"]["fog"] == {"start_m": 0.0, "end_m": 4.0, "colour": [0.75, 0.75, 0.75]}
+    assert run_hash(env, foggy, RobotSpec(), 0) != run_hash(env, plain, RobotSpec(), 0)
+
+
 def test_a_noisy_camera_is_reproducible_per_run_seed():
     noisy = Condition(camera=CameraCondition(noise_std=8.0))
     assert np.array_equal(frame(noisy, seed=3), frame(noisy, seed=3))
@@ -207,6 +242,13 @@ BAD = {
     "an unknown side": ("evaluations.0.query_condition={camera: {occlusion: {share: 0.2, side: middle}}}",
                         "evaluations.0.query_condition.camera.occlusion.side: "
                         "Input should be 'top', 'bottom', 'left' or 'right'"),
+    "fog ending before it starts": ("evaluations.0.query_condition={fog: {start_m: 2, end_m: 1}}",
+                                    "evaluations.0.query_condition.fog: end_m (1.0) must be greater than start_m "
+                                    "(2.0)"),
+    "fog without an end": ("evaluations.0.query_condition={fog: {start_m: 2}}",
+                           "evaluations.0.query_condition.fog.end_m: required key is missing"),
+    "a fog colour over 1": ("evaluations.0.query_condition={fog: {end_m: 3, colour: [1, 2, 0]}}",
+                            "evaluations.0.query_condition.fog.colour: colour must be three values in [0, 1]"),
     "an unknown key": ("evaluations.0.query_condition={light: {brightness: 2}}",
                        "evaluations.0.query_condition.light.brightness: unknown key"),
 }
