@@ -1,8 +1,9 @@
 """The committed study scenarios run what they ran: every learned method's parameters, as the
 pipeline resolves them (the scenario's, then the plugin's defaults), are those recorded in
 ``tests/data/study_method_params.json`` before the MuPNet plugin's defaults became the
-converging training and the settling solver (docs/MUPNET.md, "Defaults"). A default that
-changes again cannot reach a committed study unnoticed: the scenario must pin the old value.
+converging training and the settling solver (docs/MUPNET.md, "Defaults"), and for the third
+study's files when it was pre-registered. A default that changes again cannot reach a
+committed study unnoticed: the scenario must pin the old value.
 
 Only the quickstart, its near-duplicate variant and the touch benchmark follow the plugin's
 defaults (none of them has committed learned-method results)."""
