@@ -556,6 +556,91 @@ def study2_gates() -> str:
                      "chance R@1 %", "H-V max F1 %"], body)
 
 
+#: the third study's gate calibration (docs/RESULTS.md, "Third study: calibration"): per arm (and
+#: redesign) the folder of its `vitaplace difficulty --json` outputs, one ``seed-N.json`` per
+#: calibration seed, and the conditions the table shows from it (None: all; a redesign's
+#: folder repeats the unchanged conditions, cached, and shows only the redesigned one)
+CALIBRATION3: dict[str, tuple[Path, tuple[str, ...] | None]] = {
+    "station": (HERE / "study3-calibration" / "station", None),
+    "station, redesign 1": (HERE / "study3-calibration" / "station-crossed", ("crossed-pairs",)),
+    "drop-out": (HERE / "study3-calibration" / "dropout", None),
+}
+#: the gates in the order the table prints them
+GATES3 = ("touch_correspondence_min", "hv_max_f1_max", "rescue_min", "headroom_min")
+#: a condition has headroom when all four gates are met, query -> reference, in this many of 8 seeds
+HEADROOM_SEEDS = 7
+
+
+def calibration3(arm: str) -> dict[int, list[dict]]:
+    """Seed -> the `vitaplace difficulty` rows of one arm's calibration seed."""
+    files = sorted(CALIBRATION3[arm][0].glob("seed-*.json"), key=lambda f: int(f.stem.split("-")[1]))
+    return {int(f.stem.split("-")[1]): json.loads(f.read_text()) for f in files}
+
+
+def all_gates_met(rows: Sequence[dict]) -> int:
+    """In how many of ``rows`` (one evaluation and direction, one row per seed) every gate of
+    `GATES3` is met."""
+    return sum(all(r["gates"][g]["met"] for g in GATES3) for r in rows)
+
+
+def study3_calibration_gates() -> str:
+    """The third study's gates over its calibration seeds, per arm, condition and direction:
+    each gated measure's median (min–max) and the seeds meeting it, the seeds meeting all four,
+    and (query → reference) whether the condition has headroom (all four in >= 7 of 8)."""
+    body = []
+    for arm in CALIBRATION3:
+        per_seed = calibration3(arm)
+        conditions = dict.fromkeys(r["environment"] for rows in per_seed.values() for r in rows)
+        for condition in (c for c in conditions if CALIBRATION3[arm][1] is None or c in CALIBRATION3[arm][1]):
+            for direction, arrow in DIRECTIONS.items():
+                rows = [next(r for r in seed_rows if (r["environment"], r["direction"]) == (condition, direction))
+                        for seed_rows in per_seed.values()]
+                met = all_gates_met(rows)
+                verdict = ("yes" if met >= HEADROOM_SEEDS else "no") if direction == Q2R else "–"
+                body.append([arm, condition, arrow, str(len(rows)),
+                             *(_gate_cell([r["gates"][g] for r in rows]) for g in GATES3),
+                             f"{met} of {len(rows)}", verdict])
+    return markdown(["arm", "condition", "direction", "seeds", "touch correspondence %", "H-V max F1 %",
+                     "H-T rescues of H-V's failures, %", "headroom, points", "all four met", "has headroom"], body)
+
+
+#: the third study's calibration of the fusion weights: `vitaplace sweep scenarios/study3-weights.yaml`
+#: over the calibration seeds (its summary ``sweep.csv``), each fusion at each grid weight as a
+#: method ``NAME-w``
+WEIGHTS3 = HERE / "study3-weights"
+FUSIONS3 = ("L-F", "H-F", "HOG-F", "VLAD-F")
+GRID3 = ("0", "0.03", "0.1", "0.3", "1", "3")
+#: the primary condition the calibration of the gates picked (docs/RESULTS.md, "Third study: calibration")
+PRIMARY3 = "crossed-pairs"
+
+
+def fusion_weights3() -> dict[str, dict[str, float]]:
+    """Fusion -> grid weight -> max F1 in the primary condition, the mean over the calibration
+    seeds averaged over the two directions."""
+    with open(WEIGHTS3 / "sweep.csv", newline="") as handle:
+        means = {(r["method"], r["direction"]): float(r["mean"]) for r in csv.DictReader(handle)
+                 if r["environment"] == PRIMARY3 and r["metric"] == "max_f1"}
+    return {fusion: {w: (means[(f"{fusion}-{w}", Q2R)] + means[(f"{fusion}-{w}", R2Q)]) / 2 for w in GRID3}
+            for fusion in FUSIONS3}
+
+
+def chosen_weights3() -> dict[str, float]:
+    """Per fusion the grid weight of the highest averaged max F1 (`fusion_weights3`), ties to the smaller."""
+    chosen = {}
+    for fusion, scores in fusion_weights3().items():
+        best = max(scores.values())
+        chosen[fusion] = min(float(w) for w, score in scores.items() if score == best)
+    return chosen
+
+
+def study3_weights() -> str:
+    """Max F1 % of every fusion at every grid weight in the primary condition (mean over the
+    calibration seeds, averaged over both directions) and the weight the study fixes."""
+    scores, chosen = fusion_weights3(), chosen_weights3()
+    body = [[fusion, *(f"{100 * scores[fusion][w]:.1f}" for w in GRID3), f"{chosen[fusion]:g}"] for fusion in FUSIONS3]
+    return markdown(["fusion", *(f"w = {w}" for w in GRID3), "fixed w"], body)
+
+
 def methods_table(arm: str) -> str:
     """Max F1 %, mean [bootstrap 95 %] over seeds, of every method and fusion of one arm."""
     rows = {key: _index(read(key, "sweep.csv"), "environment", "method", "direction", "metric")
@@ -898,6 +983,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "study2-settled": study2_settled,
     "study2-training": study2_training,
     "study2-budget": study2_budget,
+    "study3-calibration-gates": study3_calibration_gates,
     "study2-warnings": study2_warnings,
 }
 

@@ -479,3 +479,44 @@ def test_the_second_studys_corrected_sentences_quote_the_committed_numbers():
         if sentence not in texts[name]:
             missing.append(f"{name}: {sentence}")
     assert not missing, "\n".join(missing)
+
+
+# The third study's calibration (RESULTS.md, "Third study: calibration").
+
+
+def test_a_condition_has_headroom_only_where_all_four_gates_hold_together():
+    """Seeds count when every gate is met in the same seed: here each gate alone is met in 7
+    of 8 seeds, but in different seeds, so all four hold together in only 4."""
+    tables = tables_module()
+    seeds = []
+    for k in range(8):
+        gates = {g: {"gate": 0.5, "value": 1.0, "met": True} for g in tables.GATES3}
+        if k < 4:  # seeds 0-3 each miss one gate
+            gates[tables.GATES3[k]]["met"] = False
+        seeds.append({"gates": gates})
+    assert tables.all_gates_met(seeds) == 4
+    assert tables.all_gates_met(seeds[4:]) == 4 and tables.HEADROOM_SEEDS == 7
+
+
+def test_the_calibration_seeds_are_the_registered_ones_and_none_is_scored():
+    """Every round of the gate calibration ran the registered calibration seeds, with each
+    condition of the arm's scenario (the station arm's second, the vision-aliased one, as that
+    round designed it) and the registered gates."""
+    import yaml
+
+    tables = tables_module()
+    gates = {"touch_correspondence_min": 0.7, "rescue_min": 0.25, "hv_max_f1_max": 0.85, "headroom_min": 0.10}
+    for arm in tables.CALIBRATION3:
+        scenario = "study3-dropout" if arm == "drop-out" else "study3"
+        evaluations = yaml.safe_load((ROOT / "scenarios" / f"{scenario}.yaml").read_text())["evaluations"]
+        declared = [e["name"] for e in evaluations]
+        per_seed = tables.calibration3(arm)
+        assert sorted(per_seed) == list(range(1100, 1108) if arm == "drop-out" else range(100, 108)), arm
+        for seed_rows in per_seed.values():
+            names = [r["environment"] for r in seed_rows[::2]]
+            assert [r["direction"] for r in seed_rows] == ["query-to-reference", "reference-to-query"] * len(names)
+            if arm == "drop-out":
+                assert names == declared
+            else:
+                assert names[:1] + names[2:] == declared[:1] + declared[2:]
+            assert all({g: v["gate"] for g, v in r["gates"].items()} == gates for r in seed_rows)
