@@ -64,7 +64,7 @@ def test_the_paper_arm_is_the_paper_s_algorithm():
 
 def test_the_conditions_and_their_gates_are_the_registered_ones():
     station = {e.name: e for e in scenario("study3").evaluations}
-    assert list(station) == ["alike-shapes", "crossed-clear", "dusk", "fog", "night"]
+    assert list(station) == ["alike-shapes", "crossed-edges", "dusk", "fog", "night"]
     dropout = {e.name: e for e in scenario("study3-dropout").evaluations}
     assert list(dropout) == ["alike-shapes", "dropout"]
     for e in [*station.values(), *dropout.values()]:
@@ -82,7 +82,7 @@ def test_the_conditions_and_their_gates_are_the_registered_ones():
     assert dropout["dropout"].query_dropout.camera == 0.25
     worlds = {name: e.environment for name, e in station.items()}
     assert [Path(str(w)).stem for w in worlds.values()] == [
-        "touch-alike-shapes", "touch-crossed-clear", "touch-distinct-shapes", "touch-distinct-shapes",
+        "touch-alike-shapes", "touch-crossed-edges", "touch-distinct-shapes", "touch-distinct-shapes",
         "touch-distinct-shapes"]
 
 
@@ -115,6 +115,24 @@ def test_crossed_clear_is_crossed_pairs_with_clear_landmarks():
     assert {lm.material for lm in clear.landmarks} == {"acrylic"}
     assert clear.materials["acrylic"] == load_environment("touch-clear-shapes").materials["acrylic"]
     assert clear.arena == crossed.arena and clear.route == crossed.route
+
+
+def test_crossed_edges_is_crossed_clear_with_edges_for_cylinders():
+    """Redesign 3: north and south are touch-alike-shapes' box turned 45 degrees (an edge, its
+    corner 1.638 m from the centre), east and west keep their flat faces; panels, material and
+    route are touch-crossed-clear's."""
+    edges, clear = load_environment("touch-crossed-edges"), load_environment("touch-crossed-clear")
+    shapes = load_environment("touch-alike-shapes")
+    marks = {lm.name: lm.model_dump() for lm in edges.landmarks}
+    turned = next(lm.model_dump() for lm in shapes.landmarks if lm.name == "north")
+    for side, y in (("north", 2.204), ("south", -2.204)):
+        assert {**marks[side], "pos": None, "material": None, "name": None} == {
+            **turned, "pos": None, "material": None, "name": None}
+        assert tuple(marks[side]["pos"]) == (0.0, y)
+    assert marks["east"] == next(lm.model_dump() for lm in clear.landmarks if lm.name == "east")
+    assert abs(2.204 - 0.4 * 2 ** 0.5 - 1.638) < 1e-3
+    assert {lm.material for lm in edges.landmarks} == {"acrylic"}
+    assert edges.arena == clear.arena and edges.route == clear.route and edges.materials == clear.materials
 
 
 def test_clear_shapes_is_alike_shapes_in_clear_acrylic():
