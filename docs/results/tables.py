@@ -564,6 +564,7 @@ CALIBRATION3: dict[str, tuple[Path, tuple[str, ...] | None]] = {
     "station": (HERE / "study3-calibration" / "station", None),
     "station, redesign 1": (HERE / "study3-calibration" / "station-crossed", ("crossed-pairs",)),
     "station, redesign 2": (HERE / "study3-calibration" / "station-crossed-clear", ("crossed-clear",)),
+    "station, redesign 3": (HERE / "study3-calibration" / "station-crossed-edges", ("crossed-edges",)),
     "drop-out": (HERE / "study3-calibration" / "dropout", None),
 }
 #: the gates in the order the table prints them
