@@ -64,7 +64,10 @@ def test_the_paper_arm_is_the_paper_s_algorithm():
 
 def test_the_conditions_and_their_gates_are_the_registered_ones():
     station = {e.name: e for e in scenario("study3").evaluations}
-    assert list(station) == ["alike-shapes", "crossed-edges", "dusk", "fog", "night"]
+    assert list(station) == ["alike-shapes", "crossed-horizon", "dusk", "fog", "night"]
+    horizon = station["crossed-horizon"]
+    assert horizon.query_condition == horizon.reference_condition
+    assert horizon.query_condition.camera.occlusion.model_dump() == {"share": 0.5, "side": "bottom"}
     dropout = {e.name: e for e in scenario("study3-dropout").evaluations}
     assert list(dropout) == ["alike-shapes", "dropout"]
     for e in [*station.values(), *dropout.values()]:
