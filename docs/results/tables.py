@@ -606,43 +606,6 @@ def study3_calibration_gates() -> str:
                      "H-T rescues of H-V's failures, %", "headroom, points", "all four met", "has headroom"], body)
 
 
-#: the third study's calibration of the fusion weights: `vitaplace sweep scenarios/study3-weights.yaml`
-#: over the calibration seeds (its summary ``sweep.csv``), each fusion at each grid weight as a
-#: method ``NAME-w``
-WEIGHTS3 = HERE / "study3-weights"
-FUSIONS3 = ("L-F", "H-F", "HOG-F", "VLAD-F")
-GRID3 = ("0", "0.03", "0.1", "0.3", "1", "3")
-#: the primary condition the calibration of the gates picked (docs/RESULTS.md, "Third study: calibration")
-PRIMARY3 = "crossed-pairs"
-
-
-def fusion_weights3() -> dict[str, dict[str, float]]:
-    """Fusion -> grid weight -> max F1 in the primary condition, the mean over the calibration
-    seeds averaged over the two directions."""
-    with open(WEIGHTS3 / "sweep.csv", newline="") as handle:
-        means = {(r["method"], r["direction"]): float(r["mean"]) for r in csv.DictReader(handle)
-                 if r["environment"] == PRIMARY3 and r["metric"] == "max_f1"}
-    return {fusion: {w: (means[(f"{fusion}-{w}", Q2R)] + means[(f"{fusion}-{w}", R2Q)]) / 2 for w in GRID3}
-            for fusion in FUSIONS3}
-
-
-def chosen_weights3() -> dict[str, float]:
-    """Per fusion the grid weight of the highest averaged max F1 (`fusion_weights3`), ties to the smaller."""
-    chosen = {}
-    for fusion, scores in fusion_weights3().items():
-        best = max(scores.values())
-        chosen[fusion] = min(float(w) for w, score in scores.items() if score == best)
-    return chosen
-
-
-def study3_weights() -> str:
-    """Max F1 % of every fusion at every grid weight in the primary condition (mean over the
-    calibration seeds, averaged over both directions) and the weight the study fixes."""
-    scores, chosen = fusion_weights3(), chosen_weights3()
-    body = [[fusion, *(f"{100 * scores[fusion][w]:.1f}" for w in GRID3), f"{chosen[fusion]:g}"] for fusion in FUSIONS3]
-    return markdown(["fusion", *(f"w = {w}" for w in GRID3), "fixed w"], body)
-
-
 def methods_table(arm: str) -> str:
     """Max F1 %, mean [bootstrap 95 %] over seeds, of every method and fusion of one arm."""
     rows = {key: _index(read(key, "sweep.csv"), "environment", "method", "direction", "metric")
