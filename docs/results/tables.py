@@ -565,6 +565,7 @@ CALIBRATION3: dict[str, tuple[Path, tuple[str, ...] | None]] = {
     "station, redesign 1": (HERE / "study3-calibration" / "station-crossed", ("crossed-pairs",)),
     "station, redesign 2": (HERE / "study3-calibration" / "station-crossed-clear", ("crossed-clear",)),
     "station, redesign 3": (HERE / "study3-calibration" / "station-crossed-edges", ("crossed-edges",)),
+    "station, redesign 4": (HERE / "study3-calibration" / "station-crossed-horizon", ("crossed-horizon",)),
     "drop-out": (HERE / "study3-calibration" / "dropout", None),
 }
 #: the gates in the order the table prints them
