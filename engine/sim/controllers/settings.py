@@ -424,7 +424,10 @@ def key_form(run: AnyRun) -> dict[str, Any]:
     hashes are computed from. Equal to the old flat dump, so keys stay valid."""
     own = run.model_dump(mode="json", exclude={"gains", "condition"})
     if not is_default(run.condition):
-        own["condition"] = run.condition.model_dump(mode="json")  # type: ignore[union-attr]
+        condition = run.condition.model_dump(mode="json")  # type: ignore[union-attr]
+        if condition["fog"] is None:  # clear air: the key of a condition made before fog existed
+            del condition["fog"]
+        own["condition"] = condition
     for old, new in RENAMED_RUN_KEYS.items():
         if new in own:
             own[old] = own.pop(new)
