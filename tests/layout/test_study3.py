@@ -64,8 +64,8 @@ def test_the_paper_arm_is_the_paper_s_algorithm():
 
 def test_the_conditions_and_their_gates_are_the_registered_ones():
     station = {e.name: e for e in scenario("study3").evaluations}
-    assert list(station) == ["alike-shapes", "crossed-horizon", "dusk", "fog", "night"]
-    horizon = station["crossed-horizon"]
+    assert list(station) == ["alike-shapes", "crossed-opposite", "dusk", "fog", "night"]
+    horizon = station["crossed-opposite"]
     assert horizon.query_condition == horizon.reference_condition
     assert horizon.query_condition.camera.occlusion.model_dump() == {"share": 0.5, "side": "bottom"}
     dropout = {e.name: e for e in scenario("study3-dropout").evaluations}
@@ -85,7 +85,7 @@ def test_the_conditions_and_their_gates_are_the_registered_ones():
     assert dropout["dropout"].query_dropout.camera == 0.25
     worlds = {name: e.environment for name, e in station.items()}
     assert [Path(str(w)).stem for w in worlds.values()] == [
-        "touch-alike-shapes", "touch-crossed-edges", "touch-distinct-shapes", "touch-distinct-shapes",
+        "touch-alike-shapes", "touch-crossed-opposite", "touch-distinct-shapes", "touch-distinct-shapes",
         "touch-distinct-shapes"]
 
 
@@ -136,6 +136,23 @@ def test_crossed_edges_is_crossed_clear_with_edges_for_cylinders():
     assert abs(2.204 - 0.4 * 2 ** 0.5 - 1.638) < 1e-3
     assert {lm.material for lm in edges.landmarks} == {"acrylic"}
     assert edges.arena == clear.arena and edges.route == clear.route and edges.materials == clear.materials
+
+
+def test_crossed_opposite_pairs_opposite_views_and_adjacent_shapes():
+    """Redesign 5: the panels of opposite walls alike (a half turn maps the arena, its walls and
+    its straight-down sun onto themselves, so partners see the same at every heading), the
+    shapes alike at adjacent stations (flat faces east and north, turned boxes west and south,
+    every nearest point 1.638 m from the centre)."""
+    world = load_environment("touch-crossed-opposite")
+    panels = {side: world.arena.walls[side].panel.rgba for side in ("east", "north", "west", "south")}
+    assert panels["east"] == panels["west"] != panels["north"] == panels["south"]
+    marks = {lm.name: lm.model_dump() for lm in world.landmarks}
+    shape = {side: {k: v for k, v in marks[side].items() if k not in ("name", "pos")} for side in marks}
+    assert shape["east"] == shape["north"] != shape["west"] == shape["south"]
+    assert [tuple(marks[s]["pos"]) for s in ("east", "north", "west", "south")] == [
+        (2.138, 0.0), (0.0, 2.138), (-2.204, 0.0), (0.0, -2.204)]
+    lights = world.lighting.lights
+    assert len(lights) == 1 and tuple(lights[0].direction) == (0.0, 0.0, -1.0)
 
 
 def test_clear_shapes_is_alike_shapes_in_clear_acrylic():
