@@ -566,6 +566,7 @@ CALIBRATION3: dict[str, tuple[Path, tuple[str, ...] | None]] = {
     "station, redesign 2": (HERE / "study3-calibration" / "station-crossed-clear", ("crossed-clear",)),
     "station, redesign 3": (HERE / "study3-calibration" / "station-crossed-edges", ("crossed-edges",)),
     "station, redesign 4": (HERE / "study3-calibration" / "station-crossed-horizon", ("crossed-horizon",)),
+    "station, redesign 5": (HERE / "study3-calibration" / "station-crossed-opposite", ("crossed-opposite",)),
     "drop-out": (HERE / "study3-calibration" / "dropout", None),
 }
 #: the gates in the order the table prints them
