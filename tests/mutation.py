@@ -744,7 +744,7 @@ MUTANTS = [
       "STUCK_SHARE, STUCK_SAMPLES = 0.25, 10", "STUCK_SHARE, STUCK_SAMPLES = 0.25, 50",
       *t("teleop", "test_a_stuck_drive_is_a_quarter_of_its_run_and_ten_samples")),
     m("run settings: clear air kept in a condition's key", "sim.controllers.settings",
-      "            del condition[\"fog\"]", "            pass",
+      "CONDITION_ADDED: dict[str, Any] = {\"fog\": None}", "CONDITION_ADDED: dict[str, Any] = {}",
       *t("run_settings", "test_the_runs_of_every_shipped_scenario_keep_their_cache_keys_and_run_hashes")),
     m("run settings: a hold longer than the run accepted", "sim.controllers.settings",
       "    if lo > n_samples:", "    if lo > 100 * n_samples:",

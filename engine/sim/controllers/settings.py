@@ -419,15 +419,19 @@ V6_DEFAULTS: dict[str, Any] = {
 RENAMED_RUN_KEYS = {"heading_tolerance_deg": "turn_threshold_deg"}
 
 
+#: condition keys added after the key format, each with the value that leaves it out of a key
+#: (so a condition that does not use one keeps the key it had before the key existed)
+CONDITION_ADDED: dict[str, Any] = {"fog": None}
+
+
 def key_form(run: AnyRun) -> dict[str, Any]:
     """The run's settings in the version-6 key format (JSON values): what cache keys and run
     hashes are computed from. Equal to the old flat dump, so keys stay valid."""
     own = run.model_dump(mode="json", exclude={"gains", "condition"})
     if not is_default(run.condition):
         condition = run.condition.model_dump(mode="json")  # type: ignore[union-attr]
-        if condition["fog"] is None:  # clear air: the key of a condition made before fog existed
-            del condition["fog"]
-        own["condition"] = condition
+        own["condition"] = {k: v for k, v in condition.items()
+                            if not (k in CONDITION_ADDED and v == CONDITION_ADDED[k])}
     for old, new in RENAMED_RUN_KEYS.items():
         if new in own:
             own[old] = own.pop(new)
