@@ -1,7 +1,9 @@
 """The third study's scenario files against its pre-registration (docs/RESULTS.md, "Third
 study: pre-registration"): the registered conditions, gates, methods, late fusions and
 matching, the fusion-weight calibration at every grid weight, and the text's commands over
-the registered seeds, so that neither the files nor the text can drift from the other."""
+the registered seeds, so that neither the files nor the text can drift from the other; and the
+sizes' design change recorded before the first scored run ("Design change before the first
+scored run"), which the files now follow."""
 
 import re
 from pathlib import Path
@@ -15,9 +17,14 @@ ROOT = Path(__file__).resolve().parents[2]
 TEXT = (ROOT / "docs" / "RESULTS.md").read_text()
 PREREG = TEXT[TEXT.index("## Third study: pre-registration"):TEXT.index("## Third study: calibration")]
 PREREG = " ".join(PREREG.split())
+_START = TEXT.index("### Design change before the first scored run")
+_END = TEXT.find("\n### ", _START + 1)
+CHANGE = " ".join(TEXT[_START:_END if _END > 0 else None].split())
 GATES = {"touch_correspondence_min": 0.7, "rescue_min": 0.25, "hv_max_f1_max": 0.85, "headroom_min": 0.10}
 STATION = ["L", "L-V", "L-T", "L-paper", "A", "H", "H-V", "H-T", "HOG", "VLAD"]
 FUSIONS = {"L-F": ("L-V", "L-T"), "H-F": ("H-V", "H-T"), "HOG-F": ("HOG", "H-T"), "VLAD-F": ("VLAD", "H-T")}
+#: the faithful and drop-out arms after the design change's cuts (2), (7) and (8)
+REDUCED = ["L", "H", "H-V", "H-T"]
 GRID = [0.0, 0.03, 0.1, 0.3, 1.0, 3.0]
 #: the fair-chance defaults of 2026-12-07 as registered, beside the study network
 FAIR = {"image_size": [12, 21], "visual_layers": [200, 100], "tactile_layers": [100], "joint_size": 100,
@@ -28,7 +35,8 @@ FAIR = {"image_size": [12, 21], "visual_layers": [200, 100], "tactile_layers": [
 #: the paper's algorithm (PAPER_ALGORITHM) on the same network, trained to the same criterion
 PAPER = {**FAIR, "training_inference": "plain", "inference_steps": 20, "weight_optimizer": "sgd", "weight_norm": "none",
          "latent_prior": 0.0, "tactile_scaling": "range", "held_out": 0.0, "inference_solver": "gd",
-         "inference_rtol": None, "max_steps": 3000}
+         "inference_rtol": None, "max_steps": 3000,
+         "epochs": 1226}  # the design change's cut (5): the registered floor
 
 
 def scenario(name: str):
@@ -38,16 +46,17 @@ def scenario(name: str):
 def test_the_arms_hold_the_registered_methods_and_fusions():
     arms = {name: scenario(name) for name in ("study3", "study3-dropout", "study3-faithful")}
     assert [m.name for m in arms["study3"].methods] == STATION
-    assert [m.name for m in arms["study3-faithful"].methods] == STATION
-    assert [m.name for m in arms["study3-dropout"].methods] == [m for m in STATION if m not in ("L-paper", "A")]
+    assert [m.name for m in arms["study3-faithful"].methods] == REDUCED
+    assert [m.name for m in arms["study3-dropout"].methods] == REDUCED
     for name, arm in arms.items():
-        assert {f.name: (f.vision, f.touch) for f in arm.fusions} == FUSIONS, name
+        fusions = FUSIONS if name == "study3" else {"H-F": FUSIONS["H-F"]}
+        assert {f.name: (f.vision, f.touch) for f in arm.fusions} == fusions, name
         assert {f.select_on for f in arm.fusions} == {"E1" if name == "study3-faithful" else "alike-shapes"}
         params = {m.name: dict(m.params) for m in arm.methods}
         assert params["L"] == FAIR, name
-        assert params["L-V"] == {**FAIR, "modalities": ["visual"]}
-        assert params["L-T"] == {**FAIR, "modalities": ["tactile"]}
-        if "L-paper" in params:
+        if name == "study3":
+            assert params["L-V"] == {**FAIR, "modalities": ["visual"]}
+            assert params["L-T"] == {**FAIR, "modalities": ["tactile"]}
             assert params["L-paper"] == PAPER
             assert {k: params["A"][k] for k in ("image_size", "visual_layers", "tactile_layers", "joint_size",
                                                 "tactile_scaling", "epochs", "converge_window", "converge_tol")} == {
@@ -197,3 +206,14 @@ def test_the_commands_run_the_registered_seeds():
         ("study3", list(range(100, 108))), ("study3-dropout", list(range(1100, 1108)))]
     scored = {s for name in ("study3", "study3-faithful", "study3-dropout") for run in seeds[name][1:] for s in run}
     assert not scored & (set(range(100, 108)) | set(range(1100, 1108)))  # calibration seeds are never scored
+
+
+def test_the_design_change_s_commands_run_its_seeds_and_sizes():
+    sweep = r"vitaplace sweep scenarios/(study3[\w-]*|study2-budget)\.yaml --seeds ([\d ]+)(.*?)--out"
+    commands = re.findall(sweep, CHANGE)
+    runs = [(name, [int(s) for s in listed.split()], "--grid" in rest) for name, listed, rest in commands]
+    assert runs == [("study3", list(range(20, 30)), True), ("study2-budget", list(range(8)), False),
+                    ("study2-budget", list(range(8)), False), ("study3-faithful", list(range(20, 30)), False),
+                    ("study3-dropout", list(range(1000, 1005)), False)]
+    assert "python bench/blas_kernel.py study3 --set seed=20 --kernels Haswell" in CHANGE
+    assert "**1226**" in CHANGE and "**1000–1004**" in CHANGE
