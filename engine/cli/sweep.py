@@ -545,7 +545,7 @@ def run_sweep(
             else:
                 os.environ[name] = value
     found = {p.name: by_point.get(p.name, ([], {})) for p in points}
-    summaries = {p.name: summarise_point(out, p, scenario.name, *found[p.name])
+    summaries = {p.name: summarise_point(out, p, scenario.name, *found[p.name], usable_cpus())
                  for p in progress_bar(points, "grid point summaries", progress)}
     outcome.summary = (write_grid_summary(out, scenario.name, points, seeds, summaries,
                                           {name: failed for name, (_, failed) in found.items()})

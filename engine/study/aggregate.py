@@ -21,6 +21,7 @@ from typing import Any
 
 import yaml
 
+from vitaplace.engine.base.cpus import usable_cpus
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.evaluation.pairfiles import load_curve
@@ -170,6 +171,6 @@ def aggregate_runs(folders: Sequence[Path], out: Path | None = None) -> tuple[Pa
     rows = [row for run in runs for row in run.tagged()]
     info = {"scenario": first.scenario, "seeds": sorted(seen), "failed": {},
             "folders": {str(s): str(f) for s, f in sorted(seen.items())}}
-    record = write_summary(out, rows, f"{first.scenario}: {len(seen)} seed(s)", info, seen)
+    record = write_summary(out, rows, f"{first.scenario}: {len(seen)} seed(s)", info, seen, usable_cpus())
     write_pr_bands(out, seen, rows)
     return out, record

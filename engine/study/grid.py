@@ -282,17 +282,18 @@ def check_replace(out: Path, points: Sequence[GridPoint], seeds: Sequence[int], 
 
 
 def summarise_point(out: Path, point: GridPoint, name: str, rows: Sequence[Mapping[str, Any]],
-                    failed: Mapping[int, str]) -> list[dict[str, Any]]:
+                    failed: Mapping[int, str], workers: int = 1) -> list[dict[str, Any]]:
     """The summary of the seeds of ``point`` (of the scenario ``name``) that succeeded
     (``rows``, seed-tagged) as `vitaplace aggregate` writes it, with its PR-band figures, into
     the point's folder ``out/<point>`` (``out`` without a grid), beside its seed folders;
-    ``failed``: its failed seeds. Returns the summary rows."""
+    ``failed``: its failed seeds; ``workers``: processes for its block bootstrap. Returns the
+    summary rows."""
     folder, ok = out / point.name, sorted({row["seed"] for row in rows})
     grid = {"grid": dict(point.values)} if point.name else {}
     info = {"scenario": name, **grid, "seeds": ok, "failed": {str(s): m for s, m in sorted(failed.items())}}
     folders = {seed: seed_dir(folder, seed) for seed in ok}
     title = f"{name}{f' ({point.name})' if point.name else ''}: {len(ok)} seed(s)"
-    summary = write_summary(folder, rows, title, info, folders)["summary"]
+    summary = write_summary(folder, rows, title, info, folders, workers)["summary"]
     write_pr_bands(folder, folders, rows)
     return summary
 

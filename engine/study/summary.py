@@ -74,6 +74,7 @@ from scipy import stats
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.evaluation import resample
+from vitaplace.engine.pipeline.processes import interrupts_to_this_process, stop_pool, worker_pool
 
 #: columns naming what a result row is about, not values
 IDENTITY = ("seed", "environment", "method", "direction")
@@ -248,14 +249,38 @@ def sign_flip_p(differences: Sequence[float]) -> float:
     return float(test.pvalue)
 
 
-def block_replicates(rows: Sequence[Mapping[str, Any]], folders: Mapping[int, Path]) -> Replicates:
+def block_replicates(rows: Sequence[Mapping[str, Any]], folders: Mapping[int, Path], workers: int = 1) -> Replicates:
     """``{(seed, environment, method, direction): {metric: replicates}}`` of the within-seed
-    block bootstrap, for the rows whose run folder has the evaluation's saved matrices."""
+    block bootstrap, for the rows whose run folder has the evaluation's saved matrices. With
+    more than one of ``workers`` and seeds, one seed per task on that many worker processes: a
+    row's replicates depend on its seed and its matrices alone, so the result is the same."""
+    by_seed: dict[int, list[Mapping[str, Any]]] = {}
+    for row in rows:
+        if row["seed"] in folders:
+            by_seed.setdefault(row["seed"], []).append(row)
+    tasks = [(folders[seed], seed_rows) for seed, seed_rows in by_seed.items()]
+    workers = min(workers, len(tasks))
+    if workers <= 1:
+        parts = [_seed_block_replicates(folder, seed_rows) for folder, seed_rows in tasks]
+    else:
+        pool = worker_pool(workers, blas_threads=1)
+        try:
+            with interrupts_to_this_process():
+                futures = [pool.submit(_seed_block_replicates, folder, seed_rows) for folder, seed_rows in tasks]
+            parts = [future.result() for future in futures]
+        except KeyboardInterrupt:
+            stop_pool(pool)
+            raise
+        finally:
+            pool.shutdown(cancel_futures=True)
+    return {identity: values for part in parts for identity, values in part.items()}
+
+
+def _seed_block_replicates(folder: Path, rows: Sequence[Mapping[str, Any]]) -> Replicates:
+    """`block_replicates` of the rows of one seed, whose run folder is ``folder``."""
     found: Replicates = {}
     for row in rows:
-        if row["seed"] not in folders:
-            continue
-        replicates = resample.evaluation_replicates(folders[row["seed"]], row)
+        replicates = resample.evaluation_replicates(folder, row)
         if replicates is None:
             continue
         values = [row_values(r) for r in replicates]
@@ -485,13 +510,14 @@ def json_safe(value: Any) -> Any:
 
 
 def write_summary(out: Path, rows: Sequence[Mapping[str, Any]], title: str, info: Mapping[str, Any],
-                  folders: Mapping[int, Path] | None = None) -> dict[str, Any]:
+                  folders: Mapping[int, Path] | None = None, workers: int = 1) -> dict[str, Any]:
     """Write the six summary files for ``rows`` (seed-tagged result rows) into ``out``;
-    ``folders`` (seed -> run folder) give the saved matrices for the block bootstrap;
+    ``folders`` (seed -> run folder) give the saved matrices for the block bootstrap, computed
+    on ``workers`` processes (`block_replicates`);
     ``info`` goes into sweep.json beside them. Each drive without revisits is also a warning
     on the console. Returns what sweep.json holds."""
     rows = sorted(rows, key=lambda r: r["seed"])
-    replicates = block_replicates(rows, folders or {})
+    replicates = block_replicates(rows, folders or {}, workers)
     long = seed_rows(rows, replicates)
     summary, diffs, missing = summarise(long, replicates), paired_differences(long, replicates), without_revisits(long)
     for m in missing:

@@ -438,6 +438,21 @@ def test_rows_without_saved_matrices_have_no_block_interval(tmp_path, few_replic
     assert got["block_low"] == "nan" and got["t_low"] != "nan"
 
 
+def test_block_replicates_on_worker_processes_are_those_of_one_process(tmp_path):
+    """One seed per task on two spawned workers: the same rows, in the same order, with the
+    same replicates as in this process (the default resample count: workers do not see a
+    patched one)."""
+    rows = [evaluation(tmp_path, seed, method, noise)
+            for seed in (0, 1, 2) for method, noise in (("H", 0.9), ("L", 0.3))]
+    folders = {seed: tmp_path / f"seed-{seed}" for seed in (0, 1, 2)}
+    here, spread = summary.block_replicates(rows, folders), summary.block_replicates(rows, folders, workers=2)
+    assert list(spread) == list(here) == [tuple(r[k] for k in summary.IDENTITY) for r in rows]
+    for identity, values in here.items():
+        assert values.keys() == spread[identity].keys()
+        for name, replicates in values.items():
+            np.testing.assert_array_equal(spread[identity][name], replicates)
+
+
 # ---------------------------------------------------------------------- the PR-band figure
 
 
