@@ -28,6 +28,7 @@ import csv
 import dataclasses
 import functools
 import json
+import math
 import re
 import statistics
 import sys
@@ -71,8 +72,25 @@ BUDGET2 = HERE / "study2-budget"
 BUDGET_EPOCHS = (30, 70, 270)
 #: the second study's budget trend: "budget/epochs=E" -> its summaries' folder (seed 0 only)
 BUDGET_POINTS = {f"budget/epochs={e}": BUDGET2 / f"epochs={e}" for e in BUDGET_EPOCHS}
-#: every summaries' folder tables read from: the first study's by touch model, the second's by arm/point
-SUMMARIES = {**STUDIES, **POINTS, **BUDGET_POINTS}
+#: the third study's arms (the design change's sizes) -> (sweep summaries by matching, evaluations, methods)
+ARMS3 = {
+    "station": ({"single": HERE / "study3-sweep" / "metres=0", "seq. 2.8 m": HERE / "study3-sweep" / "metres=2.8"},
+                ("alike-shapes", "crossed-opposite", "dusk", "fog", "night"),
+                ("L", "L-V", "L-T", "L-paper", "A", "H", "H-V", "H-T", "HOG", "VLAD",
+                 "L-F", "H-F", "HOG-F", "VLAD-F")),
+    "faithful": ({"single": HERE / "study3-faithful-sweep"}, WORLDS, ("L", "H", "H-V", "H-T", "H-F")),
+    "drop-out": ({"single": HERE / "study3-dropout-sweep"}, ("alike-shapes", "dropout"),
+                 ("L", "H", "H-V", "H-T", "H-F")),
+}
+#: third study: "arm/matching" -> its summaries' folder
+POINTS3 = {f"{arm}/{matching}": folder
+           for arm, (folders, _, _) in ARMS3.items() for matching, folder in folders.items()}
+SURVIVAL_EPOCHS = (70, 3000)
+#: the survival comparison: "survival/epochs=E" -> its summaries' folder
+SURVIVAL_POINTS = {f"survival/epochs={e}": HERE / "study3-survival" / f"epochs={e}" for e in SURVIVAL_EPOCHS}
+#: every summaries' folder tables read from: the first study's by touch model, the second's and
+#: the third's by arm/point
+SUMMARIES = {**STUDIES, **POINTS, **BUDGET_POINTS, **POINTS3, **SURVIVAL_POINTS}
 
 
 @functools.cache  # each file is read once, however many tables use it (callers do not mutate rows)
@@ -434,52 +452,72 @@ def _seed_manifests(arm: str) -> dict[int, dict]:
             for path in folder.glob("seed-*/manifest.json")}
 
 
-#: (label, arm/point, evaluation, direction, L, comparators): L minus the per-seed best comparator
-ENDPOINTS = (
-    ("**primary**", "touch/length=1", "alike-shapes", Q2R, ("L-V", "L-F")),
-    ("1", "touch/length=1", "alike-shapes", R2Q, ("L-V", "L-F")),
-    ("2", "touch/length=1", "distinct-shapes-dusk", Q2R, ("L-V", "L-F")),
-    ("3", "drop-out/length=1", "distinct-shapes-dropout", Q2R, ("L-V", "L-F")),
-    ("4", "touch/length=16", "alike-shapes", Q2R, ("L-V", "L-F")),
-    ("5", "touch/length=1", "alike-shapes", Q2R, ("A",)),
-    ("6", "faithful/length=1", "E3", Q2R, ("H",)),
+#: (label, arm/point, evaluation, direction, minuend, comparators): the minuend (L) minus the
+#: per-seed best of the comparators
+Endpoints = Sequence[tuple[str, str, str, str, str | tuple[str, ...], tuple[str, ...]]]
+ENDPOINTS: Endpoints = (
+    ("**primary**", "touch/length=1", "alike-shapes", Q2R, "L", ("L-V", "L-F")),
+    ("1", "touch/length=1", "alike-shapes", R2Q, "L", ("L-V", "L-F")),
+    ("2", "touch/length=1", "distinct-shapes-dusk", Q2R, "L", ("L-V", "L-F")),
+    ("3", "drop-out/length=1", "distinct-shapes-dropout", Q2R, "L", ("L-V", "L-F")),
+    ("4", "touch/length=16", "alike-shapes", Q2R, "L", ("L-V", "L-F")),
+    ("5", "touch/length=1", "alike-shapes", Q2R, "L", ("A",)),
+    ("6", "faithful/length=1", "E3", Q2R, "L", ("H",)),
 )
 
 
-def endpoint_values(key: str, world: str, direction: str, comparators: Sequence[str]) -> dict[int, float]:
-    """Seed -> L minus the best of ``comparators`` in that seed, max F1 (`_per_seed`, `versus_best`)."""
+def best_by_mean(key: str, world: str, direction: str, methods: Sequence[str]) -> str:
+    """The one of ``methods`` with the highest mean max F1 over seeds in a cell (the first named on a tie)."""
     values = _per_seed(key)
-    return versus_best(values[(world, "L", direction)], [values[(world, m, direction)] for m in comparators])
+    return max(methods, key=lambda m: statistics.fmean(values[(world, m, direction)].values()))
 
 
-def endpoints() -> list[dict]:
-    """The primary endpoint and the six secondaries (`ENDPOINTS`), each with its per-seed
+def endpoint_values(key: str, world: str, direction: str, minuend: str | tuple[str, ...],
+                    comparators: Sequence[str]) -> tuple[str, dict[int, float]]:
+    """The comparison's name and, per seed, ``minuend`` minus the best of ``comparators`` in
+    that seed, max F1 (`_per_seed`, `versus_best`). A tuple ``minuend`` is a family: its best
+    method by mean over seeds (`best_by_mean`) minus the comparators' best by mean."""
+    values = _per_seed(key)
+    if isinstance(minuend, tuple):
+        minuend, comparators = (best_by_mean(key, world, direction, family) for family in (minuend, comparators))
+        comparators = (comparators,)
+    name = f"{minuend} − {comparators[0]}" if len(comparators) == 1 else f"{minuend} − max({', '.join(comparators)})"
+    return name, versus_best(values[(world, minuend, direction)], [values[(world, m, direction)] for m in comparators])
+
+
+def endpoints(spec: Endpoints = ENDPOINTS) -> list[dict]:
+    """The primary endpoint and the secondaries of ``spec``, each with its comparison, per-seed
     values, `describe`, sign-flip p, Holm-adjusted p (over the secondaries; the primary keeps
     its own), 90 % t interval and decision (`hypotheses.endpoint_tests`)."""
-    values = [list(endpoint_values(key, world, direction, comparators).values())
-              for _, key, world, direction, comparators in ENDPOINTS]
-    tested = endpoint_tests(values[0], values[1:])
-    return [{"label": label, "key": key, "world": world, "direction": direction, "comparators": comparators,
+    compared = [endpoint_values(key, world, direction, minuend, comparators)
+                for _, key, world, direction, minuend, comparators in spec]
+    tested = endpoint_tests(list(compared[0][1].values()), [list(v.values()) for _, v in compared[1:]])
+    return [{"label": label, "key": key, "world": world, "direction": direction, "comparison": comparison,
              **dataclasses.asdict(endpoint)}
-            for (label, key, world, direction, comparators), endpoint in zip(ENDPOINTS, tested, strict=True)]
+            for (label, key, world, direction, _, _), (comparison, _), endpoint in zip(spec, compared, tested,
+                                                                                       strict=True)]
 
 
-def study2_endpoints() -> str:
-    """The primary endpoint and the six secondaries (max F1, points): n, mean ± std, bootstrap
-    95 %, the sign-flip p and its Holm adjustment over the six secondaries, the TOST's 90 % t
-    interval against ±5 points, and the pre-registered decision."""
+def endpoints_table(spec: Endpoints, matching: Mapping[str, str]) -> str:
+    """The endpoints of ``spec`` (max F1, points): n, mean ± std, bootstrap 95 %, the sign-flip
+    p and its Holm adjustment over the secondaries, the TOST's 90 % t interval against ±5
+    points, and the pre-registered decision."""
     body = []
-    for e in endpoints():
+    for e in endpoints(spec):
         arm, point = e["key"].split("/")
-        comparison = (f"L − {e['comparators'][0]}" if len(e["comparators"]) == 1
-                      else f"L − max({', '.join(e['comparators'])})")
         s = e["stats"]
-        body.append([e["label"], comparison, arm, e["world"], DIRECTIONS[e["direction"]], MATCHING[point], str(s["n"]),
-                     f"{pct(s['mean'])} ± {pct(s['std'])}", f"[{pct(s['boot_low'])}, {pct(s['boot_high'])}]",
+        body.append([e["label"], e["comparison"], arm, e["world"], DIRECTIONS[e["direction"]], matching[point],
+                     str(s["n"]), f"{pct(s['mean'])} ± {pct(s['std'])}",
+                     f"[{pct(s['boot_low'])}, {pct(s['boot_high'])}]",
                      p_value(e["p"]), p_value(e["p_holm"]), f"[{pct(e['tost'][0])}, {pct(e['tost'][1])}]",
                      e["decision"]])
     return markdown(["endpoint", "comparison", "arm", "evaluation", "direction", "matching", "n", "mean ± std, points",
                      "bootstrap 95 %", "sign-flip p", "Holm p", "t 90 % (TOST ±5)", "decision"], body)
+
+
+def study2_endpoints() -> str:
+    """The second study's primary endpoint and its six secondaries (`endpoints_table`)."""
+    return endpoints_table(ENDPOINTS, MATCHING)
 
 
 def study2_comparator() -> str:
@@ -489,7 +527,7 @@ def study2_comparator() -> str:
     values, weights = _per_seed("touch/length=1"), _per_seed("touch/length=1", "fusion.weight")
     cell = ("alike-shapes", Q2R)
     body = []
-    for seed, d in endpoint_values("touch/length=1", *cell, ("L-V", "L-F")).items():
+    for seed, d in endpoint_values("touch/length=1", *cell, "L", ("L-V", "L-F"))[1].items():
         lv, lf, l_value = (values[(cell[0], m, cell[1])][seed] for m in ("L-V", "L-F", "L"))
         body.append([str(seed), pct(l_value), pct(lv), pct(lf), f"{weights[(cell[0], 'L-F', cell[1])][seed]:g}",
                      "L-F" if lf > lv else ("L-V = L-F" if lf == lv else "L-V"), pct(d)])
@@ -587,25 +625,247 @@ def all_gates_met(rows: Sequence[dict]) -> int:
     return sum(all(r["gates"][g]["met"] for g in GATES3) for r in rows)
 
 
-def study3_calibration_gates() -> str:
-    """The third study's gates over its calibration seeds, per arm, condition and direction:
-    each gated measure's median (min–max) and the seeds meeting it, the seeds meeting all four,
-    and (query → reference) whether the condition has headroom (all four in >= 7 of 8)."""
+GATE_TABLE_HEADER = ["arm", "condition", "direction", "seeds", "touch correspondence %", "H-V max F1 %",
+                     "H-T rescues of H-V's failures, %", "headroom, points", "all four met", "has headroom"]
+
+
+def _gate_table_rows(arm: str, per_seed: Mapping[int, list[dict]], shown: Sequence[str] | None) -> list[list[str]]:
+    """One arm's rows of a gate table: per condition (those in ``shown``, or all) and
+    direction, each gated measure's median (min–max) and the seeds meeting it, the seeds
+    meeting all four, and (query → reference) whether the condition has headroom (the
+    calibration's rule, for its eight seeds)."""
     body = []
-    for arm in CALIBRATION3:
-        per_seed = calibration3(arm)
-        conditions = dict.fromkeys(r["environment"] for rows in per_seed.values() for r in rows)
-        for condition in (c for c in conditions if CALIBRATION3[arm][1] is None or c in CALIBRATION3[arm][1]):
-            for direction, arrow in DIRECTIONS.items():
-                rows = [next(r for r in seed_rows if (r["environment"], r["direction"]) == (condition, direction))
-                        for seed_rows in per_seed.values()]
-                met = all_gates_met(rows)
-                verdict = ("yes" if met >= HEADROOM_SEEDS else "no") if direction == Q2R else "–"
-                body.append([arm, condition, arrow, str(len(rows)),
-                             *(_gate_cell([r["gates"][g] for r in rows]) for g in GATES3),
-                             f"{met} of {len(rows)}", verdict])
-    return markdown(["arm", "condition", "direction", "seeds", "touch correspondence %", "H-V max F1 %",
-                     "H-T rescues of H-V's failures, %", "headroom, points", "all four met", "has headroom"], body)
+    conditions = dict.fromkeys(r["environment"] for rows in per_seed.values() for r in rows)
+    for condition in (c for c in conditions if shown is None or c in shown):
+        for direction, arrow in DIRECTIONS.items():
+            rows = [next(r for r in seed_rows if (r["environment"], r["direction"]) == (condition, direction))
+                    for seed_rows in per_seed.values()]
+            met = all_gates_met(rows)
+            verdict = ("yes" if met >= HEADROOM_SEEDS else "no") if direction == Q2R else "–"
+            body.append([arm, condition, arrow, str(len(rows)),
+                         *(_gate_cell([r["gates"][g] for r in rows]) for g in GATES3),
+                         f"{met} of {len(rows)}", verdict])
+    return body
+
+
+def study3_calibration_gates() -> str:
+    """The third study's gates over its calibration seeds, per arm, condition and direction
+    (`_gate_table_rows`): a condition has headroom when all four are met in >= 7 of 8 seeds."""
+    body = [row for arm, (_, shown) in CALIBRATION3.items() for row in _gate_table_rows(arm, calibration3(arm), shown)]
+    return markdown(GATE_TABLE_HEADER, body)
+
+
+#: the third study's calibration of the fusion weights: `vitaplace sweep scenarios/study3-weights.yaml`
+#: over the calibration seeds (its summary ``sweep.csv``), each fusion at each grid weight as a
+#: method ``NAME-w``
+WEIGHTS3 = HERE / "study3-weights"
+FUSIONS3 = ("L-F", "H-F", "HOG-F", "VLAD-F")
+GRID3 = ("0", "0.03", "0.1", "0.3", "1", "3")
+#: the primary condition the calibration of the gates picked (docs/RESULTS.md, "Third study: calibration")
+PRIMARY3 = "crossed-opposite"
+
+
+def fusion_weights3(summary: Path = WEIGHTS3 / "sweep.csv") -> dict[str, dict[str, float]]:
+    """Fusion -> grid weight -> max F1 in the primary condition: the mean over the calibration
+    seeds, averaged over the two directions."""
+    with open(summary, newline="") as handle:
+        means = {(r["method"], r["direction"]): float(r["mean"]) for r in csv.DictReader(handle)
+                 if r["environment"] == PRIMARY3 and r["metric"] == "max_f1"}
+    return {fusion: {w: (means[(f"{fusion}-{w}", Q2R)] + means[(f"{fusion}-{w}", R2Q)]) / 2 for w in GRID3}
+            for fusion in FUSIONS3}
+
+
+def chosen_weights3(scores: Mapping[str, Mapping[str, float]]) -> dict[str, float]:
+    """Per fusion the grid weight of the highest score (`fusion_weights3`), ties to the smaller."""
+    chosen = {}
+    for fusion, by_weight in scores.items():
+        best = max(by_weight.values())
+        chosen[fusion] = min(float(w) for w, score in by_weight.items() if score == best)
+    return chosen
+
+
+def study3_weights() -> str:
+    """Max F1 % of every fusion at every grid weight in the primary condition (mean over the
+    calibration seeds, averaged over both directions) and the weight the study fixes."""
+    scores = fusion_weights3()
+    chosen = chosen_weights3(scores)
+    body = [[fusion, *(f"{100 * scores[fusion][w]:.1f}" for w in GRID3), f"{chosen[fusion]:g}"] for fusion in FUSIONS3]
+    return markdown(["fusion", *(f"w = {w}" for w in GRID3), "fixed w"], body)
+
+
+#: the third study's families for secondary 4: the best touch-using method minus the best vision-only one
+TOUCH_USING3 = ("L", "L-paper", "A", "L-F", "H", "H-F", "HOG-F", "VLAD-F")
+VISION_ONLY3 = ("L-V", "H-V", "HOG", "VLAD")
+#: the third study's primary endpoint and secondaries as registered (numbered as registered;
+#: secondary 2 has no member: no condition but the primary has headroom, and 3 has two)
+ENDPOINTS3: Endpoints = (
+    ("**primary**", "station/single", PRIMARY3, Q2R, "L", ("L-V", "L-F")),
+    ("1", "station/single", PRIMARY3, R2Q, "L", ("L-V", "L-F")),
+    ("3", "station/single", PRIMARY3, Q2R, "L", ("H",)),
+    ("3", "faithful/single", "E3", Q2R, "L", ("H",)),
+    ("4", "station/single", PRIMARY3, Q2R, TOUCH_USING3, VISION_ONLY3),
+    ("5", "station/single", PRIMARY3, Q2R, "L", ("L-paper",)),
+    ("6", "station/single", PRIMARY3, Q2R, "L", ("A",)),
+    ("7", "station/seq. 2.8 m", PRIMARY3, Q2R, "L", ("L-V", "L-F")),
+)
+
+
+def study3_endpoints() -> str:
+    """The third study's primary endpoint and its secondaries (`endpoints_table`)."""
+    return endpoints_table(ENDPOINTS3, {matching: matching for matching in ("single", "seq. 2.8 m")})
+
+
+def study3_methods(arm: str) -> str:
+    """Max F1 %, mean [bootstrap 95 %] over seeds, of every method and fusion of one arm of the
+    third study, per direction and matching (columns: its evaluations)."""
+    folders, worlds, methods = ARMS3[arm]
+    body = []
+    for matching in folders:
+        rows = _index(read(f"{arm}/{matching}", "sweep.csv"), "environment", "method", "direction", "metric")
+        for direction, arrow in DIRECTIONS.items():
+            for method in methods:
+                body.append([method, arrow, matching, *(f"{pct(r['mean'])} {pct_interval(r)}" for r in
+                                                        (rows[(w, method, direction, "max_f1")] for w in worlds))])
+    n = _index(read(f"{arm}/single", "sweep.csv"), "environment", "method", "direction", "metric")[
+        (worlds[0], "L", Q2R, "max_f1")]["n"]
+    return markdown(["method", "direction", "matching", *(f"{w} (n={n})" for w in worlds)], body)
+
+
+@functools.cache  # each manifest is read once (callers do not mutate them)
+def _seed_manifests3(arm: str) -> dict[int, dict]:
+    """Seed -> the single-sample point's manifest.json of one arm of the third study."""
+    folder = ARMS3[arm][0]["single"] / "seeds"
+    return {int(path.parent.name.split("-")[1]): json.loads(path.read_text())
+            for path in folder.glob("seed-*/manifest.json")}
+
+
+def _median_range(values: Sequence[float], scale: float = 100, digits: int = 1) -> str:
+    return (f"{scale * statistics.median(values):.{digits}f} "
+            f"({scale * min(values):.{digits}f}–{scale * max(values):.{digits}f})")
+
+
+def study3_learned() -> str:
+    """Each learned network of the third study, per arm, over its seeds: epochs trained of the
+    cap, how many met the criterion, the held-out energy at the last epoch; in the arm's
+    primary or degraded evaluation
+    (both drives): the share of test-time samples settled before the cap, the share of tactile
+    values inside the training range, and vision's share of the drive on the joint latent;
+    median (min–max) over seeds."""
+    focus = {"station": PRIMARY3, "faithful": "E3", "drop-out": "dropout"}
+    body = []
+    for arm, (_, _, methods) in ARMS3.items():
+        manifests = list(_seed_manifests3(arm).values())
+        for method in (m for m in methods if m in manifests[0]["training"]):
+            trained = [m["training"][method] for m in manifests]
+            runs = [m["features"][method][f"{focus[arm]}/{drive}"]
+                    for m in manifests for drive in ("query", "reference")]
+            settled = [(r["inference"]["samples"] - r["inference"]["capped"]) / r["inference"]["samples"]
+                       for r in runs if "inference" in r]
+            inside = [r["tactile_range"]["inside"] / r["tactile_range"]["values"] for r in runs if "tactile_range" in r]
+            drive = [r["drive"]["median"] for r in runs if "drive" in r]
+            epochs, caps = [t["epochs"] for t in trained], sorted({t["max_epochs"] for t in trained})
+            held_out = [t["held_out"][-1] for t in trained if t.get("held_out")]
+            body.append([arm, method, focus[arm], str(len(trained)),
+                         f"{min(epochs)}–{max(epochs)} of {'/'.join(str(c) for c in caps)}",
+                         f"{sum(bool(t['converged']) for t in trained)} of {len(trained)}",
+                         _median_range(held_out, scale=1, digits=3) if held_out else "–",
+                         _median_range(settled) if settled else "–", _median_range(inside) if inside else "–",
+                         _median_range(drive, digits=2, scale=1) if drive else "–"])
+    return markdown(["arm", "method", "evaluation", "seeds", "epochs trained", "met the criterion",
+                     "held-out energy, last epoch", "settled %", "tactile values in range %", "vision's drive share"],
+                    body)
+
+
+def study3_gates() -> str:
+    """The gates on the study's own seeds (the hand-crafted family's evaluations in the sweeps,
+    the measures `vitaplace difficulty` reports), per arm, condition and direction, as the
+    calibration table prints them."""
+    from vitaplace.engine.cli.difficulty import difficulty_rows
+    from vitaplace.engine.config.loading import load_scenario
+    from vitaplace.engine.outputs.rows import parse_row
+
+    body = []
+    for arm, scenario_file in (("station", "study3.yaml"), ("drop-out", "study3-dropout.yaml")):
+        scenario, _ = load_scenario(HERE.parents[1] / "scenarios" / scenario_file)
+        per_seed = {}
+        for folder in (ARMS3[arm][0]["single"] / "seeds").glob("seed-*"):
+            results = folder / "results.json"
+            parsed = [parse_row(row, f"{results}: row {i}") for i, row in enumerate(json.loads(results.read_text()))]
+            per_seed[int(folder.name.split("-")[1])] = difficulty_rows(
+                scenario, parsed, json.loads((folder / "complementarity.json").read_text()))
+        body += [row[:-1] for row in _gate_table_rows(arm, dict(sorted(per_seed.items())), None)]
+    return markdown(GATE_TABLE_HEADER[:-1], body)
+
+
+def study3_survival() -> str:
+    """Does the second study's answer survive training? L − L-V, max F1 points, mean [bootstrap
+    95 %] and sign-flip p over seeds 0–7, at the second study's 70-epoch cap and at
+    convergence (cap 3000), per evaluation and direction, single samples."""
+    body = []
+    for world in ARMS["touch"][2]:
+        for direction, arrow in DIRECTIONS.items():
+            cells = []
+            for key in SURVIVAL_POINTS:
+                r = _difference(key, world, direction, "L", "L-V")
+                cells.append(f"{pct(r['mean'])} {pct_interval(r)}, p={p_value(r['p_sign_flip'])}")
+            body.append([world, arrow, *cells])
+    return markdown(["evaluation", "direction", *(f"L − L-V, {e} epochs" for e in SURVIVAL_EPOCHS)], body)
+
+
+def survival_held() -> bool:
+    """The registered reading: in alike-shapes, query → reference, L − L-V at convergence has
+    its sign at 70 epochs and its bootstrap interval does not reach 5 points the other way."""
+    before, after = (_difference(key, "alike-shapes", Q2R, "L", "L-V") for key in SURVIVAL_POINTS)
+    sign = math.copysign(1.0, float(before["mean"]))
+    same_sign = math.copysign(1.0, float(after["mean"])) == sign
+    far_end = float(after["boot_high"]) if sign < 0 else -float(after["boot_low"])
+    return same_sign and far_end < 0.05
+
+
+def study3_rank() -> str:
+    """The best method of the station arm, single samples: each method's rank by mean max F1
+    over seeds in each condition (both directions) and over all of them, each with its 95 %
+    interval over `RANK_RESAMPLES` resamples of the seeds, paired across methods and
+    conditions (`rank_replicates`), and the share of resamples in which it ranks first overall."""
+    _, worlds, methods = ARMS3["station"]
+    values = _per_seed("station/single")
+    seeds = sorted(values[(PRIMARY3, "L", Q2R)])
+
+    def scores(cells: Sequence[tuple[str, str]]) -> dict[str, np.ndarray]:
+        return {m: np.array([[values[(w, m, d)][s] for w, d in cells] for s in seeds]) for m in methods}
+
+    points = {w: scores([(w, d) for d in DIRECTIONS]) for w in worlds}
+    points["overall"] = scores([(w, d) for w in worlds for d in DIRECTIONS])
+    ranks = rank_replicates(points)
+    estimate = {key: {m: i + 1 for i, m in enumerate(sorted(methods, key=lambda m: -a[m].mean()))}
+                for key, a in points.items()}
+    first = {m: float((ranks["overall"][m] == 1).mean()) for m in methods}
+    body = [[m, *(f"{estimate[k][m]} {_interval(ranks[k][m])}" for k in points), f"{100 * first[m]:.1f}"]
+            for m in sorted(methods, key=lambda m: estimate["overall"][m])]
+    return markdown(["method", *(f"{k}, rank [95 %]" for k in points), "first overall, % of resamples"], body)
+
+
+#: the third study's kernel rerun: `bench/blas_kernel.py`'s ``--json`` rows for the second kernel
+KERNEL3 = HERE / "study3-kernel" / "kernels.json"
+KERNEL_SEED = 20
+
+
+def study3_kernel() -> str:
+    """Numerical noise: per method, how far max F1 moves when seed 20 of the station arm
+    (single samples, every condition and direction) is fitted to reported again under a second
+    BLAS kernel (median and largest |move|, points), beside the seed-to-seed standard deviation
+    of its max F1 (median over the same cells)."""
+    (second,) = json.loads(KERNEL3.read_text())
+    values = _per_seed("station/single")
+    body = []
+    for method in ARMS3["station"][2]:
+        cells = [(w, method, d) for w in ARMS3["station"][1] for d in DIRECTIONS]
+        moves = [abs(second["max_f1"]["/".join(cell)] - values[cell][KERNEL_SEED]) for cell in cells]
+        spread = [statistics.stdev(values[cell].values()) for cell in cells]
+        body.append([method, f"{100 * statistics.median(moves):.1f}", f"{100 * max(moves):.1f}",
+                     f"{100 * statistics.median(spread):.1f}"])
+    return markdown(["method", f"|move| under {second['kernel']}, median", "largest", "seed-to-seed std, median"],
+                    body)
 
 
 def methods_table(arm: str) -> str:

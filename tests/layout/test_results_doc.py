@@ -337,7 +337,7 @@ def second_study_numbers() -> dict[str, str]:
         out[f"l_h_{name}"] = pts(float(diff(key, world, direction, "L", "H")["mean"]))
     # E3: the endpoint, the other direction, and the hand-crafted fusion and vision against L
     e3 = tables.endpoints()[6]
-    assert (e3["world"], e3["comparators"]) == ("E3", ("H",))
+    assert (e3["world"], e3["comparison"]) == ("E3", "L − H")
     out["e3"], out["e3_low"], out["e3_high"] = (pts(e3["stats"]["mean"]), pts(e3["stats"]["boot_low"]),
                                                 pts(e3["stats"]["boot_high"]))
     out["e3_holm"] = p(e3["p_holm"])
@@ -520,3 +520,64 @@ def test_the_calibration_seeds_are_the_registered_ones_and_none_is_scored():
             else:
                 assert names[:1] + names[2:] == declared[:1] + declared[2:]
             assert all({g: v["gate"] for g, v in r["gates"].items()} == gates for r in seed_rows)
+
+
+def test_a_fusion_weight_is_the_best_grid_weight_averaged_over_directions_ties_to_the_smaller(tmp_path):
+    """By hand: L-F's directions average 0.6 at w 0.1 and at w 1 (a tie, to 0.1), H-F is best at 3."""
+    tables = tables_module()
+    q2r, r2q = tables.Q2R, tables.R2Q
+    by_hand = {("L-F", "0.1"): (0.5, 0.7), ("L-F", "1"): (0.7, 0.5), ("L-F", "0.3"): (0.9, 0.2),
+               ("H-F", "3"): (0.4, 0.45)}
+    lines = ["environment,method,direction,metric,mean"]
+    for fusion in tables.FUSIONS3:
+        for w in tables.GRID3:
+            forward, backward = by_hand.get((fusion, w), (0.1, 0.1))
+            lines += [f"{tables.PRIMARY3},{fusion}-{w},{q2r},max_f1,{forward}",
+                      f"{tables.PRIMARY3},{fusion}-{w},{r2q},max_f1,{backward}",
+                      f"{tables.PRIMARY3},{fusion}-{w},{q2r},auc,0.99",
+                      f"alike-shapes,{fusion}-{w},{q2r},max_f1,0.99", f"alike-shapes,{fusion}-{w},{r2q},max_f1,0.99"]
+    (tmp_path / "sweep.csv").write_text("\n".join(lines) + "\n")
+    scores = tables.fusion_weights3(tmp_path / "sweep.csv")
+    assert scores["L-F"]["0.3"] == pytest.approx(0.55) and scores["H-F"]["3"] == pytest.approx(0.425)
+    assert tables.chosen_weights3(scores) == {"L-F": 0.1, "H-F": 3.0, "HOG-F": 0.0, "VLAD-F": 0.0}
+
+
+def _seed_csv(folder: Path, values: dict[tuple[str, str, str], list[float]]) -> None:
+    """A hand-built ``sweep-seeds.csv``: max F1 per (evaluation, method, direction), seeds 0.."""
+    lines = ["seed,environment,method,direction,metric,value"]
+    lines += [f"{seed},{world},{method},{direction},max_f1,{v}"
+              for (world, method, direction), per_seed in values.items() for seed, v in enumerate(per_seed)]
+    folder.mkdir(parents=True)
+    (folder / "sweep-seeds.csv").write_text("\n".join(lines) + "\n")
+
+
+def test_secondary_4_pairs_the_best_touch_using_and_vision_only_methods_by_their_means(tmp_path, monkeypatch):
+    """By hand: H-F has the highest touch-using mean (0.7 against L's 0.6), HOG the highest
+    vision-only one (0.5 against L-V's 0.45); the per-seed differences are H-F − HOG."""
+    tables = tables_module()
+    cell = ("c", tables.Q2R)
+    _seed_csv(tmp_path / "hand", {(cell[0], "L", cell[1]): [0.9, 0.3], (cell[0], "H-F", cell[1]): [0.6, 0.8],
+                                  (cell[0], "L-V", cell[1]): [0.9, 0.0], (cell[0], "HOG", cell[1]): [0.4, 0.6]})
+    monkeypatch.setitem(tables.SUMMARIES, "hand/single", tmp_path / "hand")
+    name, values = tables.endpoint_values("hand/single", *cell, ("L", "H-F"), ("L-V", "HOG"))
+    assert name == "H-F − HOG" and values == pytest.approx({0: 0.2, 1: 0.2})
+    name, values = tables.endpoint_values("hand/single", *cell, "L", ("L-V", "HOG"))  # per-seed best comparator
+    assert name == "L − max(L-V, HOG)" and values == pytest.approx({0: 0.0, 1: -0.3})
+
+
+@pytest.mark.parametrize(("before", "after", "held"), [
+    ((-0.10, -0.15, -0.05), (-0.02, -0.08, 0.04), True),    # same sign, reaches +4 points: held
+    ((-0.10, -0.15, -0.05), (-0.01, -0.07, 0.05), False),   # reaches +5 points the other way
+    ((-0.10, -0.15, -0.05), (0.01, -0.03, 0.04), False),    # the sign turned
+    ((0.06, 0.01, 0.11), (0.02, -0.049, 0.09), True),       # positive, reaches -4.9 points
+])
+def test_the_second_study_s_answer_held_by_the_registered_reading(tmp_path, monkeypatch, before, after, held):
+    tables = tables_module()
+    for key, (mean, low, high) in zip(tables.SURVIVAL_POINTS, (before, after), strict=True):
+        folder = tmp_path / key.replace("/", "-")
+        folder.mkdir()
+        (folder / "sweep-diff.csv").write_text(
+            "environment,direction,metric,method_a,method_b,mean,boot_low,boot_high\n"
+            f"alike-shapes,{tables.Q2R},max_f1,L,L-V,{mean},{low},{high}\n")
+        monkeypatch.setitem(tables.SUMMARIES, key, folder)
+    assert tables.survival_held() is held
