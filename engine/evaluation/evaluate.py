@@ -265,6 +265,12 @@ def _stats(tme: np.ndarray, gtm: np.ndarray, tau: float, ks: Sequence[int] = ())
     return scan(Rows.of(tme), GroundTruth.of_matrix(gtm, tau), ks)
 
 
+def query_stats(tme: ArrayLike, gtm: ArrayLike, tau: float, ks: Sequence[int] = ()) -> QueryStats:
+    """Each query's `QueryStats` of whole matrices (checked), with the recall@K chances of ``ks``."""
+    tme_a, gtm_a = _check_matrices(tme, gtm)
+    return _stats(tme_a, gtm_a, _check_tau(tau), check_ks(ks))
+
+
 def _check_delta(delta: float) -> float:
     delta = float(delta)
     if np.isnan(delta):

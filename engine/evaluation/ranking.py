@@ -127,6 +127,18 @@ class QueryStats:
     n_references: int
     tau: float
 
+    def take(self, rows: np.ndarray) -> QueryStats:
+        """The stats of the queries ``rows`` (indices, repeats allowed), in that order: what
+        `scan` gives for those rows of the matrices, since a query's stats depend on its own
+        row alone (a block-bootstrap replicate, scored without scanning again)."""
+        revisit = self.has_revisit[rows]
+        among_revisits = (np.cumsum(self.has_revisit) - 1)[rows][revisit]  # each one's place in ``hits``
+        return QueryStats(best_tme=self.best_tme[rows], best_match=self.best_match[rows],
+                          best_gtm=self.best_gtm[rows], n_best=self.n_best[rows],
+                          correct_share=self.correct_share[rows], has_revisit=revisit,
+                          hits={k: chance[among_revisits] for k, chance in self.hits.items()},
+                          n_references=self.n_references, tau=self.tau)
+
 
 def check_ks(ks: Sequence[int]) -> list[int]:
     """The K of recall@K as ints, each >= 1."""

@@ -31,7 +31,7 @@ from typing import Any
 
 import numpy as np
 
-from vitaplace.engine.evaluation.evaluate import evaluate, pr_curve
+from vitaplace.engine.evaluation.evaluate import curve_from, query_stats, summary_from
 from vitaplace.engine.outputs.outdir import MATRICES, evaluation_dir
 
 #: replicates per evaluation
@@ -99,11 +99,13 @@ def replicate_rows(tme: np.ndarray, gtm: np.ndarray, row: Mapping[str, Any], see
     delta, tau = row.get("delta"), row["tau"]
     transferred = row.get("f1_at_e1_threshold") is not None
     threshold = -math.inf if row.get("e1_threshold") is None else float(row["e1_threshold"])
+    stats = query_stats(tme_c, gtm_c, tau, ks)  # each replicate takes its queries' rows of these
     replicates = []
     for rows in block_draws(tme_c.shape[0], seed, resamples):
-        replicate = evaluate(tme_c[rows], gtm_c[rows], tau, delta, ks)
+        drawn = stats.take(rows)
+        replicate = summary_from(drawn, delta, ks)
         if transferred:
-            replicate["f1_at_e1_threshold"] = float(pr_curve(tme_c[rows], gtm_c[rows], tau, [threshold]).f1[0])
+            replicate["f1_at_e1_threshold"] = float(curve_from(drawn, [threshold]).f1[0])
         replicates.append(replicate)
     return replicates
 

@@ -96,6 +96,23 @@ def test_every_measure_is_the_same_whatever_the_chunk(seed, n_q, n_r, levels):
         assert all(np.array_equal(part.hits[k], whole.hits[k]) for k in (1, 5, 10))
 
 
+@pytest.mark.parametrize("seed, n_q, n_r, levels", PAIRS)
+def test_the_stats_of_drawn_queries_are_those_of_their_rows_scanned_again(seed, n_q, n_r, levels):
+    """A block-bootstrap replicate takes its queries' stats (`QueryStats.take`, repeats and
+    revisit-less queries included) instead of scanning its rows: the same stats, every field."""
+    tme, gtm = random_pair(seed, n_q, n_r, levels)
+    truth = GroundTruth.of_matrix(gtm, 1.0)
+    whole = scan(Rows.of(tme), truth, (1, 5, 10))
+    rows = np.random.default_rng(seed).integers(0, n_q, size=2 * n_q)
+    drawn = whole.take(rows)
+    again = scan(Rows.of(tme[rows]), GroundTruth.of_matrix(gtm[rows], 1.0), (1, 5, 10))
+    for field in ("best_tme", "best_match", "best_gtm", "n_best", "correct_share", "has_revisit"):
+        assert np.array_equal(getattr(drawn, field), getattr(again, field)), field
+    assert drawn.hits.keys() == again.hits.keys()
+    assert all(np.array_equal(drawn.hits[k], again.hits[k]) for k in (1, 5, 10))
+    assert ev.summary_from(drawn, 2.0) == ev.summary_from(again, 2.0)
+
+
 def poses(seed: int, n: int, grid: bool) -> np.ndarray:
     """Poses on a 0.1 m grid with yaws in 15 degree steps (pairs exactly at tau and exactly at
     the heading tolerance), or anywhere."""
