@@ -1211,6 +1211,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "study2-training": study2_training,
     "study2-budget": study2_budget,
     "study3-calibration-gates": study3_calibration_gates,
+    "study3-weights": study3_weights,
     "study2-warnings": study2_warnings,
 }
 

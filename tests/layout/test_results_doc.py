@@ -9,6 +9,7 @@ budget trend)."""
 
 import csv
 import importlib.util
+import json
 import math
 import re
 import statistics
@@ -581,3 +582,25 @@ def test_the_second_study_s_answer_held_by_the_registered_reading(tmp_path, monk
             f"alike-shapes,{tables.Q2R},max_f1,L,L-V,{mean},{low},{high}\n")
         monkeypatch.setitem(tables.SUMMARIES, key, folder)
     assert tables.survival_held() is held
+
+
+def test_every_arm_fuses_at_the_weight_its_calibration_fixed():
+    """The scenarios' fusion weights are the calibration's choice from its committed summary,
+    and that summary is the mean of the calibration seeds' own results."""
+    import yaml
+
+    tables = tables_module()
+    chosen = tables.chosen_weights3(tables.fusion_weights3())
+    for name in ("study3", "study3-faithful", "study3-dropout"):
+        fusions = yaml.safe_load((ROOT / "scenarios" / f"{name}.yaml").read_text())["fusions"]
+        assert fusions and all(f["weights"] == [chosen[f["name"]]] for f in fusions), name
+    summary = {(r["environment"], r["method"], r["direction"], r["metric"]): r
+               for r in rows("study3-weights", "sweep.csv")}
+    seeds = sorted((RESULTS / "study3-weights" / "seeds").glob("seed-*/results.json"))
+    assert len(seeds) == 8
+    per_seed = [{(r["environment"], r["method"], r["direction"]): r["max_f1"] for r in json.loads(f.read_text())}
+                for f in seeds]
+    for (world, method, direction, metric), row in summary.items():
+        if metric == "max_f1" and world == tables.PRIMARY3:
+            expected = sum(s[(world, method, direction)] for s in per_seed) / 8
+            assert float(row["mean"]) == pytest.approx(expected, rel=1e-12), (method, direction)
