@@ -744,56 +744,56 @@ def _median_range(values: Sequence[float], scale: float = 100, digits: int = 1) 
             f"({scale * min(values):.{digits}f}–{scale * max(values):.{digits}f})")
 
 
-def study3_learned() -> str:
-    """Each learned network of the third study, per arm, over its seeds: epochs trained of the
+def study3_learned(arm: str) -> str:
+    """Each learned network of one arm of the third study, over its seeds: epochs trained of the
     cap, how many met the criterion, the held-out energy at the last epoch; in the arm's
-    primary or degraded evaluation
-    (both drives): the share of test-time samples settled before the cap, the share of tactile
-    values inside the training range, and vision's share of the drive on the joint latent;
-    median (min–max) over seeds."""
+    primary or degraded evaluation (both drives): the share of test-time samples settled
+    before the cap, the share of tactile values inside the training range, and vision's share
+    of the drive on the joint latent; median (min–max) over seeds."""
     focus = {"station": PRIMARY3, "faithful": "E3", "drop-out": "dropout"}
     body = []
-    for arm, (_, _, methods) in ARMS3.items():
-        manifests = list(_seed_manifests3(arm).values())
-        for method in (m for m in methods if m in manifests[0]["training"]):
-            trained = [m["training"][method] for m in manifests]
-            runs = [m["features"][method][f"{focus[arm]}/{drive}"]
-                    for m in manifests for drive in ("query", "reference")]
-            settled = [(r["inference"]["samples"] - r["inference"]["capped"]) / r["inference"]["samples"]
-                       for r in runs if "inference" in r]
-            inside = [r["tactile_range"]["inside"] / r["tactile_range"]["values"] for r in runs if "tactile_range" in r]
-            drive = [r["drive"]["median"] for r in runs if "drive" in r]
-            epochs, caps = [t["epochs"] for t in trained], sorted({t["max_epochs"] for t in trained})
-            held_out = [t["held_out"][-1] for t in trained if t.get("held_out")]
-            body.append([arm, method, focus[arm], str(len(trained)),
-                         f"{min(epochs)}–{max(epochs)} of {'/'.join(str(c) for c in caps)}",
-                         f"{sum(bool(t['converged']) for t in trained)} of {len(trained)}",
-                         _median_range(held_out, scale=1, digits=3) if held_out else "–",
-                         _median_range(settled) if settled else "–", _median_range(inside) if inside else "–",
-                         _median_range(drive, digits=2, scale=1) if drive else "–"])
+    manifests = list(_seed_manifests3(arm).values())
+    for method in (m for m in ARMS3[arm][2] if m in manifests[0]["training"]):
+        trained = [m["training"][method] for m in manifests]
+        runs = [m["features"][method][f"{focus[arm]}/{drive}"]
+                for m in manifests for drive in ("query", "reference")]
+        settled = [(r["inference"]["samples"] - r["inference"]["capped"]) / r["inference"]["samples"]
+                   for r in runs if "inference" in r]
+        inside = [r["tactile_range"]["inside"] / r["tactile_range"]["values"] for r in runs if "tactile_range" in r]
+        drive = [r["drive"]["median"] for r in runs if "drive" in r]
+        epochs, caps = [t["epochs"] for t in trained], sorted({t["max_epochs"] for t in trained})
+        held_out = [t["held_out"][-1] for t in trained if t.get("held_out")]
+        body.append([arm, method, focus[arm], str(len(trained)),
+                     f"{min(epochs)}–{max(epochs)} of {'/'.join(str(c) for c in caps)}",
+                     f"{sum(bool(t['converged']) for t in trained)} of {len(trained)}",
+                     _median_range(held_out, scale=1, digits=3) if held_out else "–",
+                     _median_range(settled) if settled else "–", _median_range(inside) if inside else "–",
+                     _median_range(drive, digits=2, scale=1) if drive else "–"])
     return markdown(["arm", "method", "evaluation", "seeds", "epochs trained", "met the criterion",
                      "held-out energy, last epoch", "settled %", "tactile values in range %", "vision's drive share"],
                     body)
 
 
-def study3_gates() -> str:
-    """The gates on the study's own seeds (the hand-crafted family's evaluations in the sweeps,
-    the measures `vitaplace difficulty` reports), per arm, condition and direction, as the
-    calibration table prints them."""
+#: the third study's gated arms -> their scenario file
+GATED3 = {"station": "study3.yaml", "drop-out": "study3-dropout.yaml"}
+
+
+def study3_gates(arm: str) -> str:
+    """The gates on the study's own seeds of one arm (the hand-crafted family's evaluations in
+    its sweep, the measures `vitaplace difficulty` reports), per condition and direction, as
+    the calibration table prints them."""
     from vitaplace.engine.cli.difficulty import difficulty_rows
     from vitaplace.engine.config.loading import load_scenario
     from vitaplace.engine.outputs.rows import parse_row
 
-    body = []
-    for arm, scenario_file in (("station", "study3.yaml"), ("drop-out", "study3-dropout.yaml")):
-        scenario, _ = load_scenario(HERE.parents[1] / "scenarios" / scenario_file)
-        per_seed = {}
-        for folder in (ARMS3[arm][0]["single"] / "seeds").glob("seed-*"):
-            results = folder / "results.json"
-            parsed = [parse_row(row, f"{results}: row {i}") for i, row in enumerate(json.loads(results.read_text()))]
-            per_seed[int(folder.name.split("-")[1])] = difficulty_rows(
-                scenario, parsed, json.loads((folder / "complementarity.json").read_text()))
-        body += [row[:-1] for row in _gate_table_rows(arm, dict(sorted(per_seed.items())), None)]
+    scenario, _ = load_scenario(HERE.parents[1] / "scenarios" / GATED3[arm])
+    per_seed = {}
+    for folder in (ARMS3[arm][0]["single"] / "seeds").glob("seed-*"):
+        results = folder / "results.json"
+        parsed = [parse_row(row, f"{results}: row {i}") for i, row in enumerate(json.loads(results.read_text()))]
+        per_seed[int(folder.name.split("-")[1])] = difficulty_rows(
+            scenario, parsed, json.loads((folder / "complementarity.json").read_text()))
+    body = [row[:-1] for row in _gate_table_rows(arm, dict(sorted(per_seed.items())), None)]
     return markdown(GATE_TABLE_HEADER[:-1], body)
 
 
@@ -1212,6 +1212,11 @@ TABLES: dict[str, Callable[[], str]] = {
     "study2-budget": study2_budget,
     "study3-calibration-gates": study3_calibration_gates,
     "study3-weights": study3_weights,
+    "study3-gates-station": lambda: study3_gates("station"),
+    "study3-methods-station": lambda: study3_methods("station"),
+    "study3-learned-station": lambda: study3_learned("station"),
+    "study3-rank": study3_rank,
+    "study3-primary": lambda: endpoints_table(ENDPOINTS3[:1], {"single": "single"}),
     "study2-warnings": study2_warnings,
 }
 
