@@ -20,7 +20,9 @@ evaluate stage's version went from ad309c2's 7 to 8 when its tie rule changed (a
 match counted in proportion, not by its lowest index), so that every cached evaluation is
 scored again: the keys are computed with version 7 here, and today's version is checked to
 differ. Scenarios added since (the third study's) are pinned from the commit that added them
-(``tests/data/stage_keys_study3.json``)."""
+(``tests/data/stage_keys_study3.json``), and the three arms again when its design change and
+fusion-weight calibration set L-paper's cap, the fusions' weights and the reduced arms before
+any study seed ran (docs/RESULTS.md)."""
 
 from __future__ import annotations
 
