@@ -8,7 +8,7 @@ exactly what this script prints for NAME (`tests/layout/test_results_doc.py` che
 number in the text can drift from the files `vitaplace sweep` and `vitaplace sensitivity`
 wrote: ``sweep.csv`` (statistics over seeds per world x method x direction x value),
 ``sweep-diff.csv`` (paired differences between methods, with the sign-flip p),
-``sweep-seeds.csv`` (every value per seed) and ``sensitivity.csv`` (per seed, max F1
+``sweep-seeds.csv`` (every value per seed; gzipped as ``sweep-seeds.csv.gz`` where large) and ``sensitivity.csv`` (per seed, max F1
 rescored under other ground truths), and each seed's ``manifest.json`` and ``report.md``
 (copied into ``seeds/seed-N/``), in
 ``paper-cpu-sweep/`` (penetration touch model) and ``paper-cpu-physical-sweep/`` (physical
@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import functools
+import gzip
 import json
 import math
 import re
@@ -93,10 +94,19 @@ SURVIVAL_POINTS = {f"survival/epochs={e}": HERE / "study3-survival" / f"epochs={
 SUMMARIES = {**STUDIES, **POINTS, **BUDGET_POINTS, **POINTS3, **SURVIVAL_POINTS}
 
 
+def read_csv(path: Path) -> list[dict[str, str]]:
+    """The rows of a committed CSV summary, or of its gzipped copy ``path.gz`` (the large
+    per-seed tables are committed compressed)."""
+    if path.exists():
+        with open(path, newline="") as handle:
+            return list(csv.DictReader(handle))
+    with gzip.open(path.with_name(path.name + ".gz"), "rt", newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
 @functools.cache  # each file is read once, however many tables use it (callers do not mutate rows)
 def read(study: str, name: str) -> list[dict[str, str]]:
-    with open(SUMMARIES[study] / name, newline="") as handle:
-        return list(csv.DictReader(handle))
+    return read_csv(SUMMARIES[study] / name)
 
 
 def _index(rows: Iterable[dict[str, str]], *keys: str) -> dict[tuple[str, ...], dict[str, str]]:
@@ -668,9 +678,8 @@ PRIMARY3 = "crossed-opposite"
 def fusion_weights3(summary: Path = WEIGHTS3 / "sweep.csv") -> dict[str, dict[str, float]]:
     """Fusion -> grid weight -> max F1 in the primary condition: the mean over the calibration
     seeds, averaged over the two directions."""
-    with open(summary, newline="") as handle:
-        means = {(r["method"], r["direction"]): float(r["mean"]) for r in csv.DictReader(handle)
-                 if r["environment"] == PRIMARY3 and r["metric"] == "max_f1"}
+    means = {(r["method"], r["direction"]): float(r["mean"]) for r in read_csv(summary)
+             if r["environment"] == PRIMARY3 and r["metric"] == "max_f1"}
     return {fusion: {w: (means[(f"{fusion}-{w}", Q2R)] + means[(f"{fusion}-{w}", R2Q)]) / 2 for w in GRID3}
             for fusion in FUSIONS3}
 

@@ -7,7 +7,6 @@ method and condition at eight seeds, bounded intervals, the pre-registered endpo
 `vitaplace.engine.study.hypotheses` (whose rules tests/components/test_hypotheses.py checks by hand), the gates, the
 budget trend)."""
 
-import csv
 import importlib.util
 import json
 import math
@@ -31,8 +30,7 @@ def tables_module():
 
 
 def rows(study: str, name: str) -> list[dict[str, str]]:
-    with open(RESULTS / study / name, newline="") as handle:
-        return list(csv.DictReader(handle))
+    return tables_module().read_csv(RESULTS / study / name)
 
 
 def assert_bounded_intervals(study: str | Path, required: tuple[str, ...], optional: tuple[str, ...] = ()) -> None:
