@@ -8,9 +8,9 @@ exactly what this script prints for NAME (`tests/layout/test_results_doc.py` che
 number in the text can drift from the files `vitaplace sweep` and `vitaplace sensitivity`
 wrote: ``sweep.csv`` (statistics over seeds per world x method x direction x value),
 ``sweep-diff.csv`` (paired differences between methods, with the sign-flip p),
-``sweep-seeds.csv`` (every value per seed; gzipped as ``sweep-seeds.csv.gz`` where large) and ``sensitivity.csv`` (per seed, max F1
-rescored under other ground truths), and each seed's ``manifest.json`` and ``report.md``
-(copied into ``seeds/seed-N/``), in
+``sweep-seeds.csv`` (every value per seed; ``sweep-seeds.csv.gz`` where large) and
+``sensitivity.csv`` (per seed, max F1 rescored under other ground truths), and each seed's
+``manifest.json`` and ``report.md`` (copied into ``seeds/seed-N/``), in
 ``paper-cpu-sweep/`` (penetration touch model) and ``paper-cpu-physical-sweep/`` (physical
 whiskers). The second study's tables (``study2-*``) read the same files of its three arms'
 sweeps, one folder per grid point (`ARMS`, `POINTS`), seed 0's `vitaplace difficulty` runs
@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vitaplace.engine.config.scenario import Scenario
 from vitaplace.engine.study import hypotheses
 from vitaplace.engine.study.hypotheses import INTERACTION_LIMITS, endpoint_tests, paired, versus_best
 from vitaplace.engine.study.summary import LEVEL
@@ -544,14 +545,23 @@ def study2_comparator() -> str:
     return markdown(["seed", "L max F1 %", "L-V", "L-F", "w", "comparator", "L − comparator, points"], body)
 
 
+def seed_difficulty_rows(scenario: Scenario, folder: Path) -> list[dict]:
+    """`difficulty_rows` of one seed's run folder: its results and complementarity, as
+    `vitaplace difficulty` would report them."""
+    from vitaplace.engine.cli.difficulty import difficulty_rows
+    from vitaplace.engine.outputs.rows import parse_row
+
+    results = folder / "results.json"
+    parsed = [parse_row(row, f"{results}: row {i}") for i, row in enumerate(json.loads(results.read_text()))]
+    return difficulty_rows(scenario, parsed, json.loads((folder / "complementarity.json").read_text()))
+
+
 @functools.cache
 def _gate_rows(arm: str) -> dict[int, list[dict]]:
     """Seed -> `difficulty_rows` of that seed: seed 0 from the committed `vitaplace difficulty`
     run, the others from the sweep's own H-family evaluations (the same measures; the test
     checks that seed 0's agree)."""
-    from vitaplace.engine.cli.difficulty import difficulty_rows
     from vitaplace.engine.config.loading import load_scenario
-    from vitaplace.engine.outputs.rows import parse_row
 
     scenario, _ = load_scenario(HERE.parents[1] / "scenarios" / ARMS[arm][1])
     seeds = ARMS[arm][0] / "length=1" / "seeds"
@@ -562,9 +572,7 @@ def _gate_rows(arm: str) -> dict[int, list[dict]]:
         if difficulty_json.exists():
             rows[seed] = json.loads(difficulty_json.read_text())
         else:
-            results = folder / "results.json"
-            parsed = [parse_row(row, f"{results}: row {i}") for i, row in enumerate(json.loads(results.read_text()))]
-            rows[seed] = difficulty_rows(scenario, parsed, json.loads((folder / "complementarity.json").read_text()))
+            rows[seed] = seed_difficulty_rows(scenario, folder)
     return rows
 
 
@@ -791,17 +799,11 @@ def study3_gates(arm: str) -> str:
     """The gates on the study's own seeds of one arm (the hand-crafted family's evaluations in
     its sweep, the measures `vitaplace difficulty` reports), per condition and direction, as
     the calibration table prints them."""
-    from vitaplace.engine.cli.difficulty import difficulty_rows
     from vitaplace.engine.config.loading import load_scenario
-    from vitaplace.engine.outputs.rows import parse_row
 
     scenario, _ = load_scenario(HERE.parents[1] / "scenarios" / GATED3[arm])
-    per_seed = {}
-    for folder in (ARMS3[arm][0]["single"] / "seeds").glob("seed-*"):
-        results = folder / "results.json"
-        parsed = [parse_row(row, f"{results}: row {i}") for i, row in enumerate(json.loads(results.read_text()))]
-        per_seed[int(folder.name.split("-")[1])] = difficulty_rows(
-            scenario, parsed, json.loads((folder / "complementarity.json").read_text()))
+    per_seed = {int(folder.name.split("-")[1]): seed_difficulty_rows(scenario, folder)
+                for folder in (ARMS3[arm][0]["single"] / "seeds").glob("seed-*")}
     body = [row[:-1] for row in _gate_table_rows(arm, dict(sorted(per_seed.items())), None)]
     return markdown(GATE_TABLE_HEADER[:-1], body)
 
@@ -1051,9 +1053,6 @@ def study2_settled() -> str:
     relative-change rule or the thresholds) and the share under the layer thresholds
     (stopped), median (min–max) over seeds; "not settled" where the median settled share is
     under 95 %."""
-    def cell(values: list[float]) -> str:
-        return f"{100 * statistics.median(values):.1f} ({100 * min(values):.1f}–{100 * max(values):.1f})"
-
     body = []
     for arm in ARMS:
         manifests = list(_seed_manifests(arm).values())
@@ -1063,7 +1062,7 @@ def study2_settled() -> str:
                 for drive in ("query", "reference"):
                     runs = [m["features"][method][f"{world}/{drive}"]["inference"] for m in manifests]
                     settled = [(r["samples"] - r["capped"]) / r["samples"] for r in runs]
-                    cells += [cell(settled), cell([r["stopped"] / r["samples"] for r in runs])]
+                    cells += [_median_range(settled), _median_range([r["stopped"] / r["samples"] for r in runs])]
                     if statistics.median(settled) < 0.95:
                         unsettled.append(drive)
                 body.append([arm, method, world, *cells, ", ".join(unsettled) or "–"])
