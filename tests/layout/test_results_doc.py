@@ -50,10 +50,19 @@ def assert_bounded_intervals(study: str | Path, required: tuple[str, ...], optio
     assert all(0 < float(row["p_sign_flip"]) <= 1 for row in rows(study, "sweep-diff.csv"))
 
 
+def marked_tables(text: str) -> dict[str, str]:
+    """Name -> body of every ``<!-- table NAME -->`` ... ``<!-- /table -->`` block; each opening
+    marker has exactly one closing marker (a stray one is a paste error)."""
+    found = re.findall(r"<!-- table ([\w-]+) -->\n(.*?)\n<!-- /table -->", text, re.S)
+    assert text.count("<!-- /table -->") == text.count("<!-- table ") == len(found), "unmatched table markers"
+    assert len({name for name, _ in found}) == len(found), "a table is printed twice"
+    return dict(found)
+
+
 def test_every_table_in_results_md_is_computed_from_the_committed_summaries():
     tables = tables_module()
     text = (ROOT / "docs" / "RESULTS.md").read_text()
-    found = dict(re.findall(r"<!-- table ([\w-]+) -->\n(.*?)\n<!-- /table -->", text, re.S))
+    found = marked_tables(text)
     assert set(found) == set(tables.TABLES), "tables in RESULTS.md vs docs/results/tables.py"
     for name, table in found.items():
         assert table == tables.TABLES[name](), (
@@ -95,7 +104,7 @@ def test_every_table_in_benchmark_md_is_computed_from_the_committed_difficulty_r
     benchmark = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(benchmark)
     text = (ROOT / "docs" / "BENCHMARK.md").read_text()
-    found = dict(re.findall(r"<!-- table ([\w-]+) -->\n(.*?)\n<!-- /table -->", text, re.S))
+    found = marked_tables(text)
     assert set(found) == set(benchmark.TABLES), "tables in BENCHMARK.md vs docs/results/benchmark.py"
     for name, table in found.items():
         assert table == benchmark.TABLES[name](), (
