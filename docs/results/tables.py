@@ -791,17 +791,24 @@ def study3_learned(arm: str) -> str:
                     body)
 
 
-#: the third study's gated arms -> their scenario file
-GATED3 = {"station": "study3.yaml", "drop-out": "study3-dropout.yaml"}
+#: the third study's arms -> their scenario file (the faithful arm's E1-E3 declare no gates)
+GATED3 = {"station": "study3.yaml", "faithful": "study3-faithful.yaml", "drop-out": "study3-dropout.yaml"}
 
 
 def study3_gates(arm: str) -> str:
     """The gates on the study's own seeds of one arm (the hand-crafted family's evaluations in
     its sweep, the measures `vitaplace difficulty` reports), per condition and direction, as
-    the calibration table prints them."""
+    the calibration table prints them. A condition that declares no gates (the faithful arm's
+    E1-E3, the paper's protocol) is measured against the registered ones, the primary's."""
     from vitaplace.engine.config.loading import load_scenario
 
-    scenario, _ = load_scenario(HERE.parents[1] / "scenarios" / GATED3[arm])
+    scenarios = HERE.parents[1] / "scenarios"
+    station, _ = load_scenario(scenarios / GATED3["station"])
+    registered = next(e.gates for e in station.evaluations if e.name == PRIMARY3)
+    scenario, _ = load_scenario(scenarios / GATED3[arm])
+    gated = [e if any(getattr(e.gates, g) is not None for g in GATES3) else e.model_copy(update={"gates": registered})
+             for e in scenario.evaluations]
+    scenario = scenario.model_copy(update={"evaluations": gated})
     per_seed = {int(folder.name.split("-")[1]): seed_difficulty_rows(scenario, folder)
                 for folder in (ARMS3[arm][0]["single"] / "seeds").glob("seed-*")}
     body = [row[:-1] for row in _gate_table_rows(arm, dict(sorted(per_seed.items())), None)]
@@ -1224,7 +1231,10 @@ TABLES: dict[str, Callable[[], str]] = {
     "study3-methods-station": lambda: study3_methods("station"),
     "study3-learned-station": lambda: study3_learned("station"),
     "study3-rank": study3_rank,
-    "study3-primary": lambda: endpoints_table(ENDPOINTS3[:1], {"single": "single"}),
+    "study3-endpoints": study3_endpoints,
+    "study3-gates-faithful": lambda: study3_gates("faithful"),
+    "study3-methods-faithful": lambda: study3_methods("faithful"),
+    "study3-learned-faithful": lambda: study3_learned("faithful"),
     "study2-warnings": study2_warnings,
 }
 

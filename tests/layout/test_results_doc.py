@@ -489,6 +489,31 @@ def test_the_second_studys_corrected_sentences_quote_the_committed_numbers():
     assert not missing, "\n".join(missing)
 
 
+#: the third study's summaries -> the seeds its registration (as changed) runs
+THIRD_SEEDS = {"station/single": range(20, 30), "station/seq. 2.8 m": range(20, 30),
+               "faithful/single": range(20, 30), "survival/epochs=70": range(8)}
+
+
+@pytest.mark.parametrize("key", THIRD_SEEDS)
+def test_the_third_study_holds_every_method_and_condition_at_its_seeds_with_bounded_intervals(key):
+    """Every arm: each method and fusion it keeps, in each of its conditions, at every one of
+    its registered seeds (ten per arm; the survival comparison the second study's eight)."""
+    tables = tables_module()
+    arm = key.split("/")[0]
+    if arm == "survival":
+        folder, worlds, methods = tables.SURVIVAL_POINTS[key], tables.ARMS["touch"][2], ("L", "L-V")
+    else:
+        folder, (_, worlds, methods) = tables.POINTS3[key], tables.ARMS3[arm]
+    per_cell: dict[tuple[str, str], set[str]] = {}
+    for row in rows(folder.relative_to(RESULTS), "sweep-seeds.csv"):
+        if row["metric"] == "max_f1":
+            per_cell.setdefault((row["environment"], row["method"]), set()).add(row["seed"])
+    assert set(per_cell) == {(w, m) for w in worlds for m in methods}
+    registered = {str(i) for i in THIRD_SEEDS[key]}
+    assert all(s == registered for s in per_cell.values()), {k: len(v) for k, v in per_cell.items()}
+    assert_bounded_intervals(folder.relative_to(RESULTS), required=("t", "boot"), optional=("block",))
+
+
 # The third study's calibration (RESULTS.md, "Third study: calibration").
 
 
