@@ -1233,8 +1233,11 @@ TABLES: dict[str, Callable[[], str]] = {
     "study3-rank": study3_rank,
     "study3-endpoints": study3_endpoints,
     "study3-gates-faithful": lambda: study3_gates("faithful"),
+    "study3-gates-drop-out": lambda: study3_gates("drop-out"),
     "study3-methods-faithful": lambda: study3_methods("faithful"),
+    "study3-methods-drop-out": lambda: study3_methods("drop-out"),
     "study3-learned-faithful": lambda: study3_learned("faithful"),
+    "study3-learned-drop-out": lambda: study3_learned("drop-out"),
     "study2-warnings": study2_warnings,
 }
 
