@@ -840,14 +840,14 @@ def survival_held() -> bool:
     return same_sign and far_end < 0.05
 
 
-def study3_rank() -> str:
-    """The best method of the station arm, single samples: each method's rank by mean max F1
-    over seeds in each condition (both directions) and over all of them, each with its 95 %
-    interval over `RANK_RESAMPLES` resamples of the seeds, paired across methods and
+def study3_rank(arm: str) -> str:
+    """The best method of one arm of the third study, single samples: each method's rank by
+    mean max F1 over seeds in each condition (both directions) and over all of them, each with
+    its 95 % interval over `RANK_RESAMPLES` resamples of the seeds, paired across methods and
     conditions (`rank_replicates`), and the share of resamples in which it ranks first overall."""
-    _, worlds, methods = ARMS3["station"]
-    values = _per_seed("station/single")
-    seeds = sorted(values[(PRIMARY3, "L", Q2R)])
+    _, worlds, methods = ARMS3[arm]
+    values = _per_seed(f"{arm}/single")
+    seeds = sorted(values[(worlds[0], "L", Q2R)])
 
     def scores(cells: Sequence[tuple[str, str]]) -> dict[str, np.ndarray]:
         return {m: np.array([[values[(w, m, d)][s] for w, d in cells] for s in seeds]) for m in methods}
@@ -1230,7 +1230,9 @@ TABLES: dict[str, Callable[[], str]] = {
     "study3-gates-station": lambda: study3_gates("station"),
     "study3-methods-station": lambda: study3_methods("station"),
     "study3-learned-station": lambda: study3_learned("station"),
-    "study3-rank": study3_rank,
+    "study3-rank": lambda: study3_rank("station"),
+    "study3-rank-faithful": lambda: study3_rank("faithful"),
+    "study3-rank-drop-out": lambda: study3_rank("drop-out"),
     "study3-endpoints": study3_endpoints,
     "study3-gates-faithful": lambda: study3_gates("faithful"),
     "study3-gates-drop-out": lambda: study3_gates("drop-out"),
