@@ -96,6 +96,18 @@ def limit_blas_threads(threads: int) -> int:
     return threads
 
 
+def blas_libraries() -> list[dict[str, str | int | None]]:
+    """The BLAS libraries this process has loaded (numpy's among them): threadpoolctl's
+    ``internal_api``, version, ``architecture`` (the kernel family OpenBLAS picked for this CPU,
+    or ``OPENBLAS_CORETYPE``'s) and threads. Another architecture rounds its sums differently,
+    so a run's manifest records them (docs/DESIGN.md, "Rounding")."""
+    import numpy  # noqa: F401 - loads numpy's BLAS, so that it is listed
+    from threadpoolctl import threadpool_info
+
+    return [{"library": lib["internal_api"], "version": lib.get("version"), "architecture": lib.get("architecture"),
+             "threads": lib["num_threads"]} for lib in threadpool_info() if lib["user_api"] == "blas"]
+
+
 @functools.cache
 def _blas_controller() -> ThreadpoolController:
     """The BLAS libraries loaded when first asked (numpy's among them), found once."""

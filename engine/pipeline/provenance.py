@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from vitaplace.engine import __version__
-from vitaplace.engine.base.cpus import usable_cpus
+from vitaplace.engine.base.cpus import blas_libraries, usable_cpus
 
 #: distributions whose version can change a result
 PACKAGES = ("numpy", "scipy", "scikit-learn", "mujoco", "warp-lang", "pluggy", "h5py", "pydantic")
@@ -62,5 +62,5 @@ def provenance() -> dict[str, Any]:
         "git_dirty": git_dirty(),
         "packages": package_versions(),
         "machine": {"platform": platform.platform(), "python": platform.python_version(), "cpus": os.cpu_count(),
-                    "cpus_usable": usable_cpus()},
+                    "cpus_usable": usable_cpus(), "blas": blas_libraries()},
     }

@@ -254,6 +254,8 @@ def test_quickstart_writes_every_output(quickstart_run):
     assert transform["inputs"] == [by_stage[("fit", "L")]["key"], by_stage[("simulate", "E1/query")]["key"]]
     assert (out / transform["output"]).is_file() and (out / by_stage[("fit", "L")]["output"]).is_dir()
     assert manifest["vitaplace_version"] and manifest["machine"]["cpus"]
+    assert manifest["machine"]["blas"]
+    assert all(lib["architecture"] and lib["threads"] >= 1 for lib in manifest["machine"]["blas"])
     assert manifest["packages"]["numpy"] == np.__version__ and manifest["packages"]["mujoco"]
 
 

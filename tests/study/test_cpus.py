@@ -1,6 +1,7 @@
 """The CPUs this process may use: affinity, SLURM's allocation and the user's override, and
 the worker pools and BLAS threads sized from them."""
 
+import json
 import os
 import subprocess
 import sys
@@ -212,3 +213,14 @@ def test_the_first_library_the_loader_finds_is_loaded_and_none_when_none_is():
     libc = first_loadable([None, "", "libvitaplace-missing.so.9", "libc.so.6"])
     assert isinstance(libc, ctypes.CDLL) and libc._name == "libc.so.6"
     assert first_loadable(["libvitaplace-missing.so.9", None]) is None and first_loadable([]) is None
+
+
+def test_the_blas_libraries_name_the_kernel_openblas_runs():
+    """``OPENBLAS_CORETYPE`` picks OpenBLAS's kernel family: a process started with Sandybridge
+    and one thread lists numpy's OpenBLAS with that architecture and thread count."""
+    code = "import json; from vitaplace.engine.base import cpus; print(json.dumps(cpus.blas_libraries()))"
+    env = {**os.environ, "OPENBLAS_CORETYPE": "Sandybridge", "OPENBLAS_NUM_THREADS": "1"}
+    listed = json.loads(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                       check=True).stdout)
+    assert {"library": "openblas", "architecture": "Sandybridge", "threads": 1} in [
+        {k: lib[k] for k in ("library", "architecture", "threads")} for lib in listed]
