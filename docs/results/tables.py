@@ -90,9 +90,12 @@ POINTS3 = {f"{arm}/{matching}": folder
 SURVIVAL_EPOCHS = (70, 3000)
 #: the survival comparison: "survival/epochs=E" -> its summaries' folder
 SURVIVAL_POINTS = {f"survival/epochs={e}": HERE / "study3-survival" / f"epochs={e}" for e in SURVIVAL_EPOCHS}
+#: the survival comparison's 70-epoch half as first run, on the first machine (docs/RESULTS.md,
+#: "Third study: results"): the same command and simulated runs as "survival/epochs=70"
+FIRST_MACHINE3 = {"survival/first-machine": HERE / "study3-survival" / "first-machine" / "epochs=70"}
 #: every summaries' folder tables read from: the first study's by touch model, the second's and
 #: the third's by arm/point
-SUMMARIES = {**STUDIES, **POINTS, **BUDGET_POINTS, **POINTS3, **SURVIVAL_POINTS}
+SUMMARIES = {**STUDIES, **POINTS, **BUDGET_POINTS, **POINTS3, **SURVIVAL_POINTS, **FIRST_MACHINE3}
 
 
 def read_csv(path: Path) -> list[dict[str, str]]:
@@ -830,6 +833,41 @@ def study3_survival() -> str:
     return markdown(["evaluation", "direction", *(f"L − L-V, {e} epochs" for e in SURVIVAL_EPOCHS)], body)
 
 
+def study3_survival_training() -> str:
+    """The survival comparison's networks per half: epochs trained of the cap and how many met
+    the convergence criterion, over seeds 0-7 (each seed's manifest)."""
+    body = []
+    for key, folder in SURVIVAL_POINTS.items():
+        manifests = sorted((folder / "seeds").glob("seed-*/manifest.json"))
+        trained = [json.loads(path.read_text())["training"] for path in manifests]
+        for method in ("L", "L-V"):
+            runs = [t[method] for t in trained]
+            epochs = [r["epochs"] for r in runs]
+            body.append([key.split("=")[1], method, str(len(runs)),
+                         f"{min(epochs)}–{max(epochs)} of {runs[0]['max_epochs']}", f"{statistics.median(epochs):g}",
+                         f"{sum(bool(r['converged']) for r in runs)} of {len(runs)}"])
+    return markdown(["epoch cap", "method", "seeds", "epochs trained", "median", "met the criterion"], body)
+
+
+def study3_machines() -> str:
+    """What the machine alone moves: the survival comparison's 70-epoch half on the first
+    machine and on the second (same command, same simulated runs), per method over every
+    condition, direction and seed: the |max F1 difference| (median, largest), the largest
+    |mean difference over seeds| of a cell, and the seed-to-seed std of the cells (median)."""
+    first, second = _per_seed("survival/first-machine"), _per_seed("survival/epochs=70")
+    body = []
+    for method in ("L", "L-V"):
+        cells = [(w, method, d) for w in ARMS["touch"][2] for d in DIRECTIONS]
+        moves = [second[c][seed] - first[c][seed] for c in cells for seed in first[c]]
+        cell_means = [statistics.mean(second[c][seed] - first[c][seed] for seed in first[c]) for c in cells]
+        spread = [statistics.stdev(second[c].values()) for c in cells]
+        body.append([method, str(len(moves)), f"{100 * statistics.median(map(abs, moves)):.1f}",
+                     f"{100 * max(map(abs, moves)):.1f}", f"{100 * max(map(abs, cell_means)):.1f}",
+                     f"{100 * statistics.median(spread):.1f}"])
+    return markdown(["method", "cells × seeds", "size of the move, median", "largest",
+                     "largest size of a cell's mean move", "seed-to-seed std, median"], body)
+
+
 def survival_held() -> bool:
     """The registered reading: in alike-shapes, query → reference, L − L-V at convergence has
     its sign at 70 epochs and its bootstrap interval does not reach 5 points the other way."""
@@ -882,8 +920,8 @@ def study3_kernel() -> str:
         spread = [statistics.stdev(values[cell].values()) for cell in cells]
         body.append([method, f"{100 * statistics.median(moves):.1f}", f"{100 * max(moves):.1f}",
                      f"{100 * statistics.median(spread):.1f}"])
-    return markdown(["method", f"|move| under {second['kernel']}, median", "largest", "seed-to-seed std, median"],
-                    body)
+    return markdown(["method", f"size of the move under {second['kernel']}, median", "largest",
+                     "seed-to-seed std, median"], body)
 
 
 def methods_table(arm: str) -> str:
@@ -1231,6 +1269,7 @@ TABLES: dict[str, Callable[[], str]] = {
     "study3-methods-station": lambda: study3_methods("station"),
     "study3-learned-station": lambda: study3_learned("station"),
     "study3-rank": lambda: study3_rank("station"),
+    "study3-machines": study3_machines,
     "study3-rank-faithful": lambda: study3_rank("faithful"),
     "study3-rank-drop-out": lambda: study3_rank("drop-out"),
     "study3-endpoints": study3_endpoints,
