@@ -1269,6 +1269,8 @@ TABLES: dict[str, Callable[[], str]] = {
     "study3-methods-station": lambda: study3_methods("station"),
     "study3-learned-station": lambda: study3_learned("station"),
     "study3-rank": lambda: study3_rank("station"),
+    "study3-survival-training": study3_survival_training,
+    "study3-survival": study3_survival,
     "study3-machines": study3_machines,
     "study3-rank-faithful": lambda: study3_rank("faithful"),
     "study3-rank-drop-out": lambda: study3_rank("drop-out"),

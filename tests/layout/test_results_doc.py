@@ -492,7 +492,7 @@ def test_the_second_studys_corrected_sentences_quote_the_committed_numbers():
 #: the third study's summaries -> the seeds its registration (as changed) runs
 THIRD_SEEDS = {"station/single": range(20, 30), "station/seq. 2.8 m": range(20, 30),
                "faithful/single": range(20, 30), "drop-out/single": range(1000, 1010),
-               "survival/epochs=70": range(8)}
+               "survival/epochs=70": range(8), "survival/epochs=3000": range(8)}
 
 
 @pytest.mark.parametrize("key", THIRD_SEEDS)
@@ -637,3 +637,23 @@ def test_every_arm_fuses_at_the_weight_its_calibration_fixed():
         if metric == "max_f1" and world == tables.PRIMARY3:
             expected = sum(s[(world, method, direction)] for s in per_seed) / 8
             assert float(row["mean"]) == pytest.approx(expected, rel=1e-12), (method, direction)
+
+
+def test_the_survival_comparison_s_halves_scored_the_same_simulated_runs():
+    """Each half simulated its runs itself, on two machines (docs/RESULTS.md, "Third study:
+    results"): every seed's manifest records the same run hashes in all three."""
+    tables = tables_module()
+    halves = [{path.parent.name: json.loads(path.read_text())["datasets"]
+               for path in (folder / "seeds").glob("seed-*/manifest.json")}
+              for folder in (*tables.SURVIVAL_POINTS.values(), *tables.FIRST_MACHINE3.values())]
+    assert all(sorted(half) == sorted(f"seed-{s}" for s in range(8)) for half in halves)
+    assert halves[0] == halves[1] == halves[2]
+
+
+def test_the_survival_sentence_is_the_registered_rule_s_reading():
+    tables = tables_module()
+    text = " ".join((ROOT / "docs" / "RESULTS.md").read_text().split())
+    held = tables.survival_held()
+    assert ("**the second study's answer held**" in text) is held
+    assert ("**the second study's answer did not hold**" in text) is not held
+
