@@ -43,10 +43,9 @@ def kernel_env(kernel: str) -> dict[str, str]:
 
 
 def architecture(env: dict[str, str]) -> str:
-    """The kernel numpy's OpenBLAS reports under ``env`` (threadpoolctl's ``architecture``)."""
-    code = ("import numpy, threadpoolctl\n"
-            "print(','.join(sorted({str(p.get('architecture')) for p in threadpoolctl.threadpool_info()"
-            " if p['user_api'] == 'blas'})))")
+    """The kernel numpy's OpenBLAS reports under ``env`` (`blas_libraries`' ``architecture``)."""
+    code = ("from vitaplace.engine.base.cpus import blas_libraries\n"
+            "print(','.join(sorted({str(lib['architecture']) for lib in blas_libraries()})))")
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                           check=True).stdout.strip()
 
