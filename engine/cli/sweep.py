@@ -52,7 +52,14 @@ from vitaplace.engine.cli.slurm import SlurmSettings, run_array
 from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
 from vitaplace.engine.outputs.outdir import SEED_ERROR, cache_dir, seed_dir
-from vitaplace.engine.study.grid import GridPoint, check_replace, progress_bar, summarise_point, write_grid_summary
+from vitaplace.engine.study.grid import (
+    GridPoint,
+    check_once,
+    check_replace,
+    progress_bar,
+    summarise_point,
+    write_grid_summary,
+)
 
 log = logging.getLogger("vitaplace")
 
@@ -271,8 +278,7 @@ def seed_jobs(
     unknown = set(force) - set(STAGES)
     if unknown:
         raise ScenarioError(f"--force: unknown stage(s) {', '.join(sorted(unknown))}; stages: {', '.join(STAGES)}")
-    if len(set(seeds)) != len(seeds):
-        raise ScenarioError(f"--seeds: each seed once, got {' '.join(map(str, seeds))}")
+    check_once("--seeds", [str(seed) for seed in seeds], seeds)
     named = [entry["environment"] for entry in _runs(resolved) if isinstance(entry.get("environment"), str)]
     environments = {n: load_environment(n).model_dump(mode="json") for n in named}
     resolved = _absolute_files(resolved)

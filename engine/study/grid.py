@@ -31,7 +31,7 @@ import json
 import math
 import re
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Hashable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -121,12 +121,19 @@ def _values(raw: str, where: str) -> tuple[list[str], list[Any]]:
         values = [yaml.safe_load(t) for t in texts]
     except yaml.YAMLError as exc:
         raise ScenarioError(f"{where}: a value is not YAML ({' '.join(str(exc).split())})") from None
-    canonical = [yaml.safe_dump(v) for v in values]
-    counts = Counter(canonical)
-    twice = [t for t, c in zip(texts, canonical, strict=True) if counts[c] > 1]
+    check_once(where, texts, [yaml.safe_dump(v) for v in values])
+    return texts, values
+
+
+def check_once(where: str, texts: Sequence[str], keys: Sequence[Hashable] | None = None) -> None:
+    """ScenarioError naming ``where`` (an option) when one of its values is given more than
+    once: the values compared by ``keys`` (their parsed form; default the texts), shown as
+    ``texts``. The one check of a list option's repeats (``--grid``, ``--seeds``, ``--tau``)."""
+    keys = list(texts) if keys is None else list(keys)
+    counts = Counter(keys)
+    twice = [t for t, k in zip(texts, keys, strict=True) if counts[k] > 1]
     if twice:
         raise ScenarioError(f"{where}: the value {twice[0]} is given more than once ({', '.join(twice)})")
-    return texts, values
 
 
 def inside(path: str, outer: str) -> bool:

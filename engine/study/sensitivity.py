@@ -38,6 +38,7 @@ from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve
 from vitaplace.engine.evaluation.sequence import sequence_scores
 from vitaplace.engine.outputs.outdir import MATRICES, RESULTS_JSON, SEED_ERROR, writable_dir
 from vitaplace.engine.study.aggregate import RunFolder, check_recorded, curve_path, one_scenario, validate_run_folder
+from vitaplace.engine.study.grid import check_once
 from vitaplace.engine.study.summary import bounds, cell, csv_text, describe, interval, json_safe
 
 #: revisit tolerances τ [m] of the default grid
@@ -198,6 +199,7 @@ def write_sensitivity(folder: Path, out: Path | None = None, taus: Sequence[floa
     holds; its ``failed``: the failed seed folders left out, by name, with why)."""
     if not taus or any(not math.isfinite(t) or t <= 0 for t in taus):
         raise SensitivityError(f"--tau {' '.join(map(str, taus))}: expected positive distances in metres")
+    check_once("--tau", [f"{tau:g}" for tau in taus], [float(tau) for tau in taus])
     if not 0 <= heading_tolerance_deg <= 180:
         raise SensitivityError(f"--heading-tolerance {heading_tolerance_deg}: expected degrees in [0, 180]")
     if sequence_length is not None and sequence_length < 1:

@@ -126,6 +126,16 @@ def test_user_errors_are_one_line(run_folder, tmp_path, capsys):
     assert not (old / "sensitivity.csv").exists()
 
 
+def test_a_tolerance_given_twice_is_one_line_naming_the_option(run_folder, tmp_path, capsys):
+    """`--tau 0.3 0.3` scored the one seed twice: sensitivity.md said 1 seed, its rows n = 2 and
+    sensitivity.csv held every row twice. As `sweep --grid` and `--seeds`: each value once
+    (0.3 and 0.30 are one distance)."""
+    out = tmp_path / "out"
+    assert main(["sensitivity", str(run_folder), "--tau", "0.3", "0.5", "0.30", "--out", str(out)]) == 2
+    assert _one_line(capsys, "--tau: ").endswith("the value 0.3 is given more than once (0.3, 0.3)")
+    assert not out.exists()
+
+
 Q2R = Path("evaluations") / "E1" / "H" / "query-to-reference" / "matrices.npz"
 
 

@@ -440,7 +440,8 @@ def test_bad_seeds_and_stages_are_user_errors_before_any_job(tmp_path):
     (tmp_path / "s.yaml").write_text(yaml.safe_dump({**tiny_scenario(),
                                                      "methods": [{"name": "H", "plugin": "handcrafted"}]}))
     scenario, resolved = load_scenario(tmp_path / "s.yaml")
-    for seeds, force, message in (([1, 1], [], "each seed once"), ([-1], [], "not a valid scenario seed"),
+    for seeds, force, message in (([1, 2, 1], [], r"--seeds: the value 1 is given more than once \(1, 1\)"),
+                                  ([-1], [], "not a valid scenario seed"),
                                   ([1], ["fitt"], "unknown stage")):
         with pytest.raises(ScenarioError, match=message):
             sweep.seed_jobs(scenario, resolved, seeds, tmp_path / "out", force)
