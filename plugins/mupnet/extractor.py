@@ -89,7 +89,7 @@ class ArchitectureParams(InputParams):
     )
     slope: pydantic.NonNegativeFloat = Field(0.2, description="negative slope of the leaky ReLU")
 
-    READ_ONLY_WITH = {**InputParams.READ_ONLY_WITH, "slope": ("activation", ("leaky_relu",))}
+    READ_ONLY_WITH = {**InputParams.READ_ONLY_WITH, "slope": (("activation", ("leaky_relu",)),)}
     epochs: pydantic.PositiveInt = Field(
         3000, description="passes over the training run (the maximum when converge_window > 0; the paper: 10)"
     )
@@ -203,10 +203,14 @@ class MupnetParams(ArchitectureParams):
 
     READ_ONLY_WITH = {
         **ArchitectureParams.READ_ONLY_WITH,
-        "inference_momentum": ("inference_solver", ("nesterov", "preconditioned")),
-        "weight_momentum": ("weight_optimizer", ("momentum",)),
-        **dict.fromkeys(("adam_beta1", "adam_beta2", "adam_eps"), ("weight_optimizer", ("adam",))),
-        "precision_floor": ("precision_weighting", ("layer", "channel")),
+        "inference_momentum": (("inference_solver", ("nesterov", "preconditioned")),),
+        "weight_momentum": (("weight_optimizer", ("momentum",)),),
+        **dict.fromkeys(("adam_beta1", "adam_beta2", "adam_eps"), (("weight_optimizer", ("adam",)),)),
+        "precision_floor": (("precision_weighting", ("layer", "channel")),),
+        # the plain latent steps read eta_y: training's (training_inference plain) and the test-time
+        # gd's; the settling solvers take each layer's step from its curvature bound (`node_steps`)
+        **dict.fromkeys(("eta_y_visual", "eta_y_tactile", "eta_y_joint"),
+                        (("training_inference", ("plain",)), ("inference_solver", ("gd",)))),
     }
 
     def network_config(self, tactile_size: int) -> NetworkConfig:

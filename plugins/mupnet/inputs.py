@@ -48,6 +48,8 @@ TactileInput = Literal["instant", "cycle"]
 TactileScaling = Literal["range", "clip", "robust"]
 #: the file a fitted extractor keeps its tactile channels' training range in
 RANGE_FILE = "tactile_range.json"
+#: a setting and the choices of it that read another setting (`InputParams.READ_ONLY_WITH`)
+Reader = tuple[str, tuple[str, ...]]
 
 
 def _both_modalities() -> list[Modality]:
@@ -87,20 +89,26 @@ class InputParams(ExtractorParams):
         "(the cycle input's contact flags keep their 0/1 scale; docs/MUPNET.md)",
     )
 
-    #: settings that only some choices of another setting read: key -> (that setting, the
-    #: choices that read it); with any other choice a value other than the key's default would
-    #: be ignored, so it is refused (`_no_ignored_setting`)
-    READ_ONLY_WITH: ClassVar[dict[str, tuple[str, tuple[str, ...]]]] = {
-        "cycle_points": ("tactile_input", ("cycle",)),
+    #: settings that only some choices of other settings read: key -> the readers, each (a
+    #: setting, the choices of it that read the key), any one of them enough; with none of
+    #: them chosen a value other than the key's default would be ignored, so it is refused
+    #: (`_no_ignored_setting`)
+    READ_ONLY_WITH: ClassVar[dict[str, tuple[Reader, ...]]] = {
+        "cycle_points": (("tactile_input", ("cycle",)),),
     }
 
     @pydantic.model_validator(mode="after")
     def _no_ignored_setting(self) -> InputParams:
-        for key, (setting, choices) in self.READ_ONLY_WITH.items():
-            value, choice = getattr(self, key), getattr(self, setting)
-            if choice not in choices and value != type(self).model_fields[key].default:
-                raise ValueError(f"{key} {value} is ignored by {setting} {choice} (only {' or '.join(choices)} "
-                                 f"reads it); leave {key} out or choose {setting} {' or '.join(choices)}")
+        for key, readers in self.READ_ONLY_WITH.items():
+            value = getattr(self, key)
+            if any(getattr(self, setting) in choices for setting, choices in readers):
+                continue
+            if value != type(self).model_fields[key].default:
+                chosen = " and ".join(f"{setting} {getattr(self, setting)}" for setting, _ in readers)
+                choose = " or ".join(f"{setting} {' or '.join(choices)}" for setting, choices in readers)
+                reading = " or ".join(readers[0][1]) if len(readers) == 1 else choose
+                raise ValueError(f"{key} {value} is ignored by {chosen} (only {reading} reads it); leave {key} out "
+                                 f"or choose {choose}")
         return self
 
     @pydantic.field_validator("cycle_points")

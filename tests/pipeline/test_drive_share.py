@@ -26,8 +26,7 @@ from vitaplace.plugins.mupnet.extractor import MupnetExtractor  # noqa: E402
 #: both stacks one unit, joint one unit, linear: the energy is a quadratic in three latents
 LINEAR = {"image_size": (1, 1), "visual_layers": [1], "tactile_layers": [1], "joint_size": 1, "activation": "linear",
           "epochs": 1, "batch_size": 4, "inference_steps": 2, "backend": "numpy", "seed": 0, "latent_prior": 0.5,
-          "eta_y_visual": 0.05, "eta_y_tactile": 0.05, "eta_y_joint": 0.05, "threshold_visual": 0.0,
-          "threshold_tactile": 0.0, "threshold_joint": 0.0, "max_steps": 4000}
+          "threshold_visual": 0.0, "threshold_tactile": 0.0, "threshold_joint": 0.0, "max_steps": 4000}
 #: hand-set weights: each upper node predicts its lower one as (upper value) x W
 WEIGHTS = {"visual.1": np.array([[0.5, -0.3, 0.8]]), "tactile.1": np.array([[0.4, 0.6, -0.2]]),
            "joint.visual": np.array([[1.5]]), "joint.tactile": np.array([[-0.7]])}

@@ -426,6 +426,34 @@ def test_a_setting_its_choice_ignores_is_one_line(capsys, key, value, setting, c
     assert f"{key} {value} is ignored by {setting} {choice} (only {reading} reads it)" in lines[0], lines[0]
 
 
+@pytest.mark.parametrize("solver", ["nesterov", "preconditioned"])
+@pytest.mark.parametrize("key", ["eta_y_visual", "eta_y_tactile", "eta_y_joint"])
+def test_an_eta_y_no_plain_step_reads_is_one_line(capsys, key, solver):
+    """Training's steps from the settling solver and a settling test-time solver take each
+    layer's step from its curvature bound (`node_steps`), never at eta_y: a value of its own
+    would be ignored, and listed in the report as if used."""
+    from vitaplace.engine.cli.main import main
+
+    given = [f"{key}=0.002", "training_inference=solver", f"inference_solver={solver}"]
+    assert main(["validate", "quickstart", *[a for g in given for a in ("--set", f"methods.0.params.{g}")]]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "methods.0.params: extractor 'mupnet': " in lines[0], lines
+    assert lines[0].endswith(
+        f"{key} 0.002 is ignored by training_inference solver and inference_solver {solver} (only training_inference "
+        f"plain or inference_solver gd reads it); leave {key} out or choose training_inference plain or "
+        "inference_solver gd"), lines[0]
+
+
+def test_an_eta_y_either_plain_step_reads_is_valid():
+    """eta_y sets the plain steps of training (training_inference plain) and of test-time gd:
+    either reads it; at its default it reads back from any saved model's params.json."""
+    from vitaplace.plugins.mupnet.extractor import MupnetParams
+
+    assert MupnetParams(training_inference="plain", eta_y_visual=1e-3).eta_y_visual == 1e-3  # test time: settling
+    assert MupnetParams(**{**PAPER_ALGORITHM, "eta_y_joint": 1e-3}).eta_y_joint == 1e-3  # gd at test time too
+    assert MupnetParams(eta_y_tactile=4e-3).eta_y_tactile == 4e-3  # the default, with no plain step at all
+
+
 def test_a_setting_at_its_default_or_with_a_choice_that_reads_it_is_valid():
     """A saved model's params.json holds every setting at its value: the paper's algorithm
     (gd, sgd) with the default momenta reads back."""
