@@ -27,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from vitaplace.engine.base.configfile import ConfigError, format_validation_error, load_yaml
 from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file, shipped_names_hint
 from vitaplace.engine.sim.clearance import route_collision
+from vitaplace.engine.sim.textures import png_problem
 
 __all__ = [
     "EnvironmentSpecError",
@@ -71,7 +72,8 @@ class _Model(BaseModel):
 
 
 class TextureSpec(_Model):
-    """A MuJoCo procedural texture (``builtin``) or a PNG file (``file``, relative to the YAML)."""
+    """A MuJoCo procedural texture (``builtin``) or a PNG file (``file``, relative to the YAML;
+    `load_environment` checks that it is one)."""
 
     builtin: Literal["checker", "gradient", "flat", "none"] = Field("checker", description="MuJoCo procedural texture")
     file: str | None = Field(None, description="PNG file instead, relative to the YAML")
@@ -582,7 +584,13 @@ def load_environment(path: str | Path) -> EnvironmentSpec:
     data = load_yaml(p, EnvironmentSpecError, _localise_textures)
     data.setdefault("name", p.stem)
     try:
-        return EnvironmentSpec.model_validate(data)
+        env = EnvironmentSpec.model_validate(data)
     except pydantic.ValidationError as exc:
         raise EnvironmentSpecError(format_validation_error(p, exc, EnvironmentSpec)) from None
+    for name, mat in env.materials.items():  # files: checked here, not in a run file's recorded spec
+        file = None if mat.texture is None else mat.texture.file
+        if file is not None and (problem := png_problem(Path(file))) is not None:
+            raise EnvironmentSpecError(f"{p}: materials.{name}.texture.file: {file!r}: {problem}; expected a PNG image "
+                                       "file (a relative path is relative to the folder of the file that names it)")
+    return env
 

@@ -20,7 +20,13 @@ from vitaplace.engine.sim.condition import LightCondition
 from vitaplace.engine.sim.environment import EnvironmentSpec
 from vitaplace.engine.sim.robot import N_WHISKERS, RobotSpec, whisker_layout
 
-__all__ = ["SimModel", "build_model"]
+__all__ = ["ModelCompileError", "SimModel", "build_model"]
+
+
+class ModelCompileError(UserError, ValueError):
+    """An environment that MuJoCo cannot compile for a reason its validation cannot see (a PNG
+    texture damaged past its header): one line naming the environment and what MuJoCo said,
+    here and from a worker process."""
 
 
 @dataclass
@@ -167,8 +173,9 @@ def build_model(env: EnvironmentSpec, robot: RobotSpec | None = None, offscreen:
     try:
         spec = model_spec(env, robot, offscreen, light)
         m = spec.compile()
-    except ValueError as exc:
-        raise ValueError(f"environment {env.name!r}: MuJoCo could not compile the model: {exc}") from None
+    except ValueError as exc:  # MuJoCo's message may run over lines: one line here
+        said = "; ".join(line.strip() for line in str(exc).splitlines() if line.strip())
+        raise ModelCompileError(f"environment {env.name!r}: MuJoCo could not compile the model: {said}") from None
 
     def jid(name: str) -> int:
         return mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name)

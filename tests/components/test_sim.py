@@ -194,6 +194,71 @@ def test_environment_errors_name_file_and_key_path(tmp_path):
         load_environment(tmp_path / "missing.yaml")
 
 
+def _png(path: Path, width: int = 4, height: int = 2) -> Path:
+    """A ``width`` x ``height`` 8-bit RGB PNG written by hand from the PNG specification: the
+    signature, an IHDR chunk, the rows (filter byte 0, then the pixels) deflated in one IDAT
+    chunk, IEND; each chunk is length, type, data and the CRC-32 of type and data."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    rows = b"".join(b"\x00" + bytes([200, 40, 40]) * width for _ in range(height))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(rows)) + chunk(b"IEND", b""))
+    return path
+
+
+#: texture files MuJoCo cannot read, made in a test's folder, and the words that say why
+#: (MuJoCo's own errors at compile time: "Error opening file", "unsupported content type: ''",
+#: "PNG file is smaller than a PNG header", "empty PNG file", "error decoding PNG file")
+BAD_TEXTURES = {
+    "missing": (lambda d: d / "nowhere.png", "no such file"),
+    "a folder": (lambda d: (d / "folder.png").mkdir() or d / "folder.png", "is a folder"),
+    "not a PNG": (lambda d: (d / "words.png").write_text("hello") and d / "words.png",
+                  "is not a PNG image (it does not start with PNG's signature)"),
+    "empty": (lambda d: (d / "empty.png").write_bytes(b"") or d / "empty.png", "is empty"),
+    "another extension": (lambda d: _png(d / "image.jpg"), "does not end in .png"),
+    "cut short": (lambda d: (d / "cut.png").write_bytes(b"\x89PNG\r\n\x1a\n\0\0\0\x0dIHDR\0\0\0\x04") and d / "cut.png",
+                  "is a damaged PNG image (no header giving its width and height)"),
+    "no IHDR first": (lambda d: (d / "idat.png").write_bytes(b"\x89PNG\r\n\x1a\n\0\0\0\x0dIDAT\0\0\0\x04\0\0\0\x02")
+                      and d / "idat.png", "is a damaged PNG image (no header giving its width and height)"),
+    "no width": (lambda d: _png(d / "flat.png", width=0), "is a damaged PNG image"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_TEXTURES)
+def test_a_texture_file_mujoco_cannot_read_is_refused_naming_its_key(tmp_path, case):
+    make, words = BAD_TEXTURES[case]
+    texture = make(tmp_path)
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(f"extends: e1\nmaterials: {{wall: {{texture: {{file: {texture.name}}}}}}}\n")
+    with pytest.raises(EnvironmentSpecError) as caught:
+        load_environment(bad)
+    assert str(caught.value).startswith(
+        f"{bad}: materials.wall.texture.file: '{tmp_path / texture.name}': {words}"), str(caught.value)
+    assert str(caught.value).endswith("; expected a PNG image file (a relative path is relative to the folder of "
+                                      "the file that names it)")
+
+
+def test_a_png_texture_resolves_against_its_own_file_and_compiles(tmp_path, monkeypatch):
+    """A file named relative to the YAML that names it (a parent's texture in the parent's
+    folder), in either case of .png, loads from any working folder and compiles."""
+    from vitaplace.engine.sim.model import build_model
+
+    _png(tmp_path / "worlds" / "textures" / "Wall.PNG")
+    (tmp_path / "worlds" / "parent.yaml").write_text(
+        "extends: e1\nmaterials: {wall: {texture: {file: textures/Wall.PNG}}}\n")
+    (tmp_path / "child.yaml").write_text("extends: worlds/parent.yaml\n")
+    monkeypatch.chdir(tmp_path / "worlds" / "textures")
+    env = load_environment(tmp_path / "child.yaml")
+    assert env.materials["wall"].texture.file == str(tmp_path / "worlds" / "textures" / "Wall.PNG")
+    model = build_model(env).model
+    assert (2, 4) in {(int(h), int(w)) for h, w in zip(model.tex_height, model.tex_width, strict=True)}
+
+
 # ---------------------------------------------------------------------- whiskers
 def test_wall_contact_deflects_whiskers_far_above_the_noise_floor(bare_sim):
     free = _cycles(bare_sim, (0.0, 0.0, 0.0))  # nothing within reach at the arena centre

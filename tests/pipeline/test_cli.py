@@ -1284,6 +1284,50 @@ def test_a_folder_where_a_file_is_expected_is_named_as_a_folder(tmp_path, capsys
     assert len(lines) == 1 and f"{key}: '{tmp_path}' is a folder; expected a file" in lines[0], lines
 
 
+def _undecodable_texture_world(tmp_path: Path) -> Path:
+    """E1 with a wall texture whose PNG header is whole (validate reads no further) but whose
+    IHDR chunk's CRC is wrong: MuJoCo refuses to decode it when it compiles the model."""
+    import struct
+
+    header = b"IHDR" + struct.pack(">IIBBBBB", 4, 2, 8, 2, 0, 0, 0)
+    (tmp_path / "crc.png").write_bytes(b"\x89PNG\r\n\x1a\n" + struct.pack(">I", 13) + header + b"\0\0\0\0")
+    world = tmp_path / "crc.yaml"
+    world.write_text("extends: e1\nmaterials: {wall: {texture: {file: crc.png}}}\n")
+    return world
+
+
+#: the start of the line a model MuJoCo cannot compile ends in (MuJoCo's two lines in one)
+UNCOMPILED = ("environment 'crc': MuJoCo could not compile the model: Error: error decoding PNG file "
+              "'{}': invalid CRC")
+
+
+def test_a_model_mujoco_cannot_compile_ends_simulate_in_one_line(tmp_path, capsys):
+    world = _undecodable_texture_world(tmp_path)
+    assert main(["validate", str(world)]) == 0
+    capsys.readouterr()
+    assert main(["simulate", str(world), "--samples", "2", "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    expected = "vitaplace: error: " + UNCOMPILED.format(tmp_path / "crc.png")
+    assert len(lines) == 1 and lines[0].startswith(expected), lines
+
+
+def test_a_model_mujoco_cannot_compile_is_a_user_error_from_a_worker_process(tmp_path):
+    """The same error raised in a worker of `vitaplace run`'s pool comes back as the one-line
+    kind (`UserError`), not as a traceback of the worker's."""
+    from vitaplace.engine.base.errors import UserError
+    from vitaplace.engine.pipeline.simulation import SimulationJob, simulations_in_workers
+
+    world = str(_undecodable_texture_world(tmp_path))
+    run = {"kind": "foraging", "n_samples": 2}
+    jobs = [SimulationJob(label, world, run, {}, 0, label, tmp_path / f"{label}.h5", 1.0) for label in ("a", "b")]
+    with simulations_in_workers(jobs, 2) as waits:
+        assert set(waits) == {"a", "b"}  # on the workers, not in this process
+        with pytest.raises(UserError) as caught:
+            waits["a"]()
+    assert str(caught.value).startswith(UNCOMPILED.format(tmp_path / "crc.png")), str(caught.value)
+    assert "\n" not in str(caught.value)
+
+
 def test_an_error_quoting_a_line_break_stays_one_line(tmp_path, capsys):
     """A file name (or any value an error quotes) with a line break, a tab or an escape: the
     error line writes them as Python writes them in a string."""
