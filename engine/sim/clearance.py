@@ -132,7 +132,12 @@ def route_collision(
 ) -> str | None:
     """Why the WhiskEye cannot drive the route loop ``waypoints``, ``facing`` as an
     environment's ``route_facing`` says, clear of ``obstacles`` (one line naming the waypoint),
-    or None when it can."""
+    or None when it can. Two consecutive waypoints at one point (`Route`'s ``np.allclose``) leave a
+    segment without length, and no direction to drive: named before any arithmetic on it."""
+    for i in range(1, len(waypoints)):
+        if np.allclose(waypoints[i], waypoints[i - 1]):
+            return (f"route.{i}: waypoint {i} ({waypoints[i][0]:g}, {waypoints[i][1]:g}) is where waypoint {i - 1} "
+                    "is; expected consecutive waypoints at different points (the segment between them has no length)")
     route = Route(waypoints)
     outward = np.mean(waypoints, axis=0) if facing == "outward" else None
     s, clearance = loop_clearance(obstacles, route, outward)

@@ -8,8 +8,10 @@ import os
 os.environ.setdefault("MUJOCO_GL", "egl")  # headless rendering; must precede the mujoco import
 
 import math
+import re
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -254,6 +256,37 @@ def test_a_route_the_whiskeye_cannot_drive_clear_is_refused_by_validate(tmp_path
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 2 and len(lines) == 1 and "Traceback" not in result.stderr, result.stderr[-500:]
     assert str(path) in lines[0] and "route.0" in lines[0] and "(2.1, 0)" in lines[0], lines[0]
+
+
+@pytest.mark.parametrize(("route", "named"), [
+    pytest.param([[0.5, 0.5], [0.5, 0.5], [1, 1.5], [-1, 1]], "route.1: waypoint 1 (0.5, 0.5) is where waypoint 0 is",
+                 id="first two"),
+    pytest.param([[0, 0], [0, 0], [0, 0]], "route.1: waypoint 1 (0, 0) is where waypoint 0 is", id="all one point"),
+    pytest.param([[0.5, 0.5], [1, 1.5], [-1, 1], [0.5, 0.5], [0.5, 0.5]],
+                 "route.4: waypoint 4 (0.5, 0.5) is where waypoint 3 is", id="the closing waypoint twice"),
+])
+def test_a_route_with_a_segment_of_no_length_is_refused_before_any_arithmetic(route, named):
+    """Two consecutive waypoints at one point leave a segment with no length and no direction
+    (a drive along it divided by its zero length): refused naming the second one, before
+    numpy warns of the division. The first waypoint repeated at the end, closing the loop, is
+    no segment (`Route` drops it) and passes."""
+    data = {"name": "t", "route": route}  # the default 6 m arena: no landmark in the way
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=re.escape(named) + "; expected consecutive waypoints at different points"):
+            EnvironmentSpec.model_validate(data)
+        closed = [[0.5, 0.5], [1, 1.5], [-1, 1], [0.5, 0.5]]
+        assert EnvironmentSpec.model_validate({"name": "t", "route": closed}).route == [tuple(p) for p in closed]
+
+
+def test_a_route_with_a_segment_of_no_length_is_one_line_from_validate(tmp_path):
+    path = tmp_path / "still.yaml"
+    path.write_text("extends: e1\nroute: [[0, 0], [0, 0], [0, 0]]\n")
+    result = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli.main", "validate", str(path)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stderr.splitlines() == [
+        f"vitaplace: error: {path}: route.1: waypoint 1 (0, 0) is where waypoint 0 is; expected consecutive waypoints "
+        "at different points (the segment between them has no length)"], result.stderr[-500:]
 
 
 def test_route_check_names_the_waypoint_near_the_obstacle():
