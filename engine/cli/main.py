@@ -201,7 +201,8 @@ def _add_study_commands(sub: argparse._SubParsersAction, common: argparse.Argume
     )
     p.set_defaults(handler=sensitivity_command)
     p.add_argument("folder", type=Path, metavar="DIR", help="a finished run folder or a sweep folder (seed-*/)")
-    p.add_argument("--tau", type=float, nargs="+", help="revisit tolerances in metres, each once (default 0.2 0.3 0.5)")
+    p.add_argument("--tau", type=float, nargs="+",
+                   help="revisit tolerances in metres, each once and below the arenas' diagonals (default 0.2 0.3 0.5)")
     p.add_argument("--heading-tolerance", type=float, metavar="DEG",
                    help="heading tolerance scored beside position only (default 30)")
     p.add_argument("--sequence-length", type=int, metavar="L",

@@ -50,13 +50,22 @@ def check_runs(path: Path, scenario: Scenario) -> int:
                     check_run(env, run, robot)
                 except ImplausibleRun as exc:
                     raise ScenarioError(f"{path}: {where}.run.{exc.key}: {exc}") from None
-        diagonal = 2 * math.hypot(env.arena.half_x, env.arena.half_y)
-        if where != "train" and scenario.scoring.tau >= diagonal:
-            raise ScenarioError(
-                f"{path}: scoring.tau: {scenario.scoring.tau} m is not below the {diagonal:.2f} m diagonal of "
-                f"{env.name}: every pair of poses would count as a revisit"
-            )
+        problem = tau_problem(scenario.scoring.tau, env.arena.half_x, env.arena.half_y, env.name)
+        if where != "train" and problem:
+            raise ScenarioError(f"{path}: scoring.tau: {problem}")
     return train_samples
+
+
+def tau_problem(tau: float, half_x: float, half_y: float, environment: str) -> str | None:
+    """Why ``tau`` cannot be the revisit tolerance of an evaluation in the arena of half extents
+    ``half_x`` x ``half_y`` (of the environment named ``environment``), in words; None when it
+    can. Not below the arena's diagonal, every pair of poses would count as a revisit. The
+    one check of a tolerance, for a scenario (`check_runs`) and ``vitaplace sensitivity --tau``."""
+    diagonal = 2 * math.hypot(half_x, half_y)
+    if tau >= diagonal:
+        return (f"{tau} m is not below the {diagonal:.2f} m diagonal of {environment}: every pair of poses would "
+                "count as a revisit")
+    return None
 
 
 def _check_recorded_runs(path: Path, scenario: Scenario) -> int:

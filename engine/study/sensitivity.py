@@ -7,9 +7,10 @@ the TME (the method's distances, queries x references), and the query and refere
 tolerances τ in metres x heading tolerance, or position only), the ground-truth matrix is
 rebuilt from the poses (`ground_truth_matrix`) and the TME scored by the evaluation's own
 functions (`pr_curve`: ``max_f1``, ``recall_at_100_precision``; ``n_revisit`` the queries
-with a true match). Both match directions are scored where the run evaluated both
-(``scoring.direction: both``); the TME of one direction is never transposed into the
-other, since a method's distance need not be symmetric.
+with a true match). Each τ is given once and is below the diagonal of each evaluation's
+arena (`check_taus`), as a scenario's ``scoring.tau`` must be. Both match directions are
+scored where the run evaluated both (``scoring.direction: both``); the TME of one direction
+is never transposed into the other, since a method's distance need not be symmetric.
 
 Input: one finished run folder, or a sweep folder (its ``seed-*`` run folders), validated
 as `vitaplace aggregate` validates them (`validate_run_folder`, then `one_scenario`: one
@@ -33,10 +34,11 @@ import numpy as np
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.config.inputs import tau_problem
 from vitaplace.engine.config.scenario import ScoringSettings, SequenceSettings
 from vitaplace.engine.evaluation.evaluate import ground_truth_matrix, pr_curve
 from vitaplace.engine.evaluation.sequence import sequence_scores
-from vitaplace.engine.outputs.outdir import MATRICES, RESULTS_JSON, SEED_ERROR, writable_dir
+from vitaplace.engine.outputs.outdir import MATRICES, RESULTS_JSON, SEED_ERROR, arena_path, writable_dir
 from vitaplace.engine.study.aggregate import RunFolder, check_recorded, curve_path, one_scenario, validate_run_folder
 from vitaplace.engine.study.grid import check_once
 from vitaplace.engine.study.summary import bounds, cell, csv_text, describe, interval, json_safe
@@ -87,6 +89,28 @@ def _last_line(path: Path) -> str:
     except OSError as exc:
         return f"{path.name} unreadable ({exc.strerror or exc})"
     return lines[-1] if lines else f"{path.name} is empty"
+
+
+def check_taus(runs: Sequence[RunFolder], taus: Sequence[float]) -> None:
+    """SensitivityError naming --tau when a τ is not below the diagonal of an evaluation's arena
+    (`tau_problem`: the check scenario validation makes of ``scoring.tau``), each arena as its run
+    recorded it (``arenas/EVALUATION.json``, its digest in ``completed.json``). An evaluation of
+    recorded runs has no arena, and no bound, as in a scenario."""
+    for run in runs:
+        for evaluation in dict.fromkeys(row.environment for row in run.rows):
+            path = arena_path(run.folder, evaluation)
+            if not path.is_file():
+                continue
+            check_recorded(run, [path.relative_to(run.folder).as_posix()])
+            try:
+                arena = json.loads(path.read_text())
+                half_x, half_y, name = arena["width"] / 2, arena["depth"] / 2, str(arena["name"])
+            except (OSError, UnicodeDecodeError, ValueError, TypeError, KeyError) as exc:
+                raise SensitivityError(f"{path}: unreadable arena ({type(exc).__name__}: {exc})".splitlines()[0]) \
+                    from None
+            problem = next(filter(None, (tau_problem(tau, half_x, half_y, name) for tau in taus)), None)
+            if problem:
+                raise SensitivityError(f"--tau: {problem}")
 
 
 def load_evaluation(path: Path, sequence_length: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -208,6 +232,7 @@ def write_sensitivity(folder: Path, out: Path | None = None, taus: Sequence[floa
         raise SensitivityError(f"{folder}: not a folder; expected a finished run folder or a sweep folder (seed-*/)")
     out = writable_dir(Path(folder) if out is None else Path(out))
     runs, failed = run_folders(folder)
+    check_taus(runs, taus)
     rows = sensitivity_rows(runs, taus, (heading_tolerance_deg, None), sequence_length)
     summary = summarise(rows)
     write_text_atomic(out / "sensitivity.csv", csv_text(rows, COLUMNS))

@@ -136,6 +136,21 @@ def test_a_tolerance_given_twice_is_one_line_naming_the_option(run_folder, tmp_p
     assert not out.exists()
 
 
+def test_a_tolerance_not_below_the_arena_s_diagonal_is_refused_as_the_scenario_refuses_it(run_folder, tmp_path,
+                                                                                         capsys):
+    """`--tau 1e9` was scored although `--set scoring.tau=1e9` is refused: every pair of poses
+    would count as a revisit. E1 is 6.05 m square: its diagonal is 6.05 * sqrt(2) = 8.556 m,
+    so 9 is refused, in the words scenario validation uses, and 8.55 is scored."""
+    out = tmp_path / "out"
+    assert main(["sensitivity", str(run_folder), "--tau", "0.3", "9", "--out", str(out)]) == 2
+    line = _one_line(capsys, "--tau: 9.0 m is not below the 8.56 m diagonal of e1: every pair of poses would count "
+                             "as a revisit")
+    assert not list(out.glob("sensitivity.*"))
+    assert main(["validate", str(run_folder / "scenario.resolved.yaml"), "--set", "scoring.tau=9"]) == 2
+    assert _one_line(capsys, "scoring.tau: ").partition("scoring.tau: ")[2] == line.partition("--tau: ")[2]
+    assert main(["sensitivity", str(run_folder), "--tau", "8.55", "--out", str(out)]) == 0
+
+
 Q2R = Path("evaluations") / "E1" / "H" / "query-to-reference" / "matrices.npz"
 
 
