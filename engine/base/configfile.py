@@ -5,11 +5,14 @@
   `shipped_file`): mappings are deep-merged, anything else (lists too) is replaced.
 * `format_validation_error` turns a pydantic error into lines ``FILE: key.path: message``,
   with the nearest valid key suggested for an unknown one.
+* `NumbersNotBooleans`, the base of the configuration models, refuses a boolean where a number
+  is expected (YAML's ``epochs: true`` would otherwise be read as 1).
 """
 
 from __future__ import annotations
 
 import copy
+import functools
 import logging
 import re
 import types
@@ -19,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import pydantic
+import pydantic_core
 import yaml
 
 from vitaplace.engine.base.errors import UserError, did_you_mean
@@ -29,6 +33,73 @@ log = logging.getLogger("vitaplace")
 
 class ConfigError(UserError, ValueError):
     """A configuration file that cannot be used; the message names the file and key path."""
+
+
+def _kinds(tp: Any) -> frozenset[str]:
+    """What an annotation admits among ``bool``, ``int``, ``float`` and ``any`` (``Any``, ``object``),
+    through unions, ``Annotated``, containers and ``Literal`` (a literal True or False is a bool)."""
+    if tp is bool or tp is int or tp is float:
+        return frozenset({tp.__name__})
+    if tp is Any or tp is object:
+        return frozenset({"any"})
+    if typing.get_origin(tp) is typing.Literal:
+        return frozenset({"bool"} if any(isinstance(a, bool) for a in typing.get_args(tp)) else ())
+    return frozenset().union(*(_kinds(arg) for arg in typing.get_args(tp)))
+
+
+def _first_boolean(value: Any, where: tuple[int, ...] = ()) -> tuple[int, ...] | None:
+    """Where the first boolean in ``value`` is: () for ``value`` itself, a list or tuple's
+    indices for one inside them (mappings are left to the models they validate as); None."""
+    if isinstance(value, bool):
+        return where
+    if isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            found = _first_boolean(item, (*where, i))
+            if found is not None:
+                return found
+    return None
+
+
+@functools.cache
+def _number_wanted(model: type[pydantic.BaseModel], field: str) -> str | None:
+    """``"a whole number"`` or ``"a number"`` when ``field`` of ``model`` takes integers or
+    floats and never a boolean; None otherwise."""
+    kinds = _kinds(model.model_fields[field].annotation)
+    if kinds & {"bool", "any"} or not kinds & {"int", "float"}:
+        return None
+    return "a number" if "float" in kinds else "a whole number"
+
+
+class NumbersNotBooleans(pydantic.BaseModel):
+    """A base of configuration models: a boolean given where a number is expected, alone or in
+    a list, is refused at its key path, "expected a whole number, not a boolean" (pydantic would
+    read YAML's ``true`` as 1). A field that takes a boolean (``bool``, ``Any``, a union with
+    ``bool``) keeps taking it. A model-level check: pydantic allows no field validator on the
+    tag of a discriminated union (a run's ``kind``)."""
+
+    @pydantic.model_validator(mode="before")
+    @classmethod
+    def _numbers_not_booleans(cls, data: Any) -> Any:
+        if not isinstance(data, Mapping):
+            return data
+        problems: list[Any] = []
+        for key, value in data.items():
+            wanted = _number_wanted(cls, key) if isinstance(key, str) and key in cls.model_fields else None
+            where = None if wanted is None else _first_boolean(value)
+            if where is not None:
+                problems.append({"type": pydantic_core.PydanticCustomError(
+                    "boolean_not_number", "expected {wanted}, not a boolean", {"wanted": wanted}),
+                    "loc": (key, *where), "input": _inside(value, where)})
+        if problems:
+            raise pydantic_core.ValidationError.from_exception_data(cls.__name__, problems)
+        return data
+
+
+def _inside(value: Any, where: tuple[int, ...]) -> Any:
+    """The item of nested lists ``value`` at indices ``where``."""
+    for i in where:
+        value = value[i]
+    return value
 
 
 def deep_merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:

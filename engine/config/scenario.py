@@ -38,7 +38,7 @@ from typing import Annotated, Any
 
 import pydantic
 
-from vitaplace.engine.base.configfile import ConfigError
+from vitaplace.engine.base.configfile import ConfigError, NumbersNotBooleans
 from vitaplace.engine.sim.condition import Condition
 from vitaplace.engine.sim.controllers import (
     RENAMED_RUN_KEYS,
@@ -57,7 +57,7 @@ class ScenarioError(ConfigError):
     """A scenario that cannot run; the message is one line naming file, key path and problem."""
 
 
-class Strict(pydantic.BaseModel):
+class Strict(NumbersNotBooleans):
     model_config = pydantic.ConfigDict(extra="forbid")
 
 
@@ -436,14 +436,6 @@ class Scenario(Strict):
         0, ge=0, lt=2**32,
         description="master seed: every run's and method's seed derives from it",
     )
-
-    @pydantic.field_validator("seed", mode="before")
-    @classmethod
-    def _not_a_boolean(cls, value: Any) -> Any:
-        """YAML's ``seed: true`` would be read as 1."""
-        if isinstance(value, bool):
-            raise ValueError("expected a whole number, not a boolean")
-        return value
     robot: RobotSpec = pydantic.Field(
         RobotSpec(),
         description="robot, sensors and physics for every run of the scenario",

@@ -18,7 +18,7 @@ import numpy as np
 import pydantic
 
 from vitaplace.engine.base.atomic import atomic_path
-from vitaplace.engine.base.configfile import format_validation_error
+from vitaplace.engine.base.configfile import NumbersNotBooleans, format_validation_error
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.data.dataset import Run
 
@@ -32,9 +32,10 @@ class ExtractorParamsError(UserError, ValueError):
     """Invalid extractor parameters; the message names the extractor and the key."""
 
 
-class ExtractorParams(pydantic.BaseModel):
+class ExtractorParams(NumbersNotBooleans):
     """Base of every extractor's parameter schema: unknown keys are errors, and so are
-    infinite or NaN numbers (an infinite range or rate voids a run without failing it)."""
+    infinite or NaN numbers (an infinite range or rate voids a run without failing it) and
+    booleans where a number is expected (``epochs: true`` would be read as 1)."""
 
     model_config = pydantic.ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 

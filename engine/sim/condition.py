@@ -31,7 +31,9 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
+
+from vitaplace.engine.base.configfile import NumbersNotBooleans
 
 __all__ = ["Condition", "LightCondition", "CameraCondition", "Fog", "Occlusion", "kelvin_rgb", "light_rgb",
            "degrade", "noise_rng", "is_default", "NOISE_STREAM"]
@@ -40,7 +42,7 @@ __all__ = ["Condition", "LightCondition", "CameraCondition", "Fog", "Occlusion",
 NOISE_STREAM = 0xC0FFEE
 
 
-class _Settings(BaseModel):
+class _Settings(NumbersNotBooleans):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 

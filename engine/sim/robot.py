@@ -46,8 +46,9 @@ import math
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field, model_validator
 
+from vitaplace.engine.base.configfile import NumbersNotBooleans
 from vitaplace.engine.data.dataset import MAX_DEFLECTION_SAMPLES
 
 __all__ = ["RobotSpec", "whisker_layout", "camera_fovy_deg", "N_WHISKERS", "N_BOARDS", "N_COLUMNS"]
@@ -103,7 +104,7 @@ def camera_fovy_deg(hfov_deg: float, width: int, height: int) -> float:
     return math.degrees(2.0 * math.atan(math.tan(math.radians(hfov_deg) / 2.0) * height / width))
 
 
-class RobotSpec(BaseModel):
+class RobotSpec(NumbersNotBooleans):
     """Robot, sensor and physics parameters. Every field has a default (the WhiskEye-like robot)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)

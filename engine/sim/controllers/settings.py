@@ -28,8 +28,9 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
+from pydantic import ConfigDict, Field, TypeAdapter, model_validator
 
+from vitaplace.engine.base.configfile import NumbersNotBooleans
 from vitaplace.engine.sim.condition import Condition, is_default
 
 __all__ = ["RunSpec", "ForagingGains", "ForagingRun", "VisitsRun", "TeleopRun", "StationsRun", "RouteRun", "OrbitRun",
@@ -40,7 +41,7 @@ __all__ = ["RunSpec", "ForagingGains", "ForagingRun", "VisitsRun", "TeleopRun", 
 TELEOP_SPEED = 0.3
 
 
-class _Settings(BaseModel):
+class _Settings(NumbersNotBooleans):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 

@@ -1,0 +1,80 @@
+"""Scenario values of the right type but outside what they can mean, refused by `vitaplace
+validate` in one line naming the key path (exit 2): booleans where numbers are expected."""
+
+from __future__ import annotations
+
+import typing
+
+import pydantic
+import pytest
+
+from vitaplace.engine.base.configfile import NumbersNotBooleans
+from vitaplace.engine.cli.main import main
+from vitaplace.engine.config.scenario import Scenario
+
+
+def refusal(capsys, *settings: str) -> str:
+    """The one line `vitaplace validate quickstart --set ...` refuses ``settings`` with (exit 2)."""
+    assert main(["validate", "quickstart", *[a for s in settings for a in ("--set", s)]]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    return lines[0]
+
+
+@pytest.mark.parametrize("setting, where, wanted", [
+    ("seed=false", "seed", "a whole number"),
+    ("train.run.n_samples=true", "train.run.n_samples", "a whole number"),
+    ("evaluations.0.run.n_samples=true", "evaluations.0.run.n_samples", "a whole number"),
+    ("robot.deflection_samples=true", "robot.deflection_samples", "a whole number"),
+    ("scoring.recall_k=[1, true]", "scoring.recall_k.1", "a whole number"),
+    ("scoring.sequence.length=true", "scoring.sequence.length", "a whole number"),
+    ("methods.0.params.epochs=true", "methods.0.params: extractor 'mupnet': epochs", "a whole number"),
+    ("methods.0.params.image_size=[12, true]", "methods.0.params: extractor 'mupnet': image_size.1", "a whole number"),
+    ("methods.1.params.grid=[true, 64]", "methods.1.params: extractor 'handcrafted': grid.0", "a whole number"),
+    ("scoring.tau=true", "scoring.tau", "a number"),
+    ("evaluations.0.query_off_route=true", "evaluations.0.query_off_route", "a number"),
+    ("train.run.gains.attend_margin_share=true", "train.run.gains.attend_margin_share", "a number"),
+    ("robot.whisk_hz=true", "robot.whisk_hz", "a number"),
+    ("methods.0.params.latent_prior=true", "methods.0.params: extractor 'mupnet': latent_prior", "a number"),
+])
+def test_a_boolean_for_a_number_is_one_line(capsys, setting, where, wanted):
+    """YAML's true is not 1: pydantic would read `epochs: true` as one epoch."""
+    line = refusal(capsys, setting)
+    assert f"quickstart.yaml: {where}: expected {wanted}, not a boolean" in line, line
+
+
+def test_a_key_that_takes_a_boolean_still_does(capsys):
+    assert main(["validate", "quickstart", "--set", "report.pdf=true"]) == 0
+
+    class Either(NumbersNotBooleans):
+        flag: bool | int = 0
+        anything: typing.Any = None
+        count: int = 0
+
+    assert Either(flag=True, anything=False).model_dump() == {"flag": True, "anything": False, "count": 0}
+    with pytest.raises(pydantic.ValidationError, match="count\n  expected a whole number, not a boolean"):
+        Either(count=True)
+
+
+def _models(tp: typing.Any) -> set[type[pydantic.BaseModel]]:
+    """The pydantic models an annotation names, through unions, containers and Annotated."""
+    if isinstance(tp, type) and issubclass(tp, pydantic.BaseModel):
+        return {tp}
+    return set().union(*(_models(arg) for arg in typing.get_args(tp)))
+
+
+def test_every_model_of_a_scenario_and_every_shipped_plugins_params_refuse_booleans_for_numbers():
+    """One mechanism: the scenario's models, those they hold, and each shipped extractor's
+    parameters derive from `NumbersNotBooleans` (a new model that does not is named here)."""
+    from vitaplace.engine.extension.registry import discover
+
+    seen: set[type[pydantic.BaseModel]] = set()
+    todo = [Scenario]
+    while todo:
+        model = todo.pop()
+        if model not in seen:
+            seen.add(model)
+            todo += [m for f in model.model_fields.values() for m in _models(f.annotation)]
+    seen |= {cls.Params for cls in discover().extractors.values()}
+    assert len(seen) > 20
+    assert sorted(m.__name__ for m in seen if not issubclass(m, NumbersNotBooleans)) == []
