@@ -398,7 +398,9 @@ class ScoringSettings(Strict):
         "null: position only",
     )
     delta: float | None = pydantic.Field(
-        None, allow_inf_nan=False, description="fixed acceptance threshold for the F1 at delta"
+        None, ge=0, allow_inf_nan=False,
+        description="fixed acceptance threshold for the F1 at delta: a query's best match is accepted when the "
+        "method's distance to it (>= 0) is at most delta; null: no fixed threshold",
     )
     recall_k: list[pydantic.PositiveInt] = pydantic.Field([1, 5, 10], description="K values of recall@K")
     direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = pydantic.Field(

@@ -1,5 +1,6 @@
 """Scenario values of the right type but outside what they can mean, refused by `vitaplace
-validate` in one line naming the key path (exit 2): booleans where numbers are expected."""
+validate` in one line naming the key path (exit 2): booleans where numbers are expected, a
+negative acceptance threshold."""
 
 from __future__ import annotations
 
@@ -54,6 +55,14 @@ def test_a_key_that_takes_a_boolean_still_does(capsys):
     assert Either(flag=True, anything=False).model_dump() == {"flag": True, "anything": False, "count": 0}
     with pytest.raises(pydantic.ValidationError, match="count\n  expected a whole number, not a boolean"):
         Either(count=True)
+
+
+def test_a_negative_delta_is_one_line(capsys):
+    """delta bounds the best match's distance, never negative: at -0.5 nothing is accepted and
+    every method scores precision 1, recall 0, F1 0 at delta, whatever its distances."""
+    line = refusal(capsys, "scoring.delta=-0.5")
+    assert "quickstart.yaml: scoring.delta: Input should be greater than or equal to 0" in line, line
+    assert main(["validate", "quickstart", "--set", "scoring.delta=0"]) == 0  # identical features only
 
 
 def _models(tp: typing.Any) -> set[type[pydantic.BaseModel]]:
