@@ -17,6 +17,7 @@ from vitaplace.engine.config.scenario import (
     RecordedRuns,
     Scenario,
     ScenarioError,
+    ScoringSettings,
 )
 from vitaplace.engine.data.dataset import DatasetError, Run, open_run, recorded_tactile_model
 from vitaplace.engine.outputs.checksum import digest
@@ -53,7 +54,37 @@ def check_runs(path: Path, scenario: Scenario) -> int:
         problem = tau_problem(scenario.scoring.tau, env.arena.half_x, env.arena.half_y, env.name)
         if where != "train" and problem:
             raise ScenarioError(f"{path}: scoring.tau: {problem}")
+    _check_recall_k(path, scenario)
     return train_samples
+
+
+#: the side of an evaluation whose samples are searched, by ``scoring.direction``
+REFERENCE_SIDES = {"query-to-reference": ("reference",), "reference-to-query": ("query",),
+                   "both": ("reference", "query")}
+
+
+def _check_recall_k(path: Path, scenario: Scenario) -> None:
+    """Every K of ``scoring.recall_k`` below the samples of every run searched (each
+    evaluation's reference side in each direction): at K >= the references every query with a
+    true match has it among its first K, so recall@K is 100 % for any method. The default list
+    is left as it is (a five-sample test run keeps its recall@5 and @10)."""
+    ks = scenario.scoring.recall_k
+    if not ks or ks == ScoringSettings.model_fields["recall_k"].default:
+        return
+    k = max(ks)
+    for i, e in enumerate(scenario.evaluations):
+        for side in REFERENCE_SIDES[scenario.scoring.direction]:
+            if e.datasets is not None:
+                file = getattr(e.datasets, side)
+                where, n = f"evaluations.{i}.datasets.{side} {file}", len(open_run(file))
+            else:
+                assert e.run is not None  # validated: simulated
+                where, n = f"evaluations.{i}.run.n_samples", e.run.n_samples
+            if k >= n:
+                raise ScenarioError(
+                    f"{path}: scoring.recall_k: K {k} is not below the {n} reference samples of evaluation {e.name} "
+                    f"({where}): recall@K would count every query with a true match as found; expected each K "
+                    f"< {n}")
 
 
 def tau_problem(tau: float, half_x: float, half_y: float, environment: str) -> str | None:

@@ -402,7 +402,10 @@ class ScoringSettings(Strict):
         description="fixed acceptance threshold for the F1 at delta: a query's best match is accepted when the "
         "method's distance to it (>= 0) is at most delta; null: no fixed threshold",
     )
-    recall_k: list[pydantic.PositiveInt] = pydantic.Field([1, 5, 10], description="K values of recall@K")
+    recall_k: list[pydantic.PositiveInt] = pydantic.Field(
+        [1, 5, 10], description="K values of recall@K, distinct; each below every evaluation's reference samples "
+        "(`vitaplace validate` checks it against the runs; the default list is left to tiny runs as it is)",
+    )
     direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = pydantic.Field(
         "query-to-reference",
         description="which run queries which: query-to-reference, the reverse, or both",
@@ -413,6 +416,14 @@ class ScoringSettings(Strict):
         "through the locally normalised distances, or with metres by length points over that travelled distance; "
         "length 1 (the default) matches single samples",
     )
+    @pydantic.field_validator("recall_k")
+    @classmethod
+    def _distinct_ks(cls, ks: list[int]) -> list[int]:
+        repeated = [k for i, k in enumerate(ks) if k in ks[:i]]
+        if repeated:
+            raise ValueError(f"K {repeated[0]} is given more than once in {ks}; expected distinct K values")
+        return ks
+
     complementarity: list[ComplementarityPair] = pydantic.Field(
         [],
         description="vision-only and touch-only methods to measure the complementarity of, besides the pairs "

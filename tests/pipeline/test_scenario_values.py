@@ -1,17 +1,21 @@
 """Scenario values of the right type but outside what they can mean, refused by `vitaplace
 validate` in one line naming the key path (exit 2): booleans where numbers are expected, a
-negative acceptance threshold."""
+negative acceptance threshold, recall@K with a K given twice or not below the references."""
 
 from __future__ import annotations
 
 import typing
+from pathlib import Path
 
+import numpy as np
 import pydantic
 import pytest
+import yaml
 
 from vitaplace.engine.base.configfile import NumbersNotBooleans
 from vitaplace.engine.cli.main import main
 from vitaplace.engine.config.scenario import Scenario
+from vitaplace.engine.data.dataset import Run, write_run
 
 
 def refusal(capsys, *settings: str) -> str:
@@ -63,6 +67,61 @@ def test_a_negative_delta_is_one_line(capsys):
     line = refusal(capsys, "scoring.delta=-0.5")
     assert "quickstart.yaml: scoring.delta: Input should be greater than or equal to 0" in line, line
     assert main(["validate", "quickstart", "--set", "scoring.delta=0"]) == 0  # identical features only
+
+
+def test_a_recall_k_given_twice_is_one_line(capsys):
+    line = refusal(capsys, "scoring.recall_k=[1, 1, 100000]")
+    assert line.endswith("quickstart.yaml: scoring.recall_k: K 1 is given more than once in [1, 1, 100000]; "
+                         "expected distinct K values"), line
+
+
+def test_a_recall_k_not_below_the_simulated_references_is_one_line(capsys):
+    """With 40 references every query with a true match has it among its first 40: recall@40
+    is 100 % for any method. K 39 still ranks."""
+    line = refusal(capsys, "evaluations.0.run.n_samples=40", "scoring.recall_k=[1, 40]")
+    assert line.endswith("quickstart.yaml: scoring.recall_k: K 40 is not below the 40 reference samples of "
+                         "evaluation E1 (evaluations.0.run.n_samples): recall@K would count every query with a true "
+                         "match as found; expected each K < 40"), line
+    assert main(["validate", "quickstart", "--set", "evaluations.0.run.n_samples=40",
+                 "--set", "scoring.recall_k=[1, 39]"]) == 0
+
+
+def _recorded(path: Path, n: int) -> Path:
+    t = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    rng = np.random.default_rng(n)
+    return write_run(path, Run.from_arrays(
+        images=rng.integers(0, 255, (n, 8, 8, 3), dtype=np.uint8), theta=np.zeros((n, 4)),
+        xy=rng.normal(0, 0.02, (n, 4, 2)), poses=np.c_[np.cos(t), np.sin(t), t], name=path.stem))
+
+
+@pytest.mark.parametrize("direction, refused", [("query-to-reference", None), ("reference-to-query", "query"),
+                                                ("both", "query")])
+def test_a_recall_k_not_below_a_recorded_runs_references_is_one_line(tmp_path, capsys, direction, refused):
+    """Recorded runs: the files' lengths. A 12-sample query and a 30-sample reference rank 20
+    references searching the reference, not searching the query (reference-to-query, both)."""
+    files = {name: _recorded(tmp_path / f"{name}.h5", n) for name, n in (("train", 12), ("query", 12),
+                                                                         ("reference", 30))}
+    scenario = {"name": "recorded", "train": {"dataset": str(files["train"])},
+                "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]),
+                                                            "reference": str(files["reference"])}}],
+                "methods": [{"name": "H", "plugin": "handcrafted"}],
+                "scoring": {"tau": 0.5, "recall_k": [1, 20], "direction": direction}}
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    if refused is None:
+        assert main(["validate", str(path)]) == 0
+        return
+    assert main(["validate", str(path)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert (f"s.yaml: scoring.recall_k: K 20 is not below the 12 reference samples of evaluation E1 "
+            f"(evaluations.0.datasets.{refused} {files[refused]})") in lines[0], lines[0]
+
+
+def test_the_default_recall_k_is_left_to_a_tiny_evaluation():
+    """[1, 5, 10] on a five-sample evaluation (the smallest there is) validates as before."""
+    assert main(["validate", "quickstart", "--set", "evaluations.0.run.n_samples=5",
+                 "--set", "scoring.sequence.length=1"]) == 0
 
 
 def _models(tp: typing.Any) -> set[type[pydantic.BaseModel]]:
