@@ -74,6 +74,9 @@ def simulate_command(args: argparse.Namespace) -> int:
     """`vitaplace simulate`: a scenario's datasets, or one foraging run of an environment file."""
     if _is_environment_file(args.scenario):
         return _simulate_environment(args)
+    if args.replace:
+        raise UserError("--replace applies to `vitaplace simulate ENV.yaml`'s run file; a scenario's runs are "
+                        "cached by their settings (`--force simulate` records them anew)")
     return _run_stages(args, "simulate")
 
 
@@ -159,9 +162,14 @@ def _simulate_environment(args: argparse.Namespace) -> int:
     environment = load_environment(args.scenario)
     spec = _foraging_run(args)
     name = Path(args.scenario).stem
-    target = writable_dir(args.out or Path("runs") / "datasets") / f"{name}-foraging-seed{args.seed}.h5"
+    out = Path(args.out or Path("runs") / "datasets")
+    refuse_other(out, "`vitaplace simulate ENV.yaml`")  # a run's or a sweep's folder is not its own
+    target = writable_dir(out) / f"{name}-foraging-seed{args.seed}.h5"
     if target.is_dir():
         raise UserError(f"{target}: is a folder; expected the run file to write there (move it, or another --out)")
+    if target.exists() and not args.replace:
+        raise OutputDirError(f"--out {out}: already holds {target.name}, a run a scenario's `dataset:` may read; "
+                             "--replace records it anew, or give another --out")
     run = simulate_run(environment, spec, seed=args.seed, progress=not args.no_progress, name=name)
     path = write_run(target, run)
     print(f"wrote {len(run)} samples to {path}")
@@ -178,13 +186,22 @@ def _foraging_run(args: argparse.Namespace) -> RunSpec:
     samples = 200 if args.samples is None else args.samples
     if samples < 1:
         raise UserError(f"--samples {samples}: expected a number of samples, at least 1")
-    if args.seed < 0:
-        raise UserError(f"--seed {args.seed}: expected a whole number >= 0")
+    low, high = _seed_range()
+    if not low <= args.seed < high:
+        raise UserError(f"--seed {args.seed}: expected a whole number >= {low} and < {high}, as a scenario's seed")
     spec = run_spec(kind="foraging", n_samples=samples)
     problem = run_memory_problem(spec, RobotSpec(), physical_memory())
     if problem:
         raise UserError(f"--samples {samples}: {problem}")
     return spec
+
+
+def _seed_range() -> tuple[int, int]:
+    """[low, high) of a scenario's ``seed``, from its schema: a run's seed keeps the same bounds."""
+    from vitaplace.engine.config.scenario import Scenario
+
+    bounds = Scenario.model_fields["seed"].metadata
+    return next(b.ge for b in bounds if hasattr(b, "ge")), next(b.lt for b in bounds if hasattr(b, "lt"))
 
 
 def own_top_level_keys() -> tuple[set[str], set[str]]:

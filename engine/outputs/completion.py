@@ -109,11 +109,13 @@ def holder(folder: Path) -> str | None:
 
 def refuse_other(folder: Path, kind: str, option: str = "--out") -> None:
     """OutputDirError naming ``option`` when ``folder`` holds the finished output of a kind
-    other than ``kind`` (`holder`)."""
+    other than ``kind`` (`holder`): a kind of `KINDS`, or the words naming a command that
+    finishes no folder of its own (`vitaplace simulate ENV.yaml`'s run file), which any
+    finished output refuses."""
     held = holder(folder)
     if held is not None and held != kind:
         raise OutputDirError(f"{option} {folder}: holds the finished output of {KINDS[held]}, which "
-                             f"{KINDS[kind]} would mix its own into; choose another {option}")
+                             f"{KINDS.get(kind, kind)} would mix its own into; choose another {option}")
 
 
 def _read_record(folder: Path) -> dict[str, Any]:

@@ -1246,6 +1246,43 @@ def test_a_robot_the_simulator_cannot_drive_is_one_line(tmp_path, setting, expec
     assert re.search(expected, lines[0]), lines[0]
 
 
+def finished_folders(tmp_path: Path) -> None:
+    """RUN, a finished run's folder (its completion record over its resolved scenario), and
+    SWEEP, a sweep's (its summary), as `vitaplace.engine.outputs.completion.holder` reads them."""
+    from vitaplace.engine.outputs import completion
+
+    (tmp_path / "RUN").mkdir()
+    (tmp_path / "RUN" / completion.SCENARIO).write_text("name: t\n")
+    completion.write(tmp_path / "RUN", [])
+    (tmp_path / "SWEEP").mkdir()
+    (tmp_path / "SWEEP" / "sweep.json").write_text("{}")
+
+
+def test_simulate_an_environment_replaces_its_run_file_only_when_asked(tmp_path, capsys):
+    """`simulate e1 --samples 2` then `--samples 3` into one folder replaced the first run file
+    without a word (its name does not say its samples, and a scenario's `dataset:` may read
+    it); `--replace` asks for that. A scenario's runs are not files of its own: refused there."""
+    import h5py
+
+    argv = ["simulate", "e1", "--no-progress", "--out", str(tmp_path)]
+    path = tmp_path / "e1-foraging-seed0.h5"
+    assert main([*argv, "--samples", "2"]) == 0
+    before = path.read_bytes()
+    capsys.readouterr()
+    assert main([*argv, "--samples", "3"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"vitaplace: error: --out {tmp_path}: already holds {path.name}")
+    assert "--replace" in lines[0] and path.read_bytes() == before
+    assert main([*argv, "--samples", "3", "--replace"]) == 0
+    with h5py.File(path) as f:
+        assert len(f["theta"]) == 3
+    capsys.readouterr()
+    scenario = str(write_scenario(tmp_path, valid_scenario()))
+    assert main(["simulate", scenario, "--replace", "--out", str(tmp_path / "out")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("vitaplace: error: --replace applies to "), lines
+
+
 @pytest.mark.parametrize("argv, expected", [
     pytest.param(["--samples", "0"], "--samples 0: expected a number of samples, at least 1", id="0"),  # was 200
     pytest.param(["--samples", "-3"], "--samples -3: expected a number of samples, at least 1", id="-3"),
@@ -1255,6 +1292,14 @@ def test_a_robot_the_simulator_cannot_drive_is_one_line(tmp_path, setting, expec
     pytest.param(["--out", "FILE"], "--out FILE: exists and is not a directory", id="file"),
     pytest.param(["--out", "FOLDER"], "FOLDER/e1-foraging-seed0.h5: is a folder; expected the run file to write there",
                  id="folder"),
+    # a scenario's seed is below 2**32 = 4294967296, and the run's seed is one
+    pytest.param(["--seed", "4294967296"], "--seed 4294967296: expected a whole number >= 0 and < 4294967296",
+                 id="seed bound"),
+    pytest.param(["--out", "RUN"], "--out RUN: holds the finished output of a run of a scenario's stages",
+                 id="run folder"),
+    pytest.param(["--out", "SWEEP"], "--out SWEEP: holds the finished output of the summary of `vitaplace sweep`",
+                 id="sweep folder"),
+    pytest.param(["--out", "DONE"], "--out DONE: already holds e1-foraging-seed0.h5", id="existing run file"),
 ])
 def test_simulate_an_environment_refuses_bad_options_before_simulating(tmp_path, capsys, monkeypatch, argv,
                                                                           expected):
@@ -1266,6 +1311,9 @@ def test_simulate_an_environment_refuses_bad_options_before_simulating(tmp_path,
     monkeypatch.setattr(simulate, "simulate_run", never)
     (tmp_path / "FILE").write_text("x")
     (tmp_path / "FOLDER" / "e1-foraging-seed0.h5").mkdir(parents=True)
+    finished_folders(tmp_path)
+    (tmp_path / "DONE").mkdir()
+    (tmp_path / "DONE" / "e1-foraging-seed0.h5").write_text("an earlier run")
     monkeypatch.chdir(tmp_path)
     assert main(["simulate", "e1", "--no-progress", *argv]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
