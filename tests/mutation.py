@@ -1052,6 +1052,12 @@ MUTANTS = [
       "    for i in range(1, len(waypoints)):", "    for i in range(1, len(waypoints) - 1):",
       *t("teleop", "test_a_route_with_a_segment_of_no_length_is_refused_before_any_arithmetic"
                    "[the closing waypoint twice]")),
+    m("routes: a reversal's normal the zero bisector divided by its length (NaN)", "sim.clearance",
+      "        reverses = length < _REVERSAL", "        reverses = length < 0.0",
+      *t("teleop", "test_a_route_that_turns_back_on_itself_is_driven_by_every_kind[two waypoints-teleop]")),
+    m("routes: a reversal's normal the outgoing segment's, not the incoming", "sim.clearance",
+      "np.where(reverses, incoming, n /", "np.where(reverses, seg_normal, n /",
+      *t("teleop", "test_waypoint_normals_where_the_route_turns_back_are_the_incoming_segments_normal")),
     m("textures: a texture file named .PNG refused (MuJoCo reads the extension in any case)", "sim.textures",
       '    if path.suffix.lower() != ".png":', '    if path.suffix != ".png":',
       *t("sim", "test_a_png_texture_resolves_against_its_own_file_and_compiles")),

@@ -37,6 +37,12 @@ def footprint_clearance(obstacles: DistanceField, xy: np.ndarray, heading: np.nd
     return np.minimum(dist[: len(xy)] - BODY_RADIUS, dist[len(xy):] - HEAD_RADIUS)
 
 
+#: Length of the sum of two unit normals below which a waypoint counts as a reversal: the
+#: sum's length is 2 cos(turn / 2), so this is a turn within 1e-9 rad of 180°, where its
+#: direction would be rounding noise.
+_REVERSAL = 1e-9
+
+
 class Route:
     """A closed polyline with arc-length parametrisation."""
 
@@ -102,10 +108,15 @@ class Route:
 
     def waypoint_normals(self) -> np.ndarray:
         """Unit normals (n, 2) at the waypoints, to the left of travel: the bisectors of the
-        adjacent segments' normals."""
+        adjacent segments' normals. Where the route turns back on itself (a 180° turn: both
+        waypoints of a two-waypoint route, the tip of a spike) the two normals cancel and
+        there is no bisector: there the incoming segment's own normal."""
         seg_normal = np.stack([-self.seg_dir[:, 1], self.seg_dir[:, 0]], axis=1)
-        n = seg_normal + np.roll(seg_normal, 1, axis=0)
-        return n / np.linalg.norm(n, axis=1, keepdims=True)
+        incoming = np.roll(seg_normal, 1, axis=0)
+        n = seg_normal + incoming
+        length = np.linalg.norm(n, axis=1, keepdims=True)
+        reverses = length < _REVERSAL  # (no division by a zero length there)
+        return np.where(reverses, incoming, n / np.where(reverses, 1.0, length))
 
 
 #: Clearance [m] that the body and the head must keep along a route loop, driven as the route

@@ -301,6 +301,57 @@ def test_route_check_names_the_waypoint_near_the_obstacle():
         EnvironmentSpec.model_validate(data)
 
 
+def test_waypoint_normals_where_the_route_turns_back_are_the_incoming_segments_normal():
+    """Left of travel, by hand. [[0, 0], [1, 0]] is driven out along +x and back along -x:
+    at (1, 0) the incoming +x has its left at (0, 1), at (0, 0) the incoming -x at (0, -1).
+    [[0, 0], [2, 0], [2, 2], [2, 1]]: the corner (2, 0) turns left from +x to +y, the bisector
+    of (0, 1) and (-1, 0) is (-1, 1) / sqrt 2; the tip (2, 2) turns back from +y to -y, its
+    normal is +y's left (-1, 0). [[0, 0], [0.3, 0.1], [0.9, 0.3]] is a line driven out and
+    back: a reversal at both ends (the incoming (0.9, 0.3) -> (0, 0) has its left at
+    (1, -3) / sqrt 10) and the straight middle's normal (-1, 3) / sqrt 10."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no division by the zero bisector
+        np.testing.assert_allclose(Route([[0, 0], [1, 0]]).waypoint_normals(), [[0, -1], [0, 1]], atol=1e-12)
+        np.testing.assert_allclose(Route([[0, 0], [2, 0], [2, 2], [2, 1]]).waypoint_normals()[1:3],
+                                   [[-math.sqrt(0.5), math.sqrt(0.5)], [-1, 0]], atol=1e-12)
+        line = np.array([[1, -3], [-1, 3], [-1, 3]]) / math.sqrt(10)
+        np.testing.assert_allclose(Route([[0, 0], [0.3, 0.1], [0.9, 0.3]]).waypoint_normals(), line, atol=1e-12)
+
+
+#: routes that turn back on themselves, valid in E1 both ways of facing: docs/SIMULATION.md's
+#: two-waypoint loop, the line out and back (the first waypoint repeated closes the loop), a spike
+REVERSING = {
+    "two waypoints": [[-1, -1], [1, 1]],
+    "out and back": [[0, 0], [0.8, 0], [0, 0]],
+    "spike": [[-0.9, -0.9], [0.9, -0.9], [0, 0.3], [0, 1.0], [0, 0.3]],
+}
+
+
+@pytest.mark.parametrize("kind", ["teleop", "stations", "visits"])
+@pytest.mark.parametrize("route", list(REVERSING), ids=list(REVERSING))
+def test_a_route_that_turns_back_on_itself_is_driven_by_every_kind(route, kind):
+    """A route that validate accepts is driven: the teleoperator's own loop and detour loop
+    move a reversal's waypoint across the incoming segment (`Route.waypoint_normals`), where
+    a zero bisector once made every waypoint NaN and the run end in numpy's "arange: cannot
+    compute length". The teleoperator's loops keep their waypoint count and stay finite, its
+    own loop within 0.4 m of the route (the jitter), and a short run of every kind records a
+    finite pose per sample (the detours: 30 % of the teleop run)."""
+    data = load_environment("e1").model_dump()
+    data["route"] = REVERSING[route]
+    env = EnvironmentSpec.model_validate(data)
+    base = Route(env.route)
+    settings = {"off_route_fraction": 0.3} if kind == "teleop" else {}
+    spec = run_spec(kind=kind, n_samples=12, **settings)
+    driver, start = make_controller(env, spec, np.random.default_rng(3))
+    assert np.isfinite(start).all()
+    if kind == "teleop":
+        assert len(driver.loop.points) == len(base.points) and len(driver.detour.points) == len(base.points)
+        assert np.isfinite(driver.loop.points).all() and np.isfinite(driver.detour.points).all()
+        assert 0.0 < np.linalg.norm(driver.loop.points - base.points, axis=1).max() < 0.4
+    run = simulate_run(env, spec, 1, ROBOT, progress=False)
+    assert run.poses.shape == (12, 3) and np.isfinite(run.poses).all()
+
+
 @pytest.mark.parametrize("name", ENVS)
 def test_shipped_routes_pass_the_route_check(name):
     from vitaplace.engine.sim.clearance import route_collision
