@@ -5,8 +5,9 @@ OpenBLAS picks its SGEMM kernel for the CPU it runs on (threadpoolctl's ``archit
 machine of another generation, or ``OPENBLAS_CORETYPE``, picks another, whose sums round
 differently in the last bits. This runs one scenario once per kernel, one BLAS thread each,
 the same seed: the first kernel runs the whole pipeline, every other one reuses its simulated
-runs (a copy of its cache's datasets; MuJoCo does not use BLAS) and redoes fit, transform, evaluate and
-report. It prints each method's max F1 per kernel and the largest move against the first.
+runs (a copy of its cache's datasets: MuJoCo uses no BLAS, and on one machine the same settings simulate
+the same bits; on another machine they need not, docs/DESIGN.md "Rounding") and redoes fit, transform,
+evaluate and report. It prints each method's max F1 per kernel and the largest move against the first.
 
     python bench/blas_kernel.py --out /tmp/kernels                          # quickstart, native vs Haswell
     python bench/blas_kernel.py touch-benchmark --kernels native Haswell --out /tmp/kernels-tb

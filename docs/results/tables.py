@@ -851,7 +851,7 @@ def study3_survival_training() -> str:
 
 def study3_machines() -> str:
     """What the machine alone moves: the survival comparison's 70-epoch half on the first
-    machine and on the second (same command, same simulated runs), per method over every
+    machine and on the second (same command; the simulation and the BLAS kernel differ), per method over every
     condition, direction and seed: the |max F1 difference| (median, largest), the largest
     |mean difference over seeds| of a cell, and the seed-to-seed std of the cells (median)."""
     first, second = _per_seed("survival/first-machine"), _per_seed("survival/epochs=70")
@@ -903,25 +903,41 @@ def study3_rank(arm: str) -> str:
 
 #: the third study's kernel rerun: `bench/blas_kernel.py`'s ``--json`` rows for the second kernel
 KERNEL3 = HERE / "study3-kernel" / "kernels.json"
+#: its exploratory complement: Haswell, then Sandybridge on the same simulated runs, one machine
+KERNEL3_ALONE = HERE / "study3-kernel" / "same-machine" / "kernels.json"
 KERNEL_SEED = 20
 
 
-def study3_kernel() -> str:
-    """Numerical noise: per method, how far max F1 moves when seed 20 of the station arm
-    (single samples, every condition and direction) is fitted to reported again under a second
-    BLAS kernel (median and largest |move|, points), beside the seed-to-seed standard deviation
-    of its max F1 (median over the same cells)."""
-    (second,) = json.loads(KERNEL3.read_text())
+def _kernel_moves(before: Callable[[tuple[str, str, str]], float], after: dict[str, float], header: str) -> str:
+    """Per station-arm method, the size of the move of max F1 from ``before`` to ``after`` over
+    every condition and direction (median, largest, points), beside the median seed-to-seed
+    standard deviation of the arm's max F1 in those cells."""
     values = _per_seed("station/single")
     body = []
     for method in ARMS3["station"][2]:
         cells = [(w, method, d) for w in ARMS3["station"][1] for d in DIRECTIONS]
-        moves = [abs(second["max_f1"]["/".join(cell)] - values[cell][KERNEL_SEED]) for cell in cells]
+        moves = [abs(after["/".join(cell)] - before(cell)) for cell in cells]
         spread = [statistics.stdev(values[cell].values()) for cell in cells]
         body.append([method, f"{100 * statistics.median(moves):.1f}", f"{100 * max(moves):.1f}",
                      f"{100 * statistics.median(spread):.1f}"])
-    return markdown(["method", f"size of the move under {second['kernel']}, median", "largest",
-                     "seed-to-seed std, median"], body)
+    return markdown(["method", f"{header}, median", "largest", "seed-to-seed std, median"], body)
+
+
+def study3_kernel() -> str:
+    """Numerical noise as registered: seed 20 of the station arm (single samples) run again under
+    a second BLAS kernel, on another machine than the arm's: its max F1 against the arm's seed 20."""
+    (second,) = json.loads(KERNEL3.read_text())
+    values = _per_seed("station/single")
+    return _kernel_moves(lambda cell: values[cell][KERNEL_SEED], second["max_f1"],
+                         f"size of the move under {second['kernel']}")
+
+
+def study3_kernel_alone() -> str:
+    """The BLAS kernel alone (exploratory): seed 20 of the station arm fitted to reported under
+    two kernels on one machine, from the same simulated runs."""
+    first, second = json.loads(KERNEL3_ALONE.read_text())
+    return _kernel_moves(lambda cell: first["max_f1"]["/".join(cell)], second["max_f1"],
+                         f"size of the move, {first['kernel']} to {second['kernel']}")
 
 
 def methods_table(arm: str) -> str:
@@ -1277,6 +1293,8 @@ TABLES: dict[str, Callable[[], str]] = {
     "study3-endpoints": study3_endpoints,
     "study3-gates-faithful": lambda: study3_gates("faithful"),
     "study3-gates-drop-out": lambda: study3_gates("drop-out"),
+    "study3-kernel": study3_kernel,
+    "study3-kernel-alone": study3_kernel_alone,
     "study3-methods-faithful": lambda: study3_methods("faithful"),
     "study3-methods-drop-out": lambda: study3_methods("drop-out"),
     "study3-learned-faithful": lambda: study3_learned("faithful"),

@@ -639,15 +639,27 @@ def test_every_arm_fuses_at_the_weight_its_calibration_fixed():
             assert float(row["mean"]) == pytest.approx(expected, rel=1e-12), (method, direction)
 
 
+def manifests(folder: Path, key: str) -> dict[str, object]:
+    """``{seed folder: its manifest's key}`` of a sweep's committed seeds."""
+    return {path.parent.name: json.loads(path.read_text())[key]
+            for path in (folder / "seeds").glob("seed-*/manifest.json")}
+
+
 def test_the_survival_comparison_s_halves_scored_the_same_simulated_runs():
-    """Each half simulated its runs itself, on two machines (docs/RESULTS.md, "Third study:
-    results"): every seed's manifest records the same run hashes in all three."""
+    """Each half simulated its runs itself (docs/RESULTS.md, "Third study: results"): the two
+    halves the comparison reads, on one machine, record the same settings and the same samples
+    and contacts per run; the first machine's half, the same settings and other contacts."""
     tables = tables_module()
-    halves = [{path.parent.name: json.loads(path.read_text())["datasets"]
-               for path in (folder / "seeds").glob("seed-*/manifest.json")}
-              for folder in (*tables.SURVIVAL_POINTS.values(), *tables.FIRST_MACHINE3.values())]
-    assert all(sorted(half) == sorted(f"seed-{s}" for s in range(8)) for half in halves)
-    assert halves[0] == halves[1] == halves[2]
+    (first,) = tables.FIRST_MACHINE3.values()
+    halves = [*tables.SURVIVAL_POINTS.values(), first]
+    settings = [manifests(folder, "datasets") for folder in halves]
+    assert all(sorted(half) == sorted(f"seed-{s}" for s in range(8)) for half in settings)
+    assert settings[0] == settings[1] == settings[2]
+    runs = [manifests(folder, "runs") for folder in halves]
+    assert runs[0] == runs[1]
+    assert all(runs[0][seed] != runs[2][seed] for seed in runs[0])
+    assert (runs[0]["seed-4"]["train"]["whisker_contacts"], runs[2]["seed-4"]["train"]["whisker_contacts"]) \
+        == (22992, 14393)
 
 
 def test_the_survival_sentence_is_the_registered_rule_s_reading():
@@ -657,3 +669,35 @@ def test_the_survival_sentence_is_the_registered_rule_s_reading():
     assert ("**the second study's answer held**" in text) is held
     assert ("**the second study's answer did not hold**" in text) is not held
 
+
+
+def test_the_kernel_rerun_ran_seed_20_under_haswell_on_another_machine():
+    """The registered kernel rerun (docs/RESULTS.md, "Numerical noise"): one row, OpenBLAS
+    reporting the Haswell kernel, seed 20 with the station arm's settings; its simulation is
+    another machine's (other contacts than the arm's seed 20), so it moves what a change of
+    machine moves; every cell it scored is one of the arm's."""
+    tables = tables_module()
+    (row,) = json.loads(tables.KERNEL3.read_text())
+    assert row["kernel"] == "Haswell" and row["architecture"] == "Haswell"
+    rerun = json.loads((tables.KERNEL3.parent / "manifest.json").read_text())
+    station = json.loads((tables.ARMS3["station"][0]["single"] / "seeds" / f"seed-{tables.KERNEL_SEED}"
+                          / "manifest.json").read_text())
+    assert rerun["seed"] == station["seed"] == tables.KERNEL_SEED
+    assert rerun["datasets"] == station["datasets"]
+    assert (rerun["runs"]["train"]["whisker_contacts"], station["runs"]["train"]["whisker_contacts"]) == (26545, 23338)
+    assert {lib["architecture"] for lib in rerun["machine"]["blas"]} == {"Haswell"}
+    per_seed = tables._per_seed("station/single")
+    assert all(tuple(key.split("/")) in per_seed for key in row["max_f1"])
+
+
+def test_the_kernel_alone_changed_nothing_but_the_kernel():
+    """The exploratory same-machine pair: Haswell then Sandybridge, each as OpenBLAS reported it,
+    the second fitted on the first's simulated runs (the same runs in both manifests)."""
+    tables = tables_module()
+    rows = json.loads(tables.KERNEL3_ALONE.read_text())
+    assert [(r["kernel"], r["architecture"]) for r in rows] == [("Haswell", "Haswell"), ("Sandybridge", "Sandybridge")]
+    assert rows[0]["max_f1"] == json.loads(tables.KERNEL3.read_text())[0]["max_f1"]
+    second = json.loads((tables.KERNEL3_ALONE.parent / "manifest.json").read_text())
+    first = json.loads((tables.KERNEL3.parent / "manifest.json").read_text())
+    assert second["runs"] == first["runs"] and second["datasets"] == first["datasets"]
+    assert {lib["architecture"] for lib in second["machine"]["blas"]} == {"Sandybridge"}
