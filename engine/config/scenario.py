@@ -255,8 +255,10 @@ class Fusion(Strict):
     on one evaluation (`vitaplace.engine.evaluation.fusion`)."""
 
     name: SafeName = pydantic.Field(description="label of the fused method in results and figures (H-F, L-F, ...)")
-    vision: str = pydantic.Field(description="the vision-only method (a name under methods)")
-    touch: str = pydantic.Field(description="the touch-only method (a name under methods)")
+    vision: str = pydantic.Field(description="the vision-only method (a name under methods; validate refuses one "
+                                 "whose plugin declares it uses touch or no vision)")
+    touch: str = pydantic.Field(description="the touch-only method (a name under methods; validate refuses one "
+                                "whose plugin declares it uses vision or no touch)")
     weights: list[pydantic.NonNegativeFloat] = pydantic.Field(
         [0.0, 0.03, 0.1, 0.3, 1.0, 3.0], min_length=1,
         description="the grid the touch weight w is chosen from (max F1 on select_on, ties to the smallest)",
@@ -334,8 +336,10 @@ def current_run_settings(data: dict[str, Any], where: str) -> dict[str, Any]:
 class ComplementarityPair(Strict):
     """A vision-only and a touch-only method whose complementarity is measured (by name)."""
 
-    vision: str = pydantic.Field(description="the vision-only method (a name under methods)")
-    touch: str = pydantic.Field(description="the touch-only method (a name under methods)")
+    vision: str = pydantic.Field(description="the vision-only method (a name under methods; validate refuses one "
+                                 "whose plugin declares it uses touch or no vision)")
+    touch: str = pydantic.Field(description="the touch-only method (a name under methods; validate refuses one "
+                                "whose plugin declares it uses vision or no touch)")
 
 
 class SequenceSettings(Strict):

@@ -111,8 +111,8 @@ def test_vision_and_touch_only_methods_of_one_plugin_pair_by_themselves():
     ]
     # in the order of the vision methods; never across plugins (H-V with L-T), never a
     # method with both senses; then the scenario's own pairs, each pair once
-    pairs = complementarity_pairs(scenario(methods, [("H", "L-T"), ("H-V", "H-T")]), discover())
-    assert pairs == [("L-V", "L-T"), ("H-V", "H-T"), ("H", "L-T")]
+    pairs = complementarity_pairs(scenario(methods, [("H-V", "L-T"), ("H-V", "H-T")]), discover())
+    assert pairs == [("L-V", "L-T"), ("H-V", "H-T"), ("H-V", "L-T")]
 
 
 class Unsaid(FeatureExtractor):

@@ -1,6 +1,7 @@
 """Scenario values of the right type but outside what they can mean, refused by `vitaplace
 validate` in one line naming the key path (exit 2): booleans where numbers are expected, a
-negative acceptance threshold, recall@K with a K given twice or not below the references."""
+negative acceptance threshold, recall@K with a K given twice or not below the references, a
+fusion's or complementarity pair's vision or touch role given a method of other senses."""
 
 from __future__ import annotations
 
@@ -146,3 +147,41 @@ def test_every_model_of_a_scenario_and_every_shipped_plugins_params_refuse_boole
     seen |= {cls.Params for cls in discover().extractors.values()}
     assert len(seen) > 20
     assert sorted(m.__name__ for m in seen if not issubclass(m, NumbersNotBooleans)) == []
+
+
+#: quickstart's methods as vision-only, touch-only and both-senses configurations, and one
+#: whose plugin declares no senses (the autoencoder)
+ROLE_METHODS = ('methods=[{name: H-V, plugin: handcrafted, params: {use_tactile: false}}, '
+                '{name: H-T, plugin: handcrafted, params: {use_visual: false}}, {name: H, plugin: handcrafted}, '
+                '{name: L-V, plugin: mupnet, params: {modalities: [visual], epochs: 1}}, '
+                '{name: A, plugin: autoencoder}]')
+
+
+@pytest.mark.parametrize("setting, line", [
+    ("scoring.complementarity=[{vision: H-T, touch: H-V}]",
+     "scoring.complementarity.0.vision: method H-T uses tactile (as its plugin 'handcrafted' declares it); "
+     "the vision method needs visual alone (a vision-only method)"),
+    ("fusions=[{name: F, vision: H-V, touch: L-V}]",
+     "fusions.0.touch: method L-V uses visual (as its plugin 'mupnet' declares it); "
+     "the touch method needs tactile alone (a touch-only method)"),
+    ("scoring.complementarity=[{vision: H-V, touch: H-T}, {vision: H, touch: H-T}]",
+     "scoring.complementarity.1.vision: method H uses visual and tactile (as its plugin 'handcrafted' declares "
+     "it); the vision method needs visual alone (a vision-only method)"),
+    ("fusions=[{name: F, vision: H-V, touch: H}]",
+     "fusions.0.touch: method H uses visual and tactile (as its plugin 'handcrafted' declares it); "
+     "the touch method needs tactile alone (a touch-only method)"),
+], ids=["touch as vision", "vision as touch", "both as vision", "both as touch"])
+def test_a_role_given_a_method_of_the_wrong_senses_is_one_line(capsys, setting, line):
+    """A fusion and a complementarity pair put a vision-only code beside a touch-only one
+    (docs/DESIGN.md): touch-only H-T as the vision half would report touch rescuing "vision",
+    and H, with both senses, would make the "vision code + w touch code" control a joint code."""
+    assert refusal(capsys, ROLE_METHODS, setting).endswith(f"quickstart.yaml: {line}")
+
+
+@pytest.mark.parametrize("setting", [
+    "scoring.complementarity=[{vision: H-V, touch: H-T}, {vision: L-V, touch: H-T}]",
+    "fusions=[{name: F, vision: L-V, touch: H-T}, {name: G, vision: A, touch: H-T}, {name: K, vision: H-V, touch: A}]",
+], ids=["complementarity", "fusions"])
+def test_roles_of_the_right_or_undeclared_senses_still_validate(setting):
+    """A plugin that declares no senses (the autoencoder) cannot be checked: accepted in either role."""
+    assert main(["validate", "quickstart", "--set", ROLE_METHODS, "--set", setting]) == 0
