@@ -1,5 +1,6 @@
 """Checks of a validated scenario's runs against what they name: recorded run files (there,
-readable, long enough, shaped like the training run, query and reference distinct) and
+readable, long enough, shaped like the training run, query and reference distinct, the
+training run no evaluation's query run and warned about when it is a reference run) and
 environments (there, and the runs plausible in them; ``scoring.tau`` below each arena's
 diagonal); a stations run's approach jitter within the ground truth's tolerances."""
 
@@ -114,6 +115,7 @@ def _check_recorded_runs(path: Path, scenario: Scenario) -> int:
         train_samples, train_shape = len(train), (train.n_whiskers, train.image_shape)
         train_touch = TactileSource(f"the training run {train.path}", recorded_tactile_model(train))
     recorded: list[TactileSource] = []
+    digests: dict[Path, str] = {}  # each recorded file's content digest, read once
     for i, e in enumerate(scenario.evaluations):
         for side, file in e.recorded().items():
             where = f"evaluations.{i}.datasets.{side}"
@@ -121,9 +123,10 @@ def _check_recorded_runs(path: Path, scenario: Scenario) -> int:
             _check_like_training(path, where, run, train_shape)
             recorded.append(TactileSource(f"{where} {run.path}", recorded_tactile_model(run)))
         if e.datasets is not None:
-            _check_distinct(path, f"evaluations.{i}.datasets", e.datasets)
+            _check_distinct(path, f"evaluations.{i}.datasets", e.datasets, digests)
         elif e.run is not None:
             recorded.append(simulated)
+    _check_training_run(path, scenario, digests)
     _check_one_tactile_model(path, [train_touch, *recorded])
     if scenario.train.dataset is not None and all(e.datasets is not None for e in scenario.evaluations) \
             and "tactile_model" in robot.model_fields_set:
@@ -202,11 +205,39 @@ def _check_like_training(path: Path, where: str, run: Run, train: tuple[int, tup
         )
 
 
-def _check_distinct(path: Path, where: str, datasets: RecordedRuns) -> None:
+def _recording(file: Path, digests: dict[Path, str]) -> str:
+    """What identifies the recording ``file`` holds: its content's digest (a copy or a link
+    is the same recording), kept in ``digests`` so that each file is read once."""
+    if file not in digests:
+        digests[file] = digest(file)
+    return digests[file]
+
+
+def _check_distinct(path: Path, where: str, datasets: RecordedRuns, digests: dict[Path, str]) -> None:
     """Query and reference are two recordings: the same file (or the same content) would
     match every query to itself and score 100 %."""
-    if digest(datasets.query) == digest(datasets.reference):
+    if _recording(datasets.query, digests) == _recording(datasets.reference, digests):
         raise ScenarioError(
             f"{path}: {where}: query {datasets.query} and reference {datasets.reference} are the same recording; "
             "an evaluation needs two separate runs"
         )
+
+
+def _check_training_run(path: Path, scenario: Scenario, digests: dict[Path, str]) -> None:
+    """A recorded training run is none of the evaluations' query recordings (the methods would
+    be fitted on the very samples that are scored: leakage), and is warned about when it is a
+    reference recording (building the map from the reference traverse can be a design, but
+    every score of that evaluation then reads features fitted on the run it searches)."""
+    train = scenario.train.dataset
+    if train is None:
+        return
+    for i, e in enumerate(scenario.evaluations):
+        for side, file in e.recorded().items():
+            if _recording(file, digests) != _recording(train, digests):
+                continue
+            same = f"train.dataset {train} is the same recording as evaluations.{i}.datasets.{side} {file}"
+            if side == "query":
+                raise ScenarioError(f"{path}: {same}: the methods would be fitted on the queries evaluation {e.name} "
+                                    "scores; expected a training run of its own")
+            log.warning("%s: %s: the methods are fitted on the run evaluation %s searches, so its scores measure "
+                        "recognising places of the training run itself", path, same, e.name)

@@ -1,10 +1,12 @@
 """Scenario values of the right type but outside what they can mean, refused by `vitaplace
 validate` in one line naming the key path (exit 2): booleans where numbers are expected, a
 negative acceptance threshold, recall@K with a K given twice or not below the references, a
-fusion's or complementarity pair's vision or touch role given a method of other senses."""
+fusion's or complementarity pair's vision or touch role given a method of other senses, a
+training run that is an evaluation's query recording (a reference recording: a warning)."""
 
 from __future__ import annotations
 
+import shutil
 import typing
 from pathlib import Path
 
@@ -185,3 +187,45 @@ def test_a_role_given_a_method_of_the_wrong_senses_is_one_line(capsys, setting, 
 def test_roles_of_the_right_or_undeclared_senses_still_validate(setting):
     """A plugin that declares no senses (the autoencoder) cannot be checked: accepted in either role."""
     assert main(["validate", "quickstart", "--set", ROLE_METHODS, "--set", setting]) == 0
+
+
+def _recorded_scenario(tmp_path: Path, train: str) -> Path:
+    """A recorded scenario whose training run is a copy of its query run (``train: query``),
+    a link to its reference run (``reference``), or a recording of its own (``own``)."""
+    files = {name: _recorded(tmp_path / f"{name}.h5", n) for name, n in (("own", 12), ("query", 12),
+                                                                         ("reference", 30))}
+    if train == "query":
+        shutil.copy(files["query"], tmp_path / "train.h5")
+    elif train == "reference":
+        (tmp_path / "train.h5").symlink_to(files["reference"])
+    else:
+        (tmp_path / "train.h5").symlink_to(files["own"])
+    scenario = {"name": "recorded", "train": {"dataset": "train.h5"},
+                "evaluations": [{"name": "E1", "datasets": {"query": "query.h5", "reference": "reference.h5"}}],
+                "methods": [{"name": "H", "plugin": "handcrafted"}], "scoring": {"tau": 0.5}}
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    return path
+
+
+def test_training_on_an_evaluations_query_recording_is_one_line(tmp_path, capsys):
+    """Fitted on the queries it is scored on, a method learns the answers: leakage. A copy is
+    the same recording (by content, as query and reference are compared)."""
+    assert main(["validate", str(_recorded_scenario(tmp_path, "query"))]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert lines[0].endswith(f"s.yaml: train.dataset {tmp_path / 'train.h5'} is the same recording as "
+                             f"evaluations.0.datasets.query {tmp_path / 'query.h5'}: the methods would be fitted on "
+                             "the queries evaluation E1 scores; expected a training run of its own"), lines[0]
+
+
+@pytest.mark.parametrize("train, warned", [("reference", True), ("own", False)])
+def test_training_on_an_evaluations_reference_recording_is_warned_about(tmp_path, capsys, train, warned):
+    """Building the map from the reference traverse can be a design, so it runs, but says so."""
+    assert main(["validate", str(_recorded_scenario(tmp_path, train))]) == 0
+    err = capsys.readouterr().err
+    # the link is read as the file it names
+    said = (f"s.yaml: train.dataset {tmp_path / 'reference.h5'} is the same recording as evaluations.0.datasets."
+            f"reference {tmp_path / 'reference.h5'}: the methods are fitted on the run evaluation E1 searches")
+    assert (said in err) == warned, err
+    assert ("same recording" in err) == warned, err
