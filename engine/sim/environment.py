@@ -22,9 +22,9 @@ from typing import Annotated, Any, Literal
 
 import numpy as np
 import pydantic
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
-from vitaplace.engine.base.configfile import ConfigError, format_validation_error, load_yaml
+from vitaplace.engine.base.configfile import ConfigError, NumbersNotBooleans, format_validation_error, load_yaml
 from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file, shipped_names_hint
 from vitaplace.engine.sim.clearance import route_collision
 from vitaplace.engine.sim.textures import png_problem
@@ -67,7 +67,7 @@ class EnvironmentSpecError(ConfigError):
     """An environment file that cannot be loaded; the message names the file and the key path."""
 
 
-class _Model(BaseModel):
+class _Model(NumbersNotBooleans):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 

@@ -19,6 +19,7 @@ from vitaplace.engine.base.configfile import NumbersNotBooleans
 from vitaplace.engine.cli.main import main
 from vitaplace.engine.config.scenario import Scenario
 from vitaplace.engine.data.dataset import Run, write_run
+from vitaplace.engine.sim.environment import EnvironmentSpec
 
 
 def refusal(capsys, *settings: str) -> str:
@@ -139,16 +140,47 @@ def test_every_model_of_a_scenario_and_every_shipped_plugins_params_refuse_boole
     parameters derive from `NumbersNotBooleans` (a new model that does not is named here)."""
     from vitaplace.engine.extension.registry import discover
 
+    seen = _held(Scenario) | {cls.Params for cls in discover().extractors.values()}
+    assert len(seen) > 20
+    assert sorted(m.__name__ for m in seen if not issubclass(m, NumbersNotBooleans)) == []
+
+
+def _held(root: type[pydantic.BaseModel]) -> set[type[pydantic.BaseModel]]:
+    """``root`` and every model its fields hold, through the models they hold."""
     seen: set[type[pydantic.BaseModel]] = set()
-    todo = [Scenario]
+    todo = [root]
     while todo:
         model = todo.pop()
         if model not in seen:
             seen.add(model)
             todo += [m for f in model.model_fields.values() for m in _models(f.annotation)]
-    seen |= {cls.Params for cls in discover().extractors.values()}
-    assert len(seen) > 20
+    return seen
+
+
+def test_every_model_of_an_environment_refuses_booleans_for_numbers():
+    """The environment file's models too (arena, walls, panels, lights, boards, landmarks, textures)."""
+    seen = _held(EnvironmentSpec)
+    assert len(seen) > 8
     assert sorted(m.__name__ for m in seen if not issubclass(m, NumbersNotBooleans)) == []
+
+
+@pytest.mark.parametrize("setting, where, wanted", [
+    ("lighting: {ambient: true}", "lighting.ambient", "a number"),
+    ("arena: {wall_height: true}", "arena.wall_height", "a number"),
+    ("landmarks: [{name: b, type: box, pos: [2, 0], size: [1, true, 0.3]}]", "landmarks.0.size.1", "a number"),
+    ("materials: {grey: {rgba: [0.7, 0.7, 0.7, 1], texture: {builtin: checker, random: true}}}",
+     "materials.grey.texture.random", "a number"),
+], ids=["lighting.ambient", "arena.wall_height", "landmarks.0.size.1", "texture.random"])
+def test_a_boolean_for_a_number_in_an_environment_file_is_one_line(tmp_path, capsys, setting, where, wanted):
+    """`ambient: true` was read as full ambient light, a landmark's size 1 m."""
+    path = tmp_path / "env.yaml"
+    path.write_text(f"extends: e1\n{setting}\n")
+    assert main(["validate", str(path)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert f"env.yaml: {where}: expected {wanted}, not a boolean" in lines[0], lines[0]
+    path.write_text("extends: e1\nlighting: {shadows: true}\n")  # a key that takes a boolean still does
+    assert main(["validate", str(path)]) == 0
 
 
 #: quickstart's methods as vision-only, touch-only and both-senses configurations, and one
