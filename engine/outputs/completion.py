@@ -1,9 +1,11 @@
 """The completion record of a run folder: proof that the files in it belong to one finished run.
 
-A run deletes ``OUT/completed.json`` before it writes anything else and writes it anew as
-its very last step. The record names the SHA-256 of the resolved scenario it ran
-(``scenario.resolved.yaml``) and of every file it wrote for readers outside the pipeline
-(``manifest.json``, ``results.json``, the PR curves, ...), by path relative to the folder::
+A run deletes ``OUT/completed.json`` just before its first write into the folder itself (its
+stages before that write only into the cache, so a command that fails there leaves a
+finished folder as it was) and writes it anew as its very last step. The record names the
+SHA-256 of the resolved scenario it ran (``scenario.resolved.yaml``) and of every file it
+wrote for readers outside the pipeline (``manifest.json``, ``results.json``, the PR curves,
+...), by path relative to the folder::
 
     {"scenario": "<sha256 of scenario.resolved.yaml>", "command": "run", "files": {"results.json": "<sha256>", ...}}
 

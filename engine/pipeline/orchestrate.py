@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import time
+from pathlib import Path
 from typing import Any
 
 import yaml
@@ -56,8 +57,6 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
         log.info("%s holds the %s stage's output: carrying on to it, so that it describes these results", out, held)
         until = held
     before = completion.files_of(out)
-    completion.clear(out)  # first: until the new record, the folder holds no finished run
-    write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(relative_paths(resolved, out), sort_keys=False))
     started = time.perf_counter()
     stop = STAGES.index(until)
     announce_run_started(store.registry, out, scenario)  # e.g. a tracker's run, RUNNING from here
@@ -71,6 +70,8 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
             record.fit = fit(store, scenario, record.simulate)
         if record.fit is not None and stop >= STAGES.index("transform"):
             record.transform = transform(store, scenario, record.simulate, record.fit)
+        # the stages so far wrote only into the cache: a folder finished before stays so until here
+        unfinish(out, resolved)
         if record.fit is not None and record.transform is not None and stop >= STAGES.index("evaluate"):
             evaluated = evaluate(store, scenario, record.simulate, record.fit, record.transform)
             fused = fuse(store, scenario, record.simulate, evaluated)
@@ -89,6 +90,16 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
         raise
     announce_run_finished(store.registry, out, scenario, [row.dump() for row in record.rows], until)
     return record.rows
+
+
+def unfinish(out: Path, resolved: dict[str, Any]) -> None:
+    """Make ``out`` an unfinished run of ``resolved``, just before the first write into the
+    folder itself (outside its cache): its completion record removed, then the resolved
+    scenario written. Until this step a command that fails, however, leaves a folder it
+    found finished exactly as it was; from it, until the new record, the folder holds no
+    finished run (its results are being replaced)."""
+    completion.clear(out)
+    write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(relative_paths(resolved, out), sort_keys=False))
 
 
 def closed(record: RunRecord, store: Store, started: float) -> RunRecord:

@@ -274,3 +274,47 @@ def test_a_command_refuses_a_folder_holding_another_commands_output_in_one_line(
     status, err = cli(*(part.format(one=tmp_path / "one.yaml", out=out) for part in command))
     assert refused(status, err), err
     assert {p: p.read_bytes() for p in before if p.is_file()} == before
+
+
+def finished_files(folder: Path) -> dict[Path, bytes]:
+    """Every file of ``folder`` a reader may read: all but the stage cache, the log and the lock."""
+    return {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()
+            and "cache" not in p.relative_to(folder).parts and p.name not in ("log.txt", ".vitaplace.lock")}
+
+
+def test_a_rerun_that_fails_leaves_a_finished_folder_as_it_was(tmp_path, monkeypatch):
+    """A rerun into a finished run's folder that stopped at its fit (a one-line user error) had
+    removed completed.json and written its own scenario.resolved.yaml beside the earlier run's
+    results: `report OUT` and `aggregate` then refused the folder, a finished result lost by a
+    failed command. Each command below fails before it writes into the folder itself (outside
+    its cache), by a user error at the fit or by Ctrl-C at the transform, and not one byte a
+    reader reads changes."""
+    write_scenarios(tmp_path)
+    mupnet = {**scenario("one"), "methods": [{"name": "M", "plugin": "mupnet", "params": {"epochs": 1}}]}
+    (tmp_path / "mupnet.yaml").write_text(yaml.safe_dump(mupnet))  # its fit refuses a run that touches nothing
+    out = tmp_path / "out"
+    assert cli("run", str(tmp_path / "both.yaml"), "--out", str(out), "--no-progress")[0] == 0
+    assert cli("difficulty", str(tmp_path / "one.yaml"), "--out", str(out), "--no-progress")[0] == 0
+    before, difficulty = finished_files(out), finished_files(out / "difficulty")
+    for command in ("run", "evaluate", "report", "train"):
+        status, err = cli(command, str(tmp_path / "mupnet.yaml"), "--out", str(out), "--no-progress")
+        assert status == 2 and err.count("vitaplace: error:") == 1 and "touches anything" in err, err[-2000:]
+        assert finished_files(out) == before, command
+    import vitaplace.engine.pipeline.orchestrate as orchestrate
+
+    def interrupted(*args: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(orchestrate, "transform", interrupted)
+    for command in ("run", "evaluate"):
+        status, err = cli(command, str(tmp_path / "one.yaml"), "--out", str(out), "--no-progress",
+                          "--set", "scoring.tau=0.5")
+        assert status == 130, err[-2000:]
+        assert finished_files(out) == before, command
+    status, err = cli("difficulty", str(tmp_path / "one.yaml"), "--out", str(out), "--no-progress",
+                      "--set", "scoring.tau=0.5")
+    assert status == 130 and finished_files(out / "difficulty") == difficulty, err[-2000:]
+    monkeypatch.undo()
+    check_describes_the_same_results(out)
+    check_describes_the_same_results(out / "difficulty")
+    assert cli("report", str(out))[0] == 0 and cli("aggregate", str(out), "--out", str(tmp_path / "agg"))[0] == 0

@@ -1,6 +1,7 @@
 """The life of an output folder, as a Hypothesis state machine: runs, reruns with a changed
-setting, ``--force STAGE``, a run killed at a random moment, an edited plugin, a corrupted
-file, ``aggregate``, ``sensitivity`` and ``read_results``, in any order.
+setting, ``--force STAGE``, a run killed at a random moment, a rerun that fails (a user error
+or Ctrl-C at a stage before it writes into the folder), an edited plugin, a corrupted file,
+``aggregate``, ``sensitivity`` and ``read_results``, in any order.
 
 The invariant after every step: any number a command returns or writes equals the number a
 clean run of the scenario the folder holds gives (its ``scenario.resolved.yaml``, with the
@@ -24,6 +25,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from unittest import mock
 
 import pytest
 import yaml
@@ -37,6 +39,7 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 from vitaplace.engine.base.errors import UserError  # noqa: E402
 from vitaplace.engine.cli.main import main  # noqa: E402
+from vitaplace.engine.pipeline import orchestrate  # noqa: E402
 
 ENV_E1 = Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml"
 MODULE = "vitaplace_folder_life"
@@ -210,6 +213,19 @@ class FolderLife(RuleBasedStateMachine):
             os.killpg(process.pid, signal.SIGKILL)
             process.wait()
         self.after_run(before, self.code)
+
+    @rule(stage=st.sampled_from(("simulate", "fit", "transform")), how=st.sampled_from(("user error", "Ctrl-C")))
+    def command_fails(self, stage: str, how: str) -> None:
+        """A rerun that stops at ``stage`` (its one-line user error, or Ctrl-C) before it
+        writes into the folder itself leaves its completion record and resolved scenario as
+        they were: a finished folder stays finished, with the numbers it had."""
+        kept = [self.out / "completed.json", self.out / "scenario.resolved.yaml"]
+        before = [p.read_bytes() if p.is_file() else None for p in kept]
+        error = KeyboardInterrupt() if how == "Ctrl-C" else UserError(f"{stage}: refused")
+        with mock.patch.object(orchestrate, stage, side_effect=error):
+            status, err = cli("evaluate", str(self.work / "s.yaml"), "--out", str(self.out), "--no-progress")
+        assert status == 130 if how == "Ctrl-C" else refused_in_one_line(status, err), err[-2000:]
+        assert [p.read_bytes() if p.is_file() else None for p in kept] == before
 
     @rule(code=st.sampled_from(sorted(CODES)))
     def edit_plugin(self, code: str) -> None:
