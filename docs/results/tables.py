@@ -935,9 +935,9 @@ def study3_kernel() -> str:
 def study3_kernel_alone() -> str:
     """The BLAS kernel alone (exploratory): seed 20 of the station arm fitted to reported under
     two kernels on one machine, from the same simulated runs."""
-    first, second = json.loads(KERNEL3_ALONE.read_text())
-    return _kernel_moves(lambda cell: first["max_f1"]["/".join(cell)], second["max_f1"],
-                         f"size of the move, {first['kernel']} to {second['kernel']}")
+    before, after = json.loads(KERNEL3_ALONE.read_text())
+    return _kernel_moves(lambda cell: before["max_f1"]["/".join(cell)], after["max_f1"],
+                         f"size of the move, {before['kernel']} to {after['kernel']}")
 
 
 def methods_table(arm: str) -> str:
