@@ -186,7 +186,9 @@ def _foraging_run(args: argparse.Namespace) -> RunSpec:
     samples = 200 if args.samples is None else args.samples
     if samples < 1:
         raise UserError(f"--samples {samples}: expected a number of samples, at least 1")
-    low, high = _seed_range()
+    from vitaplace.engine.cli.sweep import seed_range
+
+    low, high = seed_range()
     if not low <= args.seed < high:
         raise UserError(f"--seed {args.seed}: expected a whole number >= {low} and < {high}, as a scenario's seed")
     spec = run_spec(kind="foraging", n_samples=samples)
@@ -194,14 +196,6 @@ def _foraging_run(args: argparse.Namespace) -> RunSpec:
     if problem:
         raise UserError(f"--samples {samples}: {problem}")
     return spec
-
-
-def _seed_range() -> tuple[int, int]:
-    """[low, high) of a scenario's ``seed``, from its schema: a run's seed keeps the same bounds."""
-    from vitaplace.engine.config.scenario import Scenario
-
-    bounds = Scenario.model_fields["seed"].metadata
-    return next(b.ge for b in bounds if hasattr(b, "ge")), next(b.lt for b in bounds if hasattr(b, "lt"))
 
 
 def own_top_level_keys() -> tuple[set[str], set[str]]:
@@ -330,7 +324,7 @@ def import_command(args: argparse.Namespace) -> int:
 def sweep_command(args: argparse.Namespace) -> int:
     """`vitaplace sweep SCENARIO`: every seed (and grid point) run, then the summary; exit 1 if a seed failed."""
     from vitaplace.engine.cli.slurm import check_queue_clear, settings_from_args
-    from vitaplace.engine.cli.sweep import check_placement, load_sweep_scenario, run_sweep
+    from vitaplace.engine.cli.sweep import check_placement, check_seeds, load_sweep_scenario, run_sweep
     from vitaplace.engine.study.grid import check_size, grid_points, load_points, parse_axes
     from vitaplace.engine.study.summary import cell
 
@@ -340,6 +334,7 @@ def sweep_command(args: argparse.Namespace) -> int:
         raise UserError(f"--workers {args.workers}: expected a number of worker processes, at least 1")
     slurm = settings_from_args(args)
     check_placement(args.workers, args.ray, slurm, args.gpus_per_job)
+    check_seeds(args.seeds)
     axes = parse_axes(args.grid, args.overrides)
     check_size(axes, len(args.seeds), args.yes)
     scenario, resolved = load_sweep_scenario(args.scenario, args.overrides, args.gpus_per_job)

@@ -447,6 +447,19 @@ def test_bad_seeds_and_stages_are_user_errors_before_any_job(tmp_path):
             sweep.seed_jobs(scenario, resolved, seeds, tmp_path / "out", force)
 
 
+@pytest.mark.parametrize("seeds, message", [
+    (["1", "1"], "--seeds: the value 1 is given more than once (1, 1)"),
+    (["4294967296"], "--seeds: 4294967296 is not a valid scenario seed (0 <= seed < 4294967296)"),
+])
+def test_bad_seeds_are_refused_before_the_output_folder_is_made(tmp_path, monkeypatch, capsys, seeds, message):
+    monkeypatch.chdir(tmp_path)
+    scenario = {**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}
+    Path("tiny.yaml").write_text(yaml.safe_dump(scenario))
+    assert main(["-q", "sweep", "tiny.yaml", "--seeds", *seeds, "--out", "out", "--no-progress"]) == 2
+    assert capsys.readouterr().err.strip() == f"vitaplace: error: {message}"
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("given, expected", [
     (None, {"figures": "summary"}), ({"pdf": True}, {"figures": "summary", "pdf": True}),
     ({"figures": "all"}, {"figures": "all"}), ({"figures": "none", "pdf": False}, {"figures": "none", "pdf": False}),
