@@ -1945,6 +1945,11 @@ MUTANTS = [
     m("sensitivity: a tau given twice accepted (each seed scored twice)", "sensitivity",
       '    check_once("--tau", ', '    (lambda *_: None)("--tau", ',
       *t("sensitivity", "test_a_tolerance_given_twice_is_one_line_naming_the_option")),
+    m("sensitivity: --out made before the folders and tolerances are checked", "sensitivity",
+      "    runs, failed = run_folders(folder)\n    check_taus(runs, taus)\n    out = writable_dir(",
+      "    writable_dir(Path(folder) if out is None else Path(out))\n"
+      "    runs, failed = run_folders(folder)\n    check_taus(runs, taus)\n    out = writable_dir(",
+      *t("sensitivity", "test_a_tolerance_not_below_the_arena_s_diagonal_is_refused_as_the_scenario_refuses_it")),
     m("sensitivity: --tau not checked against the arenas' diagonals", "sensitivity",
       "    check_taus(runs, taus)\n", "",
       *t("sensitivity", "test_a_tolerance_not_below_the_arena_s_diagonal_is_refused_as_the_scenario_refuses_it")),

@@ -219,7 +219,8 @@ def write_sensitivity(folder: Path, out: Path | None = None, taus: Sequence[floa
                       sequence_length: int | None = None) -> tuple[Path, dict[str, Any]]:
     """Rescore every saved evaluation of the run or sweep ``folder`` (`sensitivity_rows`) and
     write sensitivity.csv, .md and .json into ``out`` (default ``folder``), atomically, after
-    every folder was read (``out`` checked writable first). Returns (out, what sensitivity.json
+    every folder was read (``out`` made and checked writable once the arguments and folders
+    are known to be usable, before any rescoring). Returns (out, what sensitivity.json
     holds; its ``failed``: the failed seed folders left out, by name, with why)."""
     if not taus or any(not math.isfinite(t) or t <= 0 for t in taus):
         raise SensitivityError(f"--tau {' '.join(map(str, taus))}: expected positive distances in metres")
@@ -230,9 +231,9 @@ def write_sensitivity(folder: Path, out: Path | None = None, taus: Sequence[floa
         raise SensitivityError(f"--sequence-length {sequence_length}: expected a whole number of queries >= 1")
     if not Path(folder).is_dir():
         raise SensitivityError(f"{folder}: not a folder; expected a finished run folder or a sweep folder (seed-*/)")
-    out = writable_dir(Path(folder) if out is None else Path(out))
     runs, failed = run_folders(folder)
     check_taus(runs, taus)
+    out = writable_dir(Path(folder) if out is None else Path(out))
     rows = sensitivity_rows(runs, taus, (heading_tolerance_deg, None), sequence_length)
     summary = summarise(rows)
     write_text_atomic(out / "sensitivity.csv", csv_text(rows, COLUMNS))
