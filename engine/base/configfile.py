@@ -226,17 +226,23 @@ def load_yaml(
         return data
     if not isinstance(parent, str):
         raise error(f"{path}: extends: expected a file name, got {parent!r}")
-    base = load_yaml(local_or_shipped(path.parent, parent, f"{path.name}: extends"), error, localise, (*_chain, path))
+    found = local_or_shipped(path.parent, parent, f"{path.name}: extends")
+    if not found.is_file():
+        there = f"{found} is a folder" if found.is_dir() else f"no file {found}{'' if found.suffix else ' or .yaml'}"
+        raise error(f"{path}: extends: {parent!r}: expected a YAML file; {there}, and vitaplace ships none "
+                    "of that name")
+    base = load_yaml(found, error, localise, (*_chain, path))
     base.pop("name", None)  # a name belongs to the file that states it
     return deep_merge(base, data)
 
 
 def local_or_shipped(folder: Path, name: str, what: str = "") -> Path:
-    """``folder / name`` when that file exists, else the shipped file of that name
-    (`shipped_file`), else ``folder / name`` (whose absence the caller reports)."""
+    """``folder / name`` (or ``name.yaml``) when that file exists, else the shipped file of that
+    name (`shipped_file`), else ``folder / name`` (whose absence the caller reports)."""
     local = folder / name
-    if local.exists():
-        return local
+    for candidate in (local, folder / f"{name}.yaml"):
+        if candidate.is_file():
+            return candidate
     shipped = shipped_file(name)
     if shipped is None:
         return local

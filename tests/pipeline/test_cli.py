@@ -184,6 +184,30 @@ def test_extends_merges_over_the_base(tmp_path):
     assert scenario.methods[0].plugin == "handcrafted"
 
 
+def test_extends_names_a_file_next_to_it_first_with_or_without_yaml(tmp_path):
+    """README: ``extends: quickstart`` reads a file of that name next to yours before the
+    shipped one; ``extends: base`` finds base.yaml."""
+    from vitaplace.engine.config.loading import load_scenario
+
+    write_scenario(tmp_path, valid_scenario() | {"description": "the local quickstart"}, "quickstart.yaml")
+    write_scenario(tmp_path, valid_scenario() | {"description": "the local base"}, "base.yaml")
+    for parent, description in (("quickstart", "the local quickstart"), ("base", "the local base")):
+        child = write_scenario(tmp_path, {"extends": parent, "name": "child"}, "child.yaml")
+        assert load_scenario(child)[0].description == description
+
+
+@pytest.mark.parametrize("parent, there", [("nothere", "no file {tmp}/nothere or .yaml"),
+                                           ("folder", "{tmp}/folder is a folder")])
+def test_extends_naming_nothing_readable_is_one_line_naming_the_key(tmp_path, parent, there):
+    (tmp_path / "folder").mkdir()
+    child = write_scenario(tmp_path, {"extends": parent, "name": "child"}, "child.yaml")
+    result = run_cli(["validate", str(child)])
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines() == [
+        f"vitaplace: error: {child.resolve()}: extends: {parent!r}: expected a YAML file; "
+        f"{there.format(tmp=tmp_path.resolve())}, and vitaplace ships none of that name"]
+
+
 def test_the_old_scoring_key_is_read_with_a_warning(tmp_path, caplog):
     """`scoring:` was called `evaluation:`; files and --set paths that say so still load, as
     `scoring`, each with one warning naming the file or the assignment; a file setting both
