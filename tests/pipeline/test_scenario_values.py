@@ -6,6 +6,7 @@ training run that is an evaluation's query recording (a reference recording: a w
 
 from __future__ import annotations
 
+import json
 import shutil
 import typing
 from pathlib import Path
@@ -261,3 +262,15 @@ def test_training_on_an_evaluations_reference_recording_is_warned_about(tmp_path
             f"reference {tmp_path / 'reference.h5'}: the methods are fitted on the run evaluation E1 searches")
     assert (said in err) == warned, err
     assert ("same recording" in err) == warned, err
+
+
+@pytest.mark.parametrize("train, warned", [("reference", True), ("own", False)])
+def test_a_run_trained_on_a_reference_recording_says_so_in_its_manifest_and_report(tmp_path, train, warned):
+    """The warning of `validate` reaches what a reader of the results reads."""
+    out = tmp_path / "out"
+    assert main(["-q", "run", str(_recorded_scenario(tmp_path, train)), "--out", str(out)]) == 0
+    said = ("run train is the same recording as E1/reference: the methods are fitted on the run evaluation E1 "
+            "searches, so its scores measure recognising places of the training run itself")
+    warnings = json.loads((out / "manifest.json").read_text())["warnings"]
+    assert (warnings.get("train", {}).get("trained on E1/reference") == said) == warned, warnings
+    assert (said in " ".join((out / "report.md").read_text().split())) == warned

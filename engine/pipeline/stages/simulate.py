@@ -66,6 +66,7 @@ def simulate(store: Store, scenario: Scenario) -> SimulateRecord:
             for label in plan.runs(scenario)}
     warn_collisions(store, runs)
     warn_stays(store, runs)
+    warn_trained_on_a_reference(store, runs)
     return SimulateRecord(runs)
 
 
@@ -99,6 +100,20 @@ def warn_collisions(store: Store, runs: dict[str, RunFile]) -> None:
             warn_once(run, "body_collision_instants",
                       f"run {label}: the robot's body or head touched a landmark or wall at {instants} "
                       f"whisk-series instant(s) (body_collision_instants): it was not driven clear of the world")
+
+
+def warn_trained_on_a_reference(store: Store, runs: dict[str, RunFile]) -> None:
+    """Warn (log, manifest.json, report.md) when the training run holds the same recording as
+    an evaluation's reference run (equal content digests): every score of that evaluation then
+    reads features fitted on the run it searches. A query recording is refused before this
+    (`vitaplace.engine.config.inputs`)."""
+    train = runs["train"]
+    for label, record in runs.items():
+        if label.endswith("/reference") and record.digest == train.digest:
+            warn_once(store.run(train), f"trained on {label}",
+                      f"run train is the same recording as {label}: the methods are fitted on the run evaluation "
+                      f"{label.rpartition('/')[0]} searches, so its scores measure recognising places of the "
+                      "training run itself")
 
 
 def warn_stays(store: Store, runs: dict[str, RunFile]) -> None:
