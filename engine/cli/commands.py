@@ -186,7 +186,7 @@ def _foraging_run(args: argparse.Namespace) -> RunSpec:
     samples = 200 if args.samples is None else args.samples
     if samples < 1:
         raise UserError(f"--samples {samples}: expected a number of samples, at least 1")
-    from vitaplace.engine.cli.sweep import seed_range
+    from vitaplace.engine.study.grid import seed_range
 
     low, high = seed_range()
     if not low <= args.seed < high:
@@ -324,8 +324,8 @@ def import_command(args: argparse.Namespace) -> int:
 def sweep_command(args: argparse.Namespace) -> int:
     """`vitaplace sweep SCENARIO`: every seed (and grid point) run, then the summary; exit 1 if a seed failed."""
     from vitaplace.engine.cli.slurm import check_queue_clear, settings_from_args
-    from vitaplace.engine.cli.sweep import check_placement, check_seeds, load_sweep_scenario, run_sweep
-    from vitaplace.engine.study.grid import check_size, grid_points, load_points, parse_axes
+    from vitaplace.engine.cli.sweep import check_placement, load_sweep_scenario, run_sweep
+    from vitaplace.engine.study.grid import check_seeds, check_size, grid_points, load_points, parse_axes
     from vitaplace.engine.study.summary import cell
 
     if args.cpus_per_job <= 0 or args.gpus_per_job < 0:

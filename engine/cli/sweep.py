@@ -54,8 +54,8 @@ from vitaplace.engine.config.scenario import Scenario, ScenarioError
 from vitaplace.engine.outputs.outdir import SEED_ERROR, cache_dir, seed_dir
 from vitaplace.engine.study.grid import (
     GridPoint,
-    check_once,
     check_replace,
+    check_seeds,
     progress_bar,
     summarise_point,
     write_grid_summary,
@@ -263,22 +263,6 @@ def load_sweep_scenario(
 #: the figures each seed's report draws unless the scenario's ``report.figures`` says: the PR
 #: curves and training energy a reader of the sweep looks at, not every method's matrices
 SEED_FIGURES = "summary"
-
-
-def seed_range() -> tuple[int, int]:
-    """[low, high) of a scenario's ``seed``, from its schema: a run's seed keeps the same bounds."""
-    bounds = Scenario.model_fields["seed"].metadata
-    return next(b.ge for b in bounds if hasattr(b, "ge")), next(b.lt for b in bounds if hasattr(b, "lt"))
-
-
-def check_seeds(seeds: Sequence[int]) -> None:
-    """A sweep's ``--seeds``: each once, each a scenario's seed; a ScenarioError naming the first
-    that is not (checked before anything is written)."""
-    check_once("--seeds", [str(seed) for seed in seeds], seeds)
-    low, high = seed_range()
-    for seed in seeds:
-        if not low <= seed < high:
-            raise ScenarioError(f"--seeds: {seed} is not a valid scenario seed ({low} <= seed < {high})")
 
 
 def seed_jobs(

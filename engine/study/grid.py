@@ -136,6 +136,22 @@ def check_once(where: str, texts: Sequence[str], keys: Sequence[Hashable] | None
         raise ScenarioError(f"{where}: the value {twice[0]} is given more than once ({', '.join(twice)})")
 
 
+def seed_range() -> tuple[int, int]:
+    """[low, high) of a scenario's ``seed``, from its schema: a run's seed keeps the same bounds."""
+    bounds = Scenario.model_fields["seed"].metadata
+    return next(b.ge for b in bounds if hasattr(b, "ge")), next(b.lt for b in bounds if hasattr(b, "lt"))
+
+
+def check_seeds(seeds: Sequence[int]) -> None:
+    """A sweep's ``--seeds``: each once, each a scenario's seed; a ScenarioError naming the first
+    that is not (checked before anything is written)."""
+    check_once("--seeds", [str(seed) for seed in seeds], seeds)
+    low, high = seed_range()
+    for seed in seeds:
+        if not low <= seed < high:
+            raise ScenarioError(f"--seeds: {seed} is not a valid scenario seed ({low} <= seed < {high})")
+
+
 def inside(path: str, outer: str) -> bool:
     """Whether ``path`` is ``outer`` or lies inside it (``scoring.tau`` inside ``scoring``)."""
     return path == outer or path.startswith(outer + ".")
