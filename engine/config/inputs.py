@@ -195,14 +195,23 @@ def _recorded(path: Path, where: str, file: Path, minimum: int) -> Run:
 def _check_like_training(path: Path, where: str, run: Run, train: tuple[int, tuple[int, ...]]) -> None:
     """An evaluation run has the training run's whiskers and image size (methods fitted on
     one cannot read the other)."""
-    whiskers, image = train
+    problem = shape_problem(run, *train, "the training run")
+    if problem:
+        raise ScenarioError(f"{path}: {where}: {problem}")
+
+
+def shape_problem(run: Run, whiskers: int, image: tuple[int, ...], other: str) -> str | None:
+    """Why ``run`` and ``other`` (``whiskers`` whiskers, images of shape ``image``) cannot be
+    read by the same fitted method: their whiskers or image sizes differ, in words; None when
+    they agree. The one check of a run's shape, for a scenario's runs (`check_runs`) and the
+    reference drive of ``WhiskEye-Localise-v0``."""
+    shown = lambda shape: "x".join(map(str, shape))  # noqa: E731
+    name = run.path or repr(run.name)
     if run.n_whiskers != whiskers:
-        raise ScenarioError(f"{path}: {where}: {run.path} has {run.n_whiskers} whiskers, the training run {whiskers}")
+        return f"{name} has {run.n_whiskers} whiskers, {other} {whiskers}"
     if run.image_shape != tuple(image):
-        shown = lambda shape: "x".join(map(str, shape))  # noqa: E731
-        raise ScenarioError(
-            f"{path}: {where}: {run.path} has {shown(run.image_shape)} images, the training run {shown(image)}"
-        )
+        return f"{name} has {shown(run.image_shape)} images, {other} {shown(image)}"
+    return None
 
 
 def _recording(file: Path, digests: dict[Path, str]) -> str:

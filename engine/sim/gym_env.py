@@ -213,7 +213,10 @@ class WhiskEyeEnv(gymnasium.Env):
             raise ValueError(f"action {_one_line(action)} is not numbers: expected an array of shape (4,), float32 "
                              "(forward, strafe, turn, whisk amplitude)")
         box = self.action_space
-        if a.shape != box.shape or not np.all(np.isfinite(a)) or not box.contains(a.astype(np.float32)):
+        if a.shape != box.shape:
+            raise ValueError(f"action {_one_line(a.tolist())} has shape {a.shape}: expected an array of shape "
+                             f"{box.shape}, float32 (forward, strafe, turn, whisk amplitude)")
+        if not np.all(np.isfinite(a)) or not box.contains(a.astype(np.float32)):
             raise ValueError(f"action {_one_line(a.tolist())} is outside the action space (forward, strafe, turn, "
                              f"whisk amplitude) within {box.low.tolist()}..{box.high.tolist()}; "
                              "gymnasium.wrappers.ClipAction clips actions into it")

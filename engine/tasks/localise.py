@@ -15,6 +15,7 @@ never in the observation. A reset starts the robot at a reference pose drawn fro
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import asdict, dataclass
@@ -29,9 +30,10 @@ from gymnasium.vector import SyncVectorEnv
 from gymnasium.wrappers import TimeLimit
 
 from vitaplace.engine.base.configfile import format_validation_error
-from vitaplace.engine.base.errors import UserError
+from vitaplace.engine.base.errors import UserError, did_you_mean
+from vitaplace.engine.config.inputs import shape_problem, tau_problem
 from vitaplace.engine.config.scenario import ScoringSettings
-from vitaplace.engine.data.dataset import Run, open_run
+from vitaplace.engine.data.dataset import DatasetError, Run, open_run
 from vitaplace.engine.evaluation.evaluate import decide, ground_truth_matrix
 from vitaplace.engine.extension.features import FeatureExtractor, Features
 from vitaplace.engine.extension.registry import discover
@@ -66,10 +68,8 @@ def build_map(environment: EnvironmentSpec, robot: RobotSpec, reference: str | P
     """The reference map: ``reference`` (a `Run` or a run file) or a route drive of
     ``reference_samples`` samples simulated with ``reference_seed``; ``plugin`` with ``params``
     fitted on it (as a scenario's fit stage does) and its features of it."""
-    if isinstance(reference, Run):
-        run = reference
-    elif reference is not None:
-        run = open_run(reference)
+    if reference is not None:
+        run = _reference_run(reference, environment, robot)
     else:
         run = simulate_run(environment, run_spec(kind="route", n_samples=reference_samples), seed=reference_seed,
                            robot=robot, progress=False, name="reference")
@@ -82,6 +82,26 @@ def build_map(environment: EnvironmentSpec, robot: RobotSpec, reference: str | P
         raise UserError(f"{ENV_ID}: no pose of the reference drive {run.name!r} is clear of the obstacles of "
                         f"{environment.name!r}; is it a drive of this environment?")
     return ReferenceMap(run, extractor, extractor.transform(run), np.flatnonzero(clear))
+
+
+def _reference_run(reference: str | Path | Run, environment: EnvironmentSpec, robot: RobotSpec) -> Run:
+    """``reference`` (a `Run` or a run file) as a drive the task can map: recorded in
+    ``environment`` (the name the run records, that of a shipped environment or of an
+    environment file's ``name``; a run that records none, an imported one, is left to the
+    clearance check of `build_map`) and with ``robot``'s whiskers and image size (`shape_problem`,
+    as a scenario's runs); else one line naming ``reference``."""
+    try:
+        run = reference if isinstance(reference, Run) else open_run(reference)
+    except DatasetError as exc:
+        raise UserError(f"{ENV_ID}: reference: {exc}") from None
+    recorded = run.attrs.get("environment")
+    if recorded is not None and recorded != environment.name:
+        raise UserError(f"{ENV_ID}: reference: {run.path or repr(run.name)} was recorded in environment "
+                        f"{recorded!r}, this task's is {environment.name!r}; expected a drive of {environment.name!r}")
+    problem = shape_problem(run, robot.n_whiskers, (robot.camera_height, robot.camera_width, 3), "the task's robot")
+    if problem:
+        raise UserError(f"{ENV_ID}: reference: {problem}")
+    return run
 
 
 @dataclass(frozen=True)
@@ -112,7 +132,12 @@ class LocaliseEnv(gymnasium.Env):
                  reference: str | Path | Run | None = None, reference_samples: int = REFERENCE_SAMPLES,
                  reference_seed: int = 0, tau: float = SCORING.tau,
                  heading_tolerance_deg: float | None = SCORING.heading_tolerance_deg,
-                 render_mode: str | None = None, reference_map: ReferenceMap | None = None) -> None:
+                 render_mode: str | None = None, reference_map: ReferenceMap | None = None, **unknown: Any) -> None:
+        if unknown:  # Gymnasium passes every keyword of make() here: a misspelt one is a bad setting
+            key = next(iter(unknown))
+            known = [p for p in inspect.signature(LocaliseEnv.__init__).parameters if p not in ("self", "unknown")]
+            raise UserError(f"{ENV_ID}: unknown keyword {key!r}{did_you_mean(key, known)} (keywords: "
+                            f"{', '.join(known)})")
         try:
             scoring = ScoringSettings(tau=tau, heading_tolerance_deg=heading_tolerance_deg)
         except pydantic.ValidationError as exc:
@@ -121,6 +146,11 @@ class LocaliseEnv(gymnasium.Env):
             raise UserError(f"{ENV_ID}: reference_samples {reference_samples!r}: expected a whole number >= 1")
         self._inner = WhiskEyeEnv(environment, robot, render_mode=render_mode)
         self.environment, self.robot = self._inner.environment, self._inner.robot
+        try:
+            self._check_world(scoring.tau, reference)
+        except UserError:
+            self._inner.close()
+            raise
         self.render_mode, self.metadata = render_mode, self._inner.metadata
         self.tau, self.heading_tolerance_deg = scoring.tau, scoring.heading_tolerance_deg
         self._map_settings: dict[str, Any] = {"reference": reference, "reference_samples": reference_samples,
@@ -131,6 +161,17 @@ class LocaliseEnv(gymnasium.Env):
         self._warnings: dict[str, str] = {}  # the plugin's warnings about the samples: logged once, not each step
         self.last_step: LocaliseStep | None = None  #: the last step's record
         self._closed = False
+
+    def _check_world(self, tau: float, reference: str | Path | Run | None) -> None:
+        """Refuse, at make(), a ``tau`` the arena cannot score (`tau_problem`, as a scenario's
+        ``scoring.tau``) and a ``reference`` of another world or robot (`_reference_run`; the
+        map itself is built at the first reset)."""
+        arena = self.environment.arena
+        problem = tau_problem(tau, arena.half_x, arena.half_y, self.environment.name)
+        if problem:
+            raise UserError(f"{ENV_ID}: tau: {problem}")
+        if reference is not None:
+            _reference_run(reference, self.environment, self.robot)
 
     def reference_map(self) -> ReferenceMap:
         """The reference map, built at the first call (`build_map`) and kept."""

@@ -164,12 +164,16 @@ def test_bad_input_is_one_clear_line(bare, tmp_path):
     with pytest.raises(ValueError, match=r"render_mode 'human'"):
         WhiskEyeEnv(environment="e1", render_mode="human")
     bare.reset(seed=0)
-    for action in ([2.0, 0, 0, 1], [0, 0, 0, 1.5], [0, 0, 0, -0.1], [0.1, 0, 0], [np.nan, 0, 0, 1]):
+    for action in ([2.0, 0, 0, 1], [0, 0, 0, 1.5], [0, 0, 0, -0.1], [np.nan, 0, 0, 1]):
         with pytest.raises(ValueError, match=r"^action .* is outside the action space .*"
                                              r"\[-1\.0, -1\.0, -1\.0, 0\.0\]\.\.\[1\.0, 1\.0, 1\.0, 1\.0\]; "
                                              r"gymnasium\.wrappers\.ClipAction clips") as err:
             bare.step(np.array(action, dtype=np.float32))
         assert "\n" not in str(err.value)
+    for action in ([0.1, 0, 0], [[0.1, 0, 0, 1]], 0.5):  # the wrong shape: named, not "outside the space"
+        with pytest.raises(ValueError, match=r"^action .* has shape \(.*\): expected an array of shape \(4,\), "
+                                             r"float32 \(forward, strafe, turn, whisk amplitude\)$"):
+            bare.step(np.array(action, dtype=np.float32))
     with pytest.raises(ValueError, match=r"unknown option 'pose' \(options: start\)"):
         bare.reset(options={"pose": [0, 0, 0]})
     with pytest.raises(ValueError, match=r"option 'start' .* is outside the arena"):

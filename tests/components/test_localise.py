@@ -4,6 +4,7 @@ vector entry point sharing one reference map."""
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 
@@ -18,8 +19,8 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import vitaplace.engine.tasks  # noqa: E402,F401  (registers the task)
 from vitaplace.engine.base.errors import UserError  # noqa: E402
-from vitaplace.engine.data.dataset import Run  # noqa: E402
-from vitaplace.engine.sim.environment import load_environment  # noqa: E402
+from vitaplace.engine.data.dataset import Run, write_run  # noqa: E402
+from vitaplace.engine.sim.environment import environment_files, load_environment  # noqa: E402
 from vitaplace.engine.sim.robot import RobotSpec  # noqa: E402
 from vitaplace.engine.tasks.localise import ENV_ID, LocaliseEnv, build_map  # noqa: E402
 
@@ -144,8 +145,66 @@ def test_the_map_is_built_at_the_first_reset_in_the_process_that_steps(reference
     ({"tau": -0.1}, r"^WhiskEye-Localise-v0: tau: Input should be greater than 0"),
     ({"heading_tolerance_deg": 200}, r"^WhiskEye-Localise-v0: heading_tolerance_deg: Input should be less than or"),
     ({"reference_samples": 0}, r"^WhiskEye-Localise-v0: reference_samples 0: expected a whole number >= 1$"),
+    # E1's arena is 6.05 m square: its diagonal 6.05 * sqrt(2) = 8.556 m; at tau 100 every step would score 1
+    ({"tau": 100}, r"^WhiskEye-Localise-v0: tau: 100\.0 m is not below the 8\.56 m diagonal of e1: every pair"),
+    ({"tau": 8.557}, r"^WhiskEye-Localise-v0: tau: 8\.557 m is not below the 8\.56 m diagonal of e1"),
 ])
 def test_bad_settings_are_one_line_naming_the_setting(kwargs, message):
     with pytest.raises(UserError, match=message) as err:
         LocaliseEnv(robot=SMALL, **kwargs)
     assert "\n" not in str(err.value)
+
+
+def test_a_tau_below_the_arenas_diagonal_is_kept():
+    assert LocaliseEnv(robot=SMALL, tau=8.55).tau == 8.55  # just below E1's 8.556 m diagonal
+
+
+def test_a_misspelt_keyword_is_one_line_with_a_did_you_mean():
+    """``make`` hands every keyword to the environment: a misspelt one is a bad setting named
+    in one line, and the signature still lists every keyword by name."""
+    with pytest.raises(UserError, match=r"^WhiskEye-Localise-v0: unknown keyword 'tua'; did you mean 'tau'\? "
+                                        r"\(keywords: environment, robot, .*tau, heading_tolerance_deg") as err:
+        gymnasium.make(ENV_ID, robot=SMALL, tua=0.3)
+    assert "\n" not in str(err.value)
+    assert {"tau", "reference", "reference_map"} <= set(inspect.signature(LocaliseEnv).parameters)
+
+
+@pytest.fixture(scope="module")
+def e1_file(reference_map, tmp_path_factory):
+    """The reference drive (E1, 24x32 images) as a run file."""
+    return write_run(tmp_path_factory.mktemp("runs") / "e1route.h5", reference_map.run)
+
+
+def test_a_reference_of_another_environment_is_refused_naming_it(e1_file):
+    """The run file records the environment it was driven in (E1): a task in E2 refuses it
+    at make(), where it would score E2's poses against E1's drive."""
+    with pytest.raises(UserError, match=r"^WhiskEye-Localise-v0: reference: .*e1route\.h5 was recorded in environment "
+                                        r"'e1', this task's is 'e2'") as err:
+        gymnasium.make(ENV_ID, environment="e2", robot=SMALL, reference=e1_file)
+    assert "\n" not in str(err.value)
+
+
+def test_a_reference_of_another_image_size_is_refused_naming_it(e1_file, reference_map):
+    """A drive with 24x32 images cannot be matched by a robot whose camera is 120x160 (the
+    plugin fitted on one cannot read the other), as a scenario's runs."""
+    with pytest.raises(UserError, match=r"^WhiskEye-Localise-v0: reference: .*e1route\.h5 has 24x32x3 images, "
+                                        r"the task's robot 120x160x3$"):
+        LocaliseEnv(environment="e1", reference=e1_file)
+    with pytest.raises(UserError, match=r"^WhiskEye-Localise-v0: reference: 'reference' has 24x32x3 images"):
+        LocaliseEnv(environment="e1", robot={"camera_width": 48, "camera_height": 24}, reference=reference_map.run)
+
+
+def test_a_reference_of_the_same_environment_and_robot_is_kept(e1_file):
+    """E1 named by its shipped name or by its file's path is the environment the file records."""
+    for environment in ("e1", environment_files()["e1"]):
+        env = LocaliseEnv(environment=environment, robot=SMALL, reference=e1_file)
+        assert env.environment.name == "e1" and len(env.reference_map().run) == SAMPLES
+
+
+def test_a_wrong_shaped_action_names_the_expected_shape(reference_map):
+    env = gymnasium.make(ENV_ID, robot=SMALL, reference_map=reference_map)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"^action \[0\.0, 0\.0, 0\.0\] has shape \(3,\): expected an array of shape "
+                                         r"\(4,\), float32 \(forward, strafe, turn, whisk amplitude\)$"):
+        env.step(np.zeros(3))
+    env.close()
