@@ -39,6 +39,20 @@ def stage_runs(scenario: Scenario, stage: Path) -> dict[str, ExportRun]:
     return runs
 
 
+def check_apart(stage: Path, out: Path) -> None:
+    """The runs folder ``stage`` is a folder of its own: not the current folder (what an empty
+    ``--runs`` names), not ``out``, neither inside the other (a run folder's claim cleans what
+    interrupted writes left anywhere under it, and ``out`` must be empty or an export); else
+    one line naming both options."""
+    if stage.resolve() == Path.cwd().resolve():
+        raise UserError(f"--runs {stage}: an empty path or the current folder; expected a folder of their own "
+                        "for the runs (default: runs/<scenario name>-export)")
+    inner, outer = stage.resolve(), out.resolve()
+    if inner.is_relative_to(outer) or outer.is_relative_to(inner):  # the same folder too
+        raise UserError(f"--runs {stage}, --out {out}: the folder the runs are recorded into must lie apart from "
+                        "--out, neither inside the other")
+
+
 def export_scenario(name: str, overrides: list[str], out: Path, kind: str, runs: Path | None, progress: bool,
                     before_cleaning: Callable[[Path], None] | None = None) -> list[Path]:
     """Export scenario ``name`` (with ``overrides``) into ``out`` as ``kind`` (a key of
@@ -46,8 +60,7 @@ def export_scenario(name: str, overrides: list[str], out: Path, kind: str, runs:
     returns what was written."""
     scenario, resolved = load_scenario(name, overrides)
     stage = Path(runs) if runs is not None else Path("runs") / f"{scenario.name}-export"
-    if stage.resolve() == Path(out).resolve():
-        raise UserError(f"--runs {stage}: the folder the runs are recorded into must differ from --out")
+    check_apart(stage, Path(out))
     check_folder(Path(out), FORMATS[kind])  # before any simulation
     with outdir.claimed(stage, before_cleaning) as folder:
         run_stages(scenario, resolved, Store(folder, progress=progress), "simulate")

@@ -19,7 +19,8 @@ An integer class holds 0..255. A double or single class holds [0, 1] when every 
 there, 0..255 when every value is a whole number of 0..255 (``double(uint8_image)``); any
 other float array (e.g. [0, 1] frames that bicubic resizing overshot to 1.004) is refused
 unless ``image_range`` ("0-1": saturated like ``im2uint8``, or "0-255") says which. Values
-outside both [0, 1] and [0, 255] are refused always, with their count; complex arrays too.
+outside both [0, 1] and [0, 255] are refused always, with their count; complex arrays and
+logical images too, and theta or xy beyond float32's range (a run file's type for them).
 
 When a file does not hold the expected variable name (``images``, ``theta``, ``xy``,
 ``poses``/``pose``/``pose_return``), its single non-``__dunder__`` variable is used. MATLAB
@@ -49,7 +50,8 @@ IMAGE_RANGES = ("0-1", "0-255")
 POSE_LAYOUTS = ("Nx3", "3xN")
 #: numpy dtypes of the MATLAB numeric classes (a v7.3 file names its variables' class)
 _CLASSES = {"double": np.float64, "single": np.float32, "uint8": np.uint8, "int8": np.int8, "uint16": np.uint16,
-            "int16": np.int16, "uint32": np.uint32, "int32": np.int32, "uint64": np.uint64, "int64": np.int64}
+            "int16": np.int16, "uint32": np.uint32, "int32": np.int32, "uint64": np.uint64, "int64": np.int64,
+            "logical": np.bool_}  # logical: stored as uint8 0/1, read as bool so that images can refuse it
 
 _NAMES = {
     "images": ("images", "image", "imgs"),
@@ -66,6 +68,8 @@ _EXPECTED = {
 }
 #: Where the poses may be: poses.mat, else pose_return.mat (the output of extract_poses.m).
 POSE_FILES = ("poses.mat", "pose_return.mat")
+#: The largest float32, as a Python float (theta and xy are float32 in a run file).
+_F32_MAX = float(np.finfo(np.float32).max)
 #: Cells nested deeper than this in a v7.3 file are refused (frames are one level deep).
 _MAX_CELL_DEPTH = 4
 
@@ -108,7 +112,12 @@ def _read_mat(path: Path) -> dict[str, Any]:
     # (complex arrays are left as they are, for `_check_real` to refuse)
     for name, _, declared in scipy.io.whosmat(path):
         value = data.get(name)
-        if declared in _CLASSES and isinstance(value, np.ndarray) and not np.iscomplexobj(value):
+        if declared == "cell" and isinstance(value, np.ndarray):  # a cell's elements say their class in mat_dtype
+            typed = scipy.io.loadmat(path, variable_names=[name], mat_dtype=True)[name]
+            for index, cell in np.ndenumerate(typed):
+                if isinstance(cell, np.ndarray) and cell.dtype == np.bool_:
+                    value[index] = cell
+        elif declared in _CLASSES and isinstance(value, np.ndarray) and not np.iscomplexobj(value):
             data[name] = value.astype(_CLASSES[declared], copy=False)
     return data
 
@@ -184,6 +193,13 @@ def _numeric(path: Path, kind: str) -> np.ndarray:
     if arr.shape[-1] == 0:
         raise DatasetError(f"{path}: variable '{name}' holds no samples; expected {_EXPECTED[kind]}")
     _check_finite(arr, path, name)
+    largest = float(np.abs(arr).max())
+    if largest > _F32_MAX:  # a run file stores theta and xy as float32: they would become inf
+        raise DatasetError(
+            f"{path}: variable '{name}' has {int(np.count_nonzero(np.abs(arr) > _F32_MAX))} value(s) beyond "
+            f"float32's range (largest magnitude {largest:.6g}); expected values within +-{_F32_MAX:.6g}, as a run "
+            f"file stores {kind} as float32"
+        )
     return arr
 
 
@@ -244,6 +260,9 @@ def _check_frame_values(arr: np.ndarray, path: Path, name: str, where: str) -> N
     """At least one frame, of a numeric class, finite, every value inside [0, 255]."""
     if len(arr) == 0:
         raise DatasetError(f"{where} holds no frames, expected {_EXPECTED['images']}")
+    if arr.dtype == np.bool_:
+        raise DatasetError(f"{where} is of MATLAB class logical (true/false); expected uint8 (0..255), or double "
+                           "or single in [0, 1] or whole numbers of 0..255")
     if arr.dtype.kind not in "uif":
         raise DatasetError(f"{where} has dtype {arr.dtype}, expected uint8 or float in [0, 1]")
     if arr.dtype.kind == "f":

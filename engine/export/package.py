@@ -170,9 +170,14 @@ def verified(folder: Path) -> set[str]:
 def read_package(folder: str | Path) -> Package:
     """The package in ``folder`` (written by ``vitaplace export --format package``), every file
     first checked against its ``SHA256SUMS``: its datasheet, runs and ground truth (`Package`).
-    A missing, changed or unlisted file, or another format version, is an ExportError naming it."""
+    A missing, changed or unlisted file (any file of the folder but ``SHA256SUMS`` itself), or
+    another format version, is an ExportError naming it."""
     folder = Path(folder)
     listed = verified(folder)
+    unlisted_files = sorted(path for path in folder.rglob("*") if path.is_file() and path != folder / SUMS
+                            and path.relative_to(folder).as_posix() not in listed)
+    if unlisted_files:  # SHA256SUMS holds every other file: one it lacks was added or left out
+        raise ExportError(f"{unlisted_files[0]}: not listed in {folder / SUMS}")
     sheet_path = folder / DATASHEET_JSON
     if DATASHEET_JSON not in listed:
         raise ExportError(f"{sheet_path}: not listed in {folder / SUMS}")

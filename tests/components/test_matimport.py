@@ -686,3 +686,41 @@ def test_recorded_runs_that_cannot_be_compared_are_refused_at_validate(tmp_path,
     capsys.readouterr()
     line = _one_line_error(capsys, ["validate", str(path)])
     assert line.startswith(f"vitaplace: error: {path}: ") and re.search(INCONSISTENT_RECORDINGS[case][1], line), line
+
+
+def _logical_images(folder, layout):
+    """images.mat as MATLAB saves a logical (true/false) array: v5 (an array or a cell of
+    frames) or v7.3 (uint8 0/1 with class logical); read as 0/1 they would be black frames."""
+    write_recording(folder)
+    binary = np.random.default_rng(5).random((45, 80, 3, N)) > 0.5
+    if layout == "v7.3":
+        with h5py.File(folder / "images.mat", "w", userblock_size=512) as f:
+            f.create_dataset("images", data=binary.astype(np.uint8).T).attrs["MATLAB_class"] = np.bytes_("logical")
+    else:
+        scipy.io.savemat(folder / "images.mat", {"images": as_cell(binary) if layout == "cell" else binary})
+
+
+@pytest.mark.parametrize("layout", ["v5", "cell", "v7.3"])
+def test_logical_images_are_refused_not_imported_as_black_frames(tmp_path, capsys, layout):
+    folder, out = tmp_path / "rec", tmp_path / "run.h5"
+    _logical_images(folder, layout)
+    line = _one_line_error(capsys, ["import", str(folder), "--out", str(out)])
+    assert f"{folder / 'images.mat'}: variable 'images' is of MATLAB class logical" in line
+    assert "expected uint8 (0..255), or double or single in [0, 1]" in line and not out.exists()
+
+
+@pytest.mark.parametrize("file", ["theta", "xy"])
+def test_theta_or_xy_beyond_float32_is_refused_naming_file_and_variable(tmp_path, capsys, file):
+    """1e39 is a finite double but no float32 (largest 3.40282e+38): a run file would hold inf."""
+    folder, out = tmp_path / "rec", tmp_path / "run.h5"
+    arrays = dict(zip(("images", "theta", "xy", "poses"), write_recording(folder), strict=True))
+    bad = arrays[file].copy()
+    bad[(0,) * bad.ndim], bad[(1,) * bad.ndim] = 1e39, -2e39
+    scipy.io.savemat(folder / f"{file}.mat", {file: bad})
+    line = _one_line_error(capsys, ["import", str(folder), "--out", str(out)])
+    assert line == (f"vitaplace: error: {folder / f'{file}.mat'}: variable '{file}' has 2 value(s) beyond float32's "
+                    f"range (largest magnitude 2e+39); expected values within +-3.40282e+38, as a run file stores "
+                    f"{file} as float32") and not out.exists()
+    bad[(0,) * bad.ndim], bad[(1,) * bad.ndim] = 3.4e38, -3.4e38  # within float32: imported
+    scipy.io.savemat(folder / f"{file}.mat", {file: bad})
+    assert main(["import", str(folder), "--out", str(out)]) == 0

@@ -212,3 +212,46 @@ def test_out_must_be_empty_or_an_export_of_the_same_format(exported, tmp_path, c
     assert main(["-q", "export", "touch-benchmark", *SETS, "--out", str(out), "--runs", str(runs)]) == 0
     assert not stale.exists()
     read_package(out / "package")
+
+
+@pytest.mark.parametrize("runs, out", [("", "exp2"), (".", "/elsewhere"), ("exp1/sub", "exp1"),
+                                       ("exprun", "exprun/sub"), ("same", "same")])
+def test_runs_must_be_a_folder_of_its_own_apart_from_out(tmp_path, monkeypatch, capsys, runs, out):
+    """An empty --runs is the current folder, which the runs would be written into; --runs
+    inside --out makes --out a folder the export refuses, --out inside --runs puts the export
+    in a run folder whose claim cleans it: each refused in one line before anything is written."""
+    monkeypatch.chdir(tmp_path)
+    out = str(tmp_path / "elsewhere") if out == "/elsewhere" else out
+    assert main(["-q", "export", "touch-benchmark", *SETS, "--out", out, "--runs", runs]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    if runs in ("", "."):
+        assert err[0].startswith("vitaplace: error: --runs .: an empty path or the current folder; expected a folder")
+    else:
+        assert err[0] == (f"vitaplace: error: --runs {runs}, --out {out}: the folder the runs are recorded into must "
+                          "lie apart from --out, neither inside the other")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_package_file_the_checksums_do_not_list_is_refused_naming_it(tmp_path):
+    """SHA256SUMS holds every other file (docs/DATA.md): a datasheet.md it lacks, or a run or
+    ground truth added beside the listed ones, is refused naming the file."""
+    import hashlib
+
+    package = tmp_path / "package"
+    package.mkdir()
+    (package / "datasheet.json").write_text(json.dumps({"format_version": 1, "runs": {}, "evaluations": {}}))
+    sums = package / "SHA256SUMS"
+    sums.write_text(f"{hashlib.sha256((package / 'datasheet.json').read_bytes()).hexdigest()}  datasheet.json\n")
+    assert read_package(package).runs == {}  # every file listed
+    for extra in ("datasheet.md", "runs/E1/extra.h5", "ground_truth/E2.npz"):
+        (package / extra).parent.mkdir(parents=True, exist_ok=True)
+        (package / extra).write_text("unlisted")
+        with pytest.raises(ExportError, match=rf"^{package / extra}: not listed in {sums}$"):
+            read_package(package)
+        (package / extra).unlink()
+    sheet = {"format_version": 1, "runs": {"train": {"file": "runs/train.h5"}}, "evaluations": {}}
+    (package / "datasheet.json").write_text(json.dumps(sheet))  # names a run neither there nor listed
+    sums.write_text(f"{hashlib.sha256((package / 'datasheet.json').read_bytes()).hexdigest()}  datasheet.json\n")
+    with pytest.raises(ExportError, match=rf"^{package / 'runs' / 'train.h5'}: not listed in {sums}$"):
+        read_package(package)
