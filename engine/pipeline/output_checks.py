@@ -43,11 +43,16 @@ def check_features(features: Any, samples: int, what: str) -> Features:
 
 
 def check_distance(tme: Any, shape: tuple[int, int], what: str) -> np.ndarray:
-    """An extractor's ``distance`` output must be an (n_query, n_reference) matrix of finite
-    numbers or +inf (a pair that cannot be compared); NaN and -inf are refused."""
+    """An extractor's ``distance`` output must be an (n_query, n_reference) matrix of real
+    numbers (a float or integer dtype, as the contract suite asks: complex, boolean and object
+    arrays are refused, never cast), finite or +inf (a pair that cannot be compared); NaN and
+    -inf are refused."""
     tme = np.asarray(tme)
     if tme.shape != shape:
         raise StageError(f"{what}: distance returned shape {tme.shape}, expected {shape} (queries x references)")
+    if tme.dtype.kind not in "iuf":
+        raise StageError(f"{what}: distance returned an array of {tme.dtype}, expected real numbers (a float or "
+                         "integer dtype), finite or +inf")
     if tme.dtype.kind == "f":
         check_finite({"distance": np.where(np.isposinf(tme), 0.0, tme)}, what)
     return tme

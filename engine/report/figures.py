@@ -32,6 +32,9 @@ OUTCOME_COLOURS = {"TP": "tab:green", "FP": "tab:red", "TP|FP": "tab:olive", "FN
 #: percentiles of the feature distances that span the TME colour scale: a few far-off samples
 #: (e.g. touch outliers) would otherwise stretch it until the matches are all one colour
 TME_PERCENTILES = (1.0, 90.0)
+#: finite distances beyond this in size (or under its inverse) are drawn divided by the largest,
+#: so that the colour scale's arithmetic cannot overflow (the contract allows any finite value)
+TME_SCALED = 1e100
 #: line style per curve of a PR figure (curves drawn later are thinner and on top, so a
 #: curve that another one covers still shows around it)
 PR_STYLES = ("-", "--", ":", "-.")
@@ -69,6 +72,25 @@ def _primary_outcome(decisions: Decisions) -> np.ndarray:
     return np.where(outcome == "FP+FN", "FP", outcome)
 
 
+def _tme_colours(tme: np.ndarray) -> tuple[np.ndarray, tuple[float, float], str]:
+    """The TME as drawn: its finite values (+inf blank), divided by a power of ten when they
+    are beyond ``TME_SCALED`` in size, by the largest (a plugin may return distances near the largest float,
+    whose colour scale would overflow), the `TME_PERCENTILES` of them that span the colours,
+    and the colour bar's label, which gives the percentiles and the range in the TME's units."""
+    finite = tme[np.isfinite(tme)]
+    largest = float(np.abs(finite).max()) if finite.size else 0.0
+    scale = largest if largest and not 1 / TME_SCALED < largest < TME_SCALED else 1.0
+    shown = np.where(np.isfinite(tme), tme, np.nan) / scale
+    if not finite.size:
+        return shown, (0.0, 1.0), "feature distance; every pair +inf (none could be compared)"
+    low, high = (float(v) for v in np.percentile(finite / scale, TME_PERCENTILES))
+    unit = f" / {scale:.3g}" if scale != 1.0 else ""
+    return shown, (low, high), (
+        f"feature distance{unit}; colours: percentiles {TME_PERCENTILES[0]:g}-{TME_PERCENTILES[1]:g}\n"
+        f"= [{low * scale:.3g}, {high * scale:.3g}] "
+        f"(finite values {finite.min():.3g}-{finite.max():.3g})")
+
+
 def plot_matrices(out_stem: str | os.PathLike, tme: ArrayLike, gtm: ArrayLike, decisions: Decisions,
                   title: str = "", formats: Sequence[str] = FORMATS) -> list[Path]:
     """GTM and TME heat maps side by side (rows = queries, columns = references) with the
@@ -85,14 +107,12 @@ def plot_matrices(out_stem: str | os.PathLike, tme: ArrayLike, gtm: ArrayLike, d
     outcome = _primary_outcome(decisions)
     rows = np.arange(n_q)
     size = float(np.clip(2000.0 / max(n_q, 1), 2.0, 30.0))
-    low, high = TME_PERCENTILES
-    tme_range = tuple(float(v) for v in np.nanpercentile(np.where(np.isfinite(tme), tme, np.nan), TME_PERCENTILES))
+    shown_tme, tme_range, tme_label = _tme_colours(tme)
     for ax, mat, name, cmap, quantity, limits in (
         (axes[0], gtm, "GTM (ground-truth distance" + ("; blank: facing apart)" if np.isinf(gtm).any() else ")"),
          "viridis", "ground-truth distance [m]", (None, None)),
-        (axes[1], tme, "TME (feature distance)", "magma",
-         f"feature distance; colours: percentiles {low:g}-{high:g}\n= [{tme_range[0]:.3g}, {tme_range[1]:.3g}] "
-         f"(all values {np.nanmin(tme):.3g}-{np.nanmax(tme):.3g})", tme_range),
+        (axes[1], shown_tme, "TME (feature distance" + ("; blank: +inf)" if np.isinf(tme).any() else ")"), "magma",
+         tme_label, tme_range),
     ):
         shown = np.where(np.isfinite(mat), mat, np.nan)
         im = ax.imshow(shown, cmap=cmap, aspect="auto", interpolation="nearest", origin="upper",

@@ -776,6 +776,23 @@ def test_plot_matrices(tmp_path, small_case):
     _assert_written(figures.plot_matrices(tmp_path / "mat", tme, gtm, d, "E1"), tmp_path, "mat")
 
 
+@pytest.mark.parametrize("kind", ["huge", "tiny", "all-inf"])
+def test_plot_matrices_draws_any_matrix_the_contract_allows(tmp_path, small_case, kind):
+    """Finite distances near the largest (or smallest) float, with +inf, or +inf alone, are
+    drawn without a warning: the colour scale of the raw values would overflow."""
+    import warnings
+
+    from vitaplace.engine.report import figures
+    _, _, tme, gtm = small_case
+    tme = {"huge": np.minimum(tme, 1.7) * 1e308, "tiny": np.where(tme < 1, 5e-324, 1e-320),
+           "all-inf": np.full(tme.shape, np.inf)}[kind]
+    tme[0, :3] = np.inf
+    d = ev.decide(tme, gtm, 0.3, 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _assert_written(figures.plot_matrices(tmp_path / "mat", tme, gtm, d, "E1"), tmp_path, "mat")
+
+
 def test_plot_pr_curves(tmp_path, small_case):
     from vitaplace.engine.report import figures
     _, _, tme, gtm = small_case

@@ -13,6 +13,7 @@ import textwrap
 from importlib.metadata import version
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import vitaplace
@@ -352,3 +353,21 @@ def test_a_script_without_a_guard_runs_in_one_process_instead_of_breaking_the_po
     assert "done" in result.stdout and "BrokenProcessPool" not in result.stderr
     assert "calls vitaplace.run outside `if __name__" in result.stderr
     assert len(list((tmp_path / "out" / "cache" / "datasets").glob("*.h5"))) == 3
+
+
+def test_a_fitted_extractor_checks_its_features_and_distances_as_the_pipeline_does():
+    """``fit_extractor(...).distance`` refuses NaN features in one line naming the method and
+    its plugin, as the pipeline refuses them, instead of returning NaN distances; what it
+    returns for good features is the plugin's own matrix."""
+    import pickle
+
+    run = _tiny_run()
+    h = vitaplace.fit_extractor("handcrafted", run)
+    features = h.transform(run)
+    assert type(h).__name__ == "HandcraftedExtractor" and pickle.loads(pickle.dumps(h)).params == h.params
+    np.testing.assert_array_equal(h.distance(features, features), type(h).distance(h, features, features))
+    broken = {key: np.array(values, dtype=float) for key, values in features.items()}
+    broken["profile"][1, 0] = np.nan
+    with pytest.raises(vitaplace.UserError, match=r"^distance \(plugin 'handcrafted'\), its reference features: "
+                                                  r"feature 'profile' has NaN or infinite values in 1 samples"):
+        h.distance(features, broken)

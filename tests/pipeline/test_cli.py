@@ -433,6 +433,44 @@ def test_oracle_features_score_perfectly_end_to_end(tmp_path):
         np.testing.assert_allclose(m["gtm"][~facing_apart], m["tme"][~facing_apart], atol=1e-9)
 
 
+HOSTILE_PLUGIN = ORACLE_PLUGIN.replace('name = "oracle"', 'name = "hostile"').replace(
+    '    def distance(self, query, reference): return cdist(query["xy"], reference["xy"])',
+    """    def distance(self, query, reference):
+        import os
+        d = cdist(query["xy"], reference["xy"])
+        with np.errstate(over="ignore"):  # huge: near the largest float, +inf beyond (the contract allows both)
+            return {"complex": d + 1j, "bool": d < 1, "huge": d * 1e308}[os.environ["HOSTILE"]]""")
+
+
+@pytest.mark.parametrize("hostile", ["complex", "bool", "huge"])
+def test_a_plugins_distances_of_no_real_dtype_are_refused_and_huge_ones_reported(tmp_path, hostile):
+    """Complex or boolean distances stop the run in one line naming the stage, method, plugin
+    and what was expected (never cast: the imaginary part dropped); distances near the largest
+    float with +inf, which the contract allows, are scored and drawn without a warning."""
+    pkg = tmp_path / "site"
+    pkg.mkdir()
+    install_plugin(pkg, "vitaplace_hostile_plugin", HOSTILE_PLUGIN, "vitaplace-hostile-plugin", "0.0.1", "hostile")
+    scenario = valid_scenario()
+    scenario["methods"] = [{"name": "O", "plugin": "hostile"}]
+    scenario["report"] = {"figures": "all"}
+    out = tmp_path / "out"
+    path = os.pathsep.join([str(pkg), os.environ.get("PYTHONPATH", "")])
+    file = write_scenario(tmp_path, scenario)
+    proc = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli.main", "run", str(file), "--out", str(out)],
+                          capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "HOSTILE": hostile, "PYTHONPATH": path})
+    assert "Warning" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    if hostile == "huge":
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert (out / "figures" / "matrices-E1-O-query-to-reference.png").is_file()
+    else:
+        assert proc.returncode == 2
+        dtype = {"complex": "complex128", "bool": "bool"}[hostile]
+        assert proc.stderr.strip().splitlines()[-1].endswith(
+            f"evaluate E1 O (plugin 'hostile'): distance returned an array of {dtype}, expected real numbers "
+            "(a float or integer dtype), finite or +inf")
+
+
 def _alias_bomb() -> str:
     text = "a: &a [x, x, x, x, x, x, x, x, x]\n"
     for i in range(1, 12):
@@ -511,6 +549,11 @@ def test_extractor_outputs_are_checked_with_one_line():
         with pytest.raises(StageError,
                            match=r"t: feature 'distance' has NaN or infinite values in 1 samples \(first: 1\)"):
             check_distance(np.array([[0.5, 1.0, 1.0], [1.0, bad, 1.0]]), (2, 3), "t")
+    assert check_distance(np.ones((2, 3), np.int64), (2, 3), "t") is not None  # integers are real numbers
+    for bad_type, dtype in ((np.ones((2, 3)) + 1j, "complex128"), (np.ones((2, 3), object), "object"),
+                            (np.ones((2, 3), bool), "bool")):
+        with pytest.raises(StageError, match=rf"t: distance returned an array of {dtype}, expected real numbers"):
+            check_distance(bad_type, (2, 3), "t")
 
 
 def test_a_second_run_into_the_same_output_is_refused_naming_the_holder(tmp_path):

@@ -77,5 +77,6 @@ def _evaluate(store: Store, scenario: Scenario, model: ModelFile, query: tuple[F
     folder.mkdir(parents=True, exist_ok=True)
     q, r = store.run(query[1]), store.run(reference[1])
     tme = distance_rows(store.model(model), load_features(query[0].path), load_features(reference[0].path),
-                        (len(q), len(r)), f"evaluate {query[1].label.split('/')[0]} {model.method}")
+                        (len(q), len(r)),
+                        f"evaluate {query[1].label.split('/')[0]} {model.method} (plugin '{model.plugin}')")
     write_text_atomic(folder / outdir.SUMMARY, json.dumps(score(scenario, folder, tme, q, r), indent=2))

@@ -44,4 +44,5 @@ def _transform(store: Store, model: ModelFile, run: RunFile, path: Path) -> None
     """The features of ``run`` by the fitted ``model``, checked, saved to ``path``."""
     opened = store.run(run)
     features = store.model(model).transform(opened)
-    save_features(path, check_features(features, len(opened), f"transform {model.method} {run.label}"))
+    what = f"transform {model.method} (plugin '{model.plugin}') {run.label}"
+    save_features(path, check_features(features, len(opened), what))
