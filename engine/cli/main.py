@@ -3,6 +3,8 @@ simulate|train|evaluate|report|difficulty|export|plugins|sweep|aggregate|sensiti
 
 User errors (bad scenario, missing file, unknown plugin, corrupt dataset, diverged
 training) print one line ``vitaplace: error: ...`` and exit with code 2, no traceback.
+A plugin's ``fit``, ``transform`` or ``distance`` that raises prints one line naming the stage,
+method, plugin and error and exits with 1, its traceback in ``OUT/error.txt``.
 A sweep in which some seeds failed writes the summary of the others and exits with 1.
 
 Every command takes ``-v`` (debug messages too) or ``-q`` (warnings and errors only, no
@@ -44,6 +46,9 @@ from vitaplace.engine.cli.commands import (
 )
 
 EXIT_USER_ERROR = 2
+#: a plugin's fit, transform or distance raised (a bug of the plugin, not bad input): one line, the
+#: traceback in OUT/error.txt
+EXIT_PLUGIN_FAILED = 1
 #: what each command's subparser names as its ``handler``: parsed arguments -> exit code
 Handler = Callable[[argparse.Namespace], int]
 
@@ -338,6 +343,14 @@ def _main(argv: list[str] | None) -> int:
     except UserError as exc:
         print(f"vitaplace: error: {one_line(str(exc))}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except Exception as exc:
+        from vitaplace.engine.pipeline.output_checks import plugin_failure  # only when something failed
+
+        line = plugin_failure(exc)
+        if line is None:
+            raise
+        print(f"vitaplace: error: {one_line(line)}", file=sys.stderr)
+        return EXIT_PLUGIN_FAILED
 
 
 def one_line(message: str) -> str:

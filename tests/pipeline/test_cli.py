@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -434,6 +435,15 @@ def test_oracle_features_score_perfectly_end_to_end(tmp_path):
 
 
 HOSTILE_PLUGIN = ORACLE_PLUGIN.replace('name = "oracle"', 'name = "hostile"').replace(
+    "    def fit(self, train): pass", """    def fit(self, train):
+        import os
+        if os.environ["HOSTILE"] == "fit":
+            raise ValueError("boom\\nsecond line")""").replace(
+    '    def transform(self, run): return {"xy"', '''    def transform(self, run):
+        import os
+        if os.environ["HOSTILE"] == "transform":
+            raise KeyError("xy")
+        return {"xy"''').replace(
     '    def distance(self, query, reference): return cdist(query["xy"], reference["xy"])',
     """    def distance(self, query, reference):
         import os
@@ -442,11 +452,8 @@ HOSTILE_PLUGIN = ORACLE_PLUGIN.replace('name = "oracle"', 'name = "hostile"').re
             return {"complex": d + 1j, "bool": d < 1, "huge": d * 1e308}[os.environ["HOSTILE"]]""")
 
 
-@pytest.mark.parametrize("hostile", ["complex", "bool", "huge"])
-def test_a_plugins_distances_of_no_real_dtype_are_refused_and_huge_ones_reported(tmp_path, hostile):
-    """Complex or boolean distances stop the run in one line naming the stage, method, plugin
-    and what was expected (never cast: the imaginary part dropped); distances near the largest
-    float with +inf, which the contract allows, are scored and drawn without a warning."""
+def run_hostile(tmp_path: Path, hostile: str) -> tuple[subprocess.CompletedProcess, Path]:
+    """``vitaplace run`` of one method of the hostile plugin, told how to misbehave by ``hostile``."""
     pkg = tmp_path / "site"
     pkg.mkdir()
     install_plugin(pkg, "vitaplace_hostile_plugin", HOSTILE_PLUGIN, "vitaplace-hostile-plugin", "0.0.1", "hostile")
@@ -459,6 +466,15 @@ def test_a_plugins_distances_of_no_real_dtype_are_refused_and_huge_ones_reported
     proc = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli.main", "run", str(file), "--out", str(out)],
                           capture_output=True, text=True, timeout=600,
                           env={**os.environ, "HOSTILE": hostile, "PYTHONPATH": path})
+    return proc, out
+
+
+@pytest.mark.parametrize("hostile", ["complex", "bool", "huge"])
+def test_a_plugins_distances_of_no_real_dtype_are_refused_and_huge_ones_reported(tmp_path, hostile):
+    """Complex or boolean distances stop the run in one line naming the stage, method, plugin
+    and what was expected (never cast: the imaginary part dropped); distances near the largest
+    float with +inf, which the contract allows, are scored and drawn without a warning."""
+    proc, out = run_hostile(tmp_path, hostile)
     assert "Warning" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr[-2000:]
     if hostile == "huge":
         assert proc.returncode == 0, proc.stderr[-2000:]
@@ -469,6 +485,22 @@ def test_a_plugins_distances_of_no_real_dtype_are_refused_and_huge_ones_reported
         assert proc.stderr.strip().splitlines()[-1].endswith(
             f"evaluate E1 O (plugin 'hostile'): distance returned an array of {dtype}, expected real numbers "
             "(a float or integer dtype), finite or +inf")
+
+
+@pytest.mark.parametrize(("hostile", "line"), [
+    ("fit", r"fit O \(plugin 'hostile'\): fit\(\) raised ValueError: boom"),
+    ("transform", r"transform O \(plugin 'hostile'\) E1/query: transform\(\) raised KeyError: 'xy'"),
+    ("distance", r"evaluate E1 O \(plugin 'hostile'\): distance\(\) raised KeyError: 'distance'"),
+], ids=["fit", "transform", "distance"])
+def test_a_plugin_method_that_raises_ends_the_run_in_one_line_its_traceback_in_a_file(tmp_path, hostile, line):
+    """A plugin's own exception in fit, transform or distance is a bug of the plugin, not bad
+    input: one line naming the stage, method, plugin and error (exit status 1), its traceback
+    in OUT/error.txt, which the line names."""
+    proc, out = run_hostile(tmp_path, hostile)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    last = proc.stderr.strip().splitlines()[-1]
+    assert re.fullmatch(rf"vitaplace: error: {line} \(traceback in {re.escape(str(out / 'error.txt'))}\)", last), last
+    assert (out / "error.txt").read_text().startswith("Traceback (most recent call last):")
 
 
 def _alias_bomb() -> str:

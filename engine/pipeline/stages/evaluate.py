@@ -21,7 +21,7 @@ from vitaplace.engine.evaluation.ranking import Rows
 from vitaplace.engine.extension.features import FeatureExtractor, Features, load_features
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.pipeline.keys import evaluate_key
-from vitaplace.engine.pipeline.output_checks import check_distance
+from vitaplace.engine.pipeline.output_checks import call_plugin, check_distance
 from vitaplace.engine.pipeline.records import (
     EvaluateRecord,
     FeaturesFile,
@@ -57,7 +57,7 @@ def evaluate(store: Store, scenario: Scenario, simulated: SimulateRecord, fitted
 
 
 def distance_rows(extractor: FeatureExtractor, query: Features, reference: Features, shape: tuple[int, int],
-                  what: str) -> Rows:
+                  what: str, out: Path) -> Rows:
     """``extractor``'s distances from the ``query`` features to the ``reference`` ones, a block
     of queries at a time (a query's row depends on that query alone: the plugin contract's
     `check_distance_rows`), each block checked (`check_distance`)."""
@@ -65,7 +65,8 @@ def distance_rows(extractor: FeatureExtractor, query: Features, reference: Featu
 
     def read(start: int, stop: int) -> np.ndarray:
         block = {name: values[start:stop] for name, values in query.items()}
-        return check_distance(extractor.distance(block, reference), (stop - start, n_references), what)
+        tme = call_plugin(out, what, extractor, "distance", block, reference)
+        return check_distance(tme, (stop - start, n_references), what)
 
     return Rows(shape, read)
 
@@ -78,5 +79,5 @@ def _evaluate(store: Store, scenario: Scenario, model: ModelFile, query: tuple[F
     q, r = store.run(query[1]), store.run(reference[1])
     tme = distance_rows(store.model(model), load_features(query[0].path), load_features(reference[0].path),
                         (len(q), len(r)),
-                        f"evaluate {query[1].label.split('/')[0]} {model.method} (plugin '{model.plugin}')")
+                        f"evaluate {query[1].label.split('/')[0]} {model.method} (plugin '{model.plugin}')", store.out)
     write_text_atomic(folder / outdir.SUMMARY, json.dumps(score(scenario, folder, tme, q, r), indent=2))

@@ -17,6 +17,7 @@ from vitaplace.engine.config.scenario import Method, Scenario
 from vitaplace.engine.extension.registry import announce_training_epoch
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.pipeline.keys import fit_key
+from vitaplace.engine.pipeline.output_checks import call_plugin
 from vitaplace.engine.pipeline.records import FitRecord, ModelFile, RunFile, SimulateRecord
 from vitaplace.engine.pipeline.store import Store
 
@@ -49,7 +50,7 @@ def _fit(store: Store, method: Method, params: dict[str, Any], train: RunFile, f
     extractor = store.registry.create(method.plugin, params)
     extractor.progress = store.progress
     extractor.on_epoch = partial(announce_training_epoch, store.registry, store.out, method.name)
-    extractor.fit(store.run(train))
+    call_plugin(store.out, f"fit {method.name} (plugin '{method.plugin}')", extractor, "fit", store.run(train))
     tmp = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
     try:
         extractor.save(tmp)

@@ -10,7 +10,7 @@ from vitaplace.engine.config.scenario import Scenario
 from vitaplace.engine.extension.features import feature_facts, load_features, save_features
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.pipeline.keys import features_key
-from vitaplace.engine.pipeline.output_checks import check_features
+from vitaplace.engine.pipeline.output_checks import call_plugin, check_features
 from vitaplace.engine.pipeline.records import (
     FeaturesFile,
     FitRecord,
@@ -43,6 +43,6 @@ def transform(store: Store, scenario: Scenario, simulated: SimulateRecord, fitte
 def _transform(store: Store, model: ModelFile, run: RunFile, path: Path) -> None:
     """The features of ``run`` by the fitted ``model``, checked, saved to ``path``."""
     opened = store.run(run)
-    features = store.model(model).transform(opened)
     what = f"transform {model.method} (plugin '{model.plugin}') {run.label}"
+    features = call_plugin(store.out, what, store.model(model), "transform", opened)
     save_features(path, check_features(features, len(opened), what))
