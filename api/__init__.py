@@ -335,6 +335,8 @@ def fit_extractor(
         raise UserError(f"plugin={plugin!r:.80}: expected the name of an extractor, one of {', '.join(extractors())}")
     if not isinstance(train, Run):
         raise UserError(f"train={train!r:.80}: expected a Run (vitaplace.open_run(path) reads a run file)")
+    if len(train) == 0:
+        raise UserError(f"train: run {train.name!r} has no samples; expected a run to fit on")
     if params is not None and not isinstance(params, Mapping):
         raise UserError(f"params={params!r:.80}: expected a mapping of parameter names to values, or None")
     extractor = discover().create(plugin, params)

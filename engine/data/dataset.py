@@ -323,6 +323,8 @@ def _json_default(value: Any) -> Any:
 
 def open_run(path: str | os.PathLike) -> Run:
     """Open a run file lazily; check it is a vitaplace dataset of this schema version."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise DatasetError(f"path={path!r:.80}: expected the path of a run file (text or a Path)")
     path = Path(path)
     if not path.is_file():
         raise DatasetError(f"{path}: no such dataset file")

@@ -226,6 +226,8 @@ BAD_CALLS = {
         "a misspelt plugin parameter": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), {"gird": [4, 8]}),
                                         r"^extractor 'handcrafted': gird: unknown key; "
                                         r"did you mean 'grid'\? \(valid keys: .*\bgrid\b.*\)$"),
+        "a run of no samples": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run().subset([])),
+                                r"^train: run '.*' has no samples; expected a run to fit on$"),
         "params a list": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), [4, 8]),
                           r"^params=\[4, 8\]: expected a mapping"),
         "a misspelt keyword": (lambda: vitaplace.fit_extractor("handcrafted", _tiny_run(), progres=True),
@@ -244,6 +246,12 @@ def test_bad_arguments_are_one_line_user_errors(function, case):
     with pytest.raises(vitaplace.UserError, match=message) as info:
         call()
     assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("path", [5, None, 2.5])
+def test_open_run_of_something_that_is_no_path_is_one_line(path):
+    with pytest.raises(vitaplace.UserError, match=r"^path=.*: expected the path of a run file \(text or a Path\)$"):
+        vitaplace.open_run(path)
 
 
 def test_every_public_function_has_one_line_errors():
