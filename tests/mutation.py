@@ -1395,6 +1395,9 @@ MUTANTS = [
     m("mlflow: the seeds of a sweep whose parent failed each try the store", "mlflow_tracking",
       '    asked = {EXPERIMENT_ENV: ""}', "    asked = {}",
       *t("mlflow", "test_a_sweep_whose_tracking_server_is_unreachable_warns_once_and_writes_its_summary")),
+    m("orchestrate: an earlier failed plugin call's traceback kept by a run that replaces the results",
+      "orchestrate", "    (out / PLUGIN_TRACEBACK).unlink(missing_ok=True)", "    pass",
+      *t("cli", "test_a_plugins_traceback_goes_when_the_folder_is_next_written")),
     m("orchestrate: the trackers run before the completion record", "orchestrate",
       "        completion.write(out, finished, command)  # before the plugins: a tracker that stalls loses nothing\n",
       "        announce_run_finished(store.registry, out, scenario, [row.dump() for row in record.rows], until)\n"

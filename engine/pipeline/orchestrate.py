@@ -27,6 +27,7 @@ from vitaplace.engine.outputs import completion, stale
 from vitaplace.engine.outputs.rows import ResultRow
 from vitaplace.engine.pipeline.keys import STAGES
 from vitaplace.engine.pipeline.manifest import write_manifest
+from vitaplace.engine.pipeline.output_checks import PLUGIN_TRACEBACK
 from vitaplace.engine.pipeline.records import RunRecord
 from vitaplace.engine.pipeline.results import write_results
 from vitaplace.engine.pipeline.stages.compare import compare
@@ -94,11 +95,13 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
 
 def unfinish(out: Path, resolved: dict[str, Any]) -> None:
     """Make ``out`` an unfinished run of ``resolved``, just before the first write into the
-    folder itself (outside its cache): its completion record removed, then the resolved
-    scenario written. Until this step a command that fails, however, leaves a folder it
-    found finished exactly as it was; from it, until the new record, the folder holds no
-    finished run (its results are being replaced)."""
+    folder itself (outside its cache): its completion record and an earlier plugin failure's
+    traceback removed, then the resolved scenario written. Until this step a command that
+    fails, however, leaves a folder it found finished as it was (but for its own error.txt);
+    from it, until the new record, the folder holds no finished run (its results are being
+    replaced)."""
     completion.clear(out)
+    (out / PLUGIN_TRACEBACK).unlink(missing_ok=True)  # an earlier command's failed plugin call
     write_text_atomic(out / completion.SCENARIO, yaml.safe_dump(relative_paths(resolved, out), sort_keys=False))
 
 

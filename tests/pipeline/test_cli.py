@@ -503,6 +503,22 @@ def test_a_plugin_method_that_raises_ends_the_run_in_one_line_its_traceback_in_a
     assert (out / "error.txt").read_text().startswith("Traceback (most recent call last):")
 
 
+def test_a_plugins_traceback_goes_when_the_folder_is_next_written():
+    """error.txt describes the failed command; once a later run of the folder replaces its
+    results, the stale traceback is removed with the old record."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as folder:
+        proc, out = run_hostile(Path(folder), "fit")
+        assert proc.returncode == 1 and (out / "error.txt").is_file()
+        site = os.pathsep.join([str(Path(folder) / "site"), os.environ.get("PYTHONPATH", "")])
+        again = subprocess.run([sys.executable, "-m", "vitaplace.engine.cli.main", "-q", "run",
+                                str(Path(folder) / "scenario.yaml"), "--out", str(out)], capture_output=True, text=True,
+                               timeout=600, env={**os.environ, "HOSTILE": "huge", "PYTHONPATH": site})
+        assert again.returncode == 0, again.stderr[-2000:]
+        assert not (out / "error.txt").exists()
+
+
 def _alias_bomb() -> str:
     text = "a: &a [x, x, x, x, x, x, x, x, x]\n"
     for i in range(1, 12):
