@@ -76,20 +76,27 @@ def test_read_results_gives_the_rows_of_a_finished_folder(finished):
 
 
 def test_read_results_refuses_a_folder_whose_rerun_was_killed(finished, tmp_path, monkeypatch):
-    """A rerun with another tau killed during simulate leaves the old results.json beside the
-    new scenario.resolved.yaml, and no completed.json: read_results refuses, as aggregate does."""
+    """A rerun with another tau killed while it simulates has not touched the folder: its
+    results are still read. Killed once it replaces them (at the evaluate stage), it leaves
+    the old results.json beside the new scenario.resolved.yaml and no completed.json:
+    read_results refuses, as aggregate does."""
     import shutil
 
     from vitaplace.engine.pipeline import orchestrate
 
-    scenario, out, _ = finished
+    scenario, out, rows = finished
     folder = tmp_path / "run"
     shutil.copytree(out, folder)
 
-    def killed(store, scenario):
+    def killed(*args, **kwargs):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(orchestrate, "simulate", killed)
+    with pytest.raises(KeyboardInterrupt):
+        vitaplace.run(scenario, {"scoring.tau": 0.4}, out=folder, workers=1)
+    assert vitaplace.read_results(folder) == rows
+    monkeypatch.undo()
+    monkeypatch.setattr(orchestrate, "evaluate", killed)
     with pytest.raises(KeyboardInterrupt):
         vitaplace.run(scenario, {"scoring.tau": 0.4}, out=folder, workers=1)
     assert (folder / "results.json").is_file()  # the old run's

@@ -648,8 +648,9 @@ def test_aggregate_refuses_folders_it_cannot_trust_before_writing_anything(local
 
 
 def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path, capsys, monkeypatch):
-    """Finish seed 2, rerun it with another tau and kill the rerun during simulate: the folder
-    holds the old results beside the new resolved scenario, and no completion record."""
+    """Finish seed 2, rerun it with another tau and kill the rerun once it has started replacing
+    the results (`orchestrate.unfinish`; killed before, the folder is left finished as it was):
+    the folder holds the old results beside the new resolved scenario, and no completion record."""
     from vitaplace.engine.config.scenario import Scenario
     from vitaplace.engine.outputs import completion
     from vitaplace.engine.pipeline import orchestrate
@@ -663,7 +664,8 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     resolved = yaml.safe_load((folder / "scenario.resolved.yaml").read_text())
     resolved["scoring"]["tau"] = 0.4
 
-    def killed(store, scenario):
+    def killed(store, scenario):  # as if killed once the rerun started replacing the results
+        orchestrate.unfinish(folder, resolved)
         raise KeyboardInterrupt
 
     monkeypatch.setattr(orchestrate, "simulate", killed)
