@@ -32,7 +32,7 @@ log = logging.getLogger("vitaplace")
 def check_runs(path: Path, scenario: Scenario) -> int:
     """Check every run of ``scenario`` (read from ``path``, which errors name); return the
     number of samples of the training run."""
-    train_samples, robot = _check_recorded_runs(path, scenario), scenario.robot
+    (train_samples, lengths), robot = _check_recorded_runs(path, scenario), scenario.robot
     for where, entry in [("train", scenario.train)] + [
         (f"evaluations.{i}", e) for i, e in enumerate(scenario.evaluations)
     ]:
@@ -55,7 +55,7 @@ def check_runs(path: Path, scenario: Scenario) -> int:
         problem = tau_problem(scenario.scoring.tau, env.arena.half_x, env.arena.half_y, env.name)
         if where != "train" and problem:
             raise ScenarioError(f"{path}: scoring.tau: {problem}")
-    _check_recall_k(path, scenario)
+    _check_recall_k(path, scenario, lengths)
     return train_samples
 
 
@@ -64,11 +64,12 @@ REFERENCE_SIDES = {"query-to-reference": ("reference",), "reference-to-query": (
                    "both": ("reference", "query")}
 
 
-def _check_recall_k(path: Path, scenario: Scenario) -> None:
+def _check_recall_k(path: Path, scenario: Scenario, lengths: dict[Path, int]) -> None:
     """Every K of ``scoring.recall_k`` below the samples of every run searched (each
     evaluation's reference side in each direction): at K >= the references every query with a
     true match has it among its first K, so recall@K is 100 % for any method. The default list
-    is left as it is (a five-sample test run keeps its recall@5 and @10)."""
+    is left as it is (a five-sample test run keeps its recall@5 and @10). ``lengths``: the
+    samples of each recorded evaluation run (`_check_recorded_runs` read them)."""
     ks = scenario.scoring.recall_k
     if not ks or ks == ScoringSettings.model_fields["recall_k"].default:
         return
@@ -77,7 +78,7 @@ def _check_recall_k(path: Path, scenario: Scenario) -> None:
         for side in REFERENCE_SIDES[scenario.scoring.direction]:
             if e.datasets is not None:
                 file = getattr(e.datasets, side)
-                where, n = f"evaluations.{i}.datasets.{side} {file}", len(open_run(file))
+                where, n = f"evaluations.{i}.datasets.{side} {file}", lengths[file]
             else:
                 assert e.run is not None  # validated: simulated
                 where, n = f"evaluations.{i}.run.n_samples", e.run.n_samples
@@ -100,10 +101,10 @@ def tau_problem(tau: float, half_x: float, half_y: float, environment: str) -> s
     return None
 
 
-def _check_recorded_runs(path: Path, scenario: Scenario) -> int:
+def _check_recorded_runs(path: Path, scenario: Scenario) -> tuple[int, dict[Path, int]]:
     """The recorded run files of ``scenario``: there, long enough, shaped like the training
     run, query and reference distinct, one tactile model with the simulated runs; return the
-    number of samples of the training run."""
+    number of samples of the training run and of each recorded evaluation run."""
     train_samples = scenario.train.run.n_samples if scenario.train.run else 0
     robot = scenario.robot
     # what every run must share with the training run: whiskers, image size, tactile model
@@ -115,11 +116,13 @@ def _check_recorded_runs(path: Path, scenario: Scenario) -> int:
         train_samples, train_shape = len(train), (train.n_whiskers, train.image_shape)
         train_touch = TactileSource(f"the training run {train.path}", recorded_tactile_model(train))
     recorded: list[TactileSource] = []
+    lengths: dict[Path, int] = {}
     digests: dict[Path, str] = {}  # each recorded file's content digest, read once
     for i, e in enumerate(scenario.evaluations):
         for side, file in e.recorded().items():
             where = f"evaluations.{i}.datasets.{side}"
             run = _recorded(path, where, file, MIN_EVALUATION_SAMPLES)
+            lengths[file] = len(run)
             _check_like_training(path, where, run, train_shape)
             recorded.append(TactileSource(f"{where} {run.path}", recorded_tactile_model(run)))
         if e.datasets is not None:
@@ -132,7 +135,7 @@ def _check_recorded_runs(path: Path, scenario: Scenario) -> int:
             and "tactile_model" in robot.model_fields_set:
         log.warning("%s: robot.tactile_model (%s) has no effect: every run is recorded (each file says its own)",
                     path, robot.tactile_model)
-    return train_samples
+    return train_samples, lengths
 
 
 @dataclass(frozen=True)
