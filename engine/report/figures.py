@@ -73,9 +73,9 @@ def _primary_outcome(decisions: Decisions) -> np.ndarray:
 
 
 def _tme_colours(tme: np.ndarray) -> tuple[np.ndarray, tuple[float, float], str]:
-    """The TME as drawn: its finite values (+inf blank), divided by a power of ten when they
-    are beyond ``TME_SCALED`` in size, by the largest (a plugin may return distances near the largest float,
-    whose colour scale would overflow), the `TME_PERCENTILES` of them that span the colours,
+    """The TME as drawn: its finite values (+inf blank), divided by the largest of them when
+    that is beyond ``TME_SCALED`` in size or under its inverse (a plugin may return distances
+    near the largest float, whose colour scale would overflow), the `TME_PERCENTILES` of them that span the colours,
     and the colour bar's label, which gives the percentiles and the range in the TME's units."""
     finite = tme[np.isfinite(tme)]
     largest = float(np.abs(finite).max()) if finite.size else 0.0
