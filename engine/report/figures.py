@@ -32,7 +32,7 @@ OUTCOME_COLOURS = {"TP": "tab:green", "FP": "tab:red", "TP|FP": "tab:olive", "FN
 #: percentiles of the feature distances that span the TME colour scale: a few far-off samples
 #: (e.g. touch outliers) would otherwise stretch it until the matches are all one colour
 TME_PERCENTILES = (1.0, 90.0)
-#: finite distances beyond this in size (or under its inverse) are drawn divided by the largest,
+#: finite distances beyond this in size (or under its inverse) are drawn scaled to the largest,
 #: so that the colour scale's arithmetic cannot overflow (the contract allows any finite value)
 TME_SCALED = 1e100
 #: line style per curve of a PR figure (curves drawn later are thinner and on top, so a
@@ -73,17 +73,20 @@ def _primary_outcome(decisions: Decisions) -> np.ndarray:
 
 
 def _tme_colours(tme: np.ndarray) -> tuple[np.ndarray, tuple[float, float], str]:
-    """The TME as drawn: its finite values (+inf blank), divided by the largest of them when
-    that is beyond ``TME_SCALED`` in size or under its inverse (a plugin may return distances
-    near the largest float, whose colour scale would overflow), the `TME_PERCENTILES` of them that span the colours,
-    and the colour bar's label, which gives the percentiles and the range in the TME's units."""
+    """The TME as drawn: its finite values (+inf blank), scaled by the power of two nearest the
+    largest of them when that is beyond ``TME_SCALED`` in size or under its inverse (a plugin may
+    return distances near the largest float, or subnormal ones, whose colour scale would overflow),
+    the `TME_PERCENTILES` of them that span the colours, and the colour bar's label, which gives
+    the percentiles and the range in the TME's units. The scaling is `np.ldexp`, exact: a
+    division by a subnormal raises a spurious overflow on some CPUs' SIMD paths."""
     finite = tme[np.isfinite(tme)]
     largest = float(np.abs(finite).max()) if finite.size else 0.0
-    scale = largest if largest and not 1 / TME_SCALED < largest < TME_SCALED else 1.0
-    shown = np.where(np.isfinite(tme), tme, np.nan) / scale
+    exponent = int(np.frexp(largest)[1]) - 1 if largest and not 1 / TME_SCALED < largest < TME_SCALED else 0
+    scale = float(np.ldexp(1.0, exponent))
+    shown = np.ldexp(np.where(np.isfinite(tme), tme, np.nan), -exponent)
     if not finite.size:
         return shown, (0.0, 1.0), "feature distance; every pair +inf (none could be compared)"
-    low, high = (float(v) for v in np.percentile(finite / scale, TME_PERCENTILES))
+    low, high = (float(v) for v in np.percentile(np.ldexp(finite, -exponent), TME_PERCENTILES))
     unit = f" / {scale:.3g}" if scale != 1.0 else ""
     return shown, (low, high), (
         f"feature distance{unit}; colours: percentiles {TME_PERCENTILES[0]:g}-{TME_PERCENTILES[1]:g}\n"
