@@ -328,6 +328,7 @@ def fit_extractor(
     gives features and ``distance(query, reference)`` the distance matrix."""
     from vitaplace.engine.base.cpus import configure_blas_threads
     from vitaplace.engine.data.dataset import Run
+    from vitaplace.engine.extension.checks import check_methods
     from vitaplace.engine.extension.registry import discover
 
     configure_blas_threads()
@@ -342,53 +343,4 @@ def fit_extractor(
     extractor = discover().create(plugin, params)
     extractor.progress = _flag(progress, "progress")
     extractor.fit(train)
-    extractor.transform = _CheckedTransform(extractor, plugin)  # type: ignore[method-assign]
-    extractor.distance = _CheckedDistance(extractor, plugin)  # type: ignore[method-assign]
-    return extractor
-
-
-class _Checked:
-    """An extractor's method checked as the pipeline checks it
-    (`vitaplace.engine.pipeline.output_checks`); a failure is one line naming the method and
-    its plugin (a `UserError`). Set on the instance, so the extractor stays of its plugin's
-    class (and picklable)."""
-
-    method = ""
-
-    def __init__(self, extractor: FeatureExtractor, plugin: str) -> None:
-        self.extractor, self.what = extractor, f"{self.method} (plugin '{plugin}')"
-
-
-class _CheckedTransform(_Checked):
-    """``transform``: a mapping of arrays, one finite row per sample."""
-
-    method = "transform"
-
-    def __call__(self, run: Run) -> Any:
-        from vitaplace.engine.pipeline.output_checks import check_features
-
-        return check_features(type(self.extractor).transform(self.extractor, run), len(run), self.what)
-
-
-class _CheckedDistance(_Checked):
-    """An extractor's ``distance`` checked as the pipeline checks it: the features it is
-    given as ``transform``'s output (NaN refused), its matrix of real numbers of shape
-    (n_query, n_reference), finite or +inf."""
-
-    method = "distance"
-
-    def __call__(self, query: Any, reference: Any) -> Any:
-        from vitaplace.engine.pipeline.output_checks import check_distance, check_features
-
-        shape = (_rows(query), _rows(reference))
-        for features, side, rows in zip((query, reference), ("query", "reference"), shape, strict=True):
-            check_features(features, rows, f"{self.what}, its {side} features")
-        return check_distance(type(self.extractor).distance(self.extractor, query, reference), shape, self.what)
-
-
-def _rows(features: Any) -> int:
-    """The samples of ``features``: the rows of its first array (0 for anything else)."""
-    import numpy as np
-
-    first: Any = next(iter(features.values()), None) if isinstance(features, dict) else None
-    return int(np.shape(first)[0]) if np.ndim(first) else 0
+    return check_methods(extractor, plugin, train)

@@ -20,7 +20,7 @@ from vitaplace.engine.config.scenario import (
     ScenarioError,
     ScoringSettings,
 )
-from vitaplace.engine.data.dataset import DatasetError, Run, open_run, recorded_tactile_model
+from vitaplace.engine.data.dataset import DatasetError, Run, open_run, recorded_tactile_model, shape_problem
 from vitaplace.engine.outputs.checksum import digest
 from vitaplace.engine.sim.controllers import RunSpec
 from vitaplace.engine.sim.environment import load_environment
@@ -201,20 +201,6 @@ def _check_like_training(path: Path, where: str, run: Run, train: tuple[int, tup
     problem = shape_problem(run, *train, "the training run")
     if problem:
         raise ScenarioError(f"{path}: {where}: {problem}")
-
-
-def shape_problem(run: Run, whiskers: int, image: tuple[int, ...], other: str) -> str | None:
-    """Why ``run`` and ``other`` (``whiskers`` whiskers, images of shape ``image``) cannot be
-    read by the same fitted method: their whiskers or image sizes differ, in words; None when
-    they agree. The one check of a run's shape, for a scenario's runs (`check_runs`) and the
-    reference drive of ``WhiskEye-Localise-v0``."""
-    shown = lambda shape: "x".join(map(str, shape))  # noqa: E731
-    name = run.path or repr(run.name)
-    if run.n_whiskers != whiskers:
-        return f"{name} has {run.n_whiskers} whiskers, {other} {whiskers}"
-    if run.image_shape != tuple(image):
-        return f"{name} has {shown(run.image_shape)} images, {other} {shown(image)}"
-    return None
 
 
 def _recording(file: Path, digests: dict[Path, str]) -> str:

@@ -425,6 +425,20 @@ def _check_field(f: Any, key: str, where: str) -> None:
         )
 
 
+def shape_problem(run: Run, whiskers: int, image: tuple[int, ...], other: str) -> str | None:
+    """Why ``run`` and ``other`` (``whiskers`` whiskers, images of shape ``image``) cannot be
+    read by the same fitted method: their whiskers or image sizes differ, in words; None when
+    they agree. The one check of a run's shape, for a scenario's runs (`check_runs`) and the
+    reference drive of ``WhiskEye-Localise-v0``, a fitted extractor's runs in the API."""
+    shown = lambda shape: "x".join(map(str, shape))  # noqa: E731
+    name = run.path or repr(run.name)
+    if run.n_whiskers != whiskers:
+        return f"{name} has {run.n_whiskers} whiskers, {other} {whiskers}"
+    if run.image_shape != tuple(image):
+        return f"{name} has {shown(run.image_shape)} images, {other} {shown(image)}"
+    return None
+
+
 def recorded_tactile_model(run: Run) -> str | None:
     """The tactile model a run file says its whiskers' xy come from (``robot.tactile_model`` of
     its attributes: simulated runs and `vitaplace import` record it); None for a file that does

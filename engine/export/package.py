@@ -14,6 +14,7 @@ written last, ``SHA256SUMS``: the SHA-256 of every other file, as ``sha256sum -c
 from __future__ import annotations
 
 import json
+import os
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -172,6 +173,8 @@ def read_package(folder: str | Path) -> Package:
     first checked against its ``SHA256SUMS``: its datasheet, runs and ground truth (`Package`).
     A missing, changed or unlisted file (any file of the folder but ``SHA256SUMS`` itself), or
     another format version, is an ExportError naming it."""
+    if not isinstance(folder, (str, os.PathLike)):
+        raise ExportError(f"folder={folder!r:.80}: expected the path of a package folder (text or a Path)")
     folder = Path(folder)
     listed = verified(folder)
     unlisted_files = sorted(path for path in folder.rglob("*") if path.is_file() and path != folder / SUMS

@@ -31,10 +31,11 @@ from gymnasium.wrappers import TimeLimit
 
 from vitaplace.engine.base.configfile import format_validation_error
 from vitaplace.engine.base.errors import UserError, did_you_mean
-from vitaplace.engine.config.inputs import shape_problem, tau_problem
+from vitaplace.engine.config.inputs import tau_problem
 from vitaplace.engine.config.scenario import ScoringSettings
-from vitaplace.engine.data.dataset import DatasetError, Run, open_run
+from vitaplace.engine.data.dataset import DatasetError, Run, open_run, shape_problem
 from vitaplace.engine.evaluation.evaluate import decide, ground_truth_matrix
+from vitaplace.engine.extension.checks import check_methods
 from vitaplace.engine.extension.features import FeatureExtractor, Features
 from vitaplace.engine.extension.registry import discover
 from vitaplace.engine.sim.clearance import footprint_clearance
@@ -76,6 +77,7 @@ def build_map(environment: EnvironmentSpec, robot: RobotSpec, reference: str | P
     extractor = discover().create(plugin, params)
     extractor.progress = False
     extractor.fit(run)
+    check_methods(extractor, plugin, run)  # each step's sample and distances checked as the pipeline's
     poses = np.asarray(run.poses, dtype=np.float64)
     clear = footprint_clearance(environment.obstacles, poses[:, :2], poses[:, 2]) >= 0
     if not clear.any():

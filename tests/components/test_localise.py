@@ -208,3 +208,16 @@ def test_a_wrong_shaped_action_names_the_expected_shape(reference_map):
                                          r"\(4,\), float32 \(forward, strafe, turn, whisk amplitude\)$"):
         env.step(np.zeros(3))
     env.close()
+
+
+def test_the_plugins_distances_are_checked_as_the_pipelines(reference_map, monkeypatch):
+    """Each step's distances pass the pipeline's checks (`check_methods`): a plugin returning
+    NaN is one line naming the method and plugin, not a reward read from a NaN best match."""
+    extractor_class = type(reference_map.extractor)
+    monkeypatch.setattr(extractor_class, "distance", lambda self, q, r: np.full((1, len(reference_map.run)), np.nan))
+    env = gymnasium.make(ENV_ID, robot=SMALL, reference_map=reference_map)
+    env.reset(seed=0)
+    with pytest.raises(UserError, match=r"^distance \(plugin 'handcrafted'\): feature 'distance' has NaN or infinite "
+                                        r"values in 1 samples"):
+        env.step(np.array([0.1, 0.0, 0.0, 1.0], dtype=np.float32))
+    env.close()

@@ -370,6 +370,34 @@ def test_a_script_without_a_guard_runs_in_one_process_instead_of_breaking_the_po
     assert len(list((tmp_path / "out" / "cache" / "datasets").glob("*.h5"))) == 3
 
 
+@pytest.mark.parametrize("case", ["text", "12 whiskers", "smaller images"])
+def test_a_fitted_extractor_refuses_a_run_it_cannot_read_in_one_line(case):
+    """``transform`` is given a `Run` of the whiskers and image size it was fitted on (as the
+    pipeline's runs are checked against the training run); anything else is one line naming
+    the method, its plugin and what differs, not the plugin's broadcasting error."""
+    rng = np.random.default_rng(0)
+
+    def made(name, whiskers=24, image=(12, 16, 3)):
+        """A run of 6 samples whose whiskers all touch (deflections of 0.05-0.2)."""
+        return vitaplace.Run.from_arrays(images=rng.integers(0, 255, (6, *image), dtype=np.uint8),
+                                         theta=rng.uniform(0.05, 0.2, (6, whiskers)),
+                                         xy=rng.uniform(0.05, 0.2, (6, whiskers, 2)),
+                                         poses=rng.uniform(0, 1, (6, 3)), name=name)
+
+    run = made("train")
+    m = vitaplace.fit_extractor("mupnet", run, {"epochs": 1, "visual_layers": [8], "tactile_layers": [8],
+                                                "joint_size": 4})
+    other = {"text": "x", "12 whiskers": made("twelve", whiskers=12),
+             "smaller images": made("small", image=(6, 8, 3))}[case]
+    message = {"text": r"run='x': expected a Run \(vitaplace\.open_run\(path\) reads a run file\)$",
+               "12 whiskers": r"'twelve' has 12 whiskers, the extractor's training run 24$",
+               "smaller images": r"'small' has \d+x\d+x3 images, the extractor's training run \d+x\d+x3$"}[case]
+    with pytest.raises(vitaplace.UserError, match=r"^transform \(plugin 'mupnet'\): " + message) as info:
+        m.transform(other)
+    assert "\n" not in str(info.value)
+    assert m.transform(run)["latent"].shape[0] == len(run)
+
+
 def test_a_fitted_extractor_checks_its_features_and_distances_as_the_pipeline_does():
     """``fit_extractor(...).distance`` refuses NaN features in one line naming the method and
     its plugin, as the pipeline refuses them, instead of returning NaN distances; what it

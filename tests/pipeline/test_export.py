@@ -255,3 +255,9 @@ def test_a_package_file_the_checksums_do_not_list_is_refused_naming_it(tmp_path)
     sums.write_text(f"{hashlib.sha256((package / 'datasheet.json').read_bytes()).hexdigest()}  datasheet.json\n")
     with pytest.raises(ExportError, match=rf"^{package / 'runs' / 'train.h5'}: not listed in {sums}$"):
         read_package(package)
+
+
+@pytest.mark.parametrize("folder", [3, None, ["package"]])
+def test_read_package_of_something_that_is_no_path_is_one_line(folder):
+    with pytest.raises(ExportError, match=r"^folder=.*: expected the path of a package folder \(text or a Path\)$"):
+        read_package(folder)
