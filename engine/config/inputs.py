@@ -68,7 +68,8 @@ def _check_recall_k(path: Path, scenario: Scenario, lengths: dict[Path, int]) ->
     """Every K of ``scoring.recall_k`` below the samples of every run searched (each
     evaluation's reference side in each direction): at K >= the references every query with a
     true match has it among its first K, so recall@K is 100 % for any method. The default list
-    is left as it is (a five-sample test run keeps its recall@5 and @10). ``lengths``: the
+    is not refused: in a run of a few samples scoring leaves such a K out, with a run warning
+    (`vitaplace.engine.pipeline.scoring.searchable_ks`). ``lengths``: the
     samples of each recorded evaluation run (`_check_recorded_runs` read them)."""
     ks = scenario.scoring.recall_k
     if not ks or ks == ScoringSettings.model_fields["recall_k"].default:

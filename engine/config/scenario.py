@@ -408,7 +408,8 @@ class ScoringSettings(Strict):
     )
     recall_k: list[pydantic.PositiveInt] = pydantic.Field(
         [1, 5, 10], description="K values of recall@K, distinct; each below every evaluation's reference samples "
-        "(`vitaplace validate` checks it against the runs; the default list is left to tiny runs as it is)",
+        "(`vitaplace validate` checks it against the runs; of the default list, a K not below a run's samples is "
+        "left out of its row, with a warning)",
     )
     direction: typing.Literal["query-to-reference", "reference-to-query", "both"] = pydantic.Field(
         "query-to-reference",

@@ -14,6 +14,7 @@ from vitaplace.engine.config.scenario import EvaluationPair, Scenario, ScenarioE
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.evaluation.ranking import Rows
+from vitaplace.engine.extension.features import warn_once
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.outputs.rows import QueryDropoutShares, ResultRow, parse_row
 from vitaplace.engine.pipeline.records import RunFile
@@ -39,9 +40,23 @@ def score(scenario: Scenario, folder: Path, tme: np.ndarray | Rows, query: Run, 
     return evaluate_pair(
         folder, tme, query.poses, reference.poses, settings.tau, query_touch=query.touch_mask(),
         reference_touch=reference.touch_mask(), delta=settings.delta,
-        heading_tolerance_deg=settings.heading_tolerance_deg, ks=tuple(settings.recall_k),
+        heading_tolerance_deg=settings.heading_tolerance_deg, ks=searchable_ks(settings.recall_k, reference),
         sequence=sequence_for(scenario, query.name, len(query)),
     )
+
+
+def searchable_ks(ks: list[int], reference: Run) -> tuple[int, ...]:
+    """The K of ``ks`` below the ``reference`` run's samples: at K >= them every query with a
+    true match has it among its first K, and recall@K is 100 % for any method. `vitaplace
+    validate` refuses such a K in a list the scenario sets; the default list (1, 5, 10) meets
+    it in runs of a few samples, where that K is left out of the row (its cell blank) and a run
+    warning says so."""
+    kept = tuple(k for k in ks if k < len(reference))
+    if len(kept) < len(ks):
+        left_out = ", ".join(f"recall@{k}" for k in ks if k not in kept)
+        warn_once(reference, "recall@K", f"{left_out}: not scored against run {reference.name!r}: K is not below "
+                  f"its {len(reference)} samples, where every query with a true match counts as found")
+    return kept
 
 
 def result_row(evaluation: EvaluationPair, name: str, direction: str, folder: Path, query: RunFile) -> ResultRow:

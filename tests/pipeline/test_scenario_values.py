@@ -129,6 +129,28 @@ def test_the_default_recall_k_is_left_to_a_tiny_evaluation():
                  "--set", "scoring.sequence.length=1"]) == 0
 
 
+def test_the_default_recall_k_scores_only_the_k_below_the_references(tmp_path):
+    """Of the default [1, 5, 10], an 8-sample reference run scores recall@1 and @5 and leaves
+    @10 out (at K >= the references every query with a true match counts as found: 100 % for
+    any method), with a run warning in the manifest naming the run and the K."""
+    files = {name: _recorded(tmp_path / f"{name}.h5", n) for name, n in (("train", 12), ("query", 12),
+                                                                         ("reference", 8))}
+    scenario = {"name": "recorded", "train": {"dataset": str(files["train"])},
+                "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]),
+                                                            "reference": str(files["reference"])}}],
+                "methods": [{"name": "H-V", "plugin": "handcrafted", "params": {"use_tactile": False}}],
+                "scoring": {"tau": 0.5}}
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    assert main(["-q", "run", str(path), "--out", str(tmp_path / "out")]) == 0
+    (row,) = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert sorted(row["recall_at_k"], key=int) == ["1", "5"]
+    warnings = json.loads((tmp_path / "out" / "manifest.json").read_text())["warnings"]
+    assert [w["recall@K"] for w in warnings.values() if "recall@K" in w] == [
+        "recall@10: not scored against run 'E1/reference': K is not below its 8 samples, where every query with a "
+        "true match counts as found"]
+
+
 def _models(tp: typing.Any) -> set[type[pydantic.BaseModel]]:
     """The pydantic models an annotation names, through unions, containers and Annotated."""
     if isinstance(tp, type) and issubclass(tp, pydantic.BaseModel):
