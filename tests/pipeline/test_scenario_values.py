@@ -287,10 +287,13 @@ def test_training_on_an_evaluations_reference_recording_is_warned_about(tmp_path
 
 
 @pytest.mark.parametrize("train, warned", [("reference", True), ("own", False)])
-def test_a_run_trained_on_a_reference_recording_says_so_in_its_manifest_and_report(tmp_path, train, warned):
-    """The warning of `validate` reaches what a reader of the results reads."""
+def test_a_run_trained_on_a_reference_recording_says_so_in_its_manifest_and_report(tmp_path, capsys, train,
+                                                                                   warned):
+    """The warning of `validate` reaches what a reader of the results reads, and the console
+    says it once."""
     out = tmp_path / "out"
     assert main(["-q", "run", str(_recorded_scenario(tmp_path, train)), "--out", str(out)]) == 0
+    assert capsys.readouterr().err.count("same recording") == warned
     said = ("run train is the same recording as E1/reference: the methods are fitted on the run evaluation E1 "
             "searches, so its scores measure recognising places of the training run itself")
     warnings = json.loads((out / "manifest.json").read_text())["warnings"]

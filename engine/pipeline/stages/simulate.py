@@ -106,14 +106,19 @@ def warn_trained_on_a_reference(store: Store, runs: dict[str, RunFile]) -> None:
     """Warn (log, manifest.json, report.md) when the training run holds the same recording as
     an evaluation's reference run (equal content digests): every score of that evaluation then
     reads features fitted on the run it searches. A query recording is refused before this
-    (`vitaplace.engine.config.inputs`)."""
+    (`vitaplace.engine.config.inputs`). A recorded training run's is kept, not logged again:
+    loading the scenario logged it, naming the files."""
     train = runs["train"]
     for label, record in runs.items():
         if label.endswith("/reference") and record.digest == train.digest:
-            warn_once(store.run(train), f"trained on {label}",
-                      f"run train is the same recording as {label}: the methods are fitted on the run evaluation "
-                      f"{label.rpartition('/')[0]} searches, so its scores measure recognising places of the "
-                      "training run itself")
+            feature, message = f"trained on {label}", (
+                f"run train is the same recording as {label}: the methods are fitted on the run evaluation "
+                f"{label.rpartition('/')[0]} searches, so its scores measure recognising places of the training run "
+                "itself")
+            if train.recorded:
+                store.run(train).warnings.setdefault(feature, message)
+            else:
+                warn_once(store.run(train), feature, message)
 
 
 def warn_stays(store: Store, runs: dict[str, RunFile]) -> None:
