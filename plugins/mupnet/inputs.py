@@ -61,7 +61,9 @@ class InputParams(ExtractorParams):
 
     modalities: list[Modality] = Field(
         default_factory=_both_modalities, min_length=1,
-        description="modalities fed to the network (an ablation leaves one out)",
+        description="modalities fed to the network (an ablation leaves one out; the left-out modality's settings "
+        "- its layers, step sizes, thresholds, scaling, image size - are then accepted and not read, so that an "
+        "ablation can share the whole network's settings block, as the shipped studies' YAML merge keys do)",
     )
     image_size: tuple[pydantic.PositiveInt, pydantic.PositiveInt] = Field(
         (45, 80), description="(rows, columns) the camera frames are resampled to"
@@ -92,7 +94,7 @@ class InputParams(ExtractorParams):
     #: settings that only some choices of other settings read: key -> the readers, each (a
     #: setting, the choices of it that read the key), any one of them enough; with none of
     #: them chosen a value other than the key's default would be ignored, so it is refused
-    #: (`_no_ignored_setting`)
+    #: (`_no_ignored_setting`). A left-out modality's settings are not refused (`modalities`).
     READ_ONLY_WITH: ClassVar[dict[str, tuple[Reader, ...]]] = {
         "cycle_points": (("tactile_input", ("cycle",)),),
     }
