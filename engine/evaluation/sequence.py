@@ -11,10 +11,13 @@ From a method's distance matrix ``D`` (queries x references, both in drive order
 2. **Straight lines** — for query ``i``, reference ``j`` and each relative velocity ``v``
    (``velocity_steps`` values evenly spaced over ``velocities``, references per query), the
    line through the last ``length`` queries ``k = i - length + 1 .. i`` meets references
-   ``round(j + v * (k - i))``; its score is the mean of ``D^`` over the line's terms that are
-   inside the reference run and finite. ``S[i, j]`` is the best (lowest) score over the
-   velocities; a line with no finite term is +inf. The first queries of a run have shorter
-   lines (only the queries that exist).
+   ``round(j + v * (k - i))``; its score is the mean of ``D^`` over the line's finite terms.
+   A line that leaves the reference run (a reference before its first sample) is no
+   candidate (+inf), as in SeqSLAM: a mean over fewer terms is more extreme, and lines cut
+   short at the run's start would win the lowest score by that alone. ``S[i, j]`` is the
+   best (lowest) score over the velocities; a line with no finite term is +inf. The first
+   queries of a run have shorter lines (only the queries that exist; every candidate of the
+   query alike).
 
 ``S`` replaces ``D`` for the best match, the PR curve and recall@K. ``length: 1`` is
 single-sample matching: ``S`` is ``D`` itself, bit for bit (no contrast step either).
@@ -27,8 +30,9 @@ xy|`` of its poses). Query ``i``'s sequence is ``length`` points evenly spaced o
 the query sample nearest to it in travelled distance (`points_back`); reference ``j``'s
 points are the reference samples at the same distances back from ``t_r[j]``. ``S[i, j]`` is
 the mean of ``D^`` over the pairs of points (the ``k``-th query point with the ``k``-th
-reference point) that lie in both runs and are finite; no velocities are searched, since
-both sequences advance in metres. A robot that stops adds samples, not points, so a stop
+reference point) that are finite; a reference whose points run back before its run's start
+where the query's do not is no candidate (+inf), as a line that leaves the reference run; no
+velocities are searched, since both sequences advance in metres. A robot that stops adds samples, not points, so a stop
 does not change a sequence. ``metres: 0`` (every point the query itself) or ``length: 1`` is
 single-sample matching, ``S`` is ``D`` bit for bit.
 
@@ -140,15 +144,16 @@ def _odometry_rows(distances: Rows, length: int, window: int, metres: float,
         runs = np.split(needed, np.flatnonzero(np.diff(needed) > 1) + 1)  # contiguous stretches
         contrast = local_contrast(np.concatenate([distances.read(r[0], r[-1] + 1) for r in runs]), window)
         shape = (stop - start, distances.shape[1])
-        total, terms = np.zeros(shape), np.zeros(shape)
+        total, terms, leaves = np.zeros(shape), np.zeros(shape), np.zeros(shape, dtype=bool)
         for k in range(length):
             rows, cols = np.searchsorted(needed, queries[:, k]), references[:, k]
+            leaves |= (queries[:, k, None] >= 0) & (cols[None, :] < 0)
             term = np.where((queries[:, k, None] >= 0) & (cols[None, :] >= 0),
                             contrast[np.ix_(np.minimum(rows, len(needed) - 1), cols)], np.inf)
             finite = np.isfinite(term)
             total += np.where(finite, term, 0.0)
             terms += finite
-        return np.divide(total, terms, out=np.full(shape, np.inf), where=terms > 0)
+        return np.divide(total, terms, out=np.full(shape, np.inf), where=(terms > 0) & ~leaves)
 
     return Rows(distances.shape, read)
 
@@ -161,17 +166,17 @@ def _line_scores(contrast: np.ndarray, first: int, start: int, stop: int, length
     offsets = np.arange(-(length - 1), 1)  # k - i for the queries of the line
     best = np.full(shape, np.inf)
     for v in np.linspace(velocities[0], velocities[1], velocity_steps):
-        total = np.zeros(shape)
-        terms = np.zeros(shape)
+        total, terms, leaves = np.zeros(shape), np.zeros(shape), np.zeros(shape, dtype=bool)
         for offset in offsets:
             rows = np.arange(start, stop) + offset
             cols = np.rint(np.arange(n_ref) + v * offset).astype(int)
             row_ok, col_ok = (rows >= 0), (cols >= 0) & (cols < n_ref)
+            leaves |= np.outer(row_ok, ~col_ok)
             term = np.full(shape, np.inf)
             term[np.ix_(row_ok, col_ok)] = contrast[np.ix_(rows[row_ok] - first, cols[col_ok])]
             finite = np.isfinite(term)
             total += np.where(finite, term, 0.0)
             terms += finite
-        score = np.divide(total, terms, out=np.full(shape, np.inf), where=terms > 0)
+        score = np.divide(total, terms, out=np.full(shape, np.inf), where=(terms > 0) & ~leaves)
         best = np.minimum(best, score)
     return best

@@ -47,12 +47,13 @@ def reference_scores(d: np.ndarray, length: int, velocities: tuple[float, float]
     for v in np.linspace(velocities[0], velocities[1], steps):
         for i in range(n_q):
             for j in range(n_r):
-                terms = []
+                terms, inside = [], True
                 for k in range(max(0, i - length + 1), i + 1):
                     col = int(np.rint(j + v * (k - i)))
+                    inside = inside and 0 <= col < n_r  # a line that leaves the reference run is no candidate
                     if 0 <= col < n_r and np.isfinite(contrast[k, col]):
                         terms.append(contrast[k, col])
-                if terms:
+                if terms and inside:
                     out[i, j] = min(out[i, j], float(np.mean(terms)))
     return out
 
@@ -77,12 +78,13 @@ def reference_odometry_scores(d: np.ndarray, length: int, window: int, metres: f
     out = np.full(d.shape, np.inf)
     for i in range(d.shape[0]):
         for j in range(d.shape[1]):
-            terms = []
+            terms, inside = [], True
             for k in range(length):
                 qi, rj = point(tq, i, metres * k / (length - 1)), point(tr, j, metres * k / (length - 1))
+                inside = inside and (qi is None or rj is not None)  # the reference's points run back as far
                 if qi is not None and rj is not None and np.isfinite(contrast[qi, rj]):
                     terms.append(contrast[qi, rj])
-            if terms:
+            if terms and inside:
                 out[i, j] = float(np.mean(terms))
     return out
 
@@ -127,8 +129,12 @@ def test_a_sequence_finds_the_match_a_single_sample_misses():
     s = sequence_scores(ALIASED, 3, velocities=(1.0, 1.0), velocity_steps=1, window=10)
     # the line of length 3 at velocity 1 through (5, 5): (3, 3), (4, 4), (5, 5) -> (-2.236 - 2.236 - 1.214) / 3
     assert s[5, 5] == pytest.approx(-1.895, abs=1e-3)
-    # through (5, 1): (3, -1) is outside the run, (4, 0) +0.447, (5, 1) -1.597 -> -0.575
-    assert s[5, 1] == pytest.approx(-0.575, abs=1e-3)
+    # through (5, 1): (3, -1) is outside the reference run, so the line is no candidate (its
+    # two other terms, +0.447 and -1.597, would average -0.575 on fewer terms); likewise
+    # reference 0, whose line meets references -2 and -1
+    assert np.isinf(s[5, 1]) and np.isinf(s[5, 0])
+    # through (5, 2): (3, 0) +0.447, (4, 1) +0.447, (5, 2) +0.703 -> +0.532
+    assert s[5, 2] == pytest.approx(0.532, abs=1e-3)
     assert np.argmin(s[5]) == 5
     gtm = np.abs(np.arange(6)[:, None] - np.arange(6)[None, :]).astype(float)  # metres along the loop
     assert evaluate(ALIASED, gtm, 0.1)["recall_at_k"]["1"] == pytest.approx(5 / 6)
@@ -151,9 +157,9 @@ def test_a_query_the_method_cannot_compare_is_scored_by_the_sequence_that_ends_a
     d = ALIASED.copy()
     d[4] = np.inf  # query 4 lost its sensor
     s = sequence_scores(d, 3, (1.0, 1.0), 1, 10)
-    # its lines borrow queries 2 and 3: finite wherever one of their references is in the run;
-    # reference 0's line meets references -2 and -1 there (outside) and its own term is +inf
-    assert np.isinf(s[4, 0]) and np.isfinite(s[4, 1:]).all() and np.argmin(s[4]) == 4
+    # its lines borrow queries 2 and 3: finite wherever the whole line is in the reference run
+    # (references 2 on); references 0 and 1's lines meet references before the run's start
+    assert np.isinf(s[4, :2]).all() and np.isfinite(s[4, 2:]).all() and np.argmin(s[4]) == 4
     assert np.isinf(sequence_scores(np.full((4, 4), np.inf), 2, (1.0, 1.0), 1, 3)).all()  # nothing to compare
 
 
@@ -404,3 +410,21 @@ def test_the_report_warns_when_the_contrast_window_is_no_more_than_one_place(spa
     text = _matching(sequence, 0.3)
     assert f"a median {span:.2f} m of the reference drive" in text
     assert ("WARNING no more than one place (2τ = 0.6 m)" in text) is warned
+
+
+@pytest.mark.parametrize("metres", [None, 1.0])
+def test_on_noise_the_best_matches_do_not_gather_at_the_reference_runs_start(metres):
+    """Distances of pure noise carry no place: every reference a full sequence can reach is as
+    likely a best match as another. Lines cut short at the reference run's start average fewer
+    terms, so they are more extreme and would win the lowest score by that alone (34 % of the
+    best matches in the first 3 references, 56 % in the first 10 over travelled distance, before
+    such lines stopped being candidates); the first 10 references that can be matched hold
+    about 10 / 190 of them."""
+    d = np.random.default_rng(3).random((200, 200))
+    drive = poses_of(np.c_[np.arange(200) * 0.1, np.zeros(200)])  # 0.1 m a sample: 1 m back = 10 samples
+    s = sequence_scores(d, 10, (1.0, 1.0), 1, 10, metres=metres, poses=None if metres is None else (drive, drive))
+    full = s[10:]  # the queries with a whole sequence behind them
+    first = 9 if metres is None else 10  # the first reference with a whole sequence behind it
+    assert np.isinf(full[:, :first]).all() and np.isfinite(full[:, first:]).all()
+    share = float(np.mean(np.argmin(full, axis=1) < first + 10))
+    assert share < 0.15, share  # 10 of the 190-191 reachable references: 5 % expected
