@@ -198,7 +198,8 @@ class ResultRow(_Part):
     difficulty: Difficulty | None = None
     fusion: FusionChoice | None = None
     query_dropout: QueryDropoutShares | None = None
-    f1_at_e1_threshold: UnitOrNull = None  #: null: no training world's threshold to apply
+    #: null: no training world's threshold to apply (no such evaluation, or no revisit in it)
+    f1_at_e1_threshold: UnitOrNull = None
     e1_threshold: RealOrNull = None
 
 

@@ -258,9 +258,13 @@ def test_quickstart_writes_every_output(quickstart_run):
     for row in rows:
         assert 0.0 <= row["max_f1"] <= 1.0 and row["n_queries"] == 10
         assert row["heading_tolerance_deg"] == 30.0  # the documented default
-        # E1 is the training world: its own max-F1 threshold gives its max F1
-        assert row["f1_at_e1_threshold"] == pytest.approx(row["max_f1"])
-        assert row["e1_threshold"] == pytest.approx(row["delta_at_max_f1"])
+        # E1 is the training world: its own max-F1 threshold gives its max F1; without a
+        # revisit it has none (test_f1_at_the_training_threshold_is_undefined_where_...)
+        if row["n_revisit"]:
+            assert row["f1_at_e1_threshold"] == pytest.approx(row["max_f1"])
+            assert row["e1_threshold"] == pytest.approx(row["delta_at_max_f1"])
+        else:
+            assert row["f1_at_e1_threshold"] is None and row["e1_threshold"] is None
     difficulties = [row["difficulty"] for row in rows]
     assert list(difficulties[0]) == ["nearest_ref_median_m", "nearest_ref_p90_m", "nearest_ref_heading_median_deg",
                                      "chance_r1", "query_touch_share", "reference_touch_share",
@@ -1502,3 +1506,20 @@ def test_an_error_quoting_a_line_break_stays_one_line(tmp_path, capsys):
     lines = capsys.readouterr().err.strip().splitlines()
     assert lines == [f"vitaplace: error: {tmp_path}/two\\nlines.yaml: seed: Input should be greater than or equal "
                      "to 0 (got -1)"]
+
+
+def test_f1_at_the_training_threshold_is_undefined_where_the_training_world_has_no_revisit(tmp_path):
+    """A training world's evaluation with no query that has a true match has no F1-maximising
+    threshold (its max F1 is 0 by convention): the other worlds' F1 at it is null, not the 0
+    of accepting nothing, so that a summary leaves it out instead of averaging a 0."""
+    path = write_scenario(tmp_path, {
+        "name": "tiny", "seed": 0, "train": {"environment": "e1", "run": {"kind": "foraging", "n_samples": 20}},
+        "evaluations": [{"name": "E1", "environment": "e1", "run": {"kind": "teleop", "n_samples": 12}},
+                        {"name": "E2", "environment": "e2", "run": {"kind": "route", "n_samples": 20}}],
+        "methods": [{"name": "H", "plugin": "handcrafted"}], "scoring": {"tau": 0.3, "recall_k": [1, 5]},
+        "report": {"figures": "none"}})
+    out = tmp_path / "out"
+    assert main(["-q", "run", str(path), "--out", str(out), "--no-progress"]) == 0
+    rows = {row["environment"]: row for row in json.loads((out / "results.json").read_text())}
+    assert rows["E1"]["n_revisit"] == 0 and rows["E2"]["n_revisit"] > 0 and rows["E2"]["max_f1"] > 0
+    assert [(rows[e]["f1_at_e1_threshold"], rows[e]["e1_threshold"]) for e in ("E1", "E2")] == [(None, None)] * 2

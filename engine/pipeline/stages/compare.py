@@ -37,12 +37,15 @@ def f1_at_training_threshold(store: Store, scenario: Scenario, rows: list[Result
     """The rows with ``f1_at_e1_threshold``: F1 at the threshold that maximised the same
     method's F1 (same direction) on the training world's evaluation
     (`training_world_evaluation`), applied unchanged, and that threshold, ``e1_threshold``
-    (None when it is -inf: accept nothing); both None when there is no such evaluation."""
+    (None when it is -inf: accept nothing); both None when there is no such evaluation, or
+    when its direction has no query with a true match (its max F1 is undefined, 0 by
+    convention: its threshold is no training world's choice)."""
     source, _ = training_world_evaluation(scenario)
+    revisits = {(row.environment, row.method, row.direction): row.n_revisit for row in rows}
     completed = []
     for row in rows:
         f1, threshold = None, None
-        if source is not None:
+        if source is not None and revisits.get((source, row.method, row.direction)):
             curve = load_curve(outdir.evaluation_dir(store.out, source, row.method, row.direction) / outdir.PR_CURVE)
             decisions = load_decisions(outdir.evaluation_dir(store.out, row.environment, row.method, row.direction)
                                        / outdir.DECISIONS)
