@@ -18,6 +18,7 @@ from vitaplace.engine.export.folder import check_folder, write_export
 from vitaplace.engine.export.package import PACKAGE
 from vitaplace.engine.export.vpr import VPR
 from vitaplace.engine.outputs import outdir
+from vitaplace.engine.outputs.stale import held_stage
 from vitaplace.engine.pipeline.orchestrate import run_stages
 from vitaplace.engine.pipeline.provenance import provenance
 from vitaplace.engine.pipeline.store import Store
@@ -42,8 +43,8 @@ def stage_runs(scenario: Scenario, stage: Path) -> dict[str, ExportRun]:
 def check_apart(stage: Path, out: Path) -> None:
     """The runs folder ``stage`` is a folder of its own: not the current folder (what an empty
     ``--runs`` names), not ``out``, neither inside the other (a run folder's claim cleans what
-    interrupted writes left anywhere under it, and ``out`` must be empty or an export); else
-    one line naming both options."""
+    interrupted writes left anywhere under it, and ``out`` must be empty or an export), not a
+    folder holding a run's results; else one line naming the options."""
     if stage.resolve() == Path.cwd().resolve():
         raise UserError(f"--runs {stage}: an empty path or the current folder; expected a folder of their own "
                         "for the runs (default: runs/<scenario name>-export)")
@@ -51,6 +52,11 @@ def check_apart(stage: Path, out: Path) -> None:
     if inner.is_relative_to(outer) or outer.is_relative_to(inner):  # the same folder too
         raise UserError(f"--runs {stage}, --out {out}: the folder the runs are recorded into must lie apart from "
                         "--out, neither inside the other")
+    held = held_stage(stage)
+    if held is not None:  # recording this scenario's runs there would prune that run's results as stale
+        shown = outdir.REPORT if held == "report" else outdir.RESULTS_JSON
+        raise UserError(f"--runs {stage}: holds a run's results ({shown}); expected a folder for the recorded runs "
+                        "alone (default: runs/<scenario name>-export)")
 
 
 def export_scenario(name: str, overrides: list[str], out: Path, kind: str, runs: Path | None, progress: bool,

@@ -198,8 +198,14 @@ def claimed(out: Path, before_cleaning: Callable[[Path], None] | None = None) ->
     """``with claimed(out) as out:`` - the one way a command or the Python API takes an output
     folder: ``out`` made a writable directory (`writable_dir`), held by this process
     (`OutputLock`, else OutputDirError), then ``before_cleaning(out)`` if given (the command
-    line's log file) and what interrupted writes left removed, each logged."""
-    out = writable_dir(Path(out))
+    line's log file) and what interrupted writes left removed, each logged. A folder that
+    holds files but no `LOCK_NAME` (which every claim leaves) is no folder of vitaplace's:
+    refused untouched, since a run prunes the result folders it finds there."""
+    out = Path(out)
+    if out.is_dir() and not (out / LOCK_NAME).exists() and any(out.iterdir()):
+        raise OutputDirError(f"--out {out}: not empty and not a folder vitaplace wrote (no {LOCK_NAME}); expected "
+                             "a new or empty folder, or one a vitaplace command wrote")
+    out = writable_dir(out)
     with OutputLock(out):
         if before_cleaning is not None:
             before_cleaning(out)

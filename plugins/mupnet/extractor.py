@@ -246,13 +246,14 @@ class MupnetParams(ArchitectureParams):
         """The engine's test-time solver (`make_solver`); its energy's prior is ``latent_prior``."""
         return make_solver(self.inference_solver, self.inference_momentum, self.inference_rtol)
 
-    @pydantic.field_validator("inference_solver")
-    @classmethod
-    def _prior_where_needed(cls, value: str, info: pydantic.ValidationInfo) -> str:
-        if make_solver(value).needs_prior and not info.data.get("latent_prior"):
-            raise ValueError(f"the {value} solver needs latent_prior > 0 (without the prior a layer's "
-                             "curvature bound can be singular)")
-        return value
+    @pydantic.model_validator(mode="after")
+    def _prior_where_needed(self) -> MupnetParams:
+        """An after-validator, so that the default solver is checked too (a field validator
+        does not run on a default)."""
+        if make_solver(self.inference_solver).needs_prior and not self.latent_prior:
+            raise ValueError(f"inference_solver {self.inference_solver} needs latent_prior > 0, got "
+                             f"{self.latent_prior:g} (without the prior a layer's curvature bound can be singular)")
+        return self
 
     @pydantic.model_validator(mode="after")
     def _settling_solver(self) -> MupnetParams:

@@ -274,6 +274,7 @@ def test_force_takes_one_stage_name_or_several(finished, tmp_path):
     scenario, out, _ = finished
     folder = tmp_path / "run"
     shutil.copytree(out / "cache", folder / "cache")  # the cache alone: no later stage's output to carry on to
+    shutil.copy(out / ".vitaplace.lock", folder)  # a folder vitaplace wrote
     runs = sorted((folder / "cache" / "datasets").glob("*.h5"))
     before = [path.stat().st_mtime_ns for path in runs]
     assert vitaplace.run(scenario, out=folder, until="simulate", force="simulate", workers=1) == []

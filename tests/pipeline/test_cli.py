@@ -1523,3 +1523,23 @@ def test_f1_at_the_training_threshold_is_undefined_where_the_training_world_has_
     rows = {row["environment"]: row for row in json.loads((out / "results.json").read_text())}
     assert rows["E1"]["n_revisit"] == 0 and rows["E2"]["n_revisit"] > 0 and rows["E2"]["max_f1"] > 0
     assert [(rows[e]["f1_at_e1_threshold"], rows[e]["e1_threshold"]) for e in ("E1", "E2")] == [(None, None)] * 2
+
+
+@pytest.mark.parametrize("out", ["proj", ""])
+def test_a_folder_vitaplace_did_not_write_is_refused_untouched(tmp_path, monkeypatch, capsys, out):
+    """A run prunes the result folders (training/, poses/, figures/ ...) it finds in --out: a
+    folder that holds files but no claim of vitaplace's (``.vitaplace.lock``), such as a
+    project folder, or the current one through an empty --out, is refused in one line and
+    left as it was."""
+    monkeypatch.chdir(tmp_path)
+    folder = tmp_path / (out or ".")
+    mine = {folder / "training" / "train_model.py": "print(1)", folder / "sub" / ".big.iso.part": "p"}
+    for path, text in mine.items():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+    assert main(["-q", "run", "quickstart", "--out", out, *sum((["--set", o] for o in TINY), [])]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"vitaplace: error: --out {out or '.'}: not empty and not a folder vitaplace wrote (no "
+                   ".vitaplace.lock); expected a new or empty folder, or one a vitaplace command wrote"]
+    assert {path: path.read_text() for path in mine} == mine
+    assert sorted(p.name for p in folder.iterdir()) == ["sub", "training"]

@@ -261,3 +261,18 @@ def test_a_package_file_the_checksums_do_not_list_is_refused_naming_it(tmp_path)
 def test_read_package_of_something_that_is_no_path_is_one_line(folder):
     with pytest.raises(ExportError, match=r"^folder=.*: expected the path of a package folder \(text or a Path\)$"):
         read_package(folder)
+
+
+def test_runs_holding_a_runs_results_are_refused_untouched(tmp_path, capsys):
+    """Recording the runs into a finished run folder would prune its results as stale: --runs
+    there is refused in one line before anything is written."""
+    finished = tmp_path / "R"
+    finished.mkdir()
+    (finished / ".vitaplace.lock").write_text("1")
+    (finished / "results.json").write_text("[]")
+    assert main(["-q", "export", "touch-benchmark", *SETS, "--out", str(tmp_path / "X"), "--runs", str(finished)]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"vitaplace: error: --runs {finished}: holds a run's results (results.json); expected a folder for the "
+        "recorded runs alone (default: runs/<scenario name>-export)"]
+    assert sorted(p.name for p in finished.iterdir()) == [".vitaplace.lock", "results.json"]
+    assert not (tmp_path / "X").exists()

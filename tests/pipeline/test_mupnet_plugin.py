@@ -393,16 +393,17 @@ def test_an_invalid_mupnet_setting_is_one_line_naming_its_key_path(capsys, key, 
     assert f"{key}: {message}" in lines[0], lines[0]
 
 
-def test_the_preconditioned_solver_without_a_prior_is_one_line(capsys):
-    """Without the prior the joint layer's curvature bound can be singular: refused at validation."""
+@pytest.mark.parametrize("solver", [["--set", "methods.0.params.inference_solver=preconditioned"], []])
+def test_the_preconditioned_solver_without_a_prior_is_one_line(capsys, solver):
+    """Without the prior the joint layer's curvature bound can be singular: refused at
+    validation, whether the solver is set or is the default (preconditioned)."""
     from vitaplace.engine.cli.main import main
 
-    assert main(["validate", "quickstart", "--set", "methods.0.params.inference_solver=preconditioned",
-                 "--set", "methods.0.params.latent_prior=0"]) == 2
+    assert main(["validate", "quickstart", *solver, "--set", "methods.0.params.latent_prior=0"]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1, lines
-    assert "methods.0.params: extractor 'mupnet': inference_solver: " in lines[0], lines[0]
-    assert "needs latent_prior > 0" in lines[0], lines[0]
+    assert lines[0].endswith("methods.0.params: extractor 'mupnet': inference_solver preconditioned needs "
+                             "latent_prior > 0, got 0 (without the prior a layer's curvature bound can be singular)")
 
 
 @pytest.mark.parametrize("key, value, setting, choice, reading", [
