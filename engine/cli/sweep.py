@@ -52,6 +52,7 @@ from vitaplace.engine.cli.slurm import SlurmSettings, run_array
 from vitaplace.engine.config.loading import load_scenario
 from vitaplace.engine.config.scenario import Scenario, ScenarioError
 from vitaplace.engine.outputs.outdir import SEED_ERROR, cache_dir, seed_dir
+from vitaplace.engine.outputs.stale import drop_sweep_sensitivity
 from vitaplace.engine.study.grid import (
     GridPoint,
     check_replace,
@@ -547,6 +548,8 @@ def run_sweep(
             else:
                 os.environ[name] = value
     found = {p.name: by_point.get(p.name, ([], {})) for p in points}
+    for path in drop_sweep_sensitivity(out, found):
+        log.info("removed %s: it rescored the evaluations this sweep summarises anew", path)
     summaries = {p.name: summarise_point(out, p, scenario.name, *found[p.name], usable_cpus())
                  for p in progress_bar(points, "grid point summaries", progress)}
     outcome.summary = (write_grid_summary(out, scenario.name, points, seeds, summaries,

@@ -8,7 +8,8 @@ what it removes, so that no file in its folder describes other results than the 
   evaluations, poses, world views and training curves of evaluations and methods the
   scenario no longer has, and the report's figures are drawn anew whenever the report is.
 * The rescoring ``vitaplace sensitivity`` wrote into the folder stays only while the
-  evaluations it rescored are unchanged (`drop_sensitivity`).
+  evaluations it rescored are unchanged (`drop_sensitivity`); a sweep's, until the sweep
+  writes its summaries again (`drop_sweep_sensitivity`).
 """
 
 from __future__ import annotations
@@ -94,3 +95,16 @@ def drop_sensitivity(out: Path, before: Mapping[str, str], after: Mapping[str, s
     for path in removed:
         path.unlink()
     return removed
+
+
+def drop_sweep_sensitivity(out: Path, points: Iterable[str]) -> list[Path]:
+    """Remove ``vitaplace sensitivity``'s files from the sweep folder ``out`` and its grid
+    points' folders (``points``, their names; "" the folder itself), which a sweep that wrote
+    its summaries anew may no longer match (other seeds, or another scenario). Returns what was
+    removed."""
+    folders = {Path(out) / name for name in points} | {Path(out)}
+    removed = [p for folder in sorted(folders) for p in (folder / name for name in SENSITIVITY) if p.is_file()]
+    for path in removed:
+        path.unlink()
+    return removed
+

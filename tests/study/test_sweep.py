@@ -736,3 +736,20 @@ def test_a_sweeps_files_name_its_folder_relatively_and_still_read_after_a_move(t
     outputs = [stage["output"] for stage in json.loads((seed / "manifest.json").read_text())["stages"]]
     assert "../cache/datasets" in "\n".join(outputs)
     assert outputs and all((seed / output).exists() for output in outputs), outputs
+
+
+def test_a_sweep_run_again_removes_the_sensitivity_of_the_sweep_before(tmp_path, monkeypatch):
+    """`vitaplace sensitivity` of a sweep rescored its seeds' evaluations as they were: a sweep
+    that writes its summary again into the folder (here another scenario's, over the same seed)
+    removes those files rather than leave them beside a summary they do not describe."""
+    monkeypatch.chdir(tmp_path)
+    scenario = {**tiny_scenario(), "methods": [{"name": "H", "plugin": "handcrafted"}]}
+    Path("tiny.yaml").write_text(yaml.safe_dump(scenario))
+    assert main(["-q", "sweep", "tiny.yaml", "--seeds", "0", "--workers", "1", "--out", "out", "--no-progress"]) == 0
+    assert main(["-q", "sensitivity", "out", "--tau", "0.4"]) == 0
+    assert sorted(p.name for p in Path("out").glob("sensitivity.*")) == ["sensitivity.csv", "sensitivity.json",
+                                                                        "sensitivity.md"]
+    Path("other.yaml").write_text(yaml.safe_dump({**scenario, "name": "other"}))
+    assert main(["-q", "sweep", "other.yaml", "--seeds", "0", "--workers", "1", "--out", "out", "--no-progress"]) == 0
+    assert list(Path("out").glob("sensitivity.*")) == []
+    assert "other" in Path("out/sweep.md").read_text().splitlines()[0]
