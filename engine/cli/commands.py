@@ -311,6 +311,8 @@ def import_command(args: argparse.Namespace) -> int:
     if args.out.is_dir():
         raise DatasetError(f"--out {args.out}: is a folder; expected the run file to write "
                            f"(e.g. {args.out / 'run.h5'})")
+    if args.out.exists() and not args.replace:
+        raise DatasetError(f"--out {args.out}: exists; --replace writes the run file over it, or give another --out")
     run = import_mat(args.source, name=args.name, image_range=args.image_range, pose_layout=args.pose_layout,
                      tactile_model=args.tactile_model)
     try:

@@ -176,6 +176,7 @@ def _add_import_command(sub: argparse._SubParsersAction, common: argparse.Argume
     p.add_argument("--tactile-model", choices=("physical", "penetration"), default="physical",
                    help="what the whiskers' xy are: physical (sprung whiskers, MultiPredNet's Gazebo WhiskEye; the "
                    "default) or penetration (docs/SIMULATION.md); recorded in the run file")
+    p.add_argument("--replace", action="store_true", help="write over an existing --out file (refused without it)")
 
 
 def _add_export_command(sub: argparse._SubParsersAction, common: argparse.ArgumentParser) -> None:

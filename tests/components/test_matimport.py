@@ -290,6 +290,20 @@ def test_import_into_a_folder_is_one_line(tmp_path, capsys):
     assert err.startswith(f"vitaplace: error: --out {tmp_path}: is a folder") and "\n" not in err
 
 
+def test_import_over_an_existing_file_needs_replace(tmp_path, capsys):
+    """An existing --out (a scenario, another run) is not written over unless --replace says
+    so, as `vitaplace simulate ENV.yaml`'s run file."""
+    write_recording(tmp_path / "rec")
+    kept = tmp_path / "keep.yaml"
+    kept.write_text("name: mine\n")
+    assert main(["import", str(tmp_path / "rec"), "--out", str(kept)]) == 2
+    assert capsys.readouterr().err.strip() == (f"vitaplace: error: --out {kept}: exists; --replace writes the run "
+                                               "file over it, or give another --out")
+    assert kept.read_text() == "name: mine\n"
+    assert main(["import", str(tmp_path / "rec"), "--out", str(kept), "--replace"]) == 0
+    assert len(open_run(kept)) == N
+
+
 # --------------------------------------------------------------------------- scenarios with recorded runs
 
 
