@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from vitaplace.engine.base.shipped import shipped_names_hint
 from vitaplace.engine.config.scenario import (
     MIN_EVALUATION_SAMPLES,
@@ -102,6 +104,17 @@ def tau_problem(tau: float, half_x: float, half_y: float, environment: str) -> s
     return None
 
 
+def _check_tau_on_poses(path: Path, tau: float, i: int, datasets: RecordedRuns) -> None:
+    """`tau_problem` for a recorded evaluation without an environment: the arena is the box
+    around the positions its query and reference runs recorded."""
+    xy = np.concatenate([np.asarray(open_run(file).poses, dtype=float)[:, :2] for file in (datasets.query,
+                                                                                           datasets.reference)])
+    half_x, half_y = (xy.max(axis=0) - xy.min(axis=0)) / 2
+    problem = tau_problem(tau, half_x, half_y, f"the box of the poses evaluations.{i}.datasets recorded")
+    if problem:
+        raise ScenarioError(f"{path}: scoring.tau: {problem}")
+
+
 def _check_recorded_runs(path: Path, scenario: Scenario) -> tuple[int, dict[Path, int]]:
     """The recorded run files of ``scenario``: there, long enough, shaped like the training
     run, query and reference distinct, one tactile model with the simulated runs; return the
@@ -128,6 +141,8 @@ def _check_recorded_runs(path: Path, scenario: Scenario) -> tuple[int, dict[Path
             recorded.append(TactileSource(f"{where} {run.path}", recorded_tactile_model(run)))
         if e.datasets is not None:
             _check_distinct(path, f"evaluations.{i}.datasets", e.datasets, digests)
+            if e.environment is None:  # no arena to bound tau by: the poses the two runs recorded
+                _check_tau_on_poses(path, scenario.scoring.tau, i, e.datasets)
         elif e.run is not None:
             recorded.append(simulated)
     _check_training_run(path, scenario, digests)

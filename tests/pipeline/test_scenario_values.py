@@ -299,3 +299,24 @@ def test_a_run_trained_on_a_reference_recording_says_so_in_its_manifest_and_repo
     warnings = json.loads((out / "manifest.json").read_text())["warnings"]
     assert (warnings.get("train", {}).get("trained on E1/reference") == said) == warned, warnings
     assert (said in " ".join((out / "report.md").read_text().split())) == warned
+
+
+@pytest.mark.parametrize("tau, refused", [(2.8, False), (2.9, True)])
+def test_tau_of_a_recorded_evaluation_without_a_world_is_bounded_by_its_poses(tmp_path, capsys, tau, refused):
+    """No arena to bound tau by: the box around the poses the query and reference runs
+    recorded (both on the unit circle: 2 x 2 m, diagonal 2.83 m) is. At or beyond its diagonal
+    every pair of poses would count as a revisit, and any method would score 100 %."""
+    files = {name: _recorded(tmp_path / f"{name}.h5", n) for name, n in (("train", 12), ("query", 12),
+                                                                         ("reference", 30))}
+    scenario = {"name": "recorded", "train": {"dataset": str(files["train"])},
+                "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]),
+                                                            "reference": str(files["reference"])}}],
+                "methods": [{"name": "H", "plugin": "handcrafted"}],
+                "scoring": {"tau": tau, "recall_k": [1], "heading_tolerance_deg": None}}
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    assert main(["validate", str(path)]) == (2 if refused else 0)
+    lines = capsys.readouterr().err.strip().splitlines()
+    if refused:
+        assert lines == [f"vitaplace: error: {path}: scoring.tau: {tau} m is not below the 2.83 m diagonal of the box "
+                         "of the poses evaluations.0.datasets recorded: every pair of poses would count as a revisit"]
