@@ -348,10 +348,13 @@ def _main(argv: list[str] | None) -> int:
         from vitaplace.engine.pipeline.output_checks import plugin_failure  # only when something failed
 
         line = plugin_failure(exc)
-        if line is None:
-            raise
-        print(f"vitaplace: error: {one_line(line)}", file=sys.stderr)
-        return EXIT_PLUGIN_FAILED
+        if line is not None:
+            print(f"vitaplace: error: {one_line(line)}", file=sys.stderr)
+            return EXIT_PLUGIN_FAILED
+        if isinstance(exc, OSError) and exc.filename is not None:  # a path the system refused (too long, denied)
+            print(f"vitaplace: error: {one_line(str(exc.filename))}: {exc.strerror or exc}", file=sys.stderr)
+            return EXIT_USER_ERROR
+        raise
 
 
 def one_line(message: str) -> str:

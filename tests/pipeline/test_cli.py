@@ -1543,3 +1543,12 @@ def test_a_folder_vitaplace_did_not_write_is_refused_untouched(tmp_path, monkeyp
                    ".vitaplace.lock); expected a new or empty folder, or one a vitaplace command wrote"]
     assert {path: path.read_text() for path in mine} == mine
     assert sorted(p.name for p in folder.iterdir()) == ["sub", "training"]
+
+
+def test_a_path_the_system_refuses_is_one_line(tmp_path, monkeypatch, capsys):
+    """An --out name longer than the file system allows (255 bytes a name): the system's
+    refusal in one line naming the path, exit 2, not a traceback."""
+    monkeypatch.chdir(tmp_path)
+    name = "x" * 300
+    assert main(["-q", "run", "quickstart", "--out", name]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [f"vitaplace: error: {name}: File name too long"]
