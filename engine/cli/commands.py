@@ -77,6 +77,10 @@ def simulate_command(args: argparse.Namespace) -> int:
     if args.replace:
         raise UserError("--replace applies to `vitaplace simulate ENV.yaml`'s run file; a scenario's runs are "
                         "cached by their settings (`--force simulate` records them anew)")
+    given = [option for option, value in (("--samples", args.samples), ("--seed", args.seed)) if value is not None]
+    if given:
+        raise UserError(f"{' and '.join(given)} apply to `vitaplace simulate ENV.yaml`; a scenario's runs take "
+                        "theirs from the scenario (e.g. --set train.run.n_samples=N --set seed=S)")
     return _run_stages(args, "simulate")
 
 
@@ -160,6 +164,7 @@ def _simulate_environment(args: argparse.Namespace) -> int:
             "records its run anew (its settings: --samples, --seed)"
         )
     environment = load_environment(args.scenario)
+    args.seed = 0 if args.seed is None else args.seed
     spec = _foraging_run(args)
     name = Path(args.scenario).stem
     out = Path(args.out or Path("runs") / "datasets")

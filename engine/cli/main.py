@@ -123,8 +123,8 @@ def _add_stage_commands(sub: argparse._SubParsersAction, common: argparse.Argume
             p.add_argument("--json", action="store_true", help="print the results rows as JSON on stdout")
         if name == "simulate":
             p.add_argument("--samples", type=int, help="environment file only: number of samples (default 200)")
-            p.add_argument("--seed", type=int, default=0,
-                           help="environment file only: run seed, 0 <= seed < 2**32 as a scenario's")
+            p.add_argument("--seed", type=int,
+                           help="environment file only: run seed, 0 <= seed < 2**32 as a scenario's (default 0)")
             p.add_argument("--replace", action="store_true",
                            help="environment file only: replace the run file of that environment and seed in --out "
                                 "(refused without it)")

@@ -1402,6 +1402,19 @@ def test_simulate_an_environment_replaces_its_run_file_only_when_asked(tmp_path,
     assert len(lines) == 1 and lines[0].startswith("vitaplace: error: --replace applies to "), lines
 
 
+@pytest.mark.parametrize("options", [["--samples", "5"], ["--seed", "7"], ["--samples", "5", "--seed", "0"]])
+def test_simulate_a_scenario_refuses_the_environment_files_options(tmp_path, capsys, options):
+    """--samples and --seed set `vitaplace simulate ENV.yaml`'s run; a scenario's runs would
+    silently keep the scenario's: refused in one line naming them, before anything is written."""
+    scenario = str(write_scenario(tmp_path, valid_scenario()))
+    assert main(["simulate", scenario, *options, "--out", str(tmp_path / "out")]) == 2
+    named = " and ".join(option for option in ("--samples", "--seed") if option in options)
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"vitaplace: error: {named} apply to `vitaplace simulate ENV.yaml`; a scenario's runs take theirs from the "
+        "scenario (e.g. --set train.run.n_samples=N --set seed=S)"]
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("argv, expected", [
     pytest.param(["--samples", "0"], "--samples 0: expected a number of samples, at least 1", id="0"),  # was 200
     pytest.param(["--samples", "-3"], "--samples -3: expected a number of samples, at least 1", id="-3"),
