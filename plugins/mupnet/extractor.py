@@ -104,6 +104,14 @@ class ArchitectureParams(InputParams):
     batch_size: pydantic.PositiveInt = Field(150, description="samples per minibatch")
     seed: int = Field(0, ge=0, description="network initialisation and minibatch order")
 
+    @pydantic.model_validator(mode="after")
+    def _tolerance_read(self) -> ArchitectureParams:
+        """``converge_tol`` is read only by the criterion, which ``converge_window`` 0 turns off."""
+        if self.converge_window == 0 and self.converge_tol != type(self).model_fields["converge_tol"].default:
+            raise ValueError(f"converge_tol {self.converge_tol:g} is ignored by converge_window 0 (only a window "
+                             "> 0 reads it); leave converge_tol out or set converge_window")
+        return self
+
 
 #: the MuPNet paper's algorithm where the plugin's defaults depart from it (docs/MUPNET.md,
 #: "Defaults"): min-max touch unclipped, all epochs, T = 20 plain latent steps and plain SGD per

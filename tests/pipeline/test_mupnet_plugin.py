@@ -500,3 +500,20 @@ def test_diverging_training_is_its_one_error_line_without_numpys_warnings(capsys
         assert main([out if a == "OUT" else a for a in argv]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and re.search(r"error of layer 'visual.1' became (nan|inf) at epoch 1", lines[0]), lines
+
+
+@pytest.mark.parametrize("plugin", ["mupnet", "autoencoder"])
+def test_a_tolerance_without_its_criterion_is_refused(capsys, plugin):
+    """converge_window 0 runs every epoch (the paper's): a converge_tol beside it would be
+    silently ignored, so it is refused in one line; the default tolerance is left alone."""
+    from vitaplace.engine.cli.main import main
+
+    base = ["validate", "quickstart", "--set", f"methods.0.plugin={plugin}", "--set",
+            "methods.0.params={converge_window: 0"]
+    assert main([*base[:-1], base[-1] + "}"]) == 0
+    capsys.readouterr()
+    assert main([*base[:-1], base[-1] + ", converge_tol: 0.5}"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].endswith(
+        f"methods.0.params: extractor '{plugin}': converge_tol 0.5 is ignored by converge_window 0 (only a window > 0 "
+        "reads it); leave converge_tol out or set converge_window"), lines
