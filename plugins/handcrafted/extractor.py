@@ -47,6 +47,11 @@ STATE_VERSION = 1
 PositiveInt = Annotated[int, pydantic.Field(ge=1)]
 
 
+#: the settings only the visual term reads, and those only the tactile terms read
+VISUAL_KEYS = ("grid", "crop_fraction", "normalise", "max_shift")
+TACTILE_KEYS = ("pfh_bins", "max_points", "sda_threshold", "sda_mode")
+
+
 class HandcraftedParams(ExtractorParams):
     """Parameters of the hand-crafted extractor (unknown keys are errors)."""
 
@@ -103,6 +108,13 @@ class HandcraftedParams(ExtractorParams):
     def _check(self) -> HandcraftedParams:
         if not (self.use_visual or self.use_tactile):
             raise ValueError("use_visual and use_tactile are both false; enable at least one modality")
+        for switch, keys in (("use_visual", VISUAL_KEYS), ("use_tactile", TACTILE_KEYS)):
+            unread = [key for key in keys if not getattr(self, switch)
+                      and getattr(self, key) != type(self).model_fields[key].default]
+            if unread:
+                raise ValueError(f"{', '.join(unread)} {'is' if len(unread) == 1 else 'are'} ignored with {switch} "
+                                 f"false (only the term it switches off reads {'it' if len(unread) == 1 else 'them'}); "
+                                 f"leave {'it' if len(unread) == 1 else 'them'} out or set {switch} true")
         if self.max_shift >= self.grid[1]:
             raise ValueError(f"max_shift ({self.max_shift}) must be smaller than the grid width ({self.grid[1]})")
         return self

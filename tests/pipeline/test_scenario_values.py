@@ -320,3 +320,20 @@ def test_tau_of_a_recorded_evaluation_without_a_world_is_bounded_by_its_poses(tm
     if refused:
         assert lines == [f"vitaplace: error: {path}: scoring.tau: {tau} m is not below the 2.83 m diagonal of the box "
                          "of the poses evaluations.0.datasets recorded: every pair of poses would count as a revisit"]
+
+
+@pytest.mark.parametrize("params, message", [
+    ("{use_tactile: false, pfh_bins: 5, sda_mode: per_axis}",
+     "pfh_bins, sda_mode are ignored with use_tactile false (only the term it switches off reads them); leave them "
+     "out or set use_tactile true"),
+    ("{use_visual: false, grid: [10, 20]}",
+     "grid is ignored with use_visual false (only the term it switches off reads it); leave it out or set "
+     "use_visual true"),
+])
+def test_a_hand_crafted_setting_of_a_term_switched_off_is_refused(capsys, params, message):
+    """Each term reads its own settings: one given for a term switched off would be silently
+    ignored. A default value (as `vitaplace config --resolved` writes every key) is accepted."""
+    assert main(["validate", "quickstart", "--set", f"methods.1.params={params}"]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].endswith(f"methods.1.params: extractor 'handcrafted': {message}"), lines
+    assert main(["validate", "quickstart", "--set", "methods.1.params={use_tactile: false, pfh_bins: 3}"]) == 0
