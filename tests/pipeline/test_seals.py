@@ -74,6 +74,7 @@ def test_claiming_a_folder_locks_it_logs_the_command_in_then_cleans(tmp_path, ca
 
     out = tmp_path / "out"
     (out / "cache").mkdir(parents=True)
+    (out / ".vitaplace.lock").write_text("")  # a folder a vitaplace command wrote, then was killed in
     stale = out / "cache" / ".results.json.1234.part"
     stale.write_text("half")
     seen = []

@@ -162,6 +162,7 @@ def test_more_seeds_extend_a_summary_and_replace_swaps_it_for_another(tmp_path, 
 
 def test_an_unreadable_summary_is_refused_in_one_line(tmp_path, capsys):
     (tmp_path / "sweep.json").write_text("{not json")
+    (tmp_path / ".vitaplace.lock").write_text("")  # a sweep's folder
     assert main(["sweep", "quickstart", "--seeds", "0", "--out", str(tmp_path), "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "its summary sweep.json cannot be read" in err[0] and "--replace" in err[0], err
