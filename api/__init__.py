@@ -167,10 +167,13 @@ def _path(value: Any, name: str) -> str | Path:
     raise UserError(f"{name}={value!r:.80}: expected a path or a name (text)")
 
 
-def _whole(value: Any, name: str, low: int) -> int:
-    """``value`` if it is a whole number >= ``low`` (not a bool), else UserError naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low:
-        raise UserError(f"{name}={value!r:.80}: expected a whole number >= {low}")
+def _whole(value: Any, name: str, low: int, high: int | None = None) -> int:
+    """``value`` if it is a whole number >= ``low`` (and < ``high``; not a bool), else UserError
+    naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low or (
+            high is not None and value >= high):
+        below = "" if high is None else f" and < {high}"
+        raise UserError(f"{name}={value!r:.80}: expected a whole number >= {low}{below}")
     return int(value)
 
 
@@ -293,13 +296,14 @@ def simulate(
     from vitaplace.engine.sim.controllers import RUN_KINDS, RunSpec
     from vitaplace.engine.sim.environment import load_environment
     from vitaplace.engine.sim.simulate import simulate_run
+    from vitaplace.engine.study.grid import seed_range
 
     configure_blas_threads()
 
     class Settings(pydantic.BaseModel):  # errors then name run.KEY and the kind's valid keys
         run: RunSpec
 
-    environment, seed = _path(environment, "environment"), _whole(seed, "seed", 0)
+    environment, seed = _path(environment, "environment"), _whole(seed, "seed", *seed_range())  # a scenario's
     kind, n_samples = _choice(kind, "kind", list(RUN_KINDS)), _whole(n_samples, "n_samples", 1)
     progress = _flag(progress, "progress")
     try:

@@ -209,6 +209,8 @@ BAD_CALLS = {
                                    r"^vitaplace\.simulate\(\): lateral_nosie: unknown key; "
                                    r"did you mean 'lateral_noise'\?"),
         "a negative seed": (lambda: vitaplace.simulate("e1", seed=-1), r"seed=-1: expected a whole number >= 0"),
+        "a seed past a scenario's": (lambda: vitaplace.simulate("e1", seed=2**64),
+                                     r"^seed=18446744073709551616: expected a whole number >= 0 and < 4294967296$"),
         "an environment that is no path": (lambda: vitaplace.simulate(3), r"environment=3: expected a path"),
         "an unknown world": (lambda: vitaplace.simulate("e9", n_samples=2),
                              r"^e9: no such environment file \(shipped environments: .*\be1\b.*\be2\b.*\be3\b[^;]*\)$"),
