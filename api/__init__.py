@@ -170,8 +170,8 @@ def _path(value: Any, name: str) -> str | Path:
 def _whole(value: Any, name: str, low: int, high: int | None = None) -> int:
     """``value`` if it is a whole number >= ``low`` (and < ``high``; not a bool), else UserError
     naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < low or (
-            high is not None and value >= high):
+    whole = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if not whole or not low <= int(value) < (high if high is not None else int(value) + 1):
         below = "" if high is None else f" and < {high}"
         raise UserError(f"{name}={value!r:.80}: expected a whole number >= {low}{below}")
     return int(value)

@@ -21,7 +21,7 @@ import logging
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import TextIO
+from typing import NoReturn, TextIO
 
 from vitaplace.engine import __version__
 from vitaplace.engine.base.cpus import configure_blas_threads
@@ -51,6 +51,14 @@ EXIT_USER_ERROR = 2
 EXIT_PLUGIN_FAILED = 1
 #: what each command's subparser names as its ``handler``: parsed arguments -> exit code
 Handler = Callable[[argparse.Namespace], int]
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser whose usage error is one line, as every other error of the command
+    line: ``vitaplace: error: MESSAGE (see `PROG --help`)``, exit 2 (not the usage block)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USER_ERROR, f"vitaplace: error: {one_line(message)} (see `{self.prog} --help`)\n")
 
 
 def _verbosity() -> argparse.ArgumentParser:
@@ -86,7 +94,7 @@ def _add_scenario_args(parser: argparse.ArgumentParser, out: bool = True,
 def build_parser() -> argparse.ArgumentParser:
     """The ``vitaplace`` parser; each command's ``handler`` default is the function that runs it."""
     common = _verbosity()
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="vitaplace",
         description="Visuo-tactile place recognition with a simulated whiskered robot (MuPNet vs ViTa-SLAM).",
         parents=[common],

@@ -964,12 +964,23 @@ def test_every_command_names_its_own_handler():
     (["-q"], "vitaplace: error: the following arguments are required: COMMAND"),
 ])
 def test_an_unknown_or_missing_command_is_argparses_usage_error(capsys, argv, expected):
-    """argparse's usage and its one error line on stderr, exit 2."""
+    """argparse's error in one line on stderr (not its usage block), naming the help, exit 2."""
     with pytest.raises(SystemExit) as exit_:
         main(argv)
     assert exit_.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err[0].startswith("usage: vitaplace ") and err[-1].startswith(expected), err
+    assert len(err) == 1 and err[0].startswith(expected) and err[0].endswith("(see `vitaplace --help`)"), err
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["sweep", "quickstart", "--seeds", "1.5"],
+     "vitaplace: error: argument --seeds: invalid int value: '1.5' (see `vitaplace sweep --help`)"),
+    (["run"], "vitaplace: error: the following arguments are required: scenario (see `vitaplace run --help`)"),
+])
+def test_a_commands_usage_error_is_one_line_naming_its_help(capsys, argv, expected):
+    with pytest.raises(SystemExit) as exit_:
+        main(argv)
+    assert exit_.value.code == 2 and capsys.readouterr().err.strip().splitlines() == [expected]
 
 
 @pytest.mark.parametrize("argv", [
