@@ -445,7 +445,14 @@ class ReportSettings(Strict):
         description="all: every figure; summary: each evaluation's PR curves and each method's training energy, "
         "no per-method matrices or trajectories; none: report.md alone. A sweep's seeds default to summary",
     )
-    pdf: bool = pydantic.Field(False, description="each figure as a PDF besides its PNG")
+    pdf: bool = pydantic.Field(False, description="each figure as a PDF besides its PNG (needs figures)")
+
+    @pydantic.model_validator(mode="after")
+    def _figures_for_pdf(self) -> ReportSettings:
+        if self.pdf and self.figures == "none":
+            raise ValueError("pdf true draws each figure as a PDF too, and figures none draws none; set figures to "
+                             "all or summary, or leave pdf out")
+        return self
 
 
 class Scenario(Strict):

@@ -160,6 +160,10 @@ class RobotSpec(NumbersNotBooleans):
     def _check(self) -> RobotSpec:
         if self.protraction_max_deg <= self.protraction_min_deg:
             raise ValueError("protraction_max_deg must be larger than protraction_min_deg")
+        if self.tactile_model == "penetration" and self.whisker_friction != type(self).model_fields[
+                "whisker_friction"].default:
+            raise ValueError(f"whisker_friction {self.whisker_friction:g} is ignored by tactile_model penetration "
+                             "(its whiskers pass through objects without friction); leave it out or choose physical")
         steps = self.whisk_period / self.timestep
         if abs(steps - round(steps)) > 1e-6 * steps:
             raise ValueError(

@@ -337,3 +337,20 @@ def test_a_hand_crafted_setting_of_a_term_switched_off_is_refused(capsys, params
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].endswith(f"methods.1.params: extractor 'handcrafted': {message}"), lines
     assert main(["validate", "quickstart", "--set", "methods.1.params={use_tactile: false, pfh_bins: 3}"]) == 0
+
+
+@pytest.mark.parametrize("sets, message", [
+    (["robot.tactile_model=penetration", "robot.whisker_friction=0.9"],
+     "robot: whisker_friction 0.9 is ignored by tactile_model penetration (its whiskers pass through objects without "
+     "friction); leave it out or choose physical"),
+    (["report.pdf=true", "report.figures=none"],
+     "report: pdf true draws each figure as a PDF too, and figures none draws none; set figures to all or summary, "
+     "or leave pdf out"),
+])
+def test_a_setting_the_other_settings_leave_unread_is_refused(capsys, sets, message):
+    """A simulation with penetration whiskers has no shaft friction (its runs are bit for bit
+    the same at any), a report without figures draws no PDF: a value given would be ignored."""
+    assert main(["validate", "quickstart", *sum((["--set", s] for s in sets), [])]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].endswith(message), lines
+    assert main(["validate", "quickstart", "--set", sets[0]]) == 0  # either alone is fine
