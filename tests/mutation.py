@@ -2547,6 +2547,11 @@ MUTANTS = [
     m("scenario: report.pdf accepted with figures none (ignored)", "scenario",
       "        if self.pdf and self.figures == \"none\":", "        if False:",
       *t("scenario_values", "test_a_setting_the_other_settings_leave_unread_is_refused")),
+    m("grid: 1 and 1.0 two points of one axis", "grid",
+      "    check_once(where, texts, [float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)",
+      "    check_once(where, texts, [float(v) if False",
+      *t("grid", "test_a_bad_grid_is_one_line_naming_the_option"
+                 "[options6-overrides6-the value 1 is given more than once (1, 1.0)]")),
     m("export: read_package of a number a raw TypeError", "export.package",
       "    if not isinstance(folder, (str, os.PathLike)):", "    if False:",
       *t("export", "test_read_package_of_something_that_is_no_path_is_one_line[3]")),

@@ -121,7 +121,9 @@ def _values(raw: str, where: str) -> tuple[list[str], list[Any]]:
         values = [yaml.safe_load(t) for t in texts]
     except yaml.YAMLError as exc:
         raise ScenarioError(f"{where}: a value is not YAML ({' '.join(str(exc).split())})") from None
-    check_once(where, texts, [yaml.safe_dump(v) for v in values])
+    # a number by its value: 1 and 1.0 set the same field alike (pydantic reads either)
+    check_once(where, texts, [float(v) if isinstance(v, (int, float)) and not isinstance(v, bool)
+                              else yaml.safe_dump(v) for v in values])
     return texts, values
 
 

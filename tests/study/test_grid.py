@@ -193,6 +193,7 @@ def test_a_grid_is_the_product_of_its_axes_named_by_path_ends():
     (["scoring.tau=0.3,,0.5"], [], "an empty value"),
     (["scoring.tau=[1,2"], [], "a value is not YAML"),
     (["scoring.tau=0.3,0.30,0.5"], [], "the value 0.3 is given more than once (0.3, 0.30)"),
+    (["scoring.recall_k.0=1,1.0"], [], "the value 1 is given more than once (1, 1.0)"),  # one number, int or float
     (["scoring.tau=0.3,0.5"], ["scoring.tau=0.2"], "--set also sets scoring.tau"),
     (["scoring.tau=0.3,0.5"], ["evaluation.tau=0.2"], "--set also sets scoring.tau"),
     (["scoring.tau=0.3", "scoring.tau=0.5"], [], "scoring.tau is already a --grid axis"),
