@@ -2552,6 +2552,9 @@ MUTANTS = [
       "    check_once(where, texts, [float(v) if False",
       *t("grid", "test_a_bad_grid_is_one_line_naming_the_option"
                  "[options6-overrides6-the value 1 is given more than once (1, 1.0)]")),
+    m("orchestrate: another scenario's results replaced without a word", "orchestrate",
+      "    _say_replaced(out, scenario.name)\n", "",
+      *t("cli", "test_a_run_of_another_scenario_says_it_replaces_the_folders_results")),
     m("export: read_package of a number a raw TypeError", "export.package",
       "    if not isinstance(folder, (str, os.PathLike)):", "    if False:",
       *t("export", "test_read_package_of_something_that_is_no_path_is_one_line[3]")),

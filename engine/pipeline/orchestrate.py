@@ -42,6 +42,18 @@ from vitaplace.engine.pipeline.store import Store
 log = logging.getLogger("vitaplace")
 
 
+def _say_replaced(out: Path, name: str) -> None:
+    """Warn when ``out`` holds the results of a scenario of another name than ``name``: they are
+    replaced (one set of results per folder), which a reader should hear of."""
+    held = stale.held_stage(out)
+    try:
+        before = yaml.safe_load((out / completion.SCENARIO).read_text()).get("name") if held else None
+    except (OSError, yaml.YAMLError, AttributeError):
+        before = None
+    if before is not None and before != name:
+        log.warning("%s holds the results of scenario %r: this run of %r replaces them", out, before, name)
+
+
 def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until: str = "report",
                command: str = "run") -> list[ResultRow]:
     """Run ``scenario``'s stages into ``store``'s output folder up to and including ``until``,
@@ -53,6 +65,7 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
     out = store.out
     out.mkdir(parents=True, exist_ok=True)
     completion.refuse_other(out, command)
+    _say_replaced(out, scenario.name)
     held = stale.held_stage(out)
     if held is not None and STAGES.index(held) > STAGES.index(until):
         log.info("%s holds the %s stage's output: carrying on to it, so that it describes these results", out, held)

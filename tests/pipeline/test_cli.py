@@ -1576,3 +1576,20 @@ def test_a_path_the_system_refuses_is_one_line(tmp_path, monkeypatch, capsys):
     name = "x" * 300
     assert main(["-q", "run", "quickstart", "--out", name]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [f"vitaplace: error: {name}: File name too long"]
+
+
+def test_a_run_of_another_scenario_says_it_replaces_the_folders_results(tmp_path, capsys):
+    """One set of results per folder: a run of another scenario replaces the results there,
+    and says so in one warning naming both scenarios; a run of the same one says nothing."""
+    scenario = {"name": "first", "seed": 0, "train": {"environment": "e1", "run": {"kind": "foraging", "n_samples": 8}},
+                "evaluations": [{"name": "E1", "environment": "e1", "run": {"kind": "route", "n_samples": 6}}],
+                "methods": [{"name": "H", "plugin": "handcrafted"}], "scoring": {"recall_k": [1]},
+                "report": {"figures": "none"}}
+    out = tmp_path / "out"
+    first = write_scenario(tmp_path, scenario, "first.yaml")
+    assert main(["-q", "run", str(first), "--out", str(out), "--no-progress"]) == 0
+    assert main(["-q", "run", str(first), "--out", str(out), "--no-progress"]) == 0
+    assert "replaces them" not in capsys.readouterr().err
+    second = write_scenario(tmp_path, {**scenario, "name": "second"}, "second.yaml")
+    assert main(["-q", "run", str(second), "--out", str(out), "--no-progress"]) == 0
+    assert f"{out} holds the results of scenario 'first': this run of 'second' replaces them" in capsys.readouterr().err
