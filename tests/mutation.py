@@ -2084,7 +2084,7 @@ MUTANTS = [
       '    if type(value).__module__ == "numpy" and hasattr(value, "tolist"):', "    if False:",
       *t("api", "test_numpy_values_and_paths_in_overrides_are_their_plain_values")),
     m("api: a negative simulate seed accepted", "api",
-      'environment, seed = _path(environment, "environment"), _whole(seed, "seed", 0)',
+      'environment, seed = _path(environment, "environment"), _whole(seed, "seed", *seed_range())',
       'environment = _path(environment, "environment")',
       *t("api", "test_bad_arguments_are_one_line_user_errors[simulate-a negative seed]")),
     m("api: simulate's pydantic errors raw", "api",

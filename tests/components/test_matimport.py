@@ -375,7 +375,7 @@ def recorded_scenario(tmp_path):
         "train": {"dataset": "train.h5"},
         "evaluations": [{"name": "E1", "datasets": {"query": "query.h5", "reference": "ref.h5"}}],
         "methods": [{"name": "H", "plugin": "handcrafted", "params": small},
-                    {"name": "H2", "plugin": "handcrafted", "params": {**small, "use_visual": False}}],
+                    {"name": "H2", "plugin": "handcrafted", "params": {"use_visual": False}}],
     }
     path = tmp_path / "scenario.yaml"
     path.write_text(yaml.safe_dump(data))
@@ -416,7 +416,7 @@ def test_a_changed_run_file_reruns_what_depends_on_it(tmp_path):
     statuses()
     assert {s for (stage, _), s in statuses().items() if stage != "simulate"} == {"cached"}
     route = np.stack([np.linspace(0, 2, 8), np.zeros(8), np.zeros(8)], axis=1)
-    import_run(tmp_path, "query", route + [0.05, 0.0, 0.0], 4)  # same path, other content
+    import_run(tmp_path, "query", route + [0.05, 0.0, 0.0], 4, "--replace")  # same path, other content
     ran = {key for key, s in statuses().items() if s == "ran"}
     assert ran == {("transform", "H E1/query"), ("transform", "H2 E1/query"),
                    ("evaluate", "E1 H query-to-reference"), ("evaluate", "E1 H2 query-to-reference")}, ran
@@ -641,7 +641,7 @@ def test_three_poses_are_ambiguous_unless_the_layout_is_stated(tmp_path, capsys)
     assert f"{folder / 'poses.mat'}: variable 'poses' is 3 x 3" in line and "--pose-layout" in line
     assert main(["import", str(folder), "--out", str(out), "--pose-layout", "Nx3"]) == 0
     assert open_run(out).poses.tolist() == [[0, 1, 2], [3, 4, 5], [6, 7, 8]]
-    assert main(["import", str(folder), "--out", str(out), "--pose-layout", "3xN"]) == 0
+    assert main(["import", str(folder), "--out", str(out), "--pose-layout", "3xN", "--replace"]) == 0
     assert open_run(out).poses.tolist() == [[0, 3, 6], [1, 4, 7], [2, 5, 8]]
 
 
