@@ -250,6 +250,11 @@ class Method(Strict):
     )
 
 
+#: the largest touch weight of a fusion: a float64 sum keeps 52 bits, so at w = 1e12 the vision
+#: term (normalised to the touch term's scale) still moves it by 1e-12 of its size, about 4500 ulp
+MAX_FUSION_WEIGHT = 1e12
+
+
 class Fusion(Strict):
     """A late fusion of a vision-only and a touch-only method: d_V / σ_V + w · d_T / σ_T, w chosen
     on one evaluation (`vitaplace.engine.evaluation.fusion`)."""
@@ -261,7 +266,9 @@ class Fusion(Strict):
                                 "whose plugin declares it uses vision or no touch)")
     weights: list[pydantic.NonNegativeFloat] = pydantic.Field(
         [0.0, 0.03, 0.1, 0.3, 1.0, 3.0], min_length=1,
-        description="the grid the touch weight w is chosen from (max F1 on select_on, ties to the smallest)",
+        description="the grid the touch weight w is chosen from (max F1 on select_on, ties to the smallest); each "
+        f"at most {MAX_FUSION_WEIGHT:g} (beyond, the vision term is lost in the rounding of the sum, and the sum "
+        "can overflow)",
     )
     select_on: str | None = pydantic.Field(
         None, description="the evaluation w is chosen on, in each direction (default: the training world's)"
@@ -272,6 +279,9 @@ class Fusion(Strict):
     def _finite_distinct(cls, weights: list[float]) -> list[float]:
         if not all(math.isfinite(w) for w in weights) or len(set(weights)) != len(weights):
             raise ValueError(f"expected distinct finite weights >= 0, got {weights}")
+        if max(weights) > MAX_FUSION_WEIGHT:
+            raise ValueError(f"weight {max(weights):g}: expected at most {MAX_FUSION_WEIGHT:g} (beyond, the vision "
+                             "term is lost in the rounding of the fused sum, and the sum can overflow)")
         return weights
 
 
@@ -360,7 +370,7 @@ class SequenceSettings(Strict):
         (0.8, 1.25), description="[slowest, fastest] relative velocity searched (references per query)"
     )
     velocity_steps: pydantic.PositiveInt = pydantic.Field(
-        5, description="velocities tried, evenly spaced over velocities (1: the slowest only)"
+        5, le=1000, description="velocities tried, evenly spaced over velocities (1: the slowest only), at most 1000"
     )
     window: pydantic.PositiveInt = pydantic.Field(
         10, description="local contrast: references on either side whose mean and spread normalise an entry"

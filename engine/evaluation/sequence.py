@@ -61,6 +61,7 @@ def local_contrast(distances: np.ndarray, window: int) -> np.ndarray:
     entries of that row within ``window`` references on either side (step 1 above); a spread
     below `FLAT` of the window's mean counts as 0 (divided by 1)."""
     d = np.asarray(distances, dtype=float)
+    window = min(window, d.shape[1])  # a wider window covers the row all the same
     finite = np.isfinite(d)
     padded = np.pad(np.where(finite, d, np.nan), ((0, 0), (window, window)), constant_values=np.nan)
     out = np.empty_like(d)

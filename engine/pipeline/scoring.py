@@ -14,21 +14,36 @@ from vitaplace.engine.config.scenario import EvaluationPair, Scenario, ScenarioE
 from vitaplace.engine.data.dataset import Run
 from vitaplace.engine.evaluation.pairfiles import evaluate_pair
 from vitaplace.engine.evaluation.ranking import Rows
+from vitaplace.engine.evaluation.sequence import travelled
 from vitaplace.engine.extension.features import warn_once
 from vitaplace.engine.outputs import outdir
 from vitaplace.engine.outputs.rows import QueryDropoutShares, ResultRow, parse_row
 from vitaplace.engine.pipeline.records import RunFile
 
 
-def sequence_for(scenario: Scenario, query: str, n_queries: int) -> dict[str, Any] | None:
+def sequence_for(scenario: Scenario, query: Run, reference: Run) -> dict[str, Any] | None:
     """The scenario's sequence matching settings (None for single samples), checked against
-    the length of the query run ``query`` (a recorded run's is known only here)."""
+    the ``query`` and ``reference`` runs (a recorded run's length is known only here): a
+    sequence no longer than the queries, and sequences that fit the reference run (a line
+    that leaves it is no candidate, `vitaplace.engine.evaluation.sequence`): each velocity
+    times ``length - 1`` below its samples, ``metres`` below its travelled distance."""
     sequence = scenario.scoring.sequence
     if sequence.length == 1 or sequence.metres == 0:
         return None
-    if sequence.metres is None and sequence.length > n_queries:
-        raise ScenarioError(f"scoring.sequence.length: {sequence.length} is longer than run {query} "
-                            f"({n_queries} samples); expected at most that")
+    if sequence.metres is not None:
+        drive = float(travelled(reference.poses)[-1]) if len(reference) else 0.0
+        if sequence.metres >= drive:
+            raise ScenarioError(f"scoring.sequence.metres: {sequence.metres:g} m is not below the {drive:.2f} m run "
+                                f"{reference.name} travelled: no reference has a sequence behind it")
+        return sequence.model_dump()
+    if sequence.length > len(query):
+        raise ScenarioError(f"scoring.sequence.length: {sequence.length} is longer than run {query.name} "
+                            f"({len(query)} samples); expected at most that")
+    fastest = sequence.velocities[1] * (sequence.length - 1)
+    if fastest >= len(reference):
+        raise ScenarioError(f"scoring.sequence.velocities: the fastest, {sequence.velocities[1]:g}, spans "
+                            f"{fastest:g} references over a sequence of {sequence.length}, not below the "
+                            f"{len(reference)} samples of run {reference.name}: no line at it fits the run")
     return sequence.model_dump()
 
 
@@ -41,7 +56,7 @@ def score(scenario: Scenario, folder: Path, tme: np.ndarray | Rows, query: Run, 
         folder, tme, query.poses, reference.poses, settings.tau, query_touch=query.touch_mask(),
         reference_touch=reference.touch_mask(), delta=settings.delta,
         heading_tolerance_deg=settings.heading_tolerance_deg, ks=searchable_ks(settings.recall_k, reference),
-        sequence=sequence_for(scenario, query.name, len(query)),
+        sequence=sequence_for(scenario, query, reference),
     )
 
 

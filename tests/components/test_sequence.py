@@ -428,3 +428,34 @@ def test_on_noise_the_best_matches_do_not_gather_at_the_reference_runs_start(met
     assert np.isinf(full[:, :first]).all() and np.isfinite(full[:, first:]).all()
     share = float(np.mean(np.argmin(full, axis=1) < first + 10))
     assert share < 0.15, share  # 10 of the 190-191 reachable references: 5 % expected
+
+
+def test_a_window_wider_than_the_run_is_the_whole_row():
+    """The contrast window is cut at the run's ends: a window of 1e13 references is the row,
+    computed without building a 1e13-wide view (which ran out of memory)."""
+    d = np.random.default_rng(4).random((5, 7))
+    np.testing.assert_array_equal(local_contrast(d, 10**13), local_contrast(d, 7))
+
+
+@pytest.mark.parametrize("sets, message", [
+    (["scoring.sequence.velocities=[1.0, 2.0]"],
+     "scoring.sequence.velocities: the fastest, 2, spans 6 references over a sequence of 4, not below the 6 samples "
+     "of run E1/reference: no line at it fits the run"),
+    (["scoring.sequence.metres=1000"],
+     "scoring.sequence.metres: 1000 m is not below the"),
+])
+def test_sequences_that_cannot_fit_the_reference_run_are_one_line(tmp_path, capsys, sets, message):
+    """A line that leaves the reference run is no candidate: a velocity or a distance no
+    reference can have behind it would score nothing (or, at 1e308, an overflowing index)."""
+    scenario = {"name": "tiny", "train": {"environment": str(ENV_E1), "run": {"kind": "foraging", "n_samples": 8}},
+                "evaluations": [{"name": "E1", "environment": str(ENV_E1), "run": {"kind": "route", "n_samples": 6}}],
+                "methods": [{"name": "H", "plugin": "handcrafted"}],
+                "scoring": {"tau": 0.3, "recall_k": [1], "sequence": {"length": 4}}, "report": {"figures": "none"}}
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    argv = ["-q", "evaluate", str(path), "--out", str(tmp_path / "out"), "--no-progress"]
+    assert main(argv) == 0  # velocities 0.8-1.25: the fastest spans 3.75 references of 6
+    capsys.readouterr()
+    assert main([*argv, *sum((["--set", s] for s in sets), [])]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"vitaplace: error: {message}"), lines

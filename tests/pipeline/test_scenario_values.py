@@ -354,3 +354,17 @@ def test_a_setting_the_other_settings_leave_unread_is_refused(capsys, sets, mess
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].endswith(message), lines
     assert main(["validate", "quickstart", "--set", sets[0]]) == 0  # either alone is fine
+
+
+@pytest.mark.parametrize("sets, message", [
+    (["fusions=[{name: F, vision: H, touch: H, weights: [0, 1.0e+13]}]"],
+     "fusions.0.weights: weight 1e+13: expected at most 1e+12 (beyond, the vision term is lost in the rounding of "
+     "the fused sum, and the sum can overflow)"),
+    (["scoring.sequence.velocity_steps=100000000"], "scoring.sequence.velocity_steps: "),
+])
+def test_settings_past_what_the_arithmetic_or_the_time_allows_are_refused(capsys, sets, message):
+    """A touch weight of 1e308 overflowed the fused distances (a max F1 from +inf); 1e8
+    velocities per sequence ran for hours: each refused at validation in one line."""
+    assert main(["validate", "quickstart", *sum((["--set", s] for s in sets), [])]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], lines

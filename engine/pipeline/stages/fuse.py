@@ -58,7 +58,7 @@ def chosen_weight(store: Store, scenario: Scenario, simulated: SimulateRecord, f
     reference = "reference" if query == "query" else "query"
     q, r = (store.run(simulated.runs[f"{env}/{side}"]) for side in (query, reference))
     gtm = ground_truth_matrix(q.poses, r.poses, settings.heading_tolerance_deg)
-    sequence = sequence_for(scenario, f"{env}/{query}", len(q))
+    sequence = sequence_for(scenario, q, r)
 
     def max_f1(fused: np.ndarray) -> float:
         scored = fused if sequence is None else sequence_scores(fused, **sequence, poses=(q.poses, r.poses))
