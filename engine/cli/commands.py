@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 from vitaplace.engine.base.errors import UserError
 from vitaplace.engine.outputs.completion import holder, refuse_other
-from vitaplace.engine.outputs.outdir import OutputDirError, claimed, writable_dir
+from vitaplace.engine.outputs.outdir import OutputDirError, claimed, refuse_foreign, writable_dir
 
 if TYPE_CHECKING:
     from vitaplace.engine.sim.controllers import RunSpec
@@ -377,6 +377,7 @@ def aggregate_command(args: argparse.Namespace) -> int:
     from vitaplace.engine.study.aggregate import aggregate_runs
 
     if args.out is not None:
+        refuse_foreign(args.out, ("sweep.json",))
         refuse_other(args.out, "summary")
     out, record = aggregate_runs(args.folders, args.out)
     print(f"summary of {len(record['seeds'])} seeds in {out / 'sweep.md'}")
@@ -387,6 +388,8 @@ def sensitivity_command(args: argparse.Namespace) -> int:
     """`vitaplace sensitivity DIR`: saved evaluations rescored; exit 1 when a failed seed was left out."""
     from vitaplace.engine.study.sensitivity import write_sensitivity
 
+    if args.out is not None and Path(args.out).resolve() != Path(args.folder).resolve():
+        refuse_foreign(args.out, ("sensitivity.json",))
     if args.out is not None and Path(args.out).resolve() != Path(args.folder).resolve() and holder(args.out):
         raise OutputDirError(f"--out {args.out}: holds another command's finished output; sensitivity writes into "
                              "the folder it rescores (without --out) or into a folder of its own")

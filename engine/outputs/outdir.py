@@ -20,7 +20,7 @@ from __future__ import annotations
 import logging
 import os
 import shutil
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from types import TracebackType
@@ -193,6 +193,16 @@ def training_path(out: Path, method: str) -> Path:
     return Path(out) / "training" / f"{method}.json"
 
 
+def refuse_foreign(out: Path, marks: Sequence[str] = ()) -> None:
+    """OutputDirError for a folder that holds files but none of vitaplace's marks: `LOCK_NAME`
+    (which every claim leaves) or one of ``marks`` (the file a command that writes without a
+    claim leaves, e.g. ``sweep.json``): a project folder, the current one, a run's subfolder."""
+    out = Path(out)
+    if out.is_dir() and any(out.iterdir()) and not any((out / mark).exists() for mark in (LOCK_NAME, *marks)):
+        raise OutputDirError(f"--out {out}: not empty and not a folder vitaplace wrote (no {LOCK_NAME}); expected "
+                             "a new or empty folder, or one a vitaplace command wrote")
+
+
 @contextmanager
 def claimed(out: Path, before_cleaning: Callable[[Path], None] | None = None) -> Iterator[Path]:
     """``with claimed(out) as out:`` - the one way a command or the Python API takes an output
@@ -202,9 +212,7 @@ def claimed(out: Path, before_cleaning: Callable[[Path], None] | None = None) ->
     holds files but no `LOCK_NAME` (which every claim leaves) is no folder of vitaplace's:
     refused untouched, since a run prunes the result folders it finds there."""
     out = Path(out)
-    if out.is_dir() and not (out / LOCK_NAME).exists() and any(out.iterdir()):
-        raise OutputDirError(f"--out {out}: not empty and not a folder vitaplace wrote (no {LOCK_NAME}); expected "
-                             "a new or empty folder, or one a vitaplace command wrote")
+    refuse_foreign(out)
     out = writable_dir(out)
     with OutputLock(out):
         if before_cleaning is not None:

@@ -1593,3 +1593,18 @@ def test_a_run_of_another_scenario_says_it_replaces_the_folders_results(tmp_path
     second = write_scenario(tmp_path, {**scenario, "name": "second"}, "second.yaml")
     assert main(["-q", "run", str(second), "--out", str(out), "--no-progress"]) == 0
     assert f"{out} holds the results of scenario 'first': this run of 'second' replaces them" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", [["aggregate", "run-a", "run-b"], ["sensitivity", "run-a"]])
+def test_aggregate_and_sensitivity_refuse_a_folder_vitaplace_did_not_write(tmp_path, monkeypatch, capsys, command):
+    """They write without a claim, into --out: a non-empty folder with neither the claim nor
+    their own summary (a project folder holding a sweep.md of the user's) is refused untouched."""
+    monkeypatch.chdir(tmp_path)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "sweep.md").write_text("my notes")
+    assert main([*command, "--out", str(mine)]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"vitaplace: error: --out {mine}: not empty and not a folder vitaplace wrote (no .vitaplace.lock); expected "
+        "a new or empty folder, or one a vitaplace command wrote"]
+    assert [p.name for p in mine.iterdir()] == ["sweep.md"] and (mine / "sweep.md").read_text() == "my notes"
