@@ -513,7 +513,7 @@ class Scenario(Strict):
         methods, evaluations = [m.name for m in self.methods], [e.name for e in self.evaluations]
         fused = [f.name for f in self.fusions]
         for i, f in enumerate(self.fusions):
-            if f.name in methods or fused.count(f.name) > 1:
+            if f.name in methods or f.name in fused[:i]:
                 raise ValueError(f"fusions.{i}.name: '{f.name}' is already a method's or another fusion's name; "
                                  "expected a name of its own")
             for role in ("vision", "touch"):

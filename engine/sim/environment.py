@@ -24,7 +24,13 @@ import numpy as np
 import pydantic
 from pydantic import ConfigDict, Field
 
-from vitaplace.engine.base.configfile import ConfigError, NumbersNotBooleans, format_validation_error, load_yaml
+from vitaplace.engine.base.configfile import (
+    ConfigError,
+    Degrees,
+    NumbersNotBooleans,
+    format_validation_error,
+    load_yaml,
+)
 from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, environment_files, shipped_file, shipped_names_hint
 from vitaplace.engine.sim.clearance import route_collision
 from vitaplace.engine.sim.textures import png_problem
@@ -251,7 +257,8 @@ class RockLandmark(_LandmarkBase):
     """Convex hull of a seeded random point cloud on a lumpy, sheared ellipsoid (asymmetric)."""
 
     type: Literal["rock"] = Field(description="rock")
-    seed: int = Field(0, description="seed of its random point cloud: the same seed gives the same rock")
+    seed: int = Field(0, ge=0, lt=2**32,
+                      description="seed of its random point cloud: the same seed gives the same rock")
     size: tuple[Positive, Positive, Positive] = Field(description="full extents of the envelope x, y, z [m]")
     roughness: Annotated[float, Field(ge=0, le=0.6)] = Field(0.25, description="amplitude of the lumps")
     lean: Annotated[float, Field(ge=-1, le=1)] = Field(
@@ -337,7 +344,8 @@ class EnvironmentSpec(_Model):
         description="how route runs drive the loop: facing the direction of travel, or sideways with the camera "
         "facing away from the loop's centroid (towards the walls)",
     )
-    start: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="where foraging runs start: [x, y, yaw_deg]")
+    start: tuple[float, float, Degrees] = Field((0.0, 0.0, 0.0),
+                                                description="where foraging runs start: [x, y, yaw_deg]")
     background_rgb: RGB = Field((0.55, 0.65, 0.8), description="flat background colour seen above the walls")
     lighting: LightingSpec = Field(LightingSpec(), description="lights of the scene")
     boards: list[BoardSpec] = Field(

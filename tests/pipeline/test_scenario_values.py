@@ -368,3 +368,27 @@ def test_settings_past_what_the_arithmetic_or_the_time_allows_are_refused(capsys
     assert main(["validate", "quickstart", *sum((["--set", s] for s in sets), [])]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and message in lines[0], lines
+
+
+@pytest.mark.parametrize("sets, message", [
+    (["train.run.start=[0, 0, 1e308]"], "train.run.start.2: Input should be less than or equal to 360"),
+    (["fusions=[{name: F, vision: H, touch: L}, {name: F, vision: H, touch: L}]"],
+     "fusions.1.name: 'F' is already a method's or another fusion's name"),  # the second is the repeat
+])
+def test_values_refused_at_validation_name_the_entry_at_fault(capsys, sets, message):
+    """A start's yaw of 1e308 validated and the simulation then failed as 'unstable', blaming
+    the robot; a repeated fusion name was reported at the first of the two."""
+    assert main(["validate", "quickstart", *sum((["--set", s] for s in sets), [])]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0], lines
+
+
+def test_a_negative_rock_seed_is_refused_naming_it(tmp_path, capsys):
+    """MuJoCo refused it when compiling ('expected non-negative integer'), naming nothing."""
+    env = yaml.safe_load((Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml").read_text())
+    env["landmarks"] = [{"type": "rock", "pos": [1, 1], "size": [0.5, 0.5, 0.5], "seed": -5}]
+    path = tmp_path / "rocks.yaml"
+    path.write_text(yaml.safe_dump(env))
+    assert main(["validate", str(path)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "landmarks.0" in lines[0] and "seed" in lines[0], lines

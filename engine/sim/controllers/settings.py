@@ -30,7 +30,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import ConfigDict, Field, TypeAdapter, model_validator
 
-from vitaplace.engine.base.configfile import NumbersNotBooleans
+from vitaplace.engine.base.configfile import Degrees, NumbersNotBooleans
 from vitaplace.engine.sim.condition import Condition, is_default
 
 __all__ = ["RunSpec", "ForagingGains", "ForagingRun", "VisitsRun", "TeleopRun", "StationsRun", "RouteRun", "OrbitRun",
@@ -148,7 +148,7 @@ class _Run(_Settings):
     speed: float = Field(0.15, gt=0, le=1.0, description="nominal forward speed [m/s]")
     max_accel: float = Field(0.5, gt=0, description="linear acceleration limit [m/s^2]")
     warmup_cycles: int = Field(1, ge=0, le=100, description="whisk cycles simulated before the first sample")
-    start: tuple[float, float, float] | None = Field(
+    start: tuple[float, float, Degrees] | None = Field(
         None, description="start pose [x, y, yaw_deg]; default: the environment's start (foraging) or the route start"
     )
     avoid_margin: float = Field(
