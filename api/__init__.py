@@ -213,6 +213,10 @@ def run(
 
     configure_blas_threads()
     until, force, progress = _choice(until, "until", STAGES), _stages(force), _flag(progress, "progress")
+    late = [stage for stage in force if STAGES.index(stage) > STAGES.index(until)]
+    if late:  # it would be ignored
+        raise UserError(f"force={force!r:.80}: {', '.join(late)} comes after until={until!r}, which stops before it; "
+                        "expected stages up to until")
     if workers is not None:
         workers = _whole(workers, "workers", 1)
     out = None if out is None else _path(out, "out")

@@ -357,8 +357,8 @@ class SequenceSettings(Strict):
 
     length: pydantic.PositiveInt = pydantic.Field(
         1, description="queries per sequence (the query and the length - 1 before it), or with metres the points "
-        "over those metres; 1: single-sample matching (window and the velocities are then kept, not read, so that a "
-        "grid over length or metres shares them, as the shipped studies' do)"
+        "over those metres; 1: single-sample matching (window, metres and the velocities are then kept, not read, so "
+        "that a grid over length or metres shares them, as the shipped studies' do)"
     )
     metres: float | None = pydantic.Field(
         None, ge=0, allow_inf_nan=False,

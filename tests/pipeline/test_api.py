@@ -170,6 +170,9 @@ BAD_CALLS = {
                                r"did you mean 'overrides'\? \(its arguments: scenario, overrides\)$"),
     },
     "run": {
+        "force past until": (lambda: vitaplace.run("quickstart", out="unused", until="fit", force=["report"]),
+                             r"^force=\['report'\]: report comes after until='fit', which stops before it; "
+                             r"expected stages up to until$"),
         "overrides a list of numbers": (lambda: vitaplace.run("quickstart", [1, 2]), r"overrides: \[1, 2\]: expected"),
         "workers as text": (lambda: vitaplace.run("quickstart", workers="2"),
                             r"workers='2': expected a whole number >= 1"),
