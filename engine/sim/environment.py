@@ -160,6 +160,15 @@ class ArenaSpec(_Model):
     )
     floor_material: str = Field("floor", description="material of the floor")
 
+    @pydantic.model_validator(mode="after")
+    def _both_extents(self) -> ArenaSpec:
+        """A rectangle needs both sides: one alone would take the other from ``size``, unsaid."""
+        if (self.width is None) != (self.depth is None):
+            given, missing = ("width", "depth") if self.depth is None else ("depth", "width")
+            raise ValueError(f"{given} without {missing}: a rectangular arena needs both (or neither, for the "
+                             "size x size square)")
+        return self
+
     @property
     def half_x(self) -> float:
         return (self.width or self.size) / 2

@@ -392,3 +392,18 @@ def test_a_negative_rock_seed_is_refused_naming_it(tmp_path, capsys):
     assert main(["validate", str(path)]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "landmarks.0" in lines[0] and "seed" in lines[0], lines
+
+
+@pytest.mark.parametrize("arena, refused", [({"width": 3}, "width without depth"), ({"depth": 4}, "depth without width"),
+                                            ({"width": 3, "depth": 4}, None)])
+def test_a_rectangular_arena_needs_both_sides(tmp_path, capsys, arena, refused):
+    """One side alone validated as a rectangle whose other side silently came from ``size``."""
+    env = yaml.safe_load((Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml").read_text())
+    env["arena"] = {**env.get("arena", {}), **arena}
+    env.pop("landmarks", None), env.pop("route", None)
+    path = tmp_path / "arena.yaml"
+    path.write_text(yaml.safe_dump(env))
+    assert main(["validate", str(path)]) == (2 if refused else 0)
+    if refused:
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and "arena" in lines[0] and refused in lines[0], lines
