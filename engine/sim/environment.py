@@ -35,19 +35,8 @@ from vitaplace.engine.base.shipped import ENVIRONMENTS_DIR, environment_files, s
 from vitaplace.engine.sim.clearance import route_collision
 from vitaplace.engine.sim.textures import png_problem
 
-__all__ = [
-    "EnvironmentSpecError",
-    "EnvironmentSpec",
-    "ArenaSpec",
-    "MaterialSpec",
-    "TextureSpec",
-    "BoxLandmark",
-    "CylinderLandmark",
-    "RockLandmark",
-    "load_environment",
-    "environment_files",
-    "ENVIRONMENTS_DIR",
-]
+__all__ = ["EnvironmentSpecError", "EnvironmentSpec", "ArenaSpec", "MaterialSpec", "TextureSpec", "BoxLandmark",
+           "CylinderLandmark", "RockLandmark", "load_environment", "environment_files", "ENVIRONMENTS_DIR"]
 
 # Collision bit masks (MuJoCo: two geoms collide when (contype1 & conaffinity2) or
 # (contype2 & conaffinity1) is non-zero).
@@ -162,11 +151,9 @@ class ArenaSpec(_Model):
 
     @pydantic.model_validator(mode="after")
     def _both_extents(self) -> ArenaSpec:
-        """A rectangle needs both sides: one alone would take the other from ``size``, unsaid."""
-        if (self.width is None) != (self.depth is None):
-            given, missing = ("width", "depth") if self.depth is None else ("depth", "width")
-            raise ValueError(f"{given} without {missing}: a rectangular arena needs both (or neither, for the "
-                             "size x size square)")
+        if (self.width is None) != (self.depth is None):  # one alone would take the other from size, unsaid
+            raise ValueError(f"{'width' if self.depth is None else 'depth'} alone: a rectangular arena needs width "
+                             "and depth (or neither: the size x size square)")
         return self
 
     @property
@@ -266,8 +253,7 @@ class RockLandmark(_LandmarkBase):
     """Convex hull of a seeded random point cloud on a lumpy, sheared ellipsoid (asymmetric)."""
 
     type: Literal["rock"] = Field(description="rock")
-    seed: int = Field(0, ge=0, lt=2**32,
-                      description="seed of its random point cloud: the same seed gives the same rock")
+    seed: int = Field(0, ge=0, lt=2**32, description="seed of its point cloud: the same seed, the same rock")
     size: tuple[Positive, Positive, Positive] = Field(description="full extents of the envelope x, y, z [m]")
     roughness: Annotated[float, Field(ge=0, le=0.6)] = Field(0.25, description="amplitude of the lumps")
     lean: Annotated[float, Field(ge=-1, le=1)] = Field(
@@ -353,8 +339,7 @@ class EnvironmentSpec(_Model):
         description="how route runs drive the loop: facing the direction of travel, or sideways with the camera "
         "facing away from the loop's centroid (towards the walls)",
     )
-    start: tuple[float, float, Degrees] = Field((0.0, 0.0, 0.0),
-                                                description="where foraging runs start: [x, y, yaw_deg]")
+    start: tuple[float, float, Degrees] = Field((0.0, 0.0, 0.0), description="foraging runs' start: [x, y, yaw_deg]")
     background_rgb: RGB = Field((0.55, 0.65, 0.8), description="flat background colour seen above the walls")
     lighting: LightingSpec = Field(LightingSpec(), description="lights of the scene")
     boards: list[BoardSpec] = Field(

@@ -394,8 +394,8 @@ def test_a_negative_rock_seed_is_refused_naming_it(tmp_path, capsys):
     assert len(lines) == 1 and "landmarks.0" in lines[0] and "seed" in lines[0], lines
 
 
-@pytest.mark.parametrize("arena, refused", [({"width": 3}, "width without depth"),
-                                            ({"depth": 4}, "depth without width"), ({"width": 3, "depth": 4}, None)])
+@pytest.mark.parametrize("arena, refused", [({"width": 3}, "width alone"), ({"depth": 4}, "depth alone"),
+                                            ({"width": 3, "depth": 4}, None)])
 def test_a_rectangular_arena_needs_both_sides(tmp_path, capsys, arena, refused):
     """One side alone validated as a rectangle whose other side silently came from ``size``."""
     env = yaml.safe_load((Path(__file__).resolve().parents[2] / "scenarios" / "environments" / "e1.yaml").read_text())
