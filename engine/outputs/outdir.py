@@ -209,10 +209,11 @@ def claimed(out: Path, before_cleaning: Callable[[Path], None] | None = None) ->
     folder: ``out`` made a writable directory (`writable_dir`), held by this process
     (`OutputLock`, else OutputDirError), then ``before_cleaning(out)`` if given (the command
     line's log file) and what interrupted writes left removed, each logged. A folder that
-    holds files but no `LOCK_NAME` (which every claim leaves) is no folder of vitaplace's:
-    refused untouched, since a run prunes the result folders it finds there."""
+    holds files but neither `LOCK_NAME` (which every claim leaves) nor a stage cache (one
+    copied in to be reused) is no folder of vitaplace's: refused untouched, since a run prunes
+    the result folders it finds there."""
     out = Path(out)
-    refuse_foreign(out)
+    refuse_foreign(out, tuple(f"cache/{stage}" for stage in ("datasets", "models", "features")))
     out = writable_dir(out)
     with OutputLock(out):
         if before_cleaning is not None:
