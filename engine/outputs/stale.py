@@ -7,8 +7,8 @@ what it removes, so that no file in its folder describes other results than the 
 * When it has finished, it removes the outputs no stage of it wrote (`prune`): the
   evaluations, poses, world views and training curves of evaluations and methods the
   scenario no longer has, and the report's figures are drawn anew whenever the report is.
-* The rescoring ``vitaplace sensitivity`` wrote into the folder, and ``vitaplace
-  difficulty``'s folder, stay only while the evaluations are unchanged (`drop_sensitivity`); a sweep's, until the sweep
+* The rescoring ``vitaplace sensitivity`` wrote into the folder stays only while the
+  evaluations it rescored are unchanged (`drop_sensitivity`); a sweep's, until the sweep
   writes its summaries again (`drop_sweep_sensitivity`).
 """
 
@@ -83,11 +83,10 @@ def _evaluations(files: Mapping[str, str]) -> dict[str, str]:
 
 
 def drop_sensitivity(out: Path, before: Mapping[str, str], after: Mapping[str, str]) -> list[Path]:
-    """Remove ``vitaplace sensitivity``'s files and ``vitaplace difficulty``'s folder
-    (`outdir.difficulty_dir`, scored with the run's settings when it ran) from ``out`` unless
-    the evaluations are the same: the same evaluation folders, each file both records list with
-    the same digest (``before`` and ``after``: the completion records' files, path -> SHA-256,
-    of the finished run before and of this one). Returns what was removed."""
+    """Remove ``vitaplace sensitivity``'s files from ``out`` unless the evaluations it
+    rescored are the same: the same evaluation folders, each file both records list with the
+    same digest (``before`` and ``after``: the completion records' files, path -> SHA-256, of
+    the finished run before and of this one). Returns what was removed."""
     old, new = (_evaluations(files) for files in (before, after))
     if old and {Path(n).parent for n in old} == {Path(n).parent for n in new} and all(
             old[name] == new[name] for name in old.keys() & new.keys()):
@@ -95,10 +94,6 @@ def drop_sensitivity(out: Path, before: Mapping[str, str], after: Mapping[str, s
     removed = [p for p in (Path(out) / name for name in SENSITIVITY) if p.is_file()]
     for path in removed:
         path.unlink()
-    difficulty = outdir.difficulty_dir(out)
-    if difficulty.is_dir():
-        shutil.rmtree(difficulty)
-        removed.append(difficulty)
     return removed
 
 

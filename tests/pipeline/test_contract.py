@@ -41,7 +41,7 @@ SHIPPED = discover()
 @parametrize_with_checks([
     ("handcrafted", SHIPPED.get("handcrafted"), {"grid": [6, 8], "max_shift": 2}),
     ("handcrafted-tactile", SHIPPED.get("handcrafted"),
-     {"grid": [6, 8], "max_shift": 2, "use_visual": False, "sigma_samples": 3}),
+     {"use_visual": False, "sigma_samples": 3}),
     ("mupnet-numpy", SHIPPED.get("mupnet"), {**TINY_MUPNET, "backend": "numpy"}),
     ("mupnet-warp", SHIPPED.get("mupnet"), {**TINY_MUPNET, "backend": "warp"}),
     ("mupnet-cycle", SHIPPED.get("mupnet"), {**TINY_MUPNET, "backend": "numpy", "tactile_input": "cycle"}),
