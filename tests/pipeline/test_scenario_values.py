@@ -99,20 +99,26 @@ def _recorded(path: Path, n: int) -> Path:
         xy=rng.normal(0, 0.02, (n, 4, 2)), poses=np.c_[np.cos(t), np.sin(t), t], name=path.stem))
 
 
+def _recorded_evaluation(tmp_path, reference: int, scoring: dict, methods: list | None = None):
+    """s.yaml in ``tmp_path``: one evaluation of recorded runs (12 training and query samples,
+    ``reference`` reference samples, `_recorded`) with ``scoring`` and ``methods`` (H)."""
+    files = {name: _recorded(tmp_path / f"{name}.h5", n) for name, n in (("train", 12), ("query", 12),
+                                                                         ("reference", reference))}
+    scenario = {"name": "recorded", "train": {"dataset": str(files["train"])},
+                "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]),
+                                                            "reference": str(files["reference"])}}],
+                "methods": methods or [{"name": "H", "plugin": "handcrafted"}], "scoring": scoring}
+    path = tmp_path / "s.yaml"
+    path.write_text(yaml.safe_dump(scenario))
+    return path, files
+
+
 @pytest.mark.parametrize("direction, refused", [("query-to-reference", None), ("reference-to-query", "query"),
                                                 ("both", "query")])
 def test_a_recall_k_not_below_a_recorded_runs_references_is_one_line(tmp_path, capsys, direction, refused):
     """Recorded runs: the files' lengths. A 12-sample query and a 30-sample reference rank 20
     references searching the reference, not searching the query (reference-to-query, both)."""
-    files = {name: _recorded(tmp_path / f"{name}.h5", n) for name, n in (("train", 12), ("query", 12),
-                                                                         ("reference", 30))}
-    scenario = {"name": "recorded", "train": {"dataset": str(files["train"])},
-                "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]),
-                                                            "reference": str(files["reference"])}}],
-                "methods": [{"name": "H", "plugin": "handcrafted"}],
-                "scoring": {"tau": 0.5, "recall_k": [1, 20], "direction": direction}}
-    path = tmp_path / "s.yaml"
-    path.write_text(yaml.safe_dump(scenario))
+    path, files = _recorded_evaluation(tmp_path, 30, {"tau": 0.5, "recall_k": [1, 20], "direction": direction})
     if refused is None:
         assert main(["validate", str(path)]) == 0
         return
@@ -133,15 +139,8 @@ def test_the_default_recall_k_scores_only_the_k_below_the_references(tmp_path):
     """Of the default [1, 5, 10], an 8-sample reference run scores recall@1 and @5 and leaves
     @10 out (at K >= the references every query with a true match counts as found: 100 % for
     any method), with a run warning in the manifest naming the run and the K."""
-    files = {name: _recorded(tmp_path / f"{name}.h5", n) for name, n in (("train", 12), ("query", 12),
-                                                                         ("reference", 8))}
-    scenario = {"name": "recorded", "train": {"dataset": str(files["train"])},
-                "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]),
-                                                            "reference": str(files["reference"])}}],
-                "methods": [{"name": "H-V", "plugin": "handcrafted", "params": {"use_tactile": False}}],
-                "scoring": {"tau": 0.5}}
-    path = tmp_path / "s.yaml"
-    path.write_text(yaml.safe_dump(scenario))
+    path, _ = _recorded_evaluation(tmp_path, 8, {"tau": 0.5},
+                                   [{"name": "H-V", "plugin": "handcrafted", "params": {"use_tactile": False}}])
     assert main(["-q", "run", str(path), "--out", str(tmp_path / "out")]) == 0
     (row,) = json.loads((tmp_path / "out" / "results.json").read_text())
     assert sorted(row["recall_at_k"], key=int) == ["1", "5"]
@@ -306,15 +305,7 @@ def test_tau_of_a_recorded_evaluation_without_a_world_is_bounded_by_its_poses(tm
     """No arena to bound tau by: the box around the poses the query and reference runs
     recorded (both on the unit circle: 2 x 2 m, diagonal 2.83 m) is. At or beyond its diagonal
     every pair of poses would count as a revisit, and any method would score 100 %."""
-    files = {name: _recorded(tmp_path / f"{name}.h5", n) for name, n in (("train", 12), ("query", 12),
-                                                                         ("reference", 30))}
-    scenario = {"name": "recorded", "train": {"dataset": str(files["train"])},
-                "evaluations": [{"name": "E1", "datasets": {"query": str(files["query"]),
-                                                            "reference": str(files["reference"])}}],
-                "methods": [{"name": "H", "plugin": "handcrafted"}],
-                "scoring": {"tau": tau, "recall_k": [1], "heading_tolerance_deg": None}}
-    path = tmp_path / "s.yaml"
-    path.write_text(yaml.safe_dump(scenario))
+    path, _ = _recorded_evaluation(tmp_path, 30, {"tau": tau, "recall_k": [1], "heading_tolerance_deg": None})
     assert main(["validate", str(path)]) == (2 if refused else 0)
     lines = capsys.readouterr().err.strip().splitlines()
     if refused:
