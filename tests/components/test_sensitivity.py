@@ -115,7 +115,8 @@ def test_user_errors_are_one_line(run_folder, tmp_path, capsys):
     reseal(old)  # its run recorded the file as it saved it
     cases = {
         "no query_poses": ["sensitivity", str(old)],
-        "expected positive distances": ["sensitivity", str(run_folder), "--tau", "0", "--out", str(tmp_path)],
+        "expected positive distances": ["sensitivity", str(run_folder), "--tau", "0", "--out",
+                                        str(tmp_path / "fresh")],
         "neither a run folder": ["sensitivity", str(tmp_path / "nothing")],
     }
     (tmp_path / "nothing").mkdir()
