@@ -58,8 +58,9 @@ PINNED = json.loads((ROOT / "tests" / "data" / "stage_keys_ad309c2.json").read_t
 PINNED.update(json.loads((ROOT / "tests" / "data" / "stage_keys_study3.json").read_text()))
 SAMPLES = 50
 CACHE = Path("unused") / "cache"
-#: the evaluate stage's version at ad309c2
+#: the evaluate stage's and a fusion's versions at ad309c2 (and when study3 was pinned)
 AD309C2_EVALUATE_VERSION = 7
+PINNED_FUSION_VERSION = 1
 
 
 def stage_keys(name: str) -> dict[str, str]:
@@ -105,8 +106,19 @@ def test_every_shipped_scenario_is_pinned():
 
 @pytest.mark.parametrize("name", sorted(PINNED))
 def test_the_stage_keys_of_a_shipped_scenario_are_unchanged(name, monkeypatch):
+    import vitaplace.engine.pipeline.keys as keys
+
     monkeypatch.setitem(STAGE_VERSION, "evaluate", AD309C2_EVALUATE_VERSION)
+    monkeypatch.setattr(keys, "FUSION_VERSION", PINNED_FUSION_VERSION)
     assert stage_keys(name) == PINNED[name]
+
+
+def test_the_sequence_rule_changed_every_fusion_key():
+    """Sequences that leave the reference run stopped being candidates (evaluate 9, fusion 2):
+    every cached evaluation, a fusion's too, is scored again."""
+    today = stage_keys("study3")
+    fused = [k for k in PINNED["study3"] if k.startswith("evaluate:") and k in today and "-F " in k]
+    assert fused and all(today[k] != PINNED["study3"][k] for k in fused)
 
 
 def test_the_tie_rule_changed_every_evaluate_key():
