@@ -2550,7 +2550,7 @@ MUTANTS = [
       *t("grid", "test_a_bad_grid_is_one_line_naming_the_option"
                  "[options6-overrides6-the value 1 is given more than once (1, 1.0)]")),
     m("orchestrate: another scenario's results replaced without a word", "orchestrate",
-      "    _say_replaced(out, scenario.name)\n", "",
+      "    _say_replaced(out, held, scenario.name)\n", "",
       *t("cli", "test_a_run_of_another_scenario_says_it_replaces_the_folders_results")),
     m("scenario: a fusion weight of 1e300 accepted (the fused sum overflows)", "scenario",
       "        if max(weights) > MAX_FUSION_WEIGHT:", "        if False:",

@@ -42,10 +42,10 @@ from vitaplace.engine.pipeline.store import Store
 log = logging.getLogger("vitaplace")
 
 
-def _say_replaced(out: Path, name: str) -> None:
-    """Warn when ``out`` holds the results of a scenario of another name than ``name``: they are
-    replaced (one set of results per folder), which a reader should hear of."""
-    held = stale.held_stage(out)
+def _say_replaced(out: Path, held: str | None, name: str) -> None:
+    """Warn when ``out`` holds results (``held``: `stale.held_stage`) of a scenario of another
+    name than ``name``: they are replaced (one set of results per folder), which a reader
+    should hear of."""
     try:
         before = yaml.safe_load((out / completion.SCENARIO).read_text()).get("name") if held else None
     except (OSError, yaml.YAMLError, AttributeError):
@@ -65,8 +65,8 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
     out = store.out
     out.mkdir(parents=True, exist_ok=True)
     completion.refuse_other(out, command)
-    _say_replaced(out, scenario.name)
     held = stale.held_stage(out)
+    _say_replaced(out, held, scenario.name)
     if held is not None and STAGES.index(held) > STAGES.index(until):
         log.info("%s holds the %s stage's output: carrying on to it, so that it describes these results", out, held)
         until = held
