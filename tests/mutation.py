@@ -2514,7 +2514,7 @@ MUTANTS = [
       "    if False:\n        raise DatasetError",
       *t("matimport", "test_import_over_an_existing_file_needs_replace")),
     m("inputs: tau of a recorded evaluation without a world unbounded", "config.inputs",
-      "                _check_tau_on_poses(path, scenario.scoring.tau, i, e.datasets)", "                pass",
+      "                _check_tau_on_poses(path, scenario.scoring.tau, i, runs)", "                pass",
       *t("scenario_values", "test_tau_of_a_recorded_evaluation_without_a_world_is_bounded_by_its_poses[2.9-True]")),
     m("cli: an OSError naming a path raised as a traceback", "cli",
       "        if isinstance(exc, OSError) and exc.filename is not None:", "        if False:",

@@ -104,11 +104,10 @@ def tau_problem(tau: float, half_x: float, half_y: float, environment: str) -> s
     return None
 
 
-def _check_tau_on_poses(path: Path, tau: float, i: int, datasets: RecordedRuns) -> None:
+def _check_tau_on_poses(path: Path, tau: float, i: int, runs: list[Run]) -> None:
     """`tau_problem` for a recorded evaluation without an environment: the arena is the box
-    around the positions its query and reference runs recorded."""
-    xy = np.concatenate([np.asarray(open_run(file).poses, dtype=float)[:, :2] for file in (datasets.query,
-                                                                                           datasets.reference)])
+    around the positions its query and reference ``runs`` recorded."""
+    xy = np.concatenate([np.asarray(run.poses, dtype=float)[:, :2] for run in runs])
     half_x, half_y = (xy.max(axis=0) - xy.min(axis=0)) / 2
     problem = tau_problem(tau, half_x, half_y, f"the box of the poses evaluations.{i}.datasets recorded")
     if problem:
@@ -133,16 +132,18 @@ def _check_recorded_runs(path: Path, scenario: Scenario) -> tuple[int, dict[Path
     lengths: dict[Path, int] = {}
     digests: dict[Path, str] = {}  # each recorded file's content digest, read once
     for i, e in enumerate(scenario.evaluations):
+        runs = []
         for side, file in e.recorded().items():
             where = f"evaluations.{i}.datasets.{side}"
             run = _recorded(path, where, file, MIN_EVALUATION_SAMPLES)
+            runs.append(run)
             lengths[file] = len(run)
             _check_like_training(path, where, run, train_shape)
             recorded.append(TactileSource(f"{where} {run.path}", recorded_tactile_model(run)))
         if e.datasets is not None:
             _check_distinct(path, f"evaluations.{i}.datasets", e.datasets, digests)
             if e.environment is None:  # no arena to bound tau by: the poses the two runs recorded
-                _check_tau_on_poses(path, scenario.scoring.tau, i, e.datasets)
+                _check_tau_on_poses(path, scenario.scoring.tau, i, runs)
         elif e.run is not None:
             recorded.append(simulated)
     _check_training_run(path, scenario, digests)
