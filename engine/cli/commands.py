@@ -414,6 +414,9 @@ def video_command(args: argparse.Namespace) -> int:
 
     if args.step is not None and args.step < 1:
         raise UserError(f"--step {args.step}: expected a whole number >= 1")
-    path, frames = write_video(open_run(args.run), args.out or args.run.with_suffix(".gif"), args.fps, args.step)
+    out = args.out or args.run.with_suffix(".gif")
+    if out.is_file() and not args.replace:
+        raise OutputDirError(f"--out {out}: exists; --replace draws the video over it, or give another --out")
+    path, frames = write_video(open_run(args.run), out, args.fps, args.step)
     print(f"wrote {frames} frames to {path}")
     return 0

@@ -293,6 +293,7 @@ def _add_viewing_commands(sub: argparse._SubParsersAction, common: argparse.Argu
     p.add_argument("--fps", type=float, default=5.0,
                    help="frames per second, 0.1 to 50 (default 5; one sample per 0.5 s whisk cycle)")
     p.add_argument("--step", type=int, help="draw every STEP-th sample (default 1, or larger to keep to 300 frames)")
+    p.add_argument("--replace", action="store_true", help="write over an existing video (refused without it)")
 
 
 def _add_completion(parser: argparse.ArgumentParser) -> None:

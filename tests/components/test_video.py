@@ -373,3 +373,15 @@ def test_view_returns_only_once_the_viewers_window_thread_has_finished(monkeypat
         pytest.fail("Ctrl-C went past `view` (the command then says 'interrupted' and exits 130)")
     assert fake.closing.is_set() and fake.window_gone.is_set()
     assert fake.synced == (interrupt_at or 5)
+
+
+def test_an_existing_video_is_kept_unless_replace_is_given(tmp_path, capsys):
+    path = _run(tmp_path, n=3)
+    old = tmp_path / "run.gif"
+    old.write_bytes(b"an earlier video")
+    assert main(["video", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"vitaplace: error: --out {old}: exists; --replace draws the video over it, or give another --out"]
+    assert old.read_bytes() == b"an earlier video"
+    assert main(["-q", "video", str(path), "--replace"]) == 0
+    assert Image.open(old).n_frames == 3
