@@ -119,7 +119,8 @@ class RobotSpec(NumbersNotBooleans):
     whisker_radius_mm: float = Field(1.0, gt=0.1, le=5, description="shaft (capsule) radius [mm]")
     # compliant base (two orthogonal spring hinges)
     spring_stiffness: float = Field(0.5, gt=0, description="follicle spring stiffness per axis [N m/rad]")
-    spring_damping: float = Field(5e-3, ge=0, description="follicle damping per axis [N m s/rad]")
+    spring_damping: float = Field(5e-3, ge=0, description="follicle damping per axis [N m s/rad]; "
+                                  "with physical touch at most spring_stiffness / whisk_hz (relaxation within a cycle)")
     spring_armature: float = Field(2e-5, ge=0, description="rotor inertia added to each spring hinge [kg m^2]")
     spring_range_deg: float = Field(45.0, gt=0, le=90, description="mechanical limit of the deflection [deg]")
     # protraction servo
@@ -174,6 +175,14 @@ class RobotSpec(NumbersNotBooleans):
             raise ValueError(
                 f"deflection_samples ({self.deflection_samples}) exceeds the physics steps per whisk cycle "
                 f"({round(steps)})"
+            )
+        relaxation = self.spring_damping / self.spring_stiffness
+        if self.tactile_model == "physical" and relaxation > self.whisk_period:
+            raise ValueError(
+                f"spring_damping = {self.spring_damping:g} N m s/rad gives the follicle a relaxation time "
+                f"spring_damping / spring_stiffness = {relaxation:.3g} s, longer than a whisk cycle "
+                f"({self.whisk_period:g} s): a shaft could not bend within the sample it touches in; at most "
+                f"{self.whisk_period * self.spring_stiffness:.4g}"
             )
         for name, stiffness, limit in (
             ("spring_stiffness", self.spring_stiffness, self.max_stable_stiffness(self.spring_armature)),

@@ -711,6 +711,19 @@ def test_run_and_robot_numbers_must_be_finite():
         RobotSpec(spring_stiffness=float("nan"))
 
 
+def test_the_follicle_must_relax_within_a_whisk_cycle():
+    """A shaft bent by touch relaxes with time constant c / k (damping over stiffness); one
+    longer than the whisk cycle (0.5 s at 2 Hz) would let no deflection build within the
+    sample it belongs to (1e308 silenced touch): at k = 0.5 N m/rad, c at most 0.25."""
+    RobotSpec(spring_damping=0.25)
+    with pytest.raises(ValueError, match=r"relaxation time .* = 0.52 s, longer than a whisk cycle \(0.5 s\)"
+                                         r".*at most 0.25 \[type"):
+        RobotSpec(spring_damping=0.26)
+    with pytest.raises(ValueError, match=r"at most 0.5 \[type"):
+        RobotSpec(spring_damping=1e308, whisk_hz=1.0)
+    RobotSpec(spring_damping=1e308, tactile_model="penetration")  # its whiskers have no follicle to relax
+
+
 def test_spring_stiffness_stable_range_is_the_explicit_stability_limit():
     """implicitfast integrates stiffness explicitly: a hinge spring is stable while its natural
     frequency sqrt(k / I) < 2 / dt. For the shortest shaft (50 mm, r 1 mm, 1200 kg/m^3) plus
