@@ -410,6 +410,8 @@ class EnvironmentSpec(_Model):
     def _check_start(self) -> None:
         if abs(self.start[0]) >= self.arena.half_x or abs(self.start[1]) >= self.arena.half_y:
             raise ValueError("start: start position is outside the arena")
+        if self.obstacles.distance(np.array(self.start[:2])) < 0:  # the robot's centre in a landmark: stuck
+            raise ValueError(f"start: ({self.start[0]:g}, {self.start[1]:g}) is inside a landmark; expected free floor")
 
     # ------------------------------------------------------------------ geometry
     def landmark_names(self) -> list[str]:

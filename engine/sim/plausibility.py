@@ -4,7 +4,8 @@ A run specification is valid field by field (`RunSpec`, `RobotSpec`: ranges as p
 constraints); what depends on the arena and the robot together is checked here, where the
 scenario knows both (`vitaplace.engine.config.loading.load_scenario`):
 
-* ``start``: the robot's body (a disc of `BODY_RADIUS`) inside the arena's walls;
+* ``start``: the robot's body (a disc of `BODY_RADIUS`) inside the arena's walls, its centre
+  not inside a landmark;
 * ``orbit_centre`` inside the arena, and the orbit of ``orbit_radius`` with the body inside it;
 * ``off_route_offset`` (when a part of the run is driven off the path): the detoured path
   (the route or orbit moved that far to the left of travel) with the body inside the arena;
@@ -69,9 +70,8 @@ def check_run(env: EnvironmentSpec, run: RunSpec, robot: RobotSpec) -> None:
             station_indices(env, run)
         except StationError as exc:
             raise ImplausibleRun(exc.key, str(exc)) from None
-    if run.start is not None and _outside(np.array([run.start[:2]]), env)[0]:
-        raise ImplausibleRun("start", f"({run.start[0]:g}, {run.start[1]:g}) puts the robot (radius {BODY_RADIUS} m) "
-                             f"outside {_arena(env)}")
+    if run.start is not None:
+        _check_start(env, run.start)
     if run.control_hz < robot.whisk_hz:
         raise ImplausibleRun("control_hz", f"{run.control_hz:g} Hz is below the whisking rate robot.whisk_hz = "
                              f"{robot.whisk_hz:g} Hz: the controller must act at least once per sample")
@@ -90,6 +90,16 @@ def check_run(env: EnvironmentSpec, run: RunSpec, robot: RobotSpec) -> None:
             x, y = detour[int(np.argmax(bad))]
             raise ImplausibleRun("off_route_offset", f"{run.off_route_offset:g} m off the path takes the robot (radius "
                                  f"{BODY_RADIUS} m) to ({x:.2f}, {y:.2f}), outside {_arena(env)}")
+
+
+def _check_start(env: EnvironmentSpec, start: tuple[float, float, float]) -> None:
+    """A run's own start: the robot's body inside the walls, its centre on free floor."""
+    if _outside(np.array([start[:2]]), env)[0]:
+        raise ImplausibleRun("start", f"({start[0]:g}, {start[1]:g}) puts the robot (radius {BODY_RADIUS} m) "
+                             f"outside {_arena(env)}")
+    if env.obstacles.distance(np.array(start[:2])) < 0:
+        raise ImplausibleRun("start", f"({start[0]:g}, {start[1]:g}) is inside a landmark of {env.name!r}; "
+                             "expected free floor")
 
 
 def _detour(env: EnvironmentSpec, run: TeleopRun | StationsRun | RouteRun | OrbitRun) -> np.ndarray:

@@ -1264,6 +1264,8 @@ IMPLAUSIBLE = {
                                 "evaluations.0.run.orbit_centre: (9, 0) is outside the 6.05 x 6.05 m arena"),
     "a start outside": (["train.run.start=[10, 0, 0]"], "train.run.start: (10, 0) puts the robot"),
     "a start in the wall": (["train.run.start=[2.9, 0, 0]"], "train.run.start: (2.9, 0) puts the robot"),
+    "a start in a landmark": (["train.run.start=[2.138, 0, 0]"],
+                              "train.run.start: (2.138, 0) is inside a landmark of 'e1'; expected free floor"),
     "a 0.001 Hz controller": (["train.run.control_hz=0.001"],
                               "train.run.control_hz: 0.001 Hz is below the whisking rate"),
 }

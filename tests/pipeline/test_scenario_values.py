@@ -385,6 +385,22 @@ def test_a_negative_rock_seed_is_refused_naming_it(tmp_path, capsys):
     assert len(lines) == 1 and "landmarks.0" in lines[0] and "seed" in lines[0], lines
 
 
+def test_a_start_inside_a_landmark_is_refused_naming_it(tmp_path, capsys):
+    """A landmark on the foraging start failed after simulating as 'the robot never moved'.
+    E1's east box is centred at (2.138, 0); the originals' E2 and E3 starts, whose body disc
+    touches a landmark by 2-4 cm, stay valid."""
+    path = tmp_path / "env.yaml"
+    path.write_text("extends: e1\nstart: [2.138, 0.0, 0.0]\n")
+    assert main(["validate", str(path)]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    assert "env.yaml: start: (2.138, 0) is inside a landmark; expected free floor" in lines[0], lines
+    path.write_text("extends: e1\nstart: [1.5, 0.0, 0.0]\n")  # 0.4 m short of the box: free floor
+    assert main(["validate", str(path)]) == 0
+    for name in ("e2", "e3"):
+        assert main(["validate", name]) == 0
+
+
 @pytest.mark.parametrize("arena, refused", [({"width": 3}, "width alone"), ({"depth": 4}, "depth alone"),
                                             ({"width": 3, "depth": 4}, None)])
 def test_a_rectangular_arena_needs_both_sides(tmp_path, capsys, arena, refused):
