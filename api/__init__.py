@@ -226,7 +226,7 @@ def run(
         log.info("%s calls vitaplace.run outside `if __name__ == \"__main__\":`; simulating in this process "
                  "(guard the call for parallel simulation workers)", script)
         workers = 1
-    with claimed(Path(out) if out is not None else Path("runs") / loaded.name) as folder:
+    with claimed(Path(out) if out is not None else Path("runs") / loaded.name, option="out") as folder:
         rows = run_stages(loaded, resolved, Store(folder, force=force, progress=progress, workers=workers), until)
     return [row.dump() for row in rows]
 

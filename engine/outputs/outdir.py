@@ -37,20 +37,22 @@ LOCK_NAME = ".vitaplace.lock"
 
 
 class OutputDirError(UserError):
-    """``--out`` cannot hold the results, or another run holds it."""
+    """An output folder (``--out``; ``out`` in the Python API) cannot hold the results, or
+    another run holds it."""
 
 
-def writable_dir(out: Path) -> Path:
-    """``out`` as a directory that exists and can be written, or OutputDirError saying why."""
+def writable_dir(out: Path, option: str = "--out") -> Path:
+    """``out`` as a directory that exists and can be written, or OutputDirError saying why
+    (naming it as ``option``, the command line's or the API's name of it)."""
     if out.exists() and not out.is_dir():
-        raise OutputDirError(f"--out {out}: exists and is not a directory")
+        raise OutputDirError(f"{option} {out}: exists and is not a directory")
     try:
         out.mkdir(parents=True, exist_ok=True)
         probe = out / f".vitaplace-write-test-{os.getpid()}"
         probe.write_text("")
         probe.unlink()
     except OSError as exc:
-        raise OutputDirError(f"--out {out}: cannot write there ({exc.strerror or exc})") from None
+        raise OutputDirError(f"{option} {out}: cannot write there ({exc.strerror or exc})") from None
     return out
 
 
@@ -71,10 +73,12 @@ def remove_stale_temporaries(out: Path) -> list[Path]:
 
 
 class OutputLock:
-    """``with OutputLock(out):`` holds ``out`` for this process, or raises OutputDirError."""
+    """``with OutputLock(out):`` holds ``out`` for this process, or raises OutputDirError
+    naming it as ``option``."""
 
-    def __init__(self, out: Path) -> None:
+    def __init__(self, out: Path, option: str = "--out") -> None:
         self.path = Path(out) / LOCK_NAME
+        self.option = option
         self._file: TextIO | None = None
 
     def __enter__(self) -> OutputLock:
@@ -89,8 +93,8 @@ class OutputLock:
             self._file.close()
             self._file = None
             raise OutputDirError(
-                f"--out {self.path.parent}: another vitaplace run (pid {holder}) is writing there; "
-                "wait for it to finish or choose another --out"
+                f"{self.option} {self.path.parent}: another vitaplace run (pid {holder}) is writing there; "
+                f"wait for it to finish or choose another {self.option}"
             ) from None
         self._file.seek(0)
         self._file.truncate()
@@ -193,29 +197,30 @@ def training_path(out: Path, method: str) -> Path:
     return Path(out) / "training" / f"{method}.json"
 
 
-def refuse_foreign(out: Path, marks: Sequence[str] = ()) -> None:
+def refuse_foreign(out: Path, marks: Sequence[str] = (), option: str = "--out") -> None:
     """OutputDirError for a folder that holds files but none of vitaplace's marks: `LOCK_NAME`
     (which every claim leaves) or one of ``marks`` (the file a command that writes without a
     claim leaves, e.g. ``sweep.json``): a project folder, the current one, a run's subfolder."""
     out = Path(out)
     if out.is_dir() and any(out.iterdir()) and not any((out / mark).exists() for mark in (LOCK_NAME, *marks)):
-        raise OutputDirError(f"--out {out}: not empty and not a folder vitaplace wrote (no {LOCK_NAME}); expected "
+        raise OutputDirError(f"{option} {out}: not empty and not a folder vitaplace wrote (no {LOCK_NAME}); expected "
                              "a new or empty folder, or one a vitaplace command wrote")
 
 
 @contextmanager
-def claimed(out: Path, before_cleaning: Callable[[Path], None] | None = None) -> Iterator[Path]:
+def claimed(out: Path, before_cleaning: Callable[[Path], None] | None = None,
+            option: str = "--out") -> Iterator[Path]:
     """``with claimed(out) as out:`` - the one way a command or the Python API takes an output
     folder: ``out`` made a writable directory (`writable_dir`), held by this process
     (`OutputLock`, else OutputDirError), then ``before_cleaning(out)`` if given (the command
     line's log file) and what interrupted writes left removed, each logged. A folder that
     holds files but neither `LOCK_NAME` (which every claim leaves) nor a stage cache (one
     copied in to be reused) is no folder of vitaplace's: refused untouched, since a run prunes
-    the result folders it finds there."""
+    the result folders it finds there. Errors name the folder as ``option`` (the API: ``out``)."""
     out = Path(out)
-    refuse_foreign(out, tuple(f"cache/{stage}" for stage in ("datasets", "models", "features")))
-    out = writable_dir(out)
-    with OutputLock(out):
+    refuse_foreign(out, tuple(f"cache/{stage}" for stage in ("datasets", "models", "features")), option)
+    out = writable_dir(out, option)
+    with OutputLock(out, option):
         if before_cleaning is not None:
             before_cleaning(out)
         for path in remove_stale_temporaries(out):

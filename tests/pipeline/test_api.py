@@ -193,6 +193,10 @@ BAD_CALLS = {
                                r"^vitaplace\.run\(\): unknown argument 'unitl'; did you mean 'until'\? "
                                r"\(its arguments: scenario, overrides, out, until, force, progress, workers\)$"),
         "no scenario": (lambda: vitaplace.run(), r"^vitaplace\.run\(\): missing a required argument: 'scenario'"),
+        "out a file": (lambda: vitaplace.run("quickstart", out=__file__),  # named as the API names it
+                       r"^out .*test_api\.py: exists and is not a directory$"),
+        "out a folder of other files": (lambda: vitaplace.run("quickstart", out=Path(__file__).parent),
+                                        r"^out .*pipeline: not empty and not a folder vitaplace wrote"),
     },
     "read_results": {
         "out no path": (lambda: vitaplace.read_results(3), r"out=3: expected a path"),
