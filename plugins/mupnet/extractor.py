@@ -56,6 +56,7 @@ from vitaplace.engine.network.pc import (
 from vitaplace.engine.network.precision import PrecisionWeighting
 from vitaplace.engine.network.selection import check_precision, get_backend
 from vitaplace.engine.network.solver import Solver, SolverName, make_solver
+from vitaplace.engine.sim.robot import N_WHISKERS
 from vitaplace.plugin import ExtractorParams, FeatureExtractor, Features, Run, warn_once
 from vitaplace.plugins.mupnet.inputs import (
     InputParams,
@@ -362,12 +363,30 @@ class MupnetExtractor(FeatureExtractor):
 
     @classmethod
     def memory_bytes(cls, params: ExtractorParams, train_samples: int) -> tuple[int, str, str]:
-        """The first visual layer's weights (W and its transposed copy) and the training images."""
+        """Every weight matrix of the network (W, its transposed copy and the weight
+        optimiser's moments), the training inputs and each sample's persistent latents, in
+        float32; the parameter named is the one whose share is largest (a lower bound: a
+        minibatch's errors come on top)."""
         params = cast(MupnetParams, params)  # made by validate_params from cls.Params
         h, w = params.image_size
-        inputs = h * w * 3 if "visual" in params.modalities else 0
-        need = inputs * params.visual_layers[0] * 4 * 2 + train_samples * inputs * 4
-        return need, "image_size", f"{h}x{w} images"
+        copies = 2 + {"sgd": 0, "momentum": 1, "adam": 2}[params.weight_optimizer]
+        sizes = {"visual": h * w * 3, "tactile": params.tactile_size(N_WHISKERS)}
+        layers = {"visual": params.visual_layers, "tactile": params.tactile_layers}
+        shares = {"image_size": 0, "visual_layers": 0, "tactile_layers": 0,
+                  "joint_size": train_samples * params.joint_size * 4}
+        for modality in params.modalities:
+            key = f"{modality}_layers"
+            chain = [sizes[modality], *layers[modality], params.joint_size]
+            owners = ["image_size" if modality == "visual" else key, *[key] * len(layers[modality]), "joint_size"]
+            shares[owners[0]] += train_samples * chain[0] * 4
+            shares[key] += train_samples * sum(layers[modality]) * 4
+            for i in range(len(chain) - 1):  # each edge's weights to the larger of the sizes it joins
+                shares[owners[i] if chain[i] >= chain[i + 1] else owners[i + 1]] += chain[i] * chain[i + 1] * 4 * copies
+        key = max(shares, key=shares.__getitem__)
+        what = {"image_size": f"{h}x{w} images", "visual_layers": f"visual layers {params.visual_layers}",
+                "tactile_layers": f"tactile layers {params.tactile_layers}",
+                "joint_size": f"joint latents of {params.joint_size}"}[key]
+        return sum(shares.values()), key, what
 
     def _backend(self) -> str | Backend:
         """The backend name, or for tf32 / bf16 the tensor-core backend itself."""

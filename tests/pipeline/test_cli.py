@@ -94,6 +94,14 @@ BAD = {
         lambda d: d["methods"][0].update(plugin="mupnet", params={"image_size": [20000, 20000]}),
         r"methods\.0\.params\.image_size: 20000x20000 images need .* GB",
     ),
+    "a huge joint latent": (  # its weights from a 100-wide top visual layer alone: 1e9 x 100 x 4 B x 2 copies
+        lambda d: d["methods"][0].update(plugin="mupnet", params={"joint_size": 10**9}),
+        r"methods\.0\.params\.joint_size: joint latents of 1000000000 need .* GB",
+    ),
+    "huge hidden layers": (  # 1e6 x 1e6 weights x 4 B x 3 copies (W, its transpose, the default momentum)
+        lambda d: d["methods"][0].update(plugin="mupnet", params={"tactile_layers": [10**6, 10**6]}),
+        r"methods\.0\.params\.tactile_layers: tactile layers \[1000000, 1000000\] need 1.2e\+04 GB",
+    ),
     "unknown activation": (
         lambda d: d["methods"][0].update(plugin="mupnet", params={"activation": "relu6"}),
         r"methods\.0\.params: .*activation",

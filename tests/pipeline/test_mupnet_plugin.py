@@ -517,3 +517,21 @@ def test_a_tolerance_without_its_criterion_is_refused(capsys, plugin):
     assert len(lines) == 1 and lines[0].endswith(
         f"methods.0.params: extractor '{plugin}': converge_tol 0.5 is ignored by converge_window 0 (only a window > 0 "
         "reads it); leave converge_tol out or set converge_window"), lines
+
+
+def test_memory_counts_every_layer_the_latents_and_the_optimisers_moments():
+    """2 x 3 images (18 inputs), visual [4], instant touch (24 x 3 = 72), tactile [5], joint 6,
+    10 samples, float32. Training inputs 10 x 18 x 4 = 720 (images) and 10 x 72 x 4 = 2880;
+    latents 10 x 4 x 4 = 160, 10 x 5 x 4 = 200, 10 x 6 x 4 = 240; weights x 4 B x 2 copies (W,
+    its transposed copy), each to the larger side it joins: 18 x 4 (images) 576, 4 x 6 (joint)
+    192, 72 x 5 (tactile) 2880, 5 x 6 (joint) 240. Shares: images 1296, visual 160, tactile
+    5960, joint 672 (plain SGD); Adam's two moments double the weights' 3888 to 7776."""
+    from vitaplace.plugins.mupnet.extractor import MupnetExtractor, MupnetParams
+
+    sizes = dict(image_size=(2, 3), visual_layers=[4], tactile_layers=[5], joint_size=6, tactile_input="instant",
+                 weight_optimizer="sgd")
+    assert MupnetExtractor.memory_bytes(MupnetParams(**sizes), 10) == (8088, "tactile_layers", "tactile layers [5]")
+    adam = MupnetParams(**{**sizes, "weight_optimizer": "adam"})
+    assert MupnetExtractor.memory_bytes(adam, 10)[0] == 8088 + 3888
+    wide = MupnetParams(**{**sizes, "joint_size": 1000})  # 4 x 1000 + 5 x 1000 weights, 10 x 1000 latents
+    assert MupnetExtractor.memory_bytes(wide, 10)[1:] == ("joint_size", "joint latents of 1000")
