@@ -1425,6 +1425,13 @@ MUTANTS = [
     m("orchestrate: an earlier failed plugin call's traceback kept by a run that replaces the results",
       "orchestrate", "    (out / PLUGIN_TRACEBACK).unlink(missing_ok=True)", "    pass",
       *t("cli", "test_a_plugins_traceback_goes_when_the_folder_is_next_written")),
+    m("orchestrate: a difficulty folder measured at another tau goes unmentioned", "orchestrate",
+      "            changed += [f\"{key}.{k}\" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]",
+      "            pass",
+      *t("folder_commands", "test_difficulty_after_a_run_reuses_its_stages_and_leaves_its_results_alone")),
+    m("orchestrate: a difficulty folder compared with its replaced methods included", "orchestrate",
+      '        data = {k: v for k, v in data.items() if k not in ("methods", "fusions")}', "        pass",
+      *t("folder_commands", "test_difficulty_after_a_run_reuses_its_stages_and_leaves_its_results_alone")),
     m("orchestrate: the trackers run before the completion record", "orchestrate",
       "        completion.write(out, finished, command)  # before the plugins: a tracker that stalls loses nothing\n",
       "        announce_run_finished(store.registry, out, scenario, [row.dump() for row in record.rows], until)\n"

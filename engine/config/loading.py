@@ -41,7 +41,7 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
     """
     path = resolve_path(name)
     log.debug("scenario %s: file %s, %d override(s)", name, path.resolve(), len(overrides))
-    raw = _load_raw(path)
+    raw = load_raw(path)
     if overrides:  # an override's environment or run-file path: from the working folder, or a shipped name
         raw = _absolute_paths(apply_overrides(raw, overrides), Path.cwd())
     try:
@@ -54,7 +54,7 @@ def load_scenario(name: str | Path, overrides: Sequence[str] = ()) -> tuple[Scen
     return scenario, raw
 
 
-def _load_raw(path: Path) -> dict[str, Any]:
+def load_raw(path: Path) -> dict[str, Any]:
     """The scenario mapping with ``extends`` merged, renamed keys under their new names and
     environment paths made absolute."""
     return load_yaml(path, ScenarioError, _prepared)

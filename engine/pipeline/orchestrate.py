@@ -15,8 +15,8 @@ import yaml
 
 import vitaplace.engine.pipeline.plan as plan
 from vitaplace.engine.base.atomic import write_text_atomic
-from vitaplace.engine.config.loading import relative_paths
-from vitaplace.engine.config.scenario import Scenario, training_world_evaluation
+from vitaplace.engine.config.loading import load_raw, relative_paths
+from vitaplace.engine.config.scenario import Scenario, ScenarioError, training_world_evaluation
 from vitaplace.engine.extension.registry import (
     announce_run_failed,
     announce_run_finished,
@@ -24,6 +24,7 @@ from vitaplace.engine.extension.registry import (
     plugin_distributions,
 )
 from vitaplace.engine.outputs import completion, stale
+from vitaplace.engine.outputs.outdir import difficulty_dir
 from vitaplace.engine.outputs.rows import ResultRow
 from vitaplace.engine.pipeline.keys import STAGES
 from vitaplace.engine.pipeline.manifest import write_manifest
@@ -52,6 +53,33 @@ def _say_replaced(out: Path, held: str | None, name: str) -> None:
         before = None
     if before is not None and before != name:
         log.warning("%s holds the results of scenario %r: this run of %r replaces them", out, before, name)
+
+
+def _measured_elsewhere(resolved: dict[str, Any], folder: Path) -> list[str]:
+    """The keys (dotted one level deep) in which the finished `vitaplace difficulty` output
+    ``folder`` was run on other settings than ``resolved``, beyond the methods, fusions and
+    complementarity pairs it replaces; none when ``folder`` holds no such output."""
+    if completion.holder(folder) != "difficulty":
+        return []
+    try:
+        measured = load_raw(folder / completion.SCENARIO)
+    except ScenarioError:
+        return []
+    sides = []
+    for data in (resolved, measured):
+        data = {k: v for k, v in data.items() if k not in ("methods", "fusions")}
+        if isinstance(data.get("scoring"), dict):
+            data["scoring"] = {k: v for k, v in data["scoring"].items() if k != "complementarity"}
+        sides.append(data)
+    ours, theirs = sides
+    changed = []
+    for key in sorted(set(ours) | set(theirs)):
+        a, b = ours.get(key, {}), theirs.get(key, {})
+        if isinstance(a, dict) and isinstance(b, dict):
+            changed += [f"{key}.{k}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+        elif a != b:
+            changed.append(key)
+    return changed
 
 
 def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until: str = "report",
@@ -99,6 +127,10 @@ def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until
         for path in pruned + stale.drop_sensitivity(out, before, completion.digests(out, finished)):
             log.info("removed %s: it described other results than this run's", path)
         completion.write(out, finished, command)  # before the plugins: a tracker that stalls loses nothing
+        changed = _measured_elsewhere(resolved, difficulty_dir(out))
+        if changed:
+            log.warning("%s was measured on other settings than these results (%s); `vitaplace difficulty` "
+                        "measures them again", difficulty_dir(out), ", ".join(changed))
     except Exception as exc:
         announce_run_failed(store.registry, out, scenario, " ".join(f"{type(exc).__name__}: {exc}".split()))
         raise
