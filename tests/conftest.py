@@ -34,10 +34,11 @@ def device(request) -> str:
 
 
 #: The behavioural tests (inference lowers the energy, training lowers the error, samples stop
-#: on their own, ...) run on every backend: numpy, Warp on the CPU, Warp on CUDA (skipped
-#: without a CUDA device). The maths tests (finite differences in float64) stay on numpy.
+#: on their own, ...) run on every backend: numpy, fixed (numpy without BLAS), Warp on the CPU,
+#: Warp on CUDA (skipped without a CUDA device). The maths tests (finite differences in float64) stay on numpy.
 BACKENDS = [
     pytest.param(("numpy", None), id="numpy"),
+    pytest.param(("fixed", None), id="fixed"),
     pytest.param(("warp", "cpu"), id="warp-cpu"),
     pytest.param(("warp", "cuda"), id="warp-cuda", marks=pytest.mark.cuda),
 ]

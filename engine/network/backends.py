@@ -36,7 +36,9 @@ cores) and element-wise epilogues in preallocated buffers. ``warp`` runs the ker
 CUDA graph and nothing leaves the device but the energies. ``auto`` picks warp when a CUDA
 device exists and numpy otherwise (`vitaplace.engine.network.selection.get_backend`):
 Warp's CPU path is scalar single-threaded code, far slower than BLAS on the same cores.
-The tensor-core backend (precision tf32 or bf16) is `vitaplace.engine.network.tensorcores`.
+The tensor-core backend (precision tf32 or bf16) is `vitaplace.engine.network.tensorcores`;
+``fixed``, numpy with every sum in a fixed order (the same bits under any BLAS kernel), is
+`vitaplace.engine.network.fixed_order`.
 """
 
 from __future__ import annotations
@@ -76,6 +78,8 @@ class Backend(Protocol):
 
     name: str
     device: str
+    #: whether every sum, the solvers' curvature matrices' included, runs in an order of its own (no BLAS)
+    fixed_order: bool
 
     def empty(self, shape: tuple[int, ...], dtype: type = np.float32) -> Any: ...
     def to_device(self, host: np.ndarray) -> Any: ...
@@ -118,6 +122,8 @@ class Backend(Protocol):
 class _Scratch(ABC):
     """Scratch buffers cached per (use, shape): one instance must not be used from several
     threads at once."""
+
+    fixed_order = False
 
     def __init__(self) -> None:
         self._scratch: dict[tuple[str, tuple[int, ...]], Any] = {}
@@ -167,6 +173,10 @@ class NumpyBackend(_Scratch):
     def empty(self, shape: tuple[int, ...], dtype: type | None = None) -> np.ndarray:
         return np.zeros(shape, dtype=self.dtype if dtype in (None, np.float32) else dtype)
 
+    def _matmul(self, a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+        """out = a b: every GEMM of the backend (BLAS here; `FixedOrderBackend` its own sums)."""
+        np.matmul(a, b, out=out)
+
     def to_device(self, host: np.ndarray) -> np.ndarray:
         return np.ascontiguousarray(host, dtype=self.dtype)
 
@@ -194,7 +204,7 @@ class NumpyBackend(_Scratch):
     def predict(self, Y: np.ndarray, W: _Weights, X: np.ndarray, E: np.ndarray, G: np.ndarray, R: np.ndarray | None,
                 slot: int, activation: str, slope: float, precision: np.ndarray | None = None) -> None:
         A = self._buffer("A", E.shape)
-        np.matmul(Y, W.W, out=A)
+        self._matmul(Y, W.W, A)
         if activation == "leaky_relu" and 0.0 <= slope <= 1.0:
             # Leaky ReLU is positively homogeneous: phi(a) = phi'(a) a with
             # phi'(a) = max([a > 0], s) for 0 <= s <= 1. Four plain passes, no masked copy
@@ -221,7 +231,7 @@ class NumpyBackend(_Scratch):
                       mask: np.ndarray | None, precision_above: np.ndarray | None = None) -> None:
         # Y <- Y + 2 eta (G W^T - pi_above E_above): GEMM into a (batch x n_l) scratch, then small passes.
         t = self._buffer("latent", Y.shape)
-        np.matmul(G, W.Wt, out=t)
+        self._matmul(G, W.Wt, t)
         if E_above is not None:
             if precision_above is not None:
                 e = self._buffer("latent_above", Y.shape)
@@ -245,7 +255,7 @@ class NumpyBackend(_Scratch):
         for i in range(0, n_l, step):
             rows = slice(i, min(i + step, n_l))
             tc = t[: rows.stop - rows.start]
-            np.matmul(ys[:, rows].T, G, out=tc)
+            self._matmul(ys[:, rows].T, G, tc)
             np.add(W.W[rows], tc, out=W.W[rows])
             np.add(W.Wt[:, rows], tc.T, out=W.Wt[:, rows])
 
@@ -253,7 +263,7 @@ class NumpyBackend(_Scratch):
         # D <- (2 Y)^T G: one GEMM straight into D (it is W-sized already), 2 folded into Y
         ys = self._buffer("weight_y", Y.shape)
         np.multiply(Y, self.dtype.type(2.0), out=ys)
-        np.matmul(ys.T, G, out=D)
+        self._matmul(ys.T, G, D)
 
     def count_step(self, t: np.ndarray) -> None:
         t += 1

@@ -10,11 +10,12 @@ import sys
 
 from vitaplace.engine.base.libraries import first_loadable
 from vitaplace.engine.network.backends import Backend, BackendError, NumpyBackend, WarpBackend, known_precision
+from vitaplace.engine.network.fixed_order import FixedOrderBackend
 from vitaplace.engine.network.tensorcores import CublasBackend
 
 __all__ = ["BACKENDS", "check_precision", "cuda_available", "get_backend"]
 
-BACKENDS = ("auto", "numpy", "warp")
+BACKENDS = ("auto", "numpy", "warp", "fixed")
 
 
 def _cuda_driver_loads() -> bool:
@@ -44,26 +45,27 @@ def check_precision(precision: str, backend: str = "auto") -> None:
     """Raise a one-line BackendError unless ``precision`` can run here with ``backend``."""
     if known_precision(precision) == "float32":
         return
-    if backend == "numpy":
+    if backend in ("numpy", "fixed"):
         raise BackendError(
-            f"precision '{precision}' runs on CUDA tensor cores; backend 'numpy' computes in float32 only"
+            f"precision '{precision}' runs on CUDA tensor cores; backend '{backend}' computes in float32 only"
         )
     if not cuda_available():
         raise BackendError(f"precision '{precision}' needs a CUDA device and none was found; use precision 'float32'")
 
 
 def get_backend(name: str = "auto", device: str | None = None, precision: str = "float32") -> Backend:
-    """Backend by name: ``numpy``, ``warp`` (device ``cpu``/``cuda``/None = best) or ``auto``;
+    """Backend by name: ``numpy``, ``fixed`` (numpy's arithmetic without BLAS, `fixed_order`),
+    ``warp`` (device ``cpu``/``cuda``/None = best) or ``auto``;
     a ``precision`` other than float32 gives the CublasBackend on CUDA (BackendError elsewhere)."""
     check_precision(precision, name)
     if precision != "float32":
         return CublasBackend(precision, device or "cuda")
     if name == "auto":
         name = "warp" if cuda_available() else "numpy"
-    if name == "numpy":
+    if name in ("numpy", "fixed"):
         if device not in (None, "cpu"):
-            raise ValueError(f"backend 'numpy' runs on the cpu only, not on device '{device}'")
-        return NumpyBackend()
+            raise ValueError(f"backend '{name}' runs on the cpu only, not on device '{device}'")
+        return NumpyBackend() if name == "numpy" else FixedOrderBackend()
     if name == "warp":
         return WarpBackend(device)
     raise ValueError(f"unknown backend '{name}'; valid: {', '.join(BACKENDS)}")

@@ -47,6 +47,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from vitaplace.engine.network.batch import BatchState
+from vitaplace.engine.network.fixed_order import gram, rounded_step, spd_inverse
 from vitaplace.engine.network.structure import NetworkView
 
 #: the names of the solvers (the MuPNet plugin's ``inference_solver``; `make_solver`)
@@ -76,7 +77,7 @@ def _largest_precision(precisions: Mapping[str, np.ndarray] | None, name: str) -
 
 def curvature_steps(
     weights: Mapping[str, np.ndarray], edges: Sequence, nodes: Sequence[str], activation: str, slope: float,
-    prior: float, precisions: Mapping[str, np.ndarray] | None = None,
+    prior: float, precisions: Mapping[str, np.ndarray] | None = None, fixed_order: bool = False,
 ) -> dict[str, float]:
     """Per latent node 1 / L, L = 2 g^2 sum_{edges below} ||W diag(pi) W^T||_2 + 2 max(pi_above) + prior.
 
@@ -86,22 +87,25 @@ def curvature_steps(
     (``precisions``; 1 where not given). ``||W diag(pi) W^T||_2`` (``||W||_2^2`` at pi = 1) is
     the largest eigenvalue of the smaller Gram matrix of ``W diag(sqrt(pi))`` (float64),
     raised by 1e-6 relative for rounding; each term is the exact norm of its own block, so
-    their sum bounds the block.
+    their sum bounds the block. With ``fixed_order`` (the ``fixed`` backend) the Gram matrix is
+    summed in a fixed order and each step rounded down (`fixed_order.rounded_step`), so that
+    LAPACK's last bits do not reach it.
     """
     gain = _largest_gain(activation, slope)
     bound = dict.fromkeys(nodes, prior)
     for e in edges:
         w = _scaled_weights(weights, precisions, e.name)
-        gram = w @ w.T if w.shape[0] <= w.shape[1] else w.T @ w
-        bound[e.upper] += 2.0 * gain**2 * float(np.linalg.eigvalsh(gram)[-1]) * (1 + 1e-6)
+        w = w if w.shape[0] <= w.shape[1] else w.T
+        product = gram(w) if fixed_order else w @ w.T
+        bound[e.upper] += 2.0 * gain**2 * float(np.linalg.eigvalsh(product)[-1]) * (1 + 1e-6)
         if e.lower in bound:
             bound[e.lower] += 2.0 * _largest_precision(precisions, e.name)
-    return {node: 1.0 / b for node, b in bound.items()}
+    return {node: rounded_step(1.0 / b) if fixed_order else 1.0 / b for node, b in bound.items()}
 
 
 def curvature_preconditioners(
     weights: Mapping[str, np.ndarray], edges: Sequence, nodes: Sequence[str], activation: str, slope: float,
-    prior: float, precisions: Mapping[str, np.ndarray] | None = None,
+    prior: float, precisions: Mapping[str, np.ndarray] | None = None, fixed_order: bool = False,
 ) -> dict[str, np.ndarray]:
     """Per latent node P = B^-1, B = 2 g^2 sum_{edges below} W diag(pi) W^T + 2 diag(pi_above) + prior I.
 
@@ -110,13 +114,15 @@ def curvature_preconditioners(
     above's term ``2 diag(pi_above)`` exactly; ``pi`` 1 where ``precisions`` gives none);
     `curvature_steps`' L bounds its largest eigenvalue. With a prior B >= prior I is positive
     definite; it is inverted in float64 through its Cholesky factor (LAPACK potrf and potri,
-    a fifth of an eigendecomposition's time) and P made exactly symmetric.
+    a fifth of an eigendecomposition's time) and P made exactly symmetric; with ``fixed_order``
+    (the ``fixed`` backend) B is summed and inverted in a fixed order instead
+    (`fixed_order.gram`, `fixed_order.spd_inverse`), slower and the same under any BLAS.
     """
     gain = _largest_gain(activation, slope)
     bound: dict[str, np.ndarray] = {}
     for e in edges:
         w = _scaled_weights(weights, precisions, e.name)
-        bound[e.upper] = bound.get(e.upper, 0.0) + 2.0 * gain**2 * (w @ w.T)
+        bound[e.upper] = bound.get(e.upper, 0.0) + 2.0 * gain**2 * (gram(w) if fixed_order else w @ w.T)
     above = {e.lower: e.name for e in edges}
     out = {}
     for node in nodes:
@@ -124,14 +130,25 @@ def curvature_preconditioners(
             diagonal = 2.0 * np.asarray(precisions[above[node]], np.float64) + prior
         else:
             diagonal = np.full(len(bound[node]), (2.0 if node in above else 0.0) + prior)
-        factor, info = lapack.dpotrf(bound[node] + np.diag(diagonal))
-        if info != 0:
-            raise ValueError(f"the curvature bound of latent node '{node}' is singular; the preconditioned "
-                             "solver needs a latent prior > 0")
-        inverse, info = lapack.dpotri(factor)
-        upper = np.triu(inverse)
-        out[node] = upper + np.triu(upper, 1).T
+        out[node] = _inverse(bound[node] + np.diag(diagonal), fixed_order, node)
     return out
+
+
+def _inverse(b: np.ndarray, fixed_order: bool, node: str) -> np.ndarray:
+    """The exactly symmetric inverse of latent node ``node``'s curvature bound ``b``."""
+    singular = ValueError(f"the curvature bound of latent node '{node}' is singular; the preconditioned "
+                          "solver needs a latent prior > 0")
+    if fixed_order:
+        try:
+            return spd_inverse(b)
+        except ValueError:
+            raise singular from None
+    factor, info = lapack.dpotrf(b)
+    if info != 0:
+        raise singular
+    inverse, info = lapack.dpotri(factor)
+    upper = np.triu(inverse)
+    return upper + np.triu(upper, 1).T
 
 
 class BatchSolver:
@@ -308,7 +325,7 @@ def _bound(net: NetworkView, present: Sequence[str], prior: float) -> tuple:
     """The arguments of the curvature bounds (`curvature_steps`) of the modalities ``present``."""
     weights = net.host_weights()
     return (weights, net.active_edges(present), net.latent_nodes(present), net.config.activation, net.config.slope,
-            prior, net.precisions if net.weighted else None)
+            prior, net.precisions if net.weighted else None, net.backend.fixed_order)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -202,8 +202,9 @@ class MupnetParams(ArchitectureParams):
         3e-6, gt=0, lt=1, description="test-time stop also when a sample's step has shrunk below this fraction "
         "(0 < rtol < 1) of its first step (None: the per-layer thresholds alone, the paper's rule)",
     )
-    backend: Literal["auto", "numpy", "warp"] = Field(
-        "auto", description="auto (warp on CUDA, numpy otherwise), numpy or warp"
+    backend: Literal["auto", "numpy", "warp", "fixed"] = Field(
+        "auto", description="auto (warp on CUDA, numpy otherwise), numpy, warp, or fixed: numpy's float32 "
+        "arithmetic with every sum in a fixed order, the same bits under any BLAS kernel, about 3x slower",
     )
     precision: Precision = Field(
         "float32", description="GEMM precision: float32, or on CUDA tensor cores tf32 or bf16 operands "

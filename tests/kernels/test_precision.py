@@ -34,6 +34,7 @@ def _cublas_cpu():
 #: (its epilogue kernels, the GEMMs by a host cuBLAS stand-in at float32)
 BACKENDS = {
     "numpy": lambda: NumpyBackend(),
+    "fixed": lambda: get_backend("fixed"),
     "warp-cpu": lambda: get_backend("warp", "cpu"),
     "warp-cuda": lambda: get_backend("warp", "cuda"),
     "cublas-host": _cublas_cpu,

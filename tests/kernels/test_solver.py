@@ -114,6 +114,7 @@ def test_the_solver_reaches_the_same_fixed_point_in_float64_within_1e_6(activati
 
 BACKENDS = [
     pytest.param(("numpy", None), id="numpy"),
+    pytest.param(("fixed", None), id="fixed"),
     pytest.param(("warp", "cpu"), id="warp-cpu"),
     pytest.param(("warp", "cuda"), id="warp-cuda", marks=pytest.mark.cuda),
 ]
