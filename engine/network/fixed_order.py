@@ -44,26 +44,28 @@ class FixedOrderBackend(NumpyBackend):
 
 
 def gram(w: np.ndarray) -> np.ndarray:
-    """``w w^T`` by ``einsum`` (no BLAS)."""
-    return np.einsum("ik,jk->ij", w, w)
+    """``w w^T`` by ``einsum`` (no BLAS), summed over w's columns one after another (a
+    contiguous copy of w^T makes the rows of the product the inner loop: twice as fast)."""
+    columns = np.ascontiguousarray(w.T)
+    return np.einsum("ki,kj->ij", columns, columns)
 
 
 def spd_inverse(b: np.ndarray) -> np.ndarray:
     """The inverse of the symmetric positive definite ``b`` (float64) through its Cholesky
-    factor L (b = L L^T): L^-1 by forward substitution, then L^-T L^-1, every sum a numpy
-    reduction or ``einsum`` (no LAPACK, no BLAS); exactly symmetric. ValueError when a pivot
+    factor L (b = L L^T): L^-1 by forward substitution, then L^-T L^-1, every sum an
+    ``einsum`` (no LAPACK, no BLAS); exactly symmetric. ValueError when a pivot
     is not positive (b not positive definite)."""
     n = len(b)
     factor = np.zeros_like(b)
     for j in range(n):
-        pivot = b[j, j] - (factor[j, :j] * factor[j, :j]).sum()
+        pivot = b[j, j] - np.einsum("k,k->", factor[j, :j], factor[j, :j])
         if not pivot > 0:
             raise ValueError(f"not positive definite (pivot {j} is {pivot:g})")
         factor[j, j] = math.sqrt(pivot)
-        factor[j + 1:, j] = (b[j + 1:, j] - (factor[j + 1:, :j] * factor[j, :j]).sum(axis=1)) / factor[j, j]
+        factor[j + 1:, j] = (b[j + 1:, j] - np.einsum("ik,k->i", factor[j + 1:, :j], factor[j, :j])) / factor[j, j]
     inverse = np.zeros_like(b)  # L^-1, lower triangular, row by row
     for i in range(n):
-        row = -(factor[i, :i, None] * inverse[:i, : i + 1]).sum(axis=0)
+        row = -np.einsum("k,kj->j", factor[i, :i], inverse[:i, : i + 1])
         row[i] += 1.0
         inverse[i, : i + 1] = row / factor[i, i]
     product = np.einsum("ki,kj->ij", inverse, inverse)
