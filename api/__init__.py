@@ -227,7 +227,8 @@ def run(
                  "(guard the call for parallel simulation workers)", script)
         workers = 1
     with claimed(Path(out) if out is not None else Path("runs") / loaded.name, option="out") as folder:
-        rows = run_stages(loaded, resolved, Store(folder, force=force, progress=progress, workers=workers), until)
+        rows = run_stages(loaded, resolved, Store(folder, force=force, progress=progress, workers=workers), until,
+                          option="out")
     return [row.dump() for row in rows]
 
 

@@ -58,7 +58,8 @@ def _say_replaced(out: Path, held: str | None, name: str) -> None:
 def _measured_elsewhere(resolved: dict[str, Any], folder: Path) -> list[str]:
     """The keys (dotted one level deep) in which the finished `vitaplace difficulty` output
     ``folder`` was run on other settings than ``resolved``, beyond the methods, fusions and
-    complementarity pairs it replaces; none when ``folder`` holds no such output."""
+    complementarity pairs it replaces and the description and report settings it does not read;
+    none when ``folder`` holds no such output."""
     if completion.holder(folder) != "difficulty":
         return []
     try:
@@ -67,7 +68,7 @@ def _measured_elsewhere(resolved: dict[str, Any], folder: Path) -> list[str]:
         return []
     sides = []
     for data in (resolved, measured):
-        data = {k: v for k, v in data.items() if k not in ("methods", "fusions")}
+        data = {k: v for k, v in data.items() if k not in ("methods", "fusions", "description", "report")}
         if isinstance(data.get("scoring"), dict):
             data["scoring"] = {k: v for k, v in data["scoring"].items() if k != "complementarity"}
         sides.append(data)
@@ -83,16 +84,16 @@ def _measured_elsewhere(resolved: dict[str, Any], folder: Path) -> list[str]:
 
 
 def run_stages(scenario: Scenario, resolved: dict[str, Any], store: Store, until: str = "report",
-               command: str = "run") -> list[ResultRow]:
+               command: str = "run", option: str = "--out") -> list[ResultRow]:
     """Run ``scenario``'s stages into ``store``'s output folder up to and including ``until``,
     and on to the latest stage whose output the folder holds (`stale.held_stage`), for a
     command of kind ``command`` (`completion.KINDS`; a folder holding another kind's
-    finished output is refused); ``resolved``: the scenario as read, written beside the
-    results. What the folder held and this run did not make is removed at the end
-    (`stale`). Return the result rows (if evaluated)."""
+    finished output is refused, naming the folder as ``option``: the API's ``out``);
+    ``resolved``: the scenario as read, written beside the results. What the folder held and
+    this run did not make is removed at the end (`stale`). Return the result rows (if evaluated)."""
     out = store.out
     out.mkdir(parents=True, exist_ok=True)
-    completion.refuse_other(out, command)
+    completion.refuse_other(out, command, option)
     held = stale.held_stage(out)
     _say_replaced(out, held, scenario.name)
     if held is not None and STAGES.index(held) > STAGES.index(until):

@@ -366,8 +366,8 @@ class MupnetExtractor(FeatureExtractor):
     def memory_bytes(cls, params: ExtractorParams, train_samples: int) -> tuple[int, str, str]:
         """Every weight matrix of the network (W, its transposed copy and the weight
         optimiser's moments), the training inputs and each sample's persistent latents, in
-        float32; the parameter named is the one whose share is largest (a lower bound: a
-        minibatch's errors come on top)."""
+        float32, for the simulated robot's whiskers; the parameter named is the one whose share
+        is largest (a minibatch's errors and the optimiser's gradient come on top)."""
         params = cast(MupnetParams, params)  # made by validate_params from cls.Params
         h, w = params.image_size
         copies = 2 + {"sgd": 0, "momentum": 1, "adam": 2}[params.weight_optimizer]

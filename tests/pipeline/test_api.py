@@ -264,6 +264,17 @@ def test_bad_arguments_are_one_line_user_errors(function, case):
     assert "\n" not in str(info.value)
 
 
+def test_a_folder_holding_another_commands_output_is_named_as_the_api_names_it(tmp_path):
+    """A sweep's summary folder given as ``out``: refused before anything runs, naming ``out``
+    (the command line's ``--out`` was named)."""
+    (tmp_path / ".vitaplace.lock").write_text("")
+    (tmp_path / "sweep.json").write_text("{}")
+    with pytest.raises(vitaplace.UserError, match=rf"^out {re.escape(str(tmp_path))}: holds the finished output of "
+                                                  r".*; choose another out$"):
+        vitaplace.run("quickstart", out=tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".vitaplace.lock", "sweep.json"]
+
+
 @pytest.mark.parametrize("path", [5, None, 2.5])
 def test_open_run_of_something_that_is_no_path_is_one_line(path):
     with pytest.raises(vitaplace.UserError, match=r"^path=.*: expected the path of a run file \(text or a Path\)$"):

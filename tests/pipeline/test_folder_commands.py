@@ -257,7 +257,8 @@ def test_difficulty_after_a_run_reuses_its_stages_and_leaves_its_results_alone(t
     assert not (out / "difficulty" / "cache").exists()  # its stages are cached in the run's folder
     assert cli("report", str(out))[0] == 0
     # re-scored on the settings difficulty measured: silent; at another tau: difficulty/ is said to be stale
-    status, err = cli("evaluate", str(tmp_path / "both.yaml"), "--out", str(out), "--no-progress")
+    status, err = cli("evaluate", str(tmp_path / "both.yaml"), "--out", str(out), "--no-progress",
+                      "--set", "description=the same run, other words")  # a key difficulty does not read
     assert status == 0 and "measured on other settings" not in err, err
     status, err = cli("evaluate", str(tmp_path / "both.yaml"), "--out", str(out), "--no-progress",
                       "--set", f"scoring.tau={TAUS[1]}")
