@@ -76,7 +76,7 @@ BUDGET_EPOCHS = (30, 70, 270)
 BUDGET_POINTS = {f"budget/epochs={e}": BUDGET2 / f"epochs={e}" for e in BUDGET_EPOCHS}
 #: the third study's arms (the design change's sizes) -> (sweep summaries by matching, evaluations, methods)
 ARMS3 = {
-    "station": ({"single": HERE / "study3-sweep" / "metres=0", "seq. 2.8 m": HERE / "study3-sweep" / "metres=2.8"},
+    "station": ({"single": HERE / "study3-sweep" / "metres=0", "seq. 2.8 m": HERE / "study3-sequences" / "metres=2.8"},
                 ("alike-shapes", "crossed-opposite", "dusk", "fog", "night"),
                 ("L", "L-V", "L-T", "L-paper", "A", "H", "H-V", "H-T", "HOG", "VLAD",
                  "L-F", "H-F", "HOG-F", "VLAD-F")),
