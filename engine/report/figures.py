@@ -38,6 +38,13 @@ TME_SCALED = 1e100
 #: line style per curve of a PR figure (curves drawn later are thinner and on top, so a
 #: curve that another one covers still shows around it)
 PR_STYLES = ("-", "--", ":", "-.")
+#: the widest and the thinnest PR curve, in points, however many curves a figure holds
+PR_LINEWIDTHS = (3.0, 1.0)
+#: a PR figure's axes (width, height) in inches; its legend of one line per curve sits to the
+#: right of them, and the figure grows downwards with the legend's lines
+PR_AXES_SIZE = (5.5, 4.5)
+PR_LEGEND_WIDTH = 5.0
+PR_LEGEND_LINE = 0.19
 #: what the lines and bands of `plot_pr_bands` show (written into the figure)
 #: the formats a figure is saved in unless told (a run's report: `ReportSettings.pdf`)
 FORMATS = ("png", "pdf")
@@ -145,7 +152,7 @@ def plot_pr_curves(out_stem: str | os.PathLike, curves: Mapping[str, PRCurve], t
     """Precision-recall curve per method with the max-F1 point marked; the legend gives max F1
     and AUC.  Drawn step-wise in threshold order so that the area under the drawn curve is the
     AUC (step-wise average precision)."""
-    fig = _new_figure((6, 5))
+    fig = _pr_figure(len(curves))
     ax = fig.subplots()
     for i, (name, curve) in enumerate(curves.items()):
         colour = f"C{i % 10}"
@@ -160,24 +167,34 @@ def plot_pr_curves(out_stem: str | os.PathLike, curves: Mapping[str, PRCurve], t
     return _save(fig, out_stem, formats)
 
 
+def _pr_figure(legend_lines: int) -> Figure:
+    """A figure for PR curves whose legend has ``legend_lines`` lines: `PR_AXES_SIZE` for the
+    axes, room to their right for the legend, as tall as the longer of the two (a legend
+    taller than the figure would leave the axes no height, and constrained layout then gives up)."""
+    width, height = PR_AXES_SIZE
+    return _new_figure((width + PR_LEGEND_WIDTH, max(height + 1.0, 1.0 + PR_LEGEND_LINE * (legend_lines + 2))))
+
+
 def _pr_style(i: int, n_curves: int) -> dict:
     """Line style, width and z-order of the ``i``-th of ``n_curves`` PR curves: each curve its
-    own dash pattern, the later ones thinner and above, so coinciding stretches (e.g. two
-    methods at precision 1) show both curves."""
-    return {"linestyle": PR_STYLES[i % len(PR_STYLES)], "linewidth": 1.2 + 1.0 * (n_curves - 1 - i), "zorder": 2 + i}
+    own dash pattern, the later ones thinner (from the first to the last of `PR_LINEWIDTHS`,
+    however many curves) and above, so coinciding stretches (e.g. two methods at precision 1)
+    show both curves."""
+    widest, thinnest = PR_LINEWIDTHS
+    width = widest - (widest - thinnest) * i / (n_curves - 1) if n_curves > 1 else widest
+    return {"linestyle": PR_STYLES[i % len(PR_STYLES)], "linewidth": width, "zorder": 2 + i}
 
 
 def _finish_pr_axes(fig: Figure, ax: Axes, ylabel: str, n_curves: int, title: str, legend_title: str) -> None:
-    """Limits, labels, grid, a legend below the axes (covering no data) with ``legend_title``
-    (what the curves show) and the title."""
+    """Limits, labels, grid, a legend right of the axes (covering no data; one line per curve)
+    with ``legend_title`` (what the curves show) and the title."""
     ax.set_xlim(-0.02, 1.02)
     ax.set_ylim(-0.02, 1.05)
     ax.set_xlabel("recall")
     ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.3)
     if n_curves:
-        fig.legend(loc="outside lower center", fontsize="small", ncols=1 if n_curves > 2 else n_curves,
-                   title=legend_title, title_fontsize="small")
+        fig.legend(loc="outside right upper", fontsize="small", title=legend_title, title_fontsize="small")
     ax.set_title(title)
 
 
@@ -196,7 +213,7 @@ def plot_pr_bands(out_stem: str | os.PathLike, curves: Mapping[str, Sequence[PRC
     from the lowest to the highest seed (the figure says so, whatever the title); the legend
     gives the seeds and max F1 mean +- std."""
     grid = np.linspace(0.0, 1.0, 201)
-    fig = _new_figure((6, 5))
+    fig = _pr_figure(len(curves) + 2)  # the legend's title has two lines
     ax = fig.subplots()
     for i, (name, seeds) in enumerate(curves.items()):
         colour = f"C{i % 10}"

@@ -1218,6 +1218,43 @@ def test_figures_label_colour_bars_and_keep_legends_off_the_data(tmp_path, monke
     assert sum(hasattr(ax, "_colorbar") for ax in drawn[0].axes) == 2
 
 
+def test_pr_figures_of_a_study_keep_their_axes_legend_and_lines_readable(tmp_path, monkeypatch):
+    """A study's report draws 14 methods x 2 directions = 28 PR curves in one figure, and its
+    sweep 14 bands in one: the axes keep a readable size (at least 4 x 3 inches: no collapsed
+    layout, no matplotlib warning), the legend of one line per curve covers none of them and
+    lies whole inside the figure, and
+    no curve is drawn thicker than 3 points or thinner than 1, however many there are."""
+    import warnings
+
+    from vitaplace.engine.evaluation import evaluate as ev
+    from vitaplace.engine.report import figures
+    drawn = []
+    monkeypatch.setattr(figures, "_save", lambda fig, stem, *formats: drawn.append(fig) or [])
+    t = np.linspace(0, 2 * np.pi, 30)
+    poses = np.c_[np.cos(t), np.sin(t), t]
+    gtm = ev.ground_truth_matrix(poses, poses[::-1])
+    rng = np.random.default_rng(0)
+    curves = [ev.pr_curve(gtm + rng.random(gtm.shape), gtm, 0.3) for _ in range(28)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        figures.plot_pr_curves(tmp_path / "p", {f"VLAD-F {i} reference-to-query": c for i, c in enumerate(curves)})
+        figures.plot_pr_bands(tmp_path / "b", {f"VLAD-F {i}": curves[2 * i:2 * i + 2] for i in range(14)})
+        for fig in drawn:
+            fig.draw_without_rendering()
+    for fig in drawn:
+        renderer = fig.canvas.get_renderer()
+        (ax,) = fig.axes
+        box = ax.get_window_extent(renderer)
+        assert box.width / fig.dpi >= 4 and box.height / fig.dpi >= 3
+        for legend in fig.legends:  # off the data, and whole inside the figure
+            extent = legend.get_window_extent(renderer)
+            assert not extent.overlaps(box)
+            assert fig.bbox.x0 <= extent.x0 and extent.x1 <= fig.bbox.x1
+            assert fig.bbox.y0 <= extent.y0 and extent.y1 <= fig.bbox.y1
+        widths = [line.get_linewidth() for line in ax.get_lines() if line.get_linestyle() != "None"]
+        assert len(widths) in (28, 14) and 1.0 <= min(widths) and max(widths) <= 3.0
+
+
 @pytest.mark.slow  # the runner's cache and recovery, not a dependency's version
 def test_force_alone_redoes_every_stage_the_command_runs(tmp_path):
     path = str(write_scenario(tmp_path, valid_scenario()))
