@@ -266,6 +266,22 @@ def test_difficulty_after_a_run_reuses_its_stages_and_leaves_its_results_alone(t
     assert f"{out / 'difficulty'} was measured on other settings than these results (scoring.tau)" in err, err
 
 
+def test_a_sweeps_seed_folder_has_its_report_rebuilt(tmp_path):
+    """`vitaplace report SWEEP/seed-S`: a seed folder holds its finished run (completed.json)
+    but no claim of its own (the sweep held its folder's): it was refused as "not a folder
+    vitaplace wrote". It is rebuilt as the sweep wrote it."""
+    write_scenarios(tmp_path)
+    sweep = tmp_path / "sweep"
+    assert cli("sweep", str(tmp_path / "one.yaml"), "--seeds", "3", "--out", str(sweep), "--no-progress")[0] == 0
+    seed = sweep / "seed-3"
+    assert not (seed / ".vitaplace.lock").exists()
+    written = (seed / "report.md").read_text()
+    (seed / "report.md").unlink()
+    status, err = cli("report", str(seed))
+    assert status == 0, err
+    assert (seed / "report.md").read_text() == written
+
+
 @pytest.mark.parametrize("command", [
     ["evaluate", "{one}", "--out", "{out}/difficulty"],  # a run into the difficulty folder
     ["difficulty", "{one}", "--out", "{out}/difficulty"],  # difficulty given its own folder as --out
