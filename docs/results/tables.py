@@ -87,6 +87,9 @@ ARMS3 = {
 #: third study: "arm/matching" -> its summaries' folder
 POINTS3 = {f"{arm}/{matching}": folder
            for arm, (folders, _, _) in ARMS3.items() for matching, folder in folders.items()}
+#: the sequence rerun's single-sample point (docs/RESULTS.md, the third study's correction of
+#: the sequence scores): the registered station sweep run again, beside its sequence point
+SEQUENCE_RERUN3 = HERE / "study3-sequences" / "metres=0"
 SURVIVAL_EPOCHS = (70, 3000)
 #: the survival comparison: "survival/epochs=E" -> its summaries' folder
 SURVIVAL_POINTS = {f"survival/epochs={e}": HERE / "study3-survival" / f"epochs={e}" for e in SURVIVAL_EPOCHS}

@@ -7,6 +7,7 @@ method and condition at eight seeds, bounded intervals, the pre-registered endpo
 `vitaplace.engine.study.hypotheses` (whose rules tests/components/test_hypotheses.py checks by hand), the gates, the
 budget trend)."""
 
+import csv
 import importlib.util
 import json
 import math
@@ -701,3 +702,49 @@ def test_the_kernel_alone_changed_nothing_but_the_kernel():
     first = json.loads((tables.KERNEL3.parent / "manifest.json").read_text())
     assert second["runs"] == first["runs"] and second["datasets"] == first["datasets"]
     assert {lib["architecture"] for lib in second["machine"]["blas"]} == {"Sandybridge"}
+
+
+def test_the_sequence_rerun_scored_the_station_arms_simulated_runs_and_networks():
+    """The sequence point of docs/RESULTS.md (the third study's correction) comes from a rerun
+    of the registered station sweep: every seed records the single-sample point's settings,
+    simulated runs and training histories (every epoch of every learned method), so its
+    sequences score the same runs and networks as the single rows."""
+    tables = tables_module()
+    folders = tables.ARMS3["station"][0]
+    for key in ("datasets", "runs", "training"):
+        single, sequences = (manifests(folders[m], key) for m in ("single", "seq. 2.8 m"))
+        assert sorted(single) == [f"seed-{s}" for s in range(20, 30)] and sequences == single, key
+    assert manifests(tables.SEQUENCE_RERUN3, "runs") == manifests(folders["single"], "runs")
+
+
+def test_the_reruns_single_point_reproduced_the_committed_one_but_vlad():
+    """Its single-sample point repeats every per-seed number of the committed one for 12 of the
+    14 methods and fusions; VLAD and VLAD-F differ, their max F1 in seeds 21 and 27 only."""
+    import gzip
+
+    tables = tables_module()
+
+    def per_seed(folder: Path) -> dict[tuple[str, ...], str]:
+        with gzip.open(folder / "sweep-seeds.csv.gz", "rt", newline="") as f:
+            return {(r["seed"], r["environment"], r["method"], r["direction"], r["metric"]): r["value"]
+                    for r in csv.DictReader(f)}
+
+    committed, rerun = per_seed(tables.ARMS3["station"][0]["single"]), per_seed(tables.SEQUENCE_RERUN3)
+    assert committed.keys() == rerun.keys()
+    differing = {k for k in committed if committed[k] != rerun[k]}
+    assert {k[2] for k in differing} == {"VLAD", "VLAD-F"}
+    assert {int(k[0]) for k in differing if k[4] == "max_f1"} == {21, 27}
+
+
+def test_secondary_7_is_quoted_as_its_summaries_give_it():
+    tables = tables_module()
+    (seventh,) = (e for e in tables.endpoints(tables.ENDPOINTS3) if e["label"] == "7")
+    s = seventh["stats"]
+    signed = lambda v: ("+" if v > 0 else "") + _percent_points(v)  # noqa: E731
+    assert seventh["tost"][0] < -0.05  # as the quote says: its interval crosses -5 points
+    quote = (f"secondary 7: {_percent_points(s['mean'])} points [{signed(s['boot_low'])}, {signed(s['boot_high'])}], "
+             f"p {tables.p_value(seventh['p'])}, Holm p {tables.p_value(seventh['p_holm'])}; the TOST's interval "
+             f"[{signed(seventh['tost'][0])}, {signed(seventh['tost'][1])}] crosses −5")
+    text = " ".join((ROOT / "docs" / "RESULTS.md").read_text().split())
+    assert quote in text
+
