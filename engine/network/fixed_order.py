@@ -27,7 +27,7 @@ import numpy as np
 
 from vitaplace.engine.network.backends import NumpyBackend
 
-__all__ = ["STEP_BITS", "FixedOrderBackend", "gram", "rounded_step", "spd_inverse"]
+__all__ = ["STEP_BITS", "FixedOrderBackend", "gram", "matmul", "rounded_step", "spd_inverse"]
 
 #: significant bits kept of a scalar step computed through LAPACK
 STEP_BITS = 12
@@ -40,7 +40,13 @@ class FixedOrderBackend(NumpyBackend):
     fixed_order = True
 
     def _matmul(self, a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-        np.einsum("ij,jk->ik", a, b, out=out)
+        matmul(a, b, out)
+
+
+def matmul(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """``a @ b`` of two matrices by ``einsum``: numpy's own loops, the same bits under any BLAS
+    kernel (also what the backprop control uses on ``backend: fixed``)."""
+    return np.einsum("ij,jk->ik", a, b, out=out)
 
 
 def gram(w: np.ndarray) -> np.ndarray:

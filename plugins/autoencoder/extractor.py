@@ -14,7 +14,7 @@ import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, Literal, cast
 
 import numpy as np
 import pydantic
@@ -40,6 +40,10 @@ class AutoencoderParams(ArchitectureParams):
     )
     optimizer: OptimizerName = Field("adam", description="adam (Kingma and Ba's decay rates) or sgd (plain steps)")
     learning_rate: pydantic.PositiveFloat = Field(1e-3, description="step size of the optimizer")
+    backend: Literal["numpy", "fixed"] = Field(
+        "numpy", description="numpy (products of matrices through BLAS), or fixed: through numpy's own loops, "
+        "the same bits under any BLAS kernel, as MuPNet's fixed backend",
+    )
 
     def training_settings(self) -> TrainingSettings:
         return TrainingSettings(self.epochs, self.batch_size, self.learning_rate, self.optimizer, self.seed,
@@ -88,7 +92,8 @@ class AutoencoderExtractor(FeatureExtractor):
         inputs = self._scaled(raw)
         layers = {"visual": p.visual_layers, "tactile": p.tactile_layers}
         self.model = Autoencoder({m: [x.shape[1], *layers[m]] for m, x in inputs.items()}, p.joint_size,
-                                 activation=p.activation, slope=p.slope, encoder=p.encoder, seed=p.seed)
+                                 activation=p.activation, slope=p.slope, encoder=p.encoder, seed=p.seed,
+                                 fixed_order=p.backend == "fixed")
         minibatches = p.epochs * math.ceil(len(train_run) / p.batch_size)
         with tqdm(total=minibatches, desc="train", unit="batch", disable=not self.progress) as bar:
             def on_progress(epoch: int, loss: float) -> None:
@@ -131,7 +136,7 @@ class AutoencoderExtractor(FeatureExtractor):
         p = self.params
         model = json.loads((directory / "model.json").read_text())
         self.model = Autoencoder(model["sizes"], p.joint_size, activation=p.activation, slope=p.slope,
-                                 encoder=p.encoder, seed=p.seed)
+                                 encoder=p.encoder, seed=p.seed, fixed_order=p.backend == "fixed")
         with np.load(directory / WEIGHTS_FILE) as saved:
             self.model.weights = {name: saved[name] for name in saved.files}
         self.history, self.converged = model["history"], model["converged"]

@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from vitaplace.engine.network.fixed_order import matmul as fixed_order_matmul
 from vitaplace.engine.network.pc import NetworkError, converged, glorot_uniform
 from vitaplace.kernels.reference import activation, activation_derivative
 
@@ -45,13 +46,17 @@ class Layer:
 
 
 class Autoencoder:
-    """The two-branch-plus-joint autoencoder; ``sizes[m]`` = [input, layer 1, ..., top] of modality m."""
+    """The two-branch-plus-joint autoencoder; ``sizes[m]`` = [input, layer 1, ..., top] of modality m.
+    With ``fixed_order`` every product of matrices is `fixed_order_matmul` (numpy's loops, no
+    BLAS): the same bits under any BLAS kernel, as MuPNet's ``fixed`` backend."""
 
     def __init__(self, sizes: Mapping[str, list[int]], joint: int, *, activation: str, slope: float,
-                 encoder: Encoder, seed: int, dtype: type = np.float32) -> None:
+                 encoder: Encoder, seed: int, dtype: type = np.float32, fixed_order: bool = False) -> None:
         self.sizes = {m: list(s) for m, s in sizes.items()}
         self.activation, self.slope, self.encoder = activation, slope, encoder
         self.dtype = np.dtype(dtype)
+        self._matmul: Callable[[np.ndarray, np.ndarray], np.ndarray] = (
+            fixed_order_matmul if fixed_order else np.matmul)
         rng = np.random.default_rng(seed)
         # the decoder drawn as MuPNet's Network draws its edges: every stack bottom up, then the joint edges
         shapes = {f"{m}.{k}": (s[k], s[k - 1]) for m, s in self.sizes.items() for k in range(1, len(s))}
@@ -65,7 +70,7 @@ class Autoencoder:
         return activation(a, self.activation, self.slope)
 
     def _dense(self, x: np.ndarray, w: np.ndarray, layers: list[Layer]) -> np.ndarray:
-        a = x @ w
+        a = self._matmul(x, w)
         layers.append(Layer(x, a))
         return self._phi(a)
 
@@ -86,7 +91,7 @@ class Autoencoder:
             for k in range(1, len(s)):
                 h = self._dense(h, self.encoder_weight(f"{m}.{k}"), stacks[m])
             # the stack's top and its share of the joint pre-activation (phi is applied to the sum)
-            stacks[m].append(Layer(h, h @ self.encoder_weight(f"joint.{m}")))
+            stacks[m].append(Layer(h, self._matmul(h, self.encoder_weight(f"joint.{m}"))))
             total = total + stacks[m][-1].a
         return self._phi(total), total
 
@@ -103,10 +108,10 @@ class Autoencoder:
         gradient (None unless ``to_input``: the data's gradient is not needed)."""
         for i, (layer, w) in enumerate(zip(reversed(layers), reversed(weights), strict=True)):
             g = grad * activation_derivative(layer.a, self.activation, self.slope)
-            into.append(layer.x.T @ g)
+            into.append(self._matmul(layer.x.T, g))
             if i == len(layers) - 1 and not to_input:
                 return None
-            grad = g @ w.T
+            grad = self._matmul(g, w.T)
         return grad
 
     def loss_and_gradients(self, inputs: Mapping[str, np.ndarray]) -> tuple[dict[str, float], dict[str, np.ndarray]]:
@@ -129,10 +134,10 @@ class Autoencoder:
         for m, s in self.sizes.items():
             names = [f"{m}.{k}" for k in range(1, len(s))]
             top = stacks[m][-1]
-            encoder_grads = {f"joint.{m}": top.x.T @ gz}
+            encoder_grads = {f"joint.{m}": self._matmul(top.x.T, gz)}
             found = []
             self._backward(stacks[m][:-1], [self.encoder_weight(n) for n in names],
-                           gz @ self.encoder_weight(f"joint.{m}").T, found, to_input=False)
+                           self._matmul(gz, self.encoder_weight(f"joint.{m}").T), found, to_input=False)
             encoder_grads.update(zip(reversed(names), found, strict=True))
             for name, g in encoder_grads.items():
                 if self.encoder == "learned":

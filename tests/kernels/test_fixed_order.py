@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vitaplace.engine.network.fixed_order import FixedOrderBackend, gram, rounded_step, spd_inverse
+from vitaplace.engine.network.fixed_order import FixedOrderBackend, gram, matmul, rounded_step, spd_inverse
 from vitaplace.engine.network.selection import get_backend
 from vitaplace.engine.network.solver import curvature_preconditioners, curvature_steps
 
@@ -44,6 +44,15 @@ def test_spd_inverse_inverts_and_is_exactly_symmetric(seed):
 def test_spd_inverse_refuses_a_matrix_that_is_not_positive_definite():
     with pytest.raises(ValueError, match="pivot 1 is -1"):
         spd_inverse(np.array([[1.0, 1.0], [1.0, 0.0]]))  # eigenvalues (1 +- sqrt 5) / 2: one negative
+
+
+def test_matmul_is_the_product_of_matrices_and_reads_transposed_views():
+    """Small integers: every product and partial sum exact in float32, so any order gives it."""
+    a = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], dtype=np.float32)
+    b = np.array([[7.0, 8.0], [9.0, 10.0], [11.0, 12.0]], dtype=np.float32)
+    np.testing.assert_array_equal(matmul(a, b), np.array([[58.0, 64.0], [139.0, 154.0]]))
+    np.testing.assert_array_equal(matmul(b.T, a.T), np.array([[58.0, 139.0], [64.0, 154.0]]))
+    assert matmul(a, b).dtype == np.float32
 
 
 def test_gram_is_w_times_its_transpose():
@@ -132,6 +141,26 @@ TRAINING = textwrap.dedent("""
 """)
 
 
+#: one training of the backprop control (Adam, 4 epochs of 200 samples, the learned encoder)
+#: on `NETWORK`'s sizes in a process of its own, printing a digest of its weights
+AUTOENCODER_TRAINING = textwrap.dedent("""
+    import hashlib, json, sys
+    import numpy as np
+    from vitaplace.plugins.autoencoder.model import Autoencoder, TrainingSettings, train
+    network, backend = json.loads(sys.argv[1]), sys.argv[2]
+    sizes = {m: [spec["input_size"], *spec["layers"]] for m, spec in network["modalities"].items()}
+    rng = np.random.default_rng(7)
+    x = {m: rng.random((200, s[0]), dtype=np.float32) for m, s in sizes.items()}
+    model = Autoencoder(sizes, network["joint"]["size"], activation="leaky_relu", slope=0.1, encoder="learned",
+                        seed=3, fixed_order=backend == "fixed")
+    train(model, x, TrainingSettings(4, 50, 1e-3, "adam", 0, 0, 0.01))
+    digest = hashlib.sha256()
+    for name, w in sorted(model.weights.items()):
+        digest.update(np.ascontiguousarray(w).tobytes())
+    print(digest.hexdigest())
+""")
+
+
 #: the preconditioners of a wider network (visual 400 -> 256 -> joint 128), in float64, printed
 #: as one digest computed through LAPACK and one in fixed order
 PRECONDITIONERS = textwrap.dedent("""
@@ -192,3 +221,12 @@ def test_a_training_on_the_fixed_backend_is_the_same_under_two_blas_kernels():
     assert numpy_runs["Haswell"] != numpy_runs["Sandybridge"]  # the kernels round this workload differently
     fixed_runs = {kernel: digest("fixed", kernel) for kernel in ("Haswell", "Sandybridge")}
     assert fixed_runs["Haswell"] == fixed_runs["Sandybridge"]
+
+
+@pytest.mark.skipif(not _openblas_kernels_switchable(), reason="needs numpy's OpenBLAS on x86-64")
+def test_the_backprop_control_on_the_fixed_backend_is_the_same_under_two_blas_kernels():
+    """The autoencoder A (``backend: fixed``): its products of matrices in numpy's loops."""
+    runs = {(backend, kernel): _under_kernel(kernel, AUTOENCODER_TRAINING, backend)
+            for backend in ("numpy", "fixed") for kernel in ("Haswell", "Sandybridge")}
+    assert runs[("numpy", "Haswell")] != runs[("numpy", "Sandybridge")]
+    assert runs[("fixed", "Haswell")] == runs[("fixed", "Sandybridge")]

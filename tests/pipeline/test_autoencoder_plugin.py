@@ -133,6 +133,29 @@ def test_training_lowers_the_reconstruction_error_and_the_code_finds_the_place(a
     assert same_place.mean() >= 0.9  # chance: 1 in 8
 
 
+def test_the_fixed_backend_multiplies_in_numpys_loops_after_fit_and_load(autoencoder_class, tmp_path):
+    """``backend: fixed`` (the same bits under any BLAS kernel: tests/kernels/test_fixed_order.py)
+    trains and encodes with the fixed-order product, also once saved and loaded, and learns
+    what the BLAS product learns up to float32 rounding."""
+    from vitaplace.engine.network.fixed_order import matmul
+
+    train_run, test_run = places_run(1), places_run(2, repeats=2)
+    fitted = {}
+    for backend in ("numpy", "fixed"):
+        extractor = autoencoder_class({**PARAMS, "epochs": 5, "backend": backend})
+        extractor.progress = False
+        extractor.fit(train_run)
+        fitted[backend] = extractor
+    assert fitted["fixed"].model._matmul is matmul and fitted["numpy"].model._matmul is np.matmul
+    fitted["fixed"].save_state(tmp_path)
+    loaded = autoencoder_class({**PARAMS, "epochs": 5, "backend": "fixed"})
+    loaded.load_state(tmp_path)
+    assert loaded.model._matmul is matmul
+    codes = {name: e.transform(test_run)["latent"] for name, e in {**fitted, "loaded": loaded}.items()}
+    np.testing.assert_array_equal(codes["loaded"], codes["fixed"])
+    np.testing.assert_allclose(codes["fixed"], codes["numpy"], rtol=1e-3, atol=1e-4)
+
+
 def test_training_stops_once_converged(autoencoder_class):
     extractor = autoencoder_class({**PARAMS, "epochs": 200, "converge_window": 5, "converge_tol": 0.5})
     extractor.progress = False
