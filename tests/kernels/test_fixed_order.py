@@ -161,6 +161,20 @@ AUTOENCODER_TRAINING = textwrap.dedent("""
 """)
 
 
+#: VLAD's vocabulary of 20,000 integer-valued descriptors (as SIFT's are) in a process of its
+#: own: k-means in float32 (its labels' digest) and through `vocabulary` (float64, its centres)
+VOCABULARY = textwrap.dedent("""
+    import hashlib, json
+    import numpy as np
+    from sklearn.cluster import KMeans
+    from vitaplace.plugins.vlad.extractor import vocabulary
+    x = np.random.default_rng(11).integers(0, 256, (20000, 128)).astype(np.float32)
+    labels = KMeans(n_clusters=64, n_init=1, random_state=0).fit(x).labels_
+    print(json.dumps({"float32": hashlib.sha256(labels.tobytes()).hexdigest(),
+                      "centres": vocabulary(x, 64, 0).tolist()}))
+""")
+
+
 #: the preconditioners of a wider network (visual 400 -> 256 -> joint 128), in float64, printed
 #: as one digest computed through LAPACK and one in fixed order
 PRECONDITIONERS = textwrap.dedent("""
@@ -194,9 +208,11 @@ def _openblas_kernels_switchable() -> bool:
             and any(lib.get("library") == "openblas" for lib in blas_libraries()))
 
 
-def _under_kernel(kernel: str, script: str, *args: str) -> str:
-    """What ``script`` prints (given `NETWORK` and ``args``) in a process under OpenBLAS kernel ``kernel``."""
-    env = {**os.environ, "OPENBLAS_CORETYPE": kernel, "OPENBLAS_NUM_THREADS": "1", "VITAPLACE_BLAS_THREADS": "1"}
+def _under_kernel(kernel: str, script: str, *args: str, threads: int = 1) -> str:
+    """What ``script`` prints (given `NETWORK` and ``args``) in a process under OpenBLAS kernel
+    ``kernel`` with ``threads`` BLAS and OpenMP threads."""
+    env = {**os.environ, "OPENBLAS_CORETYPE": kernel, **dict.fromkeys(
+        ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "VITAPLACE_BLAS_THREADS"), str(threads))}
     done = subprocess.run([sys.executable, "-c", script, json.dumps(NETWORK), *args], env=env, capture_output=True,
                           text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -230,3 +246,14 @@ def test_the_backprop_control_on_the_fixed_backend_is_the_same_under_two_blas_ke
             for backend in ("numpy", "fixed") for kernel in ("Haswell", "Sandybridge")}
     assert runs[("numpy", "Haswell")] != runs[("numpy", "Sandybridge")]
     assert runs[("fixed", "Haswell")] == runs[("fixed", "Sandybridge")]
+
+
+
+@pytest.mark.skipif(not _openblas_kernels_switchable(), reason="needs numpy's OpenBLAS on x86-64")
+def test_vlads_vocabulary_is_the_same_under_two_blas_kernels_and_thread_counts():
+    """k-means in float32 ends elsewhere under Haswell on one thread than under Sandybridge on
+    two; VLAD's vocabulary (float64) keeps every centre to 1e-12."""
+    haswell, sandy = (json.loads(_under_kernel(kernel, VOCABULARY, threads=threads))
+                      for kernel, threads in (("Haswell", 1), ("Sandybridge", 2)))
+    assert haswell["float32"] != sandy["float32"]
+    np.testing.assert_allclose(np.array(sandy["centres"]), np.array(haswell["centres"]), rtol=1e-12, atol=1e-10)
