@@ -41,9 +41,11 @@ PR_STYLES = ("-", "--", ":", "-.")
 #: the widest and the thinnest PR curve, in points, however many curves a figure holds
 PR_LINEWIDTHS = (3.0, 1.0)
 #: a PR figure's axes (width, height) in inches; its legend of one line per curve sits to the
-#: right of them, and the figure grows downwards with the legend's lines
+#: right of them, the figure as wide as its longest line needs (a handle, then characters of
+#: the legend's small font) and as tall as its lines need
 PR_AXES_SIZE = (5.5, 4.5)
-PR_LEGEND_WIDTH = 5.0
+PR_LEGEND_HANDLE = 1.0
+PR_LEGEND_CHARACTER = 0.07
 PR_LEGEND_LINE = 0.19
 #: what the lines and bands of `plot_pr_bands` show (written into the figure)
 #: the formats a figure is saved in unless told (a run's report: `ReportSettings.pdf`)
@@ -152,27 +154,30 @@ def plot_pr_curves(out_stem: str | os.PathLike, curves: Mapping[str, PRCurve], t
     """Precision-recall curve per method with the max-F1 point marked; the legend gives max F1
     and AUC.  Drawn step-wise in threshold order so that the area under the drawn curve is the
     AUC (step-wise average precision)."""
-    fig = _pr_figure(len(curves))
+    labels = [f"{name} (max F1={curve.max_f1:.3f}, AUC={curve.auc:.3f})" for name, curve in curves.items()]
+    legend_title = "AUC: step-wise average precision"
+    fig = _pr_figure(labels, legend_title)
     ax = fig.subplots()
-    for i, (name, curve) in enumerate(curves.items()):
+    for i, (label, curve) in enumerate(zip(labels, curves.values(), strict=True)):
         colour = f"C{i % 10}"
         order = np.argsort(curve.deltas, kind="stable")
         ax.plot(curve.recall[order], curve.precision[order], drawstyle="steps-pre", color=colour,
-                label=f"{name} (max F1={curve.max_f1:.3f}, AUC={curve.auc:.3f})", **_pr_style(i, len(curves)))
+                label=label, **_pr_style(i, len(curves)))
         k = curve.index_at_max_f1
         ax.plot([curve.recall[k]], [curve.precision[k]], marker="*", markersize=12, color=colour,
                 markeredgecolor="black", linestyle="", zorder=10 + i)
-    _finish_pr_axes(fig, ax, "precision", len(curves), title or "Precision-recall (★ = max F1)",
-                    "AUC: step-wise average precision")
+    _finish_pr_axes(fig, ax, "precision", len(curves), title or "Precision-recall (★ = max F1)", legend_title)
     return _save(fig, out_stem, formats)
 
 
-def _pr_figure(legend_lines: int) -> Figure:
-    """A figure for PR curves whose legend has ``legend_lines`` lines: `PR_AXES_SIZE` for the
-    axes, room to their right for the legend, as tall as the longer of the two (a legend
-    taller than the figure would leave the axes no height, and constrained layout then gives up)."""
+def _pr_figure(labels: Sequence[str], legend_title: str) -> Figure:
+    """A figure for PR curves with a legend of ``labels`` under ``legend_title``: `PR_AXES_SIZE`
+    for the axes and room to their right for the legend, as tall as the taller of the two (a
+    legend taller than the figure would be cut off)."""
     width, height = PR_AXES_SIZE
-    return _new_figure((width + PR_LEGEND_WIDTH, max(height + 1.0, 1.0 + PR_LEGEND_LINE * (legend_lines + 2))))
+    lines = [*legend_title.splitlines(), *labels]
+    legend_width = PR_LEGEND_HANDLE + PR_LEGEND_CHARACTER * max(len(line) for line in lines)
+    return _new_figure((width + legend_width, max(height + 1.0, 1.0 + PR_LEGEND_LINE * (len(lines) + 1))))
 
 
 def _pr_style(i: int, n_curves: int) -> dict:
@@ -213,15 +218,15 @@ def plot_pr_bands(out_stem: str | os.PathLike, curves: Mapping[str, Sequence[PRC
     from the lowest to the highest seed (the figure says so, whatever the title); the legend
     gives the seeds and max F1 mean +- std."""
     grid = np.linspace(0.0, 1.0, 201)
-    fig = _pr_figure(len(curves) + 2)  # the legend's title has two lines
+    f1 = {name: np.array([c.max_f1 for c in seeds]) for name, seeds in curves.items()}
+    labels = [f"{name} ({len(f)} seeds, max F1 {f.mean():.3f}{f' ± {f.std(ddof=1):.3f}' if len(f) > 1 else ''})"
+              for name, f in f1.items()]
+    fig = _pr_figure(labels, BAND_NOTE)
     ax = fig.subplots()
-    for i, (name, seeds) in enumerate(curves.items()):
+    for i, (label, seeds) in enumerate(zip(labels, curves.values(), strict=True)):
         colour = f"C{i % 10}"
         prec = np.array([interpolated_precision(c, grid) for c in seeds])
-        f1 = np.array([c.max_f1 for c in seeds])
-        spread = f" ± {f1.std(ddof=1):.3f}" if len(f1) > 1 else ""
-        ax.plot(grid, prec.mean(axis=0), color=colour,
-                label=f"{name} ({len(seeds)} seeds, max F1 {f1.mean():.3f}{spread})", **_pr_style(i, len(curves)))
+        ax.plot(grid, prec.mean(axis=0), color=colour, label=label, **_pr_style(i, len(curves)))
         ax.fill_between(grid, prec.min(axis=0), prec.max(axis=0), color=colour, alpha=0.2, linewidth=0)
     _finish_pr_axes(fig, ax, "interpolated precision", len(curves), title or "Precision-recall over seeds", BAND_NOTE)
     return _save(fig, out_stem)
