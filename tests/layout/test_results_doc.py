@@ -7,7 +7,6 @@ method and condition at eight seeds, bounded intervals, the pre-registered endpo
 `vitaplace.engine.study.hypotheses` (whose rules tests/components/test_hypotheses.py checks by hand), the gates, the
 budget trend)."""
 
-import csv
 import importlib.util
 import json
 import math
@@ -720,14 +719,11 @@ def test_the_sequence_rerun_scored_the_station_arms_simulated_runs_and_networks(
 def test_the_reruns_single_point_reproduced_the_committed_one_but_vlad():
     """Its single-sample point repeats every per-seed number of the committed one for 12 of the
     14 methods and fusions; VLAD and VLAD-F differ, their max F1 in seeds 21 and 27 only."""
-    import gzip
-
     tables = tables_module()
 
     def per_seed(folder: Path) -> dict[tuple[str, ...], str]:
-        with gzip.open(folder / "sweep-seeds.csv.gz", "rt", newline="") as f:
-            return {(r["seed"], r["environment"], r["method"], r["direction"], r["metric"]): r["value"]
-                    for r in csv.DictReader(f)}
+        return {(r["seed"], r["environment"], r["method"], r["direction"], r["metric"]): r["value"]
+                for r in tables.read_csv(folder / "sweep-seeds.csv")}
 
     committed, rerun = per_seed(tables.ARMS3["station"][0]["single"]), per_seed(tables.SEQUENCE_RERUN3)
     assert committed.keys() == rerun.keys()
