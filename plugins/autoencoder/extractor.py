@@ -75,6 +75,12 @@ class AutoencoderExtractor(FeatureExtractor):
         need = inputs * params.visual_layers[0] * 4 * copies + train_samples * inputs * 4
         return need, "image_size", f"{h}x{w} images"
 
+    def _new_model(self, sizes: Mapping[str, list[int]]) -> Autoencoder:
+        """The model of these parameters with layer ``sizes`` (per modality, input first)."""
+        p = self.params
+        return Autoencoder(sizes, p.joint_size, activation=p.activation, slope=p.slope, encoder=p.encoder,
+                           seed=p.seed, fixed_order=p.backend == "fixed")
+
     def _scaled(self, raw: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         scaled = {}
         if "visual" in raw:
@@ -91,9 +97,7 @@ class AutoencoderExtractor(FeatureExtractor):
             self.tactile_range = training_range(train_run, raw["tactile"], p, self.name)
         inputs = self._scaled(raw)
         layers = {"visual": p.visual_layers, "tactile": p.tactile_layers}
-        self.model = Autoencoder({m: [x.shape[1], *layers[m]] for m, x in inputs.items()}, p.joint_size,
-                                 activation=p.activation, slope=p.slope, encoder=p.encoder, seed=p.seed,
-                                 fixed_order=p.backend == "fixed")
+        self.model = self._new_model({m: [x.shape[1], *layers[m]] for m, x in inputs.items()})
         minibatches = p.epochs * math.ceil(len(train_run) / p.batch_size)
         with tqdm(total=minibatches, desc="train", unit="batch", disable=not self.progress) as bar:
             def on_progress(epoch: int, loss: float) -> None:
@@ -135,8 +139,7 @@ class AutoencoderExtractor(FeatureExtractor):
     def load_state(self, directory: Path) -> None:
         p = self.params
         model = json.loads((directory / "model.json").read_text())
-        self.model = Autoencoder(model["sizes"], p.joint_size, activation=p.activation, slope=p.slope,
-                                 encoder=p.encoder, seed=p.seed, fixed_order=p.backend == "fixed")
+        self.model = self._new_model(model["sizes"])
         with np.load(directory / WEIGHTS_FILE) as saved:
             self.model.weights = {name: saved[name] for name in saved.files}
         self.history, self.converged = model["history"], model["converged"]
