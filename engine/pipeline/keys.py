@@ -17,7 +17,7 @@ from vitaplace.engine.sim.environment import load_environment
 
 STAGES = ("simulate", "fit", "transform", "evaluate", "report")
 #: Bump when a stage's output format or algorithm changes, to invalidate old caches.
-STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 3, "transform": 4, "evaluate": 9, "report": 14}
+STAGE_VERSION = {"simulate": SCHEMA_VERSION, "fit": 3, "transform": 4, "evaluate": 9, "report": 15}
 #: the version of a late fusion's evaluation (part of its key)
 FUSION_VERSION = 2
 
