@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from vitaplace.engine.base.errors import UserError
-from vitaplace.engine.outputs.completion import RECORD, holder, refuse_other
+from vitaplace.engine.outputs.completion import holder, refuse_other
 from vitaplace.engine.outputs.outdir import OutputDirError, claimed, refuse_foreign, writable_dir
 
 if TYPE_CHECKING:
@@ -145,7 +145,7 @@ def _report_folder(args: argparse.Namespace) -> int:
     if given:
         raise UserError(f"{' '.join(given)}: apply to a scenario; `vitaplace report {args.scenario}` rebuilds "
                         "the report of that output folder from its files as they are")
-    with claimed(Path(args.scenario), option="OUT", marks=(RECORD,)) as out:  # a sweep's seed too
+    with claimed(Path(args.scenario), option="OUT") as out:
         path, settings = rebuild_report(out)
     drawn = {"all": " and its figures", "summary": " and its summary figures", "none": ""}[settings.figures]
     print(f"wrote {path}{drawn}")

@@ -28,9 +28,9 @@ from typing import Any
 
 from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.outputs.checksum import digest
-from vitaplace.engine.outputs.outdir import OutputDirError
+from vitaplace.engine.outputs.outdir import COMPLETED, OutputDirError
 
-RECORD = "completed.json"
+RECORD = COMPLETED
 SCENARIO = "scenario.resolved.yaml"
 #: the kinds of finished output a folder can hold, as a refusal names them
 KINDS = {

@@ -126,6 +126,9 @@ class OutputLock:
 #       seed-S/environments/ (the environment files the seed's scenario names)
 
 MANIFEST = "manifest.json"
+#: the completion record a command writes last into a folder it finished
+#: (`vitaplace.engine.outputs.completion`)
+COMPLETED = "completed.json"
 RESULTS_JSON = "results.json"
 RESULTS_CSV = "results.csv"
 #: per evaluation, direction and vision-only / touch-only pair: what touch rescues
@@ -209,18 +212,18 @@ def refuse_foreign(out: Path, marks: Sequence[str] = (), option: str = "--out") 
 
 @contextmanager
 def claimed(out: Path, before_cleaning: Callable[[Path], None] | None = None,
-            option: str = "--out", marks: Sequence[str] = ()) -> Iterator[Path]:
+            option: str = "--out") -> Iterator[Path]:
     """``with claimed(out) as out:`` - the one way a command or the Python API takes an output
     folder: ``out`` made a writable directory (`writable_dir`), held by this process
     (`OutputLock`, else OutputDirError), then ``before_cleaning(out)`` if given (the command
     line's log file) and what interrupted writes left removed, each logged. A folder that
     holds files but neither `LOCK_NAME` (which every claim leaves) nor a stage cache (one
-    copied in to be reused) nor one of ``marks`` (e.g. the completion record of a sweep's seed
-    folder, which the sweep wrote under its own claim) is no folder of vitaplace's: refused
+    copied in to be reused) nor `COMPLETED` (a finished folder written under another's claim,
+    e.g. a sweep's seed folder under the sweep's) is no folder of vitaplace's: refused
     untouched, since a run prunes the result folders it finds there. Errors name the folder as
     ``option`` (the API: ``out``)."""
     out = Path(out)
-    refuse_foreign(out, (*(f"cache/{stage}" for stage in ("datasets", "models", "features")), *marks), option)
+    refuse_foreign(out, (*(f"cache/{stage}" for stage in ("datasets", "models", "features")), COMPLETED), option)
     out = writable_dir(out, option)
     with OutputLock(out, option):
         if before_cleaning is not None:
