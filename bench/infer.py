@@ -24,6 +24,9 @@ in the same rounds:
   priors of ``--prior`` only: without 0 there, the paper's row is timed (it is the baseline)
   and its settled share is "n/a" (0 % on the quickstart, docs/MUPNET.md).
 
+BLAS threads as vitaplace's own commands set them: one, unless ``VITAPLACE_BLAS_THREADS`` asks
+for more (the header line prints the count).
+
 The target of issue 30: >= 95 % settled at <= 1/3 of the wall time of ``gd`` with 300 steps.
 
     python bench/infer.py --model DIR/cache/models/L-... --run DIR/cache/datasets/E1-query-....h5
@@ -47,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from infer_diagnose import add_network_arguments, load, relative_distance
+from vitaplace.engine.base.cpus import configure_blas_threads
 from vitaplace.engine.network.backends import NumpyBackend
 from vitaplace.engine.network.pc import Network
 from vitaplace.engine.network.solver import Solver, make_solver
@@ -129,6 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not args.model and not (args.paper_shape and args.train):
         ap.error("give --model, or --paper-shape with --train")
+    threads = configure_blas_threads()
 
     net, inputs, label = load(args)
     n = len(next(iter(inputs.values())))
@@ -187,8 +192,8 @@ def main(argv: list[str] | None = None) -> int:
             "distance_median": float(np.median(dist)),
         })
     print(f"{label}: {n} samples, numpy backend, {platform.processor() or platform.machine()}, "
-          f"median of {args.repeat} interleaved rounds; x gd300: the median of the per-round paired ratios "
-          "(their range)")
+          f"{threads} BLAS thread{'s' if threads > 1 else ''}, median of {args.repeat} interleaved rounds; "
+          "x gd300: the median of the per-round paired ratios (their range)")
     print(f"{'setting':<34} {'wall s':>7} {'cpu s':>7} {'x gd300':>7} {'range':>11} {'steps med/max':>13} "
           f"{'sample-steps/s':>14} {'x raw GEMMs':>11} {'settled %':>9} {'dist med':>9}")
     for row in rows:
@@ -200,7 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     print("target (>= 95 % settled at <= 1/3 of gd300's wall, median paired ratio):",
           ", ".join(met) if met else "not met")
     if args.json:
-        payload = {"label": label, "samples": n, "rows": rows, "gemm_seconds_per_step": gemm_step,
+        payload = {"label": label, "samples": n, "blas_threads": threads, "rows": rows,
+                   "gemm_seconds_per_step": gemm_step,
                    "reference": {f"{solver}, prior {p:g}": {"steps_median": float(np.median(r.steps_per_sample)),
                                                             "stopped_share": float(r.settled.mean())}
                                  for (solver, p), r in refs.items()}}
