@@ -83,8 +83,8 @@ def reseal(folder: Path) -> None:
     produced the damaged files (a buggy plugin, a bad disk), so the row checks must catch them."""
     import json
 
-    from vitaplace.engine.outputs import completion
-    files = json.loads((folder / completion.RECORD).read_text())["files"]
+    from vitaplace.engine.outputs import completion, outdir
+    files = json.loads((folder / outdir.COMPLETED).read_text())["files"]
     completion.write(folder, [folder / name for name in files])
 
 

@@ -2153,7 +2153,7 @@ MUTANTS = [
       'resolved.items() if k != "seed"', 'resolved.items() if k != "name"',
       *t("sweep", "test_aggregate_reproduces_the_sweep_summary")),
     m("aggregate: unfinished runs not recognised", "aggregate",
-      "REQUIRED = (completion.RECORD, MANIFEST, RESULTS_JSON, completion.SCENARIO)",
+      "REQUIRED = (COMPLETED, MANIFEST, RESULTS_JSON, completion.SCENARIO)",
       "REQUIRED = (completion.SCENARIO,)",
       *t("sweep", "test_aggregate_refuses_other_scenarios_and_unfinished_runs")),
     m("aggregate: a seed given twice accepted", "aggregate", "        if run.seed in seen:", "        if False:",

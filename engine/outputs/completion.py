@@ -30,7 +30,6 @@ from vitaplace.engine.base.atomic import write_text_atomic
 from vitaplace.engine.outputs.checksum import digest
 from vitaplace.engine.outputs.outdir import COMPLETED, OutputDirError
 
-RECORD = COMPLETED
 SCENARIO = "scenario.resolved.yaml"
 #: the kinds of finished output a folder can hold, as a refusal names them
 KINDS = {
@@ -44,7 +43,7 @@ SUMMARIES = ("sweep.json", "grid.json")
 
 def clear(out: Path) -> None:
     """Remove the record of an earlier run: from now on the folder is not finished."""
-    (Path(out) / RECORD).unlink(missing_ok=True)
+    (Path(out) / COMPLETED).unlink(missing_ok=True)
 
 
 def write(out: Path, files: Iterable[Path], command: str = "run") -> None:
@@ -56,7 +55,7 @@ def write(out: Path, files: Iterable[Path], command: str = "run") -> None:
         "command": command,
         "files": digests(out, files),
     }
-    write_text_atomic(out / RECORD, json.dumps(record, indent=2))
+    write_text_atomic(out / COMPLETED, json.dumps(record, indent=2))
 
 
 def digests(out: Path, files: Iterable[Path]) -> dict[str, str]:
@@ -68,23 +67,23 @@ def problem(folder: Path, reads: Iterable[str]) -> str | None:
     """None when ``folder`` holds a finished run's record that matches its resolved scenario
     and each of ``reads`` (paths relative to the folder); else what is wrong, in words."""
     folder = Path(folder)
-    path = folder / RECORD
+    path = folder / COMPLETED
     if not path.is_file():
-        return f"no {RECORD}: its run did not finish (or a later run into it was interrupted)"
+        return f"no {COMPLETED}: its run did not finish (or a later run into it was interrupted)"
     try:
         record = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, ValueError) as exc:
-        return f"{RECORD} is unreadable ({type(exc).__name__})"
+        return f"{COMPLETED} is unreadable ({type(exc).__name__})"
     files = record.get("files") if isinstance(record, dict) else None
     if not isinstance(files, dict) or not isinstance(record.get("scenario"), str):
-        return f"{RECORD} is not a vitaplace completion record"
+        return f"{COMPLETED} is not a vitaplace completion record"
     if _digest(folder / SCENARIO) != record["scenario"]:
-        return f"{SCENARIO} is not the scenario its finished run recorded in {RECORD} (a later run changed it?)"
+        return f"{SCENARIO} is not the scenario its finished run recorded in {COMPLETED} (a later run changed it?)"
     for name in reads:
         if name not in files:
-            return f"{name} is not among the files its finished run recorded in {RECORD}"
+            return f"{name} is not among the files its finished run recorded in {COMPLETED}"
         if _digest(folder / name) != files[name]:
-            return f"{name} is not the file its finished run recorded in {RECORD} (changed or damaged since)"
+            return f"{name} is not the file its finished run recorded in {COMPLETED} (changed or damaged since)"
     return None
 
 
@@ -123,7 +122,7 @@ def refuse_other(folder: Path, kind: str, option: str = "--out") -> None:
 def _read_record(folder: Path) -> dict[str, Any]:
     """``folder``'s completion record as read, or an empty one when it has none readable."""
     try:
-        record = json.loads((Path(folder) / RECORD).read_text())
+        record = json.loads((Path(folder) / COMPLETED).read_text())
     except (OSError, UnicodeDecodeError, ValueError):
         return {}
     return record if isinstance(record, dict) else {}

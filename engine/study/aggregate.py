@@ -27,12 +27,12 @@ from vitaplace.engine.config.scenario import RENAMED_KEYS
 from vitaplace.engine.evaluation.pairfiles import load_curve
 from vitaplace.engine.outputs import completion
 from vitaplace.engine.outputs.keys import content_hash
-from vitaplace.engine.outputs.outdir import MANIFEST, MATRICES, RESULTS_JSON, writable_dir
+from vitaplace.engine.outputs.outdir import COMPLETED, MANIFEST, MATRICES, RESULTS_JSON, writable_dir
 from vitaplace.engine.outputs.rows import ResultRow, parse_row
 from vitaplace.engine.report.figures import write_pr_bands
 from vitaplace.engine.study.summary import write_summary
 
-REQUIRED = (completion.RECORD, MANIFEST, RESULTS_JSON, completion.SCENARIO)
+REQUIRED = (COMPLETED, MANIFEST, RESULTS_JSON, completion.SCENARIO)
 
 
 class AggregateError(UserError):

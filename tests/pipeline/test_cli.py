@@ -869,7 +869,7 @@ def test_until_runs_the_stages_up_to_and_including_the_one_named(tmp_path):
     """``until="fit"``: the runs are simulated and the method fitted, nothing transformed or
     evaluated; the completion record covers the manifest alone (no results, no report)."""
     from vitaplace.engine.config.loading import load_scenario
-    from vitaplace.engine.outputs import completion
+    from vitaplace.engine.outputs import outdir
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.store import Store
 
@@ -880,7 +880,7 @@ def test_until_runs_the_stages_up_to_and_including_the_one_named(tmp_path):
     assert {(r["stage"], r["item"]) for r in manifest["stages"]} == {
         ("simulate", "train"), ("simulate", "E1/query"), ("simulate", "E1/reference"), ("fit", "H")}
     assert "features" not in manifest
-    assert list(json.loads((tmp_path / completion.RECORD).read_text())["files"]) == ["manifest.json"]
+    assert list(json.loads((tmp_path / outdir.COMPLETED).read_text())["files"]) == ["manifest.json"]
 
 
 # --------------------------------------------------------------------------- CLI habits

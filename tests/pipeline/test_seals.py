@@ -8,7 +8,7 @@ import hashlib
 import json
 
 from vitaplace.engine.outputs import checksum, completion
-from vitaplace.engine.outputs.outdir import LOCK_NAME, remove_stale_temporaries
+from vitaplace.engine.outputs.outdir import COMPLETED, LOCK_NAME, remove_stale_temporaries
 
 
 def test_digest_of_a_folder_is_that_of_its_names_and_contents_in_order(tmp_path):
@@ -41,7 +41,7 @@ def test_a_completion_record_notices_a_changed_file_and_scenario(tmp_path):
     (tmp_path / completion.SCENARIO).write_text("name: x\n")
     (tmp_path / "results.json").write_text("[]")
     completion.write(tmp_path, [tmp_path / "results.json"])
-    record = json.loads((tmp_path / completion.RECORD).read_text())
+    record = json.loads((tmp_path / COMPLETED).read_text())
     assert record["files"] == {"results.json": hashlib.sha256(b"[]").hexdigest()}
     assert completion.problem(tmp_path, ["results.json"]) is None
     assert "not among the files" in completion.problem(tmp_path, ["manifest.json"])

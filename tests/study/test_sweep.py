@@ -652,7 +652,7 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     the results (`orchestrate.unfinish`; killed before, the folder is left finished as it was):
     the folder holds the old results beside the new resolved scenario, and no completion record."""
     from vitaplace.engine.config.scenario import Scenario
-    from vitaplace.engine.outputs import completion
+    from vitaplace.engine.outputs import outdir
     from vitaplace.engine.pipeline import orchestrate
     from vitaplace.engine.pipeline.orchestrate import run_stages
     from vitaplace.engine.pipeline.store import Store
@@ -660,7 +660,7 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     out, _ = local_sweep
     folder = tmp_path / "seed-2"
     shutil.copytree(out / "seed-2", folder)
-    record = (folder / completion.RECORD).read_text()
+    record = (folder / outdir.COMPLETED).read_text()
     resolved = yaml.safe_load((folder / "scenario.resolved.yaml").read_text())
     resolved["scoring"]["tau"] = 0.4
 
@@ -675,9 +675,9 @@ def test_aggregate_refuses_a_folder_whose_rerun_was_killed(local_sweep, tmp_path
     summary = tmp_path / "summary"
     assert main(["aggregate", str(out / "seed-0"), str(folder), "--out", str(summary)]) == 2
     line = capsys.readouterr().err.strip()
-    assert line == f"vitaplace: error: {folder}: incomplete run folder (no {completion.RECORD}); did its run finish?"
+    assert line == f"vitaplace: error: {folder}: incomplete run folder (no {outdir.COMPLETED}); did its run finish?"
     # even with the old record put back, it does not match the new resolved scenario
-    (folder / completion.RECORD).write_text(record)
+    (folder / outdir.COMPLETED).write_text(record)
     assert main(["aggregate", str(out / "seed-0"), str(folder), "--out", str(summary)]) == 2
     assert "scenario.resolved.yaml is not the scenario its finished run recorded" in capsys.readouterr().err
     assert not summary.exists()
